@@ -1,0 +1,464 @@
+"""Driver of the HY9648 panel indicator (and comparable RS-485 meters) over Modbus RTU.
+
+Transport: pymodbus' :class:`~pymodbus.client.AsyncModbusSerialClient` over pyserial, so the
+``port`` may be ``/dev/ttyUSB0``, a pseudo-terminal, or ``socket://host:port`` (RTU over TCP).
+``kind = "modbus-tcp"`` uses :class:`~pymodbus.client.AsyncModbusTcpClient` instead (MBAP).
+
+Everything device-specific is configuration (:class:`RegisterMap`), with the defaults of the
+design note ``hardware-protocols.md`` §1: value int32 at 0x0000 (ABCD), decimals at 0x0002,
+status bits at 0x0007, command register 0x0010 (1 = zero).
+
+Guarantees
+----------
+* :meth:`ModbusIndicator.read` returns a value only from a complete frame whose CRC, device id,
+  function and byte count were checked, decoded from a single block read (value, decimals and
+  status come from the same frame).
+* After a failed attempt the driver waits until the line has been quiet for ``quiet_s`` and
+  drops any bytes received meanwhile, so a late reply is not taken as the answer to the next
+  request. Modbus RTU has no transaction id: a slave that answers later than
+  ``timeout_s + quiet_s`` cannot be told apart from a timely one; keep ``timeout_s`` above the
+  meter's worst-case reply time.
+* Failures raise typed :class:`~drivers.errors.IndicatorError` subclasses carrying the last
+  frames in hex. A lost port is reopened on the next call, with exponential back-off between
+  ``reconnect_min_s`` and ``reconnect_max_s``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+from pymodbus.framer import FramerType
+
+from drivers.errors import (
+    IndicatorCRCError,
+    IndicatorLinkDown,
+    IndicatorNoReply,
+    IndicatorOverRange,
+    IndicatorProtocolError,
+    IndicatorTimeout,
+)
+from drivers.frames import FrameLog, crc_ok, words_to_int32
+
+#: Largest register count of one FC03/FC04 request.
+MAX_READ_COUNT = 125
+
+
+class RegisterMap(BaseModel):
+    """Where the indicator keeps its values. Defaults: the design note's map.
+
+    Addresses are 0-based protocol addresses (``0x0000`` is holding register 40001).
+    ``None`` means the meter has no such register.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    value_address: Annotated[int, Field(ge=0, le=0xFFFE)] = 0x0000
+    word_order: Literal["ABCD", "CDAB"] = "ABCD"
+    decimals_address: Annotated[int | None, Field(ge=0, le=0xFFFF)] = 0x0002
+    raw_count_address: Annotated[int | None, Field(ge=0, le=0xFFFE)] = 0x0003
+    magnification_address: Annotated[int | None, Field(ge=0, le=0xFFFE)] = 0x0005
+    status_address: Annotated[int | None, Field(ge=0, le=0xFFFF)] = 0x0007
+    preset_address: Annotated[int | None, Field(ge=0, le=0xFFFE)] = 0x0008
+    command_address: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0010
+    zero_command: Annotated[int, Field(ge=0, le=0xFFFF)] = 1
+    preset_command: Annotated[int, Field(ge=0, le=0xFFFF)] = 2
+    zero_coil_address: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0000
+    slave_address_register: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0020
+    baud_code_register: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0021
+    read_function: Literal[3, 4] = 3
+    over_range_bit: Annotated[int, Field(ge=0, le=15)] = 0
+    under_range_bit: Annotated[int, Field(ge=0, le=15)] = 1
+    moving_bit: Annotated[int, Field(ge=0, le=15)] = 2
+
+    def read_block(self, with_decimals: bool) -> tuple[int, int]:
+        """``(start, count)`` of the single read covering value, decimals and status."""
+        spans = [(self.value_address, 2)]
+        if with_decimals and self.decimals_address is not None:
+            spans.append((self.decimals_address, 1))
+        if self.status_address is not None:
+            spans.append((self.status_address, 1))
+        start = min(a for a, _ in spans)
+        end = max(a + n for a, n in spans)
+        return start, end - start
+
+
+class IndicatorConfig(BaseModel):
+    """Configuration of a Modbus indicator.
+
+    Attributes
+    ----------
+    kind : {"modbus-rtu", "modbus-tcp"}
+        ``modbus-rtu``: RTU frames over ``port`` (serial device, pty, or ``socket://h:p``).
+        ``modbus-tcp``: MBAP frames to ``host:tcp_port``.
+    decimals : int or None
+        Fixed decimal places; ``None`` reads them from ``registers.decimals_address``.
+    zero_strategy : {"command", "write_zero", "coil", "none"}
+        How :meth:`ModbusIndicator.zero` zeroes the meter (design note §1).
+    timeout_s : float
+        Per-attempt reply timeout.
+    retries : int
+        Extra attempts per :meth:`~ModbusIndicator.read` after a timeout or CRC error.
+    quiet_s : float or None
+        After a failed attempt, wait until no byte arrived for this long; default ``timeout_s``.
+    over_range_policy : {"raise", "flag"}
+        ``raise``: an over/under-range status raises :class:`IndicatorOverRange`;
+        ``flag``: the reading is returned with ``over_range=True``.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["modbus-rtu", "modbus-tcp"] = "modbus-rtu"
+    name: str = "indicator"
+    port: str = "/dev/ttyUSB0"
+    host: str = "127.0.0.1"
+    tcp_port: Annotated[int, Field(ge=1, le=65535)] = 502
+    baud: Annotated[int, Field(ge=300, le=921600)] = 9600
+    parity: Literal["N", "E", "O"] = "N"
+    stopbits: Literal[1, 2] = 1
+    bytesize: Literal[7, 8] = 8
+    device_id: Annotated[int, Field(ge=0, le=247)] = 1
+    registers: RegisterMap = RegisterMap()
+    decimals: Annotated[int | None, Field(ge=0, le=6)] = None
+    zero_strategy: Literal["command", "write_zero", "coil", "none"] = "command"
+    timeout_s: Annotated[float, Field(gt=0)] = 0.5
+    retries: Annotated[int, Field(ge=0, le=10)] = 1
+    quiet_s: Annotated[float | None, Field(ge=0)] = None
+    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
+    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
+    over_range_policy: Literal["raise", "flag"] = "raise"
+    frame_log_size: Annotated[int, Field(ge=1)] = 16
+
+    @model_validator(mode="after")
+    def _check(self) -> IndicatorConfig:
+        if self.decimals is None and self.registers.decimals_address is None:
+            raise ValueError("decimals: required when registers.decimals_address is None")
+        _, count = self.registers.read_block(self.decimals is None)
+        if count > MAX_READ_COUNT:
+            raise ValueError(
+                f"registers: value, decimals and status span {count} registers; "
+                f"at most {MAX_READ_COUNT} fit in one read"
+            )
+        if self.reconnect_max_s < self.reconnect_min_s:
+            raise ValueError("reconnect_max_s: must be >= reconnect_min_s")
+        return self
+
+    def char_time_s(self) -> float:
+        """Time of one character on the line [s] (start + data + parity + stop bits)."""
+        bits = 1 + self.bytesize + (0 if self.parity == "N" else 1) + self.stopbits
+        return bits / self.baud
+
+
+@dataclass(frozen=True)
+class IndicatorReading:
+    """One indicator reading.
+
+    Attributes
+    ----------
+    length_mm : float
+        Displayed value / 10^decimals [mm] (relative to where the meter was zeroed).
+    counts : int
+        Raw display value.
+    decimals : int
+    status : int
+        Status register (0 when the map has none).
+    over_range, moving : bool
+        Decoded status bits (``over_range`` covers over- and under-range).
+    t_monotonic_s : float
+        :func:`time.monotonic` when the reply was complete.
+    t_wall : float
+        :func:`time.time` at the same moment (Unix seconds).
+    """
+
+    length_mm: float
+    counts: int
+    decimals: int
+    status: int
+    over_range: bool
+    moving: bool
+    t_monotonic_s: float
+    t_wall: float
+
+
+def decode_block(registers: list[int], config: IndicatorConfig, start: int) -> tuple[int, int, int]:
+    """``(counts, decimals, status)`` from the registers of one block read at ``start``.
+
+    Raises
+    ------
+    ValueError
+        Decimals register out of 0..6.
+    """
+    regmap = config.registers
+    off = regmap.value_address - start
+    counts = words_to_int32(registers[off : off + 2], regmap.word_order)
+    if config.decimals is not None:
+        decimals = config.decimals
+    else:
+        assert regmap.decimals_address is not None  # checked by IndicatorConfig
+        decimals = registers[regmap.decimals_address - start]
+        if decimals > 6:
+            raise ValueError(f"decimals register reads {decimals}, expected 0..6")
+    status = 0 if regmap.status_address is None else registers[regmap.status_address - start]
+    return counts, decimals, status
+
+
+class ModbusIndicator:
+    """Asyncio driver of a Modbus indicator. Not safe for concurrent calls from several
+    tasks; the daemon's sampler owns it.
+
+    Parameters
+    ----------
+    config : IndicatorConfig
+    """
+
+    def __init__(self, config: IndicatorConfig) -> None:
+        self.config = config
+        self.name = config.name
+        self.frames = FrameLog(config.frame_log_size)
+        self._client: AsyncModbusSerialClient | AsyncModbusTcpClient | None = None
+        self._backoff_s = 0.0
+        self._next_attempt = 0.0
+        self._rx_attempt = b""
+        self._last_rx_monotonic = 0.0
+        self._lock = asyncio.Lock()
+
+    # ---------------------------------------------------------------- connection
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        if sending:
+            self.frames.add("tx", data)
+        else:
+            self._rx_attempt = data
+            self._last_rx_monotonic = time.monotonic()
+        return data
+
+    def _make_client(self) -> AsyncModbusSerialClient | AsyncModbusTcpClient:
+        cfg = self.config
+        if cfg.kind == "modbus-tcp":
+            return AsyncModbusTcpClient(
+                cfg.host,
+                port=cfg.tcp_port,
+                framer=FramerType.SOCKET,
+                timeout=cfg.timeout_s,
+                retries=0,
+                reconnect_delay=0,
+                trace_packet=self._trace_packet,
+            )
+        return AsyncModbusSerialClient(
+            cfg.port,
+            framer=FramerType.RTU,
+            baudrate=cfg.baud,
+            bytesize=cfg.bytesize,
+            parity=cfg.parity,
+            stopbits=cfg.stopbits,
+            timeout=cfg.timeout_s,
+            retries=0,
+            reconnect_delay=0,
+            trace_packet=self._trace_packet,
+        )
+
+    @property
+    def connected(self) -> bool:
+        """True while the port is open."""
+        return self._client is not None and self._client.connected
+
+    def _endpoint(self) -> str:
+        cfg = self.config
+        return f"{cfg.host}:{cfg.tcp_port}" if cfg.kind == "modbus-tcp" else cfg.port
+
+    async def connect(self) -> None:
+        """Open the port now (otherwise the first :meth:`read` does).
+
+        Raises
+        ------
+        IndicatorLinkDown
+            The port cannot be opened (the back-off delay grows).
+        """
+        async with self._lock:
+            await self._ensure_connected(force=True)
+
+    async def _ensure_connected(self, force: bool = False) -> None:
+        if self.connected:
+            return
+        now = time.monotonic()
+        if not force and now < self._next_attempt:
+            raise IndicatorLinkDown(
+                self.name,
+                f"{self._endpoint()} down; next reconnect in {self._next_attempt - now:.2f} s",
+                self.frames.snapshot(),
+            )
+        if self._client is not None:
+            self._client.close()
+        self._client = self._make_client()
+        ok = await self._client.connect()
+        if not ok or not self._client.connected:
+            self._client.close()
+            self._client = None
+            self._backoff_s = min(
+                max(2 * self._backoff_s, self.config.reconnect_min_s),
+                self.config.reconnect_max_s,
+            )
+            self._next_attempt = time.monotonic() + self._backoff_s
+            self.frames.note(f"connect {self._endpoint()} failed")
+            raise IndicatorLinkDown(
+                self.name, f"cannot open {self._endpoint()}", self.frames.snapshot()
+            )
+        self._backoff_s = 0.0
+        self.frames.note(f"connected {self._endpoint()}")
+
+    async def close(self) -> None:
+        """Close the port. A later :meth:`read` reopens it."""
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    # ---------------------------------------------------------------- requests
+    async def _quiet(self) -> None:
+        """Wait until the line has been quiet for ``quiet_s``; drop what arrived meanwhile."""
+        quiet_s = self.config.timeout_s if self.config.quiet_s is None else self.config.quiet_s
+        start = time.monotonic()
+        while True:
+            now = time.monotonic()
+            last = max(start, self._last_rx_monotonic)
+            if now - last >= quiet_s or now - start > 5 * quiet_s + 1.0:
+                break
+            await asyncio.sleep(min(0.01, quiet_s))
+        if self._client is not None:
+            self._client.ctx.recv_buffer = b""
+
+    async def _attempt(self, call: Any, expect_size: int) -> Any:
+        """One request/response; returns the pymodbus response or raises a typed error."""
+        assert self._client is not None
+        self._rx_attempt = b""
+        try:
+            response = await call()
+        except ModbusException as exc:
+            rx = self._rx_attempt
+            if rx:
+                self.frames.add("rx", rx)
+            link_lost = not self.connected
+            await self._quiet()
+            frames = self.frames.snapshot()
+            if link_lost:
+                raise IndicatorLinkDown(self.name, f"link lost: {exc}", frames) from exc
+            if not rx:
+                raise IndicatorNoReply(
+                    self.name, f"no reply within {self.config.timeout_s} s", frames
+                ) from exc
+            if (len(rx) >= expect_size and not crc_ok(rx[:expect_size])) or (
+                len(rx) == 5 and rx[1] & 0x80 and not crc_ok(rx)
+            ):
+                raise IndicatorCRCError(self.name, "CRC mismatch; reply discarded", frames) from exc
+            raise IndicatorTimeout(
+                self.name, f"incomplete reply ({len(rx)} bytes) within timeout", frames
+            ) from exc
+        self.frames.add("rx", self._rx_attempt)
+        if response.isError():
+            raise IndicatorProtocolError(
+                self.name,
+                f"Modbus exception code {getattr(response, 'exception_code', '?')}",
+                self.frames.snapshot(),
+            )
+        return response
+
+    async def _with_retries(self, call: Any, expect_size: int) -> Any:
+        await self._ensure_connected()
+        last: Exception | None = None
+        for _ in range(self.config.retries + 1):
+            if not self.connected:
+                await self._ensure_connected()
+            try:
+                return await self._attempt(call, expect_size)
+            except (IndicatorTimeout, IndicatorLinkDown) as exc:
+                last = exc
+                if isinstance(exc, IndicatorLinkDown):
+                    await self.close()
+                    self._next_attempt = time.monotonic() + self.config.reconnect_min_s
+                    self._backoff_s = self.config.reconnect_min_s
+                    raise
+        assert last is not None
+        raise last
+
+    async def read(self) -> IndicatorReading:
+        """One reading (value, decimals and status from one block read).
+
+        Raises
+        ------
+        IndicatorNoReply, IndicatorCRCError, IndicatorTimeout
+            After ``retries + 1`` failed attempts.
+        IndicatorLinkDown
+            Port closed, lost, or in reconnect back-off.
+        IndicatorProtocolError
+            Exception response or malformed content.
+        IndicatorOverRange
+            Status flags over/under-range and ``over_range_policy == "raise"``.
+        """
+        cfg = self.config
+        start, count = cfg.registers.read_block(cfg.decimals is None)
+        async with self._lock:
+
+            async def call() -> Any:
+                assert self._client is not None
+                if cfg.registers.read_function == 4:
+                    return await self._client.read_input_registers(
+                        start, count=count, device_id=cfg.device_id
+                    )
+                return await self._client.read_holding_registers(
+                    start, count=count, device_id=cfg.device_id
+                )
+
+            response = await self._with_retries(call, 5 + 2 * count)
+            t_mono, t_wall = time.monotonic(), time.time()
+            regs = list(response.registers)
+            if len(regs) != count:
+                raise IndicatorProtocolError(
+                    self.name, f"{len(regs)} registers, expected {count}", self.frames.snapshot()
+                )
+            try:
+                counts, decimals, status = decode_block(regs, cfg, start)
+            except ValueError as exc:
+                raise IndicatorProtocolError(self.name, str(exc), self.frames.snapshot()) from exc
+        regmap = cfg.registers
+        over = bool(status >> regmap.over_range_bit & 1 or status >> regmap.under_range_bit & 1)
+        if over and cfg.over_range_policy == "raise":
+            raise IndicatorOverRange(
+                self.name, f"status 0x{status:04x}: over/under-range", self.frames.snapshot()
+            )
+        return IndicatorReading(
+            length_mm=counts / 10**decimals,
+            counts=counts,
+            decimals=decimals,
+            status=status,
+            over_range=over,
+            moving=bool(status >> regmap.moving_bit & 1),
+            t_monotonic_s=t_mono,
+            t_wall=t_wall,
+        )
+
+    async def zero(self) -> None:
+        """Zero the meter with the configured strategy (no-op for ``"none"``)."""
+        cfg = self.config
+        regmap = cfg.registers
+        if cfg.zero_strategy == "none":
+            return
+        async with self._lock:
+
+            async def call() -> Any:
+                assert self._client is not None
+                if cfg.zero_strategy == "command":
+                    return await self._client.write_register(
+                        regmap.command_address, regmap.zero_command, device_id=cfg.device_id
+                    )
+                if cfg.zero_strategy == "write_zero":
+                    return await self._client.write_registers(
+                        regmap.value_address, [0, 0], device_id=cfg.device_id
+                    )
+                return await self._client.write_coil(
+                    regmap.zero_coil_address, True, device_id=cfg.device_id
+                )
+
+            await self._with_retries(call, 8)

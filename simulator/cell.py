@@ -1,0 +1,274 @@
+"""The emulated cell's ground truth: robot motion, cable length, indicator state, faults.
+
+Shape of ophyd's ``SynGauss``: the indicator's reading is computed from the emulated robot's
+current (interpolated) joint angles through :class:`calib.synthetic.TrueCell`, with seeded
+noise and quantisation to the indicator's decimals. Nothing here does I/O.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calib.kinematics import FloatArray, forward_frames
+from calib.models import RobotModel, builtin_model, parse_model_text
+from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, random_poses_deg
+from simulator.config import SimConfig
+
+#: Display limits of the 6-digit indicator (counts).
+DISPLAY_MIN, DISPLAY_MAX = -199999, 999999
+#: Sensor resolution [mm/pulse] (HY150-2000).
+MM_PER_PULSE = 0.004
+
+STATUS_OVER, STATUS_UNDER, STATUS_MOVING = 0, 1, 2
+
+
+@dataclass
+class Faults:
+    """Switchable faults (see :class:`simulator.config.FaultSection`)."""
+
+    indicator_crc_error_rate: float = 0.0
+    indicator_drop_rate: float = 0.0
+    indicator_reply_delay_s: float = 0.0
+    over_range: bool = False
+    robot_drop_rate: float = 0.0
+    robot_reply_delay_s: float = 0.0
+    robot_frozen: bool = False
+
+    def update(self, changes: dict[str, Any]) -> None:
+        """Set the given fields; unknown names raise ``ValueError``."""
+        for key, value in changes.items():
+            if not hasattr(self, key):
+                raise ValueError(f"unknown fault {key!r}; known: {sorted(asdict(self))}")
+            current = getattr(self, key)
+            setattr(self, key, bool(value) if isinstance(current, bool) else float(value))
+
+
+def load_model(name_or_path: str, base_dir: str) -> RobotModel:
+    """A built-in model by name, or a ``.toml``/``.json`` model file."""
+    if name_or_path.endswith((".toml", ".json")):
+        path = Path(base_dir) / name_or_path
+        return parse_model_text(path.read_text(encoding="utf-8"), path.suffix[1:])
+    return builtin_model(name_or_path)
+
+
+def load_poses_csv(path: Path) -> FloatArray:
+    """Joint angles [deg] from a CSV with 6 numeric columns (a header row is skipped)."""
+    rows: list[list[float]] = []
+    with path.open(newline="", encoding="utf-8") as fh:
+        for row in csv.reader(fh):
+            cells = [c.strip() for c in row if c.strip()]
+            if not cells:
+                continue
+            try:
+                values = [float(c) for c in cells[:6]]
+            except ValueError:
+                if not rows:
+                    continue  # header
+                raise
+            if len(values) != 6:
+                raise ValueError(f"{path}: expected 6 joint angles per row, got {len(values)}")
+            rows.append(values)
+    if not rows:
+        raise ValueError(f"{path}: no poses")
+    return np.array(rows, dtype=float)
+
+
+def _smoothstep(s: float) -> float:
+    """Quintic 0→1 with zero velocity and acceleration at both ends."""
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+def rpy_deg(rot: FloatArray) -> tuple[float, float, float]:
+    """Fixed-axis X-Y-Z angles (A about X, B about Y, C about Z) [deg] of a rotation matrix."""
+    b = math.asin(max(-1.0, min(1.0, -float(rot[2, 0]))))
+    a = math.atan2(float(rot[2, 1]), float(rot[2, 2]))
+    c = math.atan2(float(rot[1, 0]), float(rot[0, 0]))
+    return math.degrees(a), math.degrees(b), math.degrees(c)
+
+
+@dataclass
+class EmulatedCell:
+    """Truth and state of the emulated cell. Times are :func:`time.monotonic` seconds.
+
+    Motion: dwell ``dwell_s`` at pose 0, move to pose 1 in ``move_time_s`` (quintic profile),
+    dwell, …; after the last pose it moves back to pose 0 when ``loop``.
+    """
+
+    config: SimConfig
+    truth: TrueCell = field(init=False)
+    poses_deg: FloatArray = field(init=False)
+    faults: Faults = field(init=False)
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        model = load_model(cfg.robot.model, cfg.base_dir)
+        errors = TABLE_XII_D1 if cfg.robot.dh_errors == "table-xii-d1" else np.zeros((6, 4))
+        self.truth = make_true_cell(
+            model,
+            dh_errors_deg_mm=errors,
+            tool_error_mm=np.array(cfg.robot.tool_error_mm),
+            anchors_mm=np.array([cfg.cell.anchor_mm]),
+            offsets_mm=np.array([cfg.cell.offset_mm]),
+        )
+        rng = np.random.default_rng(cfg.seed)
+        if cfg.robot.poses == "random":
+            self.poses_deg = random_poses_deg(self.truth, cfg.robot.n_poses, rng)
+        else:
+            self.poses_deg = load_poses_csv(Path(cfg.base_dir) / cfg.robot.poses)
+        self._noise_rng = np.random.default_rng([cfg.seed, 1])
+        self.fault_rng = np.random.default_rng([cfg.seed, 2])
+        self.faults = Faults(**cfg.faults.model_dump())
+        self._t0 = time.monotonic()
+        self._held_at: float | None = None
+        self._held_total = 0.0
+        self._frozen_joints: FloatArray | None = None
+        self._tick = -1
+        self._tick_length = 0.0
+        self.decimals = cfg.indicator.decimals
+        self.preset_counts = 0
+        self.slave_address = cfg.indicator.device_id
+        self.baud_code = 0
+
+    # ------------------------------------------------------------------ motion
+    def _virtual_time(self, now: float) -> float:
+        held = self._held_total + (now - self._held_at if self._held_at is not None else 0.0)
+        return now - self._t0 - held
+
+    def hold(self, on: bool, now: float | None = None) -> None:
+        """Stop (``True``) or resume (``False``) the motion schedule."""
+        now = time.monotonic() if now is None else now
+        if on and self._held_at is None:
+            self._held_at = now
+        elif not on and self._held_at is not None:
+            self._held_total += now - self._held_at
+            self._held_at = None
+
+    def motion(self, now: float | None = None) -> tuple[FloatArray, int, bool]:
+        """``(joints_deg (6,), pose_index, moving)`` at ``now``."""
+        now = time.monotonic() if now is None else now
+        t = max(0.0, self._virtual_time(now))
+        n = self.poses_deg.shape[0]
+        dwell, move = self.config.robot.dwell_s, self.config.robot.move_time_s
+        period = dwell + move
+        k = int(t // period)
+        phase = t - k * period
+        if not self.config.robot.loop and k >= n - 1:
+            return self.poses_deg[n - 1].copy(), n - 1, False
+        i = k % n
+        if phase < dwell or n == 1:
+            return self.poses_deg[i].copy(), i, False
+        s = _smoothstep((phase - dwell) / move)
+        q = self.poses_deg[i] + s * (self.poses_deg[(i + 1) % n] - self.poses_deg[i])
+        return q, i, True
+
+    def reported_joints(self, now: float | None = None) -> FloatArray:
+        """Joint angles the emulated controller reports (stale while ``robot_frozen``)."""
+        q, _, _ = self.motion(now)
+        if self.faults.robot_frozen:
+            if self._frozen_joints is None:
+                self._frozen_joints = q
+            return self._frozen_joints.copy()
+        self._frozen_joints = None
+        return q
+
+    def tcp_pose(self, q_deg: FloatArray) -> tuple[float, ...]:
+        """True X, Y, Z [mm] of the hook point and A, B, C [deg] of the flange."""
+        dh = self.truth.model.dh_internal() + self.truth.theta[:24].reshape(6, 4)
+        rot, _ = forward_frames(dh, np.deg2rad(q_deg[None, :]), self.truth.model.convention)
+        xyz = self.truth.tool_positions_mm(q_deg)[0]
+        return (*map(float, xyz), *rpy_deg(rot[0, 6]))
+
+    # ------------------------------------------------------------------ cable
+    @property
+    def offset_mm(self) -> float:
+        return float(self.truth.theta[self.truth.layout.anchor_slice(0)][3])
+
+    @property
+    def anchor_mm(self) -> FloatArray:
+        return self.truth.theta[self.truth.layout.anchor_slice(0)][:3].copy()
+
+    def _set_offset(self, offset_mm: float) -> None:
+        theta = self.truth.theta.copy()
+        theta[self.truth.layout.anchor_slice(0).start + 3] = offset_mm
+        self.truth = TrueCell(self.truth.model, theta, self.truth.layout)
+
+    def true_length_mm(self, now: float | None = None) -> float:
+        """Noise-free cable reading of the current pose [mm]."""
+        q, _, _ = self.motion(now)
+        return float(self.truth.lengths_mm(q[None, :])[0])
+
+    def indicator_state(self, now: float | None = None) -> tuple[int, int, float]:
+        """``(counts, status, noisy_length_mm)``: the display value, sampled and held at
+        ``update_hz`` (seeded noise, rounded to the decimals), and the status bits."""
+        now = time.monotonic() if now is None else now
+        ind = self.config.indicator
+        tick = int(self._virtual_time(now) * ind.update_hz)
+        if tick != self._tick:
+            noise = self._noise_rng.normal(0.0, ind.noise_mm) if ind.noise_mm > 0 else 0.0
+            self._tick_length = self.true_length_mm(now) + noise
+            self._tick = tick
+        _, _, moving = self.motion(now)
+        length = self._tick_length
+        lo, hi = ind.range_mm
+        status = (1 << STATUS_MOVING) if moving else 0
+        if self.faults.over_range or length > hi:
+            status |= 1 << STATUS_OVER
+            length = hi
+        elif length < lo:
+            status |= 1 << STATUS_UNDER
+            length = lo
+        counts = round(length * 10**self.decimals)
+        return max(DISPLAY_MIN, min(DISPLAY_MAX, counts)), status, length
+
+    def zero(self, now: float | None = None) -> None:
+        """Zero command: the current noise-free length becomes 0."""
+        self.set_display_mm(0.0, now)
+
+    def set_display_mm(self, value_mm: float, now: float | None = None) -> None:
+        """Preset: the display reads ``value_mm`` at the current pose (changes offset c)."""
+        current = self.true_length_mm(now)
+        self._set_offset(self.offset_mm + value_mm - current)
+        self._tick = -1  # resample
+
+    def magnification_x1000(self) -> int:
+        """Pulses → counts factor ×1000 (0.400 for two decimals)."""
+        return int(MM_PER_PULSE * 1000 * 10**self.decimals + 0.5)
+
+    # ------------------------------------------------------------------ reports
+    def truth_report(self) -> dict[str, Any]:
+        """The ``truth`` control reply."""
+        layout = self.truth.layout
+        values = self.truth.theta * layout.display_scale
+        return {
+            "model": self.truth.model.name,
+            "names": list(layout.names),
+            "units": list(layout.units),
+            "values": [float(v) for v in values],
+            "anchor_p0_mm": [float(v) for v in self.anchor_mm],
+            "offset_mm": self.offset_mm,
+            "noise_mm": self.config.indicator.noise_mm,
+            "decimals": self.decimals,
+            "range_mm": list(self.config.indicator.range_mm),
+        }
+
+    def state_report(self, now: float | None = None) -> dict[str, Any]:
+        """The ``state`` control reply."""
+        now = time.monotonic() if now is None else now
+        q, i, moving = self.motion(now)
+        return {
+            "pose_index": i,
+            "n_poses": int(self.poses_deg.shape[0]),
+            "moving": moving,
+            "held": self._held_at is not None,
+            "joints_deg": [float(v) for v in q],
+            "true_length_mm": self.true_length_mm(now),
+            "t_s": self._virtual_time(now),
+            "faults": asdict(self.faults),
+        }

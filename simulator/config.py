@@ -1,0 +1,104 @@
+"""Configuration of the emulated cell (``sim.toml``); every field has a default.
+
+See ``docs/hardware.md`` for the reference and ``examples/sim.toml`` for a commented file.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from drivers.indicator import RegisterMap
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class RobotSection(_Strict):
+    """The emulated robot: model, true errors and motion."""
+
+    model: str = "hsr-jr680"  # built-in name, or path to a .toml/.json model file
+    dh_errors: Literal["table-xii-d1", "none"] = "table-xii-d1"
+    tool_error_mm: tuple[float, float, float] = (0.8, -0.5, 1.2)
+    poses: str = "random"  # "random" or path to a CSV of joint angles [deg], 6 columns
+    n_poses: Annotated[int, Field(ge=1)] = 20
+    move_time_s: Annotated[float, Field(gt=0)] = 2.0
+    dwell_s: Annotated[float, Field(ge=0)] = 3.0
+    loop: bool = True
+
+
+class CellSection(_Strict):
+    """The drawstring sensor's true mounting."""
+
+    anchor_mm: tuple[float, float, float] = (1400.0, 300.0, 200.0)
+    offset_mm: float = -350.0
+
+
+class IndicatorSection(_Strict):
+    """The emulated HY9648 indicator."""
+
+    mode: Literal["modbus", "ascii"] = "modbus"
+    noise_mm: Annotated[float, Field(ge=0)] = 0.02
+    decimals: Annotated[int, Field(ge=0, le=3)] = 2
+    range_mm: tuple[float, float] = (0.0, 2000.0)
+    update_hz: Annotated[float, Field(gt=0)] = 50.0
+    device_id: Annotated[int, Field(ge=1, le=247)] = 1
+    baud: Annotated[int, Field(ge=300, le=921600)] = 9600
+    parity: Literal["N", "E", "O"] = "N"
+    stopbits: Literal[1, 2] = 1
+    pty: bool = True
+    pace: bool = True  # pace bytes at the baud rate on the pty
+    tcp: Literal["none", "rtu", "mbap"] = "none"
+    tcp_host: str = "127.0.0.1"
+    tcp_port: Annotated[int, Field(ge=0, le=65535)] = 0
+    ascii_rate_hz: Annotated[float, Field(gt=0)] = 10.0
+    registers: RegisterMap = RegisterMap()
+
+
+class ServerSection(_Strict):
+    """A TCP server of the emulated cell (``port = 0``: any free port)."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=0, le=65535)] = 0
+
+
+class FaultSection(_Strict):
+    """Faults active from the start; all can be changed while running (control port)."""
+
+    indicator_crc_error_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    indicator_drop_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    indicator_reply_delay_s: Annotated[float, Field(ge=0)] = 0.0
+    over_range: bool = False
+    robot_drop_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    robot_reply_delay_s: Annotated[float, Field(ge=0)] = 0.0
+    robot_frozen: bool = False
+
+
+class SimConfig(_Strict):
+    """The whole emulated cell."""
+
+    seed: int = 0
+    robot: RobotSection = RobotSection()
+    cell: CellSection = CellSection()
+    indicator: IndicatorSection = IndicatorSection()
+    robot_socketcmd: ServerSection = ServerSection(port=23333)
+    robot_modbus: ServerSection = ServerSection(port=5020)
+    control: ServerSection = ServerSection(port=0)
+    faults: FaultSection = FaultSection()
+    base_dir: str = "."  # relative paths (model, poses) are resolved against this
+
+
+def load_config(path: str | Path | None) -> SimConfig:
+    """Read ``sim.toml``; ``None`` gives the defaults. Relative paths in the file are
+    resolved against the file's directory."""
+    if path is None:
+        return SimConfig()
+    p = Path(path)
+    data = tomllib.loads(p.read_text(encoding="utf-8"))
+    data.setdefault("base_dir", str(p.parent.resolve()))
+    return SimConfig.model_validate(data)
