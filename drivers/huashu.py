@@ -1,0 +1,244 @@
+"""Huashu (HSR) III-type controller, "SocketCmd" TCP text protocol.
+
+Frames (design note §2): request ``i:<seq>,c:<command>@hs@``, reply
+``i:<seq>,e:<error>,d:<data>@hs@`` (``e:0`` on success), unsolicited alarms with ``i:-1``.
+``mot.getJntData(0)`` answers ``{j1,j2,j3,j4,j5,j6,}`` in degrees (trailing comma).
+
+The driver numbers requests, discards replies to older sequence numbers (late replies after a
+timeout), keeps alarms in :attr:`HuashuSocketCmdRobot.alarms`, and reconnects with back-off.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import re
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
+from drivers.frames import FrameLog
+from drivers.robot import JointReading, StaleGuard, joint_reading
+
+TERMINATOR = b"@hs@"
+_REPLY = re.compile(r"^i:(-?\d+),e:(-?\d+),d:(.*)$", re.S)
+
+
+def encode_request(seq: int, command: str) -> bytes:
+    """``i:<seq>,c:<command>@hs@``."""
+    if "@hs@" in command:
+        raise ValueError("command: must not contain the terminator @hs@")
+    return f"i:{seq},c:{command}@hs@".encode("ascii")
+
+
+def decode_reply(frame: bytes) -> tuple[int, int, str]:
+    """``(seq, error_code, data)`` of one frame (with or without the terminator).
+
+    Raises
+    ------
+    ValueError
+        Not of the form ``i:<int>,e:<int>,d:<text>``.
+    """
+    text = frame.decode("ascii", errors="strict")
+    if text.endswith("@hs@"):
+        text = text[:-4]
+    match = _REPLY.match(text.strip())
+    if match is None:
+        raise ValueError(f"malformed SocketCmd frame {text!r}")
+    return int(match.group(1)), int(match.group(2)), match.group(3)
+
+
+def parse_float_list(data: str) -> list[float]:
+    """``{a,b,c,}`` → ``[a, b, c]``; the braces and the trailing comma are optional."""
+    body = data.strip()
+    if body.startswith("{") and body.endswith("}"):
+        body = body[1:-1]
+    parts = [p.strip() for p in body.split(",")]
+    if parts and parts[-1] == "":
+        parts.pop()
+    try:
+        return [float(p) for p in parts]
+    except ValueError as exc:
+        raise ValueError(f"not a list of numbers: {data!r}") from exc
+
+
+@dataclass(frozen=True)
+class Alarm:
+    """An unsolicited ``i:-1`` frame."""
+
+    code: int
+    text: str
+    t_monotonic_s: float
+
+
+class HuashuConfig(BaseModel):
+    """Configuration of :class:`HuashuSocketCmdRobot`."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["huashu-socketcmd"] = "huashu-socketcmd"
+    name: str = "robot"
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=1, le=65535)] = 23333
+    timeout_s: Annotated[float, Field(gt=0)] = 1.0
+    joints_command: str = "mot.getJntData(0)"
+    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
+    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
+    max_unchanged_s: Annotated[float | None, Field(gt=0)] = None
+    frame_log_size: Annotated[int, Field(ge=1)] = 16
+
+
+class HuashuSocketCmdRobot:
+    """Asyncio driver of a Huashu controller over SocketCmd."""
+
+    def __init__(self, config: HuashuConfig) -> None:
+        self.config = config
+        self.name = config.name
+        self.frames = FrameLog(config.frame_log_size)
+        self.alarms: deque[Alarm] = deque(maxlen=32)
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._seq = 0
+        self._backoff_s = 0.0
+        self._next_attempt = 0.0
+        self._lock = asyncio.Lock()
+        self._stale = StaleGuard(config.name, config.max_unchanged_s)
+
+    @property
+    def connected(self) -> bool:
+        return self._writer is not None and not self._writer.is_closing()
+
+    async def connect(self) -> None:
+        """Open the TCP connection now. Raises :class:`RobotLinkDown`."""
+        async with self._lock:
+            await self._ensure_connected(force=True)
+
+    async def _ensure_connected(self, force: bool = False) -> None:
+        if self.connected:
+            return
+        cfg = self.config
+        now = time.monotonic()
+        if not force and now < self._next_attempt:
+            raise RobotLinkDown(
+                self.name,
+                f"{cfg.host}:{cfg.port} down; next reconnect in {self._next_attempt - now:.2f} s",
+                self.frames.snapshot(),
+            )
+        try:
+            self._reader, self._writer = await asyncio.wait_for(
+                asyncio.open_connection(cfg.host, cfg.port), cfg.timeout_s
+            )
+        except (TimeoutError, OSError) as exc:
+            self._backoff_s = min(
+                max(2 * self._backoff_s, cfg.reconnect_min_s), cfg.reconnect_max_s
+            )
+            self._next_attempt = time.monotonic() + self._backoff_s
+            self.frames.note(f"connect {cfg.host}:{cfg.port} failed: {exc}")
+            raise RobotLinkDown(
+                self.name, f"cannot connect to {cfg.host}:{cfg.port}: {exc}", self.frames.snapshot()
+            ) from exc
+        self._backoff_s = 0.0
+        self.frames.note(f"connected {cfg.host}:{cfg.port}")
+
+    async def close(self) -> None:
+        """Close the connection."""
+        if self._writer is not None:
+            self._writer.close()
+            with contextlib.suppress(Exception):
+                await self._writer.wait_closed()
+        self._reader = self._writer = None
+
+    def _drop(self, why: str) -> None:
+        self.frames.note(why)
+        if self._writer is not None:
+            self._writer.close()
+        self._reader = self._writer = None
+        self._backoff_s = self.config.reconnect_min_s
+        self._next_attempt = time.monotonic() + self._backoff_s
+
+    async def command(self, command: str) -> str:
+        """Send one command and return its data field.
+
+        Raises
+        ------
+        RobotLinkDown, RobotTimeout
+        RobotProtocolError
+            Malformed frame, or ``e != 0`` (the code is in ``.code``).
+        """
+        async with self._lock:
+            await self._ensure_connected()
+            assert self._reader is not None and self._writer is not None
+            self._seq = self._seq + 1 if self._seq < 2**31 - 1 else 1
+            seq = self._seq
+            request = encode_request(seq, command)
+            self.frames.add("tx", request)
+            deadline = time.monotonic() + self.config.timeout_s
+            try:
+                self._writer.write(request)
+                await self._writer.drain()
+                while True:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        raise TimeoutError
+                    frame = await asyncio.wait_for(self._reader.readuntil(TERMINATOR), remaining)
+                    self.frames.add("rx", frame)
+                    try:
+                        r_seq, code, data = decode_reply(frame)
+                    except (ValueError, UnicodeDecodeError) as exc:
+                        self._drop("malformed frame; connection reset to re-synchronise")
+                        raise RobotProtocolError(
+                            self.name, str(exc), self.frames.snapshot()
+                        ) from exc
+                    if r_seq == -1:
+                        self.alarms.append(Alarm(code, data, time.monotonic()))
+                        continue
+                    if r_seq != seq:
+                        continue  # a late reply to an earlier request
+                    if code != 0:
+                        raise RobotProtocolError(
+                            self.name,
+                            f"{command}: controller error {code}: {data}",
+                            self.frames.snapshot(),
+                            code=code,
+                        )
+                    return data
+            except TimeoutError as exc:
+                self.frames.note("timeout")
+                raise RobotTimeout(
+                    self.name,
+                    f"{command}: no reply within {self.config.timeout_s} s",
+                    self.frames.snapshot(),
+                ) from exc
+            except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError) as exc:
+                self._drop(f"link lost: {exc!r}")
+                raise RobotLinkDown(
+                    self.name, f"link lost: {exc!r}", self.frames.snapshot()
+                ) from exc
+
+    async def read_joints(self) -> JointReading:
+        """``mot.getJntData(0)`` → :class:`JointReading` (first 6 values)."""
+        data = await self.command(self.config.joints_command)
+        try:
+            values = parse_float_list(data)
+        except ValueError as exc:
+            raise RobotProtocolError(self.name, str(exc), self.frames.snapshot()) from exc
+        if len(values) < 6:
+            raise RobotProtocolError(
+                self.name, f"{len(values)} joint values, expected 6", self.frames.snapshot()
+            )
+        return self._stale.check(joint_reading(values[:6], self.name))
+
+    async def read_location(self) -> tuple[float, ...]:
+        """``mot.getLocData(0)`` → X, Y, Z [mm], A, B, C [deg] of the TCP."""
+        data = await self.command("mot.getLocData(0)")
+        try:
+            values = parse_float_list(data)
+        except ValueError as exc:
+            raise RobotProtocolError(self.name, str(exc), self.frames.snapshot()) from exc
+        if len(values) < 6:
+            raise RobotProtocolError(self.name, "location needs 6 values", self.frames.snapshot())
+        return tuple(values[:6])

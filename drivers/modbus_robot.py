@@ -1,0 +1,216 @@
+"""Joint angles from a Modbus TCP server: a generic holding-register map, with a Universal
+Robots preset (angles 270–275 in mrad, unsigned, plus revolution counters 320–325:
+``q = reg/1000 + int16(rev)·2π``, design note §2).
+
+Angles and revolution counters are read in one request when they fit (one consistent
+snapshot); otherwise counters are read before and after the angles and the read is repeated
+if they changed, so a wrap between two requests never yields a value off by a turn.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+from pymodbus.framer import FramerType
+
+from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
+from drivers.frames import FrameLog
+from drivers.robot import JointReading, StaleGuard, joint_reading
+
+
+class JointRegisterMap(BaseModel):
+    """Where and how joint angles are stored.
+
+    ``q = raw / scale`` in ``unit``, with ``raw`` int16 when ``signed`` else uint16; when
+    ``revolution_address`` is set, ``q += int16(rev) * (2π rad or 360 deg)``.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    angle_address: Annotated[int, Field(ge=0, le=0xFFFF)] = 270
+    scale: Annotated[float, Field(gt=0)] = 1000.0
+    unit: Literal["rad", "deg"] = "rad"
+    signed: bool = False
+    revolution_address: Annotated[int | None, Field(ge=0, le=0xFFFF)] = 320
+    read_function: Literal[3, 4] = 3
+
+
+#: Universal Robots' Modbus server layout.
+UR_PRESET = JointRegisterMap()
+
+
+def decode_joints_deg(
+    angles: list[int], revs: list[int] | None, regmap: JointRegisterMap
+) -> list[float]:
+    """Registers → 6 joint angles [deg]."""
+    full_turn = 2 * math.pi if regmap.unit == "rad" else 360.0
+    out = []
+    for j in range(6):
+        raw = angles[j]
+        if regmap.signed and raw >= 0x8000:
+            raw -= 0x10000
+        q = raw / regmap.scale
+        if revs is not None:
+            rev = revs[j] - 0x10000 if revs[j] >= 0x8000 else revs[j]
+            q += rev * full_turn
+        out.append(math.degrees(q) if regmap.unit == "rad" else q)
+    return out
+
+
+class ModbusRobotConfig(BaseModel):
+    """Configuration of :class:`ModbusTcpRobot`; ``preset = "ur"`` uses :data:`UR_PRESET`."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["modbus-tcp"] = "modbus-tcp"
+    name: str = "robot"
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=1, le=65535)] = 502
+    device_id: Annotated[int, Field(ge=0, le=255)] = 1
+    preset: Literal["ur", "custom"] = "ur"
+    registers: JointRegisterMap = UR_PRESET
+    timeout_s: Annotated[float, Field(gt=0)] = 1.0
+    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
+    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
+    max_unchanged_s: Annotated[float | None, Field(gt=0)] = None
+    frame_log_size: Annotated[int, Field(ge=1)] = 16
+
+    def register_map(self) -> JointRegisterMap:
+        return UR_PRESET if self.preset == "ur" else self.registers
+
+
+class ModbusTcpRobot:
+    """Asyncio driver reading joint angles over Modbus TCP (pymodbus)."""
+
+    def __init__(self, config: ModbusRobotConfig) -> None:
+        self.config = config
+        self.name = config.name
+        self.frames = FrameLog(config.frame_log_size)
+        self._client: AsyncModbusTcpClient | None = None
+        self._backoff_s = 0.0
+        self._next_attempt = 0.0
+        self._stale = StaleGuard(config.name, config.max_unchanged_s)
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        self.frames.add("tx" if sending else "rx", data)
+        return data
+
+    @property
+    def connected(self) -> bool:
+        return self._client is not None and self._client.connected
+
+    async def connect(self) -> None:
+        """Open the connection now. Raises :class:`RobotLinkDown`."""
+        await self._ensure_connected(force=True)
+
+    async def _ensure_connected(self, force: bool = False) -> None:
+        if self.connected:
+            return
+        cfg = self.config
+        now = time.monotonic()
+        if not force and now < self._next_attempt:
+            raise RobotLinkDown(
+                self.name,
+                f"{cfg.host}:{cfg.port} down; next reconnect in {self._next_attempt - now:.2f} s",
+                self.frames.snapshot(),
+            )
+        if self._client is not None:
+            self._client.close()
+        self._client = AsyncModbusTcpClient(
+            cfg.host,
+            port=cfg.port,
+            framer=FramerType.SOCKET,
+            timeout=cfg.timeout_s,
+            retries=0,
+            reconnect_delay=0,
+            trace_packet=self._trace,
+        )
+        if not await self._client.connect() or not self._client.connected:
+            self._client.close()
+            self._client = None
+            self._backoff_s = min(
+                max(2 * self._backoff_s, cfg.reconnect_min_s), cfg.reconnect_max_s
+            )
+            self._next_attempt = time.monotonic() + self._backoff_s
+            self.frames.note(f"connect {cfg.host}:{cfg.port} failed")
+            raise RobotLinkDown(
+                self.name, f"cannot connect to {cfg.host}:{cfg.port}", self.frames.snapshot()
+            )
+        self._backoff_s = 0.0
+        self.frames.note(f"connected {cfg.host}:{cfg.port}")
+
+    async def close(self) -> None:
+        """Close the connection."""
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    async def _read(self, address: int, count: int) -> list[int]:
+        await self._ensure_connected()
+        assert self._client is not None
+        fc = self.config.register_map().read_function
+        try:
+            if fc == 4:
+                response: Any = await self._client.read_input_registers(
+                    address, count=count, device_id=self.config.device_id
+                )
+            else:
+                response = await self._client.read_holding_registers(
+                    address, count=count, device_id=self.config.device_id
+                )
+        except ModbusException as exc:
+            lost = not self.connected
+            if lost:
+                self._client.close()
+                self._client = None
+                self._next_attempt = time.monotonic() + self.config.reconnect_min_s
+                raise RobotLinkDown(self.name, f"link lost: {exc}", self.frames.snapshot()) from exc
+            raise RobotTimeout(
+                self.name, f"no reply within {self.config.timeout_s} s", self.frames.snapshot()
+            ) from exc
+        if response.isError():
+            raise RobotProtocolError(
+                self.name,
+                f"Modbus exception code {getattr(response, 'exception_code', '?')}",
+                self.frames.snapshot(),
+                code=getattr(response, "exception_code", None),
+            )
+        regs = list(response.registers)
+        if len(regs) != count:
+            raise RobotProtocolError(
+                self.name, f"{len(regs)} registers, expected {count}", self.frames.snapshot()
+            )
+        return regs
+
+    async def read_joints(self) -> JointReading:
+        """Current joint angles.
+
+        Raises
+        ------
+        RobotLinkDown, RobotTimeout, RobotProtocolError
+        """
+        regmap = self.config.register_map()
+        a, r = regmap.angle_address, regmap.revolution_address
+        if r is None:
+            angles, revs = await self._read(a, 6), None
+        elif max(a, r) + 6 - min(a, r) <= 125:
+            start = min(a, r)
+            block = await self._read(start, max(a, r) + 6 - start)
+            angles, revs = block[a - start : a - start + 6], block[r - start : r - start + 6]
+        else:
+            for _ in range(3):
+                revs = await self._read(r, 6)
+                angles = await self._read(a, 6)
+                if await self._read(r, 6) == revs:
+                    break
+            else:
+                raise RobotProtocolError(
+                    self.name, "revolution counters kept changing", self.frames.snapshot()
+                )
+        values = decode_joints_deg(angles, revs, regmap)
+        return self._stale.check(joint_reading(values, self.name))
