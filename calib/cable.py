@@ -26,6 +26,7 @@ from calib.kinematics import (
     DH_FIELDS,
     N_JOINTS,
     FloatArray,
+    IndexArray,
     forward_position,
     position_jacobian,
 )
@@ -100,7 +101,7 @@ def predict_lengths(
     model: RobotModel,
     theta: FloatArray,
     q_rad: FloatArray,
-    anchor_index: FloatArray,
+    anchor_index: IndexArray,
 ) -> FloatArray:
     """Cable lengths predicted by the model.
 
@@ -128,7 +129,7 @@ def length_jacobian(
     model: RobotModel,
     theta: FloatArray,
     q_rad: FloatArray,
-    anchor_index: FloatArray,
+    anchor_index: IndexArray,
 ) -> tuple[FloatArray, FloatArray]:
     """Predicted lengths and their analytic Jacobian with respect to the full parameter vector.
 

@@ -35,13 +35,15 @@ and for modified DH ``∂p/∂α_j = x_{j-1} × (p − o_{j-1})``, ``∂p/∂a_j
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 Convention = Literal["dh", "mdh"]
 FloatArray = NDArray[np.float64]
+#: Integer index arrays (anchor indices, row selections).
+IndexArray = NDArray[np.integer[Any]]
 
 N_JOINTS = 6
 #: Column order of a parameter table: alpha, a, d, theta.

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.cable import N_DH, N_KIN, ParamLayout, predict_lengths
-from calib.kinematics import N_JOINTS, FloatArray, forward_position
+from calib.kinematics import N_JOINTS, FloatArray, IndexArray, forward_position
 from calib.models import RobotModel
 
 #: The paper's Table XII, dataset D1: deviations identified by UKF-VSLM on the HSR JR680.
@@ -56,7 +56,7 @@ class TrueCell:
     theta: FloatArray
     layout: ParamLayout
 
-    def lengths_mm(self, q_deg: FloatArray, anchor_index: FloatArray | None = None) -> FloatArray:
+    def lengths_mm(self, q_deg: FloatArray, anchor_index: IndexArray | None = None) -> FloatArray:
         """True (noise-free) indicator readings, shape (n,) [mm], for poses ``(n, 6)`` [deg]."""
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
         idx = np.zeros(q.shape[0], dtype=int) if anchor_index is None else anchor_index
@@ -169,7 +169,7 @@ def noisy_lengths(
     rng: np.random.Generator,
     *,
     noise_mm: float = 0.05,
-    anchor_index: FloatArray | None = None,
+    anchor_index: IndexArray | None = None,
 ) -> FloatArray:
     """True lengths plus Gaussian noise of ``noise_mm`` [mm] (1σ), shape (n,)."""
     clean = cell.lengths_mm(q_deg, anchor_index)

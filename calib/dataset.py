@@ -1,0 +1,216 @@
+"""Calibration samples and their CSV form (parsed from text; the caller reads the file).
+
+CSV: a header with ``q1..q6`` (any case) in degrees and ``L`` (or ``length_mm``) in mm; an
+optional ``anchor`` column (sensor position id) and an optional ``group`` column (pose group
+for grouped hold-out). Other columns (``x, y, z``, …) are ignored. Every error names the line
+(the header is line 1) and the column, and nothing is returned on error.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.kinematics import N_JOINTS, FloatArray
+from calib.models import RobotModel
+
+CABLE_MIN_MM = 0.0
+CABLE_MAX_MM = 2000.0
+JOINT_COLUMNS = tuple(f"q{j + 1}" for j in range(N_JOINTS))
+LENGTH_COLUMNS = ("l", "length_mm")
+
+
+class SampleError(ValueError):
+    """Invalid sample data; ``row`` is the 1-based file line (None for header-level errors)."""
+
+    def __init__(self, message: str, *, row: int | None = None, column: str | None = None) -> None:
+        where = []
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column {column!r}")
+        super().__init__(f"{', '.join(where)}: {message}" if where else message)
+        self.row = row
+        self.column = column
+
+
+@dataclass(frozen=True)
+class SampleSet:
+    """Calibration samples.
+
+    Attributes
+    ----------
+    joints_deg : ndarray, shape (n, 6)
+    length_mm : ndarray, shape (n,)
+    anchor : tuple of str, length n
+        Sensor position id per sample (default ``"A"``).
+    group : tuple of str or None, length n
+        Pose group per sample, from a ``group`` column; None when absent.
+    line : ndarray of int, shape (n,)
+        Source line in the file (1-based, header = 1), for error messages.
+    """
+
+    joints_deg: FloatArray
+    length_mm: FloatArray
+    anchor: tuple[str, ...]
+    group: tuple[str, ...] | None = None
+    line: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.length_mm.shape[0])
+
+    @property
+    def anchor_ids(self) -> tuple[str, ...]:
+        """Distinct anchor ids in order of first appearance."""
+        return tuple(dict.fromkeys(self.anchor))
+
+    def anchor_index(self) -> np.ndarray:
+        ids = {a: i for i, a in enumerate(self.anchor_ids)}
+        return np.array([ids[a] for a in self.anchor], dtype=int)
+
+    def subset(self, rows: np.ndarray) -> SampleSet:
+        rows = np.asarray(rows, dtype=int)
+        return SampleSet(
+            joints_deg=self.joints_deg[rows],
+            length_mm=self.length_mm[rows],
+            anchor=tuple(self.anchor[i] for i in rows),
+            group=None if self.group is None else tuple(self.group[i] for i in rows),
+            line=None if self.line is None else self.line[rows],
+        )
+
+    def line_of(self, i: int) -> int:
+        return int(self.line[i]) if self.line is not None else i + 2
+
+
+def make_samples(
+    joints_deg: FloatArray,
+    length_mm: FloatArray,
+    anchor: list[str] | tuple[str, ...] | None = None,
+    group: list[str] | tuple[str, ...] | None = None,
+) -> SampleSet:
+    """Build and validate a :class:`SampleSet` from arrays ((n, 6) deg and (n,) mm)."""
+    q = np.asarray(joints_deg, dtype=float)
+    length = np.asarray(length_mm, dtype=float)
+    if q.ndim != 2 or q.shape[1] != N_JOINTS:
+        raise SampleError(f"joints_deg must have shape (n, 6), got {q.shape}")
+    if length.shape != (q.shape[0],):
+        raise SampleError(f"length_mm must have shape ({q.shape[0]},), got {length.shape}")
+    n = q.shape[0]
+    anchors = tuple(anchor) if anchor is not None else ("A",) * n
+    s = SampleSet(q, length, anchors, tuple(group) if group is not None else None,
+                  np.arange(2, n + 2))  # fmt: skip
+    validate_values(s)
+    return s
+
+
+def validate_values(samples: SampleSet) -> None:
+    """Finite joints and lengths, lengths within the sensor range; errors name row and column."""
+    for i in range(len(samples)):
+        for j in range(N_JOINTS):
+            if not math.isfinite(samples.joints_deg[i, j]):
+                raise SampleError("joint angle is not finite", row=samples.line_of(i),
+                                  column=JOINT_COLUMNS[j])  # fmt: skip
+        value = samples.length_mm[i]
+        if not math.isfinite(value):
+            raise SampleError("cable length is not finite", row=samples.line_of(i), column="L")
+        if not CABLE_MIN_MM <= value <= CABLE_MAX_MM:
+            raise SampleError(
+                f"cable length {value} mm is outside the sensor range "
+                f"{CABLE_MIN_MM:.0f}..{CABLE_MAX_MM:.0f} mm",
+                row=samples.line_of(i),
+                column="L",
+            )
+
+
+def validate_joint_limits(samples: SampleSet, model: RobotModel) -> None:
+    """Every joint angle within the model's limits (if it has any)."""
+    limits = model.joint_limits_deg
+    if limits is None:
+        return
+    bad = (samples.joints_deg < limits[:, 0]) | (samples.joints_deg > limits[:, 1])
+    if np.any(bad):
+        i, j = (int(v) for v in np.argwhere(bad)[0])
+        raise SampleError(
+            f"joint angle {samples.joints_deg[i, j]} deg is outside the limits "
+            f"[{limits[j, 0]}, {limits[j, 1]}] of model {model.name!r}",
+            row=samples.line_of(i),
+            column=JOINT_COLUMNS[j],
+        )
+
+
+def parse_samples_csv(text: str) -> SampleSet:
+    """Parse CSV text into validated samples. Raises :class:`SampleError`."""
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise SampleError("the file is empty; expected a header with q1..q6 and L") from None
+    cols = {name.strip().lower(): i for i, name in enumerate(header)}
+    missing = [c for c in JOINT_COLUMNS if c not in cols]
+    if missing:
+        raise SampleError(f"missing column(s) {missing}; the header has {header}", row=1)
+    length_col = next((c for c in LENGTH_COLUMNS if c in cols), None)
+    if length_col is None:
+        raise SampleError(f"missing column 'L' (cable length in mm); the header has {header}",
+                          row=1)  # fmt: skip
+    anchor_col = cols.get("anchor")
+    group_col = cols.get("group")
+    joints: list[list[float]] = []
+    lengths: list[float] = []
+    anchors: list[str] = []
+    groups: list[str] = []
+    lines: list[int] = []
+    for line_no, row in enumerate(reader, start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        values = []
+        for name in (*JOINT_COLUMNS, length_col):
+            idx = cols[name]
+            shown = "L" if name == length_col else name
+            if idx >= len(row):
+                raise SampleError("missing value", row=line_no, column=shown)
+            cell = row[idx].strip()
+            try:
+                value = float(cell)
+            except ValueError:
+                raise SampleError(f"not a number: {cell!r}", row=line_no, column=shown) from None
+            if not math.isfinite(value):
+                raise SampleError(f"not a finite number: {cell!r}", row=line_no, column=shown)
+            values.append(value)
+        joints.append(values[:N_JOINTS])
+        lengths.append(values[N_JOINTS])
+        anchor = row[anchor_col].strip() if anchor_col is not None and anchor_col < len(row) else ""
+        anchors.append(anchor or "A")
+        if group_col is not None:
+            groups.append(row[group_col].strip() if group_col < len(row) else "")
+        lines.append(line_no)
+    if not lines:
+        raise SampleError("no data rows after the header")
+    samples = SampleSet(
+        joints_deg=np.array(joints, dtype=float),
+        length_mm=np.array(lengths, dtype=float),
+        anchor=tuple(anchors),
+        group=tuple(groups) if group_col is not None else None,
+        line=np.array(lines, dtype=int),
+    )
+    validate_values(samples)
+    return samples
+
+
+def samples_to_csv(samples: SampleSet) -> str:
+    """CSV text in the format :func:`parse_samples_csv` reads."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    header = [*JOINT_COLUMNS, "L", "anchor"] + (["group"] if samples.group is not None else [])
+    writer.writerow(header)
+    for i in range(len(samples)):
+        row = [f"{v:.6f}" for v in samples.joints_deg[i]] + [f"{samples.length_mm[i]:.6f}",
+                                                             samples.anchor[i]]  # fmt: skip
+        if samples.group is not None:
+            row.append(samples.group[i])
+        writer.writerow(row)
+    return out.getvalue()

@@ -1,0 +1,237 @@
+"""``cablecal identify`` and ``cablecal compare``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from calib.dataset import SampleError
+from calib.identify import METHODS, IdentifyOptions, IdentifyResult, identify
+from calib.models import ModelError, RobotModel
+from daemon.datafiles import load_robot, read_samples
+
+console = Console()
+err_console = Console(stderr=True)
+
+EXIT_BAD_INPUT = 2
+
+
+def _fail(message: str) -> typer.Exit:
+    err_console.print(f"[bold red]error:[/] {message}")
+    return typer.Exit(EXIT_BAD_INPUT)
+
+
+def _split_names(text: str) -> tuple[str, ...]:
+    return tuple(n.strip() for n in text.split(",") if n.strip())
+
+
+def _progress() -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    )
+
+
+def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: Any) -> Any:
+    with _progress() as bar:
+        task = bar.add_task(opts.method, total=1.0)
+
+        def cb(fraction: float, message: str) -> None:
+            bar.update(task, completed=fraction, description=message[:40])
+
+        return identify(model, samples, opts, progress=cb, **kw)
+
+
+def _summary(result: IdentifyResult) -> None:
+    data = result.to_json()
+    table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
+    table.add_column("figure [mm]")
+    for label in ("before/train", "before/test", "after/train", "after/test"):
+        table.add_column(label, justify="right")
+    for key in ("rmse_mm", "mae_mm", "std_mm", "max_mm"):
+        cells = []
+        for stage in ("before", "after"):
+            for part in ("train", "test"):
+                v = data["metrics"][stage][part][key]
+                cells.append("-" if v != v else f"{v:.4f}")
+        table.add_row(key.removesuffix("_mm"), *cells)
+    console.print(table)
+    dh = Table(title="DH errors (calibrated − nominal), ±1σ")
+    for col in ("joint", "dalpha [deg]", "da [mm]", "dd [mm]", "dtheta [deg]"):
+        dh.add_column(col, justify="right")
+    unc = data["uncertainty"]
+    for row in data["dh_error"]:
+        j = row["joint"]
+        cells = []
+        for key, name in (("alpha_deg", "alpha"), ("a_mm", "a"), ("d_mm", "d"),
+                          ("theta_deg", "theta")):  # fmt: skip
+            sig = unc.get(f"{name}{j}")
+            cells.append(f"{row[key]:+.4f}" + (f" ±{sig:.4f}" if sig else " (fixed)"))
+        dh.add_row(str(j), *cells)
+    console.print(dh)
+    ident = data["identifiability"]
+    console.print(
+        f"tool_mm = {np.round(data['tool_mm'], 3).tolist()}, anchor_mm = "
+        f"{np.round(data['anchor_mm'], 2).tolist()}, length_offset_mm = "
+        f"{data['length_offset_mm']:.3f}"
+    )
+    console.print(
+        f"identifiability: rank {ident['rank']}, cond {ident['condition_number']:.3g} "
+        f"(base set {ident['condition_number_base']:.3g}); not identified: "
+        + ", ".join(ident["unidentifiable"])
+    )
+    console.print(
+        f"iterations {data['iterations']}, {data['elapsed_s']:.3f} s, prior "
+        f"{'on' if data['prior']['used'] else 'off'}, plausible: "
+        f"{data['plausibility']['plausible']}, flagged: {len(data['flagged_samples'])}"
+    )
+    for note in data["notes"]:
+        err_console.print(f"[yellow]note:[/] {note}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``identify`` and ``compare`` to ``app``."""
+
+    @app.command("identify")
+    def identify_cmd(
+        data: Annotated[
+            Path, typer.Argument(help="CSV with q1..q6 [deg], L [mm], optional anchor")
+        ],
+        robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
+            "hsr-jr680"
+        ),
+        method: Annotated[str, typer.Option(help=f"One of {', '.join(METHODS)}")] = "ukf-vslm",
+        test_fraction: Annotated[float, typer.Option(help="Held-out share, 0 trains on all")] = 0.2,
+        seed: Annotated[int, typer.Option(help="Seed of the split")] = 0,
+        holdout: Annotated[str, typer.Option(help="random or grouped (whole pose groups)")] = (
+            "random"
+        ),
+        robust: Annotated[str, typer.Option(help="none, huber, soft_l1 or reject")] = "none",
+        prior: Annotated[bool, typer.Option(help="MAP prior toward the nominal model")] = False,
+        prior_mm: Annotated[float, typer.Option(help="Prior 1σ of DH lengths [mm]")] = 2.0,
+        prior_deg: Annotated[float, typer.Option(help="Prior 1σ of DH angles [deg]")] = 0.2,
+        fix: Annotated[str, typer.Option(help="Comma-separated parameter names to fix")] = "",
+        free: Annotated[str, typer.Option(help="Comma-separated names to free")] = "",
+        out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
+    ) -> None:
+        """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
+        try:
+            model = load_robot(robot)
+            samples = read_samples(data)
+            opts = IdentifyOptions(
+                method=method,  # type: ignore[arg-type]
+                test_fraction=test_fraction,
+                seed=seed,
+                holdout=holdout,  # type: ignore[arg-type]
+                robust=robust,  # type: ignore[arg-type]
+                prior=prior,
+                prior_mm=prior_mm,
+                prior_deg=prior_deg,
+                fix=_split_names(fix),
+                free=_split_names(free),
+            )
+            result = _run_identify(model, samples, opts)
+        except (SampleError, ModelError, ValueError) as exc:
+            raise _fail(f"{data if isinstance(exc, SampleError) else 'input'}: {exc}") from None
+        _summary(result)
+        if out is not None:
+            out.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+            console.print(f"wrote {out}")
+
+    @app.command("compare")
+    def compare_cmd(
+        data: Annotated[
+            Path | None, typer.Argument(help="CSV (default: the bundled HSR-RobotCali data)")
+        ] = None,
+        robot: Annotated[str, typer.Option(help="Built-in model name or model file")] = (
+            "hsr-jr680"
+        ),
+        train: Annotated[int, typer.Option(help="Training samples per run")] = 100,
+        test: Annotated[int, typer.Option(help="Test samples per run")] = 20,
+        seed: Annotated[int, typer.Option(help="First seed")] = 0,
+        seeds: Annotated[int, typer.Option(help="Number of seeds (runs) to average")] = 1,
+        methods: Annotated[str, typer.Option(help="Comma-separated methods")] = ",".join(METHODS),
+        prior: Annotated[bool, typer.Option(help="MAP prior toward nominal")] = False,
+        out: Annotated[Path | None, typer.Option(help="Write the table as JSON here")] = None,
+    ) -> None:
+        """Compare all methods on the paper's protocol (Table VIII/IX style)."""
+        try:
+            model = load_robot(robot)
+            samples = read_samples(data)
+            chosen = _split_names(methods)
+            bad = [m for m in chosen if m not in METHODS]
+            if bad:
+                raise ValueError(f"--methods: unknown {bad}; known {list(METHODS)}")
+            if train + test > len(samples):
+                raise ValueError(f"--train + --test = {train + test} > {len(samples)} samples")
+            if train < 1:
+                raise ValueError("--train must be positive")
+        except (SampleError, ModelError, ValueError) as exc:
+            raise _fail(str(exc)) from None
+        rows = compare(model, samples, chosen, train, test, seed, seeds, prior)
+        table = Table(title=f"{len(samples)} samples, {train} train / {test} test, "
+                      f"{seeds} seed(s) from {seed}, mean over seeds")  # fmt: skip
+        for col in ("method", "before RMSE", "RMSE", "MAE", "MAX", "iterations", "time [s]",
+                    "plausible"):  # fmt: skip
+            table.add_column(col, justify="right")
+        for r in rows:
+            table.add_row(
+                r["method"], f"{r['before_rmse_mm']:.3f}", f"{r['rmse_mm']:.3f}",
+                f"{r['mae_mm']:.3f}", f"{r['max_mm']:.3f}", f"{r['iterations']:.1f}",
+                f"{r['time_s']:.3f}", f"{r['plausible']}/{seeds}",
+            )  # fmt: skip
+        console.print(table)
+        if out is not None:
+            out.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
+
+
+def compare(
+    model: RobotModel,
+    samples: Any,
+    methods: tuple[str, ...],
+    n_train: int,
+    n_test: int,
+    seed: int,
+    seeds: int,
+    prior: bool = False,
+) -> list[dict[str, Any]]:
+    """Mean test figures per method over ``seeds`` random draws of ``n_train + n_test`` rows."""
+    acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
+    with _progress() as bar:
+        task = bar.add_task("compare", total=len(methods) * seeds)
+        for s in range(seed, seed + seeds):
+            rng = np.random.default_rng(s)
+            pick = rng.permutation(len(samples))[: n_train + n_test]
+            tr, te = np.sort(pick[:n_train]), np.sort(pick[n_train:])
+            for m in methods:
+                bar.update(task, description=f"seed {s} {m}")
+                opts = IdentifyOptions(method=m, seed=s, prior=prior)  # type: ignore[arg-type]
+                res = identify(model, samples, opts, train_rows=tr, test_rows=te)
+                fig = res.metrics["after"]["test"]
+                acc[m].append({
+                    "rmse_mm": fig["rmse_mm"], "mae_mm": fig["mae_mm"], "max_mm": fig["max_mm"],
+                    "before_rmse_mm": res.metrics["before"]["test"]["rmse_mm"],
+                    "iterations": float(res.solver.iterations), "time_s": res.elapsed_s,
+                    "plausible": float(res.plausibility["plausible"]),
+                })  # fmt: skip
+                bar.advance(task)
+    rows = []
+    for m in methods:
+        runs = acc[m]
+        row: dict[str, Any] = {"method": m}
+        for key in runs[0]:
+            row[key] = float(np.mean([r[key] for r in runs]))
+        row["plausible"] = int(sum(r["plausible"] for r in runs))
+        rows.append(row)
+    return rows
