@@ -1,0 +1,29 @@
+"""Helpers for tests and benchmarks that run the emulated cell."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from simulator.config import SimConfig
+
+
+def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def sim_config(**sections: Any) -> SimConfig:
+    """A :class:`SimConfig` with every TCP port free-chosen (0) and ``sections`` merged in,
+    e.g. ``sim_config(indicator={"baud": 115200})``."""
+    base: dict[str, Any] = {
+        "robot_socketcmd": {"port": 0},
+        "robot_modbus": {"port": 0},
+        "control": {"port": 0},
+    }
+    return SimConfig.model_validate(_merge(base, sections))
+
