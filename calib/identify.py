@@ -109,7 +109,7 @@ class IdentifyOptions:
     free: tuple[str, ...] = ()
     identify_tool: bool = True
     tool_mm: tuple[float, float, float] | None = None
-    rtol: float = 1e-4
+    rtol: float = 1e-8
     filter_sigma_mm: float = 5.0
     filter_sigma_deg: float = 0.5
     ukf_epochs: int = 2

@@ -52,7 +52,7 @@ class VSLMOptions:
     mu: float = 0.95
     delta_min: float = 0.2
     lam: float = 1e-6  # unit-free damping relative to the largest squared singular value
-    max_iterations: int = 300
+    max_iterations: int = 500
     gtol: float = 1e-10
     ftol: float = 1e-12
     max_rejections: int = 30
