@@ -1,0 +1,228 @@
+"""Fault injection: under each fault the driver raises its typed error or recovers, never
+returns a corrupted value, and reconnects within 2 s once the link is back."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Awaitable, Callable, Iterator
+from typing import Any
+
+import pytest
+
+from drivers import (
+    DeviceError,
+    HuashuConfig,
+    HuashuSocketCmdRobot,
+    IndicatorConfig,
+    IndicatorCRCError,
+    IndicatorLinkDown,
+    IndicatorNoReply,
+    IndicatorOverRange,
+    IndicatorTimeout,
+    ModbusIndicator,
+    ModbusRobotConfig,
+    ModbusTcpRobot,
+    RobotLinkDown,
+    RobotTimeout,
+)
+from simulator.runner import SimulatorThread
+from simulator.testing import sim_config
+
+pytestmark = pytest.mark.anyio
+HALF_COUNT_MM = 0.005
+
+
+@pytest.fixture
+def sim() -> Iterator[SimulatorThread]:
+    s = SimulatorThread(sim_config(indicator={"baud": 115200, "noise_mm": 0.0})).start()
+    s.control("hold", on=True)
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+def _indicator(sim: SimulatorThread, **kw: Any) -> ModbusIndicator:
+    cfg: dict[str, Any] = {"port": sim.ready["indicator_port"], "baud": 115200, **kw}
+    return ModbusIndicator(IndicatorConfig.model_validate(cfg))
+
+
+def _hp(endpoint: str | None) -> tuple[str, int]:
+    assert endpoint is not None
+    host, port = endpoint.rsplit(":", 1)
+    return host, int(port)
+
+
+async def _outcomes(n: int, read: Callable[[], Awaitable[Any]]) -> tuple[list[Any], list[str]]:
+    values, errors = [], []
+    for _ in range(n):
+        try:
+            values.append(await read())
+        except DeviceError as exc:
+            errors.append(type(exc).__name__)
+    return values, errors
+
+
+async def test_corrupted_crc_is_never_returned(sim: SimulatorThread) -> None:
+    true = sim.control("state")["true_length_mm"]
+    sim.control("fault", indicator_crc_error_rate=0.5)
+    ind = _indicator(sim, retries=0, timeout_s=0.05, quiet_s=0.01)
+    try:
+        values, errors = await _outcomes(40, ind.read)
+    finally:
+        await ind.close()
+    assert "IndicatorCRCError" in errors and values
+    assert set(errors) <= {"IndicatorCRCError"}
+    assert all(abs(v.length_mm - true) <= HALF_COUNT_MM + 1e-9 for v in values)
+
+
+async def test_crc_errors_are_retried_transparently(sim: SimulatorThread) -> None:
+    true = sim.control("state")["true_length_mm"]
+    sim.control("fault", indicator_crc_error_rate=0.3)
+    ind = _indicator(sim, retries=4, timeout_s=0.05, quiet_s=0.01)
+    try:
+        values, errors = await _outcomes(15, ind.read)
+    finally:
+        await ind.close()
+    assert len(values) >= 13  # P(5 failures in a row) = 0.3^5
+    assert all(abs(v.length_mm - true) <= HALF_COUNT_MM + 1e-9 for v in values)
+
+
+async def test_dropped_replies_raise_no_reply(sim: SimulatorThread) -> None:
+    sim.control("fault", indicator_drop_rate=0.5)
+    ind = _indicator(sim, retries=0, timeout_s=0.05, quiet_s=0.01)
+    try:
+        values, errors = await _outcomes(20, ind.read)
+    finally:
+        await ind.close()
+    assert values and errors and set(errors) == {"IndicatorNoReply"}
+
+
+async def test_late_reply_is_not_taken_for_the_next_request(sim: SimulatorThread) -> None:
+    sim.control("fault", indicator_reply_delay_s=0.25)
+    ind = _indicator(sim, retries=0, timeout_s=0.15)  # quiet_s defaults to timeout_s
+    try:
+        with pytest.raises(IndicatorTimeout):
+            await ind.read()
+        sim.control("fault", indicator_reply_delay_s=0.0)
+        await ind.zero()  # the display changes to 0 …
+        reading = await ind.read()
+    finally:
+        await ind.close()
+    assert abs(reading.length_mm) <= HALF_COUNT_MM  # … and we see 0, not the late old value
+
+
+async def test_indicator_over_range_fault(sim: SimulatorThread) -> None:
+    ind = _indicator(sim)
+    try:
+        await ind.read()
+        sim.control("fault", over_range=True)
+        with pytest.raises(IndicatorOverRange):
+            await ind.read()
+        sim.control("fault", over_range=False)
+        assert not (await ind.read()).over_range
+    finally:
+        await ind.close()
+
+
+async def _recovery_time(
+    sim: SimulatorThread, target: str, read: Callable[[], Awaitable[Any]], down_s: float = 0.8
+) -> tuple[float, set[str]]:
+    """Take ``target`` down for ``down_s``; poll; return (s from link back to first good
+    read, error names seen)."""
+    await read()
+    sim.control("link_down", target=target, duration_s=down_s)
+    t_back = time.monotonic() + down_s - 0.05  # the command returns 50 ms after going down
+    errors: set[str] = set()
+    deadline = t_back + 5.0
+    while time.monotonic() < deadline:
+        try:
+            await read()
+        except DeviceError as exc:
+            errors.add(type(exc).__name__)
+            await asyncio.sleep(0.02)
+            continue
+        if time.monotonic() > t_back:
+            return time.monotonic() - t_back, errors
+        await asyncio.sleep(0.02)
+    raise AssertionError(f"no recovery within 5 s; errors {errors}")
+
+
+async def test_indicator_pty_unplug_and_replug(sim: SimulatorThread) -> None:
+    ind = _indicator(sim, timeout_s=0.1, retries=0)
+    try:
+        took, errors = await _recovery_time(sim, "indicator", ind.read)
+    finally:
+        await ind.close()
+    assert took < 2.0
+    assert "IndicatorLinkDown" in errors
+    assert errors <= {"IndicatorLinkDown", "IndicatorNoReply", "IndicatorTimeout"}
+
+
+async def test_huashu_link_down_and_back(sim: SimulatorThread) -> None:
+    host, port = _hp(sim.ready["robot_socketcmd"])
+    robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=port, timeout_s=0.2))
+    try:
+        took, errors = await _recovery_time(sim, "robot_socketcmd", robot.read_joints)
+    finally:
+        await robot.close()
+    assert took < 2.0 and "RobotLinkDown" in errors
+
+
+async def test_modbus_robot_link_down_and_back(sim: SimulatorThread) -> None:
+    host, port = _hp(sim.ready["robot_modbus"])
+    robot = ModbusTcpRobot(ModbusRobotConfig(host=host, port=port, timeout_s=0.2))
+    try:
+        took, errors = await _recovery_time(sim, "robot_modbus", robot.read_joints)
+    finally:
+        await robot.close()
+    assert took < 2.0 and errors & {"RobotLinkDown", "RobotTimeout"}
+
+
+async def test_huashu_late_replies_are_discarded() -> None:
+    s = SimulatorThread(sim_config(robot={"move_time_s": 0.5, "dwell_s": 0.0})).start()
+    host, port = _hp(s.ready["robot_socketcmd"])
+    robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=port, timeout_s=0.1))
+    try:
+        s.control("fault", robot_reply_delay_s=0.15)
+        with pytest.raises(RobotTimeout):
+            await robot.read_joints()
+        s.control("fault", robot_reply_delay_s=0.0)
+        await asyncio.sleep(0.1)  # the late reply is now in the socket buffer
+        reading = await robot.read_joints()
+        truth = s.control("state")["joints_deg"]
+    finally:
+        await robot.close()
+        s.stop()
+    # Moving at up to tens of deg/s: a stale reply (≥100 ms old) would be far off.
+    assert reading.joints_deg == pytest.approx(truth, abs=1.0)
+
+
+async def test_robot_dropped_replies_time_out_then_recover(sim: SimulatorThread) -> None:
+    host, port = _hp(sim.ready["robot_modbus"])
+    robot = ModbusTcpRobot(ModbusRobotConfig(host=host, port=port, timeout_s=0.05))
+    truth = sim.control("state")["joints_deg"]
+    try:
+        sim.control("fault", robot_drop_rate=1.0)
+        with pytest.raises((RobotTimeout, RobotLinkDown)):
+            await robot.read_joints()
+        sim.control("fault", robot_drop_rate=0.0)
+        for _ in range(20):
+            try:
+                reading = await robot.read_joints()
+                break
+            except (RobotTimeout, RobotLinkDown):
+                await asyncio.sleep(0.05)
+        else:
+            raise AssertionError("did not recover")
+    finally:
+        await robot.close()
+    assert reading.joints_deg == pytest.approx(truth, abs=0.03)
+
+
+def test_error_hierarchy() -> None:
+    assert issubclass(IndicatorCRCError, IndicatorTimeout)
+    assert issubclass(IndicatorNoReply, IndicatorTimeout)
+    for cls in (IndicatorLinkDown, IndicatorOverRange, RobotLinkDown, RobotTimeout):
+        assert issubclass(cls, DeviceError)
