@@ -82,7 +82,7 @@ async def test_crc_errors_are_retried_transparently(sim: SimulatorThread) -> Non
     sim.control("fault", indicator_crc_error_rate=0.3)
     ind = _indicator(sim, retries=4, timeout_s=0.05, quiet_s=0.01)
     try:
-        values, errors = await _outcomes(15, ind.read)
+        values, _errors = await _outcomes(15, ind.read)
     finally:
         await ind.close()
     assert len(values) >= 13  # P(5 failures in a row) = 0.3^5
