@@ -26,4 +26,3 @@ def sim_config(**sections: Any) -> SimConfig:
         "control": {"port": 0},
     }
     return SimConfig.model_validate(_merge(base, sections))
-
