@@ -73,7 +73,9 @@ async def test_corrupted_crc_is_never_returned(sim: SimulatorThread) -> None:
     finally:
         await ind.close()
     assert "IndicatorCRCError" in errors and values
-    assert set(errors) <= {"IndicatorCRCError"}
+    # pymodbus may discard a corrupted reply and then time out waiting for a good one (seen
+    # under CPU load): both are typed errors; what must never happen is a corrupt reading.
+    assert set(errors) <= {"IndicatorCRCError", "IndicatorTimeout"}
     assert all(abs(v.length_mm - true) <= HALF_COUNT_MM + 1e-9 for v in values)
 
 
