@@ -224,6 +224,7 @@ class ModbusIndicator:
         self._backoff_s = 0.0
         self._next_attempt = 0.0
         self._rx_attempt = b""
+        self._rx_buffer = b""
         self._last_rx_monotonic = 0.0
         self._lock = asyncio.Lock()
 
@@ -232,7 +233,11 @@ class ModbusIndicator:
         if sending:
             self.frames.add("tx", data)
         else:
-            self._rx_attempt = data
+            # pymodbus passes its whole receive buffer, which restarts after it discards a
+            # frame: rebuild the raw byte stream of this attempt.
+            prev = self._rx_buffer
+            self._rx_attempt += data[len(prev) :] if data.startswith(prev) else data
+            self._rx_buffer = data
             self._last_rx_monotonic = time.monotonic()
         return data
 
@@ -333,7 +338,7 @@ class ModbusIndicator:
     async def _attempt(self, call: Any, expect_size: int) -> Any:
         """One request/response; returns the pymodbus response or raises a typed error."""
         assert self._client is not None
-        self._rx_attempt = b""
+        self._rx_attempt = self._rx_buffer = b""
         try:
             response = await call()
         except ModbusException as exc:
@@ -349,9 +354,9 @@ class ModbusIndicator:
                 raise IndicatorNoReply(
                     self.name, f"no reply within {self.config.timeout_s} s", frames
                 ) from exc
-            if (len(rx) >= expect_size and not crc_ok(rx[:expect_size])) or (
-                len(rx) == 5 and rx[1] & 0x80 and not crc_ok(rx)
-            ):
+            # As many bytes as a reply (or an exception reply) arrived, yet no valid frame:
+            # the reply was corrupted on the line.
+            if len(rx) >= expect_size or (len(rx) == 5 and rx[1] & 0x80 and not crc_ok(rx)):
                 raise IndicatorCRCError(self.name, "CRC mismatch; reply discarded", frames) from exc
             raise IndicatorTimeout(
                 self.name, f"incomplete reply ({len(rx)} bytes) within timeout", frames
