@@ -44,7 +44,7 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel
 from calib.problem import Problem
 from calib.solvers import de, ekf, lm, ukf, ukf_vslm, vslm
-from calib.solvers.common import ProgressFn, SolverResult
+from calib.solvers.common import ProgressFn, SolverResult, Timer, report
 
 METHODS = ("ukf-vslm", "lm", "vslm", "ukf", "ekf", "de")
 Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de"]
@@ -391,7 +391,6 @@ def _run_method(
 
 def _covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Free-parameter covariance (k, k) in internal units and σ̂ [mm]."""
-    n = problem.n_samples
     pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
                                      problem.anchor_index)  # fmt: skip
     sw = np.sqrt(problem.weights)
@@ -411,7 +410,6 @@ def _covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray
     cutoff = evals.max() * 1e-15
     inv = np.where(evals > cutoff, 1.0 / np.where(evals > cutoff, evals, 1.0), 0.0)
     cov_scaled = (evecs * inv) @ evecs.T
-    del n
     return cov_scaled / np.outer(d, d), np.array(np.sqrt(sigma2))
 
 
@@ -482,8 +480,6 @@ def identify(
     ValueError
         Unknown parameter names in ``fix``/``free``.
     """
-    from calib.solvers.common import Timer, report
-
     opts = options or IdentifyOptions()
     timer = Timer()
     validate_joint_limits(samples, model)

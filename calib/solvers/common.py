@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.kinematics import FloatArray
+from calib.kinematics import FloatArray, IndexArray
 
 #: ``progress(fraction_done, message)``; may raise :class:`Cancelled` to stop the solver.
 ProgressFn = Callable[[float, str], None]
@@ -81,6 +81,12 @@ def damped_step(
     coeff = s / (s * s + lam)
     out: FloatArray = -(vt.T @ (coeff * (u.T @ res)))
     return out
+
+
+def sample_batches(n: int, size: int, rng: np.random.Generator | None = None) -> list[IndexArray]:
+    """Row indices of ``n`` samples in batches of ``size`` (shuffled first if ``rng``)."""
+    order = np.arange(n) if rng is None else rng.permutation(n)
+    return [order[i : i + size] for i in range(0, n, size)]
 
 
 def report(progress: ProgressFn | None, fraction: float, message: str) -> None:

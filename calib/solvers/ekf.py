@@ -16,7 +16,7 @@ import numpy as np
 from calib.cable import length_jacobian
 from calib.kinematics import FloatArray
 from calib.problem import Problem
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report
+from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sample_batches
 
 
 @dataclass(frozen=True)
@@ -52,8 +52,7 @@ def solve(
     noise_var = problem.noise_mm**2
     q = opts.process_noise * p0
     history = [problem.data_rms_mm(x)]
-    n = problem.n_samples
-    batches = [np.arange(i, min(i + opts.batch_size, n)) for i in range(0, n, opts.batch_size)]
+    batches = sample_batches(problem.n_samples, opts.batch_size)
     for epoch in range(opts.epochs):
         p = p0.copy()
         for rows in batches:

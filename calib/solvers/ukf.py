@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.kinematics import FloatArray, IndexArray
+from calib.kinematics import FloatArray
 from calib.problem import Problem
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report
+from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sample_batches
 
 
 @dataclass(frozen=True)
@@ -80,11 +80,6 @@ def _robust_cholesky(p: FloatArray) -> FloatArray:
     raise np.linalg.LinAlgError("covariance is not positive definite even with jitter")
 
 
-def _batches(n: int, size: int, rng: np.random.Generator | None) -> list[IndexArray]:
-    order = np.arange(n) if rng is None else rng.permutation(n)
-    return [order[i : i + size] for i in range(0, n, size)]
-
-
 def solve(
     problem: Problem,
     x0: FloatArray | None = None,
@@ -113,7 +108,7 @@ def solve(
     noise_var = problem.noise_mm**2
     q = opts.process_noise * p0
     history = [problem.data_rms_mm(x)]
-    batches = _batches(problem.n_samples, opts.batch_size, rng)
+    batches = sample_batches(problem.n_samples, opts.batch_size, rng)
     total = opts.epochs * len(batches)
     done = 0
     status, message = 4, f"{opts.epochs} epochs done"
