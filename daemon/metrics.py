@@ -1,0 +1,63 @@
+"""Prometheus metrics of the daemon, on a registry of our own (served at ``GET /metrics``).
+
+Every part of the daemon imports its instruments from here, so the names live in one place.
+Label values are bounded: device names come from configuration, reasons and outcomes from fixed
+sets, routes are the path templates (not the raw URLs).
+"""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+
+REGISTRY = CollectorRegistry(auto_describe=True)
+
+DEVICE_POLLS = Counter(
+    "cablecal_device_polls",
+    "Device polls that returned a valid reading.",
+    ["device", "role"],  # role: indicator | robot
+    registry=REGISTRY,
+)
+DEVICE_ERRORS = Counter(
+    "cablecal_device_errors",
+    "Device polls that failed, by error class (IndicatorCRCError, RobotLinkDown, ...).",
+    ["device", "role", "error"],
+    registry=REGISTRY,
+)
+DEVICE_RECONNECTS = Counter(
+    "cablecal_device_reconnects",
+    "Times a device delivered again after a failure.",
+    ["device", "role"],
+    registry=REGISTRY,
+)
+LAST_READING_AGE = Gauge(
+    "cablecal_last_reading_age_seconds",
+    "Age of the device's last valid reading at scrape time [s].",
+    ["device", "role"],
+    registry=REGISTRY,
+)
+CAPTURES = Counter(
+    "cablecal_captures",
+    "Capture attempts by outcome; reason is 'ok' for accepted ones.",
+    ["outcome", "reason", "mode"],  # outcome: accepted | rejected
+    registry=REGISTRY,
+)
+JOBS = Counter(
+    "cablecal_identification_jobs",
+    "Finished identification jobs by method and final status.",
+    ["method", "status"],
+    registry=REGISTRY,
+)
+JOB_DURATION = Histogram(
+    "cablecal_identification_job_duration_seconds",
+    "Wall time of identification jobs from start to finish [s].",
+    ["method", "status"],
+    buckets=(0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 120, 300),
+    registry=REGISTRY,
+)
+HTTP_LATENCY = Histogram(
+    "cablecal_http_request_duration_seconds",
+    "API request latency by route template and status code [s].",
+    ["method", "route", "status"],
+    buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1, 2.5),
+    registry=REGISTRY,
+)
