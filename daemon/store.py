@@ -18,7 +18,9 @@ Schema version
 Values returned
     Plain dicts of JSON-friendly values. Booleans (``excluded``, ``auto_capture``,
     ``interrupted``, ``accepted``) are ``bool``; JSON columns are decoded and lose their
-    ``_json`` suffix (``model``, ``options``, ``result``, ``detail``).
+    ``_json`` suffix (``model``, ``options``, ``result``, ``detail``). JSON columns are stored
+    as strict JSON: a NaN or infinite float (e.g. the test metrics of a run with
+    ``test_fraction=0``) is stored and returned as None.
 
 Units and time
     Joint angles and their standard deviations in degrees (``q1..q6``, ``q1_std..q6_std``),
@@ -341,9 +343,21 @@ def _anchor(value: str, name: str = "anchor") -> str:
     return value.strip()
 
 
+def _strict(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, ±inf) replaced by None, recursively."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _strict(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_strict(v) for v in value]
+    return value
+
+
 def _to_json(value: Any, name: str) -> str:
+    """Strict JSON text: NaN and ±inf become null (HTTP clients reject bare NaN)."""
     try:
-        return json.dumps(value)
+        return json.dumps(_strict(value), allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise StoreInvalid(f"{name}: not JSON-serialisable: {exc}") from exc
 
@@ -1038,6 +1052,8 @@ class Store:
     def save_result(self, job_id: int, result_json: Row, accepted: bool = True) -> Row:
         """Store a job's result (the :meth:`IdentifyResult.to_json` mapping).
 
+        Non-finite floats in it are stored as null (strict JSON), see the module docstring.
+
         Raises
         ------
         StoreNotFound
@@ -1130,7 +1146,9 @@ class Store:
         """
         if not kind:
             raise StoreInvalid("kind: must be a non-empty string")
-        detail_json = None if detail is None else json.dumps(detail, default=str)
+        detail_json = (
+            None if detail is None else json.dumps(_strict(detail), default=str, allow_nan=False)
+        )
         with self._write():
             self._table("events").insert(
                 {"t_wall": _now(), "kind": kind, "device": device, "campaign_id": campaign_id,

@@ -455,7 +455,8 @@ def test_jobs_lifecycle_and_mark_interrupted(tmp_path: Path) -> None:
 
 
 def fake_result(offset_mm: float) -> dict[str, Any]:
-    """The parts of :meth:`IdentifyResult.to_json` the store reads, plus a NaN metric."""
+    """The parts of :meth:`IdentifyResult.to_json` the store reads, plus a NaN metric
+    (what ``to_json`` gives for the test figures of a run with ``test_fraction=0``)."""
     dh = [{"joint": j + 1, "alpha_deg": 0.0, "a_mm": 100.0 + offset_mm, "d_mm": 0.0,
            "theta_deg": 0.0} for j in range(6)]  # fmt: skip
     figures = {"rmse_mm": 0.1 + offset_mm, "mae_mm": 0.08, "std_mm": 0.1, "max_mm": 0.3}
@@ -476,7 +477,8 @@ def test_results_and_latest_calibrated_model(store: Store, campaign: dict[str, A
     first = store.save_result(jobs[0], fake_result(1.0))
     assert first["accepted"] is True and first["campaign_id"] == cid
     assert first["result"]["dh"][0]["a_mm"] == 101.0
-    assert math.isnan(first["result"]["metrics"]["before"]["test"]["rmse_mm"])
+    assert first["result"]["metrics"]["before"]["test"]["rmse_mm"] is None  # strict JSON
+    json.dumps(first, allow_nan=False)
     second = store.save_result(jobs[1], fake_result(2.0))
     store.save_result(jobs[2], fake_result(3.0), accepted=False)
     with pytest.raises(StoreError, match="already has a result"):
@@ -500,6 +502,32 @@ def test_results_and_latest_calibrated_model(store: Store, campaign: dict[str, A
     assert store.get_result_for_job(12345) is None
 
 
+def test_a_real_identify_result_is_stored_as_strict_json(
+    store: Store, campaign: dict[str, Any]
+) -> None:
+    """``IdentifyResult.to_json`` of a run without test rows has NaN test metrics."""
+    from calib.identify import IdentifyOptions, identify
+    from daemon.datafiles import bundled_dataset_text
+
+    rid, cid = campaign["robot_id"], campaign["id"]
+    store.import_samples(cid, parse_samples_csv(bundled_dataset_text()).subset(np.arange(60)))
+    samples, _ = store.sample_set(cid)
+    result = identify(
+        store.robot_model(rid), samples, IdentifyOptions(method="lm", test_fraction=0.0)
+    ).to_json()
+    assert math.isnan(result["metrics"]["after"]["test"]["rmse_mm"])
+    job = store.create_job(cid, rid, "lm", {"test_fraction": 0.0})
+    saved = store.save_result(job["id"], result)
+    json.dumps(saved, allow_nan=False)
+    assert saved["result"]["metrics"]["after"]["test"]["rmse_mm"] is None
+    assert saved["result"]["dh"] == result["dh"]
+    latest = store.latest_calibrated_model(rid)
+    assert latest is not None
+    assert latest["dh"] == result["dh"] and latest["tool_mm"] == result["tool_mm"]
+    assert latest["metrics"]["train"] == result["metrics"]["after"]["train"]
+    assert latest["method"] == "lm" and latest["robot"] == ROBOT
+
+
 # ----------------------------------------------------------------------------- events
 def test_events_record_filter_and_follow(store: Store, campaign: dict[str, Any]) -> None:
     store.record_event("sampler_started", None, "sampler up")
@@ -507,11 +535,12 @@ def test_events_record_filter_and_follow(store: Store, campaign: dict[str, Any])
                                                             "raw": b"\x01"})  # fmt: skip
     store.record_rejection(campaign["id"], "moving", "q2 moved 0.3 deg", "robot")
     store.record_rejection(999, "stale", "indicator reading 2.1 s old", "indicator")
-    store.record_event("link_up", "indicator", "reconnected")
+    store.record_event("link_up", "indicator", "reconnected", {"age_s": math.inf})
     events = store.list_events()
     assert [e["kind"] for e in events] == ["sampler_started", "link_down", "capture_rejected",
                                            "capture_rejected", "link_up"]  # fmt: skip
     assert events[1]["detail"] == {"frames_hex": ["01 03"], "raw": str(b"\x01")}
+    assert events[4]["detail"] == {"age_s": None}
     rejected = store.list_events(kind="capture_rejected")
     assert [e["campaign_id"] for e in rejected] == [campaign["id"], 999]
     assert rejected[0]["detail"] == {"reason": "moving", "detail": "q2 moved 0.3 deg"}
