@@ -59,6 +59,11 @@ from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel, builtin_model, model_from_mapping
 from daemon.capture import Capture
 
+if not hasattr(Database, "atomic"):  # pragma: no cover - depends on the installed version
+    # sqlite-utils 3.x commits inside every write method (``with conn:``), which would split
+    # the store's transactions; 4.x nests its writes in an open transaction as savepoints.
+    raise ImportError("daemon.store needs sqlite-utils >= 4 (Database.atomic)")
+
 Row = dict[str, Any]
 
 DB_FILENAME: Final = "cablecal.sqlite3"
