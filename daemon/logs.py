@@ -7,6 +7,10 @@ record is one JSON object per line::
      "msg": "indicator poll failed", "device": "indicator", "campaign_id": 3,
      "error": "IndicatorCRCError", "frames_hex": ["12.5 tx 01 03 00 00 00 02 c4 0b", "..."]}
 
+On the journal (stderr is the stream systemd names in ``JOURNAL_STREAM``) each line starts
+with the syslog priority, ``<4>{...}``: journald strips it and files the entry at that
+priority, so ``journalctl -u cablecal -p warning`` shows warnings and errors only.
+
 Context goes in ``extra=``: :data:`CONTEXT_FIELDS` are copied to the line when present. When
 the record carries an exception that is a :class:`drivers.errors.DeviceError`, its device and
 last frames are added even if the caller did not pass them, so every logged device error
@@ -15,8 +19,10 @@ shows the bytes on the wire.
 
 from __future__ import annotations
 
+import io
 import json
 import logging
+import os
 import sys
 from collections.abc import Iterable
 from datetime import UTC, datetime
@@ -27,6 +33,35 @@ CONTEXT_FIELDS = ("device", "campaign_id", "job_id", "sample_id", "frames_hex", 
 
 #: Marks the handler :func:`setup_logging` installs, so a second call replaces it.
 _HANDLER_NAME = "cablecal"
+
+
+#: logging level → syslog priority (the ``<N>`` prefix journald understands).
+_SYSLOG_PRIORITY = {
+    logging.CRITICAL: 2,
+    logging.ERROR: 3,
+    logging.WARNING: 4,
+    logging.INFO: 6,
+    logging.DEBUG: 7,
+}
+
+
+def _syslog_priority(levelno: int) -> int:
+    for level, priority in _SYSLOG_PRIORITY.items():  # highest level first
+        if levelno >= level:
+            return priority
+    return 7
+
+
+def is_journal_stream(stream: IO[str]) -> bool:
+    """True when ``stream`` is the journal connection systemd set up (``JOURNAL_STREAM``
+    holds its ``device:inode``)."""
+    expected = os.environ.get("JOURNAL_STREAM", "")
+    dev, _, ino = expected.partition(":")
+    try:
+        st = os.fstat(stream.fileno())
+        return (st.st_dev, st.st_ino) == (int(dev), int(ino))
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        return False
 
 
 def _iso_utc(created: float) -> str:
@@ -63,7 +98,17 @@ def record_context(record: logging.LogRecord) -> dict[str, Any]:
 
 
 class JsonLinesFormatter(logging.Formatter):
-    """One JSON object per record: ts (ISO 8601 UTC), level, logger, msg, context, exc_info."""
+    """One JSON object per record: ts (ISO 8601 UTC), level, logger, msg, context, exc_info.
+
+    Parameters
+    ----------
+    syslog_prefix : bool
+        Start each line with ``<priority>`` for journald.
+    """
+
+    def __init__(self, syslog_prefix: bool = False) -> None:
+        super().__init__()
+        self.syslog_prefix = syslog_prefix
 
     def format(self, record: logging.LogRecord) -> str:
         line: dict[str, Any] = {
@@ -77,7 +122,8 @@ class JsonLinesFormatter(logging.Formatter):
             line["exc_info"] = self.formatException(record.exc_info)
         if record.stack_info:
             line["stack_info"] = self.formatStack(record.stack_info)
-        return json.dumps(line, ensure_ascii=False, default=str)
+        text = json.dumps(line, ensure_ascii=False, default=str)
+        return f"<{_syslog_priority(record.levelno)}>{text}" if self.syslog_prefix else text
 
 
 class HumanFormatter(logging.Formatter):
@@ -116,6 +162,7 @@ def setup_logging(
     json_lines : bool, optional
         True for JSON lines, False for human-readable lines; None (default) chooses JSON
         when ``stream`` is not a terminal (under systemd, in a container, piped to a file).
+        JSON lines to the journal carry a ``<priority>`` prefix (see the module docstring).
     stream : text stream, optional
         Where to write; default ``sys.stderr`` (as it is at call time).
 
@@ -140,7 +187,9 @@ def setup_logging(
         json_lines = not (callable(isatty) and isatty())
     handler = logging.StreamHandler(out)
     handler.set_name(_HANDLER_NAME)
-    handler.setFormatter(JsonLinesFormatter() if json_lines else HumanFormatter())
+    handler.setFormatter(
+        JsonLinesFormatter(syslog_prefix=is_journal_stream(out)) if json_lines else HumanFormatter()
+    )
     root = logging.getLogger()
     for old in [h for h in root.handlers if h.get_name() == _HANDLER_NAME]:
         root.removeHandler(old)

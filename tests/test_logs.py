@@ -6,8 +6,10 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
 from collections.abc import Iterator
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -138,3 +140,32 @@ def test_level_names_and_numbers() -> None:
     assert logging.getLogger().level == logging.ERROR
     with pytest.raises(ValueError, match="level"):
         setup_logging("LOUD", stream=io.StringIO())
+
+
+def test_syslog_priority_prefix_on_the_journal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """systemd sets JOURNAL_STREAM=dev:inode of stderr; journald strips "<N>" and uses it as
+    the entry's priority."""
+    path = tmp_path / "journal"
+    with path.open("w") as journal:
+        st = os.fstat(journal.fileno())
+        monkeypatch.setenv("JOURNAL_STREAM", f"{st.st_dev}:{st.st_ino}")
+        setup_logging("DEBUG", stream=journal)
+        log = logging.getLogger("x")
+        log.debug("d")
+        log.info("i")
+        log.warning("w")
+        log.error("e")
+        log.critical("c")
+    text = path.read_text().splitlines()
+    assert [line[:4] for line in text] == ["<7>{", "<6>{", "<4>{", "<3>{", "<2>{"]
+    assert json.loads(text[2][3:])["msg"] == "w"
+
+
+def test_no_prefix_on_other_streams(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("JOURNAL_STREAM", "1:2")
+    with (tmp_path / "log").open("w") as other:
+        setup_logging(stream=other)
+        logging.getLogger("x").warning("w")
+    assert (tmp_path / "log").read_text().startswith("{")
