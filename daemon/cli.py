@@ -14,9 +14,13 @@ app = typer.Typer(
 
 def _register_all() -> None:
     import daemon.cli_calib as cli_calib
+    import daemon.cli_db as cli_db
+    import daemon.cli_serve as cli_serve
     from simulator import cli as simulator_cli
 
     cli_calib.register(app)
+    cli_serve.register(app)
+    cli_db.register(app)
     simulator_cli.register(app)
 
 

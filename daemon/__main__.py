@@ -1,0 +1,5 @@
+"""``python -m daemon``: the ``cablecal`` command line."""
+
+from daemon.cli import main
+
+main()

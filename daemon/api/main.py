@@ -1,0 +1,139 @@
+"""Assemble the FastAPI app: lifespan (store → jobs → sampler, stopped in reverse), routers,
+error handlers, the latency middleware and the operator page."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import HTMLResponse, JSONResponse
+
+from daemon import metrics
+from daemon.api.deps import AppState
+from daemon.api.page import OPERATOR_PAGE
+from daemon.api.routes import campaigns, identifications, robots, system
+from daemon.config import Settings
+from daemon.jobs import JobManager
+from daemon.store import Store, StoreNotFound
+
+log = logging.getLogger("cablecal.service")
+
+API_PREFIX = "/api/v1"
+
+Scope = MutableMapping[str, Any]
+Message = MutableMapping[str, Any]
+Receive = Callable[[], Awaitable[Message]]
+Send = Callable[[Message], Awaitable[None]]
+ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
+
+
+class LatencyMiddleware:
+    """Pure ASGI middleware: request latency per route template and status into
+    :data:`daemon.metrics.HTTP_LATENCY` (no per-request task, unlike BaseHTTPMiddleware)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        t0 = time.perf_counter()
+        code = [500]
+
+        async def send_wrapper(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                code[0] = int(message["status"])
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_wrapper)
+        finally:
+            route = scope.get("route")
+            template = getattr(route, "path", None) or "unmatched"
+            # Routes of included routers carry their path without the router's prefix.
+            if (
+                route is not None
+                and scope["path"].startswith(API_PREFIX)
+                and not template.startswith(API_PREFIX)
+            ):
+                template = API_PREFIX + template
+            metrics.HTTP_LATENCY.labels(scope["method"], template, str(code[0])).observe(
+                time.perf_counter() - t0
+            )
+
+
+def build_state(settings: Settings, token: str) -> AppState:
+    """Open the store (creating or migrating it) and create the job manager."""
+    settings.state_dir.mkdir(parents=True, exist_ok=True)
+    store = Store(settings.database_path)
+    return AppState(
+        settings=settings, token=token, store=store, jobs=JobManager(store, settings.jobs)
+    )
+
+
+def create_app(
+    settings: Settings,
+    token: str,
+    *,
+    sampler_factory: Callable[[AppState], Any] | None = None,
+) -> FastAPI:
+    """The service. ``sampler_factory(state)`` builds the sampler (default: the configured
+    drivers via :func:`daemon.sampler.build_sampler`); it is started in the lifespan."""
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        state = build_state(settings, token)
+        app.state.cablecal = state
+        state.store.record_event("daemon_started", None, "cablecal serve started")
+        await state.jobs.start()
+        try:
+            state.sampler = (sampler_factory or _default_sampler)(state)
+            await state.sampler.start()
+            for campaign in state.store.auto_capture_campaigns():
+                cid = int(campaign["id"])
+                state.sampler.set_auto(
+                    cid,
+                    anchor=str(campaign.get("auto_anchor") or "A"),
+                    known_poses_deg=state.store.poses_deg(cid),
+                )
+                log.info("auto capture resumed", extra={"campaign_id": cid})
+            yield
+        finally:
+            if state.sampler is not None:
+                await state.sampler.stop()
+            await state.jobs.stop()
+            state.store.record_event("daemon_stopped", None, "cablecal serve stopped")
+            state.store.close()
+
+    app = FastAPI(
+        title="cablecal",
+        version=system.VERSION,
+        summary="Robot calibration with a drawstring sensor: campaigns, captures, identification.",
+        lifespan=lifespan,
+    )
+    app.add_middleware(LatencyMiddleware)
+    for module in (system, campaigns, identifications, robots):
+        app.include_router(module.router, prefix=API_PREFIX)
+    app.include_router(system.metrics_router)
+
+    @app.exception_handler(StoreNotFound)
+    async def _not_found(request: Request, exc: StoreNotFound) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=404)
+
+    @app.get("/", include_in_schema=False, response_class=HTMLResponse)
+    async def operator_page() -> str:
+        return OPERATOR_PAGE
+
+    return app
+
+
+def _default_sampler(state: AppState) -> Any:
+    from daemon.sampler import build_sampler
+
+    s = state.settings
+    return build_sampler(s.indicator.model_dump(), s.robot.model_dump(), s.sampler, state.store)

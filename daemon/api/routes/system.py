@@ -1,0 +1,77 @@
+"""Liveness, status, Prometheus metrics and the test-only debug hooks."""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException, Query, Response
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+from pydantic import BaseModel, Field
+
+from daemon import metrics
+from daemon.api.deps import ReadAuth, State, WriteAuth
+
+router = APIRouter(tags=["system"])
+metrics_router = APIRouter(tags=["system"])
+
+VERSION = "0.1.0"
+
+
+@router.get("/health", summary="Liveness")
+async def health(state: State) -> dict[str, Any]:
+    """Always open. ``status`` is ``ok`` while the service answers."""
+    return {
+        "status": "ok",
+        "version": VERSION,
+        "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
+    }
+
+
+@router.get("/status", summary="Devices, sampler mode and rates", dependencies=[ReadAuth])
+async def get_status(state: State) -> dict[str, Any]:
+    """Each device's connection state, last reading and its age, last error (with the last
+    frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs."""
+    st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
+    return {
+        "devices": st.get("devices", {}),
+        "sampler": st.get("sampler"),
+        "jobs": {"active": state.jobs.active},
+        "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
+    }
+
+
+@router.get("/events", summary="Device and daemon events", dependencies=[ReadAuth])
+def list_events(
+    state: State,
+    kind: str | None = Query(None, description="e.g. link_down, link_up, capture_rejected"),
+    since_id: int | None = Query(None, description="Only events with a larger id."),
+    limit: int = Query(100, ge=1, le=1000),
+) -> list[dict[str, Any]]:
+    """Device errors, link drops and recoveries, rejected captures, daemon starts and stops,
+    newest last."""
+    return [dict(e) for e in state.store.list_events(kind=kind, since_id=since_id, limit=limit)]
+
+
+@metrics_router.get("/metrics", summary="Prometheus metrics", response_class=Response)
+async def get_metrics(state: State) -> Response:
+    """Prometheus text format (always open: counters only, no secrets)."""
+    if state.sampler is not None:
+        state.sampler.update_age_metrics()
+    return Response(generate_latest(metrics.REGISTRY), media_type=CONTENT_TYPE_LATEST)
+
+
+class Hang(BaseModel):
+    """Block the event loop (debug_routes only)."""
+
+    seconds: Annotated[float, Field(gt=0, le=120)]
+
+
+@router.post("/debug/hang", include_in_schema=False, dependencies=[WriteAuth])
+async def debug_hang(state: State, body: Hang) -> dict[str, float]:
+    """Simulate a hung main loop: a blocking sleep ON the event loop. Tests use it to show the
+    systemd watchdog pings stop. Only with ``debug_routes = true``."""
+    if not state.settings.debug_routes:
+        raise HTTPException(404, "debug routes are disabled")
+    time.sleep(body.seconds)  # deliberately blocking
+    return {"slept_s": body.seconds}

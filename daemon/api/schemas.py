@@ -1,0 +1,85 @@
+"""Request and response bodies of the REST API (pydantic; they document /docs)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from calib.identify import METHODS
+
+Method = Literal["lm", "vslm", "ukf", "ekf", "ukf-vslm", "de"]
+assert set(METHODS) == set(Method.__args__)  # type: ignore[attr-defined]
+
+
+class _Body(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CampaignCreate(_Body):
+    """A new calibration campaign."""
+
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    robot_model: str | dict[str, Any] = Field(
+        "hsr-jr680",
+        description=(
+            "A built-in model name (hsr-jr680), or an uploaded model as a mapping: "
+            "name, convention (dh|mdh), tool_mm, joints: [{alpha_deg, a_mm, d_mm, theta_deg, "
+            "limits_deg}] (the TOML/JSON model file format of `cablecal identify --robot`)."
+        ),
+    )
+    notes: str = ""
+
+
+class CaptureRequest(_Body):
+    """A manual capture."""
+
+    joints_deg: Annotated[list[float], Field(min_length=6, max_length=6)] | None = Field(
+        None, description="Joint angles [deg], only with the manual robot driver."
+    )
+    anchor: Annotated[str, Field(min_length=1, max_length=32)] = Field(
+        "A", description="Sensor position id."
+    )
+
+
+class AutoCapture(_Body):
+    """Switch auto capture on or off."""
+
+    enabled: bool
+    anchor: Annotated[str, Field(min_length=1, max_length=32)] = "A"
+
+
+class SamplePatch(_Body):
+    """Exclude a sample from identification, or include it again."""
+
+    excluded: bool
+    reason: str | None = Field(None, max_length=500)
+
+
+class IdentificationRequest(_Body):
+    """Options of an identification job (see ``cablecal identify --help``)."""
+
+    method: Method = "ukf-vslm"
+    test_fraction: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.2
+    seed: int = 0
+    holdout: Literal["random", "grouped"] = "random"
+    robust: Literal["none", "huber", "soft_l1", "reject"] = "none"
+    fixed: list[str] = Field(default_factory=list, description="Parameter names held nominal.")
+    free: list[str] = Field(
+        default_factory=list, description="Parameter names solved even if unidentifiable."
+    )
+    prior: bool = Field(False, description="MAP prior toward the nominal model.")
+    prior_mm: Annotated[float, Field(gt=0)] = 2.0
+    prior_deg: Annotated[float, Field(gt=0)] = 0.2
+    noise_mm: Annotated[float, Field(gt=0)] | None = Field(
+        None, description="Assumed 1-sigma length noise [mm]; default from the config."
+    )
+
+    def to_options(self) -> dict[str, Any]:
+        """Keyword arguments of :class:`calib.identify.IdentifyOptions`."""
+        out = self.model_dump(exclude={"fixed", "free", "noise_mm"})
+        out["fix"] = tuple(self.fixed)
+        out["free"] = tuple(self.free)
+        if self.noise_mm is not None:
+            out["noise_mm"] = self.noise_mm
+        return out

@@ -1,0 +1,152 @@
+"""``cablecal serve``: the daemon (REST API + sampler + jobs) under uvicorn, with systemd notify.
+
+Start-up order: settings → logging → token → uvicorn (its lifespan opens the store, starts the
+job pool and the sampler) → once the socket listens: ``READY=1`` and the watchdog task on the
+same event loop. The line ``SERVING {json}`` on stdout gives ``url`` (and ``token`` when it was
+generated) to scripts and tests.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import typer
+import uvicorn
+from pydantic import ValidationError
+
+from daemon.config import ConfigError, Settings, simulated_cell_overrides
+
+log = logging.getLogger("cablecal.serve")
+
+
+def _fail(message: str) -> typer.Exit:
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(2)
+
+
+def load_settings(
+    config: Path | None,
+    simulated_cell: Path | None,
+    host: str | None,
+    port: int | None,
+) -> Settings:
+    """Settings from the file, the environment and the command-line overrides."""
+    overrides: dict[str, Any] = {}
+    if host is not None:
+        overrides["host"] = host
+    if port is not None:
+        overrides["port"] = port
+    settings = Settings.load(config, **overrides)
+    if simulated_cell is not None:
+        try:
+            ready = json.loads(simulated_cell.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"--simulated-cell: cannot read {simulated_cell}: {exc}") from exc
+        if not isinstance(ready, dict):
+            raise ConfigError("--simulated-cell: expected the JSON object of the READY line")
+        overrides.update(simulated_cell_overrides(ready, settings))
+        settings = Settings.load(config, **overrides)
+    return settings
+
+
+def write_token_file(state_dir: Path, token: str) -> Path:
+    """Write a generated token to ``STATE_DIR/api-token`` (mode 0600)."""
+    state_dir.mkdir(parents=True, exist_ok=True)
+    path = state_dir / "api-token"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(token + "\n")
+    os.chmod(path, 0o600)
+    return path
+
+
+async def serve(settings: Settings, token: str, generated: bool) -> int:
+    """Run until SIGTERM/SIGINT; returns the exit code."""
+    from daemon.api.main import create_app
+    from daemon.notify import Notifier, watchdog_loop
+
+    app = create_app(settings, token)
+    config = uvicorn.Config(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_config=None,
+        access_log=False,
+        lifespan="on",
+        timeout_graceful_shutdown=5,
+    )
+    server = uvicorn.Server(config)
+    notifier = Notifier.from_env()
+    serve_task = asyncio.create_task(server.serve(), name="uvicorn")
+    while not server.started and not serve_task.done():
+        await asyncio.sleep(0.02)
+    if not server.started:
+        await serve_task
+        return 1
+    port = server.servers[0].sockets[0].getsockname()[1]
+    url = f"http://{settings.host}:{port}"
+    line: dict[str, Any] = {"url": url, "docs": f"{url}/docs", "db": str(settings.database_path)}
+    if generated:
+        line["token"] = token
+    print("SERVING " + json.dumps(line), flush=True)
+    log.info("listening on %s", url)
+
+    def health() -> str | None:
+        state = getattr(app.state, "cablecal", None)
+        if state is None or state.sampler is None:
+            return "starting"
+        st = state.sampler.status()
+        devices = ", ".join(f"{d['name']} {d['state']}" for d in st["devices"].values())
+        return f"{st['sampler']['mode']} mode; {devices}; jobs active {state.jobs.active}"
+
+    notifier.ready(status=health())
+    watchdog = asyncio.create_task(watchdog_loop(notifier, health), name="watchdog")
+    try:
+        await serve_task
+    finally:
+        notifier.stopping()
+        watchdog.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await watchdog
+    return 0
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``serve`` to the CLI."""
+
+    @app.command("serve")
+    def serve_cmd(
+        config: Path | None = typer.Option(
+            None, "--config", "-c", help="TOML settings file (see deploy/cablecal.toml.example)."
+        ),
+        simulated_cell: Path | None = typer.Option(
+            None,
+            "--simulated-cell",
+            help="JSON of the READY line of `cablecal simulate`: use its emulated devices.",
+        ),
+        host: str | None = typer.Option(None, help="Bind address (default 127.0.0.1)."),
+        port: int | None = typer.Option(None, help="TCP port (default 8080, 0 = any free)."),
+    ) -> None:
+        """Run the daemon: sampler, SQLite store, identification jobs and the REST API."""
+        from daemon.logs import setup_logging
+
+        try:
+            settings = load_settings(config, simulated_cell, host, port)
+            token, generated = settings.resolve_token()
+        except ValidationError as exc:
+            raise _fail(f"configuration: {exc}") from exc
+        except ConfigError as exc:
+            raise _fail(str(exc)) from exc
+        setup_logging(settings.log_level, settings.log_json)
+        if generated:
+            path = write_token_file(settings.state_dir, token)
+            log.warning("no api_token configured: generated one for this run, in %s", path)
+        code = asyncio.run(serve(settings, token, generated))
+        sys.exit(code)

@@ -1,0 +1,232 @@
+"""Daemon configuration: one TOML file plus ``CABLECAL_*`` environment variables.
+
+Precedence, highest first: explicit overrides (command-line options), environment variables,
+the TOML file (``cablecal serve --config FILE``), the defaults below. Nested settings take
+``__`` in the environment: ``CABLECAL_INDICATOR__PORT=/dev/ttyUSB1``,
+``CABLECAL_SAMPLER__SETTLE_S=1.0``. The API token is ``CABLECAL_API_TOKEN``.
+
+Every setting carries its unit in its name or its description; ``deploy/cablecal.toml.example``
+lists them all with their defaults. Unknown keys in the file are errors that name the key.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import secrets
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from daemon.sampler import SamplerConfig
+from drivers import (
+    AsciiIndicatorConfig,
+    HuashuConfig,
+    IndicatorConfig,
+    ManualRobotConfig,
+    ModbusRobotConfig,
+)
+
+
+class ConfigError(ValueError):
+    """The configuration cannot be used (names the setting)."""
+
+
+def _indicator_tag(value: Any) -> str:
+    kind = value.get("kind", "modbus-rtu") if isinstance(value, dict) else value.kind
+    return "ascii" if kind == "ascii" else "modbus"
+
+
+def _robot_tag(value: Any) -> str:
+    kind = value.get("kind", "manual") if isinstance(value, dict) else value.kind
+    return str(kind)
+
+
+IndicatorSettings = Annotated[
+    Annotated[IndicatorConfig, Tag("modbus")] | Annotated[AsciiIndicatorConfig, Tag("ascii")],
+    Discriminator(_indicator_tag),
+]
+RobotSettings = Annotated[
+    Annotated[HuashuConfig, Tag("huashu-socketcmd")]
+    | Annotated[ModbusRobotConfig, Tag("modbus-tcp")]
+    | Annotated[ManualRobotConfig, Tag("manual")],
+    Discriminator(_robot_tag),
+]
+
+
+class JobSettings(BaseModel):
+    """Identification jobs."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    workers: Annotated[int, Field(ge=1, le=16)] = 1
+    """Worker processes of the identification pool."""
+    timeout_s: Annotated[float, Field(gt=0)] = 900.0
+    """A job still running after this long [s] is cancelled and marked failed."""
+    noise_mm: Annotated[float, Field(gt=0)] = 0.05
+    """Assumed 1-sigma cable-length noise [mm] (weights the prior and the filters' R)."""
+    auto_accept: bool = True
+    """Accept a succeeded job's model as the robot's calibrated model when its parameters
+    are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
+
+
+def default_state_dir() -> Path:
+    """``$STATE_DIRECTORY`` (set by systemd's ``StateDirectory=``), else
+    ``$XDG_STATE_HOME/cablecal``, else ``~/.local/state/cablecal``."""
+    if sd := os.environ.get("STATE_DIRECTORY"):
+        return Path(sd.split(":")[0])
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "cablecal"
+
+
+class Settings(BaseSettings):
+    """Everything ``cablecal serve`` reads. See the module docstring for the sources."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="CABLECAL_",
+        env_nested_delimiter="__",
+        extra="forbid",
+        validate_default=True,
+    )
+
+    host: str = "127.0.0.1"
+    """Address the REST API binds to. Anything but loopback requires ``api_token``."""
+    port: Annotated[int, Field(ge=0, le=65535)] = 8080
+    """TCP port of the REST API (0: any free port)."""
+    api_token: SecretStr | None = None
+    """Bearer token required on every write route (``CABLECAL_API_TOKEN``). Unset on
+    loopback: a random token is generated at start-up and written to
+    ``STATE_DIR/api-token`` (mode 0600)."""
+    public_reads: bool = False
+    """Serve the read routes (GET) without a token. ``/health`` and ``/metrics`` are always
+    open."""
+    state_dir: Path = Field(default_factory=default_state_dir)
+    """Directory of the SQLite database and the generated token."""
+    db_path: Path | None = None
+    """SQLite file; default ``STATE_DIR/cablecal.sqlite3``."""
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    log_json: bool | None = None
+    """JSON lines (true), human-readable (false), or JSON when stderr is not a terminal."""
+    sampler: SamplerConfig = SamplerConfig()
+    indicator: IndicatorSettings = Field(
+        default_factory=lambda: IndicatorConfig(port="/dev/cablecal-indicator")
+    )
+    """The cable-length indicator; ``kind`` modbus-rtu (default), modbus-tcp or ascii."""
+    robot: RobotSettings = Field(default_factory=ManualRobotConfig)
+    """The joint-angle source; ``kind`` manual (default), huashu-socketcmd or modbus-tcp."""
+    jobs: JobSettings = JobSettings()
+    debug_routes: bool = False
+    """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return (init_settings, env_settings, TomlConfigSettingsSource(settings_cls))
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, **overrides: Any) -> Settings:
+        """Settings from ``path`` (TOML; None: defaults), the environment and ``overrides``.
+
+        Raises
+        ------
+        ConfigError
+            The file is missing or is not valid TOML.
+        pydantic.ValidationError
+            A value is invalid; the error names the setting.
+        """
+        if path is None:
+            return cls(**overrides)
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"config: no such file {p}")
+        import tomllib
+
+        try:
+            tomllib.loads(p.read_text(encoding="utf-8"))
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config: {p} is not valid TOML: {exc}") from exc
+
+        class _FromFile(cls):  # type: ignore[valid-type,misc]
+            model_config = SettingsConfigDict(**{**cls.model_config, "toml_file": p})
+
+        return _FromFile(**overrides)
+
+    @property
+    def database_path(self) -> Path:
+        """The SQLite file."""
+        return self.db_path if self.db_path is not None else self.state_dir / "cablecal.sqlite3"
+
+    def is_loopback(self) -> bool:
+        """Whether ``host`` is a loopback address (or ``localhost``)."""
+        if self.host == "localhost":
+            return True
+        try:
+            return ipaddress.ip_address(self.host).is_loopback
+        except ValueError:
+            return False
+
+    def resolve_token(self) -> tuple[str, bool]:
+        """The API token and whether it was generated.
+
+        Raises
+        ------
+        ConfigError
+            Binding to a non-loopback address without ``api_token``.
+        """
+        if self.api_token is not None and self.api_token.get_secret_value():
+            return self.api_token.get_secret_value(), False
+        if not self.is_loopback():
+            raise ConfigError(
+                f"api_token: required to listen on {self.host} (not loopback); "
+                "set CABLECAL_API_TOKEN or api_token in the config file"
+            )
+        return secrets.token_urlsafe(24), True
+
+
+def simulated_cell_overrides(ready: dict[str, Any], settings: Settings) -> dict[str, Any]:
+    """Indicator and robot settings pointing at a running emulated cell.
+
+    Parameters
+    ----------
+    ready : dict
+        The JSON of the ``READY`` line of ``cablecal simulate``: ``indicator_port`` (pty) or
+        ``indicator_tcp`` (``host:port``, RTU over TCP), ``robot_socketcmd`` or
+        ``robot_modbus`` (``host:port``).
+    settings : Settings
+        The loaded settings; serial options (baud, register map, …) are kept.
+
+    Raises
+    ------
+    ConfigError
+        The mapping has no usable indicator or robot endpoint.
+    """
+    ind = settings.indicator
+    ind_base = ind.model_dump() if isinstance(ind, IndicatorConfig) else {}
+    if ready.get("indicator_port"):
+        indicator = {**ind_base, "kind": "modbus-rtu", "port": ready["indicator_port"]}
+    elif ready.get("indicator_tcp"):
+        indicator = {**ind_base, "kind": "modbus-rtu", "port": f"socket://{ready['indicator_tcp']}"}
+    else:
+        raise ConfigError("simulated cell: READY has neither indicator_port nor indicator_tcp")
+    if ready.get("robot_socketcmd"):
+        host, port = str(ready["robot_socketcmd"]).rsplit(":", 1)
+        robot: dict[str, Any] = {"kind": "huashu-socketcmd", "host": host, "port": int(port)}
+    elif ready.get("robot_modbus"):
+        host, port = str(ready["robot_modbus"]).rsplit(":", 1)
+        robot = {"kind": "modbus-tcp", "host": host, "port": int(port), "preset": "ur"}
+    else:
+        raise ConfigError("simulated cell: READY has neither robot_socketcmd nor robot_modbus")
+    return {"indicator": indicator, "robot": robot}

@@ -1,0 +1,329 @@
+"""Identification jobs: run :func:`calib.identify.identify` in a process pool, off the event loop.
+
+Design
+------
+* The pool is a :class:`~concurrent.futures.ProcessPoolExecutor` on the ``forkserver`` context
+  (the daemon has threads, so plain ``fork`` is unsafe), with ``calib.identify`` preloaded so a
+  job starts without re-importing numpy and scipy.
+* A job gets a snapshot of the campaign's included samples at submission time, as plain lists
+  (no precision lost), the nominal model as a mapping, and the options as a mapping.
+* Progress comes back through a manager queue; cancellation goes out through a manager dict
+  the worker's progress callback polls, raising :class:`calib.solvers.common.Cancelled`. A queued
+  job is cancelled by cancelling its future.
+* The store holds every state change, so a restart finds each job queued, running or finished;
+  :meth:`daemon.store.Store.mark_interrupted` turns the unfinished ones into ``failed``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import multiprocessing
+import queue
+import time
+from collections.abc import Mapping
+from concurrent.futures import Future, ProcessPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from daemon import metrics
+from daemon.config import JobSettings
+
+log = logging.getLogger("cablecal.jobs")
+
+#: Seconds between progress messages a worker sends (the last one is always sent).
+PROGRESS_INTERVAL_S = 0.2
+
+
+class JobError(ValueError):
+    """A job request cannot run (names the field)."""
+
+
+def _noop() -> int:
+    return 0
+
+
+def run_identification(
+    job_id: int,
+    model_mapping: dict[str, Any],
+    joints_deg: list[list[float]],
+    length_mm: list[float],
+    anchors: list[str],
+    options: dict[str, Any],
+    progress_queue: Any,
+    cancel_flags: Any,
+) -> dict[str, Any]:
+    """Worker-side body of a job (runs in a pool process).
+
+    Parameters
+    ----------
+    job_id : int
+    model_mapping : dict
+        Nominal model, as :func:`calib.models.model_from_mapping` reads it.
+    joints_deg : list of n lists of 6 floats
+        Joint angles [deg].
+    length_mm : list of n floats
+        Cable lengths [mm].
+    anchors : list of n str
+        Anchor id per sample.
+    options : dict
+        Keyword arguments of :class:`calib.identify.IdentifyOptions`.
+    progress_queue, cancel_flags
+        Manager proxies: ``(job_id, fraction, message)`` tuples go out; ``cancel_flags[job_id]``
+        set true asks the job to stop.
+
+    Returns
+    -------
+    dict
+        The ``result.json`` contract of :meth:`calib.identify.IdentifyResult.to_json`.
+    """
+    from calib.dataset import make_samples
+    from calib.identify import IdentifyOptions, identify
+    from calib.models import model_from_mapping
+    from calib.solvers.common import Cancelled
+
+    model = model_from_mapping(model_mapping)
+    samples = make_samples(np.asarray(joints_deg, dtype=float), np.asarray(length_mm), anchors)
+    kwargs: dict[str, Any] = {
+        k: tuple(v) if k in ("fix", "free") else v for k, v in options.items()
+    }
+    opts = IdentifyOptions(**kwargs)
+    progress_queue.put((job_id, 0.0, "started"))
+    last = [time.monotonic()]
+
+    def progress(fraction: float, message: str) -> None:
+        if cancel_flags.get(job_id):
+            raise Cancelled(f"job {job_id} cancelled")
+        now = time.monotonic()
+        if now - last[0] >= PROGRESS_INTERVAL_S or fraction >= 1.0:
+            last[0] = now
+            progress_queue.put((job_id, float(fraction), message))
+
+    return identify(model, samples, opts, progress=progress).to_json()
+
+
+class JobManager:
+    """Queue, run, cancel and record identification jobs.
+
+    Parameters
+    ----------
+    store : daemon.store.Store
+    settings : JobSettings
+    """
+
+    def __init__(self, store: Any, settings: JobSettings) -> None:
+        self.store = store
+        self.settings = settings
+        self._pool: ProcessPoolExecutor | None = None
+        self._manager: Any = None
+        self._progress: Any = None
+        self._cancel: Any = None
+        self._futures: dict[int, Future[dict[str, Any]]] = {}
+        self._tasks: dict[int, asyncio.Task[None]] = {}
+        self._pump: asyncio.Task[None] | None = None
+
+    @property
+    def active(self) -> int:
+        """Jobs queued or running in this process."""
+        return len(self._tasks)
+
+    async def start(self) -> None:
+        """Start the pool and the progress pump; mark jobs of a previous run interrupted."""
+        n = self.store.mark_interrupted()
+        if n:
+            log.warning("%d identification job(s) were interrupted by a restart", n)
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["calib.identify", "daemon.jobs"])
+        self._manager = ctx.Manager()
+        self._progress = self._manager.Queue()
+        self._cancel = self._manager.dict()
+        self._pool = ProcessPoolExecutor(max_workers=self.settings.workers, mp_context=ctx)
+        # Warm the workers up now rather than in the first job.
+        await asyncio.wrap_future(self._pool.submit(_noop))
+        self._pump = asyncio.create_task(self._pump_progress(), name="job-progress")
+
+    async def stop(self) -> None:
+        """Cancel running jobs, stop the pool and the manager."""
+        for job_id in list(self._tasks):
+            if self._cancel is not None:
+                self._cancel[job_id] = True
+        if self._pump is not None:
+            self._pump.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._pump
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        for task in list(self._tasks.values()):
+            task.cancel()
+        if self._manager is not None:
+            with contextlib.suppress(Exception):
+                self._manager.shutdown()
+
+    # ------------------------------------------------------------------ submit / cancel
+    def submit(self, campaign_id: int, options: Mapping[str, Any]) -> dict[str, Any]:
+        """Queue an identification of the campaign's included samples.
+
+        Raises
+        ------
+        JobError
+            Bad options (the message names the option) or too few samples.
+        daemon.store.StoreNotFound
+            No such campaign.
+        """
+        from calib.identify import IdentifyOptions
+
+        campaign = self.store.get_campaign(campaign_id)
+        if campaign is None:
+            from daemon.store import StoreNotFound
+
+            raise StoreNotFound("campaign", campaign_id)
+        opts = {"noise_mm": self.settings.noise_mm, **dict(options)}
+        try:
+            IdentifyOptions(**opts)
+        except (TypeError, ValueError) as exc:
+            raise JobError(str(exc)) from exc
+        samples, _ids = self.store.sample_set(campaign_id)
+        from calib.cable import ParamLayout
+
+        known = ParamLayout(samples.anchor_ids or ("A",)).names
+        for key in ("fix", "free"):
+            bad = [n for n in opts.get(key, ()) if n not in known]
+            if bad:
+                raise JobError(f"{'fixed' if key == 'fix' else key}: unknown parameter(s) {bad}")
+        n_min = 30
+        if len(samples) < n_min:
+            raise JobError(
+                f"samples: campaign {campaign_id} has {len(samples)} included samples; "
+                f"identification needs at least {n_min}"
+            )
+        robot_id = int(campaign["robot_id"])
+        model = self.store.robot_model(robot_id)
+        job = self.store.create_job(
+            campaign_id, robot_id, str(opts.get("method", "ukf-vslm")), opts
+        )
+        job_id = int(job["id"])
+        if self._pool is None:
+            raise RuntimeError("job manager not started")
+        future = self._pool.submit(
+            run_identification,
+            job_id,
+            model.to_dict(),
+            samples.joints_deg.tolist(),
+            samples.length_mm.tolist(),
+            list(samples.anchor),
+            opts,
+            self._progress,
+            self._cancel,
+        )
+        self._futures[job_id] = future
+        self._tasks[job_id] = asyncio.create_task(self._watch(job_id, future, _ids, opts))
+        return dict(job)
+
+    def cancel(self, job_id: int) -> dict[str, Any]:
+        """Cancel a queued or running job (a finished job is returned unchanged)."""
+        job = self.store.get_job(job_id)
+        if job is None:
+            from daemon.store import StoreNotFound
+
+            raise StoreNotFound("identification", job_id)
+        if job["status"] in ("succeeded", "failed", "cancelled"):
+            return dict(job)
+        future = self._futures.get(job_id)
+        if future is not None and future.cancel():
+            # Never started: the watcher sees CancelledError and records it.
+            return dict(self.store.get_job(job_id))
+        if self._cancel is not None:
+            self._cancel[job_id] = True
+        self.store.update_job(job_id, message="cancel requested")
+        return dict(self.store.get_job(job_id))
+
+    # ------------------------------------------------------------------ internals
+    async def _watch(
+        self,
+        job_id: int,
+        future: Future[dict[str, Any]],
+        sample_ids: list[int],
+        opts: dict[str, Any],
+    ) -> None:
+        method = str(opts.get("method", "ukf-vslm"))
+        t0 = time.monotonic()
+        status = "failed"
+        try:
+            # Marked running once a worker picks it up (first progress) or here on start.
+            result = await asyncio.wait_for(
+                asyncio.wrap_future(future), timeout=self.settings.timeout_s
+            )
+        except asyncio.CancelledError:
+            status = "cancelled"
+            self._finish(job_id, status, error="cancelled before it started")
+            if not future.cancelled():
+                raise
+        except TimeoutError:
+            if self._cancel is not None:
+                self._cancel[job_id] = True
+            self._finish(job_id, status, error=f"timed out after {self.settings.timeout_s} s")
+        except Exception as exc:
+            from calib.solvers.common import Cancelled
+
+            if isinstance(exc, Cancelled):
+                status = "cancelled"
+                self._finish(job_id, status, error="cancelled while running")
+            else:
+                log.exception("identification job %d failed", job_id, extra={"job_id": job_id})
+                self._finish(job_id, status, error=f"{type(exc).__name__}: {exc}")
+        else:
+            status = "succeeded"
+            result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
+            result["sample_ids"] = {"count": len(sample_ids)}
+            plausible = bool(result.get("plausibility", {}).get("plausible", False))
+            accepted = self.settings.auto_accept and plausible
+            self.store.save_result(job_id, result, accepted=accepted)
+            self._finish(
+                job_id,
+                status,
+                message="accepted"
+                if accepted
+                else "not accepted: parameters implausible"
+                if not plausible
+                else "not accepted automatically",
+            )
+        finally:
+            metrics.JOBS.labels(method, status).inc()
+            metrics.JOB_DURATION.labels(method, status).observe(time.monotonic() - t0)
+            self._futures.pop(job_id, None)
+            self._tasks.pop(job_id, None)
+            if self._cancel is not None:
+                with contextlib.suppress(Exception):
+                    self._cancel.pop(job_id, None)
+
+    def _finish(
+        self, job_id: int, status: str, message: str = "", error: str | None = None
+    ) -> None:
+        fields: dict[str, Any] = {"status": status, "finished_at": time.time()}
+        if status == "succeeded":
+            fields["progress"] = 1.0
+        if message:
+            fields["message"] = message
+        if error is not None:
+            fields["error"] = error
+        self.store.update_job(job_id, **fields)
+        log.info("identification job %d %s", job_id, status, extra={"job_id": job_id})
+
+    async def _pump_progress(self) -> None:
+        """Move progress messages from the workers into the store."""
+        while True:
+            try:
+                job_id, fraction, message = await asyncio.to_thread(self._progress.get, True, 0.5)
+            except queue.Empty:
+                continue
+            except (EOFError, OSError, BrokenPipeError):
+                return
+            job = self.store.get_job(job_id)
+            if job is None or job["status"] in ("succeeded", "failed", "cancelled"):
+                continue
+            fields: dict[str, Any] = {"progress": min(max(fraction, 0.0), 0.99), "message": message}
+            if job["status"] == "queued":
+                fields.update(status="running", started_at=time.time())
+            self.store.update_job(job_id, **fields)
