@@ -1,0 +1,895 @@
+"""The sampler: polls the indicator and the robot, detects settling, and captures samples.
+
+One asyncio task polls both devices concurrently each cycle and pairs the two replies into a
+reading (joint angles, cable length, monotonic and wall stamps, over-range flag) kept in a ring
+buffer of ``history_s``. A device error never stops the loop: it is counted, logged with the
+device's last frames, recorded as an event at the start of each error episode, and the loop
+pauses ``error_backoff_s`` before the next poll.
+
+Settling
+--------
+The window is the last ``settle_s`` of paired readings, ending at the newest one. It is
+settled when all of these hold:
+
+* the newest reading is at most ``stale_s`` old, and no gap between consecutive readings
+  (including the one just before the window) exceeds ``stale_s``: the window is covered;
+* it holds at least ``min_readings`` readings;
+* no reading is stale (each stamp at most ``stale_s`` old when paired, and the two devices'
+  stamps at most ``stale_s`` apart);
+* no reading is over-range;
+* every joint stays within ``settle_tol_deg`` and the length within ``settle_tol_mm`` of the
+  window mean.
+
+A capture is the mean of a settled window (with the sample standard deviation and the count);
+no reading ever goes into two captures, and a capture only uses readings polled after it was
+requested. It is acknowledged only once :meth:`CaptureSink.store_capture` has committed it.
+
+Modes
+-----
+``manual``: :meth:`Sampler.capture` waits up to ``capture_timeout_s`` for a settled window.
+``auto`` (:meth:`Sampler.set_auto`): the loop captures once at each new settled pose; after a
+capture the robot must move before the next, and a pose within ``auto_new_pose_deg`` (every
+joint) of a pose already captured in the campaign is never captured again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from daemon import metrics
+from daemon.capture import (
+    Capture,
+    CaptureRejected,
+    CaptureSink,
+    Joints,
+    RawReading,
+    RejectionReason,
+)
+from drivers import (
+    DeviceError,
+    DeviceLinkDown,
+    IndicatorDriver,
+    IndicatorOverRange,
+    ManualRobot,
+    RobotDriver,
+    RobotNoData,
+    make_indicator,
+    make_robot,
+)
+from drivers.indicator import IndicatorReading
+from drivers.robot import JointReading
+
+log = logging.getLogger("cablecal.sampler")
+
+FloatArray = NDArray[np.float64]
+Role = Literal["indicator", "robot"]
+Mode = Literal["manual", "auto"]
+
+#: Poll rates in :meth:`Sampler.status` are averaged over this span [s].
+RATE_WINDOW_S = 5.0
+#: Hard cap of the ring buffer, whatever ``history_s`` and the poll rate.
+MAX_BUFFER = 100_000
+
+
+class SamplerConfig(BaseModel):
+    """Settings of the sampler. Times in s, lengths in mm, angles in deg."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    poll_interval_s: float = Field(
+        default=0.0,
+        ge=0,
+        description="Time between the starts of two polls [s]; 0: as fast as the links allow.",
+    )
+    settle_s: float = Field(
+        default=0.5, gt=0, description="Window in which the robot must be still [s]."
+    )
+    settle_tol_mm: float = Field(
+        default=0.1,
+        gt=0,
+        description="Largest deviation of the cable length from the window mean [mm].",
+    )
+    settle_tol_deg: float = Field(
+        default=0.01,
+        gt=0,
+        description="Largest deviation of each joint from the window mean [deg].",
+    )
+    capture_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="How long a manual capture waits for settling [s]; >= settle_s.",
+    )
+    stale_s: float = Field(
+        default=0.5,
+        gt=0,
+        description="A reading older than this when paired, joint and length stamps "
+        "further apart than this, or a gap between readings longer than this, is stale [s].",
+    )
+    min_readings: int = Field(
+        default=5, ge=2, description="Fewest paired readings in a settled window [count]."
+    )
+    auto_new_pose_deg: float = Field(
+        default=0.05,
+        ge=0,
+        description="Auto mode: a pose closer than this in every joint to a pose "
+        "already captured in the campaign is not new [deg].",
+    )
+    history_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="Span of the ring buffer of paired readings [s]; >= settle_s.",
+    )
+    error_backoff_s: float = Field(
+        default=0.2, ge=0, description="Pause after a device error before the next poll [s]."
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> SamplerConfig:
+        if self.capture_timeout_s < self.settle_s:
+            raise ValueError("capture_timeout_s: must be >= settle_s")
+        if self.history_s < self.settle_s:
+            raise ValueError("history_s: must be >= settle_s")
+        return self
+
+
+# --------------------------------------------------------------------------- internals
+@dataclass(frozen=True, slots=True)
+class _Paired:
+    """One paired poll. Monotonic times in s; ``length_mm`` is NaN when the indicator raised
+    over-range (no value)."""
+
+    t_poll: float  # monotonic when the poll started
+    t_mono: float  # monotonic stamp of the length reading
+    t_wall: float  # wall stamp of the length reading
+    joints_deg: Joints
+    length_mm: float
+    over_range: bool
+    staleness_s: float  # worst of: stamp ages at pairing, skew between the two stamps
+
+
+@dataclass(frozen=True)
+class _Verdict:
+    """Outcome of a settle check: ``reason is None`` means settled (``window`` is set).
+
+    ``final``: waiting longer will not help while the robot stays (e.g. still but over-range).
+    ``joints_still``: the joints are within tolerance over a covered window (None: unknown).
+    """
+
+    reason: RejectionReason | None
+    detail: str
+    final: bool = False
+    joints_still: bool | None = None
+    window: tuple[_Paired, ...] = ()
+
+
+_NOT_SETTLED = _Verdict("no_data", "no paired reading yet")
+
+
+class _Device:
+    """What the sampler knows about one device (for status, events and metrics)."""
+
+    def __init__(self, name: str, role: Role, driver: object) -> None:
+        self.name = name
+        self.role: Role = role
+        self.kind = type(driver).__name__
+        self.state: Literal["unknown", "ok", "error"] = "unknown"
+        self.no_data: str | None = None  # RobotNoData message (manual robot waiting)
+        self.t_state_poll = -math.inf  # t_poll of the poll that set the state
+        self.value: float | Joints | None = None
+        self.over_range = False
+        self.t_mono: float | None = None  # stamp of the last reading (or over-range reply)
+        self.t_wall: float | None = None
+        self.last_good_mono: float | None = None
+        self.error: DeviceError | Exception | None = None
+        self.error_wall: float | None = None
+        self.error_mono: float | None = None
+        self.errors: dict[str, int] = {}
+        self.polls = 0
+        self.episode = 0  # increments at the start of each error / no-data episode
+        self.stamps: deque[float] = deque()
+        self.t_started = time.monotonic()
+
+    def error_text(self) -> str:
+        exc = self.error
+        if exc is None:
+            return ""
+        message = exc.message if isinstance(exc, DeviceError) else str(exc)
+        return f"{type(exc).__name__}: {message}"
+
+    def frames(self) -> list[str]:
+        exc = self.error
+        return list(exc.frames_hex) if isinstance(exc, DeviceError) else []
+
+    def rate_hz(self, now: float) -> float:
+        while self.stamps and self.stamps[0] < now - RATE_WINDOW_S:
+            self.stamps.popleft()
+        span = min(RATE_WINDOW_S, now - self.t_started)
+        return len(self.stamps) / span if span > 0 else 0.0
+
+    def status(self, now: float) -> dict[str, Any]:
+        value: Any = list(self.value) if isinstance(self.value, tuple) else self.value
+        reading = None
+        if self.t_mono is not None:
+            reading = {
+                "value": value,
+                "over_range": self.over_range,
+                "age_s": now - self.t_mono,
+                "t_wall": self.t_wall,
+            }
+        error = None
+        if self.error is not None:
+            message = self.error.message if isinstance(self.error, DeviceError) else str(self.error)
+            error = {
+                "class": type(self.error).__name__,
+                "message": message,
+                "frames_hex": self.frames(),
+                "age_s": None if self.error_mono is None else now - self.error_mono,
+                "t_wall": self.error_wall,
+            }
+        return {
+            "name": self.name,
+            "role": self.role,
+            "driver": self.kind,
+            "state": self.state,
+            "connected": self.state == "ok",
+            "waiting_for": self.no_data,
+            "last_reading": reading,
+            "last_error": error,
+            "poll_rate_hz": self.rate_hz(now),
+            "polls": self.polls,
+            "errors": sum(self.errors.values()),
+            "errors_by_class": dict(self.errors),
+        }
+
+
+@dataclass
+class _Auto:
+    """Auto-capture state of one campaign."""
+
+    campaign_id: int
+    anchor: str
+    known: FloatArray  # shape (n, 6) [deg], poses captured in the campaign
+    since: float  # monotonic time auto mode was enabled
+    need_motion: bool = False  # captured (or refused) here: wait until the robot moves
+    pose_ref: FloatArray | None = None  # where need_motion was set [deg]
+    still_since: float | None = None
+    pose_recorded: bool = False  # a rejection was recorded at the current pose
+    reported_known: set[int] = field(default_factory=set)  # not_new_pose recorded per pose
+    fault_keys: set[tuple[str, int]] = field(default_factory=set)  # (device, episode)
+    retry_after: float = 0.0  # after a failed store
+
+    def stay(self, joints_deg: FloatArray) -> None:
+        """Captured or refused at this pose: the robot must move before the next capture."""
+        self.need_motion, self.pose_ref = True, joints_deg
+
+    def saw_joints(self, joints_deg: Joints, tol_deg: float) -> None:
+        """A robot reading (paired or not): once the robot left the pose, clear
+        ``need_motion`` and ``pose_recorded``."""
+        ref = self.pose_ref
+        if ref is not None and np.abs(ref - joints_deg).max() > tol_deg:
+            self.need_motion = self.pose_recorded = False
+            self.pose_ref = None
+
+
+def _joints(values: Sequence[float] | FloatArray) -> Joints:
+    v = [float(x) for x in values]
+    return (v[0], v[1], v[2], v[3], v[4], v[5])
+
+
+# --------------------------------------------------------------------------- the sampler
+class Sampler:
+    """Polls ``indicator`` and ``robot``, detects settling, and hands captures to ``sink``.
+
+    Parameters
+    ----------
+    indicator : IndicatorDriver
+    robot : RobotDriver
+        A :class:`drivers.ManualRobot` takes its joint angles from :meth:`capture`.
+    config : SamplerConfig
+    sink : CaptureSink
+        Commits captures, rejections and device events (the store).
+
+    Everything runs on one event loop: :meth:`start`, :meth:`capture`, :meth:`status` and
+    :meth:`set_auto` must be called from the loop the sampler was started on.
+    """
+
+    def __init__(
+        self,
+        indicator: IndicatorDriver,
+        robot: RobotDriver,
+        config: SamplerConfig,
+        sink: CaptureSink,
+    ) -> None:
+        self.indicator = indicator
+        self.robot = robot
+        self.config = config
+        self.sink = sink
+        self._ind = _Device(indicator.name, "indicator", indicator)
+        self._rob = _Device(robot.name, "robot", robot)
+        self._buffer: deque[_Paired] = deque(maxlen=MAX_BUFFER)
+        self._verdict: _Verdict = _NOT_SETTLED
+        self._used_until = -math.inf  # t_poll of the newest reading used by a capture
+        self._auto: _Auto | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._tick = asyncio.Event()
+        self._capture_lock = asyncio.Lock()
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def running(self) -> bool:
+        """True while the poll task runs."""
+        return self._task is not None and not self._task.done()
+
+    @property
+    def manual_robot(self) -> bool:
+        """True when the robot driver is a :class:`drivers.ManualRobot`."""
+        return isinstance(self.robot, ManualRobot)
+
+    @property
+    def mode(self) -> Mode:
+        """``auto`` while auto capture is enabled, else ``manual``."""
+        return "manual" if self._auto is None else "auto"
+
+    @property
+    def auto_campaign_id(self) -> int | None:
+        """The campaign auto mode captures into, or None."""
+        return None if self._auto is None else self._auto.campaign_id
+
+    async def start(self) -> None:
+        """Launch the poll task on the running loop (no-op if it runs)."""
+        if self.running:
+            return
+        self._tick = asyncio.Event()
+        self._ind.t_started = self._rob.t_started = time.monotonic()
+        self._event(
+            "sampler_started",
+            None,
+            "sampler started",
+            {"indicator": self._ind.name, "robot": self._rob.name, **self.config.model_dump()},
+        )
+        self._task = asyncio.get_running_loop().create_task(self._run(), name="cablecal-sampler")
+
+    async def stop(self) -> None:
+        """Cancel the poll task and close both drivers."""
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+        for driver, dev in ((self.indicator, self._ind), (self.robot, self._rob)):
+            try:
+                await driver.close()
+            except Exception:
+                log.exception(
+                    "closing %s %s failed", dev.role, dev.name, extra={"device": dev.name}
+                )
+        self._wake()
+
+    # ------------------------------------------------------------------ poll loop
+    async def _run(self) -> None:
+        cfg = self.config
+        while True:
+            t_poll = time.monotonic()
+            ind_res, rob_res = await asyncio.gather(
+                self.indicator.read(), self.robot.read_joints(), return_exceptions=True
+            )
+            for res in (ind_res, rob_res):
+                if isinstance(res, BaseException) and not isinstance(res, Exception):
+                    raise res  # cancellation of a child, KeyboardInterrupt: not a device error
+            try:
+                errored = self._cycle(t_poll, ind_res, rob_res)
+            except Exception:  # a bug in a cycle must not stop sampling
+                log.exception("sampler cycle failed")
+                errored = True
+            self._wake()
+            if errored:
+                delay = cfg.error_backoff_s
+            else:
+                delay = max(0.0, cfg.poll_interval_s - (time.monotonic() - t_poll))
+            await asyncio.sleep(delay)
+
+    def _wake(self) -> None:
+        """Wake every :meth:`capture` waiting for the next cycle."""
+        self._tick.set()
+        self._tick = asyncio.Event()
+
+    def _cycle(
+        self,
+        t_poll: float,
+        ind_res: IndicatorReading | BaseException,
+        rob_res: JointReading | BaseException,
+    ) -> bool:
+        """Book one poll of both devices; returns True when a device failed."""
+        t_done, w_done = time.monotonic(), time.time()
+        errored = False
+        ind, rob = self._ind, self._rob
+
+        length: float | None = None
+        over = False
+        t_ind, w_ind = t_done, w_done
+        if isinstance(ind_res, IndicatorOverRange):
+            # The meter answered; its value is not a length. Counted, not an error episode.
+            self._count_error(ind, ind_res)
+            self._good(ind, t_poll, None, True, t_done, w_done, count_poll=False)
+            length, over = math.nan, True
+        elif isinstance(ind_res, BaseException):
+            self._failed(ind, t_poll, ind_res)
+            errored = True
+        else:
+            length, over = ind_res.length_mm, ind_res.over_range
+            t_ind, w_ind = ind_res.t_monotonic_s, ind_res.t_wall
+            self._good(ind, t_poll, length, over, t_ind, w_ind)
+
+        joints: Joints | None = None
+        t_rob = t_done
+        if isinstance(rob_res, RobotNoData):
+            self._waiting(rob, t_poll, rob_res)
+        elif isinstance(rob_res, BaseException):
+            self._failed(rob, t_poll, rob_res)
+            errored = True
+        else:
+            joints, t_rob = rob_res.joints_deg, rob_res.t_monotonic_s
+            self._good(rob, t_poll, joints, False, t_rob, rob_res.t_wall)
+            if self._auto is not None:
+                self._auto.saw_joints(joints, self.config.settle_tol_deg)
+
+        if length is not None and joints is not None:
+            if self.manual_robot:  # submitted angles keep their submission stamp
+                staleness = t_done - t_ind
+            else:
+                staleness = max(t_done - min(t_ind, t_rob), abs(t_ind - t_rob))
+            self._append(_Paired(t_poll, t_ind, w_ind, joints, length, over, staleness))
+        self._verdict = self._evaluate(t_done, -math.inf)
+        if self._auto is not None and not self._capture_lock.locked():
+            self._auto_step(t_done)
+        return errored
+
+    def _append(self, reading: _Paired) -> None:
+        buf = self._buffer
+        buf.append(reading)
+        horizon = reading.t_mono - self.config.history_s
+        while buf and buf[0].t_mono < horizon:
+            buf.popleft()
+
+    # ------------------------------------------------------------------ device book-keeping
+    def _good(
+        self,
+        dev: _Device,
+        t_poll: float,
+        value: float | Joints | None,
+        over_range: bool,
+        t_mono: float,
+        t_wall: float,
+        count_poll: bool = True,
+    ) -> None:
+        if dev.state == "error":
+            metrics.DEVICE_RECONNECTS.labels(dev.name, dev.role).inc()
+            down_s = t_mono - dev.error_mono if dev.error_mono is not None else 0.0
+            message = f"{dev.role} {dev.name} delivers again after {down_s:.2f} s"
+            log.info(message, extra={"device": dev.name})
+            self._event("link_up", dev.name, message, {"last_error": dev.error_text()})
+        dev.state, dev.no_data, dev.t_state_poll = "ok", None, t_poll
+        dev.value, dev.over_range = value, over_range
+        dev.t_mono, dev.t_wall = t_mono, t_wall
+        dev.last_good_mono = t_mono
+        dev.stamps.append(t_mono)
+        if count_poll:
+            dev.polls += 1
+            metrics.DEVICE_POLLS.labels(dev.name, dev.role).inc()
+
+    def _count_error(self, dev: _Device, exc: BaseException) -> None:
+        cls = type(exc).__name__
+        dev.errors[cls] = dev.errors.get(cls, 0) + 1
+        metrics.DEVICE_ERRORS.labels(dev.name, dev.role, cls).inc()
+
+    def _failed(self, dev: _Device, t_poll: float, exc: BaseException) -> None:
+        assert isinstance(exc, Exception)
+        cls = type(exc).__name__
+        self._count_error(dev, exc)
+        previous = type(dev.error).__name__ if dev.state == "error" else None
+        first = dev.state != "error"
+        dev.state, dev.t_state_poll = "error", t_poll
+        dev.error, dev.error_wall, dev.error_mono = exc, time.time(), time.monotonic()
+        frames = dev.frames()
+        extra = {"device": dev.name, "frames_hex": frames, "error": cls}
+        text = dev.error_text()
+        if not isinstance(exc, DeviceError):  # a driver bug: keep the traceback
+            log.error("%s %s poll failed: %s", dev.role, dev.name, text, exc_info=exc, extra=extra)
+        elif first or cls != previous:
+            log.warning("%s %s poll failed: %s", dev.role, dev.name, text, extra=extra)
+        else:
+            log.debug("%s %s poll failed: %s", dev.role, dev.name, text, extra=extra)
+        if first:
+            dev.episode += 1
+            kind = "link_down" if isinstance(exc, DeviceLinkDown) else "device_error"
+            self._event(kind, dev.name, text, {"error": cls, "frames_hex": frames})
+
+    def _waiting(self, dev: _Device, t_poll: float, exc: RobotNoData) -> None:
+        """Manual robot without (fresh) angles: no data, not a fault."""
+        if dev.no_data is None:
+            dev.episode += 1
+        dev.state, dev.no_data, dev.t_state_poll = "unknown", exc.message, t_poll
+
+    def _event(
+        self, kind: str, device: str | None, message: str, detail: dict[str, Any] | None
+    ) -> None:
+        try:
+            self.sink.record_event(kind, device, message, detail)
+        except Exception:
+            log.exception("recording event %s failed", kind, extra={"device": device})
+
+    # ------------------------------------------------------------------ settle detection
+    def _evaluate(self, now: float, not_before: float) -> _Verdict:
+        """Settle check of the window ending at the newest reading polled at or after
+        ``not_before`` (monotonic [s]); the whole window must lie after ``not_before``."""
+        cfg = self.config
+        buf = self._buffer
+        if not buf or buf[-1].t_poll < not_before:
+            return _Verdict("no_data", "no paired reading yet")
+        latest = buf[-1]
+        age = now - latest.t_mono
+        if age > cfg.stale_s:
+            return _Verdict("stale", f"newest paired reading is {age:.2f} s old (stale_s)")
+        start = latest.t_mono - cfg.settle_s
+        window: list[_Paired] = []
+        before: _Paired | None = None
+        for r in reversed(buf):
+            if r.t_mono < start:
+                before = r
+                break
+            window.append(r)
+        window.reverse()
+        if start < not_before or window[0].t_poll < not_before:
+            return _Verdict("moving", "collecting a settle window after the request")
+        t_prev = before.t_mono if before is not None else start
+        gaps = np.diff(np.array([t_prev, *(r.t_mono for r in window)]))
+        if gaps.max() > cfg.stale_s:
+            return _Verdict("stale", f"gap of {gaps.max():.2f} s between readings (stale_s)")
+        if len(window) < cfg.min_readings:
+            return _Verdict(
+                "stale",
+                f"{len(window)} readings in {cfg.settle_s} s, fewer than min_readings "
+                f"{cfg.min_readings}",
+            )
+        q = np.array([r.joints_deg for r in window])
+        dev_deg = np.abs(q - q.mean(axis=0)).max(axis=0)
+        still = bool(dev_deg.max() <= cfg.settle_tol_deg)
+        worst = max(window, key=lambda r: r.staleness_s)
+        if worst.staleness_s > cfg.stale_s:
+            return _Verdict(
+                "stale",
+                f"a reading's stamps are {worst.staleness_s:.2f} s old or apart (stale_s)",
+                joints_still=still,
+            )
+        if any(r.over_range for r in window):
+            return _Verdict(
+                "over_range",
+                f"indicator {self._ind.name} reports over/under-range",
+                final=still,
+                joints_still=still,
+            )
+        if not still:
+            j = int(np.argmax(dev_deg))
+            return _Verdict(
+                "moving",
+                f"joint {j + 1} varies by {dev_deg[j]:.4f} deg (settle_tol_deg "
+                f"{cfg.settle_tol_deg})",
+                joints_still=False,
+            )
+        lengths = np.array([r.length_mm for r in window])
+        dev_mm = float(np.abs(lengths - lengths.mean()).max())
+        if dev_mm > cfg.settle_tol_mm:
+            return _Verdict(
+                "moving",
+                f"cable length varies by {dev_mm:.3f} mm (settle_tol_mm {cfg.settle_tol_mm})",
+                joints_still=True,
+            )
+        return _Verdict(None, "settled", joints_still=True, window=tuple(window))
+
+    def _device_fault(
+        self, now: float, not_before: float
+    ) -> tuple[CaptureRejected, _Device] | None:
+        """A device failing for longer than ``stale_s``, or the manual robot without angles
+        (seen in a poll after ``not_before``)."""
+        for dev in (self._ind, self._rob):
+            if dev.state == "error" and (
+                dev.last_good_mono is None or now - dev.last_good_mono > self.config.stale_s
+            ):
+                reason: RejectionReason = (
+                    "indicator_error" if dev.role == "indicator" else "robot_error"
+                )
+                detail = f"{dev.role} {dev.name}: {dev.error_text()}"
+                return CaptureRejected(reason, detail, device=dev.name), dev
+        rob = self._rob
+        if rob.no_data is not None and rob.t_state_poll >= not_before:
+            hint = "; send joints_deg with the capture" if self.manual_robot else ""
+            detail = f"robot {rob.name}: {rob.no_data}{hint}"
+            return CaptureRejected("no_data", detail, device=rob.name), rob
+        return None
+
+    # ------------------------------------------------------------------ captures
+    async def capture(
+        self,
+        campaign_id: int,
+        anchor: str = "A",
+        joints_deg: Sequence[float] | None = None,
+        mode: Mode = "manual",
+    ) -> dict[str, Any]:
+        """Capture the next settled window after this call; returns the stored sample row.
+
+        Parameters
+        ----------
+        campaign_id : int
+        anchor : str
+            Sensor position id.
+        joints_deg : sequence of 6 float, optional
+            Joint angles [deg] for the manual robot driver; submitted before waiting.
+        mode : {"manual", "auto"}
+            Label of the capture (metrics, stored sample).
+
+        Raises
+        ------
+        ValueError
+            ``joints_deg`` given for a driver other than the manual one, or not 6 finite
+            numbers.
+        CaptureRejected
+            No settled window within ``capture_timeout_s`` (``moving``, ``stale``,
+            ``over_range``, ``no_data``), or a device is failing (``indicator_error``,
+            ``robot_error``). The rejection is recorded and counted first.
+        """
+        joints: Joints | None = None
+        if joints_deg is not None:
+            if not isinstance(self.robot, ManualRobot):
+                raise ValueError(
+                    f"joints_deg: robot {self.robot.name} ({type(self.robot).__name__}) reports "
+                    "its own joint angles; only the manual driver takes them from the request"
+                )
+            values = [float(v) for v in joints_deg]
+            if len(values) != 6 or not all(math.isfinite(v) for v in values):
+                raise ValueError(f"joints_deg: expected 6 finite angles [deg], got {values}")
+            joints = _joints(values)
+        async with self._capture_lock:
+            t_request = time.monotonic()
+            if joints is not None:
+                assert isinstance(self.robot, ManualRobot)
+                self.robot.submit(joints)
+            try:
+                window = await self._wait_settled(t_request)
+            except CaptureRejected as exc:
+                self._rejected(campaign_id, exc, mode)
+                raise
+            return self._store(campaign_id, anchor, window, mode)
+
+    async def _wait_settled(self, t_request: float) -> tuple[_Paired, ...]:
+        cfg = self.config
+        deadline = t_request + cfg.capture_timeout_s
+        while True:
+            now = time.monotonic()
+            not_before = max(t_request, self._used_until + 1e-9)
+            fault = self._device_fault(now, not_before)
+            if fault is not None:
+                raise fault[0]
+            verdict = self._evaluate(now, not_before)
+            if verdict.reason is None:
+                return verdict.window
+            if verdict.final:
+                raise CaptureRejected(verdict.reason, verdict.detail)
+            if not self.running:
+                raise CaptureRejected("no_data", "the sampler is not running")
+            if now >= deadline:
+                raise CaptureRejected(
+                    verdict.reason,
+                    f"not settled within capture_timeout_s {cfg.capture_timeout_s} s: "
+                    f"{verdict.detail}",
+                )
+            tick = self._tick
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(tick.wait(), min(deadline - now, cfg.stale_s) + 1e-3)
+
+    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: Mode) -> None:
+        metrics.CAPTURES.labels("rejected", exc.reason, mode).inc()
+        log.info(
+            "capture rejected: %s",
+            exc,
+            extra={"campaign_id": campaign_id, "device": exc.device, "error": exc.reason},
+        )
+        try:
+            self.sink.record_rejection(campaign_id, exc.reason, exc.detail, exc.device)
+        except Exception:
+            log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
+
+    def _store(
+        self, campaign_id: int, anchor: str, window: tuple[_Paired, ...], mode: Mode
+    ) -> dict[str, Any]:
+        capture = make_capture(window, anchor, mode)
+        row = self.sink.store_capture(campaign_id, capture)  # commits before returning
+        self._used_until = window[-1].t_poll
+        metrics.CAPTURES.labels("accepted", "ok", mode).inc()
+        auto = self._auto
+        if auto is not None and auto.campaign_id == campaign_id:
+            pose = np.array(capture.joints_deg)
+            auto.known = np.vstack([auto.known, pose[None, :]])
+            auto.stay(pose)
+        log.info(
+            "captured %s sample: length %.3f mm, %d readings",
+            mode,
+            capture.length_mm,
+            capture.count,
+            extra={"campaign_id": campaign_id, "sample_id": row.get("id")},
+        )
+        return row
+
+    # ------------------------------------------------------------------ auto mode
+    def set_auto(
+        self,
+        campaign_id: int | None,
+        anchor: str = "A",
+        known_poses_deg: FloatArray | Sequence[Sequence[float]] | None = None,
+    ) -> None:
+        """Enable auto capture into ``campaign_id`` (None disables).
+
+        Parameters
+        ----------
+        campaign_id : int or None
+        anchor : str
+        known_poses_deg : array_like, shape (n, 6), optional
+            Poses [deg] captured in the campaign already (e.g. before a daemon restart);
+            they are not captured again. Re-enabling the same campaign keeps the poses
+            captured since it was first enabled.
+
+        Raises
+        ------
+        ValueError
+            ``known_poses_deg`` not of shape (n, 6).
+        """
+        if campaign_id is None:
+            self._auto = None
+            return
+        known = np.empty((0, 6))
+        if known_poses_deg is not None:
+            known = np.asarray(known_poses_deg, dtype=float)
+            if known.size == 0:
+                known = np.empty((0, 6))
+            if known.ndim != 2 or known.shape[1] != 6:
+                raise ValueError(f"known_poses_deg: expected shape (n, 6), got {known.shape}")
+        if self._auto is not None and self._auto.campaign_id == campaign_id:
+            known = np.vstack([self._auto.known, known])
+        self._auto = _Auto(campaign_id, anchor, known, since=time.monotonic())
+
+    def _auto_step(self, now: float) -> None:
+        auto = self._auto
+        assert auto is not None
+        cfg = self.config
+        verdict = self._evaluate(now, max(auto.since, self._used_until + 1e-9))
+        if verdict.joints_still is False:
+            auto.need_motion = auto.pose_recorded = False
+            auto.still_since = None
+        elif verdict.joints_still and auto.still_since is None:
+            auto.still_since = now
+
+        fault = self._device_fault(now, auto.since)
+        if fault is not None:
+            rejection, dev = fault
+            key = (dev.role, dev.episode)
+            if key not in auto.fault_keys:
+                auto.fault_keys.add(key)
+                self._rejected(auto.campaign_id, rejection, "auto")
+            return
+        if verdict.reason is None:
+            if auto.need_motion or now < auto.retry_after:
+                return
+            q = np.array([r.joints_deg for r in verdict.window]).mean(axis=0)
+            near = np.flatnonzero(np.all(np.abs(auto.known - q) < cfg.auto_new_pose_deg, axis=1))
+            if near.size:
+                auto.stay(q)
+                index = int(near[0])
+                if index not in auto.reported_known:
+                    auto.reported_known.add(index)
+                    detail = f"pose {np.round(q, 3).tolist()} deg was captured already"
+                    self._rejected(
+                        auto.campaign_id, CaptureRejected("not_new_pose", detail), "auto"
+                    )
+                return
+            try:
+                self._store(auto.campaign_id, auto.anchor, verdict.window, "auto")
+            except Exception:
+                log.exception(
+                    "storing an auto capture failed", extra={"campaign_id": auto.campaign_id}
+                )
+                auto.retry_after = now + max(cfg.error_backoff_s, cfg.settle_s)
+            return
+        if verdict.joints_still and not auto.need_motion and not auto.pose_recorded:
+            assert verdict.reason is not None
+            stuck = auto.still_since is not None and now - auto.still_since > cfg.capture_timeout_s
+            if verdict.final or stuck:
+                auto.pose_recorded = True
+                auto.pose_ref = np.array(self._buffer[-1].joints_deg)
+                self._rejected(
+                    auto.campaign_id, CaptureRejected(verdict.reason, verdict.detail), "auto"
+                )
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> dict[str, Any]:
+        """Devices and sampler state; cheap (no I/O, no computation over the buffer)."""
+        now = time.monotonic()
+        verdict = self._verdict
+        latest = self._buffer[-1] if self._buffer else None
+        settled = (
+            verdict.reason is None
+            and latest is not None
+            and now - latest.t_mono <= self.config.stale_s
+        )
+        auto = self._auto
+        return {
+            "devices": {"indicator": self._ind.status(now), "robot": self._rob.status(now)},
+            "sampler": {
+                "running": self.running,
+                "mode": self.mode,
+                "auto_campaign_id": None if auto is None else auto.campaign_id,
+                "auto_anchor": None if auto is None else auto.anchor,
+                "auto_known_poses": 0 if auto is None else int(auto.known.shape[0]),
+                "settled": settled,
+                "settle_state": "settled" if settled else verdict.reason,
+                "settle_detail": verdict.detail,
+                "readings_in_buffer": len(self._buffer),
+            },
+        }
+
+    def update_age_metrics(self) -> None:
+        """Set :data:`metrics.LAST_READING_AGE` of both devices (NaN before any reading)."""
+        now = time.monotonic()
+        for dev in (self._ind, self._rob):
+            age = math.nan if dev.t_mono is None else now - dev.t_mono
+            metrics.LAST_READING_AGE.labels(dev.name, dev.role).set(age)
+
+
+def make_capture(window: Sequence[_Paired], anchor: str, mode: Mode) -> Capture:
+    """The :class:`Capture` of a settled window: means, sample standard deviations (ddof 1)
+    and count of the readings, which are kept as raw readings."""
+    q = np.array([r.joints_deg for r in window], dtype=float)
+    lengths = np.array([r.length_mm for r in window], dtype=float)
+    ddof = 1 if len(window) > 1 else 0
+    return Capture(
+        joints_deg=_joints(q.mean(axis=0)),
+        joints_std_deg=_joints(q.std(axis=0, ddof=ddof)),
+        length_mm=float(lengths.mean()),
+        length_std_mm=float(lengths.std(ddof=ddof)),
+        count=len(window),
+        anchor=anchor,
+        t_start_wall=window[0].t_wall,
+        t_end_wall=window[-1].t_wall,
+        mode=mode,
+        raw=tuple(RawReading(r.t_wall, r.joints_deg, r.length_mm) for r in window),
+    )
+
+
+def build_sampler(
+    indicator_cfg: Mapping[str, Any],
+    robot_cfg: Mapping[str, Any],
+    config: SamplerConfig | Mapping[str, Any] | None,
+    sink: CaptureSink,
+) -> Sampler:
+    """A :class:`Sampler` with drivers from :func:`drivers.make_indicator` and
+    :func:`drivers.make_robot`. Raises ``pydantic.ValidationError`` / ``ValueError`` on bad
+    settings."""
+    if config is None:
+        cfg = SamplerConfig()
+    elif isinstance(config, SamplerConfig):
+        cfg = config
+    else:
+        cfg = SamplerConfig.model_validate(dict(config))
+    return Sampler(make_indicator(indicator_cfg), make_robot(robot_cfg), cfg, sink)
+
+
+__all__ = ["Sampler", "SamplerConfig", "build_sampler", "make_capture"]
