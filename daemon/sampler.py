@@ -20,6 +20,13 @@ settled when all of these hold:
 * every joint stays within ``settle_tol_deg`` and the length within ``settle_tol_mm`` of the
   window mean.
 
+The indicator's own "moving" status bit is not used: the readings themselves decide. An
+over-range reply (flagged, or raised as :class:`~drivers.IndicatorOverRange`) is a reading
+without a length: it is counted as a device error but opens no error episode. The manual
+robot's angles keep the stamp of their submission, so only the indicator's stamp is checked
+for staleness with that driver; a manual robot without angles (``RobotNoData``) is "no data",
+not a device error.
+
 A capture is the mean of a settled window (with the sample standard deviation and the count);
 no reading ever goes into two captures, and a capture only uses readings polled after it was
 requested. It is acknowledged only once :meth:`CaptureSink.store_capture` has committed it.
@@ -42,7 +49,7 @@ import time
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +83,7 @@ log = logging.getLogger("cablecal.sampler")
 FloatArray = NDArray[np.float64]
 Role = Literal["indicator", "robot"]
 Mode = Literal["manual", "auto"]
+_T = TypeVar("_T")
 
 #: Poll rates in :meth:`Sampler.status` are averaged over this span [s].
 RATE_WINDOW_S = 5.0
@@ -195,11 +203,13 @@ class _Device:
         self.error: DeviceError | Exception | None = None
         self.error_wall: float | None = None
         self.error_mono: float | None = None
+        self.episode_start_mono: float | None = None
         self.errors: dict[str, int] = {}
         self.polls = 0
         self.episode = 0  # increments at the start of each error / no-data episode
-        self.stamps: deque[float] = deque()
+        self.stamps: deque[float] = deque()  # good readings in the last RATE_WINDOW_S
         self.t_started = time.monotonic()
+        self.polls_counter = metrics.DEVICE_POLLS.labels(name, role)
 
     def error_text(self) -> str:
         exc = self.error
@@ -212,9 +222,13 @@ class _Device:
         exc = self.error
         return list(exc.frames_hex) if isinstance(exc, DeviceError) else []
 
-    def rate_hz(self, now: float) -> float:
+    def prune(self, now: float) -> None:
+        """Drop stamps older than the rate window (called by the poll loop only)."""
         while self.stamps and self.stamps[0] < now - RATE_WINDOW_S:
             self.stamps.popleft()
+
+    def rate_hz(self, now: float) -> float:
+        """Good readings per second over the last RATE_WINDOW_S (read-only)."""
         span = min(RATE_WINDOW_S, now - self.t_started)
         return len(self.stamps) / span if span > 0 else 0.0
 
@@ -281,6 +295,18 @@ class _Auto:
         if ref is not None and np.abs(ref - joints_deg).max() > tol_deg:
             self.need_motion = self.pose_recorded = False
             self.pose_ref = None
+
+
+def _as_error(result: _T | BaseException) -> _T | Exception:
+    """A driver's result, or its exception as an :class:`Exception`. Re-raises what must stop
+    the loop (our own cancellation, KeyboardInterrupt, SystemExit); a driver that leaks a
+    :class:`asyncio.CancelledError` of its own gets it reported as a failed poll."""
+    if not isinstance(result, BaseException) or isinstance(result, Exception):
+        return result
+    task = asyncio.current_task()
+    if isinstance(result, asyncio.CancelledError) and not (task and task.cancelling()):
+        return RuntimeError(f"driver call was cancelled: {result!r}")
+    raise result
 
 
 def _joints(values: Sequence[float] | FloatArray) -> Joints:
@@ -384,9 +410,8 @@ class Sampler:
             ind_res, rob_res = await asyncio.gather(
                 self.indicator.read(), self.robot.read_joints(), return_exceptions=True
             )
-            for res in (ind_res, rob_res):
-                if isinstance(res, BaseException) and not isinstance(res, Exception):
-                    raise res  # cancellation of a child, KeyboardInterrupt: not a device error
+            ind_res = _as_error(ind_res)
+            rob_res = _as_error(rob_res)
             try:
                 errored = self._cycle(t_poll, ind_res, rob_res)
             except Exception:  # a bug in a cycle must not stop sampling
@@ -407,13 +432,15 @@ class Sampler:
     def _cycle(
         self,
         t_poll: float,
-        ind_res: IndicatorReading | BaseException,
-        rob_res: JointReading | BaseException,
+        ind_res: IndicatorReading | Exception,
+        rob_res: JointReading | Exception,
     ) -> bool:
         """Book one poll of both devices; returns True when a device failed."""
         t_done, w_done = time.monotonic(), time.time()
         errored = False
         ind, rob = self._ind, self._rob
+        ind.prune(t_done)
+        rob.prune(t_done)
 
         length: float | None = None
         over = False
@@ -423,7 +450,7 @@ class Sampler:
             self._count_error(ind, ind_res)
             self._good(ind, t_poll, None, True, t_done, w_done, count_poll=False)
             length, over = math.nan, True
-        elif isinstance(ind_res, BaseException):
+        elif isinstance(ind_res, Exception):
             self._failed(ind, t_poll, ind_res)
             errored = True
         else:
@@ -435,7 +462,7 @@ class Sampler:
         t_rob = t_done
         if isinstance(rob_res, RobotNoData):
             self._waiting(rob, t_poll, rob_res)
-        elif isinstance(rob_res, BaseException):
+        elif isinstance(rob_res, Exception):
             self._failed(rob, t_poll, rob_res)
             errored = True
         else:
@@ -475,7 +502,8 @@ class Sampler:
     ) -> None:
         if dev.state == "error":
             metrics.DEVICE_RECONNECTS.labels(dev.name, dev.role).inc()
-            down_s = t_mono - dev.error_mono if dev.error_mono is not None else 0.0
+            start = dev.episode_start_mono
+            down_s = time.monotonic() - start if start is not None else 0.0
             message = f"{dev.role} {dev.name} delivers again after {down_s:.2f} s"
             log.info(message, extra={"device": dev.name})
             self._event("link_up", dev.name, message, {"last_error": dev.error_text()})
@@ -486,15 +514,14 @@ class Sampler:
         dev.stamps.append(t_mono)
         if count_poll:
             dev.polls += 1
-            metrics.DEVICE_POLLS.labels(dev.name, dev.role).inc()
+            dev.polls_counter.inc()
 
-    def _count_error(self, dev: _Device, exc: BaseException) -> None:
+    def _count_error(self, dev: _Device, exc: Exception) -> None:
         cls = type(exc).__name__
         dev.errors[cls] = dev.errors.get(cls, 0) + 1
         metrics.DEVICE_ERRORS.labels(dev.name, dev.role, cls).inc()
 
-    def _failed(self, dev: _Device, t_poll: float, exc: BaseException) -> None:
-        assert isinstance(exc, Exception)
+    def _failed(self, dev: _Device, t_poll: float, exc: Exception) -> None:
         cls = type(exc).__name__
         self._count_error(dev, exc)
         previous = type(dev.error).__name__ if dev.state == "error" else None
@@ -512,6 +539,7 @@ class Sampler:
             log.debug("%s %s poll failed: %s", dev.role, dev.name, text, extra=extra)
         if first:
             dev.episode += 1
+            dev.episode_start_mono = dev.error_mono
             kind = "link_down" if isinstance(exc, DeviceLinkDown) else "device_error"
             self._event(kind, dev.name, text, {"error": cls, "frames_hex": frames})
 
@@ -821,7 +849,21 @@ class Sampler:
 
     # ------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:
-        """Devices and sampler state; cheap (no I/O, no computation over the buffer)."""
+        """Devices and sampler state; cheap (no I/O, nothing proportional to the buffer).
+
+        Returns
+        -------
+        dict
+            ``devices``: ``{"indicator": {...}, "robot": {...}}``, each with ``name``,
+            ``role``, ``driver`` (class), ``state`` (``ok``, ``error`` or ``unknown``),
+            ``connected``, ``waiting_for`` (manual robot without angles), ``last_reading``
+            (``value`` [mm] or joint list [deg], ``over_range``, ``age_s``, ``t_wall``) or
+            None, ``last_error`` (``class``, ``message``, ``frames_hex``, ``age_s``,
+            ``t_wall``) or None, ``poll_rate_hz``, ``polls``, ``errors``, ``errors_by_class``.
+            ``sampler``: ``running``, ``mode``, ``auto_campaign_id``, ``auto_anchor``,
+            ``auto_known_poses``, ``settled``, ``settle_state`` (``settled`` or the reason it
+            is not), ``settle_detail``, ``readings_in_buffer``.
+        """
         now = time.monotonic()
         verdict = self._verdict
         latest = self._buffer[-1] if self._buffer else None
