@@ -27,8 +27,10 @@ from calib.kinematics import (
     N_JOINTS,
     FloatArray,
     IndexArray,
+    JointTrig,
+    forward_chain,
     forward_position,
-    position_jacobian,
+    projected_jacobian,
 )
 from calib.models import RobotModel
 
@@ -102,6 +104,7 @@ def predict_lengths(
     theta: FloatArray,
     q_rad: FloatArray,
     anchor_index: IndexArray,
+    trig: JointTrig | None = None,
 ) -> FloatArray:
     """Cable lengths predicted by the model.
 
@@ -111,6 +114,8 @@ def predict_lengths(
         Full parameter vector(s); leading dimensions are parameter-set batches.
     q_rad : ndarray, shape (n, 6)
     anchor_index : ndarray of int, shape (n,)
+    trig : tuple of 2 ndarrays, shape (6, n), optional
+        :func:`calib.kinematics.joint_trig` of ``q_rad``.
 
     Returns
     -------
@@ -118,7 +123,7 @@ def predict_lengths(
         Cable length [mm].
     """
     dh, tool = kinematic_parts(model, theta)
-    pos = forward_position(dh, q_rad, tool, model.convention)  # (..., n, 3)
+    pos = forward_position(dh, q_rad, tool, model.convention, trig)  # (..., n, 3)
     anchors = theta[..., N_KIN:].reshape(*theta.shape[:-1], -1, 4)  # (..., m, 4)
     sel = anchors[..., anchor_index, :]  # (..., n, 4)
     out: FloatArray = np.linalg.norm(pos - sel[..., :3], axis=-1) + sel[..., 3]
@@ -130,8 +135,11 @@ def length_jacobian(
     theta: FloatArray,
     q_rad: FloatArray,
     anchor_index: IndexArray,
+    trig: JointTrig | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Predicted lengths and their analytic Jacobian with respect to the full parameter vector.
+
+    Shapes as :func:`predict_lengths` (a single parameter vector ``theta``, shape (p,)).
 
     Returns
     -------
@@ -140,7 +148,8 @@ def length_jacobian(
         ``∂L/∂theta`` in internal units (mm/rad, mm/mm).
     """
     dh, tool = kinematic_parts(model, theta)
-    pos, jpos = position_jacobian(dh, q_rad, tool, model.convention)
+    chain = forward_chain(dh, q_rad, tool, model.convention, trig)
+    pos = chain.pos_mm
     anchors = theta[N_KIN:].reshape(-1, 4)
     sel = anchors[anchor_index]
     diff = pos - sel[:, :3]
@@ -148,7 +157,8 @@ def length_jacobian(
     unit = diff / np.maximum(dist, 1e-9)[:, None]
     n = q_rad.shape[0]
     jac = np.zeros((n, theta.shape[0]))
-    jac[:, :N_KIN] = np.einsum("ni,nij->nj", unit, jpos)
+    # ∂L/∂(dh, tool) = uᵀ ∂p/∂(dh, tool); ∂L/∂P0 = −u; ∂L/∂c = 1.
+    jac[:, :N_KIN] = projected_jacobian(chain, unit)
     cols = N_KIN + 4 * np.asarray(anchor_index)
     rows = np.arange(n)
     for axis in range(3):

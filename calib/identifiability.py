@@ -12,10 +12,13 @@ Distance-only data cannot see everything:
 - Local data (the real HSR set covers a few degrees per joint) make further combinations
   numerically invisible: the scaled Jacobian's condition number reaches 1e7–1e10.
 
-The analysis works on the Jacobian with unit-norm columns (so mm and rad columns compare), takes
-its singular values for rank and condition number, and chooses a base parameter set by QR with
-column pivoting. Anchor parameters (P0, c) and then the tool point are taken first, since they
-must be estimated anyway; DH parameters fill the remaining rank in pivot order. Each parameter
+The analysis works on the Jacobian with unit-norm columns (so mm and rad columns compare),
+reduced to its triangular QR factor (same inner products, ``p × p`` whatever the number of
+samples). It takes the singular values for rank and condition number, and chooses a base
+parameter set by greedy column pivoting: the pivot order of QR with column pivoting, but ties
+go to the earlier parameter, so that exactly redundant pairs such as d2/d3 resolve the same way
+every time. Anchor parameters (P0, c) and then the tool point are taken first, since they must
+be estimated anyway; DH parameters fill the remaining rank in pivot order. Each parameter
 left out gets a reason: a known structural cause, the kept parameters it is a combination of,
 and whether it would be identifiable with well-spread poses (``structural_jacobian``).
 """
@@ -23,9 +26,9 @@ and whether it would be identifiable with well-spread poses (``structural_jacobi
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
-import scipy.linalg
 
 from calib.cable import N_DH, N_KIN
 from calib.kinematics import FloatArray
@@ -77,9 +80,19 @@ class Identifiability:
 
 
 def _unit_columns(jac: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Unit-norm columns, compressed to at most ``p`` rows, and the column norms ``(p,)``.
+
+    Everything the analysis computes (singular values, pivoted QR, least-squares coefficients
+    between columns) depends only on the columns' inner products, which the triangular factor
+    ``R`` of ``J = Q R`` preserves. Working on ``R`` (``p × p``) instead of ``J`` (``n × p``) makes
+    the analysis independent of ``n``.
+    """
     norms = np.linalg.norm(jac, axis=0)
     safe = np.where(norms > 0, norms, 1.0)
-    return jac / safe, norms
+    unit = jac / safe
+    if unit.shape[0] > unit.shape[1]:
+        unit = cast(FloatArray, np.linalg.qr(unit, mode="r"))  # R only; stubs say QRResult
+    return unit, norms
 
 
 def _condition(jac_unit: FloatArray) -> tuple[FloatArray, float]:
@@ -90,25 +103,56 @@ def _condition(jac_unit: FloatArray) -> tuple[FloatArray, float]:
     return s, cond
 
 
+#: Two candidate columns whose components outside the chosen span differ by less than this
+#: (relative) are a tie; the one earlier in the layout wins.
+TIE_RTOL = 1e-6
+
+
+def _greedy_pivot(cols: FloatArray, candidates: list[int], threshold: float) -> list[int]:
+    """Columns chosen one by one by the largest component outside the span of those chosen.
+
+    This is the pivot order of QR with column pivoting, except that ties (exactly redundant
+    columns such as ``d2``/``d3`` on parallel axes have equal residual norms) go to the lowest
+    index instead of to rounding noise, so the base set does not depend on how the Jacobian
+    was computed or compressed. Stops when the largest remaining component is ``≤ threshold``.
+    Returns indices into ``candidates`` order, as chosen.
+    """
+    work = np.array(cols[:, candidates], dtype=float)
+    remaining = list(range(len(candidates)))
+    chosen: list[int] = []
+    while remaining:
+        norms = np.linalg.norm(work[:, remaining], axis=0)
+        best = float(norms.max())
+        if best <= threshold:
+            break
+        pick = remaining[int(np.flatnonzero(norms >= best * (1.0 - TIE_RTOL))[0])]
+        q = work[:, pick] / np.linalg.norm(work[:, pick])
+        for _ in range(2):  # Gram–Schmidt twice: orthogonal to rounding
+            work -= np.outer(q, q @ work)
+        chosen.append(pick)
+        remaining.remove(pick)
+    return [candidates[i] for i in chosen]
+
+
 def _base_set(jac_unit: FloatArray, forced: list[int], rest: list[int], rtol: float) -> list[int]:
-    """Columns of a base set: independent ``forced`` columns first, then pivoted QR on the rest."""
+    """Columns of a base set: independent ``forced`` columns first, then the rest.
+
+    ``forced`` columns count as independent when their component outside the span of those
+    already chosen exceeds ``rtol`` times the largest forced column norm; the other columns
+    when it exceeds ``rtol`` (columns have unit norm).
+    """
     chosen: list[int] = []
     if forced:
-        _, r, piv = scipy.linalg.qr(jac_unit[:, forced], mode="economic", pivoting=True)
-        diag = np.abs(np.diag(r))
-        keep = diag > rtol * max(diag[0], 1e-300) if diag.size else np.zeros(0, dtype=bool)
-        chosen = [forced[i] for i in piv[: int(np.count_nonzero(keep))]]
+        top = float(np.linalg.norm(jac_unit[:, forced], axis=0).max())
+        chosen = _greedy_pivot(jac_unit, forced, rtol * max(top, 1e-300))
     if not rest:
         return sorted(chosen)
-    sub = jac_unit[:, rest]
+    sub = jac_unit
     if chosen:
         q_forced, _ = np.linalg.qr(jac_unit[:, chosen])
-        sub = sub - q_forced @ (q_forced.T @ sub)
-    _, r, piv = scipy.linalg.qr(sub, mode="economic", pivoting=True)
-    diag = np.abs(np.diag(r))
+        sub = jac_unit - q_forced @ (q_forced.T @ jac_unit)
     # Relative to a unit column: a residual below rtol means "inside the span already".
-    n_keep = int(np.count_nonzero(diag > rtol))
-    chosen += [rest[i] for i in piv[:n_keep]]
+    chosen += _greedy_pivot(sub, rest, rtol)
     return sorted(chosen)
 
 

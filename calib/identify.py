@@ -90,6 +90,11 @@ class IdentifyOptions:
         Nominal tool point overriding the model's [mm].
     rtol : float
         Identifiability threshold (see :func:`calib.identifiability.analyse`).
+    ukf_epochs : int
+        Sweeps of the UKF and EKF over the samples (the paper's ``T3``).
+    ukf_batch_size : int or None
+        Samples per filter update; None: 1 for ``ukf`` and ``ekf`` (per-sample updates), 25
+        for the UKF stage of ``ukf-vslm`` (see :mod:`calib.solvers.ukf_vslm`).
     """
 
     method: Method = "ukf-vslm"
@@ -113,7 +118,7 @@ class IdentifyOptions:
     filter_sigma_mm: float = 5.0
     filter_sigma_deg: float = 0.5
     ukf_epochs: int = 2
-    ukf_batch_size: int = 1
+    ukf_batch_size: int | None = None
     vslm_delta0: float = 0.8
     vslm_mu: float = 0.95
     de_max_generations: int = 300
@@ -369,9 +374,11 @@ def _run_method(
             layout, opts.filter_sigma_mm, opts.filter_sigma_deg, 4 * opts.filter_sigma_mm
         )[free]
     p0 = np.diag(spread**2)
-    ukf_opts = ukf.UKFOptions(epochs=opts.ukf_epochs, batch_size=opts.ukf_batch_size)
-    vslm_opts = vslm.VSLMOptions(delta0=opts.vslm_delta0, mu=opts.vslm_mu)
     m = opts.method
+    default_batch = ukf_vslm.UKFVSLMOptions().ukf.batch_size if m == "ukf-vslm" else 1
+    batch = default_batch if opts.ukf_batch_size is None else opts.ukf_batch_size
+    ukf_opts = ukf.UKFOptions(epochs=opts.ukf_epochs, batch_size=batch)
+    vslm_opts = vslm.VSLMOptions(delta0=opts.vslm_delta0, mu=opts.vslm_mu)
     if m == "lm":
         return lm.solve(problem, x0, progress=progress)
     if m == "vslm":
@@ -379,7 +386,8 @@ def _run_method(
     if m == "ukf":
         return ukf.solve(problem, x0, p0, ukf_opts, progress)
     if m == "ekf":
-        return ekf.solve(problem, x0, p0, ekf.EKFOptions(epochs=opts.ukf_epochs), progress)
+        ekf_opts = ekf.EKFOptions(epochs=opts.ukf_epochs, batch_size=batch)
+        return ekf.solve(problem, x0, p0, ekf_opts, progress)
     if m == "ukf-vslm":
         return ukf_vslm.solve(
             problem, x0, p0, ukf_vslm.UKFVSLMOptions(ukf=ukf_opts, vslm=vslm_opts), progress

@@ -15,15 +15,37 @@ free parameter.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
 from calib.cable import ParamLayout, length_jacobian, predict_lengths
-from calib.kinematics import FloatArray, IndexArray
+from calib.kinematics import FloatArray, IndexArray, JointTrig, joint_trig
 from calib.models import RobotModel
 
 BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """The residual (and optionally its Jacobian) at one point, from a single model pass.
+
+    Attributes
+    ----------
+    residual : ndarray, shape (n,) or (n + k,)
+        Weighted data residuals, then the prior rows if any [mm].
+    jacobian : ndarray, shape (n[+k], k) or None
+    cost : float
+        ``0.5 · Σ r²`` [mm²].
+    data_rms_mm : float
+        Unweighted RMS of the data residuals ``L_model − L`` [mm].
+    """
+
+    residual: FloatArray
+    jacobian: FloatArray | None
+    cost: float
+    data_rms_mm: float
 
 
 @dataclass(frozen=True)
@@ -102,13 +124,56 @@ class Problem:
     def with_theta0(self, theta0: FloatArray) -> Problem:
         return replace(self, theta0=np.asarray(theta0, dtype=float))
 
+    @cached_property
+    def sqrt_weights(self) -> FloatArray:
+        """``sqrt(w)``, shape (n,)."""
+        return np.sqrt(self.weights)
+
+    @cached_property
+    def trig(self) -> JointTrig:
+        """``cos``/``sin`` of the joint angles, each (6, n), computed once per problem."""
+        return joint_trig(self.q_rad)
+
+    def _trig_rows(self, rows: IndexArray | slice) -> JointTrig:
+        c, s = self.trig
+        return c[:, rows], s[:, rows]
+
+    @cached_property
+    def n_rows(self) -> int:
+        """Rows that carry information: non-zero-weight samples plus the prior rows."""
+        return int(np.count_nonzero(self.weights > 0)) + (self.n_free if self.has_prior else 0)
+
     # ---------------------------------------------------------------- model evaluations
+    def evaluate(self, x: FloatArray, jacobian: bool = True) -> Evaluation:
+        """Residual, optional Jacobian, cost and data RMS at ``x`` (shape (k,)), in one pass."""
+        if jacobian:
+            pred, jac_full = length_jacobian(
+                self.model, self.full(x), self.q_rad, self.anchor_index, self.trig
+            )
+            jac: FloatArray | None = self.sqrt_weights[:, None] * jac_full[:, self.free]
+        else:
+            pred, jac = self.predict(x), None
+        raw = pred - self.length_mm
+        res = self.sqrt_weights * raw
+        if self.has_prior:
+            pres, pjac = self._prior_rows(x)
+            res = np.concatenate([res, pres])
+            if jac is not None:
+                jac = np.vstack([jac, pjac])
+        return Evaluation(
+            residual=res,
+            jacobian=jac,
+            cost=0.5 * float(res @ res),
+            data_rms_mm=float(np.sqrt(np.mean(raw * raw))),
+        )
+
     def predict(self, x: FloatArray, rows: IndexArray | slice = slice(None)) -> FloatArray:
         """Model lengths [mm] for free vector(s) ``x`` (``(k,)`` or ``(S, k)``) at ``rows``.
 
         Returns shape ``(len(rows),)`` or ``(S, len(rows))``.
         """
-        return predict_lengths(self.model, self.full(x), self.q_rad[rows], self.anchor_index[rows])
+        return predict_lengths(self.model, self.full(x), self.q_rad[rows], self.anchor_index[rows],
+                               self._trig_rows(rows))  # fmt: skip
 
     def _prior_rows(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         assert self.prior_sigma is not None and self.prior_mean is not None
@@ -119,22 +184,16 @@ class Problem:
 
     def residuals(self, x: FloatArray) -> FloatArray:
         """Stacked residual vector, shape (n,) or (n + k,) with the prior [mm]."""
-        data = np.sqrt(self.weights) * (self.predict(x) - self.length_mm)
+        data = self.sqrt_weights * (self.predict(x) - self.length_mm)
         if not self.has_prior:
             return data
         return np.concatenate([data, self._prior_rows(x)[0]])
 
     def residuals_and_jacobian(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Residual (see :meth:`residuals`) and its Jacobian, shape (n[+k], k)."""
-        pred, jac_full = length_jacobian(self.model, self.full(x), self.q_rad, self.anchor_index)
-        sw = np.sqrt(self.weights)
-        res = sw * (pred - self.length_mm)
-        jac = sw[:, None] * jac_full[:, self.free]
-        if self.has_prior:
-            pres, pjac = self._prior_rows(x)
-            res = np.concatenate([res, pres])
-            jac = np.vstack([jac, pjac])
-        return res, jac
+        ev = self.evaluate(x)
+        assert ev.jacobian is not None
+        return ev.residual, ev.jacobian
 
     def cost(self, x: FloatArray) -> float:
         """``0.5 · Σ r²`` [mm²]."""

@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from calib.cable import ParamLayout, length_jacobian, multilaterate, predict_lengths
-from calib.kinematics import forward_position, position_jacobian
-from calib.models import builtin_model
+from calib.kinematics import (
+    forward_chain,
+    forward_position,
+    position_jacobian,
+    projected_jacobian,
+)
+from calib.models import RobotModel, builtin_model
 from calib.synthetic import make_true_cell, noisy_lengths, random_poses_deg
 
 
@@ -114,6 +119,49 @@ def test_length_jacobian_matches_finite_differences_with_two_anchors() -> None:
         tm[k] -= h
         fd = (predict_lengths(model, tp, q, idx) - predict_lengths(model, tm, q, idx)) / (2 * h)
         np.testing.assert_allclose(jac[:, k], fd, atol=2e-5, err_msg=cell.layout.names[k])
+
+
+@pytest.mark.parametrize("convention", ["dh", "mdh"])
+def test_projected_jacobian_equals_direction_times_position_jacobian(convention: str) -> None:
+    """The triple-product form used for cable lengths against the frame-based closed form."""
+    rng = np.random.default_rng(9)
+    dh = builtin_model("hsr-jr680").dh_internal() + rng.normal(0, 0.02, (6, 4))
+    tool = np.array([30.0, -20.0, 150.0])
+    q = rng.uniform(-np.pi, np.pi, (25, 6))
+    direction = rng.normal(size=(25, 3))
+    pos, jac = position_jacobian(dh, q, tool, convention)  # type: ignore[arg-type]
+    chain = forward_chain(dh, q, tool, convention)  # type: ignore[arg-type]
+    np.testing.assert_allclose(chain.pos_mm, pos, atol=1e-9)
+    expected = np.einsum("ni,nij->nj", direction, jac)
+    np.testing.assert_allclose(projected_jacobian(chain, direction), expected, atol=1e-8)
+
+
+def test_projected_jacobian_rejects_a_batch_of_parameter_sets() -> None:
+    dh = np.broadcast_to(builtin_model("hsr-jr680").dh_internal(), (2, 6, 4))
+    chain = forward_chain(dh, np.zeros((3, 6)), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="single parameter set"):
+        projected_jacobian(chain, np.ones((3, 3)))
+
+
+def test_length_jacobian_matches_finite_differences_modified_dh() -> None:
+    nominal = builtin_model("hsr-jr680")
+    model = RobotModel("mdh-test", "mdh", nominal.dh_table, nominal.joint_limits_deg,
+                       np.array([10.0, 5.0, 90.0]))  # fmt: skip
+    rng = np.random.default_rng(10)
+    layout = ParamLayout(("A",))
+    theta = np.zeros(layout.size)
+    theta[:27] = rng.normal(0, 0.01, 27)
+    theta[27:] = [900.0, 400.0, -300.0, -250.0]
+    q = rng.uniform(-2.0, 2.0, (30, 6))
+    idx = np.zeros(30, dtype=int)
+    _, jac = length_jacobian(model, theta, q, idx)
+    h = 1e-6
+    for k in range(layout.size):
+        tp, tm = theta.copy(), theta.copy()
+        tp[k] += h
+        tm[k] -= h
+        fd = (predict_lengths(model, tp, q, idx) - predict_lengths(model, tm, q, idx)) / (2 * h)
+        np.testing.assert_allclose(jac[:, k], fd, atol=2e-5, err_msg=layout.names[k])
 
 
 def test_multilateration_recovers_anchor_from_clean_lengths() -> None:

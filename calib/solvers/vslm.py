@@ -11,17 +11,28 @@ The paper's update is ::
    and the method "converges" (its Fig. 6) wherever it happens to be. Here, when ``δ_t`` falls
    below ``delta_min`` while the convergence tests are unmet, the schedule restarts at ``δ_0``
    (a restart schedule keeps the decaying character but cannot freeze). Convergence is judged
-   on the *undamped* problem — the scaled gradient ``‖(JD⁻¹)ᵀr‖∞ ≤ gtol‖r‖`` or the predicted
-   reduction of the full (δ = 1) step relative to the cost — never on the size of δ.
+   on the full (δ = 1) step, never on the size of δ; see 6.
 2. *λI mixes millimetres and radians.* The damping acts on the column-scaled problem
    (``J D⁻¹``, ``D`` = running column norms), so ``λ`` is unit-free.
 3. *No step acceptance.* A fixed-λ step can increase the cost on ill-conditioned problems. A
    step that does not decrease the cost is rejected and λ is multiplied by 10; after an
    accepted step λ relaxes back toward its initial value (never below it), as in LM.
 4. *Normal equations.* ``(JᵀJ + λI)⁻¹`` squares the condition number (1e10 → 1e20 on the real
-   data). The step is computed from the SVD of ``J D⁻¹``, which is exact to rounding.
+   data). The step is computed from the SVD of the triangular factor of ``[J D⁻¹ | r]``
+   (:class:`calib.solvers.common.LinearModel`), which is exact to rounding.
 5. The sign: with ``E = Z − Z'`` (measured minus model) and ``J = ∂Z'/∂X``, the update is
    ``+δ(JᵀJ+λI)⁻¹JᵀE``; in this code the residual is ``r = Z' − Z = −E``, hence ``h = −…Jᵀr``.
+
+6. *No stopping test.* The paper runs a fixed ``T9`` iterations. Here the iteration stops when
+   the iterate is within ``sigma_tol`` (default 0.001) standard errors of the linearised
+   optimum: with ``ΔL`` the cost reduction the full step predicts and ``σ̂² = 2F/(m − k)``,
+   ``2ΔL/σ̂²`` is the squared Mahalanobis length of the remaining step under the estimate's own
+   covariance (:func:`calib.solvers.common.distance_to_optimum_sigma`). Going further moves
+   the parameters by a negligible fraction of their uncertainty. Also: the scaled gradient
+   ``‖(JD⁻¹)ᵀr‖∞ ≤ gtol‖r‖`` (noise-free data), and no decrease at any damping.
+   Because each step is only a fraction ``δ`` of the full step, the distance shrinks by about
+   ``1 − δ`` per iteration: a start within a few standard errors (the UKF's estimate) needs
+   about six iterations.
 
 With these changes the fixed point is the same stationary point as LM's (``Jᵀr = 0``).
 """
@@ -35,11 +46,12 @@ import numpy as np
 from calib.kinematics import FloatArray
 from calib.problem import Problem
 from calib.solvers.common import (
+    LinearModel,
     ProgressFn,
     SolverResult,
     Timer,
     column_scale,
-    damped_step,
+    distance_to_optimum_sigma,
     report,
 )
 
@@ -51,10 +63,10 @@ class VSLMOptions:
     delta0: float = 0.8
     mu: float = 0.95
     delta_min: float = 0.2
-    lam: float = 1e-6  # unit-free damping relative to the largest squared singular value
+    lam: float = 1e-10  # unit-free damping relative to the largest squared singular value
     max_iterations: int = 500
     gtol: float = 1e-10
-    ftol: float = 1e-12
+    sigma_tol: float = 1e-3  # stop within this many standard errors of the optimum
     max_rejections: int = 30
 
     def __post_init__(self) -> None:
@@ -64,6 +76,8 @@ class VSLMOptions:
             raise ValueError(f"mu must be in (0, 1), got {self.mu}")
         if not 0.0 < self.delta_min <= self.delta0:
             raise ValueError(f"delta_min must be in (0, delta0], got {self.delta_min}")
+        if not self.sigma_tol >= 0.0:
+            raise ValueError(f"sigma_tol must be >= 0, got {self.sigma_tol}")
 
 
 def solve(
@@ -77,11 +91,13 @@ def solve(
     opts = options or VSLMOptions()
     timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
-    res, jac = problem.residuals_and_jacobian(x)
-    cost = 0.5 * float(res @ res)
-    history = [problem.data_rms_mm(x)]
+    ev = problem.evaluate(x)
+    assert ev.jacobian is not None
+    res, jac, cost = ev.residual, ev.jacobian, ev.cost
+    history = [ev.data_rms_mm]
     if not np.isfinite(cost):
         return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
+    dof = max(problem.n_rows - x.shape[0], 1)
     scale = column_scale(jac)
     delta = opts.delta0
     lam0: float | None = None
@@ -94,32 +110,33 @@ def solve(
         if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * cost):
             status, message, it = 1, "gradient below gtol", it - 1
             break
-        u, s, vt = np.linalg.svd(js, full_matrices=False)
+        lin = LinearModel.from_jacobian(js, res)
+        s = lin.s
         if lam0 is None:
             lam0 = opts.lam * float(s[0] ** 2)
             lam = lam0
-        full_step = damped_step(u, s, vt, res, lam)
-        predicted_full = 0.5 * float(full_step @ (lam * full_step - grad))
-        if predicted_full <= opts.ftol * cost:
-            status, message, it = 2, "predicted reduction of the full step below ftol", it - 1
+        distance = distance_to_optimum_sigma(lin, lam0, cost, dof)
+        if distance <= opts.sigma_tol:
+            status, it = 2, it - 1
+            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
             break
         accepted = False
         for _ in range(opts.max_rejections):
-            h = delta * damped_step(u, s, vt, res, lam)
+            h = delta * lin.step(lam)
             x_new = x + h / scale
-            res_new = problem.residuals(x_new)
-            cost_new = 0.5 * float(res_new @ res_new)
-            if np.isfinite(cost_new) and cost_new < cost:
-                x, cost, res = x_new, cost_new, res_new
-                res, jac = problem.residuals_and_jacobian(x)
+            trial = problem.evaluate(x_new)
+            if np.isfinite(trial.cost) and trial.cost < cost:
+                assert trial.jacobian is not None
+                x, cost, res, jac = x_new, trial.cost, trial.residual, trial.jacobian
+                history.append(trial.data_rms_mm)
                 scale = column_scale(jac, scale)
                 lam = max(lam0, lam / 10.0)
                 accepted = True
                 break
             lam *= 10.0
-        history.append(problem.data_rms_mm(x))
         report(progress, it / opts.max_iterations, f"{method} iteration {it}, step {delta:.3f}")
         if not accepted:
+            history.append(history[-1])
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
         delta *= opts.mu
