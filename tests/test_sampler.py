@@ -55,7 +55,7 @@ class FakeIndicator:
         self.name = name
         self.length_mm = length_mm
         self.noise_mm = noise_mm
-        self.error: Exception | None = None
+        self.error: BaseException | None = None
         self.over_range = False
         self.lag_s = 0.0
         self.closed = False
@@ -492,6 +492,47 @@ async def test_a_driver_bug_does_not_stop_the_loop() -> None:
         assert s.running
         await s.capture(1)
     assert sink.kinds("rob-bug") == ["device_error", "link_up"]
+
+
+async def test_a_driver_leaking_cancellation_does_not_stop_the_loop() -> None:
+    ind, rob, sink = FakeIndicator(name="ind-cx"), FakeRobot(), FakeSink()
+    async with running(ind, rob, sink) as s:
+        ind.error = asyncio.CancelledError()
+        await wait_until(lambda: s.status()["devices"]["indicator"]["state"] == "error")
+        ind.error = None
+        await wait_until(lambda: s.status()["devices"]["indicator"]["state"] == "ok")
+        assert s.running
+    assert sink.kinds("ind-cx") == ["device_error", "link_up"]
+
+
+async def test_concurrent_captures_use_disjoint_windows() -> None:
+    ind, rob, sink = FakeIndicator(noise_mm=0.01), FakeRobot(), FakeSink()
+    async with running(ind, rob, sink) as s:
+        rows = await asyncio.gather(s.capture(1), s.capture(1))
+    assert sorted(r["id"] for r in rows) == [1, 2]
+    (_, a), (_, b) = sink.captures
+    assert a.raw[-1].t_wall < b.raw[0].t_wall
+
+
+class FailingSink(FakeSink):
+    def __init__(self, failures: int) -> None:
+        super().__init__()
+        self.failures = failures
+
+    def store_capture(self, campaign_id: int, capture: Capture) -> dict[str, Any]:
+        if self.failures:
+            self.failures -= 1
+            raise RuntimeError("database is locked")
+        return super().store_capture(campaign_id, capture)
+
+
+async def test_auto_mode_survives_a_failing_store_and_retries() -> None:
+    ind, rob, sink = FakeIndicator(), FakeRobot(), FailingSink(failures=2)
+    async with running(ind, rob, sink) as s:
+        s.set_auto(1)
+        await wait_until(lambda: len(sink.captures) == 1)
+        await asyncio.sleep(3 * s.config.settle_s)
+        assert s.running and len(sink.captures) == 1 and sink.failures == 0
 
 
 async def test_status_rates_and_age_metrics() -> None:
