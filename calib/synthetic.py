@@ -134,8 +134,8 @@ def random_poses_deg(
     Returns
     -------
     ndarray, shape (n, 6)
-        Joint angles [deg] whose true cable length is within 50..1950 mm and whose hook point is
-        at least 300 mm from the anchor.
+        Joint angles [deg] whose true reading is within 50..1950 mm and whose hook point is
+        300..1950 mm from the anchor (the cable's extension stays within the stroke).
     """
     limits = cell.model.joint_limits_deg
     if limits is None:
@@ -156,7 +156,10 @@ def random_poses_deg(
         cand = rng.uniform(lo, hi, size=(4 * n, N_JOINTS))
         dist = np.linalg.norm(cell.tool_positions_mm(cand) - p0, axis=1)
         length = dist + offset
-        ok = (length > CABLE_RANGE_MM[0] + 50) & (length < CABLE_RANGE_MM[1] - 50) & (dist > 300)
+        # The reading (dist + offset) must be on the meter's scale, and the cable's real
+        # extension (dist) within the sensor's stroke: a negative offset does not lengthen it.
+        ok = (length > CABLE_RANGE_MM[0] + 50) & (length < CABLE_RANGE_MM[1] - 50)
+        ok &= (dist > 300) & (dist < CABLE_RANGE_MM[1] - 50)
         out = np.vstack([out, cand[ok]])
         if out.shape[0] >= n:
             return out[:n]
