@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: test lint typecheck unit run bench clean
+.PHONY: test lint typecheck unit run demo bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,8 +24,13 @@ unit: $(STAMP)
 
 test: lint typecheck unit
 
+# The daemon on the EMULATED cell (examples/sim.toml), store under .state/; Ctrl-C stops it.
 run: $(STAMP)
-	$(BIN)/cablecal compare --robot hsr-jr680 --train 100 --test 20 --seed 0
+	$(BIN)/python -m daemon.demo serve
+
+# A whole campaign over the REST API against a fresh emulated cell (about 3 minutes).
+demo: $(STAMP)
+	$(BIN)/python -m daemon.demo campaign --poses 100
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run

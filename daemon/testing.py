@@ -122,7 +122,8 @@ class EmulatedCellProcess(Process):
 
 
 class DaemonProcess(Process):
-    """``cablecal serve --simulated-cell READY.json --port 0``; :attr:`url`, :attr:`token`."""
+    """``cablecal serve --simulated-cell READY.json --port PORT`` (default 0: any free port);
+    :attr:`url`, :attr:`token`."""
 
     def __init__(
         self,
@@ -131,11 +132,12 @@ class DaemonProcess(Process):
         token: str,
         env: dict[str, str] | None = None,
         extra_args: list[str] | None = None,
+        port: int = 0,
     ) -> None:
         self.token = token
         super().__init__(
             [sys.executable, "-m", "daemon", "serve", "--simulated-cell", str(ready_path),
-             "--port", "0", *(extra_args or [])],
+             "--port", str(port), *(extra_args or [])],
             state_dir / "daemon.log",
             env={"CABLECAL_STATE_DIR": str(state_dir), "CABLECAL_API_TOKEN": token,
                  "CABLECAL_LOG_JSON": "true", **(env or {})},
