@@ -9,10 +9,26 @@ import shutil
 import stat
 import subprocess
 import tempfile
+import tomllib
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
+from pydantic import BaseModel
+
+from daemon.config import JobSettings, Settings
+from daemon.sampler import SamplerConfig
+from drivers import (
+    AsciiIndicatorConfig,
+    HuashuConfig,
+    IndicatorConfig,
+    ManualRobotConfig,
+    ModbusRobotConfig,
+)
+from drivers.indicator import RegisterMap
+from drivers.modbus_robot import JointRegisterMap
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY = ROOT / "deploy"
@@ -204,8 +220,6 @@ def snapshot(root: Path) -> dict[str, tuple[int, bytes]]:
 
 @pytest.fixture
 def destdir(tmp_path: Path) -> Path:
-    if not EXAMPLE.exists():  # interim: the example follows daemon/config.py
-        pytest.skip(f"{EXAMPLE.name} not written yet; install.sh needs it")
     root = tmp_path / "root"
     root.mkdir()
     return root
@@ -349,3 +363,138 @@ def test_script_syntax_and_shellcheck() -> None:
     if shutil.which("shellcheck"):
         proc = subprocess.run(["shellcheck", str(INSTALL)], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stdout
+
+
+# --- cablecal.toml.example against daemon.config.Settings --------------------------------
+
+_HEADER = re.compile(r"^#?\[(?P<section>[a-z_.]+)\]")
+_SETTING = re.compile(r"^#?(?P<key>[a-z_]+) *=")
+
+
+@dataclass
+class Block:
+    """One table of the example with its sub-tables (an alternative starts a new one)."""
+
+    section: str
+    kind: str | None = None
+    values: dict[str, Any] = field(default_factory=dict)
+    # (sub-table or "", key, value, inline comment) of every setting line
+    lines: list[tuple[str, str, Any, str]] = field(default_factory=list)
+
+
+def example_blocks() -> list[Block]:
+    """Every setting line of the example, commented out ("#key = ...") or not."""
+    blocks = [Block("")]
+    sub = ""
+    for line in EXAMPLE.read_text().splitlines():
+        if m := _HEADER.match(line):
+            top, _, sub = m["section"].partition(".")
+            if not sub:
+                blocks.append(Block(top))
+            continue
+        if not (m := _SETTING.match(line)):
+            continue
+        body = line.removeprefix("#")
+        value = tomllib.loads(body)[m["key"]]  # also proves each line is valid TOML
+        comment = body.split("#", 1)[1] if "#" in body else ""
+        block = blocks[-1]
+        if m["key"] == "kind" and not sub:
+            block.kind = value
+        target = block.values.setdefault(sub, {}) if sub else block.values
+        target[m["key"]] = value
+        block.lines.append((sub, m["key"], value, comment))
+    return blocks
+
+
+def block_models(block: Block, defaults: Settings) -> dict[str, BaseModel]:
+    """The model instance holding the defaults of each (sub-)table of ``block``."""
+    kind = block.kind
+    if block.section == "":
+        return {"": defaults}
+    if block.section in ("sampler", "jobs"):
+        return {"": getattr(defaults, block.section)}
+    if block.section == "indicator":
+        main: BaseModel = {
+            "modbus-rtu": defaults.indicator,  # port: the udev rule's /dev/cablecal-indicator
+            "modbus-tcp": IndicatorConfig(kind="modbus-tcp"),
+            "ascii": AsciiIndicatorConfig(),
+        }[kind or "modbus-rtu"]
+        return {"": main, "registers": RegisterMap()}
+    if block.section == "robot":
+        main = {
+            "manual": defaults.robot,
+            "huashu-socketcmd": HuashuConfig(),
+            "modbus-tcp": ModbusRobotConfig(),
+        }[kind or "manual"]
+        return {"": main, "registers": JointRegisterMap()}
+    raise AssertionError(f"unexpected table [{block.section}] in the example")
+
+
+@pytest.fixture
+def clean_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    for name in list(os.environ):
+        if name.startswith("CABLECAL_") or name == "STATE_DIRECTORY":
+            monkeypatch.delenv(name)
+
+
+@pytest.mark.usefixtures("clean_env")
+def test_example_parses_to_the_defaults() -> None:
+    loaded = Settings.load(EXAMPLE)
+    assert loaded.model_dump() == Settings().model_dump()
+
+
+@pytest.mark.usefixtures("clean_env")
+def test_example_shows_the_defaults_with_units() -> None:
+    """Every "#key = value" shows the model's default, unless its comment says "default:"
+    (then the value is an example and the comment states the default); every setting line
+    has a comment."""
+    defaults = Settings()
+    for block in example_blocks():
+        models = block_models(block, defaults)
+        for sub, key, value, comment in block.lines:
+            where = f"[{block.section}{'.' + sub if sub else ''}] {key} (kind {block.kind})"
+            assert comment.strip() or key == "kind", f"{where}: no comment (unit, meaning)"
+            if "default:" in comment:
+                continue
+            expected = getattr(models[sub], key)
+            assert value == expected, f"{where}: example shows {value!r}, default {expected!r}"
+
+
+@pytest.mark.usefixtures("clean_env")
+def test_example_mentions_every_setting() -> None:
+    blocks = example_blocks()
+    seen: dict[tuple[str, str], set[str]] = {}
+    for block in blocks:
+        for sub, key, _, _ in block.lines:
+            seen.setdefault((block.section, sub), set()).add(key)
+        seen.setdefault((block.section, "kinds"), set()).add(str(block.kind))
+
+    def keys(model: type[BaseModel]) -> set[str]:
+        return set(model.model_fields)
+
+    tables = {"sampler", "jobs", "indicator", "robot"}
+    expected = {
+        ("", ""): keys(Settings) - tables,
+        ("sampler", ""): keys(SamplerConfig),
+        ("jobs", ""): keys(JobSettings),
+        ("indicator", ""): (keys(IndicatorConfig) | keys(AsciiIndicatorConfig)) - {"registers"},
+        ("indicator", "registers"): keys(RegisterMap),
+        ("robot", ""): (keys(HuashuConfig) | keys(ModbusRobotConfig) | keys(ManualRobotConfig))
+        - {"registers"},
+        ("robot", "registers"): keys(JointRegisterMap),
+    }
+    for table, names in expected.items():
+        missing = names - seen.get(table, set())
+        assert not missing, f"{table}: the example does not mention {sorted(missing)}"
+    assert seen[("indicator", "kinds")] >= {"modbus-rtu", "modbus-tcp", "ascii"}
+    assert seen[("robot", "kinds")] >= {"manual", "huashu-socketcmd", "modbus-tcp"}
+
+
+@pytest.mark.usefixtures("clean_env")
+def test_example_alternatives_are_valid() -> None:
+    """Each table, with all its lines uncommented, is a valid configuration."""
+    for block in example_blocks():
+        if block.section == "":
+            Settings(**block.values)
+        else:
+            Settings(**{block.section: block.values})
