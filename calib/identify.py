@@ -375,9 +375,9 @@ def _run_method(
         )[free]
     p0 = np.diag(spread**2)
     m = opts.method
-    default_batch = ukf_vslm.UKFVSLMOptions().ukf.batch_size if m == "ukf-vslm" else 1
-    batch = default_batch if opts.ukf_batch_size is None else opts.ukf_batch_size
-    ukf_opts = ukf.UKFOptions(epochs=opts.ukf_epochs, batch_size=batch)
+    default = ukf_vslm.UKFVSLMOptions().ukf if m == "ukf-vslm" else ukf.UKFOptions()
+    batch = default.batch_size if opts.ukf_batch_size is None else opts.ukf_batch_size
+    ukf_opts = ukf.UKFOptions(epochs=opts.ukf_epochs, batch_size=batch, ramp=default.ramp)
     vslm_opts = vslm.VSLMOptions(delta0=opts.vslm_delta0, mu=opts.vslm_mu)
     if m == "lm":
         return lm.solve(problem, x0, progress=progress)

@@ -139,10 +139,22 @@ def distance_to_optimum_sigma(model: LinearModel, lam: float, cost: float, dof: 
     return float(np.sqrt(max(reduction, 0.0) * max(dof, 1) / cost))
 
 
-def sample_batches(n: int, size: int, rng: np.random.Generator | None = None) -> list[IndexArray]:
-    """Row indices of ``n`` samples in batches of ``size`` (shuffled first if ``rng``)."""
+def sample_batches(
+    n: int, size: int, rng: np.random.Generator | None = None, ramp: bool = False
+) -> list[IndexArray]:
+    """Row indices of ``n`` samples in batches of ``size`` (shuffled first if ``rng``).
+
+    With ``ramp`` the batches grow 1, 2, 4, … up to ``size``: the first updates, while the
+    filter's covariance is still wide and the estimate moves most, take one sample each.
+    """
     order = np.arange(n) if rng is None else rng.permutation(n)
-    return [order[i : i + size] for i in range(0, n, size)]
+    out: list[IndexArray] = []
+    start, step = 0, 1 if ramp else size
+    while start < n:
+        out.append(order[start : start + step])
+        start += step
+        step = min(2 * step, size)
+    return out
 
 
 def report(progress: ProgressFn | None, fraction: float, message: str) -> None:

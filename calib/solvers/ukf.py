@@ -43,6 +43,7 @@ class UKFOptions:
 
     epochs: int = 2  # the paper's T3
     batch_size: int = 1  # samples per measurement update
+    ramp: bool = False  # batches of 1, 2, 4, … up to batch_size in each epoch
     alpha: float = 0.5
     beta: float = 2.0
     kappa: float = 0.0
@@ -108,7 +109,7 @@ def solve(
     noise_var = problem.noise_mm**2
     q = opts.process_noise * p0
     history = [problem.data_rms_mm(x)]
-    batches = sample_batches(problem.n_samples, opts.batch_size, rng)
+    batches = sample_batches(problem.n_samples, opts.batch_size, rng, opts.ramp)
     total = opts.epochs * len(batches)
     done = 0
     status, message = 4, f"{opts.epochs} epochs done"
