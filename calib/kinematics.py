@@ -190,7 +190,12 @@ def forward_chain(
     tool_mm = np.asarray(tool_mm, dtype=float)
     _check_inputs(dh, q_rad, tool_mm)
     q_joint = np.moveaxis(q_rad, -1, 0)  # (6, n): one joint's angles per row
-    params = np.moveaxis(dh, (-2, -1), (0, 1))  # (6, 4, ...)
+    # Per-joint constants for all joints at once, each (6, ..., 1): one call per function.
+    cols = np.moveaxis(dh, (-2, -1), (0, 1))[..., None]  # (6, 4, ..., 1)
+    cos_alpha, sin_alpha = np.cos(cols[:, 0]), np.sin(cols[:, 0])
+    a_all, d_all = cols[:, 1], cols[:, 2]
+    if trig is not None:
+        cos_off, sin_off = np.cos(cols[:, 3]), np.sin(cols[:, 3])
     v0: FloatArray = tool_mm[..., 0, None]  # (..., 1), broadcasts against the poses
     v1: FloatArray = tool_mm[..., 1, None]
     v2: FloatArray = tool_mm[..., 2, None]
@@ -199,17 +204,16 @@ def forward_chain(
     cs_alpha: list[tuple[FloatArray, FloatArray]] = [(v0, v0)] * N_JOINTS
     for j in range(N_JOINTS - 1, -1, -1):
         inputs[j] = (v0, v1, v2)
-        alpha, a, d, theta = params[j]
-        ca, sa = np.cos(alpha)[..., None], np.sin(alpha)[..., None]
+        ca, sa = cos_alpha[j], sin_alpha[j]
         if trig is None:
-            angle = theta[..., None] + q_joint[j]
+            angle = cols[j, 3] + q_joint[j]
             ct, st = np.cos(angle), np.sin(angle)
         else:
-            c_off, s_off = np.cos(theta)[..., None], np.sin(theta)[..., None]
+            c_off, s_off = cos_off[j], sin_off[j]
             c_q, s_q = trig[0][j], trig[1][j]
             ct, st = c_off * c_q - s_off * s_q, s_off * c_q + c_off * s_q
         cs_theta[j], cs_alpha[j] = (ct, st), (ca, sa)
-        a_col, d_col = a[..., None], d[..., None]
+        a_col, d_col = a_all[j], d_all[j]
         if convention == "dh":  # Rz(θ) Tz(d) Tx(a) Rx(α) v
             w0 = v0 + a_col
             w1 = ca * v1 - sa * v2
