@@ -15,6 +15,7 @@ import logging
 import os
 import sys
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import typer
@@ -67,6 +68,19 @@ def write_token_file(state_dir: Path, token: str) -> Path:
     return path
 
 
+class _NotifyingServer(uvicorn.Server):
+    """uvicorn's server, telling systemd ``STOPPING=1`` as soon as a stop signal arrives
+    (uvicorn re-raises SIGTERM after its shutdown, so code after ``serve()`` may not run)."""
+
+    def __init__(self, config: uvicorn.Config, notifier: Any) -> None:
+        super().__init__(config)
+        self.notifier = notifier
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        self.notifier.stopping()
+        super().handle_exit(sig, frame)
+
+
 async def serve(settings: Settings, token: str, generated: bool) -> int:
     """Run until SIGTERM/SIGINT; returns the exit code."""
     from daemon.api.main import create_app
@@ -82,8 +96,8 @@ async def serve(settings: Settings, token: str, generated: bool) -> int:
         lifespan="on",
         timeout_graceful_shutdown=5,
     )
-    server = uvicorn.Server(config)
     notifier = Notifier.from_env()
+    server = _NotifyingServer(config, notifier)
     serve_task = asyncio.create_task(server.serve(), name="uvicorn")
     while not server.started and not serve_task.done():
         await asyncio.sleep(0.02)
@@ -135,7 +149,12 @@ def register(app: typer.Typer) -> None:
         port: int | None = typer.Option(None, help="TCP port (default 8080, 0 = any free)."),
     ) -> None:
         """Run the daemon: sampler, SQLite store, identification jobs and the REST API."""
+        import faulthandler
+
         from daemon.logs import setup_logging
+
+        # The watchdog kills a hung daemon with SIGABRT: dump every thread's stack first.
+        faulthandler.enable()
 
         try:
             settings = load_settings(config, simulated_cell, host, port)

@@ -14,6 +14,7 @@ Everything here is the EMULATED cell: no hardware is touched.
 from __future__ import annotations
 
 import secrets
+import signal
 import tempfile
 import time
 from pathlib import Path
@@ -64,6 +65,9 @@ def serve_cmd(
     """Emulated cell + daemon in the foreground until Ctrl-C (``make run``)."""
     import os
 
+    # SIGTERM (e.g. from a supervisor) stops both children like Ctrl-C does; they run in
+    # their own sessions, so they do not get the terminal's signals themselves.
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     state_dir.mkdir(parents=True, exist_ok=True)
     token = os.environ.get("CABLECAL_API_TOKEN") or secrets.token_urlsafe(18)
     sim = EmulatedCellProcess(sim_config, state_dir)

@@ -73,7 +73,8 @@ class Process:
 
     def log_tail(self, n: int = 40) -> str:
         """The last ``n`` lines of the stderr log."""
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         try:
             return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-n:])
         except OSError:

@@ -1,0 +1,178 @@
+"""API latency under load while the sampler runs, and the daemon's memory.
+
+Starts the emulated cell and ``cablecal serve`` as real processes (auto capture on, so the
+sampler polls and stores), then a SECOND process sends ``GET /api/v1/status`` open-loop at
+200 req/s for 20 s and records each latency. In the same run and the same way it measures
+``GET /api/v1/health`` (a route that does nothing) as the baseline, so the table shows what the
+status route itself costs. Targets (issue 4): p99 of /status < 20 ms; daemon RSS < 150 MB.
+
+Run: ``python -m bench.api_bench`` (``make bench`` calls it). Writes bench/api_results.json and
+bench/api_results.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from daemon.testing import Cell
+
+OUT = Path(__file__).resolve().parent
+RATE_HZ = 200.0
+DURATION_S = 20.0
+
+SIM = """
+seed = 5
+[robot]
+n_poses = 400
+move_time_s = 0.5
+dwell_s = 1.0
+[indicator]
+baud = {baud}
+[robot_socketcmd]
+port = 0
+[robot_modbus]
+port = 0
+"""
+
+#: The load generator, run as its own process: open-loop requests at a fixed rate.
+LOADGEN = r"""
+import asyncio, json, sys, time
+import httpx
+
+async def main(url, token, rate, duration):
+    lat, errors = [], 0
+    async with httpx.AsyncClient(headers={"Authorization": "Bearer " + token}, timeout=5) as c:
+        async def one():
+            nonlocal errors
+            t0 = time.perf_counter()
+            try:
+                r = await c.get(url)
+                if r.status_code != 200:
+                    errors += 1
+            except httpx.HTTPError:
+                errors += 1
+            lat.append(time.perf_counter() - t0)
+        tasks = []
+        start = time.perf_counter()
+        n = int(rate * duration)
+        for i in range(n):
+            delay = start + i / rate - time.perf_counter()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            tasks.append(asyncio.create_task(one()))
+        await asyncio.gather(*tasks)
+        elapsed = time.perf_counter() - start
+    print(json.dumps({"latencies_s": lat, "errors": errors, "elapsed_s": elapsed}))
+
+asyncio.run(main(sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])))
+"""
+
+
+def _rss_mb(pid: int) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(("VmRSS:", "VmHWM:")):
+            key, value = line.split(":", 1)
+            out[key] = float(value.split()[0]) / 1024.0
+    return out
+
+
+def _load(url: str, token: str, rate_hz: float, duration_s: float) -> dict[str, Any]:
+    proc = subprocess.run(
+        [sys.executable, "-c", LOADGEN, url, token, str(rate_hz), str(duration_s)],
+        capture_output=True,
+        text=True,
+        timeout=duration_s + 60,
+        check=True,
+    )
+    data = json.loads(proc.stdout)
+    lat_ms = np.asarray(data["latencies_s"]) * 1e3
+    return {
+        "requests": int(lat_ms.size),
+        "errors": int(data["errors"]),
+        "achieved_rate_hz": round(lat_ms.size / data["elapsed_s"], 1),
+        "p50_ms": round(float(np.percentile(lat_ms, 50)), 2),
+        "p99_ms": round(float(np.percentile(lat_ms, 99)), 2),
+        "max_ms": round(float(lat_ms.max()), 2),
+    }
+
+
+def run(
+    rate_hz: float = RATE_HZ, duration_s: float = DURATION_S, baud: int = 9600
+) -> dict[str, Any]:
+    """Measure and write bench/api_results.{json,md}; returns the results.
+
+    ``baud``: the indicator link; 9600 is the HY9648's default (the sampler then polls at
+    about 26 Hz), 115200 makes it poll about six times as often.
+    """
+    with tempfile.TemporaryDirectory(prefix="cablecal-apibench-") as tmp:
+        env = {"CABLECAL_INDICATOR__BAUD": str(baud), "CABLECAL_SAMPLER__SETTLE_S": "0.3"}
+        with Cell(Path(tmp), SIM.format(baud=baud), daemon_env=env) as cell:
+            assert cell.daemon is not None
+            api = cell.daemon.client()
+            cid = api.post("/campaigns", json={"name": "bench", "robot_model": "hsr-jr680"})
+            campaign_id = cid.json()["id"]
+            api.put(f"/campaigns/{campaign_id}/auto-capture", json={"enabled": True})
+            time.sleep(3.0)
+            base = cell.daemon.url + "/api/v1"
+            health = _load(base + "/health", cell.token, rate_hz, duration_s)
+            status = _load(base + "/status", cell.token, rate_hz, duration_s)
+            n_samples = len(api.get(f"/campaigns/{campaign_id}/samples").json())
+            rss = _rss_mb(cell.daemon.popen.pid)
+            polls = api.get("/status").json()["devices"]["indicator"]["poll_rate_hz"]
+    results = {
+        "indicator_baud": baud,
+        "load_average_1min": round(os.getloadavg()[0], 2),
+        "rate_hz": rate_hz,
+        "duration_s": duration_s,
+        "status": status,
+        "baseline_health": health,
+        "captures_during_run": n_samples,
+        "indicator_poll_rate_hz_at_end": polls,
+        "daemon_rss_mb": round(rss.get("VmRSS", float("nan")), 1),
+        "daemon_peak_rss_mb": round(rss.get("VmHWM", float("nan")), 1),
+        "targets": {"status_p99_ms": 20.0, "rss_mb": 150.0},
+        "met": {
+            "status_p99": status["p99_ms"] < 20.0,
+            "rss": rss.get("VmHWM", 1e9) < 150.0,
+        },
+    }
+    (OUT / "api_results.json").write_text(json.dumps(results, indent=2) + "\n")
+    md = [
+        f"# API latency under load ({rate_hz:.0f} req/s for {duration_s:.0f} s, sampler running "
+        f"at {baud} baud)",
+        "",
+        "| route | requests | errors | achieved req/s | p50 ms | p99 ms | max ms |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, r in (("GET /api/v1/status", status), ("GET /api/v1/health (baseline)", health)):
+        md.append(
+            f"| {name} | {r['requests']} | {r['errors']} | {r['achieved_rate_hz']} | "
+            f"{r['p50_ms']} | {r['p99_ms']} | {r['max_ms']} |"
+        )
+    md += [
+        "",
+        f"Daemon RSS {results['daemon_rss_mb']} MB (peak {results['daemon_peak_rss_mb']} MB; "
+        "the identification pool's worker processes are separate and not included). "
+        f"Captures stored during the run: {n_samples}; indicator polled at {polls} Hz. "
+        f"Machine load average (1 min) at the end: {results['load_average_1min']} on "
+        f"{os.cpu_count()} cores. Targets: /status p99 < 20 ms "
+        f"({'met' if results['met']['status_p99'] else 'NOT met'}), RSS < 150 MB "
+        f"({'met' if results['met']['rss'] else 'NOT met'}).",
+        "",
+    ]
+    (OUT / "api_results.md").write_text("\n".join(md))
+    return results
+
+
+if __name__ == "__main__":
+    print(json.dumps(run(), indent=2))
