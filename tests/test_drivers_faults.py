@@ -228,3 +228,82 @@ def test_error_hierarchy() -> None:
     assert issubclass(IndicatorNoReply, IndicatorTimeout)
     for cls in (IndicatorLinkDown, IndicatorOverRange, RobotLinkDown, RobotTimeout):
         assert issubclass(cls, DeviceError)
+
+
+async def _poll_through_link_drop(
+    sim: SimulatorThread, ind: ModbusIndicator, down_s: float, n_after: int
+) -> tuple[float, list[Any], list[str], float]:
+    """Poll ``ind`` back to back, as the daemon's sampler does, while the indicator's pty is
+    unplugged for ``down_s``. Returns (s from the link's return to the first good read, then
+    the values, error names and longest read [s] of the next ``n_after`` reads)."""
+    await ind.read()
+    sim.control("link_down", target="indicator", duration_s=down_s)
+    t_back = time.monotonic() + down_s - 0.05  # the command returns 50 ms after going down
+    first_ok: float | None = None
+    while first_ok is None:
+        assert time.monotonic() < t_back + 5.0, "no good read within 5 s of the link's return"
+        try:
+            await ind.read()
+        except DeviceError:
+            await asyncio.sleep(0.02)
+            continue
+        if time.monotonic() > t_back:
+            first_ok = time.monotonic()
+    values: list[Any] = []
+    errors: list[str] = []
+    longest = 0.0
+    for _ in range(n_after):
+        t0 = time.monotonic()
+        try:
+            values.append(await ind.read())
+        except DeviceError as exc:
+            errors.append(type(exc).__name__)
+        longest = max(longest, time.monotonic() - t0)
+    return first_ok - t_back, values, errors, longest
+
+
+def _sim_and_indicator(baud: int, crc_rate: float) -> tuple[SimulatorThread, ModbusIndicator]:
+    s = SimulatorThread(sim_config(indicator={"baud": baud, "noise_mm": 0.0})).start()
+    s.control("hold", on=True)
+    if crc_rate:
+        s.control("fault", indicator_crc_error_rate=crc_rate)
+    # The daemon's configuration: the driver's defaults (timeout_s 0.5, retries 1).
+    cfg = {"port": s.ready["indicator_port"], "baud": baud}
+    return s, ModbusIndicator(IndicatorConfig.model_validate(cfg))
+
+
+@pytest.mark.parametrize("baud", [115200, 9600])
+async def test_reads_recover_after_link_drop(baud: int) -> None:
+    """Regression (e2e report): after a 3 s unplug of the indicator at 115200 baud, reads
+    were said to fail for minutes. They must come back within 2 s, all of them good."""
+    s, ind = _sim_and_indicator(baud, 0.0)
+    try:
+        true = s.control("state")["true_length_mm"]
+        took, values, errors, _ = await _poll_through_link_drop(s, ind, 3.0, 50)
+    finally:
+        await ind.close()
+        s.stop()
+    assert took < 2.0
+    assert len(values) >= 45, errors
+    assert all(abs(v.length_mm - true) <= HALF_COUNT_MM + 1e-9 for v in values)
+
+
+@pytest.mark.parametrize("baud", [115200, 9600])
+async def test_reads_recover_after_link_drop_under_crc_errors(baud: int) -> None:
+    """The e2e scenario: 5 % corrupted replies and a 3 s unplug. Besides recovering, a
+    corrupted reply must not stall the poll for ``timeout_s + quiet_s``: the reply is
+    complete on the line, so the driver retries at once. A stall longer than the sampler's
+    ``stale_s`` (0.5 s) breaks every settle window it falls into, and auto-capture then
+    misses most poses."""
+    s, ind = _sim_and_indicator(baud, 0.05)
+    try:
+        true = s.control("state")["true_length_mm"]
+        took, values, errors, longest = await _poll_through_link_drop(s, ind, 3.0, 50)
+    finally:
+        await ind.close()
+        s.stop()
+    assert took < 2.0
+    assert len(values) >= 45, errors  # retries=1: a read fails with P ≈ 0.05²
+    assert set(errors) <= {"IndicatorCRCError", "IndicatorTimeout"}
+    assert all(abs(v.length_mm - true) <= HALF_COUNT_MM + 1e-9 for v in values)
+    assert longest < 0.45, f"a read took {longest:.3f} s"
