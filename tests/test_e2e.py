@@ -15,6 +15,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 
 from calib.predict import predict_lengths_from_result
 from daemon.testing import Cell, wait_for
@@ -58,6 +59,16 @@ def _samples(api: httpx.Client, cid: int) -> list[dict[str, Any]]:
     return list(r.json())
 
 
+def _metrics(url: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
+    """Every sample of ``/metrics``, parsed with prometheus-client's parser."""
+    text = httpx.get(url + "/metrics").text
+    return {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+    }
+
+
 def _new_campaign(api: httpx.Client, name: str) -> int:
     r = api.post("/campaigns", json={"name": name, "robot_model": "hsr-jr680"})
     assert r.status_code == 201, r.text
@@ -74,12 +85,22 @@ def test_campaign_end_to_end_recovers_the_cells_truth(tmp_path: Path) -> None:
         api = cell.daemon.client()
         assert api.get("/health").json()["status"] == "ok"
         cid = _new_campaign(api, "e2e")
+        metrics_before = _metrics(cell.daemon.url)
         r = api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": True})
         assert r.status_code == 200, r.text
         wait_for(lambda: len(_samples(api, cid)) >= 64, 240, 1.0, "64 auto captures")
         api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": False})
         samples = _samples(api, cid)
         q = _joints(samples)
+        # The Prometheus counters moved with the campaign.
+        metrics_after = _metrics(cell.daemon.url)
+        key = (
+            "cablecal_captures_total",
+            (("mode", "auto"), ("outcome", "accepted"), ("reason", "ok")),
+        )
+        assert metrics_after[key] - metrics_before.get(key, 0.0) >= len(samples)
+        polls = ("cablecal_device_polls_total", (("device", "indicator"), ("role", "indicator")))
+        assert metrics_after[polls] > metrics_before[polls] + 10 * len(samples)
         # Each pose once: no two captures at the same pose.
         d = np.abs(q[:, None, :] - q[None, :, :]).max(axis=2) + np.eye(len(q)) * 1e9
         assert d.min() > 0.05
