@@ -93,8 +93,9 @@ class IdentifyOptions:
     ukf_epochs : int
         Sweeps of the UKF and EKF over the samples (the paper's ``T3``).
     ukf_batch_size : int or None
-        Samples per filter update; None: 1 for ``ukf`` and ``ekf`` (per-sample updates), 25
-        for the UKF stage of ``ukf-vslm`` (see :mod:`calib.solvers.ukf_vslm`).
+        Samples per filter update; None: 1 for ``ukf`` and ``ekf`` (per-sample updates), and
+        for the UKF stage of ``ukf-vslm`` batches growing 1, 2, 4, … to 32 in each epoch (see
+        :mod:`calib.solvers.ukf_vslm`).
     """
 
     method: Method = "ukf-vslm"
@@ -205,6 +206,8 @@ class IdentifyResult:
     plausibility: dict[str, Any]
     notes: list[str] = field(default_factory=list)
     elapsed_s: float = 0.0
+    #: (p,) where every method started: nominal DH, tool point and anchors fitted.
+    theta_start: FloatArray | None = None
 
     def dh_table_deg_mm(self, errors_only: bool = False) -> FloatArray:
         """Calibrated (or error) DH table, shape (6, 4): alpha_deg, a_mm, d_mm, theta_deg."""
@@ -640,6 +643,7 @@ def identify(
         plausibility=plaus,
         notes=notes,
         elapsed_s=timer.elapsed(),
+        theta_start=theta_start,
     )
 
 
