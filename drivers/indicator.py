@@ -13,9 +13,13 @@ Guarantees
 * :meth:`ModbusIndicator.read` returns a value only from a complete frame whose CRC, device id,
   function and byte count were checked, decoded from a single block read (value, decimals and
   status come from the same frame).
-* After a failed attempt the driver waits until the line has been quiet for ``quiet_s`` and
-  drops any bytes received meanwhile, so a late reply is not taken as the answer to the next
-  request. Modbus RTU has no transaction id: a slave that answers later than
+* A reply that is complete on the line (at least as many bytes as the expected frame, then
+  :attr:`ModbusIndicator.frame_end_s` of silence) but that pymodbus did not accept (bad CRC,
+  garbled function or byte count) is discarded at once and retried: it does not cost
+  ``timeout_s``. RTU framing only (``modbus-tcp`` has no CRC).
+* After any other failed attempt the driver waits until the line has been quiet for
+  ``quiet_s`` and drops any bytes received meanwhile, so a late reply is not taken as the
+  answer to the next request. Modbus RTU has no transaction id: a slave that answers later than
   ``timeout_s + quiet_s`` cannot be told apart from a timely one; keep ``timeout_s`` above the
   meter's worst-case reply time.
 * Failures raise typed :class:`~drivers.errors.IndicatorError` subclasses carrying the last
@@ -26,6 +30,7 @@ Guarantees
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
@@ -226,6 +231,7 @@ class ModbusIndicator:
         self._rx_attempt = b""
         self._rx_buffer = b""
         self._last_rx_monotonic = 0.0
+        self._rx_event = asyncio.Event()
         self._lock = asyncio.Lock()
 
     # ---------------------------------------------------------------- connection
@@ -239,7 +245,14 @@ class ModbusIndicator:
             self._rx_attempt += data[len(prev) :] if data.startswith(prev) else data
             self._rx_buffer = data
             self._last_rx_monotonic = time.monotonic()
+            self._rx_event.set()
         return data
+
+    @property
+    def frame_end_s(self) -> float:
+        """Silence after which a received RTU frame is over [s]: t3.5, but at least 20 ms,
+        since USB adapters hand bytes over in bursts (FTDI latency timer: 16 ms)."""
+        return max(3.5 * self.config.char_time_s(), 0.02)
 
     def _make_client(self) -> AsyncModbusSerialClient | AsyncModbusTcpClient:
         cfg = self.config
@@ -335,12 +348,63 @@ class ModbusIndicator:
         if self._client is not None:
             self._client.ctx.recv_buffer = b""
 
+    def _reply_complete(self, expect_size: int) -> bool:
+        """As many bytes as the expected reply (or an exception reply) arrived."""
+        rx = self._rx_attempt
+        return len(rx) >= expect_size or (len(rx) >= 5 and bool(rx[1] & 0x80))
+
+    async def _await_call(self, task: asyncio.Future[Any], expect_size: int) -> bool:
+        """Wait for the pymodbus request ``task``. Returns True once it is done, False when a
+        reply-sized frame arrived and the line then stayed quiet for :attr:`frame_end_s`
+        without pymodbus accepting it (it discards a frame with a bad CRC and keeps waiting
+        until ``timeout_s``)."""
+        if self.config.kind != "modbus-rtu":
+            await asyncio.wait({task})
+            return True
+        while not task.done():
+            timeout: float | None = None
+            if self._reply_complete(expect_size):
+                idle = time.monotonic() - self._last_rx_monotonic
+                if idle >= self.frame_end_s:
+                    return False
+                timeout = self.frame_end_s - idle
+            self._rx_event.clear()
+            more = asyncio.ensure_future(self._rx_event.wait())
+            try:
+                await asyncio.wait(
+                    {task, more}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED
+                )
+            finally:
+                more.cancel()
+        return True
+
     async def _attempt(self, call: Any, expect_size: int) -> Any:
         """One request/response; returns the pymodbus response or raises a typed error."""
         assert self._client is not None
         self._rx_attempt = self._rx_buffer = b""
+        task = asyncio.ensure_future(call())
         try:
-            response = await call()
+            finished = await self._await_call(task, expect_size)
+        finally:
+            if not task.done():
+                task.cancel()
+        if not finished:
+            # The whole reply is on the line and was rejected: no late byte will follow, so
+            # neither the rest of timeout_s nor quiet_s is needed before the next attempt.
+            with contextlib.suppress(asyncio.CancelledError, ModbusException):
+                await task
+            rx = self._rx_attempt
+            self.frames.add("rx", rx)
+            if self._client is not None:
+                self._client.ctx.recv_buffer = b""
+            frames = self.frames.snapshot()
+            if crc_ok(rx):
+                raise IndicatorProtocolError(
+                    self.name, f"reply not accepted ({len(rx)} bytes, CRC ok)", frames
+                )
+            raise IndicatorCRCError(self.name, "CRC mismatch; reply discarded", frames)
+        try:
+            response = task.result()
         except ModbusException as exc:
             rx = self._rx_attempt
             if rx:

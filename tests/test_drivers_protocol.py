@@ -4,6 +4,7 @@ style (a scripted device over a real pty or loopback TCP fails on any byte diffe
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 from pymodbus.framer import FramerRTU
@@ -203,6 +204,42 @@ async def test_indicator_crc_error_is_typed_and_carries_frames() -> None:
     assert info.value.device == "indicator"
     assert any("tx 01 03 00 00 00 08 44 0c" in f for f in info.value.frames_hex)
     assert any(bytes(bad).hex(" ") in f for f in info.value.frames_hex)
+
+
+@pytest.mark.parametrize(
+    ("pos", "flip"),
+    [(5, 0x40), (2, 0x01), (1, 0x80), (19, 0x01)],
+    ids=["data", "byte-count", "exception-bit", "crc"],
+)
+async def test_indicator_corrupted_reply_is_retried_without_waiting_for_the_timeout(
+    pos: int, flip: int
+) -> None:
+    """pymodbus drops a corrupted frame and would wait out ``timeout_s`` (a longer byte
+    count even makes it wait for bytes that never come); the whole reply is on the line, so
+    the driver retries as soon as the line has been quiet for a frame gap."""
+    bad = bytearray(_reply(133255))
+    bad[pos] ^= flip
+    async with expected_protocol_pty([(READ, bytes(bad)), (READ, _reply(4242))]) as port:
+        ind = _indicator(port, retries=1, timeout_s=1.0)
+        t0 = time.monotonic()
+        reading = await ind.read()
+        took = time.monotonic() - t0
+        await ind.close()
+    assert reading.counts == 4242
+    assert took < 0.5, took  # timeout_s + quiet_s = 2 s before
+
+
+async def test_indicator_reply_from_another_device_is_a_protocol_error() -> None:
+    other = bytearray(_reply(133255))
+    other[0] = 2
+    async with expected_protocol_pty([(READ, add_crc(bytes(other[:-2])))]) as port:
+        ind = _indicator(port, retries=1, timeout_s=1.0)
+        t0 = time.monotonic()
+        with pytest.raises(IndicatorProtocolError, match="not accepted"):
+            await ind.read()
+        took = time.monotonic() - t0
+        await ind.close()
+    assert took < 0.5, took
 
 
 async def test_indicator_no_reply_then_retry_succeeds() -> None:
