@@ -23,8 +23,8 @@ Guarantees
   ``timeout_s + quiet_s`` cannot be told apart from a timely one; keep ``timeout_s`` above the
   meter's worst-case reply time.
 * Failures raise typed :class:`~drivers.errors.IndicatorError` subclasses carrying the last
-  frames in hex. A lost port is reopened on the next call, with exponential back-off between
-  ``reconnect_min_s`` and ``reconnect_max_s``.
+  frames in hex. A lost port fails the pending attempt at once and is reopened on the next
+  call, with exponential back-off between ``reconnect_min_s`` and ``reconnect_max_s``.
 """
 
 from __future__ import annotations
@@ -248,6 +248,10 @@ class ModbusIndicator:
             self._rx_event.set()
         return data
 
+    def _trace_connect(self, connected: bool) -> None:
+        if not connected:
+            self._rx_event.set()  # wake a waiting attempt: the port is gone
+
     @property
     def frame_end_s(self) -> float:
         """Silence after which a received RTU frame is over [s]: t3.5, but at least 20 ms,
@@ -265,6 +269,7 @@ class ModbusIndicator:
                 retries=0,
                 reconnect_delay=0,
                 trace_packet=self._trace_packet,
+                trace_connect=self._trace_connect,
             )
         return AsyncModbusSerialClient(
             cfg.port,
@@ -277,6 +282,7 @@ class ModbusIndicator:
             retries=0,
             reconnect_delay=0,
             trace_packet=self._trace_packet,
+            trace_connect=self._trace_connect,
         )
 
     @property
@@ -353,20 +359,25 @@ class ModbusIndicator:
         rx = self._rx_attempt
         return len(rx) >= expect_size or (len(rx) >= 5 and bool(rx[1] & 0x80))
 
-    async def _await_call(self, task: asyncio.Future[Any], expect_size: int) -> bool:
-        """Wait for the pymodbus request ``task``. Returns True once it is done, False when a
-        reply-sized frame arrived and the line then stayed quiet for :attr:`frame_end_s`
-        without pymodbus accepting it (it discards a frame with a bad CRC and keeps waiting
-        until ``timeout_s``)."""
-        if self.config.kind != "modbus-rtu":
-            await asyncio.wait({task})
-            return True
+    async def _await_call(
+        self, task: asyncio.Future[Any], expect_size: int
+    ) -> Literal["done", "rejected", "lost"]:
+        """Wait for the pymodbus request ``task``.
+
+        Returns ``"done"`` once it finished; ``"lost"`` as soon as the port is lost (pymodbus
+        would wait out ``timeout_s``); ``"rejected"`` (RTU only) when a reply-sized frame
+        arrived and the line then stayed quiet for :attr:`frame_end_s` without pymodbus
+        accepting it (it drops a frame with a bad CRC and keeps waiting until ``timeout_s``).
+        """
+        rtu = self.config.kind == "modbus-rtu"
         while not task.done():
+            if not self.connected:
+                return "lost"
             timeout: float | None = None
-            if self._reply_complete(expect_size):
+            if rtu and self._reply_complete(expect_size):
                 idle = time.monotonic() - self._last_rx_monotonic
                 if idle >= self.frame_end_s:
-                    return False
+                    return "rejected"
                 timeout = self.frame_end_s - idle
             self._rx_event.clear()
             more = asyncio.ensure_future(self._rx_event.wait())
@@ -376,7 +387,7 @@ class ModbusIndicator:
                 )
             finally:
                 more.cancel()
-        return True
+        return "done"
 
     async def _attempt(self, call: Any, expect_size: int) -> Any:
         """One request/response; returns the pymodbus response or raises a typed error."""
@@ -384,17 +395,20 @@ class ModbusIndicator:
         self._rx_attempt = self._rx_buffer = b""
         task = asyncio.ensure_future(call())
         try:
-            finished = await self._await_call(task, expect_size)
+            outcome = await self._await_call(task, expect_size)
         finally:
             if not task.done():
                 task.cancel()
-        if not finished:
-            # The whole reply is on the line and was rejected: no late byte will follow, so
-            # neither the rest of timeout_s nor quiet_s is needed before the next attempt.
+        if outcome != "done":
             with contextlib.suppress(asyncio.CancelledError, ModbusException):
                 await task
             rx = self._rx_attempt
-            self.frames.add("rx", rx)
+            if rx:
+                self.frames.add("rx", rx)
+            if outcome == "lost":
+                raise IndicatorLinkDown(self.name, "link lost", self.frames.snapshot())
+            # The whole reply is on the line and was rejected: no late byte will follow, so
+            # neither the rest of timeout_s nor quiet_s is needed before the next attempt.
             if self._client is not None:
                 self._client.ctx.recv_buffer = b""
             frames = self.frames.snapshot()
@@ -409,11 +423,12 @@ class ModbusIndicator:
             rx = self._rx_attempt
             if rx:
                 self.frames.add("rx", rx)
-            link_lost = not self.connected
+            if not self.connected:  # no quiet: the port is reopened anyway
+                raise IndicatorLinkDown(
+                    self.name, f"link lost: {exc}", self.frames.snapshot()
+                ) from exc
             await self._quiet()
             frames = self.frames.snapshot()
-            if link_lost:
-                raise IndicatorLinkDown(self.name, f"link lost: {exc}", frames) from exc
             if not rx:
                 raise IndicatorNoReply(
                     self.name, f"no reply within {self.config.timeout_s} s", frames

@@ -307,3 +307,22 @@ async def test_reads_recover_after_link_drop_under_crc_errors(baud: int) -> None
     assert set(errors) <= {"IndicatorCRCError", "IndicatorTimeout"}
     assert all(abs(v.length_mm - true) <= HALF_COUNT_MM + 1e-9 for v in values)
     assert longest < 0.45, f"a read took {longest:.3f} s"
+
+
+async def test_link_loss_fails_the_pending_read_at_once(sim: SimulatorThread) -> None:
+    """An unplug while a reply is awaited raises IndicatorLinkDown at once, not after
+    ``timeout_s`` (+ ``quiet_s``) on a port that is gone."""
+    ind = _indicator(sim, timeout_s=2.0, retries=0)
+    try:
+        await ind.read()
+        sim.control("fault", indicator_reply_delay_s=1.0)
+        pending = asyncio.ensure_future(ind.read())
+        await asyncio.sleep(0.1)
+        t0 = time.monotonic()
+        await asyncio.to_thread(sim.control, "link_down", target="indicator", duration_s=0.5)
+        with pytest.raises(IndicatorLinkDown):
+            await pending
+        took = time.monotonic() - t0
+    finally:
+        await ind.close()
+    assert took < 0.5, took
