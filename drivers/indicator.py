@@ -393,6 +393,7 @@ class ModbusIndicator:
         """One request/response; returns the pymodbus response or raises a typed error."""
         assert self._client is not None
         self._rx_attempt = self._rx_buffer = b""
+        self._rx_event = asyncio.Event()  # bound to the running loop, not the first one used
         task = asyncio.ensure_future(call())
         try:
             outcome = await self._await_call(task, expect_size)
