@@ -79,7 +79,9 @@ def _joints(samples: list[dict[str, Any]]) -> np.ndarray:
     return np.array([[s[f"q{j}"] for j in range(1, 7)] for s in samples])
 
 
-def test_campaign_end_to_end_recovers_the_cells_truth(tmp_path: Path) -> None:
+def test_campaign_end_to_end_recovers_the_cells_truth(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     with Cell(tmp_path, sim_toml(n_poses=90), daemon_env=DAEMON_ENV) as cell:
         assert cell.daemon is not None and cell.sim is not None
         api = cell.daemon.client()
@@ -137,7 +139,11 @@ def test_campaign_end_to_end_recovers_the_cells_truth(tmp_path: Path) -> None:
         )
         pred = predict_lengths_from_result(result, held_out)
         rmse = float(np.sqrt(np.mean((pred - true_held) ** 2)))
-        print(f"held-out RMSE vs truth: {rmse:.4f} mm over {len(held_out)} new poses")
+        with capsys.disabled():
+            print(
+                f"\ne2e: {len(samples)} auto captures; held-out RMSE vs the cell's truth "
+                f"{rmse:.4f} mm over {len(held_out)} new poses (limit {2 * NOISE_MM} mm)"
+            )
         assert rmse <= 2 * NOISE_MM, rmse
         assert result["metrics"]["after"]["test"]["rmse_mm"] < 2 * NOISE_MM
         assert result["metrics"]["before"]["test"]["rmse_mm"] > 10 * NOISE_MM
@@ -178,7 +184,9 @@ def test_sigkill_during_auto_capture_loses_no_acknowledged_sample(tmp_path: Path
         assert d.min() > 0.05, "a pose was captured twice across the restart"
 
 
-def test_crc_errors_and_a_link_drop_store_no_corrupt_sample(tmp_path: Path) -> None:
+def test_crc_errors_and_a_link_drop_store_no_corrupt_sample(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     with Cell(
         tmp_path, sim_toml(n_poses=60, move_s=0.3, dwell_s=0.8), daemon_env=DAEMON_ENV
     ) as cell:
@@ -211,10 +219,11 @@ def test_crc_errors_and_a_link_drop_store_no_corrupt_sample(tmp_path: Path) -> N
         truth = np.array(cell.sim.control("true_lengths", joints_deg=q.tolist())["lengths_mm"])
         lengths = np.array([s["length_mm"] for s in samples])
         worst = float(np.abs(lengths - truth).max())
-        print(
-            f"{len(samples)} samples under 5 % CRC errors and a 3 s drop; "
-            f"worst |error| {worst:.4f} mm"
-        )
+        with capsys.disabled():
+            print(
+                f"\ne2e faults: {len(samples)} samples under 5 % CRC errors and a 3 s drop; "
+                f"worst |error| {worst:.4f} mm"
+            )
         assert worst < 4 * NOISE_MM + 0.01
         events = api.get("/events", params={"limit": 1000}).json()
         kinds = {e["kind"] for e in events}
