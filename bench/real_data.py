@@ -224,13 +224,13 @@ def markdown(data: dict[str, Any]) -> str:
     rows = data["paper_protocol"]["summary"]
     before = float(np.mean([r["before_rmse_mm"] for r in rows]))
     pb = PAPER_TABLE_VIII_D1["before"]
-    lines.append(f"| before (nominal, P0 and c fitted) | {pb[0]} | {pb[1]} | {pb[2]} | "
+    lines.append(f"| before (nominal, P0 and c fitted) | {pb[0]:.2f} | {pb[1]:.2f} | {pb[2]:.2f} | "
                  f"{_f(before)} | | | | | | |")  # fmt: skip
     for r in rows:
         p = PAPER_TABLE_VIII_D1[r["method"]]
         label = f"{r['method']} ({PAPER_LABEL[r['method']]})"
         lines.append(
-            f"| {label} | {p[0]} | {p[1]} | {p[2]} | {_f(r['rmse_mm'])} | "
+            f"| {label} | {p[0]:.2f} | {p[1]:.2f} | {p[2]:.2f} | {_f(r['rmse_mm'])} | "
             f"{_f(r['rmse_mm_sd'])} | {_f(r['mae_mm'])} | {_f(r['max_mm'])} | "
             f"{r['iterations']:.0f} | {r['time_s']:.2f} | {r['plausible']}/{r['n_seeds']} |"
         )
@@ -285,7 +285,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="2 seeds, no DE (a smoke run)")
     parser.add_argument("--out", type=Path, default=OUT, help="output directory")
+    parser.add_argument(
+        "--render", action="store_true", help="only rewrite real_data.md from real_data.json"
+    )
     args = parser.parse_args(argv)
+    if args.render:
+        saved: dict[str, Any] = json.loads((args.out / "real_data.json").read_text("utf-8"))
+        (args.out / "real_data.md").write_text(markdown(saved), encoding="utf-8")
+        return saved
     seeds = SEEDS[:2] if args.quick else SEEDS
     methods = tuple(m for m in METHODS if not (args.quick and m == "de"))
     model = load_robot(ROBOT)
