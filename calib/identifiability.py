@@ -118,19 +118,19 @@ def _greedy_pivot(cols: FloatArray, candidates: list[int], threshold: float) -> 
     Returns indices into ``candidates`` order, as chosen.
     """
     work = np.array(cols[:, candidates], dtype=float)
-    remaining = list(range(len(candidates)))
+    free = np.ones(len(candidates), dtype=bool)
     chosen: list[int] = []
-    while remaining:
-        norms = np.linalg.norm(work[:, remaining], axis=0)
-        best = float(norms.max())
+    while free.any():
+        norms = np.sqrt(np.einsum("ij,ij->j", work, work))
+        best = float(norms[free].max())
         if best <= threshold:
             break
-        pick = remaining[int(np.flatnonzero(norms >= best * (1.0 - TIE_RTOL))[0])]
-        q = work[:, pick] / np.linalg.norm(work[:, pick])
+        pick = int(np.flatnonzero(free & (norms >= best * (1.0 - TIE_RTOL)))[0])
+        q = work[:, pick] / norms[pick]
         for _ in range(2):  # Gram–Schmidt twice: orthogonal to rounding
-            work -= np.outer(q, q @ work)
+            work -= q[:, None] * (q @ work)
         chosen.append(pick)
-        remaining.remove(pick)
+        free[pick] = False
     return [candidates[i] for i in chosen]
 
 
@@ -210,13 +210,19 @@ def analyse(
 
     reasons: dict[str, str] = {}
     unident = [i for i in idx if i not in base]
-    for i in unident:
+    # Each left-out column as a combination of the base columns (one solve for all of them).
+    coefs = (
+        np.linalg.lstsq(jac_unit[:, base], jac_unit[:, unident], rcond=None)[0]
+        if unident and base
+        else np.zeros((len(base), len(unident)))
+    )
+    for col, i in enumerate(unident):
         name = names[i]
         known = _structural_reason(name, tool_free)
         if norms[i] == 0:
             reasons[name] = "does not change the cable length at these poses"
             continue
-        coef, *_ = np.linalg.lstsq(jac_unit[:, base], jac_unit[:, i], rcond=None)
+        coef = coefs[:, col]
         order = np.argsort(-np.abs(coef))
         partners = [names[base[j]] for j in order[:4] if abs(coef[j]) > 0.1 * abs(coef[order[0]])]
         combo = f"linear combination of {', '.join(partners)}"
