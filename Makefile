@@ -32,8 +32,11 @@ run: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m daemon.demo campaign --poses 100
 
+# Identification speed and the indicator poll rate (bench/results.*), then API latency under
+# load while the sampler runs (bench/api_results.*).
 bench: $(STAMP)
 	$(BIN)/python -m bench.run
+	$(BIN)/python -m bench.api_bench
 
 clean:
 	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache
