@@ -22,11 +22,10 @@ from drivers.errors import (
     IndicatorCRCError,
     IndicatorLinkDown,
     IndicatorNoReply,
-    IndicatorOverRange,
     IndicatorProtocolError,
 )
 from drivers.frames import FrameLog
-from drivers.indicator import IndicatorReading
+from drivers.indicator import IndicatorReading, reading_from_status
 
 STX, CRLF = b"\x02", b"\r\n"
 FRAME_SIZE = 1 + 8 + 1 + 2 + 2
@@ -176,18 +175,16 @@ class AsciiIndicator:
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._event.wait(), remaining)
         t_mono, t_wall = time.monotonic(), time.time()
-        over = bool(status >> cfg.over_range_bit & 1 or status >> cfg.under_range_bit & 1)
-        if over and cfg.over_range_policy == "raise":
-            raise IndicatorOverRange(self.name, f"status {status:X}", self.frames.snapshot())
-        return IndicatorReading(
-            length_mm=counts / 10**decimals,
-            counts=counts,
-            decimals=decimals,
-            status=status,
-            over_range=over,
-            moving=bool(status >> cfg.moving_bit & 1),
-            t_monotonic_s=t_mono,
-            t_wall=t_wall,
+        return reading_from_status(
+            self.name,
+            counts,
+            decimals,
+            status,
+            (cfg.over_range_bit, cfg.under_range_bit, cfg.moving_bit),
+            cfg.over_range_policy,
+            self.frames.snapshot(),
+            t_mono,
+            t_wall,
         )
 
     async def zero(self) -> None:

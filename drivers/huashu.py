@@ -20,6 +20,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from drivers.backoff import ReconnectBackoff
 from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
 from drivers.frames import FrameLog
 from drivers.robot import JointReading, StaleGuard, joint_reading
@@ -103,8 +104,7 @@ class HuashuSocketCmdRobot:
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._seq = 0
-        self._backoff_s = 0.0
-        self._next_attempt = 0.0
+        self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
         self._lock = asyncio.Lock()
         self._stale = StaleGuard(config.name, config.max_unchanged_s)
 
@@ -121,11 +121,11 @@ class HuashuSocketCmdRobot:
         if self.connected:
             return
         cfg = self.config
-        now = time.monotonic()
-        if not force and now < self._next_attempt:
+        wait_s = self._backoff.remaining_s(time.monotonic())
+        if not force and wait_s > 0:
             raise RobotLinkDown(
                 self.name,
-                f"{cfg.host}:{cfg.port} down; next reconnect in {self._next_attempt - now:.2f} s",
+                f"{cfg.host}:{cfg.port} down; next reconnect in {wait_s:.2f} s",
                 self.frames.snapshot(),
             )
         try:
@@ -133,15 +133,12 @@ class HuashuSocketCmdRobot:
                 asyncio.open_connection(cfg.host, cfg.port), cfg.timeout_s
             )
         except (TimeoutError, OSError) as exc:
-            self._backoff_s = min(
-                max(2 * self._backoff_s, cfg.reconnect_min_s), cfg.reconnect_max_s
-            )
-            self._next_attempt = time.monotonic() + self._backoff_s
+            self._backoff.failed()
             self.frames.note(f"connect {cfg.host}:{cfg.port} failed: {exc}")
             raise RobotLinkDown(
                 self.name, f"cannot connect to {cfg.host}:{cfg.port}: {exc}", self.frames.snapshot()
             ) from exc
-        self._backoff_s = 0.0
+        self._backoff.succeeded()
         self.frames.note(f"connected {cfg.host}:{cfg.port}")
 
     async def close(self) -> None:
@@ -157,8 +154,7 @@ class HuashuSocketCmdRobot:
         if self._writer is not None:
             self._writer.close()
         self._reader = self._writer = None
-        self._backoff_s = self.config.reconnect_min_s
-        self._next_attempt = time.monotonic() + self._backoff_s
+        self._backoff.dropped()
 
     async def command(self, command: str) -> str:
         """Send one command and return its data field.

@@ -32,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -40,6 +41,7 @@ from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
 
+from drivers.backoff import ReconnectBackoff
 from drivers.errors import (
     IndicatorCRCError,
     IndicatorLinkDown,
@@ -190,6 +192,39 @@ class IndicatorReading:
     t_wall: float
 
 
+def reading_from_status(
+    device: str,
+    counts: int,
+    decimals: int,
+    status: int,
+    bits: tuple[int, int, int],
+    over_range_policy: Literal["raise", "flag"],
+    frames_hex: Sequence[str],
+    t_monotonic_s: float,
+    t_wall: float,
+) -> IndicatorReading:
+    """An :class:`IndicatorReading` from a decoded display value and status word.
+
+    ``bits`` are the status bits of over-range, under-range and moving. With
+    ``over_range_policy = "raise"`` an over/under-range status raises
+    :class:`IndicatorOverRange` (carrying ``frames_hex``) instead.
+    """
+    over_bit, under_bit, moving_bit = bits
+    over = bool(status >> over_bit & 1 or status >> under_bit & 1)
+    if over and over_range_policy == "raise":
+        raise IndicatorOverRange(device, f"status 0x{status:04x}: over/under-range", frames_hex)
+    return IndicatorReading(
+        length_mm=counts / 10**decimals,
+        counts=counts,
+        decimals=decimals,
+        status=status,
+        over_range=over,
+        moving=bool(status >> moving_bit & 1),
+        t_monotonic_s=t_monotonic_s,
+        t_wall=t_wall,
+    )
+
+
 def decode_block(registers: list[int], config: IndicatorConfig, start: int) -> tuple[int, int, int]:
     """``(counts, decimals, status)`` from the registers of one block read at ``start``.
 
@@ -226,8 +261,7 @@ class ModbusIndicator:
         self.name = config.name
         self.frames = FrameLog(config.frame_log_size)
         self._client: AsyncModbusSerialClient | AsyncModbusTcpClient | None = None
-        self._backoff_s = 0.0
-        self._next_attempt = 0.0
+        self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
         self._rx_attempt = b""
         self._rx_buffer = b""
         self._last_rx_monotonic = 0.0
@@ -308,11 +342,11 @@ class ModbusIndicator:
     async def _ensure_connected(self, force: bool = False) -> None:
         if self.connected:
             return
-        now = time.monotonic()
-        if not force and now < self._next_attempt:
+        wait_s = self._backoff.remaining_s(time.monotonic())
+        if not force and wait_s > 0:
             raise IndicatorLinkDown(
                 self.name,
-                f"{self._endpoint()} down; next reconnect in {self._next_attempt - now:.2f} s",
+                f"{self._endpoint()} down; next reconnect in {wait_s:.2f} s",
                 self.frames.snapshot(),
             )
         if self._client is not None:
@@ -322,16 +356,12 @@ class ModbusIndicator:
         if not ok or not self._client.connected:
             self._client.close()
             self._client = None
-            self._backoff_s = min(
-                max(2 * self._backoff_s, self.config.reconnect_min_s),
-                self.config.reconnect_max_s,
-            )
-            self._next_attempt = time.monotonic() + self._backoff_s
+            self._backoff.failed()
             self.frames.note(f"connect {self._endpoint()} failed")
             raise IndicatorLinkDown(
                 self.name, f"cannot open {self._endpoint()}", self.frames.snapshot()
             )
-        self._backoff_s = 0.0
+        self._backoff.succeeded()
         self.frames.note(f"connected {self._endpoint()}")
 
     async def close(self) -> None:
@@ -462,8 +492,7 @@ class ModbusIndicator:
                 last = exc
                 if isinstance(exc, IndicatorLinkDown):
                     await self.close()
-                    self._next_attempt = time.monotonic() + self.config.reconnect_min_s
-                    self._backoff_s = self.config.reconnect_min_s
+                    self._backoff.dropped()
                     raise
         assert last is not None
         raise last
@@ -508,20 +537,16 @@ class ModbusIndicator:
             except ValueError as exc:
                 raise IndicatorProtocolError(self.name, str(exc), self.frames.snapshot()) from exc
         regmap = cfg.registers
-        over = bool(status >> regmap.over_range_bit & 1 or status >> regmap.under_range_bit & 1)
-        if over and cfg.over_range_policy == "raise":
-            raise IndicatorOverRange(
-                self.name, f"status 0x{status:04x}: over/under-range", self.frames.snapshot()
-            )
-        return IndicatorReading(
-            length_mm=counts / 10**decimals,
-            counts=counts,
-            decimals=decimals,
-            status=status,
-            over_range=over,
-            moving=bool(status >> regmap.moving_bit & 1),
-            t_monotonic_s=t_mono,
-            t_wall=t_wall,
+        return reading_from_status(
+            self.name,
+            counts,
+            decimals,
+            status,
+            (regmap.over_range_bit, regmap.under_range_bit, regmap.moving_bit),
+            cfg.over_range_policy,
+            self.frames.snapshot(),
+            t_mono,
+            t_wall,
         )
 
     async def zero(self) -> None:

@@ -18,6 +18,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
 
+from drivers.backoff import ReconnectBackoff
 from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
 from drivers.frames import FrameLog
 from drivers.robot import JointReading, StaleGuard, joint_reading
@@ -92,8 +93,7 @@ class ModbusTcpRobot:
         self.name = config.name
         self.frames = FrameLog(config.frame_log_size)
         self._client: AsyncModbusTcpClient | None = None
-        self._backoff_s = 0.0
-        self._next_attempt = 0.0
+        self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
         self._stale = StaleGuard(config.name, config.max_unchanged_s)
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
@@ -112,11 +112,11 @@ class ModbusTcpRobot:
         if self.connected:
             return
         cfg = self.config
-        now = time.monotonic()
-        if not force and now < self._next_attempt:
+        wait_s = self._backoff.remaining_s(time.monotonic())
+        if not force and wait_s > 0:
             raise RobotLinkDown(
                 self.name,
-                f"{cfg.host}:{cfg.port} down; next reconnect in {self._next_attempt - now:.2f} s",
+                f"{cfg.host}:{cfg.port} down; next reconnect in {wait_s:.2f} s",
                 self.frames.snapshot(),
             )
         if self._client is not None:
@@ -133,15 +133,12 @@ class ModbusTcpRobot:
         if not await self._client.connect() or not self._client.connected:
             self._client.close()
             self._client = None
-            self._backoff_s = min(
-                max(2 * self._backoff_s, cfg.reconnect_min_s), cfg.reconnect_max_s
-            )
-            self._next_attempt = time.monotonic() + self._backoff_s
+            self._backoff.failed()
             self.frames.note(f"connect {cfg.host}:{cfg.port} failed")
             raise RobotLinkDown(
                 self.name, f"cannot connect to {cfg.host}:{cfg.port}", self.frames.snapshot()
             )
-        self._backoff_s = 0.0
+        self._backoff.succeeded()
         self.frames.note(f"connected {cfg.host}:{cfg.port}")
 
     async def close(self) -> None:
@@ -168,7 +165,7 @@ class ModbusTcpRobot:
             if lost:
                 self._client.close()
                 self._client = None
-                self._next_attempt = time.monotonic() + self.config.reconnect_min_s
+                self._backoff.defer(self.config.reconnect_min_s)
                 raise RobotLinkDown(self.name, f"link lost: {exc}", self.frames.snapshot()) from exc
             raise RobotTimeout(
                 self.name, f"no reply within {self.config.timeout_s} s", self.frames.snapshot()
