@@ -30,6 +30,7 @@ import numpy as np
 
 from daemon import metrics
 from daemon.config import JobSettings
+from daemon.store import StoreNotFound
 
 log = logging.getLogger("cablecal.jobs")
 
@@ -176,15 +177,13 @@ class JobManager:
 
         campaign = self.store.get_campaign(campaign_id)
         if campaign is None:
-            from daemon.store import StoreNotFound
-
             raise StoreNotFound("campaign", campaign_id)
         opts = {"noise_mm": self.settings.noise_mm, **dict(options)}
         try:
             IdentifyOptions(**opts)
         except (TypeError, ValueError) as exc:
             raise JobError(str(exc)) from exc
-        samples, _ids = self.store.sample_set(campaign_id)
+        samples, sample_ids = self.store.sample_set(campaign_id)
         from calib.cable import ParamLayout
 
         known = ParamLayout(samples.anchor_ids or ("A",)).names
@@ -218,15 +217,13 @@ class JobManager:
             self._cancel,
         )
         self._futures[job_id] = future
-        self._tasks[job_id] = asyncio.create_task(self._watch(job_id, future, _ids, opts))
+        self._tasks[job_id] = asyncio.create_task(self._watch(job_id, future, sample_ids, opts))
         return dict(job)
 
     def cancel(self, job_id: int) -> dict[str, Any]:
         """Cancel a queued or running job (a finished job is returned unchanged)."""
         job = self.store.get_job(job_id)
         if job is None:
-            from daemon.store import StoreNotFound
-
             raise StoreNotFound("identification", job_id)
         if job["status"] in ("succeeded", "failed", "cancelled"):
             return dict(job)
@@ -276,19 +273,16 @@ class JobManager:
         else:
             status = "succeeded"
             result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
-            result["sample_ids"] = {"count": len(sample_ids)}
             plausible = bool(result.get("plausibility", {}).get("plausible", False))
             accepted = self.settings.auto_accept and plausible
             self.store.save_result(job_id, result, accepted=accepted)
-            self._finish(
-                job_id,
-                status,
-                message="accepted"
-                if accepted
-                else "not accepted: parameters implausible"
-                if not plausible
-                else "not accepted automatically",
-            )
+            if accepted:
+                message = "accepted"
+            elif not plausible:
+                message = "not accepted: parameters implausible"
+            else:
+                message = "not accepted automatically"
+            self._finish(job_id, status, message=message)
         finally:
             metrics.JOBS.labels(method, status).inc()
             metrics.JOB_DURATION.labels(method, status).observe(time.monotonic() - t0)

@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
@@ -237,7 +238,7 @@ def test_auto_capture_switch(client: TestClient) -> None:
 # ------------------------------------------------------------------------- samples
 def _real_csv(rows: int) -> str:
     s = read_samples(None)
-    return samples_to_csv(s.subset(__import__("numpy").arange(rows)))
+    return samples_to_csv(s.subset(np.arange(rows)))
 
 
 def test_csv_import_export_and_bad_rows(client: TestClient) -> None:

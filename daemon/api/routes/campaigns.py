@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 
-from calib.dataset import SampleError
+from calib.dataset import JOINT_COLUMNS, SampleError, make_samples, validate_joint_limits
 from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import ReadAuth, State, WriteAuth
 from daemon.api.schemas import AutoCapture, CampaignCreate, CaptureRequest, SamplePatch
@@ -95,16 +96,16 @@ async def capture(state: State, campaign_id: int, body: CaptureRequest) -> dict[
 
 
 def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
-    limits = state.store.robot_model(robot_id).joint_limits_deg
-    for j, q in enumerate(joints_deg):
-        if q != q or abs(q) == float("inf"):
-            raise HTTPException(422, f"joints_deg[{j}]: not a finite number")
-        if limits is not None and not limits[j, 0] <= q <= limits[j, 1]:
-            raise HTTPException(
-                422,
-                f"joints_deg[{j}]: {q} deg is outside joint {j + 1}'s limits "
-                f"[{limits[j, 0]}, {limits[j, 1]}] deg",
-            )
+    """The CSV import's checks (finite, within the model's joint limits) on one pose; the
+    error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``."""
+    try:
+        pose = make_samples(np.asarray([joints_deg], dtype=float), np.zeros(1))
+        validate_joint_limits(pose, state.store.robot_model(robot_id))
+    except SampleError as exc:
+        j = JOINT_COLUMNS.index(exc.column) if exc.column in JOINT_COLUMNS else None
+        field = "joints_deg" if j is None else f"joints_deg[{j}]"
+        message = str(exc).split(": ", 1)[-1]
+        raise HTTPException(422, f"{field}: {message}") from exc
 
 
 @router.put(
