@@ -8,17 +8,9 @@ pauses ``error_backoff_s`` before the next poll.
 
 Settling
 --------
-The window is the last ``settle_s`` of paired readings, ending at the newest one. It is
-settled when all of these hold:
-
-* the newest reading is at most ``stale_s`` old, and no gap between consecutive readings
-  (including the one just before the window) exceeds ``stale_s``: the window is covered;
-* it holds at least ``min_readings`` readings;
-* no reading is stale (each stamp at most ``stale_s`` old when paired, and the two devices'
-  stamps at most ``stale_s`` apart);
-* no reading is over-range;
-* every joint stays within ``settle_tol_deg`` and the length within ``settle_tol_mm`` of the
-  window mean.
+Settle detection is :func:`daemon.settle.evaluate` (pure: buffer, settings and time in,
+verdict out); the window rules are documented there. Each device's state, metrics and events
+are kept by a :class:`daemon.devices.Device`.
 
 The indicator's own "moving" status bit is not used: the readings themselves decide. An
 over-range reply (flagged, or raised as :class:`~drivers.IndicatorOverRange`) is a reading
@@ -49,24 +41,26 @@ import time
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from daemon import metrics
-from daemon.capture import (
-    Capture,
-    CaptureRejected,
-    CaptureSink,
-    Joints,
-    RawReading,
-    RejectionReason,
+from daemon.capture import CaptureRejected, CaptureSink, Joints
+from daemon.devices import Device
+from daemon.settle import (
+    NOT_SETTLED,
+    Mode,
+    PairedReading,
+    Verdict,
+    as_joints,
+    evaluate,
+    make_capture,
+    staleness_s,
 )
 from drivers import (
-    DeviceError,
-    DeviceLinkDown,
     IndicatorDriver,
     IndicatorOverRange,
     ManualRobot,
@@ -81,12 +75,8 @@ from drivers.robot import JointReading
 log = logging.getLogger("cablecal.sampler")
 
 FloatArray = NDArray[np.float64]
-Role = Literal["indicator", "robot"]
-Mode = Literal["manual", "auto"]
 _T = TypeVar("_T")
 
-#: Poll rates in :meth:`Sampler.status` are averaged over this span [s].
-RATE_WINDOW_S = 5.0
 #: Hard cap of the ring buffer, whatever ``history_s`` and the poll rate.
 MAX_BUFFER = 100_000
 
@@ -153,121 +143,6 @@ class SamplerConfig(BaseModel):
 
 
 # --------------------------------------------------------------------------- internals
-@dataclass(frozen=True, slots=True)
-class _Paired:
-    """One paired poll. Monotonic times in s; ``length_mm`` is NaN when the indicator raised
-    over-range (no value)."""
-
-    t_poll: float  # monotonic when the poll started
-    t_mono: float  # monotonic stamp of the length reading
-    t_wall: float  # wall stamp of the length reading
-    joints_deg: Joints
-    length_mm: float
-    over_range: bool
-    staleness_s: float  # worst of: stamp ages at pairing, skew between the two stamps
-
-
-@dataclass(frozen=True)
-class _Verdict:
-    """Outcome of a settle check: ``reason is None`` means settled (``window`` is set).
-
-    ``final``: waiting longer will not help while the robot stays (e.g. still but over-range).
-    ``joints_still``: the joints are within tolerance over a covered window (None: unknown).
-    """
-
-    reason: RejectionReason | None
-    detail: str
-    final: bool = False
-    joints_still: bool | None = None
-    window: tuple[_Paired, ...] = ()
-
-
-_NOT_SETTLED = _Verdict("no_data", "no paired reading yet")
-
-
-class _Device:
-    """What the sampler knows about one device (for status, events and metrics)."""
-
-    def __init__(self, name: str, role: Role, driver: object) -> None:
-        self.name = name
-        self.role: Role = role
-        self.kind = type(driver).__name__
-        self.state: Literal["unknown", "ok", "error"] = "unknown"
-        self.no_data: str | None = None  # RobotNoData message (manual robot waiting)
-        self.t_state_poll = -math.inf  # t_poll of the poll that set the state
-        self.value: float | Joints | None = None
-        self.over_range = False
-        self.t_mono: float | None = None  # stamp of the last reading (or over-range reply)
-        self.t_wall: float | None = None
-        self.last_good_mono: float | None = None
-        self.error: DeviceError | Exception | None = None
-        self.error_wall: float | None = None
-        self.error_mono: float | None = None
-        self.episode_start_mono: float | None = None
-        self.errors: dict[str, int] = {}
-        self.polls = 0
-        self.episode = 0  # increments at the start of each error / no-data episode
-        self.stamps: deque[float] = deque()  # good readings in the last RATE_WINDOW_S
-        self.t_started = time.monotonic()
-        self.polls_counter = metrics.DEVICE_POLLS.labels(name, role)
-
-    def error_text(self) -> str:
-        exc = self.error
-        if exc is None:
-            return ""
-        message = exc.message if isinstance(exc, DeviceError) else str(exc)
-        return f"{type(exc).__name__}: {message}"
-
-    def frames(self) -> list[str]:
-        exc = self.error
-        return list(exc.frames_hex) if isinstance(exc, DeviceError) else []
-
-    def prune(self, now: float) -> None:
-        """Drop stamps older than the rate window (called by the poll loop only)."""
-        while self.stamps and self.stamps[0] < now - RATE_WINDOW_S:
-            self.stamps.popleft()
-
-    def rate_hz(self, now: float) -> float:
-        """Good readings per second over the last RATE_WINDOW_S (read-only)."""
-        span = min(RATE_WINDOW_S, now - self.t_started)
-        return len(self.stamps) / span if span > 0 else 0.0
-
-    def status(self, now: float) -> dict[str, Any]:
-        value: Any = list(self.value) if isinstance(self.value, tuple) else self.value
-        reading = None
-        if self.t_mono is not None:
-            reading = {
-                "value": value,
-                "over_range": self.over_range,
-                "age_s": now - self.t_mono,
-                "t_wall": self.t_wall,
-            }
-        error = None
-        if self.error is not None:
-            message = self.error.message if isinstance(self.error, DeviceError) else str(self.error)
-            error = {
-                "class": type(self.error).__name__,
-                "message": message,
-                "frames_hex": self.frames(),
-                "age_s": None if self.error_mono is None else now - self.error_mono,
-                "t_wall": self.error_wall,
-            }
-        return {
-            "name": self.name,
-            "role": self.role,
-            "driver": self.kind,
-            "state": self.state,
-            "connected": self.state == "ok",
-            "waiting_for": self.no_data,
-            "last_reading": reading,
-            "last_error": error,
-            "poll_rate_hz": self.rate_hz(now),
-            "polls": self.polls,
-            "errors": sum(self.errors.values()),
-            "errors_by_class": dict(self.errors),
-        }
-
-
 @dataclass
 class _Auto:
     """Auto-capture state of one campaign."""
@@ -309,11 +184,6 @@ def _as_error(result: _T | BaseException) -> _T | Exception:
     raise result
 
 
-def _joints(values: Sequence[float] | FloatArray) -> Joints:
-    v = [float(x) for x in values]
-    return (v[0], v[1], v[2], v[3], v[4], v[5])
-
-
 # --------------------------------------------------------------------------- the sampler
 class Sampler:
     """Polls ``indicator`` and ``robot``, detects settling, and hands captures to ``sink``.
@@ -342,10 +212,10 @@ class Sampler:
         self.robot = robot
         self.config = config
         self.sink = sink
-        self._ind = _Device(indicator.name, "indicator", indicator)
-        self._rob = _Device(robot.name, "robot", robot)
-        self._buffer: deque[_Paired] = deque(maxlen=MAX_BUFFER)
-        self._verdict: _Verdict = _NOT_SETTLED
+        self._ind = Device(indicator.name, "indicator", indicator, self._event)
+        self._rob = Device(robot.name, "robot", robot, self._event)
+        self._buffer: deque[PairedReading] = deque(maxlen=MAX_BUFFER)
+        self._verdict: Verdict = NOT_SETTLED
         self._used_until = -math.inf  # t_poll of the newest reading used by a capture
         self._auto: _Auto | None = None
         self._task: asyncio.Task[None] | None = None
@@ -447,107 +317,44 @@ class Sampler:
         t_ind, w_ind = t_done, w_done
         if isinstance(ind_res, IndicatorOverRange):
             # The meter answered; its value is not a length. Counted, not an error episode.
-            self._count_error(ind, ind_res)
-            self._good(ind, t_poll, None, True, t_done, w_done, count_poll=False)
+            ind.count_error(ind_res)
+            ind.good(t_poll, None, True, t_done, w_done, count_poll=False)
             length, over = math.nan, True
         elif isinstance(ind_res, Exception):
-            self._failed(ind, t_poll, ind_res)
+            ind.failed(t_poll, ind_res)
             errored = True
         else:
             length, over = ind_res.length_mm, ind_res.over_range
             t_ind, w_ind = ind_res.t_monotonic_s, ind_res.t_wall
-            self._good(ind, t_poll, length, over, t_ind, w_ind)
+            ind.good(t_poll, length, over, t_ind, w_ind)
 
         joints: Joints | None = None
         t_rob = t_done
         if isinstance(rob_res, RobotNoData):
-            self._waiting(rob, t_poll, rob_res)
+            rob.waiting(t_poll, rob_res)
         elif isinstance(rob_res, Exception):
-            self._failed(rob, t_poll, rob_res)
+            rob.failed(t_poll, rob_res)
             errored = True
         else:
             joints, t_rob = rob_res.joints_deg, rob_res.t_monotonic_s
-            self._good(rob, t_poll, joints, False, t_rob, rob_res.t_wall)
+            rob.good(t_poll, joints, False, t_rob, rob_res.t_wall)
             if self._auto is not None:
                 self._auto.saw_joints(joints, self.config.settle_tol_deg)
 
         if length is not None and joints is not None:
-            if self.manual_robot:  # submitted angles keep their submission stamp
-                staleness = t_done - t_ind
-            else:
-                staleness = max(t_done - min(t_ind, t_rob), abs(t_ind - t_rob))
-            self._append(_Paired(t_poll, t_ind, w_ind, joints, length, over, staleness))
+            staleness = staleness_s(t_done, t_ind, t_rob, self.manual_robot)
+            self._append(PairedReading(t_poll, t_ind, w_ind, joints, length, over, staleness))
         self._verdict = self._evaluate(t_done, -math.inf)
         if self._auto is not None and not self._capture_lock.locked():
             self._auto_step(t_done)
         return errored
 
-    def _append(self, reading: _Paired) -> None:
+    def _append(self, reading: PairedReading) -> None:
         buf = self._buffer
         buf.append(reading)
         horizon = reading.t_mono - self.config.history_s
         while buf and buf[0].t_mono < horizon:
             buf.popleft()
-
-    # ------------------------------------------------------------------ device book-keeping
-    def _good(
-        self,
-        dev: _Device,
-        t_poll: float,
-        value: float | Joints | None,
-        over_range: bool,
-        t_mono: float,
-        t_wall: float,
-        count_poll: bool = True,
-    ) -> None:
-        if dev.state == "error":
-            metrics.DEVICE_RECONNECTS.labels(dev.name, dev.role).inc()
-            start = dev.episode_start_mono
-            down_s = time.monotonic() - start if start is not None else 0.0
-            message = f"{dev.role} {dev.name} delivers again after {down_s:.2f} s"
-            log.info(message, extra={"device": dev.name})
-            self._event("link_up", dev.name, message, {"last_error": dev.error_text()})
-        dev.state, dev.no_data, dev.t_state_poll = "ok", None, t_poll
-        dev.value, dev.over_range = value, over_range
-        dev.t_mono, dev.t_wall = t_mono, t_wall
-        dev.last_good_mono = t_mono
-        dev.stamps.append(t_mono)
-        if count_poll:
-            dev.polls += 1
-            dev.polls_counter.inc()
-
-    def _count_error(self, dev: _Device, exc: Exception) -> None:
-        cls = type(exc).__name__
-        dev.errors[cls] = dev.errors.get(cls, 0) + 1
-        metrics.DEVICE_ERRORS.labels(dev.name, dev.role, cls).inc()
-
-    def _failed(self, dev: _Device, t_poll: float, exc: Exception) -> None:
-        cls = type(exc).__name__
-        self._count_error(dev, exc)
-        previous = type(dev.error).__name__ if dev.state == "error" else None
-        first = dev.state != "error"
-        dev.state, dev.t_state_poll = "error", t_poll
-        dev.error, dev.error_wall, dev.error_mono = exc, time.time(), time.monotonic()
-        frames = dev.frames()
-        extra = {"device": dev.name, "frames_hex": frames, "error": cls}
-        text = dev.error_text()
-        if not isinstance(exc, DeviceError):  # a driver bug: keep the traceback
-            log.error("%s %s poll failed: %s", dev.role, dev.name, text, exc_info=exc, extra=extra)
-        elif first or cls != previous:
-            log.warning("%s %s poll failed: %s", dev.role, dev.name, text, extra=extra)
-        else:
-            log.debug("%s %s poll failed: %s", dev.role, dev.name, text, extra=extra)
-        if first:
-            dev.episode += 1
-            dev.episode_start_mono = dev.error_mono
-            kind = "link_down" if isinstance(exc, DeviceLinkDown) else "device_error"
-            self._event(kind, dev.name, text, {"error": cls, "frames_hex": frames})
-
-    def _waiting(self, dev: _Device, t_poll: float, exc: RobotNoData) -> None:
-        """Manual robot without (fresh) angles: no data, not a fault."""
-        if dev.no_data is None:
-            dev.episode += 1
-        dev.state, dev.no_data, dev.t_state_poll = "unknown", exc.message, t_poll
 
     def _event(
         self, kind: str, device: str | None, message: str, detail: dict[str, Any] | None
@@ -558,87 +365,18 @@ class Sampler:
             log.exception("recording event %s failed", kind, extra={"device": device})
 
     # ------------------------------------------------------------------ settle detection
-    def _evaluate(self, now: float, not_before: float) -> _Verdict:
+    def _evaluate(self, now: float, not_before: float) -> Verdict:
         """Settle check of the window ending at the newest reading polled at or after
-        ``not_before`` (monotonic [s]); the whole window must lie after ``not_before``."""
-        cfg = self.config
-        buf = self._buffer
-        if not buf or buf[-1].t_poll < not_before:
-            return _Verdict("no_data", "no paired reading yet")
-        latest = buf[-1]
-        age = now - latest.t_mono
-        if age > cfg.stale_s:
-            return _Verdict("stale", f"newest paired reading is {age:.2f} s old (stale_s)")
-        start = latest.t_mono - cfg.settle_s
-        window: list[_Paired] = []
-        before: _Paired | None = None
-        for r in reversed(buf):
-            if r.t_mono < start:
-                before = r
-                break
-            window.append(r)
-        window.reverse()
-        if start < not_before or window[0].t_poll < not_before:
-            return _Verdict("moving", "collecting a settle window after the request")
-        t_prev = before.t_mono if before is not None else start
-        gaps = np.diff(np.array([t_prev, *(r.t_mono for r in window)]))
-        if gaps.max() > cfg.stale_s:
-            return _Verdict("stale", f"gap of {gaps.max():.2f} s between readings (stale_s)")
-        if len(window) < cfg.min_readings:
-            return _Verdict(
-                "stale",
-                f"{len(window)} readings in {cfg.settle_s} s, fewer than min_readings "
-                f"{cfg.min_readings}",
-            )
-        q = np.array([r.joints_deg for r in window])
-        dev_deg = np.abs(q - q.mean(axis=0)).max(axis=0)
-        still = bool(dev_deg.max() <= cfg.settle_tol_deg)
-        worst = max(window, key=lambda r: r.staleness_s)
-        if worst.staleness_s > cfg.stale_s:
-            return _Verdict(
-                "stale",
-                f"a reading's stamps are {worst.staleness_s:.2f} s old or apart (stale_s)",
-                joints_still=still,
-            )
-        if any(r.over_range for r in window):
-            return _Verdict(
-                "over_range",
-                f"indicator {self._ind.name} reports over/under-range",
-                final=still,
-                joints_still=still,
-            )
-        if not still:
-            j = int(np.argmax(dev_deg))
-            return _Verdict(
-                "moving",
-                f"joint {j + 1} varies by {dev_deg[j]:.4f} deg (settle_tol_deg "
-                f"{cfg.settle_tol_deg})",
-                joints_still=False,
-            )
-        lengths = np.array([r.length_mm for r in window])
-        dev_mm = float(np.abs(lengths - lengths.mean()).max())
-        if dev_mm > cfg.settle_tol_mm:
-            return _Verdict(
-                "moving",
-                f"cable length varies by {dev_mm:.3f} mm (settle_tol_mm {cfg.settle_tol_mm})",
-                joints_still=True,
-            )
-        return _Verdict(None, "settled", joints_still=True, window=tuple(window))
+        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`."""
+        return evaluate(self._buffer, self.config, now, not_before, self._ind.name)
 
-    def _device_fault(
-        self, now: float, not_before: float
-    ) -> tuple[CaptureRejected, _Device] | None:
+    def _device_fault(self, now: float, not_before: float) -> tuple[CaptureRejected, Device] | None:
         """A device failing for longer than ``stale_s``, or the manual robot without angles
         (seen in a poll after ``not_before``)."""
         for dev in (self._ind, self._rob):
-            if dev.state == "error" and (
-                dev.last_good_mono is None or now - dev.last_good_mono > self.config.stale_s
-            ):
-                reason: RejectionReason = (
-                    "indicator_error" if dev.role == "indicator" else "robot_error"
-                )
-                detail = f"{dev.role} {dev.name}: {dev.error_text()}"
-                return CaptureRejected(reason, detail, device=dev.name), dev
+            rejection = dev.fault(now, self.config.stale_s)
+            if rejection is not None:
+                return rejection, dev
         rob = self._rob
         if rob.no_data is not None and rob.t_state_poll >= not_before:
             hint = "; send joints_deg with the capture" if self.manual_robot else ""
@@ -686,7 +424,7 @@ class Sampler:
             values = [float(v) for v in joints_deg]
             if len(values) != 6 or not all(math.isfinite(v) for v in values):
                 raise ValueError(f"joints_deg: expected 6 finite angles [deg], got {values}")
-            joints = _joints(values)
+            joints = as_joints(values)
         async with self._capture_lock:
             t_request = time.monotonic()
             if joints is not None:
@@ -699,7 +437,7 @@ class Sampler:
                 raise
             return self._store(campaign_id, anchor, window, mode)
 
-    async def _wait_settled(self, t_request: float) -> tuple[_Paired, ...]:
+    async def _wait_settled(self, t_request: float) -> tuple[PairedReading, ...]:
         cfg = self.config
         deadline = t_request + cfg.capture_timeout_s
         while True:
@@ -738,7 +476,7 @@ class Sampler:
             log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
 
     def _store(
-        self, campaign_id: int, anchor: str, window: tuple[_Paired, ...], mode: Mode
+        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: Mode
     ) -> dict[str, Any]:
         capture = make_capture(window, anchor, mode)
         row = self.sink.store_capture(campaign_id, capture)  # commits before returning
@@ -894,26 +632,6 @@ class Sampler:
         for dev in (self._ind, self._rob):
             age = math.nan if dev.t_mono is None else now - dev.t_mono
             metrics.LAST_READING_AGE.labels(dev.name, dev.role).set(age)
-
-
-def make_capture(window: Sequence[_Paired], anchor: str, mode: Mode) -> Capture:
-    """The :class:`Capture` of a settled window: means, sample standard deviations (ddof 1)
-    and count of the readings, which are kept as raw readings."""
-    q = np.array([r.joints_deg for r in window], dtype=float)
-    lengths = np.array([r.length_mm for r in window], dtype=float)
-    ddof = 1 if len(window) > 1 else 0
-    return Capture(
-        joints_deg=_joints(q.mean(axis=0)),
-        joints_std_deg=_joints(q.std(axis=0, ddof=ddof)),
-        length_mm=float(lengths.mean()),
-        length_std_mm=float(lengths.std(ddof=ddof)),
-        count=len(window),
-        anchor=anchor,
-        t_start_wall=window[0].t_wall,
-        t_end_wall=window[-1].t_wall,
-        mode=mode,
-        raw=tuple(RawReading(r.t_wall, r.joints_deg, r.length_mm) for r in window),
-    )
 
 
 def build_sampler(

@@ -25,7 +25,7 @@ from drivers.errors import (
     IndicatorProtocolError,
 )
 from drivers.frames import FrameLog
-from drivers.indicator import IndicatorReading, reading_from_status
+from drivers.indicator_reading import IndicatorReading, reading_from_status
 
 STX, CRLF = b"\x02", b"\r\n"
 FRAME_SIZE = 1 + 8 + 1 + 2 + 2

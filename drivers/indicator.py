@@ -4,9 +4,10 @@ Transport: pymodbus' :class:`~pymodbus.client.AsyncModbusSerialClient` over pyse
 ``port`` may be ``/dev/ttyUSB0``, a pseudo-terminal, or ``socket://host:port`` (RTU over TCP).
 ``kind = "modbus-tcp"`` uses :class:`~pymodbus.client.AsyncModbusTcpClient` instead (MBAP).
 
-Everything device-specific is configuration (:class:`RegisterMap`), with the defaults of the
-design note ``hardware-protocols.md`` §1: value int32 at 0x0000 (ABCD), decimals at 0x0002,
-status bits at 0x0007, command register 0x0010 (1 = zero).
+Everything device-specific is configuration (:class:`RegisterMap`, :class:`IndicatorConfig`
+in :mod:`drivers.indicator_config`), with the defaults of the design note
+``hardware-protocols.md`` §1; the registers are decoded into an :class:`IndicatorReading` by the
+pure functions of :mod:`drivers.indicator_reading`. Both are re-exported here.
 
 Guarantees
 ----------
@@ -32,11 +33,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
@@ -46,205 +44,12 @@ from drivers.errors import (
     IndicatorCRCError,
     IndicatorLinkDown,
     IndicatorNoReply,
-    IndicatorOverRange,
     IndicatorProtocolError,
     IndicatorTimeout,
 )
-from drivers.frames import FrameLog, crc_ok, words_to_int32
-
-#: Largest register count of one FC03/FC04 request.
-MAX_READ_COUNT = 125
-
-
-class RegisterMap(BaseModel):
-    """Where the indicator keeps its values. Defaults: the design note's map.
-
-    Addresses are 0-based protocol addresses (``0x0000`` is holding register 40001).
-    ``None`` means the meter has no such register.
-    """
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    value_address: Annotated[int, Field(ge=0, le=0xFFFE)] = 0x0000
-    word_order: Literal["ABCD", "CDAB"] = "ABCD"
-    decimals_address: Annotated[int | None, Field(ge=0, le=0xFFFF)] = 0x0002
-    raw_count_address: Annotated[int | None, Field(ge=0, le=0xFFFE)] = 0x0003
-    magnification_address: Annotated[int | None, Field(ge=0, le=0xFFFE)] = 0x0005
-    status_address: Annotated[int | None, Field(ge=0, le=0xFFFF)] = 0x0007
-    preset_address: Annotated[int | None, Field(ge=0, le=0xFFFE)] = 0x0008
-    command_address: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0010
-    zero_command: Annotated[int, Field(ge=0, le=0xFFFF)] = 1
-    preset_command: Annotated[int, Field(ge=0, le=0xFFFF)] = 2
-    zero_coil_address: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0000
-    slave_address_register: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0020
-    baud_code_register: Annotated[int, Field(ge=0, le=0xFFFF)] = 0x0021
-    read_function: Literal[3, 4] = 3
-    over_range_bit: Annotated[int, Field(ge=0, le=15)] = 0
-    under_range_bit: Annotated[int, Field(ge=0, le=15)] = 1
-    moving_bit: Annotated[int, Field(ge=0, le=15)] = 2
-
-    def read_block(self, with_decimals: bool) -> tuple[int, int]:
-        """``(start, count)`` of the single read covering value, decimals and status."""
-        spans = [(self.value_address, 2)]
-        if with_decimals and self.decimals_address is not None:
-            spans.append((self.decimals_address, 1))
-        if self.status_address is not None:
-            spans.append((self.status_address, 1))
-        start = min(a for a, _ in spans)
-        end = max(a + n for a, n in spans)
-        return start, end - start
-
-
-class IndicatorConfig(BaseModel):
-    """Configuration of a Modbus indicator.
-
-    Attributes
-    ----------
-    kind : {"modbus-rtu", "modbus-tcp"}
-        ``modbus-rtu``: RTU frames over ``port`` (serial device, pty, or ``socket://h:p``).
-        ``modbus-tcp``: MBAP frames to ``host:tcp_port``.
-    decimals : int or None
-        Fixed decimal places; ``None`` reads them from ``registers.decimals_address``.
-    zero_strategy : {"command", "write_zero", "coil", "none"}
-        How :meth:`ModbusIndicator.zero` zeroes the meter (design note §1).
-    timeout_s : float
-        Per-attempt reply timeout.
-    retries : int
-        Extra attempts per :meth:`~ModbusIndicator.read` after a timeout or CRC error.
-    quiet_s : float or None
-        After a failed attempt, wait until no byte arrived for this long; default ``timeout_s``.
-    over_range_policy : {"raise", "flag"}
-        ``raise``: an over/under-range status raises :class:`IndicatorOverRange`;
-        ``flag``: the reading is returned with ``over_range=True``.
-    """
-
-    model_config = ConfigDict(extra="forbid")
-
-    kind: Literal["modbus-rtu", "modbus-tcp"] = "modbus-rtu"
-    name: str = "indicator"
-    port: str = "/dev/ttyUSB0"
-    host: str = "127.0.0.1"
-    tcp_port: Annotated[int, Field(ge=1, le=65535)] = 502
-    baud: Annotated[int, Field(ge=300, le=921600)] = 9600
-    parity: Literal["N", "E", "O"] = "N"
-    stopbits: Literal[1, 2] = 1
-    bytesize: Literal[7, 8] = 8
-    device_id: Annotated[int, Field(ge=0, le=247)] = 1
-    registers: RegisterMap = RegisterMap()
-    decimals: Annotated[int | None, Field(ge=0, le=6)] = None
-    zero_strategy: Literal["command", "write_zero", "coil", "none"] = "command"
-    timeout_s: Annotated[float, Field(gt=0)] = 0.5
-    retries: Annotated[int, Field(ge=0, le=10)] = 1
-    quiet_s: Annotated[float | None, Field(ge=0)] = None
-    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
-    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
-    over_range_policy: Literal["raise", "flag"] = "raise"
-    frame_log_size: Annotated[int, Field(ge=1)] = 16
-
-    @model_validator(mode="after")
-    def _check(self) -> IndicatorConfig:
-        if self.decimals is None and self.registers.decimals_address is None:
-            raise ValueError("decimals: required when registers.decimals_address is None")
-        _, count = self.registers.read_block(self.decimals is None)
-        if count > MAX_READ_COUNT:
-            raise ValueError(
-                f"registers: value, decimals and status span {count} registers; "
-                f"at most {MAX_READ_COUNT} fit in one read"
-            )
-        if self.reconnect_max_s < self.reconnect_min_s:
-            raise ValueError("reconnect_max_s: must be >= reconnect_min_s")
-        return self
-
-    def char_time_s(self) -> float:
-        """Time of one character on the line [s] (start + data + parity + stop bits)."""
-        bits = 1 + self.bytesize + (0 if self.parity == "N" else 1) + self.stopbits
-        return bits / self.baud
-
-
-@dataclass(frozen=True)
-class IndicatorReading:
-    """One indicator reading.
-
-    Attributes
-    ----------
-    length_mm : float
-        Displayed value / 10^decimals [mm] (relative to where the meter was zeroed).
-    counts : int
-        Raw display value.
-    decimals : int
-    status : int
-        Status register (0 when the map has none).
-    over_range, moving : bool
-        Decoded status bits (``over_range`` covers over- and under-range).
-    t_monotonic_s : float
-        :func:`time.monotonic` when the reply was complete.
-    t_wall : float
-        :func:`time.time` at the same moment (Unix seconds).
-    """
-
-    length_mm: float
-    counts: int
-    decimals: int
-    status: int
-    over_range: bool
-    moving: bool
-    t_monotonic_s: float
-    t_wall: float
-
-
-def reading_from_status(
-    device: str,
-    counts: int,
-    decimals: int,
-    status: int,
-    bits: tuple[int, int, int],
-    over_range_policy: Literal["raise", "flag"],
-    frames_hex: Sequence[str],
-    t_monotonic_s: float,
-    t_wall: float,
-) -> IndicatorReading:
-    """An :class:`IndicatorReading` from a decoded display value and status word.
-
-    ``bits`` are the status bits of over-range, under-range and moving. With
-    ``over_range_policy = "raise"`` an over/under-range status raises
-    :class:`IndicatorOverRange` (carrying ``frames_hex``) instead.
-    """
-    over_bit, under_bit, moving_bit = bits
-    over = bool(status >> over_bit & 1 or status >> under_bit & 1)
-    if over and over_range_policy == "raise":
-        raise IndicatorOverRange(device, f"status 0x{status:04x}: over/under-range", frames_hex)
-    return IndicatorReading(
-        length_mm=counts / 10**decimals,
-        counts=counts,
-        decimals=decimals,
-        status=status,
-        over_range=over,
-        moving=bool(status >> moving_bit & 1),
-        t_monotonic_s=t_monotonic_s,
-        t_wall=t_wall,
-    )
-
-
-def decode_block(registers: list[int], config: IndicatorConfig, start: int) -> tuple[int, int, int]:
-    """``(counts, decimals, status)`` from the registers of one block read at ``start``.
-
-    Raises
-    ------
-    ValueError
-        Decimals register out of 0..6.
-    """
-    regmap = config.registers
-    off = regmap.value_address - start
-    counts = words_to_int32(registers[off : off + 2], regmap.word_order)
-    if config.decimals is not None:
-        decimals = config.decimals
-    else:
-        assert regmap.decimals_address is not None  # checked by IndicatorConfig
-        decimals = registers[regmap.decimals_address - start]
-        if decimals > 6:
-            raise ValueError(f"decimals register reads {decimals}, expected 0..6")
-    status = 0 if regmap.status_address is None else registers[regmap.status_address - start]
-    return counts, decimals, status
+from drivers.frames import FrameLog, crc_ok
+from drivers.indicator_config import MAX_READ_COUNT, IndicatorConfig, RegisterMap
+from drivers.indicator_reading import IndicatorReading, decode_block, reading_from_status
 
 
 class ModbusIndicator:
@@ -572,3 +377,14 @@ class ModbusIndicator:
                 )
 
             await self._with_retries(call, 8)
+
+
+__all__ = [
+    "MAX_READ_COUNT",
+    "IndicatorConfig",
+    "IndicatorReading",
+    "ModbusIndicator",
+    "RegisterMap",
+    "decode_block",
+    "reading_from_status",
+]

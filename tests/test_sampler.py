@@ -1,6 +1,6 @@
-"""The sampler: settle detection, capture statistics, rejections with their reasons, auto mode
-(each pose once), device events; and auto capture against the emulated cell, checked against
-the cell's truth."""
+"""The sampler: capture statistics, rejections with their reasons, the manual robot, device
+events and status, on scripted devices (sampler_fakes.py). Settle verdicts themselves are
+tested without asyncio in test_settle.py; auto mode in test_sampler_auto.py."""
 
 from __future__ import annotations
 
@@ -8,16 +8,21 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import AsyncIterator, Callable, Sequence
-from contextlib import asynccontextmanager
-from typing import Any
 
 import numpy as np
 import pytest
-from numpy.typing import NDArray
+from sampler_fakes import (
+    FAST,
+    HOME,
+    FakeIndicator,
+    FakeRobot,
+    FakeSink,
+    metric,
+    running,
+    wait_until,
+)
 
-from daemon import metrics
-from daemon.capture import Capture, CaptureRejected
+from daemon.capture import CaptureRejected
 from daemon.sampler import Sampler, SamplerConfig, build_sampler
 from drivers import (
     AsciiIndicator,
@@ -25,170 +30,12 @@ from drivers import (
     IndicatorCRCError,
     IndicatorLinkDown,
     IndicatorOverRange,
-    IndicatorReading,
-    JointReading,
     ManualRobot,
     ModbusIndicator,
     RobotTimeout,
 )
-from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
-
-HOME = (0.0, -30.0, 60.0, 0.0, 45.0, 10.0)
-#: Fast settings for the fake devices (they answer every ~5 ms).
-FAST: dict[str, Any] = {
-    "settle_s": 0.1,
-    "stale_s": 0.3,
-    "capture_timeout_s": 3.0,
-    "error_backoff_s": 0.02,
-}
-
-
-# --------------------------------------------------------------------------- fakes
-class FakeIndicator:
-    """Scripted indicator: ``length`` plus seeded Gaussian ``noise_mm``; ``error`` is raised
-    instead while set; ``lag_s`` back-dates the stamps."""
-
-    def __init__(self, name: str = "ind", length_mm: float = 500.0, noise_mm: float = 0.0) -> None:
-        self.name = name
-        self.length_mm = length_mm
-        self.noise_mm = noise_mm
-        self.error: BaseException | None = None
-        self.over_range = False
-        self.lag_s = 0.0
-        self.closed = False
-        self._rng = np.random.default_rng(7)
-
-    async def connect(self) -> None:
-        pass
-
-    async def read(self) -> IndicatorReading:
-        await asyncio.sleep(0.005)
-        if self.error is not None:
-            raise self.error
-        length = self.length_mm + float(self._rng.normal(0.0, self.noise_mm))
-        counts = round(length * 100)
-        return IndicatorReading(
-            length_mm=length,
-            counts=counts,
-            decimals=2,
-            status=1 if self.over_range else 0,
-            over_range=self.over_range,
-            moving=False,
-            t_monotonic_s=time.monotonic() - self.lag_s,
-            t_wall=time.time() - self.lag_s,
-        )
-
-    async def zero(self) -> None:
-        pass
-
-    async def close(self) -> None:
-        self.closed = True
-
-
-class FakeRobot:
-    """Scripted robot: at ``joints`` unless moving towards a target (:meth:`move_to`), or
-    drifting at ``drift_deg_s`` on joint 1."""
-
-    def __init__(self, name: str = "rob", joints: Sequence[float] = HOME) -> None:
-        self.name = name
-        self.error: Exception | None = None
-        self.lag_s = 0.0
-        self.drift_deg_s = 0.0
-        self.closed = False
-        self._from = np.array(joints, dtype=float)
-        self._to = self._from.copy()
-        self._t0 = time.monotonic()
-        self._move_s = 0.0
-
-    def move_to(self, joints: Sequence[float], move_s: float = 0.15) -> None:
-        self._from = self.joints_now()
-        self._to = np.array(joints, dtype=float)
-        self._t0, self._move_s = time.monotonic(), move_s
-
-    def joints_now(self) -> NDArray[np.float64]:
-        t = time.monotonic() - self._t0
-        s = 1.0 if self._move_s <= 0 else min(1.0, t / self._move_s)
-        q: NDArray[np.float64] = self._from + s * (self._to - self._from)
-        q[0] += self.drift_deg_s * t
-        return q
-
-    async def connect(self) -> None:
-        pass
-
-    async def read_joints(self) -> JointReading:
-        await asyncio.sleep(0.003)
-        if self.error is not None:
-            raise self.error
-        q = self.joints_now()
-        return JointReading(
-            (q[0], q[1], q[2], q[3], q[4], q[5]),
-            time.monotonic() - self.lag_s,
-            time.time() - self.lag_s,
-        )
-
-    async def close(self) -> None:
-        self.closed = True
-
-
-class FakeSink:
-    """Records what the sampler hands over, like the store would commit it."""
-
-    def __init__(self) -> None:
-        self.captures: list[tuple[int, Capture]] = []
-        self.rejections: list[tuple[int | None, str, str, str | None]] = []
-        self.events: list[tuple[str, str | None, str, dict[str, Any] | None]] = []
-
-    def store_capture(self, campaign_id: int, capture: Capture) -> dict[str, Any]:
-        self.captures.append((campaign_id, capture))
-        return {
-            "id": len(self.captures),
-            "campaign_id": campaign_id,
-            "length_mm": capture.length_mm,
-        }
-
-    def record_rejection(
-        self, campaign_id: int | None, reason: str, detail: str, device: str | None
-    ) -> None:
-        self.rejections.append((campaign_id, reason, detail, device))
-
-    def record_event(
-        self, kind: str, device: str | None, message: str, detail: dict[str, Any] | None = None
-    ) -> None:
-        self.events.append((kind, device, message, detail))
-
-    def kinds(self, device: str) -> list[str]:
-        return [e[0] for e in self.events if e[1] == device]
-
-
-@asynccontextmanager
-async def running(
-    indicator: Any, robot: Any, sink: FakeSink, **config: Any
-) -> AsyncIterator[Sampler]:
-    sampler = Sampler(indicator, robot, SamplerConfig(**{**FAST, **config}), sink)
-    await sampler.start()
-    try:
-        yield sampler
-    finally:
-        await sampler.stop()
-
-
-async def wait_until(predicate: Callable[[], bool], timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.01)
-
-
-def length_is(items: Sequence[object], n: int) -> Callable[[], bool]:
-    return lambda: len(items) == n
-
-
-def metric(name: str, **labels: str) -> float:
-    return metrics.REGISTRY.get_sample_value(name, labels) or 0.0
 
 
 # --------------------------------------------------------------------------- configuration
@@ -381,73 +228,6 @@ async def test_joints_deg_for_a_robot_that_reports_its_own_is_refused() -> None:
             await s.capture(1, joints_deg=HOME)
 
 
-# --------------------------------------------------------------------------- auto mode
-POSES = [
-    (0.0, -30.0, 60.0, 0.0, 45.0, 10.0),
-    (20.0, -20.0, 50.0, 5.0, 40.0, 0.0),
-    (40.0, -10.0, 40.0, 10.0, 35.0, -10.0),
-    (-20.0, -40.0, 70.0, -5.0, 50.0, 20.0),
-    (-40.0, -35.0, 65.0, -10.0, 55.0, 30.0),
-]
-
-
-async def test_auto_mode_captures_each_new_pose_once() -> None:
-    ind, rob, sink = FakeIndicator(noise_mm=0.01), FakeRobot(joints=POSES[0]), FakeSink()
-    async with running(ind, rob, sink) as s:
-        s.set_auto(9, anchor="C")
-        assert s.status()["sampler"]["mode"] == "auto"
-        for i, pose in enumerate([*POSES, POSES[1]]):  # five poses, then one revisited
-            if i:
-                rob.move_to(pose)
-                ind.length_mm += 10.0
-            if i < len(POSES):
-                await wait_until(length_is(sink.captures, i + 1))
-            else:
-                await wait_until(lambda: any(r[1] == "not_new_pose" for r in sink.rejections))
-            await asyncio.sleep(4 * s.config.settle_s)  # staying put: no second capture
-            assert len(sink.captures) == min(i + 1, len(POSES))
-        status = s.status()["sampler"]
-        s.set_auto(None)
-        assert s.status()["sampler"]["mode"] == "manual"
-    assert status["auto_campaign_id"] == 9 and status["auto_known_poses"] == 5
-    assert len(sink.captures) == 5
-    for (cid, cap), pose in zip(sink.captures, POSES, strict=True):
-        assert cid == 9 and cap.mode == "auto" and cap.anchor == "C"
-        assert np.allclose(cap.joints_deg, pose, atol=1e-9)
-    assert [r[1] for r in sink.rejections] == ["not_new_pose"]
-
-
-async def test_auto_mode_skips_known_poses_after_a_restart() -> None:
-    ind, rob, sink = FakeIndicator(), FakeRobot(joints=POSES[2]), FakeSink()
-    async with running(ind, rob, sink) as s:
-        with pytest.raises(ValueError, match="known_poses_deg"):
-            s.set_auto(5, known_poses_deg=np.zeros((2, 5)))
-        s.set_auto(5, known_poses_deg=np.array(POSES[:3]) + 0.01)  # within auto_new_pose_deg
-        await wait_until(lambda: bool(sink.rejections))
-        await asyncio.sleep(3 * s.config.settle_s)
-        assert not sink.captures and [r[1] for r in sink.rejections] == ["not_new_pose"]
-        rob.move_to(POSES[3])
-        await wait_until(lambda: len(sink.captures) == 1)
-
-
-async def test_auto_mode_records_one_rejection_per_error_episode() -> None:
-    ind, rob, sink = FakeIndicator(name="ind-auto"), FakeRobot(joints=POSES[0]), FakeSink()
-    async with running(ind, rob, sink) as s:
-        s.set_auto(7)
-        await wait_until(lambda: len(sink.captures) == 1)
-        ind.error = IndicatorLinkDown("ind-auto", "port vanished")
-        rob.move_to(POSES[1])
-        await wait_until(lambda: bool(sink.rejections))
-        await asyncio.sleep(0.6)  # many failed polls, still one record
-        assert [r[1:4:2] for r in sink.rejections] == [("indicator_error", "ind-auto")]
-        ind.error = None
-        await wait_until(lambda: len(sink.captures) == 2)  # the pose reached meanwhile
-        ind.error = IndicatorLinkDown("ind-auto", "port vanished again")
-        await wait_until(lambda: len(sink.rejections) == 2)  # a new episode, a new record
-        await asyncio.sleep(0.3)
-    assert len(sink.rejections) == 2 and len(sink.captures) == 2
-
-
 # --------------------------------------------------------------------------- events, status
 async def test_link_down_and_up_events_metrics_and_logs(caplog: pytest.LogCaptureFixture) -> None:
     ind, rob, sink = FakeIndicator(name="ind-ev"), FakeRobot(name="rob-ev"), FakeSink()
@@ -514,27 +294,6 @@ async def test_concurrent_captures_use_disjoint_windows() -> None:
     assert a.raw[-1].t_wall < b.raw[0].t_wall
 
 
-class FailingSink(FakeSink):
-    def __init__(self, failures: int) -> None:
-        super().__init__()
-        self.failures = failures
-
-    def store_capture(self, campaign_id: int, capture: Capture) -> dict[str, Any]:
-        if self.failures:
-            self.failures -= 1
-            raise RuntimeError("database is locked")
-        return super().store_capture(campaign_id, capture)
-
-
-async def test_auto_mode_survives_a_failing_store_and_retries() -> None:
-    ind, rob, sink = FakeIndicator(), FakeRobot(), FailingSink(failures=2)
-    async with running(ind, rob, sink) as s:
-        s.set_auto(1)
-        await wait_until(lambda: len(sink.captures) == 1)
-        await asyncio.sleep(3 * s.config.settle_s)
-        assert s.running and len(sink.captures) == 1 and sink.failures == 0
-
-
 async def test_status_rates_and_age_metrics() -> None:
     ind, rob, sink = FakeIndicator(name="ind-st"), FakeRobot(name="rob-st"), FakeSink()
     s = Sampler(ind, rob, SamplerConfig(**FAST), sink)
@@ -560,50 +319,3 @@ async def test_status_rates_and_age_metrics() -> None:
     assert 0 <= metric("cablecal_last_reading_age_seconds", device="rob-st", role="robot") < 5
     assert per_call_s < 0.005  # generous; it is some microseconds
     assert ind.closed and rob.closed
-
-
-# --------------------------------------------------------------------------- emulated cell
-async def test_auto_capture_on_the_emulated_cell_matches_its_truth() -> None:
-    sim = SimulatorThread(
-        sim_config(
-            indicator={"baud": 115200},
-            robot={"move_time_s": 0.3, "dwell_s": 0.8, "n_poses": 6},
-        )
-    ).start()
-    try:
-        endpoint = sim.ready["robot_socketcmd"]
-        assert endpoint is not None
-        host, port = endpoint.rsplit(":", 1)
-        sink = FakeSink()
-        sampler = build_sampler(
-            {"port": sim.ready["indicator_port"], "baud": 115200},
-            {"kind": "huashu-socketcmd", "host": host, "port": int(port)},
-            SamplerConfig(settle_s=0.4),
-            sink,
-        )
-        await sampler.start()
-        try:
-            sampler.set_auto(1)
-            await asyncio.sleep(8.0)
-            status = sampler.status()
-        finally:
-            await sampler.stop()
-        truth = sim.control("truth")
-        poses = np.array(sim.control("poses")["poses_deg"])
-        joints = [list(c.joints_deg) for _, c in sink.captures]
-        true = sim.control("true_lengths", joints_deg=joints)["lengths_mm"] if joints else []
-    finally:
-        sim.stop()
-    tol = 3 * truth["noise_mm"] + 0.5 * 10 ** -truth["decimals"]
-    assert 4 <= len(sink.captures) <= 6, [c.joints_deg for _, c in sink.captures]
-    seen = set()
-    for (_, cap), length in zip(sink.captures, true, strict=True):
-        assert abs(cap.length_mm - length) <= tol
-        index = int(np.argmin(np.abs(poses - np.array(cap.joints_deg)).max(axis=1)))
-        assert np.allclose(cap.joints_deg, poses[index], atol=1e-5)  # at a dwell, not between
-        assert index not in seen  # never the same pose twice
-        seen.add(index)
-        assert cap.count >= 5 and cap.length_std_mm < 5 * truth["noise_mm"]
-    for role in ("indicator", "robot"):
-        assert status["devices"][role]["poll_rate_hz"] > 10
-    assert not any(r[1] in ("indicator_error", "robot_error") for r in sink.rejections)
