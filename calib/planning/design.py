@@ -5,7 +5,11 @@ The information of a design (a set of candidate rows) about the scaled base para
 row of the cable-length Jacobian restricted to the base parameters and divided by fixed column
 scales, and ``M_fixed`` the information of poses already measured plus a small ridge (so that
 the first picks are well defined). The D-criterion is ``log det M``; it does not depend on the
-column scales except through the ridge.
+column scales except through the ridge. When some parameters are nuisance (the anchors' P0 and
+offset: needed, but of no interest once the robot is calibrated), the Ds-criterion
+``log det M − log det M[ν, ν]`` is the ``log det`` of the information about the others once the
+nuisance parameters ``ν`` are eliminated (Schur complement). Both terms update with the same
+formulas below, the second with the nuisance columns only and a minus sign.
 
 Robustness to the anchor guess: the Jacobian depends on the anchor only through the cable
 direction, so the criterion is summed over ``K`` Jacobian sets (the guess and anchors drawn
@@ -44,47 +48,69 @@ def log_det(info: FloatArray) -> float:
     return float(value) if sign > 0 else float("-inf")
 
 
-def criterion(rows: FloatArray, fixed: FloatArray, design: IndexArray) -> float:
-    """``Φ = Σ_k log det(M_fixed,k + X_k[design]ᵀ X_k[design])``.
+def _systems(
+    rows: FloatArray, fixed: FloatArray, nuisance: IndexArray | None
+) -> list[tuple[FloatArray, FloatArray, float]]:
+    """``(rows (n, k_s), fixed (k_s, k_s), weight)`` per term of ``Φ``."""
+    out = [(rows[h], fixed[h], 1.0) for h in range(rows.shape[0])]
+    if nuisance is not None and len(nuisance):
+        nu = np.asarray(nuisance)
+        out += [(rows[h][:, nu], fixed[h][np.ix_(nu, nu)], -1.0) for h in range(rows.shape[0])]
+    return out
+
+
+def criterion(
+    rows: FloatArray, fixed: FloatArray, design: IndexArray, nuisance: IndexArray | None = None
+) -> float:
+    """``Φ = Σ_h [log det M_h − log det M_h[ν, ν]]`` of a design.
 
     Parameters
     ----------
-    rows : ndarray, shape (K, n, k)
-        Scaled Jacobian rows of every candidate for each of the K anchor hypotheses.
-    fixed : ndarray, shape (K, k, k)
+    rows : ndarray, shape (H, n, k)
+        Scaled Jacobian rows of every candidate under each of the H anchor hypotheses.
+    fixed : ndarray, shape (H, k, k)
+        Information of the start data plus the ridge.
     design : ndarray of int, shape (m,)
+    nuisance : ndarray of int, optional
+        Columns ``ν`` of nuisance parameters (the anchors): with them ``Φ`` is the
+        Ds-criterion of the others (``log det`` of the Schur complement), without them the
+        plain D-criterion.
     """
     total = 0.0
-    for x_k, f_k in zip(rows, fixed, strict=True):
-        sub = x_k[design]
-        total += log_det(f_k + sub.T @ sub)
+    for x, f, w in _systems(rows, fixed, nuisance):
+        sub = x[design]
+        total += w * log_det(f + sub.T @ sub)
     return total
 
 
-def greedy(rows: FloatArray, fixed: FloatArray, n_pick: int) -> list[int]:
-    """Pick ``n_pick`` candidates one at a time, each maximising the increase of ``Φ``.
-
-    A candidate may be picked more than once only if nothing else improves the criterion
-    (never in practice with thousands of candidates). Shapes as :func:`criterion`.
-    """
-    inv = np.linalg.inv(fixed)  # (K, k, k)
+def greedy(
+    rows: FloatArray, fixed: FloatArray, n_pick: int, nuisance: IndexArray | None = None
+) -> list[int]:
+    """Pick ``n_pick`` distinct candidates one at a time, each maximising the increase of
+    ``Φ`` (shapes as :func:`criterion`)."""
+    systems = _systems(rows, fixed, nuisance)
+    invs = [np.linalg.inv(f) for _, f, _ in systems]
     chosen: list[int] = []
     taken = np.zeros(rows.shape[1], dtype=bool)
     for _ in range(n_pick):
-        # gain_j = Σ_k log(1 + x_jkᵀ V_k x_jk)
-        d = np.einsum("knp,kpq,knq->kn", rows, inv, rows, optimize=True)
-        gain = np.log1p(np.maximum(d, 0.0)).sum(axis=0)
+        gain = np.zeros(rows.shape[1])
+        for (x, _, w), v in zip(systems, invs, strict=True):
+            d = np.einsum("np,np->n", x @ v, x)  # xᵀ V x per candidate
+            gain += w * np.log1p(np.maximum(d, 0.0))
         gain[taken] = -np.inf
         j = int(np.argmax(gain))
         chosen.append(j)
         taken[j] = True
-        for k in range(rows.shape[0]):
-            inv[k] = _sm_add(inv[k], rows[k, j], +1.0)
+        invs = [_sm_add(v, x[j], +1.0) for (x, _, _), v in zip(systems, invs, strict=True)]
     return chosen
 
 
 def fedorov_exchange(
-    rows: FloatArray, fixed: FloatArray, design: list[int], max_exchanges: int = 200
+    rows: FloatArray,
+    fixed: FloatArray,
+    design: list[int],
+    max_exchanges: int = 200,
+    nuisance: IndexArray | None = None,
 ) -> tuple[list[int], int]:
     """Improve a design by single-row exchanges until no exchange gains more than
     :data:`EXCHANGE_TOL` (relative in ``det``) or ``max_exchanges`` were made.
@@ -94,43 +120,48 @@ def fedorov_exchange(
     Deterministic: ties go to the lowest indices.
     """
     design = list(design)
-    n_k = rows.shape[0]
-    info = np.array(fixed)
-    for k in range(n_k):
-        sub = rows[k, design]
-        info[k] += sub.T @ sub
-    inv = np.linalg.inv(info)
+    systems = _systems(rows, fixed, nuisance)
+    invs = []
+    for x, f, _ in systems:
+        sub = x[design]
+        invs.append(np.linalg.inv(f + sub.T @ sub))
     made = 0
+    shape = (len(design), rows.shape[1])
     for _ in range(max_exchanges):
-        log_ratio = np.zeros((len(design), rows.shape[1]))
-        for k in range(n_k):
-            xv = rows[k] @ inv[k]  # (n, k)
-            d_cand = np.einsum("np,np->n", xv, rows[k])  # (n,)
-            d_cross = xv[design] @ rows[k].T  # (m, n): d(x_i, x_j)
-            d_des = d_cand[design]  # (m,)
-            ratio = (1.0 + d_cand)[None, :] * (1.0 - d_des)[:, None] + d_cross**2
-            log_ratio += np.log(np.maximum(ratio, 1e-300))
-        log_ratio[:, design] = -np.inf  # no duplicates
-        flat = int(np.argmax(log_ratio))
-        i, j = divmod(flat, rows.shape[1])
-        if log_ratio[i, j] <= np.log1p(EXCHANGE_TOL):
+        # det ratio of each exchange: Π over the terms of r_s^{w_s}, w_s = ±1 (no logs).
+        num, den = np.ones(shape), np.ones(shape)
+        for (x, _, w), v in zip(systems, invs, strict=True):
+            xv = x @ v  # (n, k)
+            d_cand = np.einsum("np,np->n", xv, x)  # d(x_j)
+            ratio = xv[design] @ x.T  # (m, n): d(x_i, x_j), then the det ratio in place
+            np.square(ratio, out=ratio)
+            ratio += np.outer(1.0 - d_cand[design], 1.0 + d_cand)
+            np.maximum(ratio, 1e-300, out=ratio)
+            (num if w > 0 else den)[...] *= ratio
+        gain = np.divide(num, den, out=num)
+        gain[:, design] = 0.0  # no duplicates
+        i, j = divmod(int(np.argmax(gain)), rows.shape[1])
+        if gain[i, j] <= 1.0 + EXCHANGE_TOL:
             break
         old = design[i]
         design[i] = j
-        for k in range(n_k):
-            inv[k] = _sm_add(inv[k], rows[k, j], +1.0)
-            inv[k] = _sm_add(inv[k], rows[k, old], -1.0)
+        invs = [_sm_add(_sm_add(v, x[j], +1.0), x[old], -1.0)
+                for (x, _, _), v in zip(systems, invs, strict=True)]  # fmt: skip
         made += 1
     return design, made
 
 
 def select(
-    rows: FloatArray, fixed: FloatArray, n_pick: int, max_exchanges: int = 200
+    rows: FloatArray,
+    fixed: FloatArray,
+    n_pick: int,
+    max_exchanges: int = 200,
+    nuisance: IndexArray | None = None,
 ) -> tuple[list[int], int]:
     """Greedy start, then Fedorov exchange. Returns ``(design, exchanges made)``."""
     if n_pick < 1:
         raise ValueError(f"n: need at least one pose to plan, got {n_pick}")
     if n_pick > rows.shape[1]:
         raise ValueError(f"n: {n_pick} poses requested but only {rows.shape[1]} candidates")
-    start = greedy(rows, fixed, n_pick)
-    return fedorov_exchange(rows, fixed, start, max_exchanges)
+    start = greedy(rows, fixed, n_pick, nuisance)
+    return fedorov_exchange(rows, fixed, start, max_exchanges, nuisance)

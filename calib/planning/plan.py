@@ -9,9 +9,11 @@ Entry point :func:`plan` (what ``cablecal plan`` calls). Steps:
    nominal model and the anchor guesses; the base set is what
    :func:`calib.identifiability.analyse` keeps on the candidates (well-spread poses, so the
    structural base set) plus the start data.
-3. **Criterion**: ``Σ_h log det M_h``, ``M_h`` the information of start data plus design under
-   anchor hypothesis ``h`` (the guess and ``anchor_draws`` anchors at ``anchor_uncertainty_mm``
-   from it). Selection: greedy, then Fedorov exchange (:mod:`calib.planning.design`).
+3. **Criterion**: ``Σ_h log det`` of the information of start data plus design about the
+   kinematic base parameters (anchors eliminated: Ds-optimality; or the whole base set,
+   D-optimality) under anchor hypothesis ``h`` (the guess and ``anchor_draws`` anchors at
+   ``anchor_uncertainty_mm`` from it). Selection: greedy, then Fedorov exchange
+   (:mod:`calib.planning.design`).
 4. **Order** per anchor by nearest neighbour plus 2-opt in joint-move time
    (:mod:`calib.planning.order`).
 5. **Summary**: condition number, predicted 1σ per base parameter for ``noise_mm``, predicted
@@ -29,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from calib.cable import N_KIN, ParamLayout, length_jacobian, multilaterate
 from calib.dataset import SampleSet, validate_joint_limits
@@ -70,6 +73,11 @@ class PlanOptions:
         Joint speeds for the campaign's moves [deg/s].
     dwell_s : float
         Time per pose for settling and reading [s].
+    anchors_nuisance : bool
+        True (default): Ds-optimal, the anchors' P0 and offset are nuisance parameters and
+        the criterion is the information about the kinematic base parameters once they are
+        eliminated; this is what lets several anchors be compared fairly. False: plain
+        D-optimal on the whole base set.
     """
 
     n: int = 40
@@ -89,6 +97,7 @@ class PlanOptions:
     ridge: float = 1e-6
     rtol: float = 1e-8
     compare_single_anchors: bool = True
+    anchors_nuisance: bool = True
     _checked: bool = field(default=False, repr=False, compare=False)
 
     def validate(self, n_anchors: int) -> None:
@@ -129,6 +138,7 @@ class _Setup:
     rows: FloatArray  # (H, c, k) scaled Jacobian rows per anchor hypothesis
     start_jac: FloatArray  # (s, k) unscaled start rows
     plan_anchor_index: IndexArray  # (m,) layout index of each plan anchor
+    nuisance: IndexArray | None  # columns of rows that are anchor parameters (Ds), or None
 
 
 def _start_anchors(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
@@ -183,8 +193,9 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
             th[layout.anchor_slice(int(li))][:3] += step
         jacs.append(length_jacobian(model, th, q_rad, cand_anchor)[1])
     rows = np.stack([j[:, free] / scale for j in jacs])
+    nuisance = np.flatnonzero(np.flatnonzero(free) >= N_KIN) if opts.anchors_nuisance else None
     return _Setup(layout, theta, free, scale, q_c, cand_anchor, rows, start_full[:, free],
-                  plan_index)  # fmt: skip
+                  plan_index, nuisance)  # fmt: skip
 
 
 def covariance(jac: FloatArray, noise_mm: float) -> FloatArray:
@@ -263,7 +274,7 @@ def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatAr
     for li in s.plan_anchor_index:
         aid = s.layout.anchors[int(li)]
         sub = np.flatnonzero(s.cand_anchor == li)
-        chosen, _ = design.select(s.rows[:, sub], fixed, opts.n, opts.max_exchanges)
+        chosen, _ = design.select(s.rows[:, sub], fixed, opts.n, opts.max_exchanges, s.nuisance)
         picked = sub[np.asarray(chosen)]
         jac, _, tcp = _predict(model, s, picked, opts, ws_q_deg)
         singles[aid] = {"kinematic_log_det": _kinematic_log_det(s, jac), "tcp_sigma_mm":
@@ -306,8 +317,16 @@ def plan(
     SampleError
         Start samples outside the joint limits.
     """
+    # The products here are (thousands × ~22) by (22 × 22): BLAS threads gain nothing and, on
+    # a shared 2-core machine, oversubscription made a 2 s plan take 15 s. One BLAS thread.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _plan(model, anchors_mm, options or PlanOptions(), start)
+
+
+def _plan(
+    model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions, start: SampleSet | None
+) -> PlanResult:
     t0 = time.perf_counter()
-    opts = options or PlanOptions()
     anchors = np.atleast_2d(np.asarray(anchors_mm, dtype=float))
     if anchors.ndim != 2 or anchors.shape[1] != 3 or not np.all(np.isfinite(anchors)):
         raise ValueError(f"anchors_mm: need finite (x, y, z) per anchor, got {anchors_mm!r}")
@@ -316,7 +335,7 @@ def plan(
         validate_joint_limits(start, model)
     s = _setup(model, anchors, opts, start)
     fixed = _fixed(s, opts.ridge)
-    chosen, exchanges = design.select(s.rows, fixed, opts.n, opts.max_exchanges)
+    chosen, exchanges = design.select(s.rows, fixed, opts.n, opts.max_exchanges, s.nuisance)
     picked = np.asarray(chosen)
     ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
     jac, cov, tcp = _predict(model, s, picked, opts, ws)
@@ -357,7 +376,7 @@ def plan(
         tcp_random=_random_baseline(model, s, opts, ws),
         travel_s=travel,
         campaign_s=campaign,
-        log_det=design.criterion(s.rows, fixed, picked),
+        log_det=design.criterion(s.rows, fixed, picked, s.nuisance),
         exchanges=exchanges,
         n_candidates=int(s.cand_q_deg.shape[0]),
         noise_mm=opts.noise_mm,
@@ -365,3 +384,35 @@ def plan(
         elapsed_s=time.perf_counter() - t0,
         notes=notes,
     )
+
+
+def evaluate_poses(
+    model: RobotModel,
+    anchors_mm: FloatArray,
+    q_deg: FloatArray,
+    anchor_index: IndexArray | None = None,
+    options: PlanOptions | None = None,
+    start: SampleSet | None = None,
+) -> dict[str, Any]:
+    """Predicted quality of given poses (a plan made elsewhere, or made at another anchor).
+
+    Parameters as :func:`plan`; ``q_deg`` (n, 6) [deg], ``anchor_index`` (n,) into
+    ``anchors_mm`` (default all 0). The base set and scales are those :func:`plan` would use
+    with the same options. Returns ``kinematic_log_det`` (per kinematic parameter, anchors
+    eliminated), ``condition_number`` and ``tcp_sigma_mm`` ``{rms, max}``.
+    """
+    opts = options or PlanOptions()
+    anchors = np.atleast_2d(np.asarray(anchors_mm, dtype=float))
+    opts.validate(anchors.shape[0])
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    idx = np.zeros(q.shape[0], dtype=int) if anchor_index is None else np.asarray(anchor_index)
+    with threadpool_limits(limits=1, user_api="blas"):
+        s = _setup(model, anchors, opts, start)
+        layout_idx = s.plan_anchor_index[idx]
+        jac = length_jacobian(model, s.theta, np.deg2rad(q), layout_idx)[1][:, s.free]
+        full = np.vstack([jac, s.start_jac])
+        ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
+        tcp = tcp_uncertainty(model, s.layout, s.theta, s.free,
+                              covariance(full, opts.noise_mm), q_deg=ws)  # fmt: skip
+        return {"kinematic_log_det": _kinematic_log_det(s, full),
+                "condition_number": condition_number(full), "tcp_sigma_mm": tcp.to_dict()}
