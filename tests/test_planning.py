@@ -14,8 +14,7 @@ from calib.dataset import make_samples, parse_samples_csv
 from calib.identify import IdentifyOptions, identify
 from calib.kinematics import forward_position
 from calib.models import builtin_model
-from calib.planning import CSV_COLUMNS, PlanOptions, evaluate_poses, plan
-from calib.planning import design
+from calib.planning import CSV_COLUMNS, PlanOptions, design, evaluate_poses, plan
 from calib.planning.candidates import draw_candidates, flange_and_tool_mm
 from calib.planning.order import campaign_time_s, order_poses, travel_time_matrix
 from calib.synthetic import make_true_cell, noisy_lengths

@@ -23,7 +23,7 @@ MODEL = builtin_model("hsr-jr680")
 def test_aligned_error_ignores_a_rigid_motion_and_sees_a_deformation() -> None:
     rng = np.random.default_rng(0)
     pts = rng.uniform(-1000, 1000, size=(50, 3))
-    moved = Rotation.from_rotvec([0.1, -0.2, 0.3]).apply(pts) + [5.0, -3.0, 40.0]
+    moved = Rotation.from_rotvec([0.1, -0.2, 0.3]).apply(pts) + np.array([5.0, -3.0, 40.0])
     assert aligned_position_error_mm(moved, pts).max() < 1e-9
     bent = moved + rng.normal(0, 0.1, size=pts.shape)
     err = aligned_position_error_mm(bent, pts)
@@ -33,7 +33,7 @@ def test_aligned_error_ignores_a_rigid_motion_and_sees_a_deformation() -> None:
 def test_remove_rigid_kills_rigid_motions_only() -> None:
     rng = np.random.default_rng(1)
     pts = rng.uniform(-1000, 1000, size=(20, 3))
-    rigid = (np.cross([0.0, 0.0, 1e-3], pts) + [0.1, 0.2, 0.3]).reshape(-1, 1)
+    rigid = (np.cross([0.0, 0.0, 1e-3], pts) + np.array([0.1, 0.2, 0.3])).reshape(-1, 1)
     assert np.abs(remove_rigid(pts, rigid)).max() < 1e-9
     other = rng.normal(size=(60, 1))
     assert np.linalg.norm(remove_rigid(pts, other)) > 0.5 * np.linalg.norm(other)

@@ -17,6 +17,7 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_frames, tool_position
 from calib.models import RobotModel
 from calib.tcp import joint_limits_deg
 
+
 def flange_and_tool_mm(model: RobotModel, q_deg: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Flange origin and tool point of the nominal model, each shape (n, 3) [mm]."""
     rot, origin = forward_frames(model.dh_internal(), np.deg2rad(q_deg), model.convention)

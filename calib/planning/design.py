@@ -89,7 +89,7 @@ def greedy(
     """Pick ``n_pick`` distinct candidates one at a time, each maximising the increase of
     ``Φ`` (shapes as :func:`criterion`)."""
     systems = _systems(rows, fixed, nuisance)
-    invs = [np.linalg.inv(f) for _, f, _ in systems]
+    invs: list[FloatArray] = [np.asarray(np.linalg.inv(f), dtype=float) for _, f, _ in systems]
     chosen: list[int] = []
     taken = np.zeros(rows.shape[1], dtype=bool)
     for _ in range(n_pick):
@@ -121,10 +121,10 @@ def fedorov_exchange(
     """
     design = list(design)
     systems = _systems(rows, fixed, nuisance)
-    invs = []
+    invs: list[FloatArray] = []
     for x, f, _ in systems:
         sub = x[design]
-        invs.append(np.linalg.inv(f + sub.T @ sub))
+        invs.append(np.asarray(np.linalg.inv(f + sub.T @ sub), dtype=float))
     made = 0
     shape = (len(design), rows.shape[1])
     for _ in range(max_exchanges):

@@ -10,6 +10,8 @@ and a 2-opt move is judged by its two end moves alone.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from calib.kinematics import FloatArray
@@ -27,7 +29,7 @@ def travel_time_matrix(q_deg: FloatArray, speed_deg_s: FloatArray) -> FloatArray
 
 
 def _path_length(dist: FloatArray, path: list[int]) -> float:
-    return float(sum(dist[a, b] for a, b in zip(path[:-1], path[1:], strict=True)))
+    return float(sum(dist[a, b] for a, b in itertools.pairwise(path)))
 
 
 def _nearest_neighbour(dist: FloatArray, first: int) -> list[int]:

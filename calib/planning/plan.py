@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
 
 from calib.cable import N_KIN, ParamLayout, length_jacobian, multilaterate
 from calib.dataset import SampleSet, validate_joint_limits
@@ -42,6 +42,7 @@ from calib.planning import design
 from calib.planning.candidates import draw_candidates, feasible
 from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S, campaign_time_s, order_poses
 from calib.planning.result import PlanResult
+from calib.problem import BoolArray
 from calib.tcp import TcpUncertainty, tcp_uncertainty, workspace_sample_deg
 
 
@@ -131,7 +132,7 @@ class _Setup:
 
     layout: ParamLayout
     theta: FloatArray  # (p,) nominal kinematics, anchor guesses (offsets 0)
-    free: FloatArray  # (p,) bool, base set
+    free: BoolArray  # (p,) base set
     scale: FloatArray  # (k,) column scales
     cand_q_deg: FloatArray  # (c, 6)
     cand_anchor: IndexArray  # (c,) index into layout.anchors
@@ -414,5 +415,8 @@ def evaluate_poses(
         ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
         tcp = tcp_uncertainty(model, s.layout, s.theta, s.free,
                               covariance(full, opts.noise_mm), q_deg=ws)  # fmt: skip
-        return {"kinematic_log_det": _kinematic_log_det(s, full),
-                "condition_number": condition_number(full), "tcp_sigma_mm": tcp.to_dict()}
+        return {
+            "kinematic_log_det": _kinematic_log_det(s, full),
+            "condition_number": condition_number(full),
+            "tcp_sigma_mm": tcp.to_dict(),
+        }

@@ -13,8 +13,15 @@ from calib.kinematics import N_JOINTS, FloatArray, IndexArray
 from calib.tcp import TcpUncertainty
 
 #: Columns of the plan CSV, in order. ``q1..q6`` [deg] as ``identify`` reads them.
-CSV_COLUMNS = ("pose", *(f"q{j + 1}" for j in range(N_JOINTS)), "anchor",
-               "extension_mm", "anchor_x_mm", "anchor_y_mm", "anchor_z_mm")  # fmt: skip
+CSV_COLUMNS = (
+    "pose",
+    *(f"q{j + 1}" for j in range(N_JOINTS)),
+    "anchor",
+    "extension_mm",
+    "anchor_x_mm",
+    "anchor_y_mm",
+    "anchor_z_mm",
+)
 
 
 def _finite(v: float) -> float | None:
@@ -84,10 +91,15 @@ class PlanResult:
             a = self.anchors_mm[k]
             row: dict[str, Any] = {"pose": i + 1}
             row.update({f"q{j + 1}": round(float(q[j]), 4) for j in range(N_JOINTS)})
-            row.update({"anchor": self.anchor_ids[k],
-                        "extension_mm": round(float(self.extension_mm[i]), 1),
-                        "anchor_x_mm": float(a[0]), "anchor_y_mm": float(a[1]),
-                        "anchor_z_mm": float(a[2])})  # fmt: skip
+            row.update(
+                {
+                    "anchor": self.anchor_ids[k],
+                    "extension_mm": round(float(self.extension_mm[i]), 1),
+                    "anchor_x_mm": float(a[0]),
+                    "anchor_y_mm": float(a[1]),
+                    "anchor_z_mm": float(a[2]),
+                }
+            )
             rows.append(row)
         return rows
 
@@ -103,16 +115,24 @@ class PlanResult:
         """JSON-able summary (no per-pose rows: see :meth:`csv_rows`)."""
         return {
             "n_poses": int(self.q_deg.shape[0]),
-            "anchors": {aid: [float(v) for v in self.anchors_mm[k]]
-                        for k, aid in enumerate(self.anchor_ids)},  # fmt: skip
-            "poses_per_anchor": {aid: int(np.count_nonzero(self.anchor_index == k))
-                                 for k, aid in enumerate(self.anchor_ids)},  # fmt: skip
+            "anchors": {
+                aid: [float(v) for v in self.anchors_mm[k]] for k, aid in enumerate(self.anchor_ids)
+            },
+            "poses_per_anchor": {
+                aid: int(np.count_nonzero(self.anchor_index == k))
+                for k, aid in enumerate(self.anchor_ids)
+            },
             "noise_mm": self.noise_mm,
             "condition_number": _finite(self.condition_number),
-            "condition_number_start": (None if self.condition_number_start is None
-                                       else _finite(self.condition_number_start)),  # fmt: skip
-            "parameters": [{"name": n, "sigma": float(s), "unit": u} for n, s, u
-                           in zip(self.base, self.param_sigma, self.param_units, strict=True)],
+            "condition_number_start": (
+                None
+                if self.condition_number_start is None
+                else _finite(self.condition_number_start)
+            ),
+            "parameters": [
+                {"name": n, "sigma": float(s), "unit": u}
+                for n, s, u in zip(self.base, self.param_sigma, self.param_units, strict=True)
+            ],
             "tcp_sigma_mm": {"plan": self.tcp.to_dict(), "random": dict(self.tcp_random)},
             "travel_s": self.travel_s,
             "campaign_s": self.campaign_s,
@@ -122,4 +142,4 @@ class PlanResult:
             "anchor_gain": self.anchor_gain,
             "elapsed_s": self.elapsed_s,
             "notes": list(self.notes),
-        }  # fmt: skip
+        }
