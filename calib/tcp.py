@@ -161,11 +161,18 @@ def tcp_uncertainty(
 
 
 def tcp_uncertainty_for_problem(
-    problem: Problem, x: FloatArray, cov_free: FloatArray, **kwargs: object
+    problem: Problem,
+    x: FloatArray,
+    cov_free: FloatArray,
+    *,
+    q_deg: FloatArray | None = None,
+    n_poses: int = WORKSPACE_POSES,
+    seed: int = 0,
 ) -> TcpUncertainty:
-    """:func:`tcp_uncertainty` for a :class:`~calib.problem.Problem` at free values ``x``."""
+    """:func:`tcp_uncertainty` for a :class:`~calib.problem.Problem` at free values ``x``
+    (shape (k,)), e.g. the fit and the free-parameter covariance ``identify`` computes."""
     return tcp_uncertainty(problem.model, problem.layout, problem.full(x), problem.free,
-                           cov_free, **kwargs)  # type: ignore[arg-type]  # fmt: skip
+                           cov_free, q_deg=q_deg, n_poses=n_poses, seed=seed)  # fmt: skip
 
 
 def aligned_position_error_mm(points_mm: FloatArray, reference_mm: FloatArray) -> FloatArray:

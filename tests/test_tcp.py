@@ -14,6 +14,7 @@ from calib.tcp import (
     aligned_position_error_mm,
     remove_rigid,
     tcp_uncertainty,
+    tcp_uncertainty_for_problem,
     workspace_sample_deg,
 )
 
@@ -82,3 +83,22 @@ def test_bad_covariance_shape_is_named() -> None:
     free[:3] = True
     with pytest.raises(ValueError, match="cov_free"):
         tcp_uncertainty(MODEL, layout, np.zeros(layout.size), free, np.eye(4))
+
+
+def test_problem_entry_matches_the_layout_entry() -> None:
+    """identify's path: a Problem, the free values and their covariance."""
+    from calib.problem import Problem
+    from calib.synthetic import noisy_lengths, random_poses_deg
+
+    cell = make_true_cell(MODEL)
+    rng = np.random.default_rng(4)
+    q = random_poses_deg(cell, 40, rng)
+    free = np.zeros(cell.layout.size, dtype=bool)
+    free[[cell.layout.index(n) for n in ("a2", "alpha3", "tool_z", "p0_y")]] = True
+    problem = Problem(MODEL, cell.layout, np.deg2rad(q), noisy_lengths(cell, q, rng),
+                      np.zeros(40, dtype=int), free, cell.theta)  # fmt: skip
+    cov = np.diag([0.01, 1e-8, 0.02, 0.05])
+    a = tcp_uncertainty_for_problem(problem, problem.x0(), cov, n_poses=100, seed=5)
+    b = tcp_uncertainty(MODEL, cell.layout, cell.theta, free, cov, n_poses=100, seed=5)
+    assert a.rms_mm == pytest.approx(b.rms_mm) and a.max_mm == pytest.approx(b.max_mm)
+    assert a.rms_mm > 0.0

@@ -27,7 +27,7 @@ TCP σ of the plan against the best plan made at one anchor only.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -79,6 +79,18 @@ class PlanOptions:
         the criterion is the information about the kinematic base parameters once they are
         eliminated; this is what lets several anchors be compared fairly. False: plain
         D-optimal on the whole base set.
+    max_exchanges : int
+        Cap on Fedorov exchanges (each takes the best of all design × candidate swaps).
+    workspace_poses : int
+        Size of the workspace sample for the predicted TCP σ (above ``min_z_mm``).
+    random_draws : int
+        Random designs averaged for the side-by-side TCP σ.
+    ridge : float
+        Information added to every scaled parameter so the first greedy picks are defined.
+    rtol : float
+        Rank tolerance of the base-set analysis (:func:`calib.identifiability.analyse`).
+    compare_single_anchors : bool
+        With several anchors, also plan at each anchor alone and report the gain.
     """
 
     n: int = 40
@@ -99,7 +111,6 @@ class PlanOptions:
     rtol: float = 1e-8
     compare_single_anchors: bool = True
     anchors_nuisance: bool = True
-    _checked: bool = field(default=False, repr=False, compare=False)
 
     def validate(self, n_anchors: int) -> None:
         """Raise ``ValueError`` naming the first bad option."""
