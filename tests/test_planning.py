@@ -117,6 +117,11 @@ def test_several_anchors_report_the_gain() -> None:
     assert gain is not None
     assert set(gain["single_anchor"]) == {"A", "B"}
     assert gain["d_efficiency_gain"] >= 0.98  # all anchors can do what one can
+    # The plan is the better of the joint selection and the best single anchor's.
+    best = gain["single_anchor"][gain["best_single_anchor"]]["tcp_sigma_mm"]["rms"]
+    assert res.tcp.rms_mm <= max(best, gain["all_anchors"]["tcp_sigma_mm"]["rms"]) + 1e-12
+    if gain["plan_uses"] != "all":
+        assert set(res.to_json()["poses_per_anchor"].values()) == {0, 30}
     assert sum(res.to_json()["poses_per_anchor"].values()) == 30
     assert set(res.anchor_index.tolist()) <= {0, 1}
 

@@ -39,7 +39,7 @@ from calib.identifiability import analyse
 from calib.kinematics import FloatArray, IndexArray, forward_position
 from calib.models import RobotModel
 from calib.planning import design
-from calib.planning.candidates import draw_candidates, feasible
+from calib.planning.candidates import draw_candidates, flange_and_tool_mm
 from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S, campaign_time_s, order_poses
 from calib.planning.result import PlanResult
 from calib.problem import BoolArray
@@ -280,27 +280,36 @@ def _random_baseline(model: RobotModel, s: _Setup, opts: PlanOptions,
 
 def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatArray,
                  all_jac: FloatArray, all_tcp: TcpUncertainty,
-                 ws_q_deg: FloatArray) -> dict[str, Any]:  # fmt: skip
-    """Plan at each anchor alone and compare with the plan over all anchors."""
+                 ws_q_deg: FloatArray) -> tuple[dict[str, Any], IndexArray]:  # fmt: skip
+    """Plan at each anchor alone and compare with the plan over all anchors.
+
+    Returns the comparison and the best single-anchor design (candidate indices): the joint
+    exchange is a local search and may end below a single-anchor design, which then wins.
+    """
     singles: dict[str, Any] = {}
+    designs: dict[str, IndexArray] = {}
     for li in s.plan_anchor_index:
         aid = s.layout.anchors[int(li)]
         sub = np.flatnonzero(s.cand_anchor == li)
         chosen, _ = design.select(s.rows[:, sub], fixed, opts.n, opts.max_exchanges, s.nuisance)
         picked = sub[np.asarray(chosen)]
+        designs[aid] = picked
         jac, _, tcp = _predict(model, s, picked, opts, ws_q_deg)
         singles[aid] = {"kinematic_log_det": _kinematic_log_det(s, jac), "tcp_sigma_mm":
                         tcp.to_dict()}  # fmt: skip
     best = max(singles, key=lambda a: singles[a]["kinematic_log_det"])
     all_ld = _kinematic_log_det(s, all_jac)
+    gain = float(np.exp(all_ld - singles[best]["kinematic_log_det"]))
     return {
         "single_anchor": singles,
         "best_single_anchor": best,
         "all_anchors": {"kinematic_log_det": all_ld, "tcp_sigma_mm": all_tcp.to_dict()},
-        # Ratio of geometric-mean information per kinematic parameter (D-efficiency).
-        "d_efficiency_gain": float(np.exp(all_ld - singles[best]["kinematic_log_det"])),
+        # Ratio of geometric-mean information per kinematic parameter (D-efficiency) of the
+        # selection over all anchors to the best single anchor's.
+        "d_efficiency_gain": gain,
         "tcp_rms_ratio": float(singles[best]["tcp_sigma_mm"]["rms"] / all_tcp.rms_mm),
-    }
+        "plan_uses": "all" if gain >= 1.0 else best,
+    }, designs[best]
 
 
 def plan(
@@ -351,6 +360,12 @@ def _plan(
     picked = np.asarray(chosen)
     ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
     jac, cov, tcp = _predict(model, s, picked, opts, ws)
+    gain = None
+    if anchors.shape[0] > 1 and opts.compare_single_anchors:
+        gain, single = _anchor_gain(model, s, opts, fixed, jac, tcp, ws)
+        if gain["plan_uses"] != "all":
+            picked = single
+            jac, cov, tcp = _predict(model, s, picked, opts, ws)
     speed = np.asarray(opts.joint_speed_deg_s)
     order: list[int] = []
     travel = campaign = 0.0
@@ -363,11 +378,7 @@ def _plan(
     q = s.cand_q_deg[order]
     plan_k = np.array([int(np.flatnonzero(s.plan_anchor_index == li)[0])
                        for li in s.cand_anchor[order]])  # fmt: skip
-    ext = np.array([feasible(model, q[i : i + 1], anchors[plan_k[i]], (0.0, np.inf), -np.inf)[1][0]
-                    for i in range(q.shape[0])])  # fmt: skip
-    gain = None
-    if anchors.shape[0] > 1 and opts.compare_single_anchors:
-        gain = _anchor_gain(model, s, opts, fixed, jac, tcp, ws)
+    ext = np.linalg.norm(flange_and_tool_mm(model, q)[1] - anchors[plan_k], axis=1)
     free_idx = np.flatnonzero(s.free)
     notes = []
     if start is not None:
