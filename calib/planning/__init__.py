@@ -1,0 +1,9 @@
+"""Pose planning: which poses to measure, and what accuracy they will give.
+
+See :mod:`calib.planning.plan` for the method; :func:`plan` is the entry point.
+"""
+
+from calib.planning.plan import PlanOptions, evaluate_poses, plan
+from calib.planning.result import CSV_COLUMNS, PlanResult
+
+__all__ = ["CSV_COLUMNS", "PlanOptions", "PlanResult", "evaluate_poses", "plan"]

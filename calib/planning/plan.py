@@ -1,0 +1,444 @@
+"""Plan calibration poses: D-optimal on the identifiable parameters, robust to the anchor guess.
+
+Entry point :func:`plan` (what ``cablecal plan`` calls). Steps:
+
+1. **Candidates**: ``options.candidates`` random poses within the joint limits that reach each
+   anchor within the cable stroke (shrunk by the anchor's uncertainty) above the floor
+   (:mod:`calib.planning.candidates`).
+2. **Parameters**: the cable-length Jacobian (:func:`calib.cable.length_jacobian`) at the
+   nominal model and the anchor guesses; the base set is what
+   :func:`calib.identifiability.analyse` keeps on the candidates (well-spread poses, so the
+   structural base set) plus the start data.
+3. **Criterion**: ``Σ_h log det`` of the information of start data plus design about the
+   kinematic base parameters (anchors eliminated: Ds-optimality; or the whole base set,
+   D-optimality) under anchor hypothesis ``h`` (the guess and ``anchor_draws`` anchors at
+   ``anchor_uncertainty_mm`` from it). Selection: greedy, then Fedorov exchange
+   (:mod:`calib.planning.design`).
+4. **Order** per anchor by nearest neighbour plus 2-opt in joint-move time
+   (:mod:`calib.planning.order`).
+5. **Summary**: condition number, predicted 1σ per base parameter for ``noise_mm``, predicted
+   aligned TCP σ (:mod:`calib.tcp`) of the plan and of random poses of the same count.
+
+With several anchors the candidates of all anchors compete in one selection (each anchor has
+its own P0 and offset to pay for); the gain is reported as the kinematic D-efficiency and the
+TCP σ of the plan against the best plan made at one anchor only.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
+
+from calib.cable import N_KIN, ParamLayout, length_jacobian, multilaterate
+from calib.dataset import SampleSet, validate_joint_limits
+from calib.identifiability import analyse
+from calib.kinematics import FloatArray, IndexArray, forward_position
+from calib.models import RobotModel
+from calib.planning import design
+from calib.planning.candidates import draw_candidates, flange_and_tool_mm
+from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S, campaign_time_s, order_poses
+from calib.planning.result import PlanResult
+from calib.problem import BoolArray
+from calib.tcp import TcpUncertainty, tcp_uncertainty, workspace_sample_deg
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """Options of :func:`plan`; units in the names.
+
+    Attributes
+    ----------
+    n : int
+        Poses to plan (in total over all anchors).
+    anchor_ids : tuple of str, optional
+        Ids of the anchors (default ``A, B, …``); an id equal to one in the start data means
+        the sensor has not moved (shared P0 and offset).
+    candidates : int
+        Random feasible candidate poses (in total over all anchors).
+    seed : int
+        Seeds candidates, anchor hypotheses, random baseline and workspace sample.
+    min_z_mm : float
+        Flange origin and tool point must stay above this height in the base frame [mm].
+    extension_mm : (float, float)
+        Allowed cable extension ``|p − P0|`` [mm] (HY150-2000: 2000 mm stroke).
+    anchor_uncertainty_mm : float
+        How far the anchor guess may be off [mm]: the stroke is shrunk by it and the
+        criterion is summed over ``anchor_draws`` anchors this far from the guess.
+    noise_mm : float
+        1σ length noise for the predicted parameter and TCP σ [mm].
+    joint_speed_deg_s : 6 floats
+        Joint speeds for the campaign's moves [deg/s].
+    dwell_s : float
+        Time per pose for settling and reading [s].
+    anchors_nuisance : bool
+        True (default): Ds-optimal, the anchors' P0 and offset are nuisance parameters and
+        the criterion is the information about the kinematic base parameters once they are
+        eliminated; this is what lets several anchors be compared fairly. False: plain
+        D-optimal on the whole base set.
+    max_exchanges : int
+        Cap on Fedorov exchanges (each takes the best of all design × candidate swaps).
+    workspace_poses : int
+        Size of the workspace sample for the predicted TCP σ (above ``min_z_mm``).
+    random_draws : int
+        Random designs averaged for the side-by-side TCP σ.
+    ridge : float
+        Information added to every scaled parameter so the first greedy picks are defined.
+    rtol : float
+        Rank tolerance of the base-set analysis (:func:`calib.identifiability.analyse`).
+    compare_single_anchors : bool
+        With several anchors, also plan at each anchor alone and report the gain.
+    """
+
+    n: int = 40
+    anchor_ids: tuple[str, ...] | None = None
+    candidates: int = 3000
+    seed: int = 0
+    min_z_mm: float = 0.0
+    extension_mm: tuple[float, float] = (50.0, 1950.0)
+    anchor_uncertainty_mm: float = 30.0
+    anchor_draws: int = 2
+    noise_mm: float = 0.05
+    joint_speed_deg_s: tuple[float, ...] = DEFAULT_JOINT_SPEED_DEG_S
+    dwell_s: float = 3.0
+    max_exchanges: int = 200
+    workspace_poses: int = 500
+    random_draws: int = 5
+    ridge: float = 1e-6
+    rtol: float = 1e-8
+    compare_single_anchors: bool = True
+    anchors_nuisance: bool = True
+
+    def validate(self, n_anchors: int) -> None:
+        """Raise ``ValueError`` naming the first bad option."""
+        if self.n < 1:
+            raise ValueError(f"n: must be at least 1, got {self.n}")
+        if self.candidates < self.n:
+            raise ValueError(f"candidates: {self.candidates} is fewer than n = {self.n}")
+        lo, hi = self.extension_mm
+        if not 0.0 <= lo < hi:
+            raise ValueError(f"extension_mm: need 0 <= min < max, got {self.extension_mm}")
+        if hi - lo <= 2.0 * self.anchor_uncertainty_mm:
+            raise ValueError(f"anchor_uncertainty_mm: {self.anchor_uncertainty_mm} leaves no "
+                             f"extension range within {self.extension_mm}")  # fmt: skip
+        if self.anchor_uncertainty_mm < 0 or self.anchor_draws < 0:
+            raise ValueError("anchor_uncertainty_mm and anchor_draws must be >= 0")
+        if self.noise_mm <= 0:
+            raise ValueError(f"noise_mm: must be > 0, got {self.noise_mm}")
+        if len(self.joint_speed_deg_s) != 6 or min(self.joint_speed_deg_s) <= 0:
+            raise ValueError(f"joint_speed_deg_s: need 6 positive speeds, "
+                             f"got {self.joint_speed_deg_s}")  # fmt: skip
+        if self.dwell_s < 0:
+            raise ValueError(f"dwell_s: must be >= 0, got {self.dwell_s}")
+        if self.anchor_ids is not None and len(self.anchor_ids) != n_anchors:
+            raise ValueError(f"anchor_ids: {len(self.anchor_ids)} ids for {n_anchors} anchors")
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """The linearised problem shared by the main plan and the comparisons."""
+
+    layout: ParamLayout
+    theta: FloatArray  # (p,) nominal kinematics, anchor guesses (offsets 0)
+    free: BoolArray  # (p,) base set
+    scale: FloatArray  # (k,) column scales
+    cand_q_deg: FloatArray  # (c, 6)
+    cand_anchor: IndexArray  # (c,) index into layout.anchors
+    rows: FloatArray  # (H, c, k) scaled Jacobian rows per anchor hypothesis
+    start_jac: FloatArray  # (s, k) unscaled start rows
+    plan_anchor_index: IndexArray  # (m,) layout index of each plan anchor
+    nuisance: IndexArray | None  # columns of rows that are anchor parameters (Ds), or None
+
+
+def _start_anchors(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
+    """P0 of each start anchor by multilateration with the nominal model, each (3,) [mm]."""
+    pos = forward_position(model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm,
+                           model.convention)  # fmt: skip
+    idx = start.anchor_index()
+    return {aid: multilaterate(pos[idx == k], start.length_mm[idx == k])[0]
+            for k, aid in enumerate(start.anchor_ids)}  # fmt: skip
+
+
+def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
+           start: SampleSet | None) -> _Setup:  # fmt: skip
+    rng = np.random.default_rng(opts.seed)
+    m = anchors_mm.shape[0]
+    plan_ids = opts.anchor_ids or tuple(chr(ord("A") + k) for k in range(m))
+    start_ids = start.anchor_ids if start is not None else ()
+    ids = tuple(start_ids) + tuple(a for a in plan_ids if a not in start_ids)
+    layout = ParamLayout(ids)
+    theta = np.zeros(layout.size)
+    plan_index = np.array([ids.index(a) for a in plan_ids])
+    for k, li in enumerate(plan_index):
+        theta[layout.anchor_slice(int(li))][:3] = anchors_mm[k]
+    start_theta = theta.copy()
+    if start is not None:
+        for aid, p0 in _start_anchors(model, start).items():
+            start_theta[layout.anchor_slice(ids.index(aid))][:3] = p0
+            if aid not in plan_ids:
+                theta[layout.anchor_slice(ids.index(aid))][:3] = p0
+    q_c, a_c = draw_candidates(model, anchors_mm, opts.candidates, rng, opts.extension_mm,
+                               opts.min_z_mm, opts.anchor_uncertainty_mm)  # fmt: skip
+    cand_anchor = plan_index[a_c]
+    q_rad = np.deg2rad(q_c)
+    _, jac0 = length_jacobian(model, theta, q_rad, cand_anchor)
+    if start is not None:
+        start_idx = np.array([ids.index(a) for a in start.anchor])
+        _, start_full = length_jacobian(model, start_theta, np.deg2rad(start.joints_deg),
+                                        start_idx)  # fmt: skip
+    else:
+        start_full = np.zeros((0, layout.size))
+    ident = analyse(np.vstack([jac0, start_full]), layout.names, np.ones(layout.size, bool),
+                    rtol=opts.rtol)  # fmt: skip
+    free = np.array([nm in ident.base for nm in layout.names])
+    scale = np.linalg.norm(jac0[:, free], axis=0) / np.sqrt(jac0.shape[0])
+    scale = np.where(scale > 0, scale, 1.0)
+    jacs = [jac0]
+    for _ in range(opts.anchor_draws):
+        th = theta.copy()
+        for li in plan_index:
+            step = rng.normal(size=3)
+            step *= opts.anchor_uncertainty_mm / np.linalg.norm(step)
+            th[layout.anchor_slice(int(li))][:3] += step
+        jacs.append(length_jacobian(model, th, q_rad, cand_anchor)[1])
+    rows = np.stack([j[:, free] / scale for j in jacs])
+    nuisance = np.flatnonzero(np.flatnonzero(free) >= N_KIN) if opts.anchors_nuisance else None
+    return _Setup(layout, theta, free, scale, q_c, cand_anchor, rows, start_full[:, free],
+                  plan_index, nuisance)  # fmt: skip
+
+
+def covariance(jac: FloatArray, noise_mm: float) -> FloatArray:
+    """``noise² (JᵀJ)⁻¹`` (k, k) for Jacobian rows ``jac`` (n, k), internal units.
+
+    Inverted on unit columns by eigen-decomposition; directions with no information
+    (eigenvalue below 1e-15 of the largest) get zero variance instead of infinity.
+    """
+    d = np.linalg.norm(jac, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    u = jac / d
+    evals, evecs = np.linalg.eigh(u.T @ u)
+    keep = evals > evals.max() * 1e-15
+    inv = np.where(keep, 1.0 / np.where(keep, evals, 1.0), 0.0)
+    out: FloatArray = noise_mm**2 * ((evecs * inv) @ evecs.T) / np.outer(d, d)
+    return out
+
+
+def condition_number(jac: FloatArray) -> float:
+    """``σ_max/σ_min`` of ``jac`` (n, k) with unit-norm columns (inf when rank-deficient)."""
+    if jac.shape[0] == 0:
+        return float("inf")
+    d = np.linalg.norm(jac, axis=0)
+    if np.any(d == 0):
+        return float("inf")
+    s = np.linalg.svd(jac / d, compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+
+
+def _kinematic_log_det(s: _Setup, jac: FloatArray) -> float:
+    """Per-parameter ``log det`` of the kinematic block's information once the anchors are
+    eliminated (Schur complement), scaled columns: comparable across anchor allocations."""
+    u = jac / s.scale
+    info = u.T @ u
+    names = np.flatnonzero(s.free)
+    kin = names < N_KIN
+    a = info[np.ix_(~kin, ~kin)]
+    schur = info[np.ix_(kin, kin)] - info[np.ix_(kin, ~kin)] @ np.linalg.pinv(a) @ info[
+        np.ix_(~kin, kin)]  # fmt: skip
+    return design.log_det(schur) / int(np.count_nonzero(kin))
+
+
+def _fixed(s: _Setup, ridge: float) -> FloatArray:
+    """Start-data information plus ridge, scaled, one copy per anchor hypothesis (H, k, k)."""
+    u = s.start_jac / s.scale
+    base = u.T @ u + ridge * np.eye(s.scale.size)
+    return np.repeat(base[None], s.rows.shape[0], axis=0)
+
+
+def _predict(model: RobotModel, s: _Setup, chosen: IndexArray, opts: PlanOptions,
+             ws_q_deg: FloatArray) -> tuple[FloatArray, FloatArray, TcpUncertainty]:  # fmt: skip
+    """Unscaled Jacobian (plan + start), its covariance and the TCP σ of a design."""
+    jac = np.vstack([s.rows[0][chosen] * s.scale, s.start_jac])
+    cov = covariance(jac, opts.noise_mm)
+    tcp = tcp_uncertainty(model, s.layout, s.theta, s.free, cov, q_deg=ws_q_deg)
+    return jac, cov, tcp
+
+
+def _random_baseline(model: RobotModel, s: _Setup, opts: PlanOptions,
+                     ws_q_deg: FloatArray) -> dict[str, float]:  # fmt: skip
+    rng = np.random.default_rng(opts.seed + 1)
+    rms, mx = [], []
+    for _ in range(max(opts.random_draws, 1)):
+        pick = rng.choice(s.cand_q_deg.shape[0], size=opts.n, replace=False)
+        tcp = _predict(model, s, pick, opts, ws_q_deg)[2]
+        rms.append(tcp.rms_mm)
+        mx.append(tcp.max_mm)
+    return {"rms": float(np.mean(rms)), "max": float(np.mean(mx))}
+
+
+def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatArray,
+                 all_jac: FloatArray, all_tcp: TcpUncertainty,
+                 ws_q_deg: FloatArray) -> tuple[dict[str, Any], IndexArray]:  # fmt: skip
+    """Plan at each anchor alone and compare with the plan over all anchors.
+
+    Returns the comparison and the best single-anchor design (candidate indices): the joint
+    exchange is a local search and may end below a single-anchor design, which then wins.
+    """
+    singles: dict[str, Any] = {}
+    designs: dict[str, IndexArray] = {}
+    for li in s.plan_anchor_index:
+        aid = s.layout.anchors[int(li)]
+        sub = np.flatnonzero(s.cand_anchor == li)
+        chosen, _ = design.select(s.rows[:, sub], fixed, opts.n, opts.max_exchanges, s.nuisance)
+        picked = sub[np.asarray(chosen)]
+        designs[aid] = picked
+        jac, _, tcp = _predict(model, s, picked, opts, ws_q_deg)
+        singles[aid] = {"kinematic_log_det": _kinematic_log_det(s, jac), "tcp_sigma_mm":
+                        tcp.to_dict()}  # fmt: skip
+    best = max(singles, key=lambda a: singles[a]["kinematic_log_det"])
+    all_ld = _kinematic_log_det(s, all_jac)
+    gain = float(np.exp(all_ld - singles[best]["kinematic_log_det"]))
+    return {
+        "single_anchor": singles,
+        "best_single_anchor": best,
+        "all_anchors": {"kinematic_log_det": all_ld, "tcp_sigma_mm": all_tcp.to_dict()},
+        # Ratio of geometric-mean information per kinematic parameter (D-efficiency) of the
+        # selection over all anchors to the best single anchor's.
+        "d_efficiency_gain": gain,
+        "tcp_rms_ratio": float(singles[best]["tcp_sigma_mm"]["rms"] / all_tcp.rms_mm),
+        "plan_uses": "all" if gain >= 1.0 else best,
+    }, designs[best]
+
+
+def plan(
+    model: RobotModel,
+    anchors_mm: FloatArray,
+    options: PlanOptions | None = None,
+    start: SampleSet | None = None,
+) -> PlanResult:
+    """Plan ``options.n`` calibration poses (see the module docstring).
+
+    Parameters
+    ----------
+    model : RobotModel
+        Nominal model; its ``limits_deg`` bound the poses.
+    anchors_mm : ndarray, shape (m, 3) or (3,)
+        Guessed anchor position(s) in the robot base frame [mm].
+    options : PlanOptions
+    start : SampleSet, optional
+        Poses already measured: their information is part of the criterion (sequential
+        design); each start anchor's P0 is multilaterated with the nominal model.
+
+    Raises
+    ------
+    ValueError
+        Bad option or anchor (naming it), no feasible pose for an anchor.
+    SampleError
+        Start samples outside the joint limits.
+    """
+    # The products here are (thousands × ~22) by (22 × 22): BLAS threads gain nothing and, on
+    # a shared 2-core machine, oversubscription made a 2 s plan take 15 s. One BLAS thread.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _plan(model, anchors_mm, options or PlanOptions(), start)
+
+
+def _plan(
+    model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions, start: SampleSet | None
+) -> PlanResult:
+    t0 = time.perf_counter()
+    anchors = np.atleast_2d(np.asarray(anchors_mm, dtype=float))
+    if anchors.ndim != 2 or anchors.shape[1] != 3 or not np.all(np.isfinite(anchors)):
+        raise ValueError(f"anchors_mm: need finite (x, y, z) per anchor, got {anchors_mm!r}")
+    opts.validate(anchors.shape[0])
+    if start is not None:
+        validate_joint_limits(start, model)
+    s = _setup(model, anchors, opts, start)
+    fixed = _fixed(s, opts.ridge)
+    chosen, exchanges = design.select(s.rows, fixed, opts.n, opts.max_exchanges, s.nuisance)
+    picked = np.asarray(chosen)
+    ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
+    jac, cov, tcp = _predict(model, s, picked, opts, ws)
+    gain = None
+    if anchors.shape[0] > 1 and opts.compare_single_anchors:
+        gain, single = _anchor_gain(model, s, opts, fixed, jac, tcp, ws)
+        if gain["plan_uses"] != "all":
+            picked = single
+            jac, cov, tcp = _predict(model, s, picked, opts, ws)
+    speed = np.asarray(opts.joint_speed_deg_s)
+    order: list[int] = []
+    travel = campaign = 0.0
+    for li in s.plan_anchor_index:
+        group = picked[s.cand_anchor[picked] == li]
+        path, t_move = order_poses(s.cand_q_deg[group], speed)
+        order += [int(group[i]) for i in path]
+        travel += t_move
+        campaign += campaign_time_s(s.cand_q_deg[group[path]], speed, opts.dwell_s)
+    q = s.cand_q_deg[order]
+    plan_k = np.array([int(np.flatnonzero(s.plan_anchor_index == li)[0])
+                       for li in s.cand_anchor[order]])  # fmt: skip
+    ext = np.linalg.norm(flange_and_tool_mm(model, q)[1] - anchors[plan_k], axis=1)
+    free_idx = np.flatnonzero(s.free)
+    notes = []
+    if start is not None:
+        notes.append(f"{len(start)} start samples included; their anchors multilaterated "
+                     "with the nominal model")  # fmt: skip
+    return PlanResult(
+        q_deg=q,
+        anchor_index=plan_k,
+        anchor_ids=tuple(s.layout.anchors[int(li)] for li in s.plan_anchor_index),
+        anchors_mm=anchors,
+        extension_mm=ext,
+        base=[s.layout.names[i] for i in free_idx],
+        param_sigma=np.sqrt(np.clip(np.diag(cov), 0, None)) * s.layout.display_scale[free_idx],
+        param_units=[s.layout.units[i] for i in free_idx],
+        condition_number=condition_number(jac),
+        condition_number_start=condition_number(s.start_jac) if start is not None else None,
+        tcp=tcp,
+        tcp_random=_random_baseline(model, s, opts, ws),
+        travel_s=travel,
+        campaign_s=campaign,
+        log_det=design.criterion(s.rows, fixed, picked, s.nuisance),
+        exchanges=exchanges,
+        n_candidates=int(s.cand_q_deg.shape[0]),
+        noise_mm=opts.noise_mm,
+        anchor_gain=gain,
+        elapsed_s=time.perf_counter() - t0,
+        notes=notes,
+    )
+
+
+def evaluate_poses(
+    model: RobotModel,
+    anchors_mm: FloatArray,
+    q_deg: FloatArray,
+    anchor_index: IndexArray | None = None,
+    options: PlanOptions | None = None,
+    start: SampleSet | None = None,
+) -> dict[str, Any]:
+    """Predicted quality of given poses (a plan made elsewhere, or made at another anchor).
+
+    Parameters as :func:`plan`; ``q_deg`` (n, 6) [deg], ``anchor_index`` (n,) into
+    ``anchors_mm`` (default all 0). The base set and scales are those :func:`plan` would use
+    with the same options. Returns ``kinematic_log_det`` (per kinematic parameter, anchors
+    eliminated), ``condition_number`` and ``tcp_sigma_mm`` ``{rms, max}``.
+    """
+    opts = options or PlanOptions()
+    anchors = np.atleast_2d(np.asarray(anchors_mm, dtype=float))
+    opts.validate(anchors.shape[0])
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    idx = np.zeros(q.shape[0], dtype=int) if anchor_index is None else np.asarray(anchor_index)
+    with threadpool_limits(limits=1, user_api="blas"):
+        s = _setup(model, anchors, opts, start)
+        layout_idx = s.plan_anchor_index[idx]
+        jac = length_jacobian(model, s.theta, np.deg2rad(q), layout_idx)[1][:, s.free]
+        full = np.vstack([jac, s.start_jac])
+        ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
+        tcp = tcp_uncertainty(model, s.layout, s.theta, s.free,
+                              covariance(full, opts.noise_mm), q_deg=ws)  # fmt: skip
+        return {
+            "kinematic_log_det": _kinematic_log_det(s, full),
+            "condition_number": condition_number(full),
+            "tcp_sigma_mm": tcp.to_dict(),
+        }
