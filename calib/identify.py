@@ -2,7 +2,8 @@
 
 The public entry point is :func:`identify`. It
 
-1. splits the samples into training and test rows (random, grouped, or given);
+1. checks the options against the samples (:func:`calib.options.validate`) and splits them
+   into training and test rows (random, grouped, or given; :mod:`calib.split`);
 2. fits the *before* model: nominal kinematics with only ``P0`` and ``c`` per anchor, started
    by linear multilateration (:func:`calib.cable.multilaterate`) and refined by LM;
 3. starts the full identification from the nominal DH table with the tool point, ``P0`` and
@@ -10,11 +11,13 @@ The public entry point is :func:`identify`. It
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
-5. runs the chosen method, optionally robustly (IRLS with Huber or soft-L1 weights, or
-   iterative 3.5σ rejection, the scale being the MAD of the residuals), optionally with a
-   Gaussian prior toward the nominal model (MAP);
+5. runs the chosen method (:data:`calib.methods.REGISTRY`), optionally robustly (IRLS with
+   Huber or soft-L1 weights, or iterative 3.5σ rejection, the scale being the MAD of the
+   residuals; :mod:`calib.robust`), optionally with a Gaussian prior toward the nominal model
+   (MAP);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
-   metrics before and after on train and test, and the plausibility of every parameter.
+   metrics before and after on train and test, and the plausibility of every parameter
+   (:mod:`calib.report`).
 
 Units: inputs in degrees and millimetres; internal computation in radians and millimetres;
 every reported figure in degrees and millimetres.
@@ -42,7 +45,7 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel
 from calib.options import METHODS, IdentifyOptions, validate
 from calib.problem import Problem
-from calib.report import IdentifyResult, covariance, plausibility
+from calib.report import IdentifyResult, plausibility, uncertainty
 from calib.robust import weights as robust_weights
 from calib.solvers import lm
 from calib.solvers.common import ProgressFn, SolverResult, Timer, report
@@ -311,12 +314,7 @@ def identify(
 
     x = result.x
     theta = final.full(x)
-    cov, _ = covariance(final, x)
-    sig_free = np.sqrt(np.clip(np.diag(cov), 0, None))
-    sigma = np.zeros(layout.size)
-    sigma[free] = sig_free
-    denom = np.outer(sig_free, sig_free)
-    corr = np.divide(cov, denom, out=np.zeros_like(cov), where=denom > 0)
+    sigma, corr = uncertainty(final, x)
     extension = (d.lengths(theta, np.arange(len(samples)))
                  - theta[N_KIN:].reshape(-1, 4)[d.aidx_all, 3])  # fmt: skip
     plaus = plausibility(layout, theta, d.model.tool_mm, extension)

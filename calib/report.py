@@ -172,6 +172,18 @@ def covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]
     return cov_scaled / np.outer(d, d), np.array(np.sqrt(sigma2))
 
 
+def uncertainty(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """1σ per parameter, shape (p,) in internal units (0 for fixed ones), and the correlation
+    matrix of the free parameters, shape (k, k), at ``x`` (shape (k,))."""
+    cov, _ = covariance(problem, x)
+    sig_free = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sigma = np.zeros(problem.layout.size)
+    sigma[problem.free] = sig_free
+    denom = np.outer(sig_free, sig_free)
+    corr = np.divide(cov, denom, out=np.zeros_like(cov), where=denom > 0)
+    return sigma, corr
+
+
 def plausibility(
     layout: ParamLayout, theta: FloatArray, nominal_tool: FloatArray, extension_mm: FloatArray
 ) -> dict[str, Any]:
