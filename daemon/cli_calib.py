@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -41,7 +42,7 @@ def _opt(name: str, suffix: str = "") -> Any:
     :mod:`calib.options` (defaults are the parameters' defaults, :func:`calib.options.default`)."""
     sp = spec(name)
     choices = f" ({', '.join(sp.choices)})" if sp.choices else ""
-    return typer.Option(help=f"{sp.help}{choices}{suffix}")
+    return typer.Option(help=escape(f"{sp.help}{choices}{suffix}"))  # keep "[mm]" literal
 
 
 def _progress() -> Progress:
