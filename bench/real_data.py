@@ -35,14 +35,17 @@ import numpy as np
 
 from calib.cable import N_DH
 from calib.dataset import SampleSet
-from calib.identify import METHODS, IdentifyOptions, IdentifyResult, identify, split_rows
+from calib.identify import IdentifyOptions, IdentifyResult, identify
 from calib.models import RobotModel
+from calib.options import METHODS, default, options_from_mapping
+from calib.protocol import PAPER_N_TEST, PAPER_N_TRAIN, run_protocol
+from calib.split import split_rows
 from daemon.datafiles import load_robot, read_samples
 
 OUT = Path(__file__).parent
 ROBOT = "hsr-jr680"
 SEEDS = tuple(range(10))
-N_TRAIN, N_TEST = 100, 20
+N_TRAIN, N_TEST = PAPER_N_TRAIN, PAPER_N_TEST
 GROUPED_TEST_FRACTION = 0.2
 
 #: The paper's Table VIII, dataset D1: RMSE, "STD" (in fact the MAE), MAX [mm].
@@ -133,20 +136,13 @@ def distinct_grouped_seeds(samples: SampleSet, count: int) -> tuple[int, ...]:
     seeds: list[int] = []
     seed = 0
     while len(seeds) < count and seed < 100 * count:
-        _, test = split_rows(samples, GROUPED_TEST_FRACTION, seed, "grouped",
-                             IdentifyOptions().n_groups)  # fmt: skip
+        _, test = split_rows(samples, GROUPED_TEST_FRACTION, seed, "grouped", default("n_groups"))
         key = tuple(int(i) for i in test)
         if key not in seen:
             seen.add(key)
             seeds.append(seed)
         seed += 1
     return tuple(seeds)
-
-
-def paper_protocol_split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The paper's 100/20 random draw for one seed (the same as ``cablecal compare``)."""
-    pick = np.random.default_rng(seed).permutation(n)[: N_TRAIN + N_TEST]
-    return np.sort(pick[:N_TRAIN]), np.sort(pick[N_TRAIN:])
 
 
 def _identify(
@@ -162,14 +158,12 @@ def run_paper_protocol(
 ) -> tuple[list[dict[str, Any]], dict[str, list[dict[str, Any]]]]:
     """Mean rows per method and the per-seed records."""
     per_seed: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
-    for s in seeds:
-        train, test = paper_protocol_split(len(samples), s)
-        for m in methods:
-            opts = IdentifyOptions(method=m, seed=s)  # type: ignore[arg-type]
-            rec = _identify(model, samples, opts, train_rows=train, test_rows=test)
-            per_seed[m].append({"seed": s, **rec})
-            print(f"paper protocol seed {s} {m:9s} rmse {rec['rmse_mm']:.3f} mm "
-                  f"({rec['time_s']:.2f} s)", flush=True)  # fmt: skip
+    for run in run_protocol(model, samples, methods, seeds):
+        s, m = run.seed, run.method
+        rec = _run_record(run.result, run.elapsed_s)
+        per_seed[m].append({"seed": s, **rec})
+        print(f"paper protocol seed {s} {m:9s} rmse {rec['rmse_mm']:.3f} mm "
+              f"({rec['time_s']:.2f} s)", flush=True)  # fmt: skip
     return [_summary(m, per_seed[m]) for m in methods], per_seed
 
 
@@ -180,13 +174,10 @@ def run_grouped(
     per_seed: dict[str, list[dict[str, Any]]] = {v.label: [] for v in variants}
     for s in seeds:
         for v in variants:
-            opts = IdentifyOptions(
-                method=v.method,  # type: ignore[arg-type]
-                seed=s,
-                holdout="grouped",
-                test_fraction=GROUPED_TEST_FRACTION,
-                prior=v.prior,
-            )
+            opts = options_from_mapping(
+                {"method": v.method, "seed": s, "holdout": "grouped",
+                 "test_fraction": GROUPED_TEST_FRACTION, "prior": v.prior}
+            )  # fmt: skip
             rec = _identify(model, samples, opts)
             per_seed[v.label].append({"seed": s, **rec})
             print(
@@ -321,7 +312,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         },
         "grouped_holdout": {
             "test_fraction": GROUPED_TEST_FRACTION,
-            "n_groups": IdentifyOptions().n_groups,
+            "n_groups": default("n_groups"),
             "summary": grouped_rows,
             "runs": grouped_runs,
         },

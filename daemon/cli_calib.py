@@ -4,18 +4,23 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from calib.dataset import SampleError
-from calib.identify import METHODS, IdentifyOptions, IdentifyResult, identify
 from calib.models import ModelError, RobotModel
+from calib.options import METHODS, IdentifyOptions, default, options_from_mapping, spec
+from calib.protocol import PAPER_N_TEST, PAPER_N_TRAIN, check_protocol
 from daemon.datafiles import load_robot, read_samples
+
+if TYPE_CHECKING:
+    from calib.identify import IdentifyResult
 
 console = Console()
 err_console = Console(stderr=True)
@@ -32,6 +37,14 @@ def _split_names(text: str) -> tuple[str, ...]:
     return tuple(n.strip() for n in text.split(",") if n.strip())
 
 
+def _opt(name: str, suffix: str = "") -> Any:
+    """The typer option of identification option ``name``: its help and choices from
+    :mod:`calib.options` (defaults are the parameters' defaults, :func:`calib.options.default`)."""
+    sp = spec(name)
+    choices = f" ({', '.join(sp.choices)})" if sp.choices else ""
+    return typer.Option(help=escape(f"{sp.help}{choices}{suffix}"))  # keep "[mm]" literal
+
+
 def _progress() -> Progress:
     return Progress(
         TextColumn("{task.description}"),
@@ -44,6 +57,8 @@ def _progress() -> Progress:
 
 
 def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: Any) -> Any:
+    from calib.identify import identify
+
     with _progress() as bar:
         task = bar.add_task(opts.method, total=1.0)
 
@@ -111,36 +126,27 @@ def register(app: typer.Typer) -> None:
         robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
             "hsr-jr680"
         ),
-        method: Annotated[str, typer.Option(help=f"One of {', '.join(METHODS)}")] = "ukf-vslm",
-        test_fraction: Annotated[float, typer.Option(help="Held-out share, 0 trains on all")] = 0.2,
-        seed: Annotated[int, typer.Option(help="Seed of the split")] = 0,
-        holdout: Annotated[str, typer.Option(help="random or grouped (whole pose groups)")] = (
-            "random"
-        ),
-        robust: Annotated[str, typer.Option(help="none, huber, soft_l1 or reject")] = "none",
-        prior: Annotated[bool, typer.Option(help="MAP prior toward the nominal model")] = False,
-        prior_mm: Annotated[float, typer.Option(help="Prior 1σ of DH lengths [mm]")] = 2.0,
-        prior_deg: Annotated[float, typer.Option(help="Prior 1σ of DH angles [deg]")] = 0.2,
-        fix: Annotated[str, typer.Option(help="Comma-separated parameter names to fix")] = "",
-        free: Annotated[str, typer.Option(help="Comma-separated names to free")] = "",
+        method: Annotated[str, _opt("method")] = default("method"),
+        test_fraction: Annotated[float, _opt("test_fraction")] = default("test_fraction"),
+        seed: Annotated[int, _opt("seed")] = default("seed"),
+        holdout: Annotated[str, _opt("holdout")] = default("holdout"),
+        robust: Annotated[str, _opt("robust")] = default("robust"),
+        prior: Annotated[bool, _opt("prior")] = default("prior"),
+        prior_mm: Annotated[float, _opt("prior_mm")] = default("prior_mm"),
+        prior_deg: Annotated[float, _opt("prior_deg")] = default("prior_deg"),
+        fix: Annotated[str, _opt("fix", ", comma-separated")] = "",
+        free: Annotated[str, _opt("free", ", comma-separated")] = "",
         out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
     ) -> None:
         """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
         try:
             model = load_robot(robot)
             samples = read_samples(data)
-            opts = IdentifyOptions(
-                method=method,  # type: ignore[arg-type]
-                test_fraction=test_fraction,
-                seed=seed,
-                holdout=holdout,  # type: ignore[arg-type]
-                robust=robust,  # type: ignore[arg-type]
-                prior=prior,
-                prior_mm=prior_mm,
-                prior_deg=prior_deg,
-                fix=_split_names(fix),
-                free=_split_names(free),
-            )
+            opts = options_from_mapping(
+                {"method": method, "test_fraction": test_fraction, "seed": seed,
+                 "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
+                 "prior_deg": prior_deg, "fix": _split_names(fix), "free": _split_names(free)}
+            )  # fmt: skip
             result = _run_identify(model, samples, opts)
         except (SampleError, ModelError, ValueError) as exc:
             raise _fail(f"{data if isinstance(exc, SampleError) else 'input'}: {exc}") from None
@@ -157,8 +163,8 @@ def register(app: typer.Typer) -> None:
         robot: Annotated[str, typer.Option(help="Built-in model name or model file")] = (
             "hsr-jr680"
         ),
-        train: Annotated[int, typer.Option(help="Training samples per run")] = 100,
-        test: Annotated[int, typer.Option(help="Test samples per run")] = 20,
+        train: Annotated[int, typer.Option(help="Training samples per run")] = PAPER_N_TRAIN,
+        test: Annotated[int, typer.Option(help="Test samples per run")] = PAPER_N_TEST,
         seed: Annotated[int, typer.Option(help="First seed")] = 0,
         seeds: Annotated[int, typer.Option(help="Number of seeds (runs) to average")] = 1,
         methods: Annotated[str, typer.Option(help="Comma-separated methods")] = ",".join(METHODS),
@@ -170,13 +176,7 @@ def register(app: typer.Typer) -> None:
             model = load_robot(robot)
             samples = read_samples(data)
             chosen = _split_names(methods)
-            bad = [m for m in chosen if m not in METHODS]
-            if bad:
-                raise ValueError(f"--methods: unknown {bad}; known {list(METHODS)}")
-            if train + test > len(samples):
-                raise ValueError(f"--train + --test = {train + test} > {len(samples)} samples")
-            if train < 1:
-                raise ValueError("--train must be positive")
+            check_protocol(samples, chosen, train, test)
         except (SampleError, ModelError, ValueError) as exc:
             raise _fail(str(exc)) from None
         rows = compare(model, samples, chosen, train, test, seed, seeds, prior)
@@ -206,32 +206,32 @@ def compare(
     seeds: int,
     prior: bool = False,
 ) -> list[dict[str, Any]]:
-    """Mean test figures per method over ``seeds`` random draws of ``n_train + n_test`` rows."""
+    """Mean test figures per method over ``seeds`` draws of the paper's protocol
+    (:mod:`calib.protocol`), from seed ``seed`` on."""
+    from calib.protocol import run_protocol
+
     acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
     with _progress() as bar:
         task = bar.add_task("compare", total=len(methods) * seeds)
-        for s in range(seed, seed + seeds):
-            rng = np.random.default_rng(s)
-            pick = rng.permutation(len(samples))[: n_train + n_test]
-            tr, te = np.sort(pick[:n_train]), np.sort(pick[n_train:])
-            for m in methods:
-                bar.update(task, description=f"seed {s} {m}")
-                opts = IdentifyOptions(method=m, seed=s, prior=prior)  # type: ignore[arg-type]
-                res = identify(model, samples, opts, train_rows=tr, test_rows=te)
-                fig = res.metrics["after"]["test"]
-                acc[m].append({
-                    "rmse_mm": fig["rmse_mm"], "mae_mm": fig["mae_mm"], "max_mm": fig["max_mm"],
-                    "before_rmse_mm": res.metrics["before"]["test"]["rmse_mm"],
-                    "iterations": float(res.solver.iterations), "time_s": res.elapsed_s,
-                    "plausible": float(res.plausibility["plausible"]),
-                })  # fmt: skip
-                bar.advance(task)
+        runs = run_protocol(model, samples, methods, range(seed, seed + seeds), n_train, n_test,
+                            prior)  # fmt: skip
+        for run in runs:
+            res = run.result
+            fig = res.metrics["after"]["test"]
+            acc[run.method].append({
+                "rmse_mm": fig["rmse_mm"], "mae_mm": fig["mae_mm"], "max_mm": fig["max_mm"],
+                "before_rmse_mm": res.metrics["before"]["test"]["rmse_mm"],
+                "iterations": float(res.solver.iterations), "time_s": res.elapsed_s,
+                "plausible": float(res.plausibility["plausible"]),
+            })  # fmt: skip
+            bar.update(task, description=f"seed {run.seed} {run.method}")
+            bar.advance(task)
     rows = []
     for m in methods:
-        runs = acc[m]
+        runs_m = acc[m]
         row: dict[str, Any] = {"method": m}
-        for key in runs[0]:
-            row[key] = float(np.mean([r[key] for r in runs]))
-        row["plausible"] = int(sum(r["plausible"] for r in runs))
+        for key in runs_m[0]:
+            row[key] = float(np.mean([r[key] for r in runs_m]))
+        row["plausible"] = int(sum(r["plausible"] for r in runs_m))
         rows.append(row)
     return rows

@@ -38,6 +38,10 @@ log = logging.getLogger("cablecal.jobs")
 PROGRESS_INTERVAL_S = 0.2
 
 
+#: Identification option name → its name in the REST request body, where they differ.
+_REST_NAMES = {"fix": "fixed"}
+
+
 class JobError(ValueError):
     """A job request cannot run (names the field)."""
 
@@ -70,7 +74,7 @@ def run_identification(
     anchors : list of n str
         Anchor id per sample.
     options : dict
-        Keyword arguments of :class:`calib.identify.IdentifyOptions`.
+        Keyword arguments of :class:`calib.options.IdentifyOptions`.
     progress_queue, cancel_flags
         Manager proxies: ``(job_id, fraction, message)`` tuples go out; ``cancel_flags[job_id]``
         set true asks the job to stop.
@@ -81,16 +85,14 @@ def run_identification(
         The ``result.json`` contract of :meth:`calib.identify.IdentifyResult.to_json`.
     """
     from calib.dataset import make_samples
-    from calib.identify import IdentifyOptions, identify
+    from calib.identify import identify
     from calib.models import model_from_mapping
+    from calib.options import options_from_mapping
     from calib.solvers.common import Cancelled
 
     model = model_from_mapping(model_mapping)
     samples = make_samples(np.asarray(joints_deg, dtype=float), np.asarray(length_mm), anchors)
-    kwargs: dict[str, Any] = {
-        k: tuple(v) if k in ("fix", "free") else v for k, v in options.items()
-    }
-    opts = IdentifyOptions(**kwargs)
+    opts = options_from_mapping(options)
     progress_queue.put((job_id, 0.0, "started"))
     last = [time.monotonic()]
 
@@ -173,30 +175,20 @@ class JobManager:
         daemon.store.StoreNotFound
             No such campaign.
         """
-        from calib.identify import IdentifyOptions
+        from calib.options import OptionError, options_from_mapping, validate
 
         campaign = self.store.get_campaign(campaign_id)
         if campaign is None:
             raise StoreNotFound("campaign", campaign_id)
         opts = {"noise_mm": self.settings.noise_mm, **dict(options)}
-        try:
-            IdentifyOptions(**opts)
-        except (TypeError, ValueError) as exc:
-            raise JobError(str(exc)) from exc
         samples, sample_ids = self.store.sample_set(campaign_id)
-        from calib.cable import ParamLayout
-
-        known = ParamLayout(samples.anchor_ids or ("A",)).names
-        for key in ("fix", "free"):
-            bad = [n for n in opts.get(key, ()) if n not in known]
-            if bad:
-                raise JobError(f"{'fixed' if key == 'fix' else key}: unknown parameter(s) {bad}")
-        n_min = 30
-        if len(samples) < n_min:
-            raise JobError(
-                f"samples: campaign {campaign_id} has {len(samples)} included samples; "
-                f"identification needs at least {n_min}"
-            )
+        try:
+            validate(samples, options_from_mapping(opts))
+        except OptionError as exc:
+            # The REST body spells ``fix`` as ``fixed``.
+            raise JobError(f"{_REST_NAMES.get(exc.field, exc.field)}: {exc.reason}") from exc
+        except (TypeError, ValueError) as exc:
+            raise JobError(f"campaign {campaign_id}: {exc}") from exc
         robot_id = int(campaign["robot_id"])
         model = self.store.robot_model(robot_id)
         job = self.store.create_job(

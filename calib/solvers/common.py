@@ -5,11 +5,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from calib.kinematics import FloatArray, IndexArray
+
+if TYPE_CHECKING:
+    from calib.problem import Evaluation, Problem
 
 #: ``progress(fraction_done, message)``; may raise :class:`Cancelled` to stop the solver.
 ProgressFn = Callable[[float, str], None]
@@ -137,6 +140,72 @@ def distance_to_optimum_sigma(model: LinearModel, lam: float, cost: float, dof: 
     if cost <= 0.0:
         return 0.0 if reduction <= 0.0 else float("inf")
     return float(np.sqrt(max(reduction, 0.0) * max(dof, 1) / cost))
+
+
+class GaussNewton:
+    """The set-up and bookkeeping LM and VSLM share; they differ in their step policy only.
+
+    Holds the iterate ``x`` (shape (k,)), its residual ``res`` (m,), Jacobian ``jac`` (m, k)
+    and cost ``½‖r‖²`` [mm²], the running column scale ``D`` (k,), the data RMS history [mm]
+    and the degrees of freedom ``m − k``. Usage: :meth:`start`; per iteration
+    :meth:`linearise`, the stopping test :meth:`within_sigma`, trial steps and
+    :meth:`accept`; :meth:`result` at the end.
+    """
+
+    def __init__(self, problem: Problem, x0: FloatArray | None, method: str) -> None:
+        self.problem = problem
+        self.method = method
+        self.timer = Timer()
+        self.x = problem.x0() if x0 is None else np.array(x0, dtype=float)
+        ev = problem.evaluate(self.x)
+        assert ev.jacobian is not None
+        self.res, self.jac, self.cost = ev.residual, ev.jacobian, ev.cost
+        self.history = [ev.data_rms_mm]
+        self.dof = max(problem.n_rows - self.x.shape[0], 1)
+        self.scale = column_scale(self.jac)
+
+    def start_failure(self) -> SolverResult | None:
+        """The failed result when the start point's residual is not finite, else None."""
+        if np.isfinite(self.cost):
+            return None
+        return SolverResult(
+            self.method, self.x, False, -1, "non-finite residual at the start", 0, self.history
+        )
+
+    def linearise(self, gtol: float) -> tuple[LinearModel, FloatArray] | None:
+        """The scaled linear model and gradient ``(J D⁻¹)ᵀ r`` (k,); None if that is below
+        ``gtol ‖r‖`` (converged)."""
+        js = self.jac / self.scale
+        grad = js.T @ self.res
+        if np.max(np.abs(grad)) <= gtol * np.sqrt(2.0 * self.cost):
+            return None
+        return LinearModel.from_jacobian(js, self.res), grad
+
+    def within_sigma(self, lin: LinearModel, lam: float, sigma_tol: float) -> str | None:
+        """The stop message when within ``sigma_tol`` standard errors of the optimum."""
+        distance = distance_to_optimum_sigma(lin, lam, self.cost, self.dof)
+        if distance <= sigma_tol:
+            return f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+        return None
+
+    def accept(self, x_new: FloatArray, trial: Evaluation) -> None:
+        """Move to ``x_new`` whose evaluation is ``trial``; widen the column scale."""
+        assert trial.jacobian is not None
+        self.x, self.cost, self.res, self.jac = x_new, trial.cost, trial.residual, trial.jacobian
+        self.history.append(trial.data_rms_mm)
+        self.scale = column_scale(self.jac, self.scale)
+
+    def result(self, status: int, message: str, iterations: int) -> SolverResult:
+        return SolverResult(
+            method=self.method,
+            x=self.x,
+            success=status > 0,
+            status=status,
+            message=message,
+            iterations=iterations,
+            cost_history_rms_mm=self.history,
+            elapsed_s=self.timer.elapsed(),
+        )
 
 
 def sample_batches(

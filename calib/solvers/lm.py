@@ -27,15 +27,7 @@ import numpy as np
 
 from calib.kinematics import FloatArray
 from calib.problem import Problem
-from calib.solvers.common import (
-    LinearModel,
-    ProgressFn,
-    SolverResult,
-    Timer,
-    column_scale,
-    distance_to_optimum_sigma,
-    report,
-)
+from calib.solvers.common import GaussNewton, ProgressFn, SolverResult, report
 
 
 @dataclass(frozen=True)
@@ -61,52 +53,41 @@ def solve(
 ) -> SolverResult:
     """Minimise the problem's residual with Levenberg–Marquardt from ``x0`` (shape (k,))."""
     opts = options or LMOptions()
-    timer = Timer()
-    x = problem.x0() if x0 is None else np.array(x0, dtype=float)
-    ev = problem.evaluate(x)
-    assert ev.jacobian is not None
-    res, jac, cost = ev.residual, ev.jacobian, ev.cost
-    history = [ev.data_rms_mm]
-    if not np.isfinite(cost):
-        return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
-    dof = max(problem.n_rows - x.shape[0], 1)
-    scale = column_scale(jac)
+    gn = GaussNewton(problem, x0, method)
+    failed = gn.start_failure()
+    if failed is not None:
+        return failed
     lam: float | None = None
     nu = 2.0
     status, message = 0, "iteration limit reached"
     it = 0
     for it in range(1, opts.max_iterations + 1):
-        js = jac / scale
-        grad = js.T @ res
-        if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * cost):
+        linear = gn.linearise(opts.gtol)
+        if linear is None:
             status, message, it = 1, "gradient below gtol", it - 1
             break
-        lin = LinearModel.from_jacobian(js, res)
+        lin, grad = linear
         s = lin.s
-        distance = distance_to_optimum_sigma(lin, opts.sigma_damping * float(s[0] ** 2), cost, dof)
-        if distance <= opts.sigma_tol:
-            status, it = 2, it - 1
-            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+        stop = gn.within_sigma(lin, opts.sigma_damping * float(s[0] ** 2), opts.sigma_tol)
+        if stop is not None:
+            status, message, it = 2, stop, it - 1
             break
         if lam is None:
             lam = opts.tau * float(s[0] ** 2)
         accepted = False
         for _ in range(opts.max_rejections):
             h = lin.step(lam)
-            z_norm = float(np.linalg.norm(scale * x))
+            z_norm = float(np.linalg.norm(gn.scale * gn.x))
             if np.linalg.norm(h) <= opts.xtol * (z_norm + opts.xtol):
                 status, message = 3, "step below xtol"
                 break
-            x_new = x + h / scale
+            x_new = gn.x + h / gn.scale
             trial = problem.evaluate(x_new)
             predicted = 0.5 * float(h @ (lam * h - grad))
-            rho = (cost - trial.cost) / predicted if predicted > 0 else -1.0
+            rho = (gn.cost - trial.cost) / predicted if predicted > 0 else -1.0
             if np.isfinite(trial.cost) and rho > 0:
-                assert trial.jacobian is not None
-                rel = (cost - trial.cost) / max(cost, 1e-300)
-                x, cost, res, jac = x_new, trial.cost, trial.residual, trial.jacobian
-                history.append(trial.data_rms_mm)
-                scale = column_scale(jac, scale)
+                rel = (gn.cost - trial.cost) / max(gn.cost, 1e-300)
+                gn.accept(x_new, trial)
                 lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 accepted = True
@@ -116,20 +97,11 @@ def solve(
             lam *= nu
             nu *= 2.0
         if not accepted:
-            history.append(history[-1])
+            gn.history.append(gn.history[-1])
         report(progress, it / opts.max_iterations, f"{method} iteration {it}")
         if status:
             break
         if not accepted:
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
-    return SolverResult(
-        method=method,
-        x=x,
-        success=status > 0,
-        status=status,
-        message=message,
-        iterations=it,
-        cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
-    )
+    return gn.result(status, message, it)

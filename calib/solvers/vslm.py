@@ -50,15 +50,7 @@ import numpy as np
 
 from calib.kinematics import FloatArray
 from calib.problem import Problem
-from calib.solvers.common import (
-    LinearModel,
-    ProgressFn,
-    SolverResult,
-    Timer,
-    column_scale,
-    distance_to_optimum_sigma,
-    report,
-)
+from calib.solvers.common import GaussNewton, ProgressFn, SolverResult, report
 
 
 @dataclass(frozen=True)
@@ -94,66 +86,45 @@ def solve(
 ) -> SolverResult:
     """Run VSLM from ``x0`` (shape (k,)); see the module docstring for the corrections."""
     opts = options or VSLMOptions()
-    timer = Timer()
-    x = problem.x0() if x0 is None else np.array(x0, dtype=float)
-    ev = problem.evaluate(x)
-    assert ev.jacobian is not None
-    res, jac, cost = ev.residual, ev.jacobian, ev.cost
-    history = [ev.data_rms_mm]
-    if not np.isfinite(cost):
-        return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
-    dof = max(problem.n_rows - x.shape[0], 1)
-    scale = column_scale(jac)
+    gn = GaussNewton(problem, x0, method)
+    failed = gn.start_failure()
+    if failed is not None:
+        return failed
     delta = opts.delta0
     lam0: float | None = None
     lam = 0.0
     status, message = 0, "iteration limit reached"
     it = 0
     for it in range(1, opts.max_iterations + 1):
-        js = jac / scale
-        grad = js.T @ res
-        if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * cost):
+        linear = gn.linearise(opts.gtol)
+        if linear is None:
             status, message, it = 1, "gradient below gtol", it - 1
             break
-        lin = LinearModel.from_jacobian(js, res)
-        s = lin.s
+        lin, _ = linear
         if lam0 is None:
-            lam0 = opts.lam * float(s[0] ** 2)
+            lam0 = opts.lam * float(lin.s[0] ** 2)
             lam = lam0
-        distance = distance_to_optimum_sigma(lin, lam0, cost, dof)
-        if distance <= opts.sigma_tol:
-            status, it = 2, it - 1
-            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+        stop = gn.within_sigma(lin, lam0, opts.sigma_tol)
+        if stop is not None:
+            status, message, it = 2, stop, it - 1
             break
         accepted = False
         for _ in range(opts.max_rejections):
             h = delta * lin.step(lam)
-            x_new = x + h / scale
+            x_new = gn.x + h / gn.scale
             trial = problem.evaluate(x_new)
-            if np.isfinite(trial.cost) and trial.cost < cost:
-                assert trial.jacobian is not None
-                x, cost, res, jac = x_new, trial.cost, trial.residual, trial.jacobian
-                history.append(trial.data_rms_mm)
-                scale = column_scale(jac, scale)
+            if np.isfinite(trial.cost) and trial.cost < gn.cost:
+                gn.accept(x_new, trial)
                 lam = max(lam0, lam / 10.0)
                 accepted = True
                 break
             lam *= 10.0
         report(progress, it / opts.max_iterations, f"{method} iteration {it}, step {delta:.3f}")
         if not accepted:
-            history.append(history[-1])
+            gn.history.append(gn.history[-1])
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
         delta *= opts.mu
         if delta < opts.delta_min:
             delta = opts.delta0
-    return SolverResult(
-        method=method,
-        x=x,
-        success=status > 0,
-        status=status,
-        message=message,
-        iterations=it,
-        cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
-    )
+    return gn.result(status, message, it)

@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from calib.identify import METHODS
-
-Method = Literal["lm", "vslm", "ukf", "ekf", "ukf-vslm", "de"]
-assert set(METHODS) == set(Method.__args__)  # type: ignore[attr-defined]
+from calib.options import Holdout, Method, Robust, default, spec
 
 
 class _Body(BaseModel):
@@ -56,27 +53,33 @@ class SamplePatch(_Body):
     reason: str | None = Field(None, max_length=500)
 
 
-class IdentificationRequest(_Body):
-    """Options of an identification job (see ``cablecal identify --help``)."""
+def _option(name: str) -> Any:
+    """The body field of identification option ``name``: default, bounds and description
+    from :mod:`calib.options` (the literal types are imported from there too)."""
+    sp = spec(name)
+    return Field(default(name), description=sp.help, gt=sp.gt, ge=sp.ge, lt=sp.lt)
 
-    method: Method = "ukf-vslm"
-    test_fraction: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.2
-    seed: int = 0
-    holdout: Literal["random", "grouped"] = "random"
-    robust: Literal["none", "huber", "soft_l1", "reject"] = "none"
-    fixed: list[str] = Field(default_factory=list, description="Parameter names held nominal.")
-    free: list[str] = Field(
-        default_factory=list, description="Parameter names solved even if unidentifiable."
-    )
-    prior: bool = Field(False, description="MAP prior toward the nominal model.")
-    prior_mm: Annotated[float, Field(gt=0)] = 2.0
-    prior_deg: Annotated[float, Field(gt=0)] = 0.2
-    noise_mm: Annotated[float, Field(gt=0)] | None = Field(
-        None, description="Assumed 1-sigma length noise [mm]; default from the config."
+
+class IdentificationRequest(_Body):
+    """Options of an identification job (see ``cablecal identify --help``); a subset of
+    :class:`calib.options.IdentifyOptions`, with ``fix`` spelled ``fixed``."""
+
+    method: Method = _option("method")
+    test_fraction: float = _option("test_fraction")
+    seed: int = _option("seed")
+    holdout: Holdout = _option("holdout")
+    robust: Robust = _option("robust")
+    fixed: list[str] = Field(default_factory=list, description=spec("fix").help)
+    free: list[str] = Field(default_factory=list, description=spec("free").help)
+    prior: bool = _option("prior")
+    prior_mm: float = _option("prior_mm")
+    prior_deg: float = _option("prior_deg")
+    noise_mm: Annotated[float, Field(gt=spec("noise_mm").gt)] | None = Field(
+        None, description=f"{spec('noise_mm').help}; default from the config."
     )
 
     def to_options(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`calib.identify.IdentifyOptions`."""
+        """Keyword arguments of :class:`calib.options.IdentifyOptions`."""
         out = self.model_dump(exclude={"fixed", "free", "noise_mm"})
         out["fix"] = tuple(self.fixed)
         out["free"] = tuple(self.free)

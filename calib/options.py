@@ -1,0 +1,202 @@
+"""Identification options, defined once: the REST body and the CLI options are built from them.
+
+:class:`IdentifyOptions` is a frozen dataclass whose fields carry their help text, choices and
+bounds as field metadata (:class:`OptionSpec`). :func:`calib.identify.identify`, the job
+submission of the daemon, ``cablecal identify`` and the REST request body all read them from
+here; :func:`validate` is the one check of options against a sample set.
+
+This module imports only the standard library at import time (the CLI's ``--help`` path reads
+it); :func:`validate` imports numpy-based modules when called.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sized
+from dataclasses import MISSING, dataclass, field, fields
+from typing import TYPE_CHECKING, Any, Literal, get_args
+
+if TYPE_CHECKING:
+    from calib.dataset import SampleSet
+
+Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de"]
+Robust = Literal["none", "huber", "soft_l1", "reject"]
+Holdout = Literal["random", "grouped"]
+
+METHODS: tuple[str, ...] = get_args(Method)
+ROBUST_MODES: tuple[str, ...] = get_args(Robust)
+HOLDOUTS: tuple[str, ...] = get_args(Holdout)
+
+#: Fewest training rows an identification accepts. The base parameter set of a one-anchor cell
+#: has 23 parameters on the bundled real data (and on the synthetic benchmark), and the solvers
+#: need at least one more row than parameters; fewer rows can never be enough.
+MIN_TRAINING_SAMPLES = 24
+
+
+class OptionError(ValueError):
+    """An identification option is invalid; ``field`` names it."""
+
+    def __init__(self, field_name: str, message: str) -> None:
+        super().__init__(f"{field_name}: {message}")
+        self.field = field_name
+        self.reason = message
+
+
+@dataclass(frozen=True)
+class OptionSpec:
+    """What a field of :class:`IdentifyOptions` accepts, and its help text."""
+
+    help: str
+    choices: tuple[str, ...] | None = None
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise :class:`OptionError` naming ``name`` when ``value`` is outside the spec."""
+        if self.choices is not None and value not in self.choices:
+            raise OptionError(name, f"must be one of {', '.join(self.choices)}; got {value!r}")
+        if value is None or isinstance(value, bool) or not isinstance(value, int | float):
+            return
+        if self.gt is not None and not value > self.gt:
+            raise OptionError(name, f"must be > {self.gt}; got {value}")
+        if self.ge is not None and not value >= self.ge:
+            raise OptionError(name, f"must be >= {self.ge}; got {value}")
+        if self.lt is not None and not value < self.lt:
+            raise OptionError(name, f"must be < {self.lt}; got {value}")
+
+
+def _spec(help: str, **spec: Any) -> dict[str, OptionSpec]:
+    return {"spec": OptionSpec(help, **spec)}
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """Options of :func:`calib.identify.identify`; each field's help is in its metadata.
+
+    ``ukf_batch_size`` None means 1 for ``ukf`` and ``ekf`` (per-sample updates), and for the
+    UKF stage of ``ukf-vslm`` batches growing 1, 2, 4, … to 32 in each epoch (see
+    :mod:`calib.solvers.ukf_vslm`). ``holdout="grouped"`` holds out whole pose groups (a
+    ``group`` column, or ``n_groups`` Ward clusters of the joint angles) instead of random
+    rows: accuracy at poses unlike the training poses.
+    """
+
+    method: Method = field(
+        default="ukf-vslm", metadata=_spec("Identification method", choices=METHODS)
+    )
+    test_fraction: float = field(
+        default=0.2, metadata=_spec("Held-out share, 0 trains on all", ge=0.0, lt=1.0)
+    )
+    seed: int = field(default=0, metadata=_spec("Seed of the split (and of DE)"))
+    holdout: Holdout = field(
+        default="random",
+        metadata=_spec("Hold out random rows or whole pose groups", choices=HOLDOUTS),
+    )
+    n_groups: int = field(
+        default=10,
+        metadata=_spec("Pose clusters for a grouped hold-out without a group column", gt=0),
+    )
+    robust: Robust = field(default="none", metadata=_spec("Robust fit mode", choices=ROBUST_MODES))
+    robust_k: float = field(
+        default=1.345, metadata=_spec("Huber / soft-L1 threshold [robust sigma]", gt=0)
+    )
+    flag_threshold: float = field(
+        default=3.5, metadata=_spec("Flag (reject) residuals beyond this [robust sigma]", gt=0)
+    )
+    prior: bool = field(default=False, metadata=_spec("MAP prior toward the nominal model"))
+    prior_mm: float = field(default=2.0, metadata=_spec("Prior 1σ of DH lengths [mm]", gt=0))
+    prior_deg: float = field(default=0.2, metadata=_spec("Prior 1σ of DH angles [deg]", gt=0))
+    prior_tool_mm: float | None = field(
+        default=None, metadata=_spec("Prior 1σ of the tool point [mm]", gt=0)
+    )
+    noise_mm: float = field(default=0.1, metadata=_spec("Assumed 1-sigma length noise [mm]", gt=0))
+    fix: tuple[str, ...] = field(
+        default=(), metadata=_spec("Parameter names held at their start (nominal) value")
+    )
+    free: tuple[str, ...] = field(
+        default=(), metadata=_spec("Parameter names solved even if unidentifiable")
+    )
+    identify_tool: bool = field(default=True, metadata=_spec("Solve for the tool point"))
+    tool_mm: tuple[float, float, float] | None = field(
+        default=None, metadata=_spec("Nominal tool point override [mm]")
+    )
+    rtol: float = field(default=1e-8, metadata=_spec("Identifiability threshold", gt=0))
+    filter_sigma_mm: float = field(
+        default=5.0, metadata=_spec("Filters' initial 1σ of lengths [mm]", gt=0)
+    )
+    filter_sigma_deg: float = field(
+        default=0.5, metadata=_spec("Filters' initial 1σ of angles [deg]", gt=0)
+    )
+    ukf_epochs: int = field(
+        default=2, metadata=_spec("Sweeps of the UKF and EKF over the samples (T3)", gt=0)
+    )
+    ukf_batch_size: int | None = field(
+        default=None, metadata=_spec("Samples per filter update", gt=0)
+    )
+    vslm_delta0: float = field(default=0.8, metadata=_spec("VSLM initial step size", gt=0))
+    vslm_mu: float = field(default=0.95, metadata=_spec("VSLM step-size decay", gt=0, lt=1))
+    de_max_generations: int = field(default=300, metadata=_spec("DE generations", gt=0))
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            spec(f.name).check(f.name, getattr(self, f.name))
+
+
+_FIELDS = {f.name: f for f in fields(IdentifyOptions)}
+
+
+def spec(name: str) -> OptionSpec:
+    """The :class:`OptionSpec` of option ``name``."""
+    out: OptionSpec = _FIELDS[name].metadata["spec"]
+    return out
+
+
+def default(name: str) -> Any:
+    """The default value of option ``name``."""
+    value = _FIELDS[name].default
+    assert value is not MISSING
+    return value
+
+
+def options_from_mapping(values: Mapping[str, Any]) -> IdentifyOptions:
+    """Options from a mapping (JSON, CLI): lists become tuples; unknown keys name themselves."""
+    unknown = [k for k in values if k not in _FIELDS]
+    if unknown:
+        raise OptionError(unknown[0], f"unknown option; known: {', '.join(_FIELDS)}")
+    kwargs: dict[str, Any] = {
+        k: tuple(v) if isinstance(v, list | tuple) and k in ("fix", "free", "tool_mm") else v
+        for k, v in values.items()
+    }
+    return IdentifyOptions(**kwargs)
+
+
+def validate(samples: SampleSet, options: IdentifyOptions, train_rows: Sized | None = None) -> None:
+    """Check options against a sample set, before any computation.
+
+    Checks the choices and bounds of every field, the ``fix``/``free`` names against the
+    parameter layout of the samples' anchors, and that at least :data:`MIN_TRAINING_SAMPLES`
+    rows train (``train_rows``, or what ``test_fraction`` leaves).
+
+    Raises
+    ------
+    OptionError
+        A field is out of range or names an unknown parameter (the message names the field).
+    calib.dataset.SampleError
+        Too few training samples.
+    """
+    from calib.cable import ParamLayout
+    from calib.dataset import SampleError
+
+    for f in fields(options):
+        spec(f.name).check(f.name, getattr(options, f.name))
+    known = ParamLayout(samples.anchor_ids or ("A",)).names
+    for key in ("fix", "free"):
+        bad = [n for n in getattr(options, key) if n not in known]
+        if bad:
+            raise OptionError(key, f"unknown parameter name(s) {bad}; known: {known}")
+    n = len(samples)
+    n_train = len(train_rows) if train_rows is not None else n - round(options.test_fraction * n)
+    if n_train < MIN_TRAINING_SAMPLES:
+        raise SampleError(
+            f"samples: {n_train} training samples for identification (of {n} included); "
+            f"need at least {MIN_TRAINING_SAMPLES}"
+        )

@@ -1,0 +1,224 @@
+"""What an identification reports: the result type and its ``result.json``, the covariance of the
+estimate, and the plausibility of every identified parameter against physical bounds.
+
+Units: internal values in millimetres and radians; every reported figure in degrees and
+millimetres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
+from calib.identifiability import Identifiability
+from calib.kinematics import N_JOINTS, FloatArray
+from calib.models import RobotModel
+from calib.options import IdentifyOptions
+from calib.problem import Problem
+from calib.solvers.common import SolverResult
+
+#: Plausible magnitudes, in display units, used by the plausibility report.
+PLAUSIBLE_DH_MM = 10.0
+PLAUSIBLE_DH_DEG = 1.0
+PLAUSIBLE_TOOL_MM = 500.0
+PLAUSIBLE_ANCHOR_MM = 5000.0
+PLAUSIBLE_OFFSET_MM = 2000.0
+CABLE_EXTENSION_MAX_MM = 2050.0
+
+
+@dataclass
+class IdentifyResult:
+    """Everything :func:`calib.identify.identify` found; :meth:`to_json` gives the contract."""
+
+    model: RobotModel
+    layout: ParamLayout
+    method: str
+    theta: FloatArray  # (p,) identified full vector, internal units
+    theta_before: FloatArray  # (p,) nominal kinematics, fitted anchors
+    free_names: list[str]
+    sigma: FloatArray  # (p,) 1σ in internal units, 0 for fixed parameters
+    correlation: FloatArray  # (k, k) over free_names
+    identifiability: Identifiability
+    solver: SolverResult
+    metrics: dict[str, dict[str, dict[str, float]]]
+    flagged_rows: list[int]
+    train_rows: np.ndarray
+    test_rows: np.ndarray
+    options: IdentifyOptions
+    plausibility: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
+    #: (p,) where every method started: nominal DH, tool point and anchors fitted.
+    theta_start: FloatArray | None = None
+
+    def dh_table_deg_mm(self, errors_only: bool = False) -> FloatArray:
+        """Calibrated (or error) DH table, shape (6, 4): alpha_deg, a_mm, d_mm, theta_deg."""
+        err = self.theta[:N_DH].reshape(N_JOINTS, 4).copy()
+        err[:, [0, 3]] = np.rad2deg(err[:, [0, 3]])
+        return err if errors_only else self.model.dh_table + err
+
+    def tool_mm(self) -> FloatArray:
+        return np.asarray(self._nominal_tool() + self.theta[N_DH:N_KIN], dtype=float)
+
+    def _nominal_tool(self) -> FloatArray:
+        return (
+            np.asarray(self.options.tool_mm, dtype=float)
+            if self.options.tool_mm is not None
+            else self.model.tool_mm
+        )
+
+    def calibrated_model(self) -> RobotModel:
+        """The calibrated robot as a model (same convention, joint limits kept)."""
+        return RobotModel(
+            name=f"{self.model.name}-calibrated",
+            convention=self.model.convention,
+            dh_table=self.dh_table_deg_mm(),
+            joint_limits_deg=self.model.joint_limits_deg,
+            tool_mm=self.tool_mm(),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """The stable ``result.json`` contract (see README)."""
+
+        def rows(table: FloatArray) -> list[dict[str, float | int]]:
+            return [
+                {"joint": j + 1, "alpha_deg": float(table[j, 0]), "a_mm": float(table[j, 1]),
+                 "d_mm": float(table[j, 2]), "theta_deg": float(table[j, 3])}
+                for j in range(N_JOINTS)
+            ]  # fmt: skip
+
+        scale = self.layout.display_scale
+        anchors: dict[str, dict[str, Any]] = {}
+        for k, aid in enumerate(self.layout.anchors):
+            vals = self.theta[self.layout.anchor_slice(k)]
+            anchors[aid] = {
+                "anchor_mm": [float(v) for v in vals[:3]],
+                "length_offset_mm": float(vals[3]),
+            }
+        first = anchors[self.layout.anchors[0]]
+        names = self.layout.names
+        uncertainty = {
+            names[i]: float(self.sigma[i] * scale[i]) for i in range(len(names)) if self.sigma[i]
+        }
+        return {
+            "robot": self.model.name,
+            "method": self.method,
+            "convention": self.model.convention,
+            "dh": rows(self.dh_table_deg_mm()),
+            "dh_error": rows(self.dh_table_deg_mm(errors_only=True)),
+            "tool_mm": [float(v) for v in self.tool_mm()],
+            "anchor_mm": first["anchor_mm"],
+            "length_offset_mm": first["length_offset_mm"],
+            "anchor_id": self.layout.anchors[0],
+            "anchors": {a: v for a, v in anchors.items() if a != self.layout.anchors[0]},
+            "uncertainty": uncertainty,
+            "correlation": {
+                "names": list(self.free_names),
+                "matrix": [[round(float(v), 6) for v in row] for row in self.correlation],
+            },
+            "identifiability": self.identifiability.to_dict(),
+            "metrics": self.metrics,
+            "flagged_samples": list(self.flagged_rows),
+            "iterations": int(self.solver.iterations),
+            "elapsed_s": float(self.elapsed_s),
+            "status": int(self.solver.status),
+            "success": bool(self.solver.success),
+            "message": self.solver.message,
+            "cost_history_rms_mm": [float(v) for v in self.solver.cost_history_rms_mm],
+            "prior": {
+                "used": self.options.prior,
+                "dh_mm": self.options.prior_mm,
+                "dh_deg": self.options.prior_deg,
+                "tool_mm": self.options.prior_tool_mm,
+                "noise_mm": self.options.noise_mm,
+            },
+            "robust": self.options.robust,
+            "split": {
+                "holdout": self.options.holdout,
+                "test_fraction": self.options.test_fraction,
+                "seed": self.options.seed,
+                "n_train": int(self.train_rows.size),
+                "n_test": int(self.test_rows.size),
+            },
+            "plausibility": self.plausibility,
+            "notes": list(self.notes),
+        }
+
+
+def covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Free-parameter covariance (k, k) in internal units and σ̂ [mm]."""
+    pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
+                                     problem.anchor_index)  # fmt: skip
+    sw = np.sqrt(problem.weights)
+    res = sw * (pred - problem.length_mm)
+    jac = sw[:, None] * jac_full[:, problem.free]
+    k = jac.shape[1]
+    dof = max(int(np.count_nonzero(problem.weights > 0)) - k, 1)
+    sigma2 = max(float(res @ res) / dof, 1e-18)
+    d = np.linalg.norm(jac, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    info = (jac / d).T @ (jac / d) / sigma2
+    if problem.has_prior:
+        assert problem.prior_sigma is not None
+        ps = problem.prior_sigma[problem.free]
+        info = info + np.diag(np.where(np.isfinite(ps), 1.0 / (ps * ps), 0.0) / (d * d))
+    evals, evecs = np.linalg.eigh(info)
+    cutoff = evals.max() * 1e-15
+    inv = np.where(evals > cutoff, 1.0 / np.where(evals > cutoff, evals, 1.0), 0.0)
+    cov_scaled = (evecs * inv) @ evecs.T
+    return cov_scaled / np.outer(d, d), np.array(np.sqrt(sigma2))
+
+
+def uncertainty(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """1σ per parameter, shape (p,) in internal units (0 for fixed ones), and the correlation
+    matrix of the free parameters, shape (k, k), at ``x`` (shape (k,))."""
+    cov, _ = covariance(problem, x)
+    sig_free = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sigma = np.zeros(problem.layout.size)
+    sigma[problem.free] = sig_free
+    denom = np.outer(sig_free, sig_free)
+    corr = np.divide(cov, denom, out=np.zeros_like(cov), where=denom > 0)
+    return sigma, corr
+
+
+def plausibility(
+    layout: ParamLayout, theta: FloatArray, nominal_tool: FloatArray, extension_mm: FloatArray
+) -> dict[str, Any]:
+    """Every parameter against its plausible bound, and the cable extension (mm) against the
+    sensor's range: ``plausible``, ``outside_bounds``, ``cable_extension_mm``, ``parameters``.
+
+    ``theta`` shape (p,) internal units; ``nominal_tool`` (3,) [mm]; ``extension_mm`` (n,).
+    """
+    scale = layout.display_scale
+    names = layout.names
+    items = []
+    for i, name in enumerate(names):
+        value = float(theta[i] * scale[i])
+        if i < N_DH:
+            bound = PLAUSIBLE_DH_DEG if layout.is_angle[i] else PLAUSIBLE_DH_MM
+            kind = "error"
+        elif i < N_KIN:
+            value = float(nominal_tool[i - N_DH] + theta[i])
+            bound, kind = PLAUSIBLE_TOOL_MM, "absolute"
+        elif name.startswith("offset"):
+            bound, kind = PLAUSIBLE_OFFSET_MM, "absolute"
+        else:
+            bound, kind = PLAUSIBLE_ANCHOR_MM, "absolute"
+        items.append({"name": name, "value": value, "unit": layout.units[i], "kind": kind,
+                      "bound": bound, "ok": bool(abs(value) <= bound)})  # fmt: skip
+    ext_ok = bool(extension_mm.size == 0 or (
+        extension_mm.min() > 0 and extension_mm.max() <= CABLE_EXTENSION_MAX_MM))  # fmt: skip
+    outside = [it["name"] for it in items if not it["ok"]]
+    return {
+        "plausible": not outside and ext_ok,
+        "outside_bounds": outside,
+        "cable_extension_mm": {
+            "min": float(extension_mm.min()) if extension_mm.size else None,
+            "max": float(extension_mm.max()) if extension_mm.size else None,
+            "ok": ext_ok,
+        },
+        "parameters": items,
+    }
