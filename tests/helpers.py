@@ -1,4 +1,4 @@
-"""Helpers for tests and benchmarks that run the emulated cell."""
+"""Helpers shared by the tests (not installed): emulated-cell configurations."""
 
 from __future__ import annotations
 

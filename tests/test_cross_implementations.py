@@ -12,10 +12,10 @@ from collections.abc import Iterator
 
 import minimalmodbus
 import pytest
+from helpers import sim_config
 
 from drivers import IndicatorConfig, ModbusIndicator
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 
 @pytest.fixture

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import sim_config
 
 from drivers import (
     AsciiIndicator,
@@ -24,7 +25,6 @@ from drivers import (
     RobotStale,
 )
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 HALF_COUNT_MM = 0.005  # two decimals

@@ -9,6 +9,7 @@ from collections.abc import Awaitable, Callable, Iterator
 from typing import Any
 
 import pytest
+from helpers import sim_config
 
 from drivers import (
     DeviceError,
@@ -27,7 +28,6 @@ from drivers import (
     RobotTimeout,
 )
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 HALF_COUNT_MM = 0.005

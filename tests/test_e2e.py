@@ -18,7 +18,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from calib.predict import predict_lengths_from_result
-from daemon.testing import Cell, wait_for
+from daemon.cli.emulated import Cell, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
 

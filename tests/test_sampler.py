@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import sim_config
 from numpy.typing import NDArray
 
 from daemon import metrics
@@ -32,7 +33,6 @@ from drivers import (
     RobotTimeout,
 )
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 

@@ -1,9 +1,9 @@
 """``make run`` and ``make demo``: the daemon against an emulated cell, on this machine.
 
-``python -m daemon.demo serve``
+``python -m daemon.cli.demo serve``
     Starts the emulated cell (``examples/sim.toml``) and ``cablecal serve`` on it, with the
     embedded SQLite store under ``.state/``; prints the URL and the token; runs until Ctrl-C.
-``python -m daemon.demo campaign [--poses 100]``
+``python -m daemon.cli.demo campaign [--poses 100]``
     A whole campaign through the REST API, self-contained: starts a fast emulated cell and the
     daemon in a temporary directory, creates a campaign, auto-captures the poses, runs
     ``ukf-vslm``, and prints the before/after figures and the error against the cell's truth.
@@ -25,7 +25,7 @@ from rich.console import Console
 from rich.table import Table
 
 from calib.predict import predict_lengths_from_result
-from daemon.testing import Cell, DaemonProcess, EmulatedCellProcess, wait_for
+from daemon.cli.emulated import Cell, DaemonProcess, EmulatedCellProcess, wait_for
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 console = Console()
@@ -182,7 +182,7 @@ def _print_result(result: dict[str, object]) -> None:
 
 
 def main() -> None:
-    """Entry point of ``python -m daemon.demo``."""
+    """Entry point of ``python -m daemon.cli.demo``."""
     app()
 
 
