@@ -1,26 +1,33 @@
-"""``cablecal identify`` and ``cablecal compare``."""
+"""``cablecal identify`` and ``cablecal compare``.
+
+numpy, scipy and ``calib`` are imported inside the commands, so ``cablecal --help`` and the
+other commands do not pay for them.
+"""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from calib.dataset import SampleError
-from calib.identify import METHODS, IdentifyOptions, IdentifyResult, identify
-from calib.models import ModelError, RobotModel
-from daemon.datafiles import load_robot, read_samples
+if TYPE_CHECKING:
+    from rich.progress import Progress
+
+    from calib.identify import IdentifyOptions, IdentifyResult
+    from calib.models import RobotModel
 
 console = Console()
 err_console = Console(stderr=True)
 
 EXIT_BAD_INPUT = 2
+
+# calib.identify.METHODS, spelled out for the help texts: importing calib.identify would load
+# scipy at ``--help`` time. tests/test_cli.py checks that the two agree.
+METHODS = ("ukf-vslm", "lm", "vslm", "ukf", "ekf", "de")
 
 
 def _fail(message: str) -> typer.Exit:
@@ -33,6 +40,8 @@ def _split_names(text: str) -> tuple[str, ...]:
 
 
 def _progress() -> Progress:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
     return Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -44,6 +53,8 @@ def _progress() -> Progress:
 
 
 def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: Any) -> Any:
+    from calib.identify import identify
+
     with _progress() as bar:
         task = bar.add_task(opts.method, total=1.0)
 
@@ -54,6 +65,8 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
 
 
 def _summary(result: IdentifyResult) -> None:
+    import numpy as np
+
     data = result.to_json()
     table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
     table.add_column("figure [mm]")
@@ -126,6 +139,11 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
     ) -> None:
         """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
+        from calib.dataset import SampleError
+        from calib.identify import IdentifyOptions
+        from calib.models import ModelError
+        from daemon.datafiles import load_robot, read_samples
+
         try:
             model = load_robot(robot)
             samples = read_samples(data)
@@ -166,6 +184,10 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path | None, typer.Option(help="Write the table as JSON here")] = None,
     ) -> None:
         """Compare all methods on the paper's protocol (Table VIII/IX style)."""
+        from calib.dataset import SampleError
+        from calib.models import ModelError
+        from daemon.datafiles import load_robot, read_samples
+
         try:
             model = load_robot(robot)
             samples = read_samples(data)
@@ -207,6 +229,10 @@ def compare(
     prior: bool = False,
 ) -> list[dict[str, Any]]:
     """Mean test figures per method over ``seeds`` random draws of ``n_train + n_test`` rows."""
+    import numpy as np
+
+    from calib.identify import IdentifyOptions, identify
+
     acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
     with _progress() as bar:
         task = bar.add_task("compare", total=len(methods) * seeds)
