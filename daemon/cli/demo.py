@@ -30,7 +30,7 @@ from daemon.cli.emulated import Cell, DaemonProcess, EmulatedCellProcess, wait_f
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 console = Console()
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 FAST_CELL = """
 seed = {seed}
