@@ -25,35 +25,19 @@ from rich.console import Console
 from rich.table import Table
 
 from calib.predict import predict_lengths_from_result
-from daemon.cli.emulated import Cell, DaemonProcess, EmulatedCellProcess, wait_for
+from daemon.cli.emulated import (
+    FAST_DAEMON_ENV,
+    Cell,
+    DaemonProcess,
+    EmulatedCellProcess,
+    fast_cell_toml,
+    wait_for,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 console = Console()
 
 ROOT = Path(__file__).resolve().parents[2]
-
-FAST_CELL = """
-seed = {seed}
-[robot]
-n_poses = {n_poses}
-move_time_s = 0.4
-dwell_s = 1.0
-loop = false
-[indicator]
-noise_mm = 0.02
-baud = 115200
-[robot_socketcmd]
-port = 0
-[robot_modbus]
-port = 0
-"""
-
-FAST_DAEMON_ENV = {
-    "CABLECAL_INDICATOR__BAUD": "115200",
-    "CABLECAL_SAMPLER__SETTLE_S": "0.3",
-    "CABLECAL_SAMPLER__SETTLE_TOL_MM": "0.08",
-    "CABLECAL_JOBS__NOISE_MM": "0.02",
-}
 
 
 @app.command("serve")
@@ -107,7 +91,7 @@ def campaign_cmd(
 ) -> None:
     """A whole campaign over REST against a fresh emulated cell (``make demo``)."""
     with tempfile.TemporaryDirectory(prefix="cablecal-demo-") as tmp:
-        toml = FAST_CELL.format(seed=seed, n_poses=poses + 30)
+        toml = fast_cell_toml(poses + 30, seed)
         with Cell(Path(tmp), toml, daemon_env=FAST_DAEMON_ENV) as cell:
             assert cell.daemon is not None and cell.sim is not None
             api = cell.daemon.client()
