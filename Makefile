@@ -26,11 +26,11 @@ test: lint typecheck unit
 
 # The daemon on the EMULATED cell (examples/sim.toml), store under .state/; Ctrl-C stops it.
 run: $(STAMP)
-	$(BIN)/python -m daemon.demo serve
+	$(BIN)/python -m daemon.cli.demo serve
 
 # A whole campaign over the REST API against a fresh emulated cell (about 3 minutes).
 demo: $(STAMP)
-	$(BIN)/python -m daemon.demo campaign --poses 100
+	$(BIN)/python -m daemon.cli.demo campaign --poses 100
 
 # Identification speed and the indicator poll rate (bench/results.*), then API latency under
 # load while the sampler runs (bench/api_results.*).

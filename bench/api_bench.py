@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from daemon.testing import Cell
+from daemon.cli.emulated import Cell
 
 OUT = Path(__file__).resolve().parent
 RATE_HZ = 200.0

@@ -26,6 +26,10 @@ METHODS: tuple[str, ...] = get_args(Method)
 ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
 
+#: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
+PAPER_N_TRAIN = 100
+PAPER_N_TEST = 20
+
 #: Fewest training rows an identification accepts. The base parameter set of a one-anchor cell
 #: has 23 parameters on the bundled real data (and on the synthetic benchmark), and the solvers
 #: need at least one more row than parameters; fewer rows can never be enough.

@@ -18,14 +18,16 @@ import numpy as np
 
 from calib.dataset import SampleSet
 from calib.models import RobotModel
-from calib.options import METHODS, OptionError, options_from_mapping
+from calib.options import (
+    METHODS,
+    PAPER_N_TEST,
+    PAPER_N_TRAIN,
+    OptionError,
+    options_from_mapping,
+)
 
 if TYPE_CHECKING:
     from calib.identify import IdentifyResult
-
-#: Training and test rows per draw in the paper's protocol.
-PAPER_N_TRAIN = 100
-PAPER_N_TEST = 20
 
 
 def paper_split(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from simulator.cli import simulate
+from daemon.cli.simulate import simulate
 
 if __name__ == "__main__":
     typer.run(simulate)

@@ -8,26 +8,17 @@ import asyncio
 import re
 import shutil
 import subprocess
-from collections.abc import Iterator
 
 import minimalmodbus
 import pytest
 
 from drivers import IndicatorConfig, ModbusIndicator
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
-
-@pytest.fixture
-def sim() -> Iterator[SimulatorThread]:
-    s = SimulatorThread(
-        sim_config(indicator={"baud": 19200, "noise_mm": 0.05, "tcp": "mbap"})
-    ).start()
-    s.control("hold", on=True)  # hold: the display value stays put (noise drawn once)
-    try:
-        yield s
-    finally:
-        s.stop()
+# hold: the display value stays put (noise drawn once)
+pytestmark = pytest.mark.emulated_cell(
+    hold=True, indicator={"baud": 19200, "noise_mm": 0.05, "tcp": "mbap"}
+)
 
 
 def _driver_counts(port: str) -> int:

@@ -14,7 +14,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from daemon.testing import Process
+from daemon.cli.emulated import Process
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -6,11 +6,10 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 import pytest
+from helpers import host_port, start_emulated_cell
 
 from drivers import (
     AsciiIndicator,
@@ -24,29 +23,12 @@ from drivers import (
     RobotStale,
 )
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
-pytestmark = pytest.mark.anyio
+pytestmark = [
+    pytest.mark.anyio,
+    pytest.mark.emulated_cell(indicator={"baud": 115200, "noise_mm": 0.0, "tcp": "rtu"}),
+]
 HALF_COUNT_MM = 0.005  # two decimals
-
-
-def _start(**sections: Any) -> SimulatorThread:
-    return SimulatorThread(sim_config(**sections)).start()
-
-
-@pytest.fixture
-def sim() -> Iterator[SimulatorThread]:
-    s = _start(indicator={"baud": 115200, "noise_mm": 0.0, "tcp": "rtu"})
-    try:
-        yield s
-    finally:
-        s.stop()
-
-
-def _port(endpoint: str | None) -> tuple[str, int]:
-    assert endpoint is not None
-    host, port = endpoint.rsplit(":", 1)
-    return host, int(port)
 
 
 async def test_indicator_over_pty_matches_truth_at_every_pose(sim: SimulatorThread) -> None:
@@ -69,7 +51,7 @@ async def test_indicator_over_pty_matches_truth_at_every_pose(sim: SimulatorThre
 
 
 async def test_indicator_noise_is_seeded_and_within_sigma() -> None:
-    s = _start(indicator={"baud": 115200, "noise_mm": 0.05, "update_hz": 200.0})
+    s = start_emulated_cell(indicator={"baud": 115200, "noise_mm": 0.05, "update_hz": 200.0})
     ind = ModbusIndicator(IndicatorConfig(port=str(s.ready["indicator_port"]), baud=115200))
     try:
         true = s.control("state")["true_length_mm"]  # at pose 0 for the first dwell
@@ -89,18 +71,18 @@ async def test_indicator_noise_is_seeded_and_within_sigma() -> None:
 async def test_indicator_rtu_over_tcp_and_modbus_tcp(sim: SimulatorThread) -> None:
     sim.control("hold", on=True)
     true = sim.control("state")["true_length_mm"]
-    host, tcp_port = _port(sim.ready["indicator_tcp"])
+    host, tcp_port = host_port(sim.ready["indicator_tcp"])
     ind = ModbusIndicator(IndicatorConfig(port=f"socket://{host}:{tcp_port}", timeout_s=1.0))
     try:
         assert abs((await ind.read()).length_mm - true) <= HALF_COUNT_MM + 1e-9
     finally:
         await ind.close()
-    s2 = _start(indicator={"noise_mm": 0.0, "tcp": "mbap", "pty": False})
+    s2 = start_emulated_cell(indicator={"noise_mm": 0.0, "tcp": "mbap", "pty": False})
     try:
         assert s2.ready["indicator_port"] is None
         s2.control("hold", on=True)
         true2 = s2.control("state")["true_length_mm"]
-        host, tcp_port = _port(s2.ready["indicator_tcp"])
+        host, tcp_port = host_port(s2.ready["indicator_tcp"])
         ind2 = ModbusIndicator(IndicatorConfig(kind="modbus-tcp", host=host, tcp_port=tcp_port))
         try:
             assert abs((await ind2.read()).length_mm - true2) <= HALF_COUNT_MM + 1e-9
@@ -125,7 +107,7 @@ async def test_zero_command_changes_the_cells_offset(sim: SimulatorThread) -> No
 
 
 async def test_moving_bit_follows_the_robot() -> None:
-    s = _start(
+    s = start_emulated_cell(
         indicator={"baud": 115200, "noise_mm": 0.0},
         robot={"move_time_s": 0.4, "dwell_s": 0.3},
     )
@@ -149,7 +131,7 @@ async def test_moving_bit_follows_the_robot() -> None:
 
 
 async def test_over_range_flag_from_the_cell() -> None:
-    s = _start(indicator={"baud": 115200, "range_mm": [0.0, 100.0]})
+    s = start_emulated_cell(indicator={"baud": 115200, "range_mm": [0.0, 100.0]})
     ind = ModbusIndicator(
         IndicatorConfig(port=str(s.ready["indicator_port"]), baud=115200, over_range_policy="flag")
     )
@@ -164,7 +146,7 @@ async def test_over_range_flag_from_the_cell() -> None:
 async def test_huashu_driver_reads_emulated_controller(sim: SimulatorThread) -> None:
     sim.control("hold", on=True)
     state = sim.control("state")
-    host, port = _port(sim.ready["robot_socketcmd"])
+    host, port = host_port(sim.ready["robot_socketcmd"])
     robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=port))
     try:
         reading = await robot.read_joints()
@@ -186,7 +168,7 @@ async def test_huashu_driver_reads_emulated_controller(sim: SimulatorThread) -> 
 async def test_ur_modbus_driver_reads_emulated_controller(sim: SimulatorThread) -> None:
     sim.control("hold", on=True)
     state = sim.control("state")
-    host, port = _port(sim.ready["robot_modbus"])
+    host, port = host_port(sim.ready["robot_modbus"])
     robot = ModbusTcpRobot(ModbusRobotConfig(host=host, port=port))
     try:
         reading = await robot.read_joints()
@@ -198,8 +180,10 @@ async def test_ur_modbus_driver_reads_emulated_controller(sim: SimulatorThread) 
 
 
 async def test_frozen_controller_is_caught_by_the_stale_guard() -> None:
-    s = _start(robot={"move_time_s": 0.3, "dwell_s": 0.0}, faults={"robot_frozen": True})
-    host, port = _port(s.ready["robot_socketcmd"])
+    s = start_emulated_cell(
+        robot={"move_time_s": 0.3, "dwell_s": 0.0}, faults={"robot_frozen": True}
+    )
+    host, port = host_port(s.ready["robot_socketcmd"])
     robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=port, max_unchanged_s=0.2))
     try:
         first = await robot.read_joints()
@@ -218,7 +202,9 @@ async def test_frozen_controller_is_caught_by_the_stale_guard() -> None:
 
 
 async def test_ascii_stream_indicator() -> None:
-    s = _start(indicator={"mode": "ascii", "noise_mm": 0.0, "baud": 115200, "ascii_rate_hz": 50})
+    s = start_emulated_cell(
+        indicator={"mode": "ascii", "noise_mm": 0.0, "baud": 115200, "ascii_rate_hz": 50}
+    )
     s.control("hold", on=True)
     true = s.control("state")["true_length_mm"]
     ind = AsciiIndicator(AsciiIndicatorConfig(port=str(s.ready["indicator_port"]), baud=115200))

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import pytest
+from helpers import host_port, start_emulated_cell
 
 from drivers import (
     DeviceError,
@@ -27,31 +28,17 @@ from drivers import (
     RobotTimeout,
 )
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
-pytestmark = pytest.mark.anyio
+pytestmark = [
+    pytest.mark.anyio,
+    pytest.mark.emulated_cell(hold=True, indicator={"baud": 115200, "noise_mm": 0.0}),
+]
 HALF_COUNT_MM = 0.005
-
-
-@pytest.fixture
-def sim() -> Iterator[SimulatorThread]:
-    s = SimulatorThread(sim_config(indicator={"baud": 115200, "noise_mm": 0.0})).start()
-    s.control("hold", on=True)
-    try:
-        yield s
-    finally:
-        s.stop()
 
 
 def _indicator(sim: SimulatorThread, **kw: Any) -> ModbusIndicator:
     cfg: dict[str, Any] = {"port": sim.ready["indicator_port"], "baud": 115200, **kw}
     return ModbusIndicator(IndicatorConfig.model_validate(cfg))
-
-
-def _hp(endpoint: str | None) -> tuple[str, int]:
-    assert endpoint is not None
-    host, port = endpoint.rsplit(":", 1)
-    return host, int(port)
 
 
 async def _outcomes(n: int, read: Callable[[], Awaitable[Any]]) -> tuple[list[Any], list[str]]:
@@ -163,7 +150,7 @@ async def test_indicator_pty_unplug_and_replug(sim: SimulatorThread) -> None:
 
 
 async def test_huashu_link_down_and_back(sim: SimulatorThread) -> None:
-    host, port = _hp(sim.ready["robot_socketcmd"])
+    host, port = host_port(sim.ready["robot_socketcmd"])
     robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=port, timeout_s=0.2))
     try:
         took, errors = await _recovery_time(sim, "robot_socketcmd", robot.read_joints)
@@ -173,7 +160,7 @@ async def test_huashu_link_down_and_back(sim: SimulatorThread) -> None:
 
 
 async def test_modbus_robot_link_down_and_back(sim: SimulatorThread) -> None:
-    host, port = _hp(sim.ready["robot_modbus"])
+    host, port = host_port(sim.ready["robot_modbus"])
     robot = ModbusTcpRobot(ModbusRobotConfig(host=host, port=port, timeout_s=0.2))
     try:
         took, errors = await _recovery_time(sim, "robot_modbus", robot.read_joints)
@@ -183,8 +170,8 @@ async def test_modbus_robot_link_down_and_back(sim: SimulatorThread) -> None:
 
 
 async def test_huashu_late_replies_are_discarded() -> None:
-    s = SimulatorThread(sim_config(robot={"move_time_s": 0.5, "dwell_s": 0.0})).start()
-    host, port = _hp(s.ready["robot_socketcmd"])
+    s = start_emulated_cell(robot={"move_time_s": 0.5, "dwell_s": 0.0})
+    host, port = host_port(s.ready["robot_socketcmd"])
     robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=port, timeout_s=0.1))
     try:
         s.control("fault", robot_reply_delay_s=0.15)
@@ -202,7 +189,7 @@ async def test_huashu_late_replies_are_discarded() -> None:
 
 
 async def test_robot_dropped_replies_time_out_then_recover(sim: SimulatorThread) -> None:
-    host, port = _hp(sim.ready["robot_modbus"])
+    host, port = host_port(sim.ready["robot_modbus"])
     robot = ModbusTcpRobot(ModbusRobotConfig(host=host, port=port, timeout_s=0.05))
     truth = sim.control("state")["joints_deg"]
     try:
@@ -263,8 +250,7 @@ async def _poll_through_link_drop(
 
 
 def _sim_and_indicator(baud: int, crc_rate: float) -> tuple[SimulatorThread, ModbusIndicator]:
-    s = SimulatorThread(sim_config(indicator={"baud": baud, "noise_mm": 0.0})).start()
-    s.control("hold", on=True)
+    s = start_emulated_cell(hold=True, indicator={"baud": baud, "noise_mm": 0.0})
     if crc_rate:
         s.control("fault", indicator_crc_error_rate=crc_rate)
     # The daemon's configuration: the driver's defaults (timeout_s 0.5, retries 1).

@@ -7,6 +7,7 @@ import math
 import time
 
 import pytest
+from expected_protocol import ProtocolMismatch, expected_protocol_pty, expected_protocol_tcp
 from pymodbus.framer import FramerRTU
 
 from drivers import (
@@ -38,7 +39,6 @@ from drivers.frames import (
 )
 from drivers.huashu import decode_reply, encode_request, parse_float_list
 from drivers.modbus_robot import UR_PRESET, decode_joints_deg
-from drivers.testing import ProtocolMismatch, expected_protocol_pty, expected_protocol_tcp
 from simulator.wire import ascii_frame
 
 H = bytes.fromhex

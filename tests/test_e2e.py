@@ -18,39 +18,23 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from calib.predict import predict_lengths_from_result
-from daemon.testing import Cell, wait_for
+from daemon.cli.emulated import (
+    FAST_CELL_NOISE_MM,
+    FAST_DAEMON_ENV,
+    Cell,
+    fast_cell_toml,
+    wait_for,
+)
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
 
-NOISE_MM = 0.02
+NOISE_MM = FAST_CELL_NOISE_MM
+DAEMON_ENV = FAST_DAEMON_ENV
 
 
 def sim_toml(n_poses: int, seed: int = 3, move_s: float = 0.35, dwell_s: float = 0.9) -> str:
     """A fast emulated cell: 115200 baud, short moves and dwells, free TCP ports."""
-    return f"""
-seed = {seed}
-[robot]
-n_poses = {n_poses}
-move_time_s = {move_s}
-dwell_s = {dwell_s}
-loop = false
-[indicator]
-noise_mm = {NOISE_MM}
-decimals = 2
-baud = 115200
-[robot_socketcmd]
-port = 0
-[robot_modbus]
-port = 0
-"""
-
-
-DAEMON_ENV = {
-    "CABLECAL_INDICATOR__BAUD": "115200",
-    "CABLECAL_SAMPLER__SETTLE_S": "0.3",
-    "CABLECAL_SAMPLER__SETTLE_TOL_MM": "0.08",
-    "CABLECAL_JOBS__NOISE_MM": str(NOISE_MM),
-}
+    return fast_cell_toml(n_poses, seed, move_s, dwell_s)
 
 
 def _samples(api: httpx.Client, cid: int) -> list[dict[str, Any]]:

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import sim_config
 from sampler_fakes import (
     FakeIndicator,
     FakeRobot,
@@ -22,7 +23,6 @@ from daemon.capture import Capture
 from daemon.sampler import SamplerConfig, build_sampler
 from drivers import IndicatorLinkDown
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 

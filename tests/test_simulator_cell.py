@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import sim_config
 
 from calib.models import builtin_model
 from calib.synthetic import make_true_cell
@@ -21,7 +22,6 @@ from drivers.frames import add_crc, rtu_read_request
 from simulator.cell import EmulatedCell
 from simulator.runner import READY_KEYS, ControlClient, SimulatorThread
 from simulator.servers import ur_joint_registers
-from simulator.testing import sim_config
 from simulator.wire import IndicatorBank, decode_mbap, decode_rtu_request
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,8 +24,8 @@ from typer.testing import CliRunner
 
 from calib.dataset import SampleError, make_samples, parse_samples_csv
 from calib.models import builtin_model
-from daemon import cli_db
 from daemon.capture import Capture, RawReading
+from daemon.cli import db as cli_db
 from daemon.store import (
     INTERRUPTED_ERROR,
     SCHEMA_VERSION,

@@ -1,9 +1,9 @@
 """``make run`` and ``make demo``: the daemon against an emulated cell, on this machine.
 
-``python -m daemon.demo serve``
+``python -m daemon.cli.demo serve``
     Starts the emulated cell (``examples/sim.toml``) and ``cablecal serve`` on it, with the
     embedded SQLite store under ``.state/``; prints the URL and the token; runs until Ctrl-C.
-``python -m daemon.demo campaign [--poses 100]``
+``python -m daemon.cli.demo campaign [--poses 100]``
     A whole campaign through the REST API, self-contained: starts a fast emulated cell and the
     daemon in a temporary directory, creates a campaign, auto-captures the poses, runs
     ``ukf-vslm``, and prints the before/after figures and the error against the cell's truth.
@@ -25,35 +25,19 @@ from rich.console import Console
 from rich.table import Table
 
 from calib.predict import predict_lengths_from_result
-from daemon.testing import Cell, DaemonProcess, EmulatedCellProcess, wait_for
+from daemon.cli.emulated import (
+    FAST_DAEMON_ENV,
+    Cell,
+    DaemonProcess,
+    EmulatedCellProcess,
+    fast_cell_toml,
+    wait_for,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 console = Console()
 
-ROOT = Path(__file__).resolve().parent.parent
-
-FAST_CELL = """
-seed = {seed}
-[robot]
-n_poses = {n_poses}
-move_time_s = 0.4
-dwell_s = 1.0
-loop = false
-[indicator]
-noise_mm = 0.02
-baud = 115200
-[robot_socketcmd]
-port = 0
-[robot_modbus]
-port = 0
-"""
-
-FAST_DAEMON_ENV = {
-    "CABLECAL_INDICATOR__BAUD": "115200",
-    "CABLECAL_SAMPLER__SETTLE_S": "0.3",
-    "CABLECAL_SAMPLER__SETTLE_TOL_MM": "0.08",
-    "CABLECAL_JOBS__NOISE_MM": "0.02",
-}
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @app.command("serve")
@@ -107,7 +91,7 @@ def campaign_cmd(
 ) -> None:
     """A whole campaign over REST against a fresh emulated cell (``make demo``)."""
     with tempfile.TemporaryDirectory(prefix="cablecal-demo-") as tmp:
-        toml = FAST_CELL.format(seed=seed, n_poses=poses + 30)
+        toml = fast_cell_toml(poses + 30, seed)
         with Cell(Path(tmp), toml, daemon_env=FAST_DAEMON_ENV) as cell:
             assert cell.daemon is not None and cell.sim is not None
             api = cell.daemon.client()
@@ -182,7 +166,7 @@ def _print_result(result: dict[str, object]) -> None:
 
 
 def main() -> None:
-    """Entry point of ``python -m daemon.demo``."""
+    """Entry point of ``python -m daemon.cli.demo``."""
     app()
 
 

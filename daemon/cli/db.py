@@ -6,6 +6,8 @@ robot and every sample with std, count, timestamps and the excluded flag.
 
 The file is opened read-only, so exporting next to a running daemon is safe (WAL readers do
 not block the writer).
+
+The store (sqlite-utils) is imported when the command runs, not when the command line is built.
 """
 
 from __future__ import annotations
@@ -18,8 +20,6 @@ from typing import Annotated
 import typer
 from rich.console import Console
 from rich.markup import escape
-
-from daemon.store import Store, StoreError, StoreInvalid, StoreNotFound
 
 err_console = Console(stderr=True)
 
@@ -77,6 +77,8 @@ def export_cmd(
     raw: Annotated[bool, typer.Option(help="JSON: include each capture's raw readings")] = False,
 ) -> None:
     """Export a campaign's samples as CSV or JSON."""
+    from daemon.store import Store, StoreError, StoreInvalid, StoreNotFound
+
     try:
         path = _database_path(db, config)
     except ValueError as exc:  # ConfigError and pydantic's ValidationError

@@ -1,4 +1,8 @@
-"""``cablecal identify`` and ``cablecal compare``."""
+"""``cablecal identify`` and ``cablecal compare``.
+
+numpy, scipy and ``calib`` are imported inside the commands, so ``cablecal --help`` and the
+other commands do not pay for them.
+"""
 
 from __future__ import annotations
 
@@ -6,18 +10,26 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from calib.dataset import SampleError
-from calib.models import ModelError, RobotModel
-from calib.options import METHODS, IdentifyOptions, default, options_from_mapping, spec
-from calib.protocol import PAPER_N_TEST, PAPER_N_TRAIN, check_protocol
-from daemon.datafiles import load_robot, read_samples
+# calib.options is standard library only: importing it costs nothing at ``--help`` time.
+from calib.options import (
+    METHODS,
+    PAPER_N_TEST,
+    PAPER_N_TRAIN,
+    IdentifyOptions,
+    default,
+    options_from_mapping,
+    spec,
+)
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
+
+    from calib.models import RobotModel
 
 if TYPE_CHECKING:
     from calib.identify import IdentifyResult
@@ -46,6 +58,8 @@ def _opt(name: str, suffix: str = "") -> Any:
 
 
 def _progress() -> Progress:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
     return Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -69,6 +83,8 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
 
 
 def _summary(result: IdentifyResult) -> None:
+    import numpy as np
+
     data = result.to_json()
     table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
     table.add_column("figure [mm]")
@@ -139,6 +155,10 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
     ) -> None:
         """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
+        from calib.dataset import SampleError
+        from calib.models import ModelError
+        from daemon.datafiles import load_robot, read_samples
+
         try:
             model = load_robot(robot)
             samples = read_samples(data)
@@ -172,6 +192,11 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path | None, typer.Option(help="Write the table as JSON here")] = None,
     ) -> None:
         """Compare all methods on the paper's protocol (Table VIII/IX style)."""
+        from calib.dataset import SampleError
+        from calib.models import ModelError
+        from calib.protocol import check_protocol
+        from daemon.datafiles import load_robot, read_samples
+
         try:
             model = load_robot(robot)
             samples = read_samples(data)
@@ -208,6 +233,8 @@ def compare(
 ) -> list[dict[str, Any]]:
     """Mean test figures per method over ``seeds`` draws of the paper's protocol
     (:mod:`calib.protocol`), from seed ``seed`` on."""
+    import numpy as np
+
     from calib.protocol import run_protocol
 
     acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}

@@ -1,10 +1,11 @@
-"""Helpers for tests and benchmarks that run the emulated cell."""
+"""Helpers shared by the tests (not installed): emulated-cell configurations."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from simulator.config import SimConfig
+from simulator.runner import SimulatorThread
 
 
 def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
@@ -26,3 +27,23 @@ def sim_config(**sections: Any) -> SimConfig:
         "control": {"port": 0},
     }
     return SimConfig.model_validate(_merge(base, sections))
+
+
+def start_emulated_cell(hold: bool = False, **sections: Any) -> SimulatorThread:
+    """Start the emulated cell of :func:`sim_config` ``(**sections)`` in a thread; ``hold``
+    keeps the robot still. The caller stops it."""
+    sim = SimulatorThread(sim_config(**sections)).start()
+    if hold:
+        try:
+            sim.control("hold", on=True)
+        except BaseException:
+            sim.stop()
+            raise
+    return sim
+
+
+def host_port(endpoint: str | None) -> tuple[str, int]:
+    """``"host:port"`` of a READY line as ``(host, port)``."""
+    assert endpoint is not None
+    host, port = endpoint.rsplit(":", 1)
+    return host, int(port)

@@ -1,15 +1,13 @@
-"""``cablecal simulate``: run the emulated cell until interrupted."""
+"""``cablecal simulate``: run the emulated cell until interrupted (also ``python -m simulator``).
+
+The simulator (pymodbus) is imported when the command runs, not when the command line is built.
+"""
 
 from __future__ import annotations
 
-import asyncio
-import logging
 from pathlib import Path
 
 import typer
-
-from simulator.config import load_config
-from simulator.runner import serve_forever
 
 
 def simulate(
@@ -22,6 +20,12 @@ def simulate(
 
     Prints one line ``READY {json}`` with the endpoints, then serves until SIGINT/SIGTERM.
     """
+    import asyncio
+    import logging
+
+    from simulator.config import load_config
+    from simulator.runner import serve_forever
+
     logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING)
     asyncio.run(serve_forever(load_config(config)))
 

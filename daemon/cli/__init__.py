@@ -13,15 +13,12 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    import daemon.cli_calib as cli_calib
-    import daemon.cli_db as cli_db
-    import daemon.cli_serve as cli_serve
-    from simulator import cli as simulator_cli
+    from daemon.cli import calibration, db, serve, simulate
 
-    cli_calib.register(app)
-    cli_serve.register(app)
-    cli_db.register(app)
-    simulator_cli.register(app)
+    calibration.register(app)
+    serve.register(app)
+    db.register(app)
+    simulate.register(app)
 
 
 _register_all()

@@ -4,11 +4,13 @@ Start-up order: settings → logging → token → uvicorn (its lifespan opens t
 job pool and the sampler) → once the socket listens: ``READY=1`` and the watchdog task on the
 same event loop. The line ``SERVING {json}`` on stdout gives ``url`` (and ``token`` when it was
 generated) to scripts and tests.
+
+uvicorn, FastAPI, pydantic and the daemon's modules are imported when the command runs, not
+when the command line is built.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import json
 import logging
@@ -16,13 +18,14 @@ import os
 import sys
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
-import uvicorn
-from pydantic import ValidationError
 
-from daemon.config import ConfigError, Settings, simulated_cell_overrides
+if TYPE_CHECKING:
+    import uvicorn
+
+    from daemon.config import Settings
 
 log = logging.getLogger("cablecal.serve")
 
@@ -39,6 +42,8 @@ def load_settings(
     port: int | None,
 ) -> Settings:
     """Settings from the file, the environment and the command-line overrides."""
+    from daemon.config import ConfigError, Settings, simulated_cell_overrides
+
     overrides: dict[str, Any] = {}
     if host is not None:
         overrides["host"] = host
@@ -68,21 +73,25 @@ def write_token_file(state_dir: Path, token: str) -> Path:
     return path
 
 
-class _NotifyingServer(uvicorn.Server):
+def _notifying_server(config: uvicorn.Config, notifier: Any) -> uvicorn.Server:
     """uvicorn's server, telling systemd ``STOPPING=1`` as soon as a stop signal arrives
     (uvicorn re-raises SIGTERM after its shutdown, so code after ``serve()`` may not run)."""
+    import uvicorn
 
-    def __init__(self, config: uvicorn.Config, notifier: Any) -> None:
-        super().__init__(config)
-        self.notifier = notifier
+    class NotifyingServer(uvicorn.Server):
+        def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+            notifier.stopping()
+            super().handle_exit(sig, frame)
 
-    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
-        self.notifier.stopping()
-        super().handle_exit(sig, frame)
+    return NotifyingServer(config)
 
 
 async def serve(settings: Settings, token: str, generated: bool) -> int:
     """Run until SIGTERM/SIGINT; returns the exit code."""
+    import asyncio
+
+    import uvicorn
+
     from daemon.api.main import create_app
     from daemon.notify import Notifier, watchdog_loop
 
@@ -97,7 +106,7 @@ async def serve(settings: Settings, token: str, generated: bool) -> int:
         timeout_graceful_shutdown=5,
     )
     notifier = Notifier.from_env()
-    server = _NotifyingServer(config, notifier)
+    server = _notifying_server(config, notifier)
     serve_task = asyncio.create_task(server.serve(), name="uvicorn")
     while not server.started and not serve_task.done():
         await asyncio.sleep(0.02)
@@ -149,8 +158,12 @@ def register(app: typer.Typer) -> None:
         port: int | None = typer.Option(None, help="TCP port (default 8080, 0 = any free)."),
     ) -> None:
         """Run the daemon: sampler, SQLite store, identification jobs and the REST API."""
+        import asyncio
         import faulthandler
 
+        from pydantic import ValidationError
+
+        from daemon.config import ConfigError
         from daemon.logs import setup_logging
 
         # The watchdog kills a hung daemon with SIGABRT: dump every thread's stack first.

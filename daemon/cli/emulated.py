@@ -22,6 +22,38 @@ from typing import Any
 
 import httpx
 
+FAST_CELL_NOISE_MM = 0.02  # indicator noise (1σ) of :func:`fast_cell_toml`
+
+# The daemon's settings for :func:`fast_cell_toml`'s cell: its baud rate, a short settle window.
+FAST_DAEMON_ENV = {
+    "CABLECAL_INDICATOR__BAUD": "115200",
+    "CABLECAL_SAMPLER__SETTLE_S": "0.3",
+    "CABLECAL_SAMPLER__SETTLE_TOL_MM": "0.08",
+    "CABLECAL_JOBS__NOISE_MM": str(FAST_CELL_NOISE_MM),
+}
+
+
+def fast_cell_toml(n_poses: int, seed: int, move_s: float = 0.4, dwell_s: float = 1.0) -> str:
+    """sim.toml of a fast EMULATED cell: ``n_poses`` poses visited once, ``move_s`` moves and
+    ``dwell_s`` dwells, indicator at 115200 baud with :data:`FAST_CELL_NOISE_MM` noise, robot
+    controllers on free TCP ports."""
+    return f"""
+seed = {seed}
+[robot]
+n_poses = {n_poses}
+move_time_s = {move_s}
+dwell_s = {dwell_s}
+loop = false
+[indicator]
+noise_mm = {FAST_CELL_NOISE_MM}
+decimals = 2
+baud = 115200
+[robot_socketcmd]
+port = 0
+[robot_modbus]
+port = 0
+"""
+
 
 class Process:
     """A child process whose stdout is read line by line in a thread (never blocks the pipe);

@@ -1,0 +1,88 @@
+"""The command line's shape: ``--help`` loads no heavy library, and only ``daemon/cli/`` may
+import the emulated cell."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from calib.identify import METHODS
+from daemon.cli import calibration
+
+REPO = Path(__file__).resolve().parents[1]
+
+# What the service, the identification and the drivers need, but ``--help`` does not.
+HEAVY = ("fastapi", "uvicorn", "scipy", "pymodbus", "sqlite_utils", "numpy", "calib", "simulator")
+# calib.options is standard library only: the CLI builds its identification options from it.
+ALLOWED = {"calib", "calib.options"}
+
+
+def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:
+    """Top-level names of every module ``python -X importtime ARGV`` imported."""
+    proc = subprocess.run(
+        [sys.executable, "-X", "importtime", *argv],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == exit_code, proc.stderr[-2000:]
+    names = set()
+    for line in proc.stderr.splitlines():
+        if line.startswith("import time:") and "|" in line:
+            module = line.rsplit("|", 1)[1].strip()
+            if module not in ALLOWED:
+                names.add(module.split(".")[0])
+    assert "daemon" in names, proc.stderr[-2000:]  # the parse found the import lines
+    return names
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--help"],
+        ["identify", "--help"],
+        ["compare", "--help"],
+        ["serve", "--help"],
+        ["simulate", "--help"],
+        ["db", "export", "--help"],
+    ],
+)
+def test_help_imports_no_heavy_library(argv: list[str]) -> None:
+    loaded = _imported_modules(["-m", "daemon.cli", *argv])
+    assert "typer" in loaded
+    assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
+
+
+def test_a_command_still_imports_what_it_uses() -> None:
+    """The property above is not vacuous: running a command loads its libraries."""
+    loaded = _imported_modules(["-m", "daemon.cli", "compare", "--methods", "nope"], exit_code=2)
+    assert {"numpy", "calib"} <= loaded
+
+
+def test_the_cli_method_names_are_calibs() -> None:
+    assert calibration.METHODS == METHODS
+
+
+def test_only_daemon_cli_imports_the_simulator() -> None:
+    offenders = []
+    for path in sorted((REPO / "daemon").rglob("*.py")):
+        if (REPO / "daemon" / "cli") in path.parents:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            offenders += [
+                f"{path.relative_to(REPO)}:{node.lineno}"
+                for n in names
+                if n.split(".")[0] == "simulator"
+            ]
+    assert offenders == []
