@@ -69,23 +69,10 @@ from daemon.store.schema import (
 class Store(CampaignStore, JobStore, EventStore):
     """The SQLite store. Implements :class:`daemon.capture.CaptureSink`.
 
-    Parameters
-    ----------
-    path : str or Path
-        Database file; created (with its parent directories) when missing, unless
-        ``readonly``.
-    readonly : bool
-        Open an existing file read-only (``cablecal db export`` next to a running daemon):
-        nothing is created or migrated, and the file must be at the current schema version.
+    ``Store(path)`` opens the file, creating or migrating it; ``Store(path, readonly=True)``
+    opens an existing file at the current schema version without writing (``cablecal db
+    export`` next to a running daemon). Parameters and errors: :class:`~daemon.store.db.StoreDB`.
 
-    Raises
-    ------
-    StoreError
-        The file is from a newer cablecal, is not a cablecal database, cannot be opened, or
-        (read-only) is missing or older.
-
-    Notes
-    -----
     The methods live in :class:`~daemon.store.robots.RobotStore`,
     :class:`~daemon.store.campaigns.CampaignStore`, :class:`~daemon.store.jobs.JobStore` and
     :class:`~daemon.store.events.EventStore`, all on the one connection of

@@ -21,7 +21,7 @@ from calib.dataset import (
 )
 from calib.kinematics import N_JOINTS, FloatArray
 from daemon.capture import Capture
-from daemon.store.db import Row, decode_row, finite, last_id, now
+from daemon.store.db import Row, decode_row, finite, last_id, now, or_none
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.robots import RobotStore
 from daemon.store.rows import CampaignExport, CampaignRow, ExportedSample, RawReading, SampleRow
@@ -160,10 +160,7 @@ class CampaignStore(RobotStore):
 
     def get_campaign(self, campaign_id: int) -> CampaignRow | None:
         """A campaign (see :meth:`campaign`), or None."""
-        try:
-            return self.campaign(campaign_id)
-        except StoreNotFound:
-            return None
+        return or_none(self.campaign, campaign_id)
 
     def list_campaigns(self) -> list[CampaignRow]:
         """Every campaign, by id, with sample counts (see :meth:`campaign`)."""
@@ -286,8 +283,7 @@ class CampaignStore(RobotStore):
 
     def get_sample(self, sample_id: int) -> SampleRow | None:
         """A sample row (see :meth:`sample`), or None."""
-        row = self._get("samples", sample_id)
-        return None if row is None else cast(SampleRow, decode_row(row))
+        return or_none(self.sample, sample_id)
 
     def list_samples(self, campaign_id: int, include_excluded: bool = True) -> list[SampleRow]:
         """A campaign's samples, by id.

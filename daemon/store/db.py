@@ -28,10 +28,10 @@ import math
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Final, Self
+from typing import Any, Final, Self, TypeVar
 
 from sqlite_utils import Database
 from sqlite_utils.db import Table
@@ -43,6 +43,8 @@ if not hasattr(Database, "atomic"):  # pragma: no cover - depends on the install
     # sqlite-utils 3.x commits inside every write method (``with conn:``), which would split
     # the store's transactions; 4.x nests its writes in an open transaction as savepoints.
     raise ImportError("daemon.store needs sqlite-utils >= 4 (Database.atomic)")
+
+T = TypeVar("T")
 
 #: A database row as sqlite-utils gives it (column name → value), before :func:`decode_row`.
 Row = dict[str, Any]
@@ -106,6 +108,15 @@ def to_json(value: Any, name: str) -> str:
         return json.dumps(strict(value), allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise StoreInvalid(f"{name}: not JSON-serialisable: {exc}") from exc
+
+
+def or_none(lookup: Callable[[int], T], row_id: int) -> T | None:
+    """``lookup(row_id)``, or None where it raises :class:`StoreNotFound`: the ``get_*``
+    methods are their raising twins (``robot``, ``campaign``, …) made optional."""
+    try:
+        return lookup(row_id)
+    except StoreNotFound:
+        return None
 
 
 # --------------------------------------------------------------------------- connection

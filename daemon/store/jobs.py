@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from typing import Any, Final, cast
 
-from daemon.store.db import Row, StoreDB, decode_row, finite, last_id, now, to_json
+from daemon.store.db import Row, StoreDB, decode_row, finite, last_id, now, or_none, to_json
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.rows import CalibratedModel, JobRow, ResultRow
 
@@ -120,8 +120,7 @@ class JobStore(StoreDB):
 
     def get_job(self, job_id: int) -> JobRow | None:
         """A job row (see :meth:`job`), or None."""
-        row = self._get("jobs", job_id)
-        return None if row is None else cast(JobRow, decode_row(row))
+        return or_none(self.job, job_id)
 
     def list_jobs(self, campaign_id: int | None = None) -> list[JobRow]:
         """Jobs by id, all or one campaign's."""

@@ -7,7 +7,7 @@ import sqlite3
 from typing import Literal, cast
 
 from calib.models import RobotModel, builtin_model, model_from_mapping
-from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
+from daemon.store.db import Row, StoreDB, decode_row, last_id, now, or_none, to_json
 from daemon.store.errors import StoreError, StoreInvalid
 from daemon.store.rows import RobotRow
 
@@ -71,8 +71,7 @@ class RobotStore(StoreDB):
 
     def get_robot(self, robot_id: int) -> RobotRow | None:
         """A robot row, or None."""
-        row = self._get("robots", robot_id)
-        return None if row is None else cast(RobotRow, decode_row(row))
+        return or_none(self.robot, robot_id)
 
     def list_robots(self) -> list[RobotRow]:
         """Every robot, by id."""

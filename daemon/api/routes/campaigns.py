@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 
@@ -26,7 +24,7 @@ from daemon.api.schemas import (
     SamplePatch,
 )
 from daemon.capture import CaptureRejected
-from daemon.store import CampaignRow, SampleRow
+from daemon.store import SampleRow
 
 router = APIRouter(tags=["campaigns"])
 
@@ -39,9 +37,8 @@ MAX_IMPORT_BYTES = 20 * 1024 * 1024
     status_code=status.HTTP_201_CREATED,
     summary="Create a campaign",
     dependencies=[WriteAuth],
-    response_model=CampaignOut,
 )
-def create_campaign(state: State, body: CampaignCreate) -> CampaignRow:
+def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
     """``robot_model`` is a built-in name or an uploaded model mapping; returns the campaign
     with its ``id`` and ``robot_id``."""
     if isinstance(body.robot_model, str):
@@ -61,23 +58,13 @@ def create_campaign(state: State, body: CampaignCreate) -> CampaignRow:
     return state.store.create_campaign(body.name, int(robot["id"]), body.notes)
 
 
-@router.get(
-    "/campaigns",
-    summary="List campaigns",
-    dependencies=[ReadAuth],
-    response_model=list[CampaignOut],
-)
-def list_campaigns(state: State) -> list[CampaignRow]:
+@router.get("/campaigns", summary="List campaigns", dependencies=[ReadAuth])
+def list_campaigns(state: State) -> list[CampaignOut]:
     return state.store.list_campaigns()
 
 
-@router.get(
-    "/campaigns/{campaign_id}",
-    summary="One campaign",
-    dependencies=[ReadAuth],
-    response_model=CampaignOut,
-)
-def get_campaign(state: State, campaign_id: int) -> CampaignRow:
+@router.get("/campaigns/{campaign_id}", summary="One campaign", dependencies=[ReadAuth])
+def get_campaign(state: State, campaign_id: int) -> CampaignOut:
     return state.store.campaign(campaign_id)
 
 
@@ -90,9 +77,8 @@ def get_campaign(state: State, campaign_id: int) -> CampaignRow:
         409: {"description": "Robot moving / not settled, over-range, pose already captured"},
         503: {"description": "A device is down or stale; names the device and its last error"},
     },
-    response_model=SampleOut,
 )
-async def capture(state: State, campaign_id: int, body: CaptureRequest) -> dict[str, Any]:
+async def capture(state: State, campaign_id: int, body: CaptureRequest) -> SampleOut:
     """Waits up to ``sampler.capture_timeout_s`` for the robot and the cable to settle, then
     stores the mean of the settled window and returns the stored sample. With the manual robot
     driver, ``joints_deg`` carries the joint angles [deg]."""
@@ -102,7 +88,7 @@ async def capture(state: State, campaign_id: int, body: CaptureRequest) -> dict[
     if body.joints_deg is not None:
         _check_limits(state, int(campaign["robot_id"]), body.joints_deg)
     try:
-        sample: dict[str, Any] = await state.sampler.capture(
+        sample: SampleOut = await state.sampler.capture(
             campaign_id, anchor=body.anchor, joints_deg=body.joints_deg
         )
     except CaptureRejected as exc:
@@ -132,9 +118,8 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     "/campaigns/{campaign_id}/auto-capture",
     summary="Auto capture on or off",
     dependencies=[WriteAuth],
-    response_model=CampaignOut,
 )
-def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> CampaignRow:
+def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> CampaignOut:
     """On: the sampler captures once at each new settled pose, for this campaign only (it
     switches off any other campaign). The setting survives a daemon restart."""
     state.store.campaign(campaign_id)  # 404 before the sampler is touched
@@ -183,7 +168,6 @@ def list_samples(
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
     },
-    response_model=ImportResult,
 )
 async def import_samples(state: State, campaign_id: int, request: Request) -> ImportResult:
     """The request body is the CSV text (``Content-Type: text/csv``): header q1..q6 [deg] and
@@ -209,11 +193,6 @@ async def import_samples(state: State, campaign_id: int, request: Request) -> Im
     return {"imported": len(ids), "sample_ids": ids}
 
 
-@router.patch(
-    "/samples/{sample_id}",
-    summary="Exclude or include",
-    dependencies=[WriteAuth],
-    response_model=SampleOut,
-)
-def patch_sample(state: State, sample_id: int, body: SamplePatch) -> SampleRow:
+@router.patch("/samples/{sample_id}", summary="Exclude or include", dependencies=[WriteAuth])
+def patch_sample(state: State, sample_id: int, body: SamplePatch) -> SampleOut:
     return state.store.set_excluded(sample_id, body.excluded, body.reason)

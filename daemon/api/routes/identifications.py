@@ -10,7 +10,6 @@ from fastapi import APIRouter, HTTPException, status
 from daemon.api.deps import ReadAuth, State, WriteAuth
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
-from daemon.store import JobRow
 
 router = APIRouter(tags=["identifications"])
 
@@ -32,7 +31,6 @@ def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
     status_code=status.HTTP_202_ACCEPTED,
     summary="Start an identification job",
     dependencies=[WriteAuth],
-    response_model=JobView,
 )
 async def start(state: State, campaign_id: int, body: IdentificationRequest) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
@@ -48,31 +46,20 @@ async def start(state: State, campaign_id: int, body: IdentificationRequest) -> 
     "/campaigns/{campaign_id}/identifications",
     summary="Jobs of a campaign",
     dependencies=[ReadAuth],
-    response_model=list[JobOut],
 )
-def list_for_campaign(state: State, campaign_id: int) -> list[JobRow]:
+def list_for_campaign(state: State, campaign_id: int) -> list[JobOut]:
     state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list
     return state.store.list_jobs(campaign_id)
 
 
-@router.get(
-    "/identifications/{job_id}",
-    summary="Job status and result",
-    dependencies=[ReadAuth],
-    response_model=JobView,
-)
+@router.get("/identifications/{job_id}", summary="Job status and result", dependencies=[ReadAuth])
 def get_job(state: State, job_id: int) -> JobView:
     """``status`` is one of queued, running, succeeded, failed, cancelled; ``progress`` 0–1;
     ``result`` is the ``result.json`` contract of ``cablecal identify`` once succeeded."""
     return _job_view(state, state.store.job(job_id))
 
 
-@router.delete(
-    "/identifications/{job_id}",
-    summary="Cancel a job",
-    dependencies=[WriteAuth],
-    response_model=JobView,
-)
+@router.delete("/identifications/{job_id}", summary="Cancel a job", dependencies=[WriteAuth])
 def cancel(state: State, job_id: int) -> JobView:
     """A queued job is cancelled at once; a running one stops at its next progress step."""
     return _job_view(state, state.jobs.cancel(job_id))
@@ -82,7 +69,6 @@ def cancel(state: State, job_id: int) -> JobView:
     "/identifications/{job_id}/accept",
     summary="Accept a result as the robot's calibrated model",
     dependencies=[WriteAuth],
-    response_model=JobView,
 )
 def accept(state: State, job_id: int) -> JobView:
     """For results not accepted automatically (e.g. flagged implausible) after review."""

@@ -6,22 +6,17 @@ from fastapi import APIRouter
 
 from daemon.api.deps import ReadAuth, State
 from daemon.api.schemas import CalibratedModelOut, RobotOut
-from daemon.store import CalibratedModel, RobotRow
 
 router = APIRouter(prefix="/robots", tags=["robots"], dependencies=[ReadAuth])
 
 
-@router.get("/{robot_id}", summary="One robot and its nominal model", response_model=RobotOut)
-def get_robot(state: State, robot_id: int) -> RobotRow:
+@router.get("/{robot_id}", summary="One robot and its nominal model")
+def get_robot(state: State, robot_id: int) -> RobotOut:
     return state.store.robot(robot_id)
 
 
-@router.get(
-    "/{robot_id}/calibrated-model",
-    summary="The latest accepted calibrated DH table",
-    response_model=CalibratedModelOut,
-)
-def calibrated_model(state: State, robot_id: int) -> CalibratedModel:
+@router.get("/{robot_id}/calibrated-model", summary="The latest accepted calibrated DH table")
+def calibrated_model(state: State, robot_id: int) -> CalibratedModelOut:
     """The newest accepted identification's DH table (absolute, per joint), tool point, and
     the job and campaign it came from. 404 until a result has been accepted."""
     return state.store.calibrated_model(robot_id)

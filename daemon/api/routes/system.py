@@ -12,7 +12,6 @@ from pydantic import BaseModel, Field
 from daemon import metrics
 from daemon.api.deps import ReadAuth, State, WriteAuth
 from daemon.api.schemas import EventOut, Health, ServiceStatus
-from daemon.store import EventRow
 
 router = APIRouter(tags=["system"])
 metrics_router = APIRouter(tags=["system"])
@@ -20,7 +19,7 @@ metrics_router = APIRouter(tags=["system"])
 VERSION = "0.1.0"
 
 
-@router.get("/health", summary="Liveness", response_model=Health)
+@router.get("/health", summary="Liveness")
 async def health(state: State) -> Health:
     """Always open. ``status`` is ``ok`` while the service answers."""
     return {
@@ -30,12 +29,7 @@ async def health(state: State) -> Health:
     }
 
 
-@router.get(
-    "/status",
-    summary="Devices, sampler mode and rates",
-    dependencies=[ReadAuth],
-    response_model=ServiceStatus,
-)
+@router.get("/status", summary="Devices, sampler mode and rates", dependencies=[ReadAuth])
 async def get_status(state: State) -> ServiceStatus:
     """Each device's connection state, last reading and its age, last error (with the last
     frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs."""
@@ -48,18 +42,13 @@ async def get_status(state: State) -> ServiceStatus:
     }
 
 
-@router.get(
-    "/events",
-    summary="Device and daemon events",
-    dependencies=[ReadAuth],
-    response_model=list[EventOut],
-)
+@router.get("/events", summary="Device and daemon events", dependencies=[ReadAuth])
 def list_events(
     state: State,
     kind: str | None = Query(None, description="e.g. link_down, link_up, capture_rejected"),
     since_id: int | None = Query(None, description="Only events with a larger id."),
     limit: int = Query(100, ge=1, le=1000),
-) -> list[EventRow]:
+) -> list[EventOut]:
     """Device errors, link drops and recoveries, rejected captures, daemon starts and stops,
     newest last."""
     return state.store.list_events(kind=kind, since_id=since_id, limit=limit)
