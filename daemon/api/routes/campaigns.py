@@ -24,7 +24,6 @@ from daemon.api.schemas import (
     SamplePatch,
 )
 from daemon.capture import CaptureRejected
-from daemon.store import SampleRow
 
 router = APIRouter(tags=["campaigns"])
 
@@ -148,7 +147,7 @@ def list_samples(
     state: State,
     campaign_id: int,
     format: str = Query("json", pattern="^(json|csv)$", description="json or csv"),
-) -> list[SampleRow] | Response:
+) -> list[SampleOut] | Response:
     """JSON: every sample with its std, count, timestamps and excluded flag. CSV: the included
     samples in the format ``cablecal identify`` reads."""
     if format == "csv":
