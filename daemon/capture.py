@@ -7,6 +7,7 @@ before the sampler acknowledges the capture.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -112,7 +113,7 @@ class CaptureSink(Protocol):
     must be quick (a single SQLite transaction).
     """
 
-    def store_capture(self, campaign_id: int, capture: Capture) -> dict[str, Any]:
+    def store_capture(self, campaign_id: int, capture: Capture) -> Mapping[str, Any]:
         """Commit a capture (sample row plus its raw readings); returns the sample row."""
         ...
 

@@ -479,7 +479,7 @@ class Sampler:
         self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: Mode
     ) -> dict[str, Any]:
         capture = make_capture(window, anchor, mode)
-        row = self.sink.store_capture(campaign_id, capture)  # commits before returning
+        row = dict(self.sink.store_capture(campaign_id, capture))  # commits before returning
         self._used_until = window[-1].t_poll
         metrics.CAPTURES.labels("accepted", "ok", mode).inc()
         auto = self._auto

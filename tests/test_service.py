@@ -18,6 +18,7 @@ from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
 from calib.dataset import samples_to_csv
+from calib.models import builtin_model
 from daemon.api.deps import AppState
 from daemon.api.main import create_app
 from daemon.capture import Capture, CaptureRejected
@@ -422,3 +423,45 @@ def test_openapi_documents_every_route(client: TestClient) -> None:
             assert op.get("summary"), (p, op)
     assert client.get("/docs").status_code == 200
     assert "cablecal" in client.get("/").text
+
+
+def test_not_found_is_one_404_path_naming_the_resource(client: TestClient) -> None:
+    """Every missing row comes from the store's StoreNotFound through one handler, with the
+    REST name of the resource (a job is an identification)."""
+    model = builtin_model("hsr-jr680").to_dict()
+    r = client.post("/api/v1/campaigns", json={"name": "nf", "robot_model": model}, headers=AUTH)
+    rid = r.json()["robot_id"]  # a new uploaded robot: no calibration accepted yet
+    cases = [
+        ("GET", "/api/v1/campaigns/999999", None, "campaign 999999: not found"),
+        ("GET", "/api/v1/campaigns/999999/samples", None, "campaign 999999: not found"),
+        ("PATCH", "/api/v1/samples/999999", {"excluded": True}, "sample 999999: not found"),
+        ("GET", "/api/v1/identifications/999999", None, "identification 999999: not found"),
+        ("DELETE", "/api/v1/identifications/999999", None, "identification 999999: not found"),
+        ("POST", "/api/v1/campaigns/999999/identifications", {}, "campaign 999999: not found"),
+        ("GET", "/api/v1/robots/999999", None, "robot 999999: not found"),
+        ("GET", f"/api/v1/robots/{rid}/calibrated-model", None,
+         f"robot {rid}: no accepted calibration yet"),
+    ]  # fmt: skip
+    for method, url, body, detail in cases:
+        r = client.request(method, url, json=body, headers=AUTH)
+        assert (r.status_code, r.json()) == (404, {"detail": detail}), (method, url)
+
+
+def test_store_backed_routes_declare_their_response_models(client: TestClient) -> None:
+    spec = client.get("/openapi.json").json()
+    schemas = spec["components"]["schemas"]
+
+    def model_of(path: str, method: str, status: str = "200") -> dict[str, Any]:
+        schema = spec["paths"][path][method]["responses"][status]["content"]["application/json"]
+        ref = schema["schema"].get("items", schema["schema"])["$ref"]
+        return dict(schemas[ref.rsplit("/", 1)[1]])
+
+    assert "n_included" in model_of("/api/v1/campaigns", "get")["required"]
+    assert "n_included" in model_of("/api/v1/campaigns/{campaign_id}", "get")["required"]
+    sample = model_of("/api/v1/campaigns/{campaign_id}/samples", "get")
+    assert {"q1", "length_std_mm", "pose_group"} <= set(sample["required"])
+    assert "pose_group" in model_of("/api/v1/samples/{sample_id}", "patch")["required"]
+    job = model_of("/api/v1/identifications/{job_id}", "get")
+    assert {"status", "progress", "result", "accepted"} <= set(job["required"])
+    assert "tool_mm" in model_of("/api/v1/robots/{robot_id}/calibrated-model", "get")["required"]
+    assert "detail" in model_of("/api/v1/events", "get")["required"]

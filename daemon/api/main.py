@@ -67,6 +67,16 @@ class LatencyMiddleware:
             )
 
 
+#: REST names of the store's row kinds where they differ (a job is an "identification").
+API_KINDS = {"job": "identification"}
+
+
+def not_found_detail(exc: StoreNotFound) -> str:
+    """The 404 ``detail``: ``"campaign 3: not found"``, ``"identification 9: not found"``,
+    ``"robot 1: no accepted calibration yet"``."""
+    return f"{API_KINDS.get(exc.kind, exc.kind)} {exc.id}: {exc.reason}"
+
+
 def build_state(settings: Settings, token: str) -> AppState:
     """Open the store (creating or migrating it) and create the job manager."""
     settings.state_dir.mkdir(parents=True, exist_ok=True)
@@ -123,7 +133,9 @@ def create_app(
 
     @app.exception_handler(StoreNotFound)
     async def _not_found(request: Request, exc: StoreNotFound) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=404)
+        """The one not-found path: whatever the store (or the job manager) cannot find is a
+        404 ``{"detail": "<kind> <id>: not found"}``; the routes do not check first."""
+        return JSONResponse({"detail": not_found_detail(exc)}, status_code=404)
 
     @app.get("/", include_in_schema=False, response_class=HTMLResponse)
     async def operator_page() -> str:

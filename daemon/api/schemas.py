@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+from typing_extensions import TypedDict
 
 from calib.options import Holdout, Method, Robust, default, spec
+from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
 
 class _Body(BaseModel):
@@ -86,3 +88,49 @@ class IdentificationRequest(_Body):
         if self.noise_mm is not None:
             out["noise_mm"] = self.noise_mm
         return out
+
+
+# ===================================================================== response models
+# What the routes return: the REST contract. A resource is the store's typed row as it is
+# (daemon.store.rows: one definition for the store, the routes and /docs); pydantic validates
+# it on the way out. Keys may be added, never removed or renamed.
+
+CampaignOut = CampaignRow
+SampleOut = SampleRow
+RobotOut = RobotRow
+CalibratedModelOut = CalibratedModel
+EventOut = EventRow
+JobOut = JobRow
+
+
+class JobView(JobRow):
+    """A job with its result: ``result`` is the ``result.json`` contract of ``cablecal
+    identify`` once succeeded (else null); ``accepted`` whether it is the robot's calibrated
+    model."""
+
+    result: dict[str, Any] | None
+    accepted: bool
+
+
+class ImportResult(TypedDict):
+    """A CSV import: how many samples, and their ids in file order."""
+
+    imported: int
+    sample_ids: list[int]
+
+
+class Health(TypedDict):
+    """Liveness."""
+
+    status: Literal["ok"]
+    version: str
+    uptime_s: float
+
+
+class ServiceStatus(TypedDict):
+    """Devices, sampler and jobs (see ``GET /status``)."""
+
+    devices: dict[str, Any]
+    sampler: dict[str, Any] | None
+    jobs: dict[str, Any]
+    uptime_s: float

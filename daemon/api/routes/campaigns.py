@@ -2,15 +2,27 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 
-from calib.dataset import JOINT_COLUMNS, SampleError, make_samples, validate_joint_limits
+from calib.dataset import (
+    JOINT_COLUMNS,
+    SampleError,
+    make_samples,
+    parse_samples_csv,
+    validate_joint_limits,
+)
 from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import ReadAuth, State, WriteAuth
-from daemon.api.schemas import AutoCapture, CampaignCreate, CaptureRequest, SamplePatch
+from daemon.api.schemas import (
+    AutoCapture,
+    CampaignCreate,
+    CampaignOut,
+    CaptureRequest,
+    ImportResult,
+    SampleOut,
+    SamplePatch,
+)
 from daemon.capture import CaptureRejected
 
 router = APIRouter(tags=["campaigns"])
@@ -19,20 +31,13 @@ router = APIRouter(tags=["campaigns"])
 MAX_IMPORT_BYTES = 20 * 1024 * 1024
 
 
-def _campaign(state: State, campaign_id: int) -> dict[str, Any]:
-    campaign = state.store.get_campaign(campaign_id)
-    if campaign is None:
-        raise HTTPException(404, f"campaign {campaign_id}: not found")
-    return dict(campaign)
-
-
 @router.post(
     "/campaigns",
     status_code=status.HTTP_201_CREATED,
     summary="Create a campaign",
     dependencies=[WriteAuth],
 )
-def create_campaign(state: State, body: CampaignCreate) -> dict[str, Any]:
+def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
     """``robot_model`` is a built-in name or an uploaded model mapping; returns the campaign
     with its ``id`` and ``robot_id``."""
     if isinstance(body.robot_model, str):
@@ -49,17 +54,17 @@ def create_campaign(state: State, body: CampaignCreate) -> dict[str, Any]:
         except ModelError as exc:
             raise HTTPException(422, f"robot_model.{exc}") from exc
         robot = state.store.add_robot(model, source="uploaded")
-    return dict(state.store.create_campaign(body.name, int(robot["id"]), body.notes))
+    return state.store.create_campaign(body.name, int(robot["id"]), body.notes)
 
 
 @router.get("/campaigns", summary="List campaigns", dependencies=[ReadAuth])
-def list_campaigns(state: State) -> list[dict[str, Any]]:
-    return [dict(c) for c in state.store.list_campaigns()]
+def list_campaigns(state: State) -> list[CampaignOut]:
+    return state.store.list_campaigns()
 
 
 @router.get("/campaigns/{campaign_id}", summary="One campaign", dependencies=[ReadAuth])
-def get_campaign(state: State, campaign_id: int) -> dict[str, Any]:
-    return _campaign(state, campaign_id)
+def get_campaign(state: State, campaign_id: int) -> CampaignOut:
+    return state.store.campaign(campaign_id)
 
 
 @router.post(
@@ -72,17 +77,17 @@ def get_campaign(state: State, campaign_id: int) -> dict[str, Any]:
         503: {"description": "A device is down or stale; names the device and its last error"},
     },
 )
-async def capture(state: State, campaign_id: int, body: CaptureRequest) -> dict[str, Any]:
+async def capture(state: State, campaign_id: int, body: CaptureRequest) -> SampleOut:
     """Waits up to ``sampler.capture_timeout_s`` for the robot and the cable to settle, then
     stores the mean of the settled window and returns the stored sample. With the manual robot
     driver, ``joints_deg`` carries the joint angles [deg]."""
-    campaign = _campaign(state, campaign_id)
+    campaign = state.store.campaign(campaign_id)
     if state.sampler is None:
         raise HTTPException(503, "sampler: not running")
     if body.joints_deg is not None:
         _check_limits(state, int(campaign["robot_id"]), body.joints_deg)
     try:
-        sample: dict[str, Any] = await state.sampler.capture(
+        sample: SampleOut = await state.sampler.capture(
             campaign_id, anchor=body.anchor, joints_deg=body.joints_deg
         )
     except CaptureRejected as exc:
@@ -113,10 +118,10 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     summary="Auto capture on or off",
     dependencies=[WriteAuth],
 )
-def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> dict[str, Any]:
+def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> CampaignOut:
     """On: the sampler captures once at each new settled pose, for this campaign only (it
     switches off any other campaign). The setting survives a daemon restart."""
-    _campaign(state, campaign_id)
+    state.store.campaign(campaign_id)  # 404 before the sampler is touched
     if body.enabled:
         if state.sampler is None:
             raise HTTPException(503, "sampler: not running")
@@ -128,7 +133,7 @@ def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> dict[str,
         )
     elif state.sampler is not None and state.sampler.auto_campaign_id == campaign_id:
         state.sampler.set_auto(None)
-    return dict(state.store.set_auto_capture(campaign_id, body.enabled, body.anchor))
+    return state.store.set_auto_capture(campaign_id, body.enabled, body.anchor)
 
 
 @router.get(
@@ -136,22 +141,22 @@ def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> dict[str,
     summary="Samples as JSON, or CSV with ?format=csv",
     dependencies=[ReadAuth],
     responses={200: {"content": {"text/csv": {}}}},
+    response_model=list[SampleOut],
 )
 def list_samples(
     state: State,
     campaign_id: int,
     format: str = Query("json", pattern="^(json|csv)$", description="json or csv"),
-) -> Any:
+) -> list[SampleOut] | Response:
     """JSON: every sample with its std, count, timestamps and excluded flag. CSV: the included
     samples in the format ``cablecal identify`` reads."""
-    _campaign(state, campaign_id)
     if format == "csv":
         return Response(
             state.store.export_csv(campaign_id),
             media_type="text/csv",
             headers={"Content-Disposition": f'attachment; filename="campaign-{campaign_id}.csv"'},
         )
-    return [dict(s) for s in state.store.list_samples(campaign_id)]
+    return state.store.list_samples(campaign_id)
 
 
 @router.post(
@@ -163,11 +168,11 @@ def list_samples(
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
     },
 )
-async def import_samples(state: State, campaign_id: int, request: Request) -> dict[str, Any]:
+async def import_samples(state: State, campaign_id: int, request: Request) -> ImportResult:
     """The request body is the CSV text (``Content-Type: text/csv``): header q1..q6 [deg] and
     L [mm], optional ``anchor``. All or nothing: an error gives 400 naming the row (file line,
     header = 1) and column, and nothing of the import is stored."""
-    _campaign(state, campaign_id)
+    state.store.campaign(campaign_id)  # 404 before the body is read
     raw = await request.body()
     if len(raw) > MAX_IMPORT_BYTES:
         raise HTTPException(413, f"body: larger than {MAX_IMPORT_BYTES} bytes")
@@ -178,7 +183,8 @@ async def import_samples(state: State, campaign_id: int, request: Request) -> di
             400, {"row": None, "column": None, "message": f"not UTF-8: {exc}"}
         ) from exc
     try:
-        ids = state.store.import_csv(campaign_id, text)
+        samples = parse_samples_csv(text)  # header, numbers, NaN, sensor range: row and column
+        ids = state.store.import_samples(campaign_id, samples)  # and the robot's joint limits
     except SampleError as exc:
         raise HTTPException(
             400, {"row": exc.row, "column": exc.column, "message": str(exc)}
@@ -187,5 +193,5 @@ async def import_samples(state: State, campaign_id: int, request: Request) -> di
 
 
 @router.patch("/samples/{sample_id}", summary="Exclude or include", dependencies=[WriteAuth])
-def patch_sample(state: State, sample_id: int, body: SamplePatch) -> dict[str, Any]:
-    return dict(state.store.set_excluded(sample_id, body.excluded, body.reason))
+def patch_sample(state: State, sample_id: int, body: SamplePatch) -> SampleOut:
+    return state.store.set_excluded(sample_id, body.excluded, body.reason)

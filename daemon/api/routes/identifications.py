@@ -2,23 +2,28 @@
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, cast
 
 from fastapi import APIRouter, HTTPException, status
 
 from daemon.api.deps import ReadAuth, State, WriteAuth
-from daemon.api.schemas import IdentificationRequest
+from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
 
 router = APIRouter(tags=["identifications"])
 
 
-def _job_view(state: State, job: dict[str, Any]) -> dict[str, Any]:
-    out = dict(job)
+def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
+    """The job row (the store's, or :class:`~daemon.jobs.JobManager`'s copy of it) with its
+    result."""
     result = state.store.get_result_for_job(int(job["id"]))
-    out["result"] = result["result"] if result else None
-    out["accepted"] = bool(result["accepted"]) if result else False
-    return out
+    view = {
+        **job,
+        "result": result["result"] if result else None,
+        "accepted": bool(result["accepted"]) if result else False,
+    }
+    return cast(JobView, view)
 
 
 @router.post(
@@ -27,7 +32,7 @@ def _job_view(state: State, job: dict[str, Any]) -> dict[str, Any]:
     summary="Start an identification job",
     dependencies=[WriteAuth],
 )
-async def start(state: State, campaign_id: int, body: IdentificationRequest) -> dict[str, Any]:
+async def start(state: State, campaign_id: int, body: IdentificationRequest) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
     (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``."""
     try:
@@ -42,24 +47,20 @@ async def start(state: State, campaign_id: int, body: IdentificationRequest) -> 
     summary="Jobs of a campaign",
     dependencies=[ReadAuth],
 )
-def list_for_campaign(state: State, campaign_id: int) -> list[dict[str, Any]]:
-    if state.store.get_campaign(campaign_id) is None:
-        raise HTTPException(404, f"campaign {campaign_id}: not found")
-    return [dict(j) for j in state.store.list_jobs(campaign_id)]
+def list_for_campaign(state: State, campaign_id: int) -> list[JobOut]:
+    state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list
+    return state.store.list_jobs(campaign_id)
 
 
 @router.get("/identifications/{job_id}", summary="Job status and result", dependencies=[ReadAuth])
-def get_job(state: State, job_id: int) -> dict[str, Any]:
+def get_job(state: State, job_id: int) -> JobView:
     """``status`` is one of queued, running, succeeded, failed, cancelled; ``progress`` 0–1;
     ``result`` is the ``result.json`` contract of ``cablecal identify`` once succeeded."""
-    job = state.store.get_job(job_id)
-    if job is None:
-        raise HTTPException(404, f"identification {job_id}: not found")
-    return _job_view(state, job)
+    return _job_view(state, state.store.job(job_id))
 
 
 @router.delete("/identifications/{job_id}", summary="Cancel a job", dependencies=[WriteAuth])
-def cancel(state: State, job_id: int) -> dict[str, Any]:
+def cancel(state: State, job_id: int) -> JobView:
     """A queued job is cancelled at once; a running one stops at its next progress step."""
     return _job_view(state, state.jobs.cancel(job_id))
 
@@ -69,15 +70,13 @@ def cancel(state: State, job_id: int) -> dict[str, Any]:
     summary="Accept a result as the robot's calibrated model",
     dependencies=[WriteAuth],
 )
-def accept(state: State, job_id: int) -> dict[str, Any]:
+def accept(state: State, job_id: int) -> JobView:
     """For results not accepted automatically (e.g. flagged implausible) after review."""
-    job = state.store.get_job(job_id)
-    if job is None:
-        raise HTTPException(404, f"identification {job_id}: not found")
+    job = state.store.job(job_id)
     if job["status"] != "succeeded":
         raise HTTPException(409, f"identification {job_id}: status is {job['status']}")
     result = state.store.get_result_for_job(job_id)
     if result is None:
         raise HTTPException(409, f"identification {job_id}: has no result")
     state.store.set_result_accepted(int(result["id"]), True)
-    return _job_view(state, dict(job))
+    return _job_view(state, job)

@@ -11,6 +11,7 @@ from pydantic import BaseModel, Field
 
 from daemon import metrics
 from daemon.api.deps import ReadAuth, State, WriteAuth
+from daemon.api.schemas import EventOut, Health, ServiceStatus
 
 router = APIRouter(tags=["system"])
 metrics_router = APIRouter(tags=["system"])
@@ -19,7 +20,7 @@ VERSION = "0.1.0"
 
 
 @router.get("/health", summary="Liveness")
-async def health(state: State) -> dict[str, Any]:
+async def health(state: State) -> Health:
     """Always open. ``status`` is ``ok`` while the service answers."""
     return {
         "status": "ok",
@@ -29,7 +30,7 @@ async def health(state: State) -> dict[str, Any]:
 
 
 @router.get("/status", summary="Devices, sampler mode and rates", dependencies=[ReadAuth])
-async def get_status(state: State) -> dict[str, Any]:
+async def get_status(state: State) -> ServiceStatus:
     """Each device's connection state, last reading and its age, last error (with the last
     frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs."""
     st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
@@ -47,10 +48,10 @@ def list_events(
     kind: str | None = Query(None, description="e.g. link_down, link_up, capture_rejected"),
     since_id: int | None = Query(None, description="Only events with a larger id."),
     limit: int = Query(100, ge=1, le=1000),
-) -> list[dict[str, Any]]:
+) -> list[EventOut]:
     """Device errors, link drops and recoveries, rejected captures, daemon starts and stops,
     newest last."""
-    return [dict(e) for e in state.store.list_events(kind=kind, since_id=since_id, limit=limit)]
+    return state.store.list_events(kind=kind, since_id=since_id, limit=limit)
 
 
 @metrics_router.get("/metrics", summary="Prometheus metrics", response_class=Response)

@@ -1,0 +1,91 @@
+"""The event log: device errors, link drops and recoveries, refused captures, daemon starts.
+
+``events.campaign_id`` is not a foreign key (see :mod:`daemon.store.schema`): recording an
+event never fails because of what it names, nor because of its payload.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, cast
+
+from daemon.store.db import StoreDB, decode_row, now, strict
+from daemon.store.errors import StoreInvalid
+from daemon.store.rows import EventRow
+
+
+class EventStore(StoreDB):
+    """The event log (part of :class:`daemon.store.Store`)."""
+
+    def record_event(
+        self,
+        kind: str,
+        device: str | None,
+        message: str,
+        detail: dict[str, Any] | None = None,
+        *,
+        campaign_id: int | None = None,
+    ) -> None:
+        """Append an event (``device_error``, ``link_down``, ``link_up``, …).
+
+        ``detail`` is stored as JSON; values JSON cannot represent are stored as their
+        ``str``, so recording an event never fails on its payload.
+        """
+        if not kind:
+            raise StoreInvalid("kind: must be a non-empty string")
+        detail_json = (
+            None if detail is None else json.dumps(strict(detail), default=str, allow_nan=False)
+        )
+        with self._write():
+            self._table("events").insert(
+                {"t_wall": now(), "kind": kind, "device": device, "campaign_id": campaign_id,
+                 "message": message, "detail_json": detail_json}
+            )  # fmt: skip
+
+    def record_rejection(
+        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+    ) -> None:
+        """Record a refused capture: kind ``capture_rejected``, message ``"reason: detail"``,
+        detail ``{"reason", "detail"}``."""
+        self.record_event(
+            "capture_rejected",
+            device,
+            f"{reason}: {detail}",
+            {"reason": reason, "detail": detail},
+            campaign_id=campaign_id,
+        )
+
+    def list_events(
+        self,
+        kind: str | None = None,
+        since_id: int | None = None,
+        limit: int = 100,
+        campaign_id: int | None = None,
+    ) -> list[EventRow]:
+        """Events in id order.
+
+        With ``since_id``: the first ``limit`` events after it (to follow the log). Without:
+        the newest ``limit`` events. Rows: ``id, t_wall [s epoch], kind, device, campaign_id,
+        message, detail``.
+        """
+        if not 1 <= limit <= 10_000:
+            raise StoreInvalid(f"limit: must be within 1..10000, got {limit}")
+        where: list[str] = []
+        params: list[Any] = []
+        if kind is not None:
+            where.append("kind = ?")
+            params.append(kind)
+        if campaign_id is not None:
+            where.append("campaign_id = ?")
+            params.append(campaign_id)
+        if since_id is not None:
+            where.append("id > ?")
+            params.append(since_id)
+        clause = (" WHERE " + " AND ".join(where)) if where else ""
+        order = "ASC" if since_id is not None else "DESC"
+        rows = self._query(
+            f"SELECT * FROM events{clause} ORDER BY id {order} LIMIT ?", [*params, limit]
+        )
+        if since_id is None:
+            rows.reverse()
+        return [cast(EventRow, decode_row(r)) for r in rows]

@@ -1,0 +1,172 @@
+"""What the store returns: one ``TypedDict`` per kind of row.
+
+They are plain dicts at run time (the routes return them as JSON unchanged), and the REST
+API uses them as its response models (:mod:`daemon.api.schemas`), so the keys and their
+order here are the REST contract: add keys, never remove or rename one.
+
+Units: joint angles and their standard deviations in degrees (``q1..q6``,
+``q1_std..q6_std``), lengths in millimetres, every timestamp (``t_start``, ``t_end``,
+``t_wall``, ``created_at``, ``started_at``, ``finished_at``, ``exported_at``) in seconds since
+the Unix epoch (UTC). Decoded JSON columns (``model``, ``options``, ``result``, ``detail``)
+are strict JSON: a non-finite float was stored as null.
+
+``typing_extensions.TypedDict`` rather than ``typing.TypedDict``: pydantic validates the
+latter only on Python >= 3.12.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, NotRequired
+
+from typing_extensions import TypedDict
+
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class RobotRow(TypedDict):
+    """A robot: its nominal model (:meth:`calib.models.RobotModel.to_dict`)."""
+
+    id: int
+    name: str
+    convention: Literal["dh", "mdh"]
+    model: dict[str, Any]
+    source: Literal["builtin", "uploaded"]
+    created_at: float
+
+
+class CampaignRow(TypedDict):
+    """A campaign with its robot's name and its sample counts."""
+
+    id: int
+    name: str
+    robot_id: int
+    notes: str
+    auto_capture: bool
+    auto_anchor: str
+    created_at: float
+    robot_name: str
+    n_samples: int
+    n_excluded: int
+    n_included: int
+
+
+class SampleRow(TypedDict):
+    """A sample: the mean pose [deg] and cable length [mm] of a capture, or an imported row
+    (imported rows have no std, count, timestamps or mode: None)."""
+
+    id: int
+    campaign_id: int
+    q1: float
+    q2: float
+    q3: float
+    q4: float
+    q5: float
+    q6: float
+    length_mm: float
+    anchor: str
+    q1_std: float | None
+    q2_std: float | None
+    q3_std: float | None
+    q4_std: float | None
+    q5_std: float | None
+    q6_std: float | None
+    length_std_mm: float | None
+    count: int | None
+    t_start: float | None
+    t_end: float | None
+    mode: Literal["manual", "auto"] | None
+    excluded: bool
+    excluded_reason: str | None
+    source: Literal["capture", "import"]
+    created_at: float
+    pose_group: str | None
+
+
+class RawReading(TypedDict):
+    """One reading of a capture's settled window."""
+
+    t_wall: float
+    q1: float
+    q2: float
+    q3: float
+    q4: float
+    q5: float
+    q6: float
+    length_mm: float
+
+
+class ExportedSample(SampleRow):
+    """A sample in :class:`CampaignExport`, with its raw readings when asked for."""
+
+    raw_readings: NotRequired[list[RawReading]]
+
+
+class CampaignExport(TypedDict):
+    """``cablecal db export --format json``: the campaign, its robot and every sample."""
+
+    format: str
+    format_version: int
+    schema_version: int
+    exported_at: float
+    campaign: CampaignRow
+    robot: RobotRow
+    samples: list[ExportedSample]
+
+
+class JobRow(TypedDict):
+    """An identification job; ``options`` are :class:`calib.identify.IdentifyOptions`'s."""
+
+    id: int
+    campaign_id: int
+    robot_id: int
+    method: str
+    options: dict[str, Any]
+    status: JobStatus
+    progress: float
+    message: str
+    error: str | None
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    interrupted: bool
+
+
+class ResultRow(TypedDict):
+    """A job's result: ``result`` is the ``result.json`` contract of ``cablecal identify``."""
+
+    id: int
+    job_id: int
+    campaign_id: int
+    robot_id: int
+    result: dict[str, Any]
+    accepted: bool
+    created_at: float
+
+
+class CalibratedModel(TypedDict):
+    """A robot's newest accepted calibration: DH rows ``joint, alpha_deg, a_mm, d_mm,
+    theta_deg``, the tool point [mm] and the ``after`` metrics, from its result."""
+
+    robot_id: int
+    robot: str
+    convention: str
+    dh: list[dict[str, Any]] | None
+    tool_mm: list[float | None] | None
+    method: str | None
+    job_id: int
+    campaign_id: int
+    result_id: int
+    created_at: float
+    metrics: dict[str, Any] | None
+
+
+class EventRow(TypedDict):
+    """A device or daemon event (``link_down``, ``capture_rejected``, …)."""
+
+    id: int
+    t_wall: float
+    kind: str
+    device: str | None
+    campaign_id: int | None
+    message: str
+    detail: dict[str, Any] | None

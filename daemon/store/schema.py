@@ -1,0 +1,206 @@
+"""The store's schema: the ordered migrations and the code that applies them.
+
+Table ``schema_version`` holds one row per applied migration. :data:`MIGRATIONS` is the
+ordered list; opening an older file applies the missing ones in one transaction, opening a
+file written by a newer cablecal raises :class:`~daemon.store.errors.StoreError`.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Final
+
+from calib.dataset import JOINT_COLUMNS
+from daemon.store.errors import StoreError, StoreInvalid
+
+
+@dataclass(frozen=True)
+class Migration:
+    """One schema step; ``apply`` runs inside the migration transaction."""
+
+    version: int
+    description: str
+    apply: Callable[[sqlite3.Connection], None]
+
+
+def _joint_columns(suffix: str, constraint: str) -> str:
+    return ", ".join(f"{q}{suffix} REAL {constraint}".rstrip() for q in JOINT_COLUMNS)
+
+
+def _migration_1(conn: sqlite3.Connection) -> None:
+    statements = [
+        """CREATE TABLE robots (
+            id INTEGER PRIMARY KEY,
+            name TEXT NOT NULL CHECK (name <> ''),
+            convention TEXT NOT NULL CHECK (convention IN ('dh', 'mdh')),
+            model_json TEXT NOT NULL,
+            source TEXT NOT NULL CHECK (source IN ('builtin', 'uploaded')),
+            created_at REAL NOT NULL
+        )""",
+        "CREATE UNIQUE INDEX robots_builtin_name ON robots(name) WHERE source = 'builtin'",
+        """CREATE TABLE campaigns (
+            id INTEGER PRIMARY KEY,
+            name TEXT NOT NULL CHECK (name <> ''),
+            robot_id INTEGER NOT NULL REFERENCES robots(id),
+            notes TEXT NOT NULL DEFAULT '',
+            auto_capture INTEGER NOT NULL DEFAULT 0 CHECK (auto_capture IN (0, 1)),
+            auto_anchor TEXT NOT NULL DEFAULT 'A' CHECK (auto_anchor <> ''),
+            created_at REAL NOT NULL
+        )""",
+        "CREATE INDEX campaigns_robot_id ON campaigns(robot_id)",
+        f"""CREATE TABLE samples (
+            id INTEGER PRIMARY KEY,
+            campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+            {_joint_columns("", "NOT NULL")},
+            length_mm REAL NOT NULL,
+            anchor TEXT NOT NULL CHECK (anchor <> ''),
+            {_joint_columns("_std", "")},
+            length_std_mm REAL,
+            count INTEGER CHECK (count IS NULL OR count >= 1),
+            t_start REAL,
+            t_end REAL,
+            mode TEXT CHECK (mode IS NULL OR mode IN ('manual', 'auto')),
+            excluded INTEGER NOT NULL DEFAULT 0 CHECK (excluded IN (0, 1)),
+            excluded_reason TEXT,
+            source TEXT NOT NULL CHECK (source IN ('capture', 'import')),
+            created_at REAL NOT NULL
+        )""",
+        "CREATE INDEX samples_campaign_id ON samples(campaign_id)",
+        f"""CREATE TABLE raw_readings (
+            id INTEGER PRIMARY KEY,
+            sample_id INTEGER NOT NULL REFERENCES samples(id),
+            t_wall REAL NOT NULL,
+            {_joint_columns("", "NOT NULL")},
+            length_mm REAL NOT NULL
+        )""",
+        "CREATE INDEX raw_readings_sample_id ON raw_readings(sample_id)",
+    ]
+    for sql in statements:
+        conn.execute(sql)
+
+
+def _migration_2(conn: sqlite3.Connection) -> None:
+    statements = [
+        # The CSV ``group`` column (pose group for grouped hold-out), kept through import/export.
+        "ALTER TABLE samples ADD COLUMN pose_group TEXT",
+        """CREATE TABLE jobs (
+            id INTEGER PRIMARY KEY,
+            campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+            robot_id INTEGER NOT NULL REFERENCES robots(id),
+            method TEXT NOT NULL CHECK (method <> ''),
+            options_json TEXT NOT NULL DEFAULT '{}',
+            status TEXT NOT NULL DEFAULT 'queued'
+                CHECK (status IN ('queued', 'running', 'succeeded', 'failed', 'cancelled')),
+            progress REAL NOT NULL DEFAULT 0 CHECK (progress >= 0 AND progress <= 1),
+            message TEXT NOT NULL DEFAULT '',
+            error TEXT,
+            created_at REAL NOT NULL,
+            started_at REAL,
+            finished_at REAL,
+            interrupted INTEGER NOT NULL DEFAULT 0 CHECK (interrupted IN (0, 1))
+        )""",
+        "CREATE INDEX jobs_campaign_id ON jobs(campaign_id)",
+        "CREATE INDEX jobs_robot_id ON jobs(robot_id)",
+        "CREATE INDEX jobs_status ON jobs(status)",
+        """CREATE TABLE results (
+            id INTEGER PRIMARY KEY,
+            job_id INTEGER NOT NULL UNIQUE REFERENCES jobs(id),
+            campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+            robot_id INTEGER NOT NULL REFERENCES robots(id),
+            result_json TEXT NOT NULL,
+            accepted INTEGER NOT NULL DEFAULT 1 CHECK (accepted IN (0, 1)),
+            created_at REAL NOT NULL
+        )""",
+        "CREATE INDEX results_campaign_id ON results(campaign_id)",
+        "CREATE INDEX results_robot_id ON results(robot_id)",
+        # events.campaign_id is deliberately not a REFERENCES constraint: the event log must
+        # accept a record even when it names a campaign that does not (or no longer) exist.
+        """CREATE TABLE events (
+            id INTEGER PRIMARY KEY,
+            t_wall REAL NOT NULL,
+            kind TEXT NOT NULL CHECK (kind <> ''),
+            device TEXT,
+            campaign_id INTEGER,
+            message TEXT NOT NULL DEFAULT '',
+            detail_json TEXT
+        )""",
+        "CREATE INDEX events_kind ON events(kind)",
+        "CREATE INDEX events_campaign_id ON events(campaign_id)",
+    ]
+    for sql in statements:
+        conn.execute(sql)
+
+
+#: The schema history, oldest first; ``version`` is the position (1-based).
+MIGRATIONS: Final[tuple[Migration, ...]] = (
+    Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
+    Migration(2, "jobs, results, events; samples.pose_group", _migration_2),
+)
+SCHEMA_VERSION: Final = MIGRATIONS[-1].version
+
+
+def _table_names(conn: sqlite3.Connection) -> set[str]:
+    rows = conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall()
+    return {str(r[0]) for r in rows}
+
+
+def schema_version_of(conn: sqlite3.Connection) -> int:
+    """The schema version of an open database: 0 for an empty file.
+
+    Raises
+    ------
+    StoreError
+        The file has tables but no ``schema_version`` (not a cablecal database).
+    """
+    tables = _table_names(conn)
+    if "schema_version" not in tables:
+        if tables:
+            raise StoreError(
+                f"not a cablecal database: it has tables {sorted(tables)} but no schema_version"
+            )
+        return 0
+    row = conn.execute("SELECT max(version) FROM schema_version").fetchone()
+    return int(row[0]) if row and row[0] is not None else 0
+
+
+def apply_migrations(conn: sqlite3.Connection, upto: int = SCHEMA_VERSION) -> int:
+    """Bring the database to version ``upto`` in one transaction; returns the old version.
+
+    The connection must not be inside a transaction. Exposed for tests (``upto=1`` builds
+    the oldest schema).
+
+    Raises
+    ------
+    StoreError
+        The file is newer than ``upto`` allows or is not a cablecal database.
+    """
+    if not 0 <= upto <= SCHEMA_VERSION:
+        raise StoreInvalid(f"upto: must be in 0..{SCHEMA_VERSION}, got {upto}")
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        current = schema_version_of(conn)
+        if current > SCHEMA_VERSION:
+            raise StoreError(
+                f"database schema version {current} is newer than this cablecal supports "
+                f"({SCHEMA_VERSION}); upgrade cablecal or use another database file"
+            )
+        if current < upto:
+            conn.execute(
+                "CREATE TABLE IF NOT EXISTS schema_version (version INTEGER PRIMARY KEY, "
+                "description TEXT NOT NULL, applied_at REAL NOT NULL)"
+            )
+            for step in MIGRATIONS[current:upto]:
+                step.apply(conn)
+                conn.execute(
+                    "INSERT INTO schema_version (version, description, applied_at) "
+                    "VALUES (?, ?, ?)",
+                    (step.version, step.description, time.time()),
+                )
+    except BaseException:
+        conn.rollback()
+        raise
+    conn.commit()
+    return current
