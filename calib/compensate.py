@@ -43,6 +43,11 @@ What compensation cannot remove
     carries them as one rigid offset of the whole robot (and, for a tool point away from the
     hook, of the tool). The user's base or work-object calibration (and tool calibration)
     takes it up. :attr:`CompensateResult.note` says so.
+
+    Pose mode corrects the orientation toward the calibrated model's flange orientation, which
+    cable lengths observe only through the hook point's lever; with a hook near the flange
+    axis it is weakly identified (on the virtual cell of ``bench/compensate_bench.py`` the
+    true orientation error grows from 0.13° to 1.0°). The note says so in pose mode.
 """
 
 from __future__ import annotations
@@ -73,6 +78,14 @@ NOTE = (
     "which the base / work-object (and tool) calibration on the controller takes up."
 )
 
+POSE_NOTE = (
+    " Pose mode: the flange orientation is observed from cable lengths only through the lever "
+    "of the hook point; with a hook near the flange axis the joint-5 terms trade against the "
+    "hook point and the calibrated orientation can be off by about a degree (see "
+    "bench/compensate_results.md). Prefer position mode unless the campaign's hook sat well "
+    "off the flange axis."
+)
+
 
 @dataclass(frozen=True)
 class CompensateOptions:
@@ -99,6 +112,9 @@ class CompensateOptions:
         A joint moved further than this from the seed flags ``branch_jump`` [deg].
     wrist_flip_min_deg : float
         The wrist bend must exceed this on both sides for a sign change to count as a flip.
+    joint_weights : tuple of 6 floats
+        Cost of moving each joint (weighted DLS: the correction minimises ``Σ w_j Δq_j²``).
+        Matters in position mode, where three degrees of freedom are spare.
     """
 
     mode: Mode = "position"
@@ -111,6 +127,7 @@ class CompensateOptions:
     rotation_weight_mm_per_rad: float = 1000.0
     branch_threshold_deg: float = 5.0
     wrist_flip_min_deg: float = 1.0
+    joint_weights: tuple[float, float, float, float, float, float] = (1.0,) * 6
 
     def __post_init__(self) -> None:
         if self.mode not in ("position", "pose"):
@@ -124,6 +141,12 @@ class CompensateOptions:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if len(self.joint_weights) != N_JOINTS or not all(
+            math.isfinite(w) and w > 0 for w in self.joint_weights
+        ):
+            raise ValueError(
+                f"joint_weights must be 6 positive numbers, got {self.joint_weights!r}"
+            )
         if not 0 <= self.wrist_flip_min_deg < 90:
             raise ValueError(
                 f"wrist_flip_min_deg must be in [0, 90), got {self.wrist_flip_min_deg}"
@@ -250,6 +273,7 @@ def solve_ik(
     weight = options.rotation_weight_mm_per_rad
     tol_rad = math.radians(options.tol_deg)
     max_step = math.radians(options.max_step_deg)
+    scale = 1.0 / np.sqrt(np.asarray(options.joint_weights, dtype=float))
     active = np.arange(n)
     for it in range(options.max_iterations + 1):
         rot_t = None if target_rot is None else target_rot[active]
@@ -265,9 +289,10 @@ def solve_ik(
         if target_rot is not None:
             jac = jac.copy()
             jac[:, 3:] *= weight
-        m = err.shape[1]
-        gram = jac @ np.swapaxes(jac, 1, 2) + options.damping**2 * np.eye(m)
+        jac = jac * scale  # weighted DLS: minimise Σ w_j Δq_j², i.e. solve for Δq √w
+        gram = jac @ np.swapaxes(jac, 1, 2) + options.damping**2 * np.eye(err.shape[1])
         dq = np.einsum("nmj,nm->nj", jac, np.linalg.solve(gram, err[..., None])[..., 0])
+        dq *= scale
         biggest = np.max(np.abs(dq), axis=1)
         dq *= np.minimum(1.0, max_step / np.maximum(biggest, 1e-300))[:, None]
         q[active] += dq
@@ -495,6 +520,7 @@ def compensate(
         corrected_rotation_deg=Rotation.from_matrix(corr_rot).as_euler(EULER_SEQUENCE,
                                                                        degrees=True),
         flags=flags,
+        note=NOTE + (POSE_NOTE if opts.mode == "pose" else ""),
     )  # fmt: skip
     result.summary = _summary(result)
     return result

@@ -221,6 +221,9 @@ def test_outputs_csv_and_json(nominal: RobotModel) -> None:
     doc = json.loads(json.dumps(out.to_json()))  # NaN orientation residuals become null
     assert doc["rows"][0]["residual_deg"] is None
     assert "base z axis" in doc["note"] and "joint-6" in doc["note"]
+    assert "Pose mode" not in doc["note"]
+    pose = compensate(nominal, bent, JointTargets(q), CompensateOptions(mode="pose"))
+    assert "Pose mode" in pose.note
     assert doc["summary"]["n"] == 5
 
 
@@ -250,3 +253,21 @@ def test_parse_targets_csv(nominal: RobotModel) -> None:
     cart = parse_targets_csv("x,y,z,rx,ry,rz\n1000,0,1500,180,0,0\n", seed_deg=np.zeros(6))
     assert isinstance(cart, CartesianTargets)
     assert cart.rotation_deg is not None and cart.rotation_deg[0, 0] == 180.0
+
+
+def test_joint_weights_shift_the_correction_to_cheap_joints(nominal: RobotModel) -> None:
+    q = _regular_poses(nominal, 30, 10)
+    bent = replace(nominal, dh_table=nominal.dh_table + [[0.0, 0.5, 0.3, 0.05]] * 6)
+    plain = compensate(nominal, bent, JointTargets(q))
+    heavy = compensate(
+        nominal,
+        bent,
+        JointTargets(q),
+        CompensateOptions(joint_weights=(100.0, 1.0, 1.0, 1.0, 1.0, 1.0)),
+    )
+    np.testing.assert_allclose(heavy.position_residual_mm, 0.0, atol=1e-6)
+    moved_plain = np.abs(plain.corrected_joints_deg[:, 0] - q[:, 0])
+    moved_heavy = np.abs(heavy.corrected_joints_deg[:, 0] - q[:, 0])
+    assert moved_heavy.mean() < 0.5 * moved_plain.mean()
+    with pytest.raises(ValueError, match="joint_weights"):
+        CompensateOptions(joint_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 0.0))
