@@ -37,11 +37,11 @@ from calib.compensate import (
     JointTargets,
     Targets,
     compensate,
-    tool_pose,
 )
 from calib.dataset import make_samples
 from calib.export import model_from_result
 from calib.identify import IdentifyOptions, identify
+from calib.ik import tool_pose
 from calib.kinematics import FloatArray, forward_frames
 from calib.models import RobotModel, builtin_model
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, noisy_lengths, random_poses_deg

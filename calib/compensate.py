@@ -20,7 +20,7 @@ Targets
 (equivalently intrinsic Z-Y'-X''); scipy's ``Rotation.from_euler("xyz")``, URDF's ``rpy``,
 Fanuc's W, P, R; KUKA's A, B, C are ``rz, ry, rx``. The emulated cell reports the same angles.
 
-IK
+IK (:mod:`calib.ik`)
     Damped least squares, ``Δq = Jᵀ (J Jᵀ + λ² I)⁻¹ e``, with the geometric Jacobian of the
     tool point (position mode, 3 rows) or of the tool pose (pose mode, 6 rows: the rotation
     error ``log(R_target Rᵀ)`` [rad] weighted by ``rotation_weight_mm_per_rad``); each step is
@@ -62,7 +62,8 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.kinematics import N_JOINTS, FloatArray, forward_frames
+from calib.ik import IKOptions, solve_ik, tool_pose, wrist_flipped
+from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 
 Mode = Literal["position", "pose"]
@@ -98,55 +99,29 @@ class CompensateOptions:
     tool_mm : tuple of 3 floats
         Tool point (TCP) in the flange frame [mm], the same in both models; (0, 0, 0) is the
         flange centre.
-    max_iterations : int
-        DLS iterations per stage.
-    tol_mm, tol_deg : float
-        Convergence: position residual [mm] and (pose mode) orientation residual [deg].
-    damping : float
-        DLS damping λ [mm/rad]; matters only near singularities.
-    max_step_deg : float
-        Largest joint change per iteration [deg].
-    rotation_weight_mm_per_rad : float
-        Weight of the orientation rows in pose mode [mm/rad].
+    ik : IKOptions
+        Iterations, tolerances, damping, step cap and joint weights of the DLS
+        (:mod:`calib.ik`).
     branch_threshold_deg : float
         A joint moved further than this from the seed flags ``branch_jump`` [deg].
     wrist_flip_min_deg : float
         The wrist bend must exceed this on both sides for a sign change to count as a flip.
-    joint_weights : tuple of 6 floats
-        Cost of moving each joint (weighted DLS: the correction minimises ``Σ w_j Δq_j²``).
-        Matters in position mode, where three degrees of freedom are spare.
     """
 
     mode: Mode = "position"
     tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    max_iterations: int = 100
-    tol_mm: float = 1e-6
-    tol_deg: float = 1e-6
-    damping: float = 1.0
-    max_step_deg: float = 5.0
-    rotation_weight_mm_per_rad: float = 1000.0
+    ik: IKOptions = field(default_factory=IKOptions)
     branch_threshold_deg: float = 5.0
     wrist_flip_min_deg: float = 1.0
-    joint_weights: tuple[float, float, float, float, float, float] = (1.0,) * 6
 
     def __post_init__(self) -> None:
         if self.mode not in ("position", "pose"):
             raise ValueError(f"mode must be 'position' or 'pose', got {self.mode!r}")
         if len(self.tool_mm) != 3 or not all(math.isfinite(v) for v in self.tool_mm):
             raise ValueError(f"tool_mm must be 3 finite numbers, got {self.tool_mm!r}")
-        if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
-            raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations}")
-        for name in ("tol_mm", "tol_deg", "damping", "max_step_deg",
-                     "rotation_weight_mm_per_rad", "branch_threshold_deg"):  # fmt: skip
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
-        if len(self.joint_weights) != N_JOINTS or not all(
-            math.isfinite(w) and w > 0 for w in self.joint_weights
-        ):
-            raise ValueError(
-                f"joint_weights must be 6 positive numbers, got {self.joint_weights!r}"
-            )
+        if not (math.isfinite(self.branch_threshold_deg) and self.branch_threshold_deg > 0):
+            raise ValueError(f"branch_threshold_deg must be positive, got "
+                             f"{self.branch_threshold_deg!r}")  # fmt: skip
         if not 0 <= self.wrist_flip_min_deg < 90:
             raise ValueError(
                 f"wrist_flip_min_deg must be in [0, 90), got {self.wrist_flip_min_deg}"
@@ -181,144 +156,11 @@ class CartesianTargets:
 Targets = JointTargets | CartesianTargets
 
 
-@dataclass(frozen=True)
-class IKSolution:
-    """Result of :func:`solve_ik` for n targets.
-
-    Attributes
-    ----------
-    joints_deg : ndarray, shape (n, 6)
-    iterations : ndarray of int, shape (n,)
-    position_error_mm : ndarray, shape (n,)
-    rotation_error_deg : ndarray, shape (n,)
-        NaN in position mode.
-    converged : ndarray of bool, shape (n,)
-    """
-
-    joints_deg: FloatArray
-    iterations: np.ndarray
-    position_error_mm: FloatArray
-    rotation_error_deg: FloatArray
-    converged: np.ndarray
-
-
-def tool_pose(
-    model: RobotModel, joints_deg: FloatArray, tool_mm: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Tool point ``(n, 3)`` [mm] and flange orientation ``(n, 3, 3)`` of ``model``."""
-    rot, origin = forward_frames(model.dh_internal(), np.deg2rad(joints_deg), model.convention)
-    return origin[:, N_JOINTS] + rot[:, N_JOINTS] @ tool_mm, rot[:, N_JOINTS]
-
-
-def _joint_axes(model: RobotModel, rot: FloatArray, origin: FloatArray) -> tuple[FloatArray, ...]:
-    """Axis ``(n, 6, 3)`` and a point on it ``(n, 6, 3)`` of every joint, base frame."""
-    sel = slice(0, N_JOINTS) if model.convention == "dh" else slice(1, N_JOINTS + 1)
-    return rot[:, sel, :, 2], origin[:, sel]
-
-
-def wrist_bend(model: RobotModel, joints_deg: FloatArray) -> FloatArray:
-    """Signed sine of the wrist bend, ``(z4 × z6) · z5`` per pose, shape (n,).
-
-    Zero at the wrist singularity (axes 4 and 6 aligned); its sign tells the two wrist
-    branches apart (a "wrist flip" changes it).
-    """
-    rot, origin = forward_frames(model.dh_internal(), np.deg2rad(joints_deg), model.convention)
-    axes, _ = _joint_axes(model, rot, origin)
-    out: FloatArray = np.einsum("ni,ni->n", np.cross(axes[:, 3], axes[:, 5]), axes[:, 4])
-    return out
-
-
-def _errors_and_jacobian(
-    model: RobotModel, dh: FloatArray, q_rad: FloatArray, tool: FloatArray,
-    target_pos: FloatArray, target_rot: FloatArray | None,
-) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
-    """Position error ``(n, 3)`` [mm], rotation error ``(n, 3)`` [rad] (zeros in position
-    mode) and the geometric Jacobian ``(n, 3 or 6, 6)`` [mm/rad; rad/rad]."""
-    rot, origin = forward_frames(dh, q_rad, model.convention)
-    pos = origin[:, N_JOINTS] + rot[:, N_JOINTS] @ tool
-    axes, points = _joint_axes(model, rot, origin)
-    jac_v = np.cross(axes, pos[:, None, :] - points)  # (n, 6, 3)
-    e_pos = target_pos - pos
-    if target_rot is None:
-        return e_pos, np.zeros_like(e_pos), np.swapaxes(jac_v, 1, 2)
-    e_rot = Rotation.from_matrix(target_rot @ np.swapaxes(rot[:, N_JOINTS], 1, 2)).as_rotvec()
-    return e_pos, e_rot, np.swapaxes(np.concatenate([jac_v, axes], axis=2), 1, 2)
-
-
-def solve_ik(
-    model: RobotModel,
-    seed_deg: FloatArray,
-    target_pos_mm: FloatArray,
-    target_rot: FloatArray | None,
-    options: CompensateOptions,
-) -> IKSolution:
-    """Damped-least-squares IK for many targets at once.
-
-    Parameters
-    ----------
-    model : RobotModel
-        Kinematics to invert (its ``tool_mm`` is ignored; ``options.tool_mm`` is the point).
-    seed_deg : ndarray, shape (n, 6)
-        Start joints [deg].
-    target_pos_mm : ndarray, shape (n, 3)
-    target_rot : ndarray, shape (n, 3, 3) or None
-        Target flange orientations (pose mode) or None (position mode).
-    options : CompensateOptions
-    """
-    dh = model.dh_internal()
-    tool = np.asarray(options.tool_mm, dtype=float)
-    q = np.deg2rad(np.array(seed_deg, dtype=float))
-    n = q.shape[0]
-    iterations = np.zeros(n, dtype=int)
-    weight = options.rotation_weight_mm_per_rad
-    tol_rad = math.radians(options.tol_deg)
-    max_step = math.radians(options.max_step_deg)
-    scale = 1.0 / np.sqrt(np.asarray(options.joint_weights, dtype=float))
-    active = np.arange(n)
-    for it in range(options.max_iterations + 1):
-        rot_t = None if target_rot is None else target_rot[active]
-        e_pos, e_rot, jac = _errors_and_jacobian(model, dh, q[active], tool,
-                                                 target_pos_mm[active], rot_t)  # fmt: skip
-        ok = (np.linalg.norm(e_pos, axis=1) <= options.tol_mm) & (
-            np.linalg.norm(e_rot, axis=1) <= tol_rad)  # fmt: skip
-        keep = ~ok
-        active, e_pos, e_rot, jac = active[keep], e_pos[keep], e_rot[keep], jac[keep]
-        if active.size == 0 or it == options.max_iterations:
-            break
-        err = e_pos if target_rot is None else np.concatenate([e_pos, weight * e_rot], axis=1)
-        if target_rot is not None:
-            jac = jac.copy()
-            jac[:, 3:] *= weight
-        jac = jac * scale  # weighted DLS: minimise Σ w_j Δq_j², i.e. solve for Δq √w
-        gram = jac @ np.swapaxes(jac, 1, 2) + options.damping**2 * np.eye(err.shape[1])
-        dq = np.einsum("nmj,nm->nj", jac, np.linalg.solve(gram, err[..., None])[..., 0])
-        dq *= scale
-        biggest = np.max(np.abs(dq), axis=1)
-        dq *= np.minimum(1.0, max_step / np.maximum(biggest, 1e-300))[:, None]
-        q[active] += dq
-        iterations[active] += 1
-    e_pos, e_rot, _ = _errors_and_jacobian(model, dh, q, tool, target_pos_mm, target_rot)
-    pos_err = np.linalg.norm(e_pos, axis=1)
-    rot_err = (
-        np.full(n, np.nan) if target_rot is None else np.rad2deg(np.linalg.norm(e_rot, axis=1))
-    )
-    converged = (pos_err <= options.tol_mm) & (np.nan_to_num(rot_err) <= options.tol_deg)
-    return IKSolution(np.rad2deg(q), iterations, pos_err, rot_err, converged)
-
-
 def _outside_limits(model: RobotModel, joints_deg: FloatArray) -> np.ndarray:
     limits = model.joint_limits_deg
     if limits is None:
         return np.zeros(joints_deg.shape[0], dtype=bool)
     out: np.ndarray = np.any((joints_deg < limits[:, 0]) | (joints_deg > limits[:, 1]), axis=1)
-    return out
-
-
-def _wrist_flipped(model: RobotModel, a_deg: FloatArray, b_deg: FloatArray,
-                   min_deg: float) -> np.ndarray:  # fmt: skip
-    sa, sb = wrist_bend(model, a_deg), wrist_bend(model, b_deg)
-    floor = math.sin(math.radians(min_deg))
-    out: np.ndarray = (np.sign(sa) != np.sign(sb)) & (np.abs(sa) >= floor) & (np.abs(sb) >= floor)
     return out
 
 
@@ -487,18 +329,18 @@ def compensate(
         if targets.rotation_deg is not None:
             target_rot = Rotation.from_euler(EULER_SEQUENCE, targets.rotation_deg,
                                              degrees=True).as_matrix()  # fmt: skip
-        stage = solve_ik(nominal, seed, target_pos,
-                         target_rot if opts.mode == "pose" else None, opts)  # fmt: skip
+        pose_rot = target_rot if opts.mode == "pose" else None
+        stage = solve_ik(nominal, seed, target_pos, pose_rot, tool, opts.ik)
         q_nom, nominal_iterations = stage.joints_deg, stage.iterations
         for i in np.flatnonzero(~stage.converged):
             flags[i].append("nominal_ik_failed")
-        for i in np.flatnonzero(_wrist_flipped(nominal, seed, q_nom, opts.wrist_flip_min_deg)):
+        for i in np.flatnonzero(wrist_flipped(nominal, seed, q_nom, opts.wrist_flip_min_deg)):
             flags[i].append("nominal_wrist_flip")
-    sol = solve_ik(calibrated, q_nom, target_pos, target_rot if opts.mode == "pose" else None,
-                   opts)  # fmt: skip
+    pose_rot = target_rot if opts.mode == "pose" else None
+    sol = solve_ik(calibrated, q_nom, target_pos, pose_rot, tool, opts.ik)
     q_cal = sol.joints_deg
     jump = np.max(np.abs(q_cal - q_nom), axis=1) > opts.branch_threshold_deg
-    jump |= _wrist_flipped(calibrated, q_nom, q_cal, opts.wrist_flip_min_deg)
+    jump |= wrist_flipped(calibrated, q_nom, q_cal, opts.wrist_flip_min_deg)
     for name, mask in (("ik_failed", ~sol.converged),
                        ("outside_limits", _outside_limits(nominal, q_cal)),
                        ("branch_jump", jump)):  # fmt: skip

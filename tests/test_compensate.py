@@ -15,16 +15,13 @@ from calib.compensate import (
     CartesianTargets,
     CompensateOptions,
     JointTargets,
-    _errors_and_jacobian,
-    _wrist_flipped,
     compensate,
     parse_targets_csv,
-    tool_pose,
-    wrist_bend,
 )
 from calib.dataset import make_samples
 from calib.export import model_from_result
 from calib.identify import IdentifyOptions, identify
+from calib.ik import IKOptions, _errors_and_jacobian, tool_pose, wrist_bend, wrist_flipped
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel, builtin_model
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, noisy_lengths, random_poses_deg
@@ -192,7 +189,7 @@ def test_flags_branch_jump_limits_and_failures(nominal: RobotModel) -> None:
     assert not out.ok.any()
 
     far = CartesianTargets(np.array([[5000.0, 0.0, 0.0]]), None, q[0])
-    out = compensate(nominal, nominal, far, CompensateOptions(max_iterations=30))
+    out = compensate(nominal, nominal, far, CompensateOptions(ik=IKOptions(max_iterations=30)))
     assert out.flags[0][:1] == ["nominal_ik_failed"] and "ik_failed" in out.flags[0]
     assert out.position_residual_mm[0] > 1000
 
@@ -206,8 +203,8 @@ def test_wrist_flip_changes_the_bend_sign(nominal: RobotModel) -> None:
     np.testing.assert_allclose(p2, p1, atol=1e-8)
     np.testing.assert_allclose(r2, r1, atol=1e-12)
     assert np.all(np.sign(wrist_bend(nominal, q)) != np.sign(wrist_bend(nominal, flipped)))
-    assert _wrist_flipped(nominal, q, flipped, 1.0).all()
-    assert not _wrist_flipped(nominal, q, q + 0.5, 1.0).any()
+    assert wrist_flipped(nominal, q, flipped, 1.0).all()
+    assert not wrist_flipped(nominal, q, q + 0.5, 1.0).any()
 
 
 def test_outputs_csv_and_json(nominal: RobotModel) -> None:
@@ -238,7 +235,7 @@ def test_bad_input_is_named(nominal: RobotModel) -> None:
     with pytest.raises(ValueError, match="mode"):
         CompensateOptions(mode="joints")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="tol_mm"):
-        CompensateOptions(tol_mm=0.0)
+        IKOptions(tol_mm=0.0)
     with pytest.raises(ValueError, match="line 3, column 'q4'"):
         parse_targets_csv("q1,q2,q3,q4,q5,q6\n0,0,90,0,0,0\n0,0,90,x,0,0\n")
     with pytest.raises(ValueError, match="seed_deg"):
@@ -263,11 +260,11 @@ def test_joint_weights_shift_the_correction_to_cheap_joints(nominal: RobotModel)
         nominal,
         bent,
         JointTargets(q),
-        CompensateOptions(joint_weights=(100.0, 1.0, 1.0, 1.0, 1.0, 1.0)),
+        CompensateOptions(ik=IKOptions(joint_weights=(100.0, 1.0, 1.0, 1.0, 1.0, 1.0))),
     )
     np.testing.assert_allclose(heavy.position_residual_mm, 0.0, atol=1e-6)
     moved_plain = np.abs(plain.corrected_joints_deg[:, 0] - q[:, 0])
     moved_heavy = np.abs(heavy.corrected_joints_deg[:, 0] - q[:, 0])
     assert moved_heavy.mean() < 0.5 * moved_plain.mean()
     with pytest.raises(ValueError, match="joint_weights"):
-        CompensateOptions(joint_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 0.0))
+        IKOptions(joint_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 0.0))
