@@ -32,6 +32,9 @@ from scipy.spatial.transform import Rotation
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel
 
+#: Relative error decrease that counts as progress for the stall test.
+STALL_GAIN = 1e-3
+
 
 @dataclass(frozen=True)
 class IKOptions:
@@ -51,6 +54,10 @@ class IKOptions:
         Weight of the orientation rows in pose mode [mm/rad].
     joint_weights : tuple of 6 floats
         Cost of moving each joint (the step minimises ``Σ w_j Δq_j²``).
+    stall_iterations : int
+        A target whose weighted error has not dropped by ``STALL_GAIN`` (0.1 %) below its best
+        for this many iterations is given up (near a singularity, or out of reach); its best
+        joints are returned.
     """
 
     max_iterations: int = 100
@@ -60,10 +67,15 @@ class IKOptions:
     max_step_deg: float = 5.0
     rotation_weight_mm_per_rad: float = 1000.0
     joint_weights: tuple[float, float, float, float, float, float] = (1.0,) * 6
+    stall_iterations: int = 10
 
     def __post_init__(self) -> None:
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
             raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations}")
+        if not (isinstance(self.stall_iterations, int) and self.stall_iterations >= 1):
+            raise ValueError(
+                f"stall_iterations must be an integer >= 1, got {self.stall_iterations}"
+            )
         for name in ("tol_mm", "tol_deg", "damping", "max_step_deg",
                      "rotation_weight_mm_per_rad"):  # fmt: skip
             value = getattr(self, name)
@@ -174,17 +186,26 @@ def solve_ik(
     max_step = math.radians(options.max_step_deg)
     scale = 1.0 / np.sqrt(np.asarray(options.joint_weights, dtype=float))
     active = np.arange(n)
+    best = np.full(n, np.inf)  # smallest weighted error norm so far, and where
+    q_best = q.copy()
+    since_best = np.zeros(n, dtype=int)
     for it in range(options.max_iterations + 1):
         rot_t = None if target_rot is None else target_rot[active]
         e_pos, e_rot, jac = _errors_and_jacobian(model, dh, q[active], tool,
                                                  target_pos_mm[active], rot_t)  # fmt: skip
+        err = e_pos if target_rot is None else np.concatenate([e_pos, weight * e_rot], axis=1)
+        norm = np.linalg.norm(err, axis=1)
+        improved = norm < (1.0 - STALL_GAIN) * best[active]
+        rows = active[improved]
+        best[rows], q_best[rows], since_best[rows] = norm[improved], q[rows], 0
+        since_best[active[~improved]] += 1
         ok = (np.linalg.norm(e_pos, axis=1) <= options.tol_mm) & (
             np.linalg.norm(e_rot, axis=1) <= tol_rad)  # fmt: skip
-        keep = ~ok
-        active, e_pos, e_rot, jac = active[keep], e_pos[keep], e_rot[keep], jac[keep]
+        q_best[active[ok]] = q[active[ok]]
+        keep = ~ok & (since_best[active] < options.stall_iterations)
+        active, err, jac = active[keep], err[keep], jac[keep]
         if active.size == 0 or it == options.max_iterations:
             break
-        err = e_pos if target_rot is None else np.concatenate([e_pos, weight * e_rot], axis=1)
         if target_rot is not None:
             jac = jac.copy()
             jac[:, 3:] *= weight
@@ -196,6 +217,7 @@ def solve_ik(
         dq *= np.minimum(1.0, max_step / np.maximum(biggest, 1e-300))[:, None]
         q[active] += dq
         iterations[active] += 1
+    q = q_best
     e_pos, e_rot, _ = _errors_and_jacobian(model, dh, q, tool, target_pos_mm, target_rot)
     pos_err = np.linalg.norm(e_pos, axis=1)
     rot_err = (

@@ -268,3 +268,19 @@ def test_joint_weights_shift_the_correction_to_cheap_joints(nominal: RobotModel)
     assert moved_heavy.mean() < 0.5 * moved_plain.mean()
     with pytest.raises(ValueError, match="joint_weights"):
         IKOptions(joint_weights=(1.0, 1.0, 1.0, 1.0, 1.0, 0.0))
+
+
+def test_stalled_targets_stop_early_with_their_best_joints(nominal: RobotModel) -> None:
+    from calib.ik import solve_ik
+
+    seed = _regular_poses(nominal, 3, 12)
+    far = np.array([[5000.0, 0.0, 500.0], [0.0, -5000.0, 0.0], [3000.0, 3000.0, 3000.0]])
+    start = np.linalg.norm(tool_pose(nominal, seed, FLANGE)[0] - far, axis=1)
+    sol = solve_ik(nominal, seed, far, None, FLANGE, IKOptions(max_iterations=500))
+    assert not sol.converged.any()
+    assert np.all(sol.iterations < 500)  # given up by the stall test, not the iteration cap
+    reach = np.linalg.norm(tool_pose(nominal, sol.joints_deg, FLANGE)[0] - far, axis=1)
+    np.testing.assert_allclose(sol.position_error_mm, reach)
+    assert np.all(reach < start - 1000.0)  # it stretched toward the target first
+    with pytest.raises(ValueError, match="stall_iterations"):
+        IKOptions(stall_iterations=0)
