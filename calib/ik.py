@@ -11,8 +11,10 @@ Step: weighted damped least squares,
 
 which minimises ``|J Δq − e|² + λ² Σ w_j Δq_j²``: near a singularity the damping ``λ``
 [mm/rad] bounds the step; elsewhere it is a Gauss–Newton step with the smallest weighted joint
-change (in position mode three degrees of freedom are spare). Each step is then capped to
-``max_step_deg`` on its largest joint.
+change (in position mode three degrees of freedom are spare). The damping fades with the
+error, ``λ² = damping² · min(1, |e| / 1 mm)`` (in the spirit of Sugihara's Levenberg–Marquardt
+IK), so targets near a singularity still converge in a few steps instead of creeping. Each
+step is then capped to ``max_step_deg`` on its largest joint.
 
 Rows: the tool point error ``p_target − p`` [mm], and in pose mode the orientation error
 ``log(R_target Rᵀ)`` (rotation vector, base frame) [rad] times ``rotation_weight_mm_per_rad``.
@@ -33,7 +35,9 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel
 
 #: Relative error decrease that counts as progress for the stall test.
-STALL_GAIN = 1e-3
+STALL_GAIN = 1e-2
+#: Below this weighted error [mm] the damping shrinks in proportion to the error.
+DAMPING_FADE_MM = 1.0
 
 
 @dataclass(frozen=True)
@@ -55,7 +59,7 @@ class IKOptions:
     joint_weights : tuple of 6 floats
         Cost of moving each joint (the step minimises ``Σ w_j Δq_j²``).
     stall_iterations : int
-        A target whose weighted error has not dropped by ``STALL_GAIN`` (0.1 %) below its best
+        A target whose weighted error has not dropped by ``STALL_GAIN`` (1 %) below its best
         for this many iterations is given up (near a singularity, or out of reach); its best
         joints are returned.
     """
@@ -136,6 +140,26 @@ def wrist_bend(model: RobotModel, joints_deg: FloatArray) -> FloatArray:
     return out
 
 
+def rotation_vector(rot: FloatArray) -> FloatArray:
+    """Rotation vectors ``(n, 3)`` [rad] of rotation matrices ``(n, 3, 3)`` (the log map).
+
+    ``θ = atan2(|v|, (tr R − 1)/2)`` and ``axis = v/|v|`` with ``v = vee(R − Rᵀ)/2``; exact
+    for ``θ < π`` and cheaper in the IK loop than scipy's ``Rotation.from_matrix``, which
+    re-orthogonalises. Within about 1e-4 rad of ``π`` the axis comes from scipy.
+    """
+    v = 0.5 * np.stack([rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0],
+                        rot[:, 1, 0] - rot[:, 0, 1]], axis=1)  # fmt: skip
+    sin = np.linalg.norm(v, axis=1)
+    cos = 0.5 * (rot[:, 0, 0] + rot[:, 1, 1] + rot[:, 2, 2] - 1.0)
+    angle = np.arctan2(sin, cos)
+    factor = np.where(sin > 1e-300, angle / np.maximum(sin, 1e-300), 1.0)
+    out: FloatArray = v * factor[:, None]
+    near_pi = (sin < 1e-4) & (cos < 0)
+    if np.any(near_pi):
+        out[near_pi] = Rotation.from_matrix(rot[near_pi]).as_rotvec()
+    return out
+
+
 def _errors_and_jacobian(
     model: RobotModel, dh: FloatArray, q_rad: FloatArray, tool: FloatArray,
     target_pos: FloatArray, target_rot: FloatArray | None,
@@ -149,7 +173,7 @@ def _errors_and_jacobian(
     e_pos = target_pos - pos
     if target_rot is None:
         return e_pos, np.zeros_like(e_pos), np.swapaxes(jac_v, 1, 2)
-    e_rot = Rotation.from_matrix(target_rot @ np.swapaxes(rot[:, N_JOINTS], 1, 2)).as_rotvec()
+    e_rot = rotation_vector(target_rot @ np.swapaxes(rot[:, N_JOINTS], 1, 2))
     return e_pos, e_rot, np.swapaxes(np.concatenate([jac_v, axes], axis=2), 1, 2)
 
 
@@ -210,7 +234,10 @@ def solve_ik(
             jac = jac.copy()
             jac[:, 3:] *= weight
         jac = jac * scale  # weighted DLS: minimise Σ w_j Δq_j², i.e. solve for Δq √w
-        gram = jac @ np.swapaxes(jac, 1, 2) + options.damping**2 * np.eye(err.shape[1])
+        # Damping fades with the error (as in Sugihara's LM IK): robust far away, Gauss–Newton
+        # (fast) close to the solution, even near a singularity.
+        lam2 = options.damping**2 * np.minimum(1.0, norm[keep] / DAMPING_FADE_MM)
+        gram = jac @ np.swapaxes(jac, 1, 2) + lam2[:, None, None] * np.eye(err.shape[1])
         dq = np.einsum("nmj,nm->nj", jac, np.linalg.solve(gram, err[..., None])[..., 0])
         dq *= scale
         biggest = np.max(np.abs(dq), axis=1)

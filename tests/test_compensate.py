@@ -284,3 +284,14 @@ def test_stalled_targets_stop_early_with_their_best_joints(nominal: RobotModel) 
     assert np.all(reach < start - 1000.0)  # it stretched toward the target first
     with pytest.raises(ValueError, match="stall_iterations"):
         IKOptions(stall_iterations=0)
+
+
+def test_rotation_vector_matches_scipy() -> None:
+    from calib.ik import rotation_vector
+
+    rng = np.random.default_rng(13)
+    vecs = rng.normal(size=(200, 3))
+    vecs *= (rng.uniform(0, np.pi, size=200) / np.linalg.norm(vecs, axis=1))[:, None]
+    vecs[:3] = [[0, 0, 0], [1e-9, 0, 0], [0, np.pi - 1e-6, 0]]
+    mats = Rotation.from_rotvec(vecs).as_matrix()
+    np.testing.assert_allclose(rotation_vector(mats), vecs, atol=1e-9)
