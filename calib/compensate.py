@@ -29,9 +29,9 @@ IK (:mod:`calib.ik`)
     the rotation error ``log(R_target Rᵀ)`` [rad] weighted by ``rotation_weight_mm_per_rad``);
     each step is capped to ``max_step_deg`` per joint. All targets are solved at once (numpy
     batches over the targets still active): 1000 targets take 0.1 to 0.3 s on a shared 2-core
-    machine, 35 to 85 times less than a per-target loop (``bench/compensate_results.md``). In position mode the three spare
-    degrees of freedom are used minimally: DLS from the nominal joints gives the smallest
-    joint correction.
+    machine, 35 to 85 times less than a per-target loop (``bench/compensate_results.md``).
+    In position mode the three spare degrees of freedom are used minimally: DLS from the
+    nominal joints gives the smallest joint correction.
 
 Flags per row: ``ik_failed`` (residual above tolerance after ``max_iterations``),
 ``outside_limits`` (corrected joints outside the model's limits), ``branch_jump`` (a joint
