@@ -131,94 +131,94 @@ def _summary(result: IdentifyResult) -> None:
         err_console.print(f"[yellow]note:[/] {note}")
 
 
+def identify_cmd(
+    data: Annotated[
+        Path, typer.Argument(help=escape("CSV with q1..q6 [deg], L [mm], optional anchor"))
+    ],
+    robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
+        "hsr-jr680"
+    ),
+    method: Annotated[str, _opt("method")] = default("method"),
+    test_fraction: Annotated[float, _opt("test_fraction")] = default("test_fraction"),
+    seed: Annotated[int, _opt("seed")] = default("seed"),
+    holdout: Annotated[str, _opt("holdout")] = default("holdout"),
+    robust: Annotated[str, _opt("robust")] = default("robust"),
+    prior: Annotated[bool, _opt("prior")] = default("prior"),
+    prior_mm: Annotated[float, _opt("prior_mm")] = default("prior_mm"),
+    prior_deg: Annotated[float, _opt("prior_deg")] = default("prior_deg"),
+    fix: Annotated[str, _opt("fix", ", comma-separated")] = "",
+    free: Annotated[str, _opt("free", ", comma-separated")] = "",
+    out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
+) -> None:
+    """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
+    from calib.dataset import SampleError
+    from calib.models import ModelError
+    from daemon.datafiles import load_robot, read_samples
+
+    try:
+        model = load_robot(robot)
+        samples = read_samples(data)
+        opts = options_from_mapping(
+            {"method": method, "test_fraction": test_fraction, "seed": seed,
+             "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
+             "prior_deg": prior_deg, "fix": _split_names(fix), "free": _split_names(free)}
+        )  # fmt: skip
+        result = _run_identify(model, samples, opts)
+    except (SampleError, ModelError, ValueError) as exc:
+        raise _fail(f"{data if isinstance(exc, SampleError) else 'input'}: {exc}") from None
+    _summary(result)
+    if out is not None:
+        out.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {out}")
+
+
+def compare_cmd(
+    data: Annotated[
+        Path | None, typer.Argument(help="CSV (default: the bundled HSR-RobotCali data)")
+    ] = None,
+    robot: Annotated[str, typer.Option(help="Built-in model name or model file")] = ("hsr-jr680"),
+    train: Annotated[int, typer.Option(help="Training samples per run")] = PAPER_N_TRAIN,
+    test: Annotated[int, typer.Option(help="Test samples per run")] = PAPER_N_TEST,
+    seed: Annotated[int, typer.Option(help="First seed")] = 0,
+    seeds: Annotated[int, typer.Option(help="Number of seeds (runs) to average")] = 1,
+    methods: Annotated[str, typer.Option(help="Comma-separated methods")] = ",".join(METHODS),
+    prior: Annotated[bool, typer.Option(help="MAP prior toward nominal")] = False,
+    out: Annotated[Path | None, typer.Option(help="Write the table as JSON here")] = None,
+) -> None:
+    """Compare all methods on the paper's protocol (Table VIII/IX style)."""
+    from calib.dataset import SampleError
+    from calib.models import ModelError
+    from calib.protocol import check_protocol
+    from daemon.datafiles import load_robot, read_samples
+
+    try:
+        model = load_robot(robot)
+        samples = read_samples(data)
+        chosen = _split_names(methods)
+        check_protocol(samples, chosen, train, test)
+    except (SampleError, ModelError, ValueError) as exc:
+        raise _fail(str(exc)) from None
+    rows = compare(model, samples, chosen, train, test, seed, seeds, prior)
+    table = Table(title=f"{len(samples)} samples, {train} train / {test} test, "
+                  f"{seeds} seed(s) from {seed}, mean over seeds")  # fmt: skip
+    for col in ("method", "before RMSE", "RMSE", "MAE", "MAX", "iterations", "time [s]",
+                "plausible"):  # fmt: skip
+        table.add_column(col, justify="right")
+    for r in rows:
+        table.add_row(
+            r["method"], f"{r['before_rmse_mm']:.3f}", f"{r['rmse_mm']:.3f}",
+            f"{r['mae_mm']:.3f}", f"{r['max_mm']:.3f}", f"{r['iterations']:.1f}",
+            f"{r['time_s']:.3f}", f"{r['plausible']}/{seeds}",
+        )  # fmt: skip
+    console.print(table)
+    if out is not None:
+        out.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
+
+
 def register(app: typer.Typer) -> None:
     """Add ``identify`` and ``compare`` to ``app``."""
-
-    @app.command("identify")
-    def identify_cmd(
-        data: Annotated[
-            Path, typer.Argument(help="CSV with q1..q6 [deg], L [mm], optional anchor")
-        ],
-        robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
-            "hsr-jr680"
-        ),
-        method: Annotated[str, _opt("method")] = default("method"),
-        test_fraction: Annotated[float, _opt("test_fraction")] = default("test_fraction"),
-        seed: Annotated[int, _opt("seed")] = default("seed"),
-        holdout: Annotated[str, _opt("holdout")] = default("holdout"),
-        robust: Annotated[str, _opt("robust")] = default("robust"),
-        prior: Annotated[bool, _opt("prior")] = default("prior"),
-        prior_mm: Annotated[float, _opt("prior_mm")] = default("prior_mm"),
-        prior_deg: Annotated[float, _opt("prior_deg")] = default("prior_deg"),
-        fix: Annotated[str, _opt("fix", ", comma-separated")] = "",
-        free: Annotated[str, _opt("free", ", comma-separated")] = "",
-        out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
-    ) -> None:
-        """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
-        from calib.dataset import SampleError
-        from calib.models import ModelError
-        from daemon.datafiles import load_robot, read_samples
-
-        try:
-            model = load_robot(robot)
-            samples = read_samples(data)
-            opts = options_from_mapping(
-                {"method": method, "test_fraction": test_fraction, "seed": seed,
-                 "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
-                 "prior_deg": prior_deg, "fix": _split_names(fix), "free": _split_names(free)}
-            )  # fmt: skip
-            result = _run_identify(model, samples, opts)
-        except (SampleError, ModelError, ValueError) as exc:
-            raise _fail(f"{data if isinstance(exc, SampleError) else 'input'}: {exc}") from None
-        _summary(result)
-        if out is not None:
-            out.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
-            console.print(f"wrote {out}")
-
-    @app.command("compare")
-    def compare_cmd(
-        data: Annotated[
-            Path | None, typer.Argument(help="CSV (default: the bundled HSR-RobotCali data)")
-        ] = None,
-        robot: Annotated[str, typer.Option(help="Built-in model name or model file")] = (
-            "hsr-jr680"
-        ),
-        train: Annotated[int, typer.Option(help="Training samples per run")] = PAPER_N_TRAIN,
-        test: Annotated[int, typer.Option(help="Test samples per run")] = PAPER_N_TEST,
-        seed: Annotated[int, typer.Option(help="First seed")] = 0,
-        seeds: Annotated[int, typer.Option(help="Number of seeds (runs) to average")] = 1,
-        methods: Annotated[str, typer.Option(help="Comma-separated methods")] = ",".join(METHODS),
-        prior: Annotated[bool, typer.Option(help="MAP prior toward nominal")] = False,
-        out: Annotated[Path | None, typer.Option(help="Write the table as JSON here")] = None,
-    ) -> None:
-        """Compare all methods on the paper's protocol (Table VIII/IX style)."""
-        from calib.dataset import SampleError
-        from calib.models import ModelError
-        from calib.protocol import check_protocol
-        from daemon.datafiles import load_robot, read_samples
-
-        try:
-            model = load_robot(robot)
-            samples = read_samples(data)
-            chosen = _split_names(methods)
-            check_protocol(samples, chosen, train, test)
-        except (SampleError, ModelError, ValueError) as exc:
-            raise _fail(str(exc)) from None
-        rows = compare(model, samples, chosen, train, test, seed, seeds, prior)
-        table = Table(title=f"{len(samples)} samples, {train} train / {test} test, "
-                      f"{seeds} seed(s) from {seed}, mean over seeds")  # fmt: skip
-        for col in ("method", "before RMSE", "RMSE", "MAE", "MAX", "iterations", "time [s]",
-                    "plausible"):  # fmt: skip
-            table.add_column(col, justify="right")
-        for r in rows:
-            table.add_row(
-                r["method"], f"{r['before_rmse_mm']:.3f}", f"{r['rmse_mm']:.3f}",
-                f"{r['mae_mm']:.3f}", f"{r['max_mm']:.3f}", f"{r['iterations']:.1f}",
-                f"{r['time_s']:.3f}", f"{r['plausible']}/{seeds}",
-            )  # fmt: skip
-        console.print(table)
-        if out is not None:
-            out.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
+    app.command("identify")(identify_cmd)
+    app.command("compare")(compare_cmd)
 
 
 def compare(
