@@ -55,8 +55,8 @@ def num_sig(value: Any, digits: int = 2) -> str:
         return "0"
     if abs(v) >= 1e6 or abs(v) < 1e-4:
         return num_sci(v, digits)
-    decimals = max(0, digits - 1 - math.floor(math.log10(abs(v))))
-    return _minus(f"{v:.{decimals}f}")
+    shift = digits - 1 - math.floor(math.log10(abs(v)))
+    return _minus(f"{round(v, shift):.{max(0, shift)}f}")
 
 
 def num_sci(value: Any, digits: int = 3) -> str:

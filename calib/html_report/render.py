@@ -109,8 +109,8 @@ def _accuracy(result: Mapping[str, Any]) -> str:
     rows = []
     for subset, label in (("train", "Training"), ("test", "Test")):
         b, a = get_map(before, subset), get_map(after, subset)
-        if not b and not a:
-            continue
+        if (not b and not a) or (b.get("n") == 0 and a.get("n") == 0):
+            continue  # no test set (test fraction 0)
         rb, ra = b.get("rmse_mm"), a.get("rmse_mm")
         gain = (
             num_fixed(100.0 * (1.0 - ra / rb), 1)

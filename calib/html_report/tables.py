@@ -235,8 +235,8 @@ def tcp_section(result: Mapping[str, Any]) -> str:
             "(no <code>tcp_uncertainty_mm</code> in result.json).</p>"
         )
     return (
-        "<p>1σ uncertainty of the calibrated tool-point position, propagated from the "
-        "parameter covariance over the poses.</p>"
+        "<p>1σ uncertainty of the calibrated tool-point (TCP) position, as stated in "
+        "<code>tcp_uncertainty_mm</code>.</p>"
         '<table class="tcp"><thead><tr><th scope="col">Statistic</th>'
         '<th class="num" scope="col">1σ position [mm]</th></tr></thead><tbody>'
         f'<tr><th scope="row">RMS over poses</th><td class="num">{num_fixed(tcp.get("rms"), 3)}'
