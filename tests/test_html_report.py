@@ -22,7 +22,13 @@ from calib.synthetic import make_true_cell, random_poses_deg
 
 MODEL = builtin_model("hsr-jr680")
 DATA = Path(__file__).resolve().parents[1] / "calib" / "data" / "hsr-robotcali.csv"
-CHART_IDS = ("chart-residuals", "chart-histogram", "chart-convergence")
+CHART_IDS = (
+    "chart-residuals-before",
+    "chart-residuals-after",
+    "chart-histogram-before",
+    "chart-histogram-after",
+    "chart-convergence",
+)
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +82,8 @@ def test_unknown_robot_gives_after_residuals_only_and_says_why(synthetic_case) -
     assert res.before_mm is None
     assert "not a built-in model" in res.before_note
     html = render_report_html(custom, res)
-    assert "my-&lt;custom&gt;-robot" in html and "chart-residuals" in html
+    assert "my-&lt;custom&gt;-robot" in html and "chart-residuals-after" in html
+    assert "chart-residuals-before" not in html
 
 
 # ------------------------------------------------------------------------------- content
@@ -107,12 +114,17 @@ def test_numbers_have_sensible_precision_and_units(real_case) -> None:
     assert f"{after_test:.3f}" in html
     for header in ("RMSE [mm]", "MAE [mm]", "MAX [mm]", "α [deg]", "Δa ± 1σ [mm]"):
         assert header in html
-    for label in ("residual L_meas − L_model [mm]", "RMS residual [mm]", "[count]"):
-        assert label in html
+    charts = re.findall(r'<svg class="chart" id="([^"]+)".*?</svg>', html, flags=re.S)
+    assert sorted(charts) == sorted(CHART_IDS)
+    for svg in re.findall(r'<svg class="chart".*?</svg>', html, flags=re.S):
+        labels = re.findall(r'class="chart-label"[^>]*>([^<]*)<', svg)
+        assert len(labels) == 2, labels  # x and y
+        dimensionless = {"iteration", "sample index (0-based data row)"}
+        assert all(re.search(r"\[[^\]]+\]", lab) for lab in labels if lab not in dimensionless)
 
 
 def test_implausible_rows_are_highlighted_and_plausible_ones_are_not(synthetic_case) -> None:
-    result, samples = synthetic_case
+    result, _ = synthetic_case
     assert result["plausibility"]["plausible"]
     html = render_report_html(result)
     assert 'class="implausible"' not in html
@@ -124,8 +136,8 @@ def test_implausible_rows_are_highlighted_and_plausible_ones_are_not(synthetic_c
     bad["plausibility"]["plausible"] = False
     html = render_report_html(bad)
     dh_rows = re.findall(r'<tr( class="implausible")?><th scope="row">(\d)</th>', html)
-    assert [j for cls, j in dh_rows if cls] == ["3"]
-    assert "NOT plausible" in html and "⚠ implausible" in html
+    assert [j for cls, j in dh_rows if cls] == ["3", "3"]  # calibrated and error tables
+    assert "NOT plausible" in html and 'aria-label="implausible">⚠' in html
 
 
 def test_real_data_lists_unidentifiable_parameters_with_reasons(real_case) -> None:
@@ -137,7 +149,7 @@ def test_real_data_lists_unidentifiable_parameters_with_reasons(real_case) -> No
         assert f"<code>{name}</code>" in html
         assert why.replace("'", "&#x27;") in html
     assert "Pass the data file" in html  # no samples given: the residual section says how
-    assert "chart-residuals" not in html
+    assert "chart-residuals" not in html and "chart-histogram" not in html
 
 
 def test_tcp_uncertainty_shown_when_present_else_not_computed(synthetic_case) -> None:
@@ -158,8 +170,11 @@ def test_every_string_from_the_result_is_escaped(synthetic_case) -> None:
         "message": evil,
         "notes": [evil],
         "robust": evil,
-        "identifiability": {**result["identifiability"], "unidentifiable": [evil],
-                            "reasons": {evil: evil}},  # fmt: skip
+        "identifiability": {
+            **result["identifiability"],
+            "unidentifiable": [evil],
+            "reasons": {evil: evil},
+        },
     }
     html = render_report_html(hostile, source=evil)
     assert "<img" not in html

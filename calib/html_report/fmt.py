@@ -59,6 +59,14 @@ def num_sig(value: Any, digits: int = 2) -> str:
     return _minus(f"{round(v, shift):.{max(0, shift)}f}")
 
 
+def sigma_decimals(sigma: Any, digits: int = 2) -> int:
+    """Decimal places of ``sigma`` rounded to ``digits`` significant digits (≥ 0)."""
+    v = _finite(sigma)
+    if v is None or v == 0:
+        return 6
+    return max(0, digits - 1 - math.floor(math.log10(abs(v))))
+
+
 def num_sci(value: Any, digits: int = 3) -> str:
     """Scientific notation as HTML: ``1.23 × 10<sup>8</sup>``."""
     if isinstance(value, int | float) and not isinstance(value, bool) and math.isinf(value):

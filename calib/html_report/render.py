@@ -58,12 +58,15 @@ def _summary(result: Mapping[str, Any]) -> str:
     split = get_map(result, "split")
     prior = get_map(result, "prior")
     n_train, n_test = split.get("n_train"), split.get("n_test")
-    n_total = (
-        n_train + n_test if isinstance(n_train, int) and isinstance(n_test, int) else None
-    )
+    n_total = n_train + n_test if isinstance(n_train, int) and isinstance(n_test, int) else None
     method = str(result.get("method", ""))
     method_long = _METHODS.get(method)
     flagged = get_list(result, "flagged_samples")
+    flagged_rows = ", ".join(text(r) for r in flagged[:20]) + (" …" if len(flagged) > 20 else "")
+    converged = (
+        f"{yes_no(result.get('success'))} — {text(result.get('message'))} "
+        f"(status {text(result.get('status'))})"
+    )
     frac = split.get("test_fraction")
     split_text = (
         f"{text(split.get('holdout'))} hold-out, test fraction {num_fixed(frac, 2)}, "
@@ -80,15 +83,12 @@ def _summary(result: Mapping[str, Any]) -> str:
         ("Method", text(method) + (f" — {method_long}" if method_long else "")),
         ("Samples", f"{num_int(n_total)} ({num_int(n_train)} training, {num_int(n_test)} test)"),
         ("Split", split_text),
-        ("Converged", f"{yes_no(result.get('success'))} — {text(result.get('message'))} "
-                      f"(status {text(result.get('status'))})"),  # fmt: skip
+        ("Converged", converged),
         ("Iterations", num_int(result.get("iterations"))),
         ("Identification time [s]", num_fixed(result.get("elapsed_s"), 3)),
         ("Robust loss", text(result.get("robust"))),
         ("Prior toward nominal", prior_text),
-        ("Flagged samples", f"{len(flagged)}" + (
-            f" (rows {', '.join(text(r) for r in flagged[:20])}"
-            f"{' …' if len(flagged) > 20 else ''})" if flagged else "")),  # fmt: skip
+        ("Flagged samples", f"{len(flagged)} (rows {flagged_rows})" if flagged else "0"),
     ]
     body = "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in rows)
     return f'<dl class="summary">{body}</dl>'
@@ -144,30 +144,42 @@ def _residuals(res: SampleResiduals | None) -> str:
         )
     n = res.after_mm.shape[0]
     idx = np.arange(n, dtype=float)
-    series = []
-    hist: list[tuple[str, Any, str]] = []
-    if res.before_mm is not None:
-        series.append(Series("before", idx, res.before_mm, "series-before"))
-        hist.append(("before", res.before_mm, "series-before"))
-    series.append(Series("after", idx, res.after_mm, "series-after"))
-    hist.append(("after", res.after_mm, "series-after"))
-    per_sample = line_chart(
-        "chart-residuals", "Cable-length residual per sample, before and after calibration",
-        series, "sample index (0-based data row)", "residual L_meas − L_model [mm]",
-        zero_line=True,
-    )  # fmt: skip
-    histogram = histogram_chart(
-        "chart-histogram", "Histogram of the cable-length residuals", hist,
-        "residual L_meas − L_model [mm]",
-    )  # fmt: skip
+    label = "residual [mm]"
+    panels = [("before", "before calibration", res.before_mm), ("after", "after calibration",
+              res.after_mm)]  # fmt: skip
+    lines, hists = [], []
+    for key, words, values in panels:
+        if values is None:
+            continue
+        css = f"series-{key}"
+        lines.append(line_chart(
+            f"chart-residuals-{key}", f"Cable-length residual per sample, {words}",
+            [Series(key, idx, values, css, markers=n <= 400)],
+            "sample index (0-based data row)", label, zero_line=True, size_px=(720, 230),
+        ))  # fmt: skip
+        hist = histogram_chart(
+            f"chart-histogram-{key}", f"Residual histogram, {words}", [(key, values, css)],
+            label, bins=25, size_px=(360, 260),
+        )  # fmt: skip
+        hists.append(
+            f"<figure>{hist}<figcaption>Distribution {words} (RMS "
+            f"{num_fixed(_rms(values), 3)} mm).</figcaption></figure>"
+        )
+    before_txt = "top: before, bottom: after calibration" if len(lines) == 2 else "after only"
     return (
-        f"<p>All {n} samples of the data file (training and test). {text(res.before_note)}."
-        "</p>"
-        f"<figure>{per_sample}<figcaption>Figure 1. Residual of every sample; dashed orange: "
-        "before, solid blue: after calibration.</figcaption></figure>"
-        f"<figure>{histogram}<figcaption>Figure 2. Distribution of the residuals (common "
-        "bins).</figcaption></figure>"
+        f"<p>All {n} samples of the data file (training and test); residual = measured − "
+        f"model cable length, L_meas − L_model. {text(res.before_note)}.</p>"
+        f"<figure>{''.join(lines)}<figcaption>Figure 1. Residual of every sample ({before_txt}; "
+        "each panel has its own scale).</figcaption></figure>"
+        f'<div class="figure-row">{"".join(hists)}</div>'
+        '<p class="muted">Figure 2. Histograms of the residuals (each on its own bins).</p>'
     )
+
+
+def _rms(values: Any) -> float:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
 
 
 def _convergence(result: Mapping[str, Any]) -> str:

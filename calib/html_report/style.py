@@ -37,6 +37,10 @@ thead th { border-bottom: 2px solid var(--ink); text-align: left; font-weight: 6
 th[scope=row] { text-align: left; font-weight: 600; }
 td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 tbody tr:nth-child(even) { background: var(--faint); }
+table.metrics tbody tr { background: none; }
+table.metrics tbody tr:nth-child(2n) td { border-bottom: 1.5px solid var(--ink); }
+table.metrics td[rowspan], table.metrics th[rowspan] { border-bottom: 1.5px solid var(--ink); }
+sup { line-height: 0; }
 tr.implausible, tr.implausible:nth-child(even) { background: var(--bad-bg); }
 tr.implausible td, tr.implausible th { color: var(--bad-ink); }
 .flag { font-weight: 700; color: var(--bad-ink); white-space: nowrap; }
@@ -49,6 +53,9 @@ dl.summary dt { font-weight: 600; }
 dl.summary dd { margin: 0; font-variant-numeric: tabular-nums; }
 figure { margin: .6rem 0 1.2rem; break-inside: avoid; }
 figcaption { font-size: .9rem; color: var(--muted); margin-top: .2rem; }
+.figure-row { display: grid; grid-template-columns: 1fr 1fr; gap: 1.2rem; }
+.figure-row figure { margin: .2rem 0; }
+svg.chart + svg.chart { margin-top: .4rem; }
 svg.chart { width: 100%; height: auto; display: block; font-family: inherit; }
 .chart-grid { stroke: #e2e2e2; stroke-width: 1; }
 .chart-axes { fill: none; stroke: var(--ink); stroke-width: 1; }
@@ -65,7 +72,9 @@ circle.marker { stroke: none; stroke-dasharray: none; }
 circle.series-before { fill: var(--before); }
 circle.series-after { fill: var(--after); }
 circle.series-cost { fill: var(--cost); }
-polyline.hist { stroke-width: 1.8; }
+polyline.hist { stroke-width: 1.8; stroke-dasharray: none; }
+polyline.hist.series-before { fill: rgba(213, 94, 0, .16); }
+polyline.hist.series-after { fill: rgba(0, 114, 178, .16); }
 .note-list li { margin-bottom: .3rem; }
 footer { margin-top: 2.5rem; padding-top: .5rem; border-top: 1px solid var(--rule);
   color: var(--muted); font-size: .85rem; }

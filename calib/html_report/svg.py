@@ -87,12 +87,12 @@ def format_tick(value: float, step: float) -> str:
 
 
 def _log_ticks(lo: float, hi: float) -> list[float]:
-    """Decade ticks (plus 2 and 5 when the range spans fewer than three decades)."""
+    """Ticks from the decade below ``lo`` to the decade above ``hi``: 1 × 10^k, plus 2 and 5
+    × 10^k when the range spans fewer than three decades."""
     k0, k1 = math.floor(math.log10(lo)), math.ceil(math.log10(hi))
     mantissas = (1.0, 2.0, 5.0) if k1 - k0 < 3 else (1.0,)
     ticks = [m * 10.0**k for k in range(k0, k1 + 1) for m in mantissas]
-    inside = [t for t in ticks if lo * 0.999 <= t <= hi * 1.001]
-    return inside if len(inside) >= 2 else [10.0**k0, 10.0**k1]
+    return ticks if len(ticks) >= 2 else [10.0**k0, 10.0**k1]
 
 
 def _count_ticks(top: int) -> list[float]:
@@ -104,12 +104,19 @@ def _count_ticks(top: int) -> list[float]:
 class _Axes:
     """Maps data to pixel coordinates; linear x, linear or log10 y."""
 
-    def __init__(self, x_ticks: list[float], y_ticks: list[float], log_y: bool) -> None:
+    def __init__(
+        self,
+        x_ticks: list[float],
+        y_ticks: list[float],
+        log_y: bool,
+        size_px: tuple[int, int] = (WIDTH_PX, HEIGHT_PX),
+    ) -> None:
+        self.width, self.height = size_px
         self.x0, self.x1 = x_ticks[0], x_ticks[-1]
         self.log_y = log_y
         self.y0, self.y1 = self._ty(y_ticks[0]), self._ty(y_ticks[-1])
-        self.left, self.right = _MARGIN_LEFT, WIDTH_PX - _MARGIN_RIGHT
-        self.top, self.bottom = _MARGIN_TOP, HEIGHT_PX - _MARGIN_BOTTOM
+        self.left, self.right = _MARGIN_LEFT, self.width - _MARGIN_RIGHT
+        self.top, self.bottom = _MARGIN_TOP, self.height - _MARGIN_BOTTOM
 
     def _ty(self, y: float) -> float:
         return math.log10(y) if self.log_y else y
@@ -149,7 +156,7 @@ def _frame(
     out.append(
         f'<rect class="chart-axes" x="{ax.left}" y="{ax.top}" width="{ax.right - ax.left}" '
         f'height="{ax.bottom - ax.top}"/>'
-        f'<text class="chart-label" x="{(ax.left + ax.right) / 2:.1f}" y="{HEIGHT_PX - 8}" '
+        f'<text class="chart-label" x="{(ax.left + ax.right) / 2:.1f}" y="{ax.height - 8}" '
         f'text-anchor="middle">{escape(x_label)}</text>'
         f'<text class="chart-label" transform="translate(16 {mid_y:.1f}) rotate(-90)" '
         f'text-anchor="middle">{escape(y_label)}</text>'
@@ -171,10 +178,10 @@ def _legend(labels: Sequence[tuple[str, str]], right: float) -> list[str]:
     return out
 
 
-def _open(chart_id: str, title: str, desc: str) -> str:
+def _open(chart_id: str, title: str, desc: str, ax: _Axes) -> str:
     return (
-        f'<svg class="chart" id="{escape(chart_id)}" role="img" viewBox="0 0 {WIDTH_PX} '
-        f'{HEIGHT_PX}" xmlns="http://www.w3.org/2000/svg" aria-labelledby="{escape(chart_id)}-t '
+        f'<svg class="chart" id="{escape(chart_id)}" role="img" viewBox="0 0 {ax.width} '
+        f'{ax.height}" xmlns="http://www.w3.org/2000/svg" aria-labelledby="{escape(chart_id)}-t '
         f'{escape(chart_id)}-d"><title id="{escape(chart_id)}-t">{escape(title)}</title>'
         f'<desc id="{escape(chart_id)}-d">{escape(desc)}</desc>'
     )
@@ -189,6 +196,7 @@ def line_chart(
     *,
     log_y: bool = False,
     zero_line: bool = False,
+    size_px: tuple[int, int] = (WIDTH_PX, HEIGHT_PX),
 ) -> str:
     """An SVG line chart of one or more series.
 
@@ -206,6 +214,8 @@ def line_chart(
         Log10 y axis; non-positive values are dropped.
     zero_line : bool
         Emphasise y = 0.
+    size_px : (int, int)
+        Width and height of the ``viewBox`` (the chart scales to its container).
 
     Raises
     ------
@@ -224,11 +234,8 @@ def line_chart(
     x_ticks = nice_ticks(float(xs.min()), float(xs.max()), 8)
     lo, hi = float(ys.min()), float(ys.max())
     y_ticks = _log_ticks(lo, hi) if log_y else nice_ticks(min(lo, 0.0) if zero_line else lo, hi)
-    if log_y:
-        y_ticks = sorted({*y_ticks, 10.0 ** math.floor(math.log10(lo)),
-                          10.0 ** math.ceil(math.log10(hi))})  # fmt: skip
-    ax = _Axes(x_ticks, y_ticks, log_y)
-    parts = [_open(chart_id, title, f"{y_label} against {x_label}")]
+    ax = _Axes(x_ticks, y_ticks, log_y, size_px)
+    parts = [_open(chart_id, title, f"{y_label} against {x_label}", ax)]
     parts += _frame(ax, x_ticks, y_ticks, x_label, y_label)
     if zero_line and not log_y and y_ticks[0] <= 0 <= y_ticks[-1]:
         parts.append(
@@ -256,6 +263,7 @@ def histogram_chart(
     x_label: str,
     *,
     bins: int = 30,
+    size_px: tuple[int, int] = (WIDTH_PX, HEIGHT_PX),
 ) -> str:
     """Overlaid step histograms on common bins.
 
@@ -265,6 +273,8 @@ def histogram_chart(
         Values in the x axis unit (e.g. mm), shape (n,) each; non-finite values dropped.
     bins : int
         Number of equal-width bins over the pooled range.
+    size_px : (int, int)
+        Width and height of the ``viewBox``.
 
     Raises
     ------
@@ -282,8 +292,8 @@ def histogram_chart(
     edges = np.linspace(x_ticks[0], x_ticks[-1], bins + 1)
     counts = [np.histogram(v, bins=edges)[0] for _, v, _ in cleaned]
     y_ticks = _count_ticks(max(int(c.max()) for c in counts))
-    ax = _Axes(x_ticks, y_ticks, log_y=False)
-    parts = [_open(chart_id, title, f"number of samples per bin of {x_label}")]
+    ax = _Axes(x_ticks, y_ticks, False, size_px)
+    parts = [_open(chart_id, title, f"number of samples per bin of {x_label}", ax)]
     parts += _frame(ax, x_ticks, y_ticks, x_label, "samples per bin [count]")
     for (_, _, css), c in zip(cleaned, counts, strict=True):
         pts = [f"{ax.px(edges[0]):.1f},{ax.py(0):.1f}"]

@@ -18,6 +18,7 @@ from calib.html_report.fmt import (
     num_fixed,
     num_sci,
     num_sig,
+    sigma_decimals,
     text,
     yes_no,
 )
@@ -37,12 +38,17 @@ def _plausibility_by_name(result: Mapping[str, Any]) -> dict[str, Mapping[str, A
 
 
 def _value_cell(value: Any, sigma: Any, decimals: int, check: Mapping[str, Any] | None) -> str:
-    """``value ± σ`` cell; fixed (not solved) when σ is absent; flagged when implausible."""
-    sig = f" ± {num_sig(sigma)}" if sigma is not None else ' <span class="muted">(fixed)</span>'
+    """``value ± σ`` cell; fixed (not solved) when σ is absent; ⚠ when implausible.
+
+    The value is rounded to the last digit of its two-significant-digit σ (GUM practice),
+    and to at most ``decimals`` places.
+    """
+    sig = f" ± {num_sig(sigma)}" if sigma is not None else ' <span class="muted">fixed</span>'
+    decimals = min(decimals, sigma_decimals(sigma)) if sigma is not None else decimals
     bad = check is not None and check.get("ok") is False
     flag = (
-        f' <span class="flag" title="outside the plausible bound ±{num_fixed(check.get("bound"), 0)}">'
-        "⚠ implausible</span>"
+        f' <span class="flag" title="outside the plausible bound '
+        f'±{num_fixed(check.get("bound"), 0)}" aria-label="implausible">⚠</span>'
         if bad and check is not None
         else ""
     )
@@ -61,29 +67,32 @@ def dh_section(result: Mapping[str, Any]) -> str:
     head_err = "".join(
         f'<th class="num">Δ{sym} ± 1σ [{unit}]</th>' for _, _, sym, unit, _ in _DH_COLUMNS
     )
-    rows = []
+    rows_cal, rows_err = [], []
     for j, (cal, dif) in enumerate(zip(dh, err, strict=True), start=1):
         names = [f"{prefix}{j}" for _, prefix, _, _, _ in _DH_COLUMNS]
         bad = any(checks.get(n, {}).get("ok") is False for n in names)
+        row_cls = ' class="implausible"' if bad else ""
         cells_cal = "".join(
             f'<td class="num">{num_fixed(cal.get(key), dec)}</td>'
             for key, _, _, _, dec in _DH_COLUMNS
         )
+        rows_cal.append(f'<tr{row_cls}><th scope="row">{j}</th>{cells_cal}</tr>')
         cells_err = "".join(
             _value_cell(dif.get(key), sigma.get(name), dec, checks.get(name))
             for (key, _, _, _, dec), name in zip(_DH_COLUMNS, names, strict=True)
         )
-        row_cls = ' class="implausible"' if bad else ""
-        rows.append(f'<tr{row_cls}><th scope="row">{j}</th>{cells_cal}{cells_err}</tr>')
+        rows_err.append(f'<tr{row_cls}><th scope="row">{j}</th>{cells_err}</tr>')
     convention = "modified DH (Craig)" if result.get("convention") == "mdh" else "classic DH"
+    head = '<thead><tr><th scope="col">Joint</th>'
     return (
-        f"<p>Convention: {convention}. Calibrated values on the left; the identified errors "
-        "(calibrated − nominal) with their 1σ uncertainty on the right. Parameters marked "
-        '"(fixed)" were not solved for (see Identifiability). Rows marked ⚠ hold an error '
-        "outside its plausible bound (see Plausibility).</p>"
-        '<table class="dh"><thead><tr><th scope="col">Joint</th>'
-        f"{head_cal}{head_err}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
-        + _other_parameters(result, sigma, checks)
+        f"<p>Convention: {convention}. Rows with a ⚠ hold an error outside its plausible bound "
+        "(see Plausibility).</p>"
+        f'<h3>Calibrated DH table</h3><table class="dh">{head}{head_cal}</tr></thead>'
+        f"<tbody>{''.join(rows_cal)}</tbody></table>"
+        "<h3>Identified errors (calibrated − nominal) ± 1σ</h3><p>“fixed”: not solved for, "
+        "held at the nominal value (see Identifiability).</p>"
+        f'<table class="dh dh-error">{head}{head_err}</tr></thead>'
+        f"<tbody>{''.join(rows_err)}</tbody></table>" + _other_parameters(result, sigma, checks)
     )
 
 
@@ -148,7 +157,8 @@ def identifiability_section(result: Mapping[str, Any]) -> str:
     if not unident:
         return summary + "<p>Every candidate parameter is identifiable from these data.</p>"
     rows = "".join(
-        f'<tr><th scope="row"><code>{text(n)}</code></th><td>{text(reasons.get(n, MISSING))}</td></tr>'
+        f'<tr><th scope="row"><code>{text(n)}</code></th>'
+        f"<td>{text(reasons.get(n, MISSING))}</td></tr>"
         for n in unident
     )
     return (
