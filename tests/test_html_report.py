@@ -217,7 +217,9 @@ def test_charts_refuse_empty_data_and_count_every_sample() -> None:
         histogram_chart("h", "t", [("s", np.array([]), "x")], "x")
     values = np.random.default_rng(0).normal(0, 1, 500)
     edges_svg = histogram_chart("h", "t", [("s", values, "series-after")], "v [mm]", bins=20)
-    assert edges_svg.count("<polyline") == 1 and "v [mm]" in edges_svg
+    assert "20 bins; s: n = 500" in edges_svg and "v [mm]" in edges_svg
+    data_lines = re.findall(r'<polyline class="series-after hist" points="([^"]+)"', edges_svg)
+    assert [len(p.split()) for p in data_lines] == [2 + 2 * 20]  # two corners per bin
 
 
 # ------------------------------------------------------------------------------- browser
@@ -239,7 +241,11 @@ def test_report_renders_offline_in_chromium(real_case, tmp_path: Path) -> None:
             assert chart.is_visible(), cid
             box = chart.bounding_box()
             assert box is not None and box["width"] > 400 and box["height"] > 120, cid
-            assert chart.locator("polyline").count() >= 1, cid
+            # Every sample is a dot in the residual charts; one line per other chart.
+            drawn = "circle.marker" if "residuals" in cid else "polyline"
+            expected = len(samples) if "residuals" in cid else 1
+            assert chart.locator(f"{drawn}:not(.legend-key)").count() == expected, cid
+            assert chart.locator(".legend-key").count() == 1, cid
         assert page.locator("tr.implausible").count() >= 1
         page.screenshot(path=str(tmp_path / "report.png"), full_page=True)
         page.emulate_media(media="print")

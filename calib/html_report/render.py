@@ -154,7 +154,7 @@ def _residuals(res: SampleResiduals | None) -> str:
         css = f"series-{key}"
         lines.append(line_chart(
             f"chart-residuals-{key}", f"Cable-length residual per sample, {words}",
-            [Series(key, idx, values, css, markers=n <= 400)],
+            [Series(key, idx, values, css, markers=True, line=False)],
             "sample index (0-based data row)", label, zero_line=True, size_px=(720, 230),
         ))  # fmt: skip
         hist = histogram_chart(
@@ -169,8 +169,8 @@ def _residuals(res: SampleResiduals | None) -> str:
     return (
         f"<p>All {n} samples of the data file (training and test); residual = measured − "
         f"model cable length, L_meas − L_model. {text(res.before_note)}.</p>"
-        f"<figure>{''.join(lines)}<figcaption>Figure 1. Residual of every sample ({before_txt}; "
-        "each panel has its own scale).</figcaption></figure>"
+        f"<figure>{''.join(lines)}<figcaption>Figure 1. Residual of every sample, one dot per "
+        f"sample ({before_txt}; each panel has its own scale).</figcaption></figure>"
         f'<div class="figure-row">{"".join(hists)}</div>'
         '<p class="muted">Figure 2. Histograms of the residuals (each on its own bins).</p>'
     )

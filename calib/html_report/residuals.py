@@ -103,7 +103,7 @@ def sample_residuals(
     model = _nominal_model(result, nominal)
     if model is None:
         return SampleResiduals(
-            after, None, "no before residuals: the nominal tool point of "
+            after, None, "No before residuals: the nominal tool point of "
             f"{result.get('robot')!r} is unknown (not a built-in model)"
         )  # fmt: skip
     convention = result.get("convention", model.convention)
@@ -138,7 +138,7 @@ def sample_residuals(
             before_result, samples.joints_deg[rows], aid
         )
     note = (
-        "before: nominal DH table and tool point "
+        "Before model: nominal DH table and tool point "
         f"({', '.join(f'{v:.1f}' for v in model.tool_mm)}) mm, P0 and offset fitted to "
         f"these {len(samples)} samples"
     )

@@ -42,7 +42,9 @@ class Series:
     css_class : str
         ``series-before``, ``series-after`` or ``series-cost``: colour and dash pattern.
     markers : bool
-        Draw a small marker at every point as well as the line.
+        Draw a small marker at every point.
+    line : bool
+        Join the points with a line (False: a scatter plot of the markers).
     """
 
     label: str
@@ -50,6 +52,7 @@ class Series:
     y: FloatArray
     css_class: str
     markers: bool = False
+    line: bool = True
 
 
 def nice_ticks(lo: float, hi: float, target: int = 6) -> list[float]:
@@ -87,12 +90,15 @@ def format_tick(value: float, step: float) -> str:
 
 
 def _log_ticks(lo: float, hi: float) -> list[float]:
-    """Ticks from the decade below ``lo`` to the decade above ``hi``: 1 × 10^k, plus 2 and 5
-    × 10^k when the range spans fewer than three decades."""
+    """Ticks 1 × 10^k (plus 2 and 5 × 10^k when the range spans fewer than three decades),
+    from the last one at or below ``lo`` to the first one at or above ``hi``."""
     k0, k1 = math.floor(math.log10(lo)), math.ceil(math.log10(hi))
     mantissas = (1.0, 2.0, 5.0) if k1 - k0 < 3 else (1.0,)
     ticks = [m * 10.0**k for k in range(k0, k1 + 1) for m in mantissas]
-    return ticks if len(ticks) >= 2 else [10.0**k0, 10.0**k1]
+    first = max(t for t in ticks if t <= lo * 1.0001)
+    last = min(t for t in ticks if t >= hi * 0.9999)
+    inside = [t for t in ticks if first <= t <= last]
+    return inside if len(inside) >= 2 else [10.0**k0, 10.0**k1]
 
 
 def _count_ticks(top: int) -> list[float]:
@@ -164,16 +170,24 @@ def _frame(
     return out
 
 
-def _legend(labels: Sequence[tuple[str, str]], right: float) -> list[str]:
-    """Legend in the top margin, right-aligned: (label, css class) pairs."""
+def _legend(labels: Sequence[tuple[str, str, str]], right: float) -> list[str]:
+    """Legend in the top margin, right-aligned: (label, css class, key) triples; the key is
+    drawn as a ``"line"``, a ``"dot"`` or a histogram ``"box"``."""
     out: list[str] = []
     x = right
-    for label, css in reversed(labels):
+    for label, css, kind in reversed(labels):
         width = 34 + 7 * len(label)
         x -= width
+        keys = {
+            "dot": f'<circle class="{css} marker legend-key" cx="{x + 12:.1f}" cy="14" r="3"/>',
+            "box": f'<polyline class="{css} hist legend-key" points="{x + 4:.1f},20 {x + 4:.1f},8 '
+            f'{x + 20:.1f},8 {x + 20:.1f},20"/>',
+            "line": f'<line class="{css} legend-key" x1="{x:.1f}" y1="14" '
+            f'x2="{x + 24:.1f}" y2="14"/>',
+        }
+        key = keys[kind]
         out.append(
-            f'<line class="{css}" x1="{x:.1f}" y1="14" x2="{x + 24:.1f}" y2="14"/>'
-            f'<text class="chart-legend" x="{x + 29:.1f}" y="18">{escape(label)}</text>'
+            f'{key}<text class="chart-legend" x="{x + 29:.1f}" y="18">{escape(label)}</text>'
         )
     return out
 
@@ -244,14 +258,17 @@ def line_chart(
         )
     for s, x, y in clean:
         pts = " ".join(f"{ax.px(a):.1f},{ax.py(b):.1f}" for a, b in zip(x, y, strict=True))
-        parts.append(f'<polyline class="{escape(s.css_class)}" points="{pts}"/>')
-        if s.markers:
+        if s.line:
+            parts.append(f'<polyline class="{escape(s.css_class)}" points="{pts}"/>')
+        if s.markers or not s.line:
             parts += [
                 f'<circle class="{escape(s.css_class)} marker" cx="{ax.px(a):.1f}" '
-                f'cy="{ax.py(b):.1f}" r="2"/>'
+                f'cy="{ax.py(b):.1f}" r="{2.0 if x.size <= 400 else 1.4}"/>'
                 for a, b in zip(x, y, strict=True)
             ]
-    parts += _legend([(s.label, s.css_class) for s in series], ax.right)
+    parts += _legend(
+        [(s.label, s.css_class, "line" if s.line else "dot") for s in series], ax.right
+    )
     parts.append("</svg>")
     return "".join(parts)
 
@@ -293,7 +310,9 @@ def histogram_chart(
     counts = [np.histogram(v, bins=edges)[0] for _, v, _ in cleaned]
     y_ticks = _count_ticks(max(int(c.max()) for c in counts))
     ax = _Axes(x_ticks, y_ticks, False, size_px)
-    parts = [_open(chart_id, title, f"number of samples per bin of {x_label}", ax)]
+    sizes = "; ".join(f"{lbl}: n = {v.size}" for lbl, v, _ in cleaned)
+    desc = f"number of samples per bin of {x_label}, {bins} bins; {sizes}"
+    parts = [_open(chart_id, title, desc, ax)]
     parts += _frame(ax, x_ticks, y_ticks, x_label, "samples per bin [count]")
     for (_, _, css), c in zip(cleaned, counts, strict=True):
         pts = [f"{ax.px(edges[0]):.1f},{ax.py(0):.1f}"]
@@ -302,6 +321,6 @@ def histogram_chart(
             pts.append(f"{ax.px(edges[k + 1]):.1f},{ax.py(c[k]):.1f}")
         pts.append(f"{ax.px(edges[-1]):.1f},{ax.py(0):.1f}")
         parts.append(f'<polyline class="{escape(css)} hist" points="{" ".join(pts)}"/>')
-    parts += _legend([(lbl, css) for lbl, _, css in cleaned], ax.right)
+    parts += _legend([(lbl, css, "box") for lbl, _, css in cleaned], ax.right)
     parts.append("</svg>")
     return "".join(parts)
