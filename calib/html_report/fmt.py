@@ -8,7 +8,7 @@ and an em dash for a missing or non-finite value.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from html import escape
 from typing import Any
 
@@ -107,3 +107,18 @@ def get_map(result: Mapping[str, Any], key: str) -> Mapping[str, Any]:
 def get_list(result: Mapping[str, Any], key: str) -> list[Any]:
     value = result.get(key)
     return list(value) if isinstance(value, list | tuple) else []
+
+
+def table(
+    css_class: str, headers: Sequence[str], rows: Iterable[str], numeric: Collection[int] = ()
+) -> str:
+    """A ``<table>`` with one header row; ``headers`` are HTML (units in brackets), the
+    columns whose index is in ``numeric`` are right-aligned, ``rows`` are ``<tr>`` strings."""
+    num = ' class="num"'
+    head = "".join(
+        f'<th scope="col"{num if k in numeric else ""}>{h}</th>' for k, h in enumerate(headers)
+    )
+    return (
+        f'<table class="{css_class}"><thead><tr>{head}</tr></thead>'
+        f"<tbody>{''.join(rows)}</tbody></table>"
+    )

@@ -18,6 +18,7 @@ from calib.html_report.fmt import (
     num_fixed,
     num_int,
     num_sig,
+    table,
     text,
     yes_no,
 )
@@ -99,13 +100,6 @@ def _accuracy(result: Mapping[str, Any]) -> str:
     before, after = get_map(metrics, "before"), get_map(metrics, "after")
     if not before and not after:
         return "<p>No metrics in this result.</p>"
-    head = (
-        '<thead><tr><th scope="col">Set</th><th class="num" scope="col">n</th>'
-        '<th scope="col">Model</th><th class="num" scope="col">RMSE [mm]</th>'
-        '<th class="num" scope="col">MAE [mm]</th><th class="num" scope="col">STD [mm]</th>'
-        '<th class="num" scope="col">MAX [mm]</th><th class="num" scope="col">'
-        "RMSE reduction [%]</th></tr></thead>"
-    )
     rows = []
     for subset, label in (("train", "Training"), ("test", "Test")):
         b, a = get_map(before, subset), get_map(after, subset)
@@ -126,12 +120,13 @@ def _accuracy(result: Mapping[str, Any]) -> str:
             )
             gain_cell = f'<td class="num" rowspan="2">{gain}</td>' if k == 0 else ""
             rows.append(f"<tr>{first}{n_cell}<td>{model}</td>{cells}{gain_cell}</tr>")
+    headers = ["Set", "n", "Model", "RMSE [mm]", "MAE [mm]", "STD [mm]", "MAX [mm]",
+               "RMSE reduction [%]"]  # fmt: skip
     return (
         "<p>Cable-length residuals, measured minus model. <em>Before</em>: the nominal model "
         "with only the anchor P0 and the indicator offset fitted; <em>after</em>: the "
         "calibrated model. MAE is what the paper calls “STD”; STD is the standard deviation "
-        "of the residuals.</p>"
-        f'<table class="metrics">{head}<tbody>{"".join(rows)}</tbody></table>'
+        "of the residuals.</p>" + table("metrics", headers, rows, numeric={1, 3, 4, 5, 6, 7})
     )
 
 

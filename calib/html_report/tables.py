@@ -19,6 +19,7 @@ from calib.html_report.fmt import (
     num_sci,
     num_sig,
     sigma_decimals,
+    table,
     text,
     yes_no,
 )
@@ -63,10 +64,8 @@ def dh_section(result: Mapping[str, Any]) -> str:
         return "<p>No DH table in this result.</p>"
     sigma = get_map(result, "uncertainty")
     checks = _plausibility_by_name(result)
-    head_cal = "".join(f'<th class="num">{sym} [{unit}]</th>' for _, _, sym, unit, _ in _DH_COLUMNS)
-    head_err = "".join(
-        f'<th class="num">Δ{sym} ± 1σ [{unit}]</th>' for _, _, sym, unit, _ in _DH_COLUMNS
-    )
+    head_cal = ["Joint", *(f"{sym} [{unit}]" for _, _, sym, unit, _ in _DH_COLUMNS)]
+    head_err = ["Joint", *(f"Δ{sym} ± 1σ [{unit}]" for _, _, sym, unit, _ in _DH_COLUMNS)]
     rows_cal, rows_err = [], []
     for j, (cal, dif) in enumerate(zip(dh, err, strict=True), start=1):
         names = [f"{prefix}{j}" for _, prefix, _, _, _ in _DH_COLUMNS]
@@ -83,16 +82,14 @@ def dh_section(result: Mapping[str, Any]) -> str:
         )
         rows_err.append(f'<tr{row_cls}><th scope="row">{j}</th>{cells_err}</tr>')
     convention = "modified DH (Craig)" if result.get("convention") == "mdh" else "classic DH"
-    head = '<thead><tr><th scope="col">Joint</th>'
     return (
         f"<p>Convention: {convention}. Rows with a ⚠ hold an error outside its plausible bound "
-        "(see Plausibility).</p>"
-        f'<h3>Calibrated DH table</h3><table class="dh">{head}{head_cal}</tr></thead>'
-        f"<tbody>{''.join(rows_cal)}</tbody></table>"
-        "<h3>Identified errors (calibrated − nominal) ± 1σ</h3><p>“fixed”: not solved for, "
+        "(see Plausibility).</p><h3>Calibrated DH table</h3>"
+        + table("dh", head_cal, rows_cal, numeric={1, 2, 3, 4})
+        + "<h3>Identified errors (calibrated − nominal) ± 1σ</h3><p>“fixed”: not solved for, "
         "held at the nominal value (see Identifiability).</p>"
-        f'<table class="dh dh-error">{head}{head_err}</tr></thead>'
-        f"<tbody>{''.join(rows_err)}</tbody></table>" + _other_parameters(result, sigma, checks)
+        + table("dh dh-error", head_err, rows_err, numeric={1, 2, 3, 4})
+        + _other_parameters(result, sigma, checks)
     )
 
 
@@ -126,11 +123,8 @@ def _other_parameters(
             f"{_value_cell(value, sigma.get(name), 3, checks.get(name))}"
             f"<td>{text(unit)}</td></tr>"
         )
-    return (
-        "<h3>Tool point, anchor and offset</h3>"
-        '<table class="params"><thead><tr><th scope="col">Parameter</th>'
-        '<th scope="col">Name</th><th class="num" scope="col">Value ± 1σ</th>'
-        f'<th scope="col">Unit</th></tr></thead><tbody>{"".join(body)}</tbody></table>'
+    return "<h3>Tool point, anchor and offset</h3>" + table(
+        "params", ["Parameter", "Name", "Value ± 1σ", "Unit"], body, numeric={2}
     )
 
 
@@ -156,16 +150,15 @@ def identifiability_section(result: Mapping[str, Any]) -> str:
     )
     if not unident:
         return summary + "<p>Every candidate parameter is identifiable from these data.</p>"
-    rows = "".join(
+    rows = [
         f'<tr><th scope="row"><code>{text(n)}</code></th>'
         f"<td>{text(reasons.get(n, MISSING))}</td></tr>"
         for n in unident
-    )
+    ]
     return (
         summary + "<h3>Not identifiable from these data</h3><p>These parameters were held at "
         "their nominal values; the cable lengths cannot tell them apart from the solved ones.</p>"
-        '<table class="reasons"><thead><tr><th scope="col">Parameter</th>'
-        f'<th scope="col">Why</th></tr></thead><tbody>{rows}</tbody></table>'
+        + table("reasons", ["Parameter", "Why"], rows)
         + _strong_correlations(result)
     )
 
@@ -220,20 +213,19 @@ def plausibility_section(result: Mapping[str, Any]) -> str:
     )
     if not bad:
         return out
-    rows = "".join(
+    rows = [
         f'<tr class="implausible"><th scope="row"><code>{text(p.get("name"))}</code></th>'
         f"<td>{text(p.get('kind'))}</td>"
         f'<td class="num">{num_fixed(p.get("value"), 3)}</td>'
         f'<td class="num">±{num_fixed(p.get("bound"), 0)}</td><td>{text(p.get("unit"))}</td></tr>'
         for p in bad
-    )
+    ]
     return (
-        out + f"<h3>Outside their bounds ({len(bad)})</h3>"
-        '<table class="implausible-list"><thead><tr><th scope="col">Parameter</th>'
-        '<th scope="col">Kind</th><th class="num" scope="col">Value</th>'
-        '<th class="num" scope="col">Bound</th><th scope="col">Unit</th></tr></thead>'
-        f"<tbody>{rows}</tbody></table>"
-    )
+        out
+        + f"<h3>Outside their bounds ({len(bad)})</h3>"
+        + table("implausible-list", ["Parameter", "Kind", "Value", "Bound", "Unit"], rows,
+                numeric={2, 3})
+    )  # fmt: skip
 
 
 def tcp_section(result: Mapping[str, Any]) -> str:
@@ -247,10 +239,13 @@ def tcp_section(result: Mapping[str, Any]) -> str:
     return (
         "<p>1σ uncertainty of the calibrated tool-point (TCP) position, as stated in "
         "<code>tcp_uncertainty_mm</code>.</p>"
-        '<table class="tcp"><thead><tr><th scope="col">Statistic</th>'
-        '<th class="num" scope="col">1σ position [mm]</th></tr></thead><tbody>'
-        f'<tr><th scope="row">RMS over poses</th><td class="num">{num_fixed(tcp.get("rms"), 3)}'
-        "</td></tr>"
-        f'<tr><th scope="row">Maximum over poses</th><td class="num">'
-        f"{num_fixed(tcp.get('max'), 3)}</td></tr></tbody></table>"
+    ) + table(
+        "tcp",
+        ["Statistic", "1σ position [mm]"],
+        [
+            f'<tr><th scope="row">{label}</th><td class="num">{num_fixed(tcp.get(key), 3)}</td>'
+            "</tr>"
+            for key, label in (("rms", "RMS over poses"), ("max", "Maximum over poses"))
+        ],
+        numeric={1},
     )
