@@ -1,0 +1,271 @@
+"""Assemble the self-contained HTML calibration report from a parsed ``result.json``.
+
+The page is one string: inline CSS (:mod:`calib.html_report.style`), inline SVG charts
+(:mod:`calib.html_report.svg`), no script and no reference to another host, so it opens
+offline and prints on A4. Every string from the result is escaped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from calib.html_report.fmt import (
+    get_list,
+    get_map,
+    num_fixed,
+    num_int,
+    num_sig,
+    table,
+    text,
+    yes_no,
+)
+from calib.html_report.residuals import SampleResiduals
+from calib.html_report.style import CSS
+from calib.html_report.svg import Series, histogram_chart, line_chart
+from calib.html_report.tables import (
+    dh_section,
+    identifiability_section,
+    plausibility_section,
+    tcp_section,
+)
+
+#: Section ids in page order, with their headings (the browser test checks each one).
+SECTIONS: tuple[tuple[str, str], ...] = (
+    ("summary", "Summary"),
+    ("accuracy", "Accuracy before and after calibration"),
+    ("residuals", "Residuals per sample"),
+    ("convergence", "Convergence"),
+    ("parameters", "Calibrated parameters"),
+    ("identifiability", "Identifiability"),
+    ("plausibility", "Plausibility"),
+    ("tcp-uncertainty", "TCP uncertainty"),
+    ("notes", "Method notes"),
+)
+
+_METHODS = {
+    "ukf-vslm": "UKF-VSLM (paper M9)",
+    "lm": "Levenberg–Marquardt (M6)",
+    "vslm": "variable step-size LM (M8)",
+    "ukf": "unscented Kalman filter (M3)",
+    "ekf": "extended Kalman filter (M1)",
+    "de": "differential evolution (M7)",
+}
+
+
+def _summary(result: Mapping[str, Any]) -> str:
+    split = get_map(result, "split")
+    prior = get_map(result, "prior")
+    n_train, n_test = split.get("n_train"), split.get("n_test")
+    n_total = n_train + n_test if isinstance(n_train, int) and isinstance(n_test, int) else None
+    method = str(result.get("method", ""))
+    method_long = _METHODS.get(method)
+    flagged = get_list(result, "flagged_samples")
+    flagged_rows = ", ".join(text(r) for r in flagged[:20]) + (" …" if len(flagged) > 20 else "")
+    converged = (
+        f"{yes_no(result.get('success'))} — {text(result.get('message'))} "
+        f"(status {text(result.get('status'))})"
+    )
+    frac = split.get("test_fraction")
+    split_text = (
+        f"{text(split.get('holdout'))} hold-out, test fraction {num_fixed(frac, 2)}, "
+        f"seed {text(split.get('seed'))}"
+    )
+    prior_text = (
+        f"yes: {num_sig(prior.get('dh_mm'))} mm / {num_sig(prior.get('dh_deg'))} deg per DH "
+        f"error, noise {num_sig(prior.get('noise_mm'))} mm"
+        if prior.get("used")
+        else "no (maximum likelihood)"
+    )
+    rows = [
+        ("Robot model", text(result.get("robot"))),
+        ("Method", text(method) + (f" — {method_long}" if method_long else "")),
+        ("Samples", f"{num_int(n_total)} ({num_int(n_train)} training, {num_int(n_test)} test)"),
+        ("Split", split_text),
+        ("Converged", converged),
+        ("Iterations", num_int(result.get("iterations"))),
+        ("Identification time [s]", num_fixed(result.get("elapsed_s"), 3)),
+        ("Robust loss", text(result.get("robust"))),
+        ("Prior toward nominal", prior_text),
+        ("Flagged samples", f"{len(flagged)} (rows {flagged_rows})" if flagged else "0"),
+    ]
+    body = "".join(f"<dt>{k}</dt><dd>{v}</dd>" for k, v in rows)
+    return f'<dl class="summary">{body}</dl>'
+
+
+def _accuracy(result: Mapping[str, Any]) -> str:
+    metrics = get_map(result, "metrics")
+    before, after = get_map(metrics, "before"), get_map(metrics, "after")
+    if not before and not after:
+        return "<p>No metrics in this result.</p>"
+    rows = []
+    for subset, label in (("train", "Training"), ("test", "Test")):
+        b, a = get_map(before, subset), get_map(after, subset)
+        if (not b and not a) or (b.get("n") == 0 and a.get("n") == 0):
+            continue  # no test set (test fraction 0)
+        rb, ra = b.get("rmse_mm"), a.get("rmse_mm")
+        gain = (
+            num_fixed(100.0 * (1.0 - ra / rb), 1)
+            if isinstance(rb, int | float) and isinstance(ra, int | float) and rb > 0
+            else "—"
+        )
+        for k, (model, m) in enumerate((("before", b), ("after", a))):
+            first = f'<th scope="row" rowspan="2">{label}</th>' if k == 0 else ""
+            n_cell = f'<td class="num" rowspan="2">{num_int(m.get("n"))}</td>' if k == 0 else ""
+            cells = "".join(
+                f'<td class="num">{num_fixed(m.get(key), 3)}</td>'
+                for key in ("rmse_mm", "mae_mm", "std_mm", "max_mm")
+            )
+            gain_cell = f'<td class="num" rowspan="2">{gain}</td>' if k == 0 else ""
+            rows.append(f"<tr>{first}{n_cell}<td>{model}</td>{cells}{gain_cell}</tr>")
+    headers = ["Set", "n", "Model", "RMSE [mm]", "MAE [mm]", "STD [mm]", "MAX [mm]",
+               "RMSE reduction [%]"]  # fmt: skip
+    return (
+        "<p>Cable-length residuals, measured minus model. <em>Before</em>: the nominal model "
+        "with only the anchor P0 and the indicator offset fitted; <em>after</em>: the "
+        "calibrated model. MAE is what the paper calls “STD”; STD is the standard deviation "
+        "of the residuals.</p>" + table("metrics", headers, rows, numeric={1, 3, 4, 5, 6, 7})
+    )
+
+
+def _residuals(res: SampleResiduals | None) -> str:
+    if res is None:
+        return (
+            "<p>Not shown: the report was made without the samples. Pass the data file "
+            "(<code>cablecal report RESULT.json --data DATA.csv</code>) to plot the residual "
+            "of every sample.</p>"
+        )
+    n = res.after_mm.shape[0]
+    idx = np.arange(n, dtype=float)
+    label = "residual [mm]"
+    panels = [("before", "before calibration", res.before_mm), ("after", "after calibration",
+              res.after_mm)]  # fmt: skip
+    lines, hists = [], []
+    for key, words, values in panels:
+        if values is None:
+            continue
+        css = f"series-{key}"
+        lines.append(line_chart(
+            f"chart-residuals-{key}", f"Cable-length residual per sample, {words}",
+            [Series(key, idx, values, css, markers=True, line=False)],
+            "sample index (0-based data row)", label, zero_line=True, size_px=(720, 230),
+        ))  # fmt: skip
+        hist = histogram_chart(
+            f"chart-histogram-{key}", f"Residual histogram, {words}", [(key, values, css)],
+            label, bins=25, size_px=(360, 260),
+        )  # fmt: skip
+        hists.append(
+            f"<figure>{hist}<figcaption>Distribution {words} (RMS "
+            f"{num_fixed(_rms(values), 3)} mm).</figcaption></figure>"
+        )
+    before_txt = "top: before, bottom: after calibration" if len(lines) == 2 else "after only"
+    return (
+        f"<p>All {n} samples of the data file (training and test); residual = measured − "
+        f"model cable length, L_meas − L_model. {text(res.before_note)}.</p>"
+        f"<figure>{''.join(lines)}<figcaption>Figure 1. Residual of every sample, one dot per "
+        f"sample ({before_txt}; each panel has its own scale).</figcaption></figure>"
+        f'<div class="figure-row">{"".join(hists)}</div>'
+        '<p class="muted">Figure 2. Histograms of the residuals (each on its own bins).</p>'
+    )
+
+
+def _rms(values: Any) -> float:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
+
+
+def _convergence(result: Mapping[str, Any]) -> str:
+    history = np.array(
+        [v for v in get_list(result, "cost_history_rms_mm") if isinstance(v, int | float)],
+        dtype=float,
+    )
+    finite = history[np.isfinite(history) & (history > 0)]
+    if finite.size < 2:
+        return "<p>No cost history in this result (the method records none).</p>"
+    log_y = bool(finite.max() / finite.min() > 20.0)
+    chart = line_chart(
+        "chart-convergence", "RMS training residual at each iteration",
+        [Series("RMS residual", np.arange(history.size, dtype=float), history, "series-cost",
+                markers=history.size <= 60)],
+        "iteration", "RMS residual [mm]" + (" (log scale)" if log_y else ""), log_y=log_y,
+    )  # fmt: skip
+    return (
+        f"<p>RMS residual of the training set from the start ({num_fixed(history[0], 3)} mm) "
+        f"to the end ({num_fixed(history[-1], 3)} mm) over {history.size - 1} recorded "
+        "iterations.</p>"
+        f"<figure>{chart}<figcaption>Figure 3. Convergence of the identification "
+        "(<code>cost_history_rms_mm</code>).</figcaption></figure>"
+    )
+
+
+def _notes(result: Mapping[str, Any]) -> str:
+    notes = [n for n in get_list(result, "notes") if n is not None]
+    items = "".join(f"<li>{text(n)}</li>" for n in notes)
+    body = f'<ul class="note-list">{items}</ul>' if items else "<p>The method left no notes.</p>"
+    return body + f"<p>Solver message: {text(result.get('message'))}.</p>"
+
+
+def render_report_html(
+    result: Mapping[str, Any],
+    residuals: SampleResiduals | None = None,
+    *,
+    source: str | None = None,
+) -> str:
+    """The calibration report as one self-contained HTML document.
+
+    Parameters
+    ----------
+    result : mapping
+        A parsed ``result.json`` (README, "result.json contract"). Missing keys give a
+        sentence in their section instead of an error.
+    residuals : SampleResiduals, optional
+        Per-sample residuals (:func:`calib.html_report.sample_residuals`); without them the
+        residual section says how to get them.
+    source : str, optional
+        Where the result came from (file name, identification id), shown under the title.
+
+    Returns
+    -------
+    str
+        ``<!DOCTYPE html>`` document, UTF-8, no script, no external reference.
+
+    Raises
+    ------
+    TypeError
+        ``result`` is not a mapping.
+    """
+    if not isinstance(result, Mapping):
+        raise TypeError(f"result: expected a mapping (parsed result.json), got {type(result)}")
+    bodies = {
+        "summary": _summary(result),
+        "accuracy": _accuracy(result),
+        "residuals": _residuals(residuals),
+        "convergence": _convergence(result),
+        "parameters": dh_section(result),
+        "identifiability": identifiability_section(result),
+        "plausibility": plausibility_section(result),
+        "tcp-uncertainty": tcp_section(result),
+        "notes": _notes(result),
+    }
+    sections = "".join(
+        f'<section id="{sid}" aria-labelledby="{sid}-h"><h2 id="{sid}-h">{k}. {title}</h2>'
+        f"{bodies[sid]}</section>"
+        for k, (sid, title) in enumerate(SECTIONS, start=1)
+    )
+    robot, method = text(result.get("robot")), text(result.get("method"))
+    subtitle = f"Robot {robot} · method {method}" + (f" · {text(source)}" if source else "")
+    return (
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
+        f"<title>Calibration report — {robot} — {method}</title>"
+        f"<style>{CSS}</style></head><body>"
+        '<header class="report"><h1>Kinematic calibration report</h1>'
+        f'<p class="subtitle">{subtitle}</p></header>'
+        f"<main>{sections}</main>"
+        "<footer>Generated by cablecal from result.json. Lengths in mm, angles in degrees; "
+        "uncertainties are 1σ. Residuals are measured minus model cable length.</footer>"
+        "</body></html>"
+    )
