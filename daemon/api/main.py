@@ -1,5 +1,5 @@
 """Assemble the FastAPI app: lifespan (store → jobs → sampler, stopped in reverse), routers,
-error handlers, the latency middleware and the operator page."""
+error handlers, the latency middleware, the operator page and /docs (daemon.api.web)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from typing import Any
 
 from fastapi import FastAPI, Request
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import JSONResponse
 
 from daemon import metrics
 from daemon.api.deps import AppState
-from daemon.api.page import OPERATOR_PAGE
-from daemon.api.routes import campaigns, identifications, robots, system
+from daemon.api.routes import campaigns, identifications, live, reports, robots, system
+from daemon.api.web import mount_web
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store, StoreNotFound
@@ -125,9 +125,11 @@ def create_app(
         version=system.VERSION,
         summary="Robot calibration with a drawstring sensor: campaigns, captures, identification.",
         lifespan=lifespan,
+        docs_url=None,  # served by mount_web from local files
+        redoc_url=None,
     )
     app.add_middleware(LatencyMiddleware)
-    for module in (system, campaigns, identifications, robots):
+    for module in (system, live, campaigns, identifications, reports, robots):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
 
@@ -137,10 +139,7 @@ def create_app(
         404 ``{"detail": "<kind> <id>: not found"}``; the routes do not check first."""
         return JSONResponse({"detail": not_found_detail(exc)}, status_code=404)
 
-    @app.get("/", include_in_schema=False, response_class=HTMLResponse)
-    async def operator_page() -> str:
-        return OPERATOR_PAGE
-
+    mount_web(app)
     return app
 
 

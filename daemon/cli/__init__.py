@@ -13,9 +13,10 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import calibration, db, serve, simulate
+    from daemon.cli import calibration, db, report, serve, simulate
 
     calibration.register(app)
+    report.register(app)
     serve.register(app)
     db.register(app)
     simulate.register(app)
