@@ -74,7 +74,8 @@ export function detailText(body) {
  * Throws ApiError on a non-2xx answer (after putting it in the message area unless quiet).
  */
 export async function api(method, path, opts = {}) {
-  const headers = { Authorization: `Bearer ${getToken()}` };
+  const used = getToken();
+  const headers = { Authorization: `Bearer ${used}` };
   let body;
   if (opts.json !== undefined) {
     headers["Content-Type"] = "application/json";
@@ -94,7 +95,8 @@ export async function api(method, path, opts = {}) {
   if (response.status === 401) {
     const err = new ApiError(401, "401: the daemon refused the token. Enter the access token again.");
     showMessage("error", err.message, "token");
-    askToken("The token was refused (401). Enter the token printed by make run / cablecal serve.");
+    // Only for the token in use: answers to requests sent with an older token do not re-ask.
+    if (used === getToken()) askToken("The token was refused (401). Enter the token printed by make run / cablecal serve.");
     throw err;
   }
   if (!response.ok) {

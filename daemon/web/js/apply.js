@@ -1,7 +1,7 @@
 // View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
 // the drift-check state and history (the ``drift`` block of /status).
 import { api, saveBlob } from "./api.js";
-import { $, clock, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 let lastCsv = null;
 
@@ -33,6 +33,10 @@ function csvRows(text) {
 async function compensate(ev) {
   ev.preventDefault();
   const c = state.campaign;
+  if (!hasRoute("POST", "/robots/{}/compensate")) {
+    showMessage("error", "Compensate: this daemon has no compensation route (POST /robots/{id}/compensate).");
+    return;
+  }
   if (!c) { showMessage("error", "Compensate: select the campaign of the robot first (tab 2)."); return; }
   const f = ev.target.elements;
   const file = f.file.files[0];

@@ -2,7 +2,7 @@
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
 import { api, download } from "./api.js";
 import { isManualRobot } from "./cell.js";
-import { $, changed, clock, el, every, fillTable, fix, onChange, setText, showMessage, state } from "./ui.js";
+import { $, changed, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, state } from "./ui.js";
 
 const CAMPAIGN_KEY = "cablecal-campaign";
 const JOINTS = ["q1", "q2", "q3", "q4", "q5", "q6"];
@@ -146,7 +146,7 @@ function renderCoverage() {
     }
     const share = min == null ? 0 : (100 * (max - min)) / (hi - lo);
     return el("div", { class: "joint" }, el("b", {}, `J${j + 1}`), svg,
-      el("span", { class: "range" }, min == null ? `limits ${lo}…${hi}` : `${fix(min, 0)}…${fix(max, 0)} of ${lo}…${hi} (${share.toFixed(0)} %)`));
+      el("span", { class: "range" }, min == null ? `limits ${lo}…${hi}` : `${fix(min, 0)}…${fix(max, 0)} of ${lo}…${hi}: ${share.toFixed(0)} %`));
   }));
 }
 
@@ -197,6 +197,11 @@ async function setAuto(enabled) {
 
 // ------------------------------------------------------------------ plan
 async function refreshPlan() {
+  if (!hasRoute("GET", "/campaigns/{}/plan")) {
+    $("plan-form").querySelector("button").disabled = true;
+    setText("plan-summary", "Pose planning is not available on this daemon (no plan route); capture poses of your own choosing.");
+    return;
+  }
   try {
     plan = await api("GET", `/campaigns/${state.campaign.id}/plan`, { quiet: true });
   } catch (exc) {

@@ -4,7 +4,7 @@
 import { api, download, saveBlob } from "./api.js";
 import { campaignSamples, refreshDetail, samplesNeeded } from "./campaign.js";
 import { costChart, histogramChart, residualChart } from "./charts.js";
-import { $, clock, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 const FINISHED = ["succeeded", "failed", "cancelled"];
 const DH = [["alpha", "α", "deg"], ["a", "a", "mm"], ["d", "d", "mm"], ["theta", "θ", "deg"]];
@@ -193,8 +193,15 @@ async function downloadKind(kind) {
     await download(`/identifications/${id}/report.html`, `identification-${id}-report.html`);
   } else if (kind === "samples") {
     await download(`/campaigns/${job.campaign_id}/samples?format=csv`, `campaign-${job.campaign_id}-samples.csv`);
+  } else if (!job.accepted) {
+    showMessage("warn", "The calibrated model is the robot's ACCEPTED result: accept this one first (or download another accepted one).", "model-dl");
   } else {
-    await download(`/robots/${robotId}/calibrated-model?format=${kind}`, `robot-${robotId}-calibrated.${kind}`);
+    const response = await api("GET", `/robots/${robotId}/calibrated-model?format=${kind}`, { raw: true });
+    const type = response.headers.get("Content-Type") || "";
+    // A daemon without the export formats answers JSON whatever the format: say so, save .json.
+    const ext = type.includes("json") ? "json" : kind;
+    if (ext !== kind) showMessage("warn", `This daemon serves the calibrated model as JSON only; saved as .json instead of .${kind}.`, "model-format");
+    saveBlob(await response.blob(), `robot-${robotId}-calibrated.${ext}`);
   }
 }
 

@@ -4,7 +4,7 @@ import { initApply } from "./apply.js";
 import { initCampaign, restoreCampaign } from "./campaign.js";
 import { initCell } from "./cell.js";
 import { initIdentify } from "./identify.js";
-import { $, changed, onChange, setText, showMessage, state } from "./ui.js";
+import { $, changed, loadRoutes, onChange, setText, showMessage, state } from "./ui.js";
 
 const VIEWS = ["cell", "campaign", "identify", "apply"];
 
@@ -33,6 +33,7 @@ async function boot() {
       setText(pill, c ? `campaign #${c.id} ${c.name} · ${c.n_included} samples` : "no campaign selected");
     }
   });
+  await loadRoutes();
   if (!getToken()) await askToken();
   const saved = sessionStorage.getItem("cablecal-view");
   show(VIEWS.includes(saved) ? saved : "cell");

@@ -112,10 +112,28 @@ export function dismiss(key) {
 export const state = {
   campaign: null, // the campaign row
   status: null, // the latest GET /status
-  minTrainingSamples: 24, // calib.options.MIN_TRAINING_SAMPLES
+  // calib.options.MIN_TRAINING_SAMPLES is 24, but the solver needs more training rows than the
+  // 24 parameters of one anchor: 25.
+  minTrainingSamples: 25,
   listeners: [],
   view: "cell",
+  routes: new Set(), // "METHOD /path/{}" of every route in /openapi.json
 };
+
+const norm = (path) => path.replace(/\{[^}]*\}/g, "{}");
+
+/** Load the daemon's routes from /openapi.json (open), so views of routes this daemon does
+ * not have say so instead of calling them. */
+export async function loadRoutes() {
+  const r = await fetch("/openapi.json");
+  const spec = await r.json();
+  for (const [path, ops] of Object.entries(spec.paths || {})) {
+    for (const method of Object.keys(ops)) state.routes.add(`${method.toUpperCase()} ${norm(path)}`);
+  }
+}
+
+/** True when the daemon has route ``method path`` (path under /api/v1, ids as {name}). */
+export const hasRoute = (method, path) => state.routes.has(`${method} ${norm(`/api/v1${path}`)}`);
 
 /** Call ``fn(kind)`` on every ``changed(kind)``. */
 export function onChange(fn) {
