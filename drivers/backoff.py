@@ -39,3 +39,58 @@ class ReconnectBackoff:
     def defer(self, seconds: float) -> None:
         """No attempt before ``seconds`` from now."""
         self.next_attempt = time.monotonic() + seconds
+
+
+class SilentAttempts:
+    """Retry policy of a request/reply link whose peer may stay silent (a dropped reply).
+
+    A silent attempt is retried at once on the same connection, up to ``retries`` times per
+    request; only after ``reconnect_after`` silent attempts in a row (counted across
+    requests, reset by any reply) is the connection deemed dead and to be re-opened (with
+    :class:`ReconnectBackoff`). A single dropped reply therefore costs one short timeout,
+    not a reconnect.
+
+    Per-attempt reply timeouts escalate: the first attempt waits ``first_timeout_s``, each
+    retry ``retry_timeout_s`` (≥ the first). On loopback or a LAN a reply takes
+    milliseconds, so a short first wait bounds the stall of a dropped reply; the longer
+    retries still read a controller that is alive but slow (busy), instead of declaring it
+    down after a string of short waits.
+    """
+
+    def __init__(
+        self, retries: int, reconnect_after: int, first_timeout_s: float, retry_timeout_s: float
+    ) -> None:
+        if retries < 0:
+            raise ValueError(f"retries: must be >= 0, got {retries}")
+        if reconnect_after < 1:
+            raise ValueError(f"reconnect_after: must be >= 1, got {reconnect_after}")
+        if not first_timeout_s > 0:  # also rejects NaN
+            raise ValueError(f"first_timeout_s: must be > 0, got {first_timeout_s}")
+        self.retries = retries
+        self.reconnect_after = reconnect_after
+        self.first_timeout_s = first_timeout_s
+        self.retry_timeout_s = max(retry_timeout_s, first_timeout_s)
+        self.in_row = 0
+        #: Totals since creation [count]: attempts that got no reply, and retries that did.
+        self.silent_total = 0
+        self.recovered_total = 0
+
+    def timeouts_s(self) -> list[float]:
+        """Reply timeout of each attempt of one request [s]: ``1 + retries`` entries."""
+        return [self.first_timeout_s] + [self.retry_timeout_s] * self.retries
+
+    def silent(self) -> bool:
+        """An attempt got no reply; True when the connection should now be re-opened."""
+        self.in_row += 1
+        self.silent_total += 1
+        return self.in_row >= self.reconnect_after
+
+    def replied(self, attempt: int) -> None:
+        """Attempt number ``attempt`` (0 = first) got its reply."""
+        self.in_row = 0
+        if attempt:
+            self.recovered_total += 1
+
+    def reset(self) -> None:
+        """The connection was (re-)opened."""
+        self.in_row = 0
