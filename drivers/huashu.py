@@ -127,13 +127,16 @@ class HuashuSocketCmdRobot:
         self._writer: asyncio.StreamWriter | None = None
         self._seq = 0
         self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
-        self._silent = SilentAttempts(
+        #: Retry policy and its counters (silent attempts, reads saved by a retry).
+        self.attempts = SilentAttempts(
             config.retries,
             config.reconnect_after_timeouts,
             min(config.first_reply_timeout_s, config.timeout_s),
             config.timeout_s,
         )
         self._lock = asyncio.Lock()
+        #: Successful TCP connects since creation [count] (the first one included).
+        self.connects = 0
         self._stale = StaleGuard(config.name, config.max_unchanged_s)
 
     @property
@@ -167,7 +170,8 @@ class HuashuSocketCmdRobot:
                 self.name, f"cannot connect to {cfg.host}:{cfg.port}: {exc}", self.frames.snapshot()
             ) from exc
         self._backoff.succeeded()
-        self._silent.reset()
+        self.connects += 1
+        self.attempts.reset()
         self.frames.note(f"connected {cfg.host}:{cfg.port}")
 
     async def close(self) -> None:
@@ -189,11 +193,11 @@ class HuashuSocketCmdRobot:
         """The peer stayed silent ``reconnect_after_timeouts`` times in a row: close, so the
         next command opens a fresh connection (no back-off delay: the timeouts already
         paced the attempts; failed connects back off)."""
-        self.frames.note(f"{self._silent.in_row} silent attempts in a row; connection closed")
+        self.frames.note(f"{self.attempts.in_row} silent attempts in a row; connection closed")
         if self._writer is not None:
             self._writer.close()
         self._reader = self._writer = None
-        self._silent.reset()
+        self.attempts.reset()
 
     async def command(self, command: str) -> str:
         """Send one command and return its data field.
@@ -211,12 +215,12 @@ class HuashuSocketCmdRobot:
         """
         async with self._lock:
             await self._ensure_connected()
-            for attempt, timeout_s in enumerate(self._silent.timeouts_s()):
+            for attempt, timeout_s in enumerate(self.attempts.timeouts_s()):
                 try:
                     code, data = await self._attempt(command, timeout_s)
                 except TimeoutError as exc:
                     self.frames.note(f"no reply within {timeout_s} s (attempt {attempt + 1})")
-                    if self._silent.silent():
+                    if self.attempts.silent():
                         self._close_silent()
                     elif attempt < self.config.retries:
                         continue
@@ -226,7 +230,7 @@ class HuashuSocketCmdRobot:
                         f"within {timeout_s} s each",
                         self.frames.snapshot(),
                     ) from exc
-                self._silent.replied(attempt)
+                self.attempts.replied(attempt)
                 if code != 0:
                     raise RobotProtocolError(
                         self.name,

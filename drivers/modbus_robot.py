@@ -115,7 +115,10 @@ class ModbusTcpRobot:
         self._client: AsyncModbusTcpClient | None = None
         self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
         self._stale = StaleGuard(config.name, config.max_unchanged_s)
-        self._silent = SilentAttempts(
+        #: Successful TCP connects since creation [count] (the first one included).
+        self.connects = 0
+        #: Retry policy and its counters (silent attempts, reads saved by a retry).
+        self.attempts = SilentAttempts(
             config.retries,
             config.reconnect_after_timeouts,
             min(config.first_reply_timeout_s, config.timeout_s),
@@ -171,7 +174,8 @@ class ModbusTcpRobot:
                 self.name, f"cannot connect to {cfg.host}:{cfg.port}", self.frames.snapshot()
             )
         self._backoff.succeeded()
-        self._silent.reset()
+        self.connects += 1
+        self.attempts.reset()
         self.frames.note(f"connected {cfg.host}:{cfg.port}")
 
     async def close(self) -> None:
@@ -190,14 +194,14 @@ class ModbusTcpRobot:
         """
         await self._ensure_connected()
         response: Any = None
-        for attempt, timeout_s in enumerate(self._silent.timeouts_s()):
+        for attempt, timeout_s in enumerate(self.attempts.timeouts_s()):
             try:
                 response = await asyncio.wait_for(self._request(address, count), timeout_s)
             except (TimeoutError, ModbusException) as exc:
                 if isinstance(exc, ModbusException) and not self.connected:
                     self._lost(exc)
                 self.frames.note(f"no reply within {timeout_s} s (attempt {attempt + 1})")
-                if self._silent.silent():
+                if self.attempts.silent():
                     self._close_silent()
                 elif attempt < self.config.retries:
                     continue
@@ -206,7 +210,7 @@ class ModbusTcpRobot:
                     f"no reply to {attempt + 1} attempt(s) within {timeout_s} s each",
                     self.frames.snapshot(),
                 ) from exc
-            self._silent.replied(attempt)
+            self.attempts.replied(attempt)
             break
         if response.isError():
             raise RobotProtocolError(
@@ -244,11 +248,11 @@ class ModbusTcpRobot:
         """``reconnect_after_timeouts`` silent attempts in a row: close, so the next read
         opens a fresh connection (no back-off delay: the timeouts already paced the
         attempts; failed connects back off)."""
-        self.frames.note(f"{self._silent.in_row} silent attempts in a row; connection closed")
+        self.frames.note(f"{self.attempts.in_row} silent attempts in a row; connection closed")
         if self._client is not None:
             self._client.close()
             self._client = None
-        self._silent.reset()
+        self.attempts.reset()
 
     async def read_joints(self) -> JointReading:
         """Current joint angles.
