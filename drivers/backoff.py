@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import Literal
 
 
 class ReconnectBackoff:
@@ -79,11 +80,21 @@ class SilentAttempts:
         """Reply timeout of each attempt of one request [s]: ``1 + retries`` entries."""
         return [self.first_timeout_s] + [self.retry_timeout_s] * self.retries
 
-    def silent(self) -> bool:
-        """An attempt got no reply; True when the connection should now be re-opened."""
+    def silent(self, attempt: int) -> Literal["retry", "reopen", "fail"]:
+        """Attempt number ``attempt`` (0 = first) got no reply. What to do: ``"retry"`` at
+        once on the same connection; ``"reopen"``: it was the ``reconnect_after``-th silent
+        attempt in a row, close the connection and fail the request; ``"fail"``: no retry
+        left."""
         self.in_row += 1
         self.silent_total += 1
-        return self.in_row >= self.reconnect_after
+        if self.in_row >= self.reconnect_after:
+            return "reopen"
+        return "retry" if attempt < self.retries else "fail"
+
+    def failure_text(self, attempt: int) -> str:
+        """``"no reply to 3 attempt(s) (waited 0.2, 1, 1 s)"`` after attempt ``attempt``."""
+        waits = ", ".join(f"{t:g}" for t in self.timeouts_s()[: attempt + 1])
+        return f"no reply to {attempt + 1} attempt(s) (waited {waits} s)"
 
     def replied(self, attempt: int) -> None:
         """Attempt number ``attempt`` (0 = first) got its reply."""

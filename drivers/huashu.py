@@ -219,17 +219,14 @@ class HuashuSocketCmdRobot:
                 try:
                     code, data = await self._attempt(command, timeout_s)
                 except TimeoutError as exc:
-                    self.frames.note(f"no reply within {timeout_s} s (attempt {attempt + 1})")
-                    if self.attempts.silent():
-                        self._close_silent()
-                    elif attempt < self.config.retries:
+                    self.frames.note(f"{command}: no reply within {timeout_s} s")
+                    action = self.attempts.silent(attempt)
+                    if action == "retry":
                         continue
-                    raise RobotTimeout(
-                        self.name,
-                        f"{command}: no reply to {attempt + 1} attempt(s) "
-                        f"within {timeout_s} s each",
-                        self.frames.snapshot(),
-                    ) from exc
+                    if action == "reopen":
+                        self._close_silent()
+                    text = f"{command}: {self.attempts.failure_text(attempt)}"
+                    raise RobotTimeout(self.name, text, self.frames.snapshot()) from exc
                 self.attempts.replied(attempt)
                 if code != 0:
                     raise RobotProtocolError(

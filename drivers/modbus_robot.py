@@ -201,15 +201,13 @@ class ModbusTcpRobot:
                 if isinstance(exc, ModbusException) and not self.connected:
                     self._lost(exc)
                 self.frames.note(f"no reply within {timeout_s} s (attempt {attempt + 1})")
-                if self.attempts.silent():
-                    self._close_silent()
-                elif attempt < self.config.retries:
+                action = self.attempts.silent(attempt)
+                if action == "retry":
                     continue
-                raise RobotTimeout(
-                    self.name,
-                    f"no reply to {attempt + 1} attempt(s) within {timeout_s} s each",
-                    self.frames.snapshot(),
-                ) from exc
+                if action == "reopen":
+                    self._close_silent()
+                text = self.attempts.failure_text(attempt)
+                raise RobotTimeout(self.name, text, self.frames.snapshot()) from exc
             self.attempts.replied(attempt)
             break
         if response.isError():

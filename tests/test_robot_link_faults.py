@@ -74,11 +74,14 @@ def moving_cell() -> Iterator[SimulatorThread]:
 def test_silent_attempts_policy() -> None:
     policy = SilentAttempts(retries=2, reconnect_after=3, first_timeout_s=0.2, retry_timeout_s=1.0)
     assert policy.timeouts_s() == [0.2, 1.0, 1.0]
-    assert not policy.silent() and not policy.silent()
+    assert [policy.silent(0), policy.silent(1)] == ["retry", "retry"]
     policy.replied(attempt=2)  # a reply resets the run of silent attempts
-    assert not policy.silent() and not policy.silent()
-    assert policy.silent()  # the third in a row: re-open the connection
+    assert [policy.silent(0), policy.silent(1)] == ["retry", "retry"]
+    assert policy.silent(2) == "reopen"  # the third in a row: re-open the connection
     assert (policy.silent_total, policy.recovered_total) == (5, 1)
+    assert policy.failure_text(2) == "no reply to 3 attempt(s) (waited 0.2, 1, 1 s)"
+    policy.reset()
+    assert SilentAttempts(0, 3, 0.2, 1.0).silent(0) == "fail"  # no retries left
     # A retry never waits less than the first attempt.
     assert SilentAttempts(0, 1, 0.5, 0.1).timeouts_s() == [0.5]
     for bad in ({"retries": -1}, {"reconnect_after": 0}, {"first_timeout_s": 0.0}):
