@@ -91,8 +91,8 @@ class Alarm:
 class HuashuConfig(BaseModel):
     """Configuration of :class:`HuashuSocketCmdRobot`.
 
-    ``timeout_s`` bounds the TCP connect and each retry's wait for a reply [s];
-    ``first_reply_timeout_s`` the first attempt's wait (capped at ``timeout_s``) [s];
+    ``timeout_s`` bounds the TCP connect and the last attempt's wait for a reply [s];
+    ``fast_reply_timeout_s`` the wait of every earlier attempt (capped at ``timeout_s``) [s];
     ``retries`` immediate re-sends on the same connection after a silent attempt [count];
     ``reconnect_after_timeouts`` silent attempts in a row (across commands) after which the
     connection is closed and re-opened [count]. See :class:`drivers.backoff.SilentAttempts`.
@@ -105,7 +105,7 @@ class HuashuConfig(BaseModel):
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 23333
     timeout_s: Annotated[float, Field(gt=0)] = 1.0
-    first_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
+    fast_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
     retries: Annotated[int, Field(ge=0)] = 2
     reconnect_after_timeouts: Annotated[int, Field(ge=1)] = 3
     joints_command: str = "mot.getJntData(0)"
@@ -131,7 +131,7 @@ class HuashuSocketCmdRobot:
         self.attempts = SilentAttempts(
             config.retries,
             config.reconnect_after_timeouts,
-            min(config.first_reply_timeout_s, config.timeout_s),
+            min(config.fast_reply_timeout_s, config.timeout_s),
             config.timeout_s,
         )
         self._lock = asyncio.Lock()

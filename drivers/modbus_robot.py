@@ -76,8 +76,8 @@ def decode_joints_deg(
 class ModbusRobotConfig(BaseModel):
     """Configuration of :class:`ModbusTcpRobot`; ``preset = "ur"`` uses :data:`UR_PRESET`.
 
-    ``timeout_s`` bounds the TCP connect and each retry's wait for a reply [s];
-    ``first_reply_timeout_s`` the first attempt's wait (capped at ``timeout_s``) [s];
+    ``timeout_s`` bounds the TCP connect and the last attempt's wait for a reply [s];
+    ``fast_reply_timeout_s`` the wait of every earlier attempt (capped at ``timeout_s``) [s];
     ``retries`` immediate re-sends on the same connection after a silent attempt [count];
     ``reconnect_after_timeouts`` silent attempts in a row (across reads) after which the
     connection is closed and re-opened [count]. See :class:`drivers.backoff.SilentAttempts`.
@@ -93,7 +93,7 @@ class ModbusRobotConfig(BaseModel):
     preset: Literal["ur", "custom"] = "ur"
     registers: JointRegisterMap = UR_PRESET
     timeout_s: Annotated[float, Field(gt=0)] = 1.0
-    first_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
+    fast_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
     retries: Annotated[int, Field(ge=0)] = 2
     reconnect_after_timeouts: Annotated[int, Field(ge=1)] = 3
     reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
@@ -121,7 +121,7 @@ class ModbusTcpRobot:
         self.attempts = SilentAttempts(
             config.retries,
             config.reconnect_after_timeouts,
-            min(config.first_reply_timeout_s, config.timeout_s),
+            min(config.fast_reply_timeout_s, config.timeout_s),
             config.timeout_s,
         )
 

@@ -72,24 +72,24 @@ def moving_cell() -> Iterator[SimulatorThread]:
 
 # --------------------------------------------------------------------------- retry policy
 def test_silent_attempts_policy() -> None:
-    policy = SilentAttempts(retries=2, reconnect_after=3, first_timeout_s=0.2, retry_timeout_s=1.0)
-    assert policy.timeouts_s() == [0.2, 1.0, 1.0]
+    policy = SilentAttempts(retries=2, reconnect_after=3, fast_timeout_s=0.2, last_timeout_s=1.0)
+    assert policy.timeouts_s() == [0.2, 0.2, 1.0]
     assert [policy.silent(0), policy.silent(1)] == ["retry", "retry"]
     policy.replied(attempt=2)  # a reply resets the run of silent attempts
     assert [policy.silent(0), policy.silent(1)] == ["retry", "retry"]
     assert policy.silent(2) == "reopen"  # the third in a row: re-open the connection
     assert (policy.silent_total, policy.recovered_total) == (5, 1)
-    assert policy.failure_text(2) == "no reply to 3 attempt(s) (waited 0.2, 1, 1 s)"
+    assert policy.failure_text(2) == "no reply to 3 attempt(s) (waited 0.2, 0.2, 1 s)"
     policy.reset()
     assert SilentAttempts(0, 3, 0.2, 1.0).silent(0) == "fail"  # no retries left
-    # A retry never waits less than the first attempt.
+    # The last attempt never waits less than the others.
     assert SilentAttempts(0, 1, 0.5, 0.1).timeouts_s() == [0.5]
-    for bad in ({"retries": -1}, {"reconnect_after": 0}, {"first_timeout_s": 0.0}):
+    for bad in ({"retries": -1}, {"reconnect_after": 0}, {"fast_timeout_s": 0.0}):
         args: dict[str, Any] = {
             "retries": 1,
             "reconnect_after": 1,
-            "first_timeout_s": 0.1,
-            "retry_timeout_s": 1.0,
+            "fast_timeout_s": 0.1,
+            "last_timeout_s": 1.0,
             **bad,
         }
         with pytest.raises(ValueError, match=next(iter(bad))):
@@ -118,7 +118,7 @@ def _mbap_reply(tid: int, first_angle: int) -> bytes:
 
 async def test_huashu_dropped_reply_is_retried_at_once_and_late_reply_ignored() -> None:
     """Regression: a dropped reply cost the whole 1 s timeout and failed the read. Now the
-    retry (new sequence number) follows after ``first_reply_timeout_s``, on the same
+    retry (new sequence number) follows after ``fast_reply_timeout_s``, on the same
     connection, and the late reply to the first request, arriving just before the retry's,
     is discarded."""
     exchanges = [
@@ -138,7 +138,7 @@ async def test_huashu_dropped_reply_is_retried_at_once_and_late_reply_ignored() 
     assert reading.joints_deg == (1.5, 2.0, 3.0, 4.0, 5.0, 6.0)
     assert robot.connects == 1
     assert (robot.attempts.silent_total, robot.attempts.recovered_total) == (1, 1)
-    assert 0.19 <= took_s < 0.6, took_s  # first_reply_timeout_s = 0.2, not timeout_s = 1
+    assert 0.19 <= took_s < 0.6, took_s  # fast_reply_timeout_s = 0.2, not timeout_s = 1
 
 
 async def test_modbus_dropped_reply_is_retried_with_a_new_transaction_id() -> None:
@@ -198,7 +198,7 @@ async def test_reads_survive_10_percent_dropped_replies(
     # Seed 11 has no 3 drops in a row in this run: no reconnect at all.
     assert robot.connects == 1, robot.frames.snapshot()
     assert np.abs(np.asarray(good) - truth).max() <= RESOLUTION_DEG[kind]
-    # Each drop costs one first-attempt timeout (0.2 s), not timeout_s (1 s).
+    # Each drop costs one fast_reply_timeout_s (0.2 s), not timeout_s (1 s).
     assert took_s < 0.35 * robot.attempts.silent_total + 0.05 * n, took_s
 
 
@@ -228,7 +228,7 @@ def _last_tx_s(robot: Robot) -> float:
 async def test_late_replies_are_never_taken_for_the_retry(
     moving_cell: SimulatorThread, kind: str
 ) -> None:
-    """20 % of replies arrive 0.3 s late (after the 0.2 s first-attempt timeout, just before
+    """20 % of replies arrive 0.3 s late (after the 0.2 s fast_reply_timeout_s, just before
     the retry's reply), the robot moves all the time. Every reading must be the cell's truth
     at an instant between the sending of the last request and the reading's stamp; a late
     reply to the first attempt, taken for the retry's, would be the truth 0.2 s before that
@@ -257,7 +257,7 @@ async def test_silent_peer_is_reopened_after_consecutive_timeouts(
 ) -> None:
     """A peer that stops answering is re-opened after ``reconnect_after_timeouts`` silent
     attempts in a row, and reads come back once it answers again."""
-    robot = _robot(held_cell, kind, timeout_s=0.1, first_reply_timeout_s=0.05)
+    robot = _robot(held_cell, kind, timeout_s=0.1, fast_reply_timeout_s=0.05)
     try:
         await robot.read_joints()
         held_cell.control("fault", robot_drop_rate=1.0)
