@@ -90,13 +90,18 @@ def main() -> None:
     args = parser.parse_args()
     if args.root:
         sys.path.insert(0, args.root)
+    from simulator.config import SimConfig
     from simulator.runner import SimulatorThread
-    from simulator.testing import sim_config
+
+    ports = {"port": 0}
+    config = SimConfig.model_validate(
+        {"seed": 11, "robot_socketcmd": ports, "robot_modbus": ports, "control": ports}
+    )
 
     results: dict[str, Any] = {}
     for kind in ("huashu", "modbus"):
         for rate in DROP_RATES:
-            with SimulatorThread(sim_config(seed=11)) as sim:
+            with SimulatorThread(config) as sim:
                 sim.control("hold", on=True)
                 sim.control("fault", robot_drop_rate=rate)
                 results[f"{kind} drop {rate:.0%}"] = asyncio.run(_run(kind, sim, args.duration_s))

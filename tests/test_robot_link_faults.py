@@ -6,8 +6,8 @@ Against the emulated cell (``robot_drop_rate``, and the emulated late-reply faul
 ``robot_late_rate`` / ``robot_late_delay_s``) and against scripted peers that state the exact
 bytes (:mod:`drivers.testing`).
 
-The emulated-cell fixture here is local on purpose: tests/conftest.py with the shared
-``sim()`` fixtures is being written in parallel; switch to it once merged.
+The emulated-cell fixtures here are local on purpose: tests/conftest.py with the shared
+``sim`` fixture (``emulated_cell`` marker) was written in parallel; switch to it once merged.
 """
 
 from __future__ import annotations
@@ -30,14 +30,21 @@ from drivers import (
 )
 from drivers.backoff import SilentAttempts
 from drivers.testing import expected_protocol_tcp
+from simulator.config import SimConfig
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 Robot = HuashuSocketCmdRobot | ModbusTcpRobot
 KINDS = ("huashu", "modbus")
 #: Largest |reading - truth| of a held robot [deg]: SocketCmd sends 6 decimals, UR 1 mrad.
 RESOLUTION_DEG = {"huashu": 1e-5, "modbus": 0.03}
+
+
+def _cell(seed: int, **sections: Any) -> SimulatorThread:
+    """Emulated cell on free TCP ports (``sections``: config sections), started."""
+    ports = {"port": 0}
+    config = {"seed": seed, "robot_socketcmd": ports, "robot_modbus": ports, "control": ports}
+    return SimulatorThread(SimConfig.model_validate({**config, **sections})).start()
 
 
 def _robot(sim: SimulatorThread, kind: str, **cfg: Any) -> Robot:
@@ -52,7 +59,7 @@ def _robot(sim: SimulatorThread, kind: str, **cfg: Any) -> Robot:
 @pytest.fixture
 def held_cell() -> Iterator[SimulatorThread]:
     """Emulated cell, robot held still; the seed fixes the sequence of emulated drops."""
-    s = SimulatorThread(sim_config(seed=11)).start()
+    s = _cell(seed=11)
     s.control("hold", on=True)
     try:
         yield s
@@ -63,7 +70,7 @@ def held_cell() -> Iterator[SimulatorThread]:
 @pytest.fixture
 def moving_cell() -> Iterator[SimulatorThread]:
     """Emulated cell, robot always moving (no dwell): a stale reading differs from the truth."""
-    s = SimulatorThread(sim_config(seed=5, robot={"move_time_s": 1.0, "dwell_s": 0.0})).start()
+    s = _cell(seed=5, robot={"move_time_s": 1.0, "dwell_s": 0.0})
     try:
         yield s
     finally:
