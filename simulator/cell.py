@@ -39,6 +39,8 @@ class Faults:
     over_range: bool = False
     robot_drop_rate: float = 0.0
     robot_reply_delay_s: float = 0.0
+    robot_late_rate: float = 0.0
+    robot_late_delay_s: float = 0.3
     robot_frozen: bool = False
 
     def update(self, changes: dict[str, Any]) -> None:

@@ -76,6 +76,10 @@ class FaultSection(_Strict):
     over_range: bool = False
     robot_drop_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
     robot_reply_delay_s: Annotated[float, Field(ge=0)] = 0.0
+    # Emulated late replies: this fraction of robot replies is sent robot_late_delay_s late
+    # (after the driver's timeout, as a congested link or a busy controller would).
+    robot_late_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    robot_late_delay_s: Annotated[float, Field(ge=0)] = 0.3
     robot_frozen: bool = False
 
 

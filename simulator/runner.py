@@ -160,7 +160,8 @@ class CellRunner:
         ``fault``
             Any fault fields (``indicator_crc_error_rate``, ``indicator_drop_rate``,
             ``indicator_reply_delay_s``, ``over_range``, ``robot_drop_rate``,
-            ``robot_reply_delay_s``, ``robot_frozen``); ``clear: true`` resets all first.
+            ``robot_reply_delay_s``, ``robot_late_rate``, ``robot_late_delay_s``,
+            ``robot_frozen``); ``clear: true`` resets all first.
         ``link_down``
             ``target`` (``indicator``, ``indicator_tcp``, ``robot_socketcmd``,
             ``robot_modbus`` or ``all``), ``duration_s``: the endpoint goes away and comes
