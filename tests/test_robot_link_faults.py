@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from expected_protocol import expected_protocol_tcp
 
 from drivers import (
     DeviceError,
@@ -31,13 +32,6 @@ from drivers import (
 from drivers.backoff import SilentAttempts
 from simulator.config import SimConfig
 from simulator.runner import SimulatorThread
-
-# Transitional (remove the fallback once merged): main moved drivers/testing.py to
-# tests/expected_protocol.py while this branch was written.
-try:
-    from expected_protocol import expected_protocol_tcp
-except ImportError:
-    from drivers.testing import expected_protocol_tcp
 
 pytestmark = pytest.mark.anyio
 Robot = HuashuSocketCmdRobot | ModbusTcpRobot

@@ -17,12 +17,7 @@ import httpx
 import numpy as np
 import pytest
 
-# Transitional (remove the fallback once merged): main moved daemon/testing.py to
-# daemon/cli/emulated.py while this branch was written.
-try:
-    from daemon.cli.emulated import Cell, wait_for
-except ImportError:
-    from daemon.testing import Cell, wait_for
+from daemon.cli.emulated import Cell, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
