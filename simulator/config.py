@@ -96,6 +96,10 @@ class SimConfig(_Strict):
     base_dir: str = "."  # relative paths (model, poses) are resolved against this
 
 
+#: The TCP servers whose ports :func:`with_ports` sets.
+SERVER_SECTIONS = ("robot_socketcmd", "robot_modbus", "control")
+
+
 def load_config(path: str | Path | None) -> SimConfig:
     """Read ``sim.toml``; ``None`` gives the defaults. Relative paths in the file are
     resolved against the file's directory."""
@@ -104,4 +108,17 @@ def load_config(path: str | Path | None) -> SimConfig:
     p = Path(path)
     data = tomllib.loads(p.read_text(encoding="utf-8"))
     data.setdefault("base_dir", str(p.parent.resolve()))
+    return SimConfig.model_validate(data)
+
+
+def with_ports(config: SimConfig, **ports: int | None) -> SimConfig:
+    """``config`` with the TCP ports of the named servers (``robot_socketcmd``,
+    ``robot_modbus``, ``control``) replaced; ``None`` keeps the config's port, 0 asks for any
+    free port. Raises ``ValueError`` for an unknown server name or a port out of 0..65535."""
+    data = config.model_dump()
+    for key, port in ports.items():
+        if key not in SERVER_SECTIONS:
+            raise ValueError(f"unknown server {key!r}; known: {list(SERVER_SECTIONS)}")
+        if port is not None:
+            data[key]["port"] = port
     return SimConfig.model_validate(data)

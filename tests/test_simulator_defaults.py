@@ -16,7 +16,7 @@ import pytest
 from calib.tcp import joint_limits_deg
 from drivers import HuashuConfig, HuashuSocketCmdRobot, ModbusRobotConfig, ModbusTcpRobot
 from simulator.cell import EmulatedCell
-from simulator.config import SimConfig, load_config
+from simulator.config import SimConfig, load_config, with_ports
 from simulator.poses import flange_and_hook_z_mm
 from simulator.runner import READY_KEYS, ControlClient, SimulatorThread
 
@@ -124,23 +124,35 @@ def test_fixed_ports_are_honoured() -> None:
         assert sim.ready["robot_socketcmd"] == f"127.0.0.1:{want['robot_socketcmd']}"
 
 
-def test_cablecal_simulate_prints_the_bound_ports_and_takes_port_options(tmp_path: Path) -> None:
+def test_with_ports_overrides_and_validates() -> None:
+    cfg = with_ports(SimConfig(), robot_socketcmd=23333, robot_modbus=None, control=0)
+    assert (cfg.robot_socketcmd.port, cfg.robot_modbus.port, cfg.control.port) == (23333, 0, 0)
+    assert cfg.indicator == SimConfig().indicator  # everything else kept
+    with pytest.raises(ValueError, match="unknown server 'indicator'"):
+        with_ports(SimConfig(), indicator=1)
+    with pytest.raises(ValueError, match="less than or equal to 65535"):
+        with_ports(SimConfig(), control=70000)
+
+
+def test_cablecal_simulate_prints_the_bound_ports(tmp_path: Path) -> None:
     fixed = _free_port()
+    config = tmp_path / "sim.toml"
+    config.write_text(f"[robot_socketcmd]\nport = {fixed}\n[indicator]\npty = false\n")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "simulator", "--socketcmd-port", str(fixed)],
+        [sys.executable, "-m", "simulator", "--config", str(config)],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
     try:
-        assert proc.stdout is not None and proc.stderr is not None
+        assert proc.stdout is not None
         line = proc.stdout.readline()
         assert line.startswith("READY ")
         ready = json.loads(line[len("READY ") :])
         assert list(ready) == list(READY_KEYS)
-        assert ready["robot_socketcmd"] == f"127.0.0.1:{fixed}"
-        assert _hp(ready["robot_modbus"])[1] > 0  # bound, not 0
+        assert ready["robot_socketcmd"] == f"127.0.0.1:{fixed}"  # fixed on request
+        assert _hp(ready["robot_modbus"])[1] > 0  # free by default, reported bound
         client = ControlClient(str(ready["control"]))
         assert client("state")["n_poses"] == 60
         client("stop")

@@ -11,8 +11,8 @@ from calib.models import builtin_model
 from calib.synthetic import TABLE_XII_D1, make_true_cell
 from drivers import HuashuConfig, HuashuSocketCmdRobot, IndicatorConfig, ModbusIndicator
 from simulator.cell import EmulatedCell
+from simulator.config import SimConfig
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 
@@ -35,7 +35,7 @@ def _hp(endpoint: str | None) -> tuple[str, int]:
 
 
 async def test_shift_joint_offset_changes_lengths_as_the_truth_predicts() -> None:
-    cfg = sim_config(indicator={"baud": 115200, "noise_mm": 0.0})
+    cfg = SimConfig(indicator={"baud": 115200, "noise_mm": 0.0})
     q0 = EmulatedCell(cfg).poses_deg[0]
     # The joint whose offset moves the reading at pose 0 most: the test can tell.
     effect = [predicted_lengths_mm(q0, j, DELTA_DEG)[0] - predicted_lengths_mm(q0, j, 0.0)[0]
@@ -94,7 +94,7 @@ async def test_shift_joint_offset_changes_lengths_as_the_truth_predicts() -> Non
     ],
 )
 def test_shift_joint_offset_rejects_bad_input(fields: dict[str, object], match: str) -> None:
-    with SimulatorThread(sim_config(indicator={"pty": False})) as sim:
+    with SimulatorThread(SimConfig(indicator={"pty": False})) as sim:
         before = sim.control("truth")["values"]
         with pytest.raises(RuntimeError, match=match):
             sim.control("shift_joint_offset", **fields)

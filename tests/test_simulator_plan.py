@@ -15,9 +15,9 @@ import pytest
 from calib.planning import CSV_COLUMNS
 from drivers import HuashuConfig, HuashuSocketCmdRobot
 from simulator.cell import EmulatedCell
+from simulator.config import SimConfig
 from simulator.poses import PoseCsvError, parse_poses_csv
 from simulator.runner import SimulatorThread
-from simulator.testing import sim_config
 
 pytestmark = pytest.mark.anyio
 
@@ -45,7 +45,7 @@ def write_plan_csv(path: Path, q_deg: np.ndarray) -> Path:
 
 def test_plan_csv_is_read_by_header_ignoring_extra_columns(tmp_path: Path) -> None:
     path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG)
-    cell = EmulatedCell(sim_config(robot={"poses": str(path)}))
+    cell = EmulatedCell(SimConfig(robot={"poses": str(path)}))
     np.testing.assert_array_equal(cell.poses_deg, PLAN_DEG)  # not shifted by the pose column
     # Column order does not matter; case does not matter; a header-less file is 6 columns.
     text = "Q6,q5,x,q4,q3,q2,q1\n" + "".join(
@@ -72,18 +72,18 @@ def test_bad_plan_csv_names_row_and_column(tmp_path: Path, text: str, match: str
     path = tmp_path / "bad.csv"
     path.write_text(text)
     with pytest.raises(PoseCsvError, match=match):
-        EmulatedCell(sim_config(robot={"poses": str(path)}))
+        EmulatedCell(SimConfig(robot={"poses": str(path)}))
 
 
 def test_missing_plan_file_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"robot.poses: cannot read .*nope.csv"):
-        EmulatedCell(sim_config(robot={"poses": "nope.csv"}, base_dir=str(tmp_path)))
+        EmulatedCell(SimConfig(robot={"poses": "nope.csv"}, base_dir=str(tmp_path)))
 
 
 def test_schedule_visits_exactly_the_plan_in_order(tmp_path: Path) -> None:
     path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG)
     cell = EmulatedCell(
-        sim_config(robot={"poses": str(path), "dwell_s": 1.0, "move_time_s": 0.5, "loop": False})
+        SimConfig(robot={"poses": str(path), "dwell_s": 1.0, "move_time_s": 0.5, "loop": False})
     )
     t0 = cell._t0
     for i, q in enumerate(PLAN_DEG):
@@ -96,7 +96,7 @@ def test_schedule_visits_exactly_the_plan_in_order(tmp_path: Path) -> None:
 
 
 def test_load_poses_moves_from_where_the_robot_is() -> None:
-    cell = EmulatedCell(sim_config(robot={"dwell_s": 1.0, "move_time_s": 0.5}))
+    cell = EmulatedCell(SimConfig(robot={"dwell_s": 1.0, "move_time_s": 0.5}))
     now = time.monotonic()
     before, _, _ = cell.motion(now)
     cell.load_poses(PLAN_DEG, loop=False, now=now)
@@ -146,7 +146,7 @@ async def _poll_joints(endpoint: str | None, duration_s: float) -> list[tuple[fl
 async def test_driver_sees_the_plan_csv_poses_in_order(tmp_path: Path) -> None:
     path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG)
     robot = {"poses": str(path), "dwell_s": 0.35, "move_time_s": 0.15, "loop": False}
-    with SimulatorThread(sim_config(robot=robot, indicator={"pty": False})) as sim:
+    with SimulatorThread(SimConfig(robot=robot, indicator={"pty": False})) as sim:
         readings = await _poll_joints(sim.ready["robot_socketcmd"], 4 * 0.5 + 0.4)
     seen = _plateaus(readings)
     np.testing.assert_allclose(np.array(seen), PLAN_DEG, atol=1e-6)  # 6 decimals on the wire
@@ -155,7 +155,7 @@ async def test_driver_sees_the_plan_csv_poses_in_order(tmp_path: Path) -> None:
 async def test_load_poses_command_and_csv_over_the_control_port(tmp_path: Path) -> None:
     path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG[::-1])
     robot = {"dwell_s": 0.35, "move_time_s": 0.15}
-    with SimulatorThread(sim_config(robot=robot, indicator={"pty": False})) as sim:
+    with SimulatorThread(SimConfig(robot=robot, indicator={"pty": False})) as sim:
         reply = sim.control("load_poses", poses_deg=PLAN_DEG.tolist(), loop=False)
         assert reply["poses_deg"] == PLAN_DEG.tolist() and reply["loop"] is False
         readings = await _poll_joints(sim.ready["robot_socketcmd"], 0.15 + 4 * 0.5 + 0.4)
