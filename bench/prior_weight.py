@@ -58,9 +58,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
              "median max DH length error [mm] |", "|---|---:|---:|---:|---:|"]  # fmt: skip
     for label in dict.fromkeys(r["variant"] for r in rows):
         sel = [r for r in rows if r["variant"] == label]
-        test = [r["test_rmse_mm"] for r in sel]
+        scores = [r["test_rmse_mm"] for r in sel]
         lines.append(f"| {label} | {np.mean([r['noise_mm'] for r in sel]):.3f} | "
-                     f"{np.mean(test):.3f} | {np.max(test):.3f} | "
+                     f"{np.mean(scores):.3f} | {np.max(scores):.3f} | "
                      f"{np.median([r['max_dh_length_error_mm'] for r in sel]):.1f} |")  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "prior_weight.json").write_text(json.dumps(data, indent=1) + "\n")
