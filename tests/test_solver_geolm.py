@@ -85,7 +85,7 @@ def test_noisy_synthetic_fit_matches_lm_optimum() -> None:
         pytest.param(
             "ukf-vslm",
             marks=pytest.mark.xfail(
-                strict=True, reason="issue 10: stops at its iteration limit, cost 2x too high"
+                strict=True, reason="issue 10: stops at its iteration limit (status 0)"
             ),
         ),
     ],
