@@ -4,10 +4,7 @@ fixed ports still possible."""
 
 from __future__ import annotations
 
-import json
 import socket
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +15,7 @@ from drivers import HuashuConfig, HuashuSocketCmdRobot, ModbusRobotConfig, Modbu
 from simulator.cell import EmulatedCell
 from simulator.config import SimConfig, load_config, with_ports
 from simulator.poses import flange_and_hook_z_mm
-from simulator.runner import READY_KEYS, ControlClient, SimulatorThread
+from simulator.runner import SimulatorThread
 
 pytestmark = pytest.mark.anyio
 
@@ -132,38 +129,3 @@ def test_with_ports_overrides_and_validates() -> None:
         with_ports(SimConfig(), indicator=1)
     with pytest.raises(ValueError, match="less than or equal to 65535"):
         with_ports(SimConfig(), control=70000)
-
-
-def test_cablecal_simulate_prints_the_bound_ports(tmp_path: Path) -> None:
-    fixed = _free_port()
-    config = tmp_path / "sim.toml"
-    config.write_text(f"[robot_socketcmd]\nport = {fixed}\n[indicator]\npty = false\n")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "simulator", "--config", str(config)],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        assert line.startswith("READY ")
-        ready = json.loads(line[len("READY ") :])
-        assert list(ready) == list(READY_KEYS)
-        assert ready["robot_socketcmd"] == f"127.0.0.1:{fixed}"  # fixed on request
-        assert _hp(ready["robot_modbus"])[1] > 0  # free by default, reported bound
-        client = ControlClient(str(ready["control"]))
-        assert client("state")["n_poses"] == 60
-        client("stop")
-        client.close()
-        _, err = proc.communicate(timeout=10)
-        assert proc.returncode == 0
-        summary = next(line for line in err.splitlines() if line.startswith("EMULATED cell"))
-        assert f"robot_socketcmd 127.0.0.1:{fixed}" in summary
-        assert f"robot_modbus {ready['robot_modbus']}" in summary
-        assert f"control {ready['control']}" in summary
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
