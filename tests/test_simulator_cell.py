@@ -163,3 +163,35 @@ def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> Non
     summary = next(line for line in err.splitlines() if line.startswith("EMULATED cell"))
     for key in ("robot_socketcmd", "robot_modbus", "control", "indicator_port"):
         assert f"{key} {ready[key]}" in summary
+
+
+def test_cablecal_simulate_port_options_override_the_config() -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        fixed = probe.getsockname()[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "daemon.cli", "simulate", "--modbus-port", str(fixed)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("READY "), proc.stderr.read() if proc.stderr else line
+        ready = json.loads(line[len("READY ") :])
+        assert ready["robot_modbus"] == f"127.0.0.1:{fixed}"
+        assert int(ready["robot_socketcmd"].rsplit(":", 1)[1]) > 0  # unset: a free port
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+    bad = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "simulate", "--control-port", "70000"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2
+    assert "--control-port" in bad.stderr
