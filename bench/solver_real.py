@@ -5,7 +5,7 @@ robust weights): anchors fitted with the nominal model, tool point and anchors r
 parameter set from the identifiability analysis (:func:`build_problem`). Then, for
 
 * ``n = 100``: the training rows of the paper protocol's draws, seeds 0–9
-  (:func:`bench.real_data.paper_protocol_split`; the 20 held-out rows give a test RMSE), and
+  (:func:`calib.protocol.paper_split`; the 20 held-out rows give a test RMSE), and
 * ``n = 2017``: every row (no test set),
 
 each method (``geolm``, ``ukf-vslm``, ``lm`` through identify's own dispatch, and scipy
@@ -41,14 +41,16 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from bench.real_data import ROBOT, paper_protocol_split
+from bench.real_data import ROBOT
 from calib.cable import N_DH, ParamLayout, length_jacobian, predict_lengths
 from calib.dataset import SampleSet
 from calib.identifiability import analyse
-from calib.identify import IdentifyOptions, _fit, _generic_jacobian, _run_method, fit_anchors
+from calib.identify import IdentifyOptions, _fit, _generic_jacobian, fit_anchors
 from calib.kinematics import FloatArray
+from calib.methods import run as _run_method
 from calib.models import RobotModel
 from calib.problem import Problem
+from calib.protocol import paper_split as paper_protocol_split
 from calib.solvers import geolm
 from calib.solvers.common import SolverResult
 from daemon.datafiles import load_robot, read_samples

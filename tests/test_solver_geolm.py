@@ -8,7 +8,8 @@ from scipy.optimize import least_squares
 
 from calib.cable import predict_lengths
 from calib.dataset import SampleSet, make_samples
-from calib.identify import IdentifyOptions, _run_method, identify
+from calib.identify import IdentifyOptions, identify
+from calib.methods import run as _run_method
 from calib.models import builtin_model
 from calib.problem import Problem
 from calib.solvers import geolm
