@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console, RenderableType
@@ -18,10 +18,6 @@ from rich.table import Table
 from rich.text import Text
 
 from daemon.cli.calibration import _fail
-
-if TYPE_CHECKING:
-    from calib.dataset import SampleSet
-    from calib.models import RobotModel
 
 
 def parse_floats(text: str, option: str, count: int, what: str) -> tuple[float, ...]:
@@ -35,21 +31,6 @@ def parse_floats(text: str, option: str, count: int, what: str) -> tuple[float, 
     if len(values) != count or any(v != v or v in (float("inf"), float("-inf")) for v in values):
         raise ValueError(f"{option}: expected {what}, got {text!r}")
     return values
-
-
-def _start_anchors(model: RobotModel, start: SampleSet) -> tuple[list[list[float]], list[str]]:
-    """Each start anchor's P0 [mm] (multilaterated with the nominal model) and its id."""
-    import numpy as np
-
-    from calib.cable import multilaterate
-    from calib.kinematics import forward_position
-
-    pos = forward_position(model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm,
-                           model.convention)  # fmt: skip
-    idx = start.anchor_index()
-    anchors = [multilaterate(pos[idx == k], start.length_mm[idx == k])[0].tolist()
-               for k in range(len(start.anchor_ids))]  # fmt: skip
-    return anchors, list(start.anchor_ids)
 
 
 #: The engine's names (``calib.planning``'s ``ValueError`` messages start with them) → options.
@@ -194,7 +175,7 @@ def register(app: typer.Typer) -> None:
         the predicted accuracy against as many random poses."""
         from calib.dataset import SampleError
         from calib.models import ModelError
-        from calib.planning import PlanOptions, plan
+        from calib.planning import PlanOptions, plan, start_anchors_mm
         from daemon.datafiles import load_robot, read_samples
 
         console = Console()  # created here so COLUMNS is read at run time
@@ -220,7 +201,8 @@ def register(app: typer.Typer) -> None:
             if not anchors:
                 if samples is None:
                     raise ValueError("--anchor-mm: required (X,Y,Z in mm) without --start")
-                anchors, ids = _start_anchors(model, samples)  # type: ignore[assignment]
+                found = start_anchors_mm(model, samples)
+                anchors, ids = [tuple(p0.tolist()) for p0 in found.values()], list(found)
             if ids and len(ids) != len(anchors):
                 raise ValueError(f"--anchor-id: {len(ids)} ids for {len(anchors)} anchors")
             if ids:
