@@ -12,6 +12,7 @@ from fastapi.testclient import TestClient
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api.main import create_app
+from daemon.capture import Capture
 from daemon.datafiles import bundled_dataset_text
 
 ANCHOR = [1430.0, 330.0, 230.0]
@@ -81,6 +82,17 @@ def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestC
     assert [p["status"] for p in got["poses"][:4]] == ["done", "pending", "done", "done"]
     assert got["progress"]["n_done"] == 3 and got["progress"]["n_pending"] == 5
 
+    # Auto capture: the sampler hands its capture to the store (its sink), as here.
+    store = client.app.state.cablecal.store  # type: ignore[attr-defined]
+    q5 = _q(poses[4], -0.3)
+    store.store_capture(cid, Capture(joints_deg=(q5[0], q5[1], q5[2], q5[3], q5[4], q5[5]),
+                                     joints_std_deg=(0.001,) * 6,  # type: ignore[arg-type]
+                                     length_mm=900.0, length_std_mm=0.01, count=10,
+                                     anchor="A", t_start_wall=time.time() - 1,
+                                     t_end_wall=time.time(), mode="auto"))  # fmt: skip
+    got = _plan(client, cid)
+    assert got["poses"][4]["status"] == "done" and got["progress"]["n_done"] == 4
+
     # Excluding the captured sample makes pose 1 pending again.
     r = client.patch(f"/api/v1/samples/{sid}", json={"excluded": True}, headers=AUTH)
     assert r.status_code == 200, r.text
@@ -142,6 +154,8 @@ def test_not_found_auth_and_bounds(client: TestClient) -> None:
     for change, text in engine:
         r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
         assert r.status_code == 422 and text in r.json()["detail"], (change, r.text)
+    spec = client.get("/openapi.json").json()["paths"]["/api/v1/campaigns/{campaign_id}/plan"]
+    assert spec["post"]["summary"] and spec["get"]["summary"]
     r = client.get(f"/api/v1/campaigns/{cid}/plan", params={"tol_deg": 0}, headers=AUTH)
     assert r.status_code == 422
     assert client.get(f"/api/v1/campaigns/{cid}/plan", headers=AUTH).status_code == 404

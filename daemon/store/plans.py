@@ -12,9 +12,10 @@ it is asked (see its docstring for why that is enough).
 from __future__ import annotations
 
 import json
-from typing import Any, TypedDict, cast
+from typing import Any, cast
 
 import numpy as np
+from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
 from calib.kinematics import FloatArray, IndexArray
@@ -25,9 +26,27 @@ from daemon.store.errors import StoreInvalid, StoreNotFound
 MATCH_TOL_DEG = 0.5
 
 
-class PlanRow(TypedDict):
-    """A stored plan: ``options`` as requested, ``summary`` (condition number, 1σ per base
-    parameter, TCP σ plan vs random, times, anchor gain), ``poses`` in visiting order."""
+class PlannedPoseRow(TypedDict):
+    """A planned pose as :meth:`calib.planning.PlanResult.csv_rows` gives it: joints [deg],
+    anchor id, predicted cable extension and the anchor guess [mm]."""
+
+    pose: int
+    q1: float
+    q2: float
+    q3: float
+    q4: float
+    q5: float
+    q6: float
+    anchor: str
+    extension_mm: float
+    anchor_x_mm: float
+    anchor_y_mm: float
+    anchor_z_mm: float
+
+
+class PlanHeader(TypedDict):
+    """What a stored plan is, apart from its poses: ``options`` as requested, ``summary``
+    (condition number, 1σ per base parameter, TCP σ plan vs random, times, anchor gain)."""
 
     id: int
     campaign_id: int
@@ -35,7 +54,12 @@ class PlanRow(TypedDict):
     created_at: float
     options: dict[str, Any]
     summary: dict[str, Any]
-    poses: list[dict[str, Any]]
+
+
+class PlanRow(PlanHeader):
+    """A stored plan with its poses in visiting order."""
+
+    poses: list[PlannedPoseRow]
 
 
 def _plan_out(row: Row) -> PlanRow:

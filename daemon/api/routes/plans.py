@@ -19,7 +19,8 @@ from calib.dataset import JOINT_COLUMNS, SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import PlanOptions, plan, start_anchors_mm
 from daemon.api.deps import ReadAuth, State, WriteAuth
-from daemon.store import MATCH_TOL_DEG, PlanRow, match_poses
+from daemon.store import MATCH_TOL_DEG, match_poses
+from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
 router = APIRouter(tags=["plans"])
 
@@ -85,21 +86,9 @@ class PlanRequest(BaseModel):
         )  # fmt: skip
 
 
-class PlannedPose(TypedDict):
+class PlannedPose(PlannedPoseRow):
     """A planned pose with its state: ``done`` once a sample of the campaign measured it."""
 
-    pose: int
-    q1: float
-    q2: float
-    q3: float
-    q4: float
-    q5: float
-    q6: float
-    anchor: str
-    extension_mm: float
-    anchor_x_mm: float
-    anchor_y_mm: float
-    anchor_z_mm: float
     status: Literal["done", "pending"]
     sample_id: int | None
 
@@ -115,15 +104,9 @@ class PlanProgress(TypedDict):
     next_pose: int | None
 
 
-class PlanView(TypedDict):
-    """A stored plan with its progress."""
+class PlanView(PlanHeader):
+    """A stored plan with each pose's state and the progress."""
 
-    id: int
-    campaign_id: int
-    robot_id: int
-    created_at: float
-    options: dict[str, Any]
-    summary: dict[str, Any]
     poses: list[PlannedPose]
     progress: PlanProgress
 
@@ -132,13 +115,13 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
     """The plan with each pose done or pending against the campaign's included samples."""
     samples, sample_ids = state.store.sample_set(stored["campaign_id"])  # included ones
     poses = stored["poses"]
-    planned = np.array([[p[c] for c in JOINT_COLUMNS] for p in poses], dtype=np.float64)
-    match = match_poses(planned, [str(p["anchor"]) for p in poses], samples.joints_deg,
+    planned = np.array([[p[c] for c in JOINT_COLUMNS] for p in poses], dtype=np.float64)  # type: ignore[literal-required]
+    match = match_poses(planned, [p["anchor"] for p in poses], samples.joints_deg,
                         [str(a) for a in samples.anchor], tol_deg)  # fmt: skip
     out: list[PlannedPose] = []
     for pose, k in zip(poses, match, strict=True):
         done = bool(k >= 0)
-        out.append({**pose, "status": "done" if done else "pending",  # type: ignore[typeddict-item]
+        out.append({**pose, "status": "done" if done else "pending",
                     "sample_id": sample_ids[int(k)] if done else None})  # fmt: skip
     n_done = int(np.count_nonzero(match >= 0))
     pending = [p["pose"] for p in out if p["status"] == "pending"]
