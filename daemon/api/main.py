@@ -15,7 +15,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from daemon import metrics
 from daemon.api.deps import AppState
 from daemon.api.page import OPERATOR_PAGE
-from daemon.api.routes import campaigns, identifications, robots, system
+from daemon.api.routes import campaigns, identifications, plans, robots, system
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store, StoreNotFound
@@ -127,7 +127,7 @@ def create_app(
         lifespan=lifespan,
     )
     app.add_middleware(LatencyMiddleware)
-    for module in (system, campaigns, identifications, robots):
+    for module in (system, campaigns, identifications, robots, plans):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
 

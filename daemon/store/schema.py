@@ -134,10 +134,28 @@ def _migration_2(conn: sqlite3.Connection) -> None:
         conn.execute(sql)
 
 
+def _migration_3(conn: sqlite3.Connection) -> None:
+    # Pose plans (daemon.store.plans): options, summary and poses as JSON; the newest per
+    # campaign is the current one.
+    conn.execute(
+        """CREATE TABLE plans (
+            id INTEGER PRIMARY KEY,
+            campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+            robot_id INTEGER NOT NULL REFERENCES robots(id),
+            options_json TEXT NOT NULL,
+            summary_json TEXT NOT NULL,
+            poses_json TEXT NOT NULL,
+            created_at REAL NOT NULL
+        )"""
+    )
+    conn.execute("CREATE INDEX plans_campaign_id ON plans(campaign_id)")
+
+
 #: The schema history, oldest first; ``version`` is the position (1-based).
 MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
     Migration(2, "jobs, results, events; samples.pose_group", _migration_2),
+    Migration(3, "plans", _migration_3),
 )
 SCHEMA_VERSION: Final = MIGRATIONS[-1].version
 
