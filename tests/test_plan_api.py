@@ -129,8 +129,8 @@ def test_not_found_auth_and_bounds(client: TestClient) -> None:
                                headers=headers)  # fmt: skip
             assert r.status_code == 401, (method, r.text)
     bad = [
-        ({"n": 501}, "n"),
-        ({"candidates": 20_001}, "candidates"),
+        ({"n": 201}, "n"),
+        ({"candidates": 10_001}, "candidates"),
         ({"anchors_mm": [[1.0, 2.0]]}, "anchors_mm"),
         ({"anchors_mm": [ANCHOR] * 5}, "anchors_mm"),
         ({"joint_speed_deg_s": [30.0] * 5}, "joint_speed_deg_s"),

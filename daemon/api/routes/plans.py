@@ -27,8 +27,8 @@ router = APIRouter(tags=["plans"])
 _D = PlanOptions()
 
 #: Bounds of a plan request: what one request may ask of the 2-core cell PC.
-MAX_POSES = 500
-MAX_CANDIDATES = 20_000
+MAX_POSES = 200
+MAX_CANDIDATES = 10_000
 MAX_ANCHORS = 4
 
 Coordinate = Annotated[float, Field(ge=-10_000.0, le=10_000.0, allow_inf_nan=False)]
