@@ -13,9 +13,10 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import calibration, db, serve, simulate
+    from daemon.cli import apply, calibration, db, serve, simulate
 
     calibration.register(app)
+    apply.register(app)
     serve.register(app)
     db.register(app)
     simulate.register(app)

@@ -10,6 +10,7 @@ manager, ``cablecal db``). It is assembled from one module per concern:
 - :mod:`.robots`, :mod:`.campaigns`: robots, campaigns, samples, import and export.
 - :mod:`.jobs`: jobs, results, the calibrated model.
 - :mod:`.events`: the event log.
+- :mod:`.checks`: drift checks and check poses.
 - :mod:`.rows`: the typed rows every method returns; :mod:`.errors`: the exceptions.
 
 Values returned
@@ -34,6 +35,7 @@ Units and time
 from __future__ import annotations
 
 from daemon.store.campaigns import EXPORT_FORMAT, EXPORT_FORMAT_VERSION, CampaignStore
+from daemon.store.checks import CheckPoses, CheckRow, CheckStore
 from daemon.store.db import BUSY_TIMEOUT_MS, DB_FILENAME, Row
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.events import EventStore
@@ -66,7 +68,7 @@ from daemon.store.schema import (
 )
 
 
-class Store(CampaignStore, JobStore, EventStore):
+class Store(CampaignStore, JobStore, EventStore, CheckStore):
     """The SQLite store. Implements :class:`daemon.capture.CaptureSink`.
 
     ``Store(path)`` opens the file, creating or migrating it; ``Store(path, readonly=True)``
@@ -94,6 +96,8 @@ __all__ = [
     "CalibratedModel",
     "CampaignExport",
     "CampaignRow",
+    "CheckPoses",
+    "CheckRow",
     "EventRow",
     "ExportedSample",
     "JobRow",

@@ -69,7 +69,7 @@ def test_version_1_file_is_migrated_on_open(tmp_path: Path) -> None:
     conn.close()
 
     with Store(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 2
+        assert s.schema_version == SCHEMA_VERSION == 3
         sample = s.get_sample(1)
         assert sample is not None and sample["length_mm"] == 432.1
         assert sample["pose_group"] is None
