@@ -228,10 +228,11 @@ def get_check_poses(state: State, robot_id: int) -> CheckPoses:
     summary="Start a drift check",
     dependencies=[WriteAuth],
 )
-def start_check(state: State, robot_id: int) -> CheckRow:
-    """Creates the check campaign and switches auto capture to it; the robot must visit the
-    check poses (``GET …/check-poses``). Follow it at ``GET /robots/{id}/checks``. 409 while
-    another check runs or auto capture is on for a campaign."""
+async def start_check(state: State, robot_id: int) -> CheckRow:
+    """Creates the check campaign and switches auto capture to it (on the event loop, where
+    the sampler and the check's task live); the robot must visit the check poses
+    (``GET …/check-poses``). Follow it at ``GET /robots/{id}/checks``. 409 while another
+    check runs or auto capture is on for a campaign."""
     try:
         return state.drift.start_check(robot_id, "manual")  # type: ignore[no-any-return]
     except CheckConflict as exc:
