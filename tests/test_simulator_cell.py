@@ -143,7 +143,7 @@ def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> Non
         assert os.path.exists(ready["indicator_port"])
         assert ready["indicator_tcp"] is None
         client = ControlClient(ready["control"])
-        assert client("state")["n_poses"] == 20
+        assert client("state")["n_poses"] == 60
         client.close()
     finally:
         proc.send_signal(signal.SIGTERM)
