@@ -27,7 +27,9 @@ DAEMON_ENV = {**FAST_DAEMON_ENV, "CABLECAL_DRIFT__TIMEOUT_S": "60"}
 
 def _csv(q: np.ndarray, lengths: np.ndarray) -> str:
     lines = ["q1,q2,q3,q4,q5,q6,L"]
-    lines += [",".join(f"{v:.6f}" for v in (*row, length)) for row, length in zip(q, lengths)]
+    lines += [
+        ",".join(f"{v:.6f}" for v in (*row, length)) for row, length in zip(q, lengths, strict=True)
+    ]
     return "\n".join(lines) + "\n"
 
 
