@@ -178,5 +178,6 @@ def test_tables_fit_80_columns(cell_and_result: tuple[TrueCell, Path, Path]) -> 
     compensation_summary(out, con)
     verify_tables(verify(result, read_samples(data)), con)
     text = con.export_text()
-    assert "Compensation" in text and "Per-pose residuals" in text
+    assert "Compensation (joint targets" in text and "Per-pose residuals" in text
+    assert "max residual [mm]" in text and "RMSE [mm]" in text  # units survive the markup
     assert not _wide_lines(text)

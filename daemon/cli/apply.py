@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 if TYPE_CHECKING:
@@ -84,22 +85,24 @@ def _seed(text: str | None) -> list[float] | None:
 def compensation_summary(out: CompensateResult, con: Console) -> None:
     """The figures of a compensation, its flagged rows (first 10) and the note."""
     s = out.summary
-    table = Table(title=f"Compensation ({out.kind} targets, {out.mode} mode)")
+    kind = "joint" if out.kind == "joints" else out.kind
+    table = Table(title=f"Compensation ({kind} targets, {out.mode} mode)")
     table.add_column("figure")
     table.add_column("value", justify="right")
     table.add_row("targets", str(s["n"]))
     table.add_row("flagged", str(s["n_flagged"]))
     for flag, count in sorted(s["flag_counts"].items()):
         table.add_row(f"  {flag}", str(count))
-    table.add_row("max residual [mm]", f"{s['max_residual_mm']:.4f}")
-    table.add_row("error without correction, RMS [mm]", f"{s['rms_uncompensated_error_mm']:.4f}")
-    table.add_row("largest joint correction [deg]", f"{s['max_correction_deg']:.4f}")
+    table.add_row(escape("max residual [mm]"), f"{s['max_residual_mm']:.4f}")
+    table.add_row(escape("error without correction, RMS [mm]"),
+                  f"{s['rms_uncompensated_error_mm']:.4f}")  # fmt: skip
+    table.add_row(escape("largest joint correction [deg]"), f"{s['max_correction_deg']:.4f}")
     con.print(table)
     flagged = [r for r in out.csv_rows() if r["flags"]][:10]
     if flagged:
         rows = Table(title="Flagged targets (first 10)")
         for col in ("row", "residual [mm]", "iter", "flags"):
-            rows.add_column(col, justify="right" if col != "flags" else "left")
+            rows.add_column(escape(col), justify="right" if col != "flags" else "left")
         for r in flagged:
             rows.add_row(str(r["index"] + 1), f"{r['residual_mm']:.4f}", str(r["iterations"]),
                          r["flags"].replace(";", ", "))  # fmt: skip
@@ -115,7 +118,7 @@ def verify_tables(out: VerifyResult, con: Console) -> None:
     title = "Verification" + (" (anchor refit)" if out.refit_anchor else "")
     table = Table(title=title)
     for col in ("n", "RMSE [mm]", "MAE [mm]", "MAX [mm]", "at identification [mm]"):
-        table.add_column(col, justify="right")
+        table.add_column(escape(col), justify="right")
     ref = "-" if out.reference_rmse_mm is None else f"{out.reference_rmse_mm:.4f}"
     table.add_row(str(int(m["n"])), f"{m['rmse_mm']:.4f}", f"{m['mae_mm']:.4f}",
                   f"{m['max_mm']:.4f}", ref)  # fmt: skip
@@ -128,7 +131,7 @@ def verify_tables(out: VerifyResult, con: Console) -> None:
         title += f", the {MAX_PRINTED_ROWS} largest of {n} (all: --out)"
     rows = Table(title=title)
     for col in ("pose", "anchor", "measured [mm]", "predicted [mm]", "residual [mm]"):
-        rows.add_column(col, justify="right")
+        rows.add_column(escape(col), justify="right")
     for i in order:
         rows.add_row(str(int(i) + 1), out.anchor[i], f"{out.measured_mm[i]:.3f}",
                      f"{out.predicted_mm[i]:.3f}", f"{out.residual_mm[i]:+.4f}")  # fmt: skip
