@@ -22,9 +22,7 @@ from typing import Any, Final, Literal, cast
 from typing_extensions import TypedDict
 
 from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
-from daemon.store.errors import StoreInvalid, StoreNotFound
-from daemon.store.jobs import NO_CALIBRATION
-from daemon.store.rows import ResultRow
+from daemon.store.errors import StoreInvalid
 
 CHECK_STATUSES: Final = ("running", "ok", "drift", "failed")
 CHECK_TRIGGERS: Final = ("manual", "schedule")
@@ -96,25 +94,6 @@ def _check_row(row: Row) -> CheckRow:
 
 class CheckStore(StoreDB):
     """Check poses and drift checks (part of :class:`daemon.store.Store`)."""
-
-    def accepted_result(self, robot_id: int) -> ResultRow:
-        """The newest accepted result of a robot, its ``result.json`` mapping decoded.
-
-        Raises
-        ------
-        StoreNotFound
-            No such robot, or (reason :data:`~daemon.store.jobs.NO_CALIBRATION`) none accepted.
-        """
-        with self._lock:
-            self._require("robots", "robot", robot_id)
-            row = self._one(
-                "SELECT * FROM results WHERE robot_id = ? AND accepted = 1 ORDER BY id DESC "
-                "LIMIT 1",
-                [robot_id],
-            )
-        if row is None:
-            raise StoreNotFound("robot", robot_id, NO_CALIBRATION)
-        return cast(ResultRow, decode_row(row))
 
     # ------------------------------------------------------------------ check poses
     def set_check_poses(self, robot_id: int, poses_deg: Sequence[Sequence[float]]) -> CheckPoses:
