@@ -327,3 +327,20 @@ def _fake_result() -> dict[str, Any]:
         "length_offset_mm": 0.0,
         "metrics": {"after": {"test": {"n": 10, "rmse_mm": 0.05}}},
     }
+
+
+def test_scheduled_check_starts_by_itself(tmp_path: Path, cell: TrueCell) -> None:
+    drift = {"timeout_s": 1.0, "check_interval_h": 0.0003}  # about 1 s
+    settings = Settings(state_dir=tmp_path, api_token=TOKEN, drift=drift)
+    with TestClient(create_app(settings, TOKEN, sampler_factory=FakeSampler)) as c:
+        cid = _campaign(c, cell, 20, seed=8)
+        store = c.app.state.cablecal.store  # type: ignore[attr-defined]
+        rid = c.get(f"{API}/campaigns/{cid}", headers=AUTH).json()["robot_id"]
+        job = store.create_job(cid, rid, "lm", {})
+        store.save_result(job["id"], {**_fake_result(), "robot": "hsr-jr680"})
+        deadline = time.monotonic() + 20
+        while not (checks := c.get(f"{API}/robots/{rid}/checks", headers=AUTH).json()):
+            assert time.monotonic() < deadline, "no scheduled check"
+            time.sleep(0.2)
+        assert checks[0]["trigger"] == "schedule"
+        assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["check_interval_h"] > 0

@@ -20,7 +20,8 @@ import pytest
 
 from daemon.cli.emulated import FAST_CELL_NOISE_MM, FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+# About 75 s alone on 2 shared cores; the timeout bounds it under contention.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 DAEMON_ENV = {**FAST_DAEMON_ENV, "CABLECAL_DRIFT__TIMEOUT_S": "60"}
 
@@ -109,4 +110,3 @@ def test_drift_is_flagged_and_an_unchanged_cell_is_not(
                 f"{[round(c['rms_mm'], 4) for c in quiet]} mm; joint 2 +0.05 deg: RMS "
                 f"{drifted['rms_mm']:.4f} mm; {time.monotonic() - t0:.0f} s"
             )
-    assert time.monotonic() - t0 < 120

@@ -76,14 +76,15 @@ def _compensate(
     state: State, robot_id: int, text: str, mode: str, tool: Any, seed: Any
 ) -> dict[str, Any] | str:
     """Parse and compensate (in a worker thread); the JSON mapping, or 422 text."""
-    from calib.compensate import CompensateOptions, compensate, parse_targets_csv
+    from calib.compensate import CompensateOptions, JointTargets, compensate, parse_targets_csv
     from calib.export import model_from_result
 
     result = state.store.accepted_result(robot_id)["result"]
     nominal = state.store.robot_model(robot_id)
     try:
         targets = parse_targets_csv(text, seed)
-        n = (targets.joints_deg if hasattr(targets, "joints_deg") else targets.position_mm).shape[0]
+        rows = targets.joints_deg if isinstance(targets, JointTargets) else targets.position_mm
+        n = rows.shape[0]
         if n > MAX_TARGETS:
             return f"body: {n} targets, at most {MAX_TARGETS}"
         options = CompensateOptions(mode=mode, tool_mm=tool or (0.0, 0.0, 0.0))  # type: ignore[arg-type]
