@@ -15,8 +15,9 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from daemon import metrics
 from daemon.api.deps import AppState
 from daemon.api.page import OPERATOR_PAGE
-from daemon.api.routes import campaigns, identifications, plans, robots, system
+from daemon.api.routes import apply, campaigns, identifications, plans, robots, system
 from daemon.config import Settings
+from daemon.drift import DriftMonitor
 from daemon.jobs import JobManager
 from daemon.store import Store, StoreNotFound
 
@@ -112,8 +113,12 @@ def create_app(
                     known_poses_deg=state.store.poses_deg(cid),
                 )
                 log.info("auto capture resumed", extra={"campaign_id": cid})
+            state.drift = DriftMonitor(state.store, settings.drift, state.sampler)
+            await state.drift.start()
             yield
         finally:
+            if state.drift is not None:
+                await state.drift.stop()
             if state.sampler is not None:
                 await state.sampler.stop()
             await state.jobs.stop()
@@ -127,7 +132,7 @@ def create_app(
         lifespan=lifespan,
     )
     app.add_middleware(LatencyMiddleware)
-    for module in (system, campaigns, identifications, robots, plans):
+    for module in (system, campaigns, identifications, robots, plans, apply):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
 
