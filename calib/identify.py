@@ -16,8 +16,9 @@ The public entry point is :func:`identify`. It
    residuals; :mod:`calib.robust`), optionally with a Gaussian prior toward the nominal model
    (MAP);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
-   metrics before and after on train and test, and the plausibility of every parameter
-   (:mod:`calib.report`).
+   metrics before and after on train and test, the plausibility of every parameter
+   (:mod:`calib.report`) and the predicted tool-point σ after best rigid alignment
+   (:mod:`calib.tcp`).
 
 Units: inputs in degrees and millimetres; internal computation in radians and millimetres;
 every reported figure in degrees and millimetres.
@@ -45,11 +46,12 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel
 from calib.options import METHODS, IdentifyOptions, validate
 from calib.problem import Problem
-from calib.report import IdentifyResult, plausibility, uncertainty
+from calib.report import IdentifyResult, covariance, plausibility, uncertainty
 from calib.robust import weights as robust_weights
 from calib.solvers import lm
 from calib.solvers.common import ProgressFn, SolverResult, Timer, report
 from calib.split import pose_groups, split_rows
+from calib.tcp import tcp_uncertainty_for_problem
 
 __all__ = [
     "METHODS",
@@ -314,7 +316,11 @@ def identify(
 
     x = result.x
     theta = final.full(x)
-    sigma, corr = uncertainty(final, x)
+    cov, _ = covariance(final, x)
+    sigma, corr = uncertainty(final, x, cov)
+    # The covariance propagated to the tool point over a workspace sample within the joint
+    # limits, after removing the rigid motions distances cannot see (calib.tcp).
+    tcp = tcp_uncertainty_for_problem(final, x, cov).to_dict()
     extension = (d.lengths(theta, np.arange(len(samples)))
                  - theta[N_KIN:].reshape(-1, 4)[d.aidx_all, 3])  # fmt: skip
     plaus = plausibility(layout, theta, d.model.tool_mm, extension)
@@ -339,6 +345,7 @@ def identify(
         metrics=_figures(d, theta_before, theta), flagged_rows=flagged,
         train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
         notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
+        tcp_uncertainty_mm=tcp,
     )  # fmt: skip
 
 

@@ -53,6 +53,9 @@ class IdentifyResult:
     elapsed_s: float = 0.0
     #: (p,) where every method started: nominal DH, tool point and anchors fitted.
     theta_start: FloatArray | None = None
+    #: Predicted 1σ tool-point error after best rigid alignment over a workspace sample,
+    #: ``{"rms", "max"}`` [mm] (:func:`calib.tcp.tcp_uncertainty_for_problem`).
+    tcp_uncertainty_mm: dict[str, float] | None = None
 
     def dh_table_deg_mm(self, errors_only: bool = False) -> FloatArray:
         """Calibrated (or error) DH table, shape (6, 4): alpha_deg, a_mm, d_mm, theta_deg."""
@@ -115,6 +118,7 @@ class IdentifyResult:
             "anchor_id": self.layout.anchors[0],
             "anchors": {a: v for a, v in anchors.items() if a != self.layout.anchors[0]},
             "uncertainty": uncertainty,
+            "tcp_uncertainty_mm": self.tcp_uncertainty_mm,
             "correlation": {
                 "names": list(self.free_names),
                 "matrix": [[round(float(v), 6) for v in row] for row in self.correlation],
@@ -172,10 +176,14 @@ def covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]
     return cov_scaled / np.outer(d, d), np.array(np.sqrt(sigma2))
 
 
-def uncertainty(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+def uncertainty(
+    problem: Problem, x: FloatArray, cov: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
     """1σ per parameter, shape (p,) in internal units (0 for fixed ones), and the correlation
-    matrix of the free parameters, shape (k, k), at ``x`` (shape (k,))."""
-    cov, _ = covariance(problem, x)
+    matrix of the free parameters, shape (k, k), at ``x`` (shape (k,)); ``cov`` is
+    :func:`covariance` at ``x`` when the caller has it already."""
+    if cov is None:
+        cov, _ = covariance(problem, x)
     sig_free = np.sqrt(np.clip(np.diag(cov), 0, None))
     sigma = np.zeros(problem.layout.size)
     sigma[problem.free] = sig_free

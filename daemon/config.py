@@ -77,6 +77,31 @@ class JobSettings(BaseModel):
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
 
 
+class DriftSettings(BaseModel):
+    """Drift checks of a calibrated robot (:mod:`daemon.drift`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    check_interval_h: Annotated[float, Field(gt=0)] | None = None
+    """Hours between scheduled checks of every calibrated robot; unset: manual checks only."""
+    threshold_mm: Annotated[float, Field(gt=0)] | None = None
+    """Absolute RMS [mm] above which a check is drift; unset: ``threshold_factor`` times the
+    calibration's own residual RMSE."""
+    threshold_factor: Annotated[float, Field(gt=0)] = 3.0
+    """Multiple of the calibration's residual RMSE used when ``threshold_mm`` is unset."""
+    min_threshold_mm: Annotated[float, Field(gt=0)] = 0.01
+    """Floor of the derived threshold [mm]."""
+    refit_anchor: bool = False
+    """Refit the anchor P0 and zero offset on the check poses (only after moving the sensor:
+    it absorbs part of a drift)."""
+    n_poses: Annotated[int, Field(ge=3, le=100)] = 8
+    """Default check poses: this many well-spread poses of the calibration's samples."""
+    pose_tol_deg: Annotated[float, Field(gt=0, le=10)] = 0.5
+    """A capture counts for a check pose within this on every joint [deg]."""
+    timeout_s: Annotated[float, Field(gt=0)] = 1800.0
+    """A check whose poses are not all captured after this long [s] fails."""
+
+
 def default_state_dir() -> Path:
     """``$STATE_DIRECTORY`` (set by systemd's ``StateDirectory=``), else
     ``$XDG_STATE_HOME/cablecal``, else ``~/.local/state/cablecal``."""
@@ -122,6 +147,7 @@ class Settings(BaseSettings):
     robot: RobotSettings = Field(default_factory=ManualRobotConfig)
     """The joint-angle source; ``kind`` manual (default), huashu-socketcmd or modbus-tcp."""
     jobs: JobSettings = JobSettings()
+    drift: DriftSettings = DriftSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
 

@@ -61,3 +61,9 @@ HTTP_LATENCY = Histogram(
     buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1, 2.5),
     registry=REGISTRY,
 )
+DRIFT_RMS = Gauge(
+    "cablecal_drift_rms_mm",
+    "RMS cable-length residual of the robot's last drift check against its calibration [mm].",
+    ["robot"],  # robot id
+    registry=REGISTRY,
+)

@@ -7,7 +7,6 @@ noise and quantisation to the indicator's decimals. Nothing here does I/O.
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -18,8 +17,10 @@ import numpy as np
 
 from calib.kinematics import FloatArray, forward_frames
 from calib.models import RobotModel, builtin_model, parse_model_text
-from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, random_poses_deg
+from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell
+from calib.tcp import joint_limits_deg
 from simulator.config import SimConfig
+from simulator.poses import parse_poses_csv, spread_poses_deg
 
 #: Display limits of the 6-digit indicator (counts).
 DISPLAY_MIN, DISPLAY_MAX = -199999, 999999
@@ -27,6 +28,8 @@ DISPLAY_MIN, DISPLAY_MAX = -199999, 999999
 MM_PER_PULSE = 0.004
 
 STATUS_OVER, STATUS_UNDER, STATUS_MOVING = 0, 1, 2
+#: Column of the joint offset (theta error, rad internally) in a joint's 4 DH errors.
+DH_THETA_COLUMN = 3
 
 
 @dataclass
@@ -39,6 +42,8 @@ class Faults:
     over_range: bool = False
     robot_drop_rate: float = 0.0
     robot_reply_delay_s: float = 0.0
+    robot_late_rate: float = 0.0
+    robot_late_delay_s: float = 0.3
     robot_frozen: bool = False
 
     def update(self, changes: dict[str, Any]) -> None:
@@ -56,28 +61,6 @@ def load_model(name_or_path: str, base_dir: str) -> RobotModel:
         path = Path(base_dir) / name_or_path
         return parse_model_text(path.read_text(encoding="utf-8"), path.suffix[1:])
     return builtin_model(name_or_path)
-
-
-def load_poses_csv(path: Path) -> FloatArray:
-    """Joint angles [deg] from a CSV with 6 numeric columns (a header row is skipped)."""
-    rows: list[list[float]] = []
-    with path.open(newline="", encoding="utf-8") as fh:
-        for row in csv.reader(fh):
-            cells = [c.strip() for c in row if c.strip()]
-            if not cells:
-                continue
-            try:
-                values = [float(c) for c in cells[:6]]
-            except ValueError:
-                if not rows:
-                    continue  # header
-                raise
-            if len(values) != 6:
-                raise ValueError(f"{path}: expected 6 joint angles per row, got {len(values)}")
-            rows.append(values)
-    if not rows:
-        raise ValueError(f"{path}: no poses")
-    return np.array(rows, dtype=float)
 
 
 def _smoothstep(s: float) -> float:
@@ -118,10 +101,14 @@ class EmulatedCell:
             offsets_mm=np.array([cfg.cell.offset_mm]),
         )
         rng = np.random.default_rng(cfg.seed)
+        self.loop = cfg.robot.loop
+        self._approach_from: FloatArray | None = None
         if cfg.robot.poses == "random":
-            self.poses_deg = random_poses_deg(self.truth, cfg.robot.n_poses, rng)
+            self.poses_deg = spread_poses_deg(
+                self.truth, cfg.robot.n_poses, rng, min_z_mm=cfg.robot.min_z_mm
+            )
         else:
-            self.poses_deg = load_poses_csv(Path(cfg.base_dir) / cfg.robot.poses)
+            self.poses_deg = self.read_poses_csv(cfg.robot.poses)
         self._noise_rng = np.random.default_rng([cfg.seed, 1])
         self.fault_rng = np.random.default_rng([cfg.seed, 2])
         self.faults = Faults(**cfg.faults.model_dump())
@@ -151,15 +138,24 @@ class EmulatedCell:
             self._held_at = None
 
     def motion(self, now: float | None = None) -> tuple[FloatArray, int, bool]:
-        """``(joints_deg (6,), pose_index, moving)`` at ``now``."""
+        """``(joints_deg (6,), pose_index, moving)`` at ``now``.
+
+        After :meth:`load_poses` the robot first moves from where it was to the new pose 0
+        (``move_time_s``, reported as pose 0 and moving), then follows the usual schedule.
+        """
         now = time.monotonic() if now is None else now
         t = max(0.0, self._virtual_time(now))
         n = self.poses_deg.shape[0]
         dwell, move = self.config.robot.dwell_s, self.config.robot.move_time_s
+        if self._approach_from is not None:
+            if t < move:
+                s = _smoothstep(t / move)
+                return self._approach_from + s * (self.poses_deg[0] - self._approach_from), 0, True
+            t -= move
         period = dwell + move
         k = int(t // period)
         phase = t - k * period
-        if not self.config.robot.loop and k >= n - 1:
+        if not self.loop and k >= n - 1:
             return self.poses_deg[n - 1].copy(), n - 1, False
         i = k % n
         if phase < dwell or n == 1:
@@ -167,6 +163,50 @@ class EmulatedCell:
         s = _smoothstep((phase - dwell) / move)
         q = self.poses_deg[i] + s * (self.poses_deg[(i + 1) % n] - self.poses_deg[i])
         return q, i, True
+
+    def read_poses_csv(self, path: str) -> FloatArray:
+        """Joint angles [deg], shape (n, 6), of a plan CSV (``q1..q6`` columns, see
+        :mod:`simulator.poses`), checked against the model's joint limits. A relative path is
+        resolved against the config's ``base_dir``."""
+        full = Path(self.config.base_dir) / path
+        try:
+            text = full.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ValueError(f"robot.poses: cannot read {full}: {exc.strerror}") from None
+        return parse_poses_csv(text, str(full), joint_limits_deg(self.truth.model))
+
+    def load_poses(
+        self, poses_deg: FloatArray, loop: bool | None = None, now: float | None = None
+    ) -> None:
+        """Follow a new pose list ``(n, 6)`` [deg] from its first pose: the robot moves there
+        from where it is (``move_time_s``), dwells, and goes on with the usual schedule.
+        ``loop`` (default: unchanged) repeats the list. A hold stays in force.
+
+        Raises ``ValueError`` naming the row (1-based) and joint for a bad shape, a
+        non-finite value or a value outside the joint limits.
+        """
+        now = time.monotonic() if now is None else now
+        q = np.asarray(poses_deg, dtype=float)
+        if q.ndim != 2 or q.shape[1] != 6 or q.shape[0] == 0:
+            raise ValueError(f"poses_deg: expected shape (n, 6) with n >= 1, got {q.shape}")
+        limits = joint_limits_deg(self.truth.model)
+        bad = ~np.isfinite(q) | (q < limits[:, 0]) | (q > limits[:, 1])
+        if bad.any():
+            row, j = (int(v) for v in np.argwhere(bad)[0])
+            raise ValueError(
+                f"poses_deg row {row + 1}, q{j + 1}: {q[row, j]} deg is not finite or outside "
+                f"the joint limits [{limits[j, 0]}, {limits[j, 1]}] deg"
+            )
+        current, _, _ = self.motion(now)
+        self.poses_deg = q.copy()
+        self._approach_from = None if np.allclose(current, q[0]) else current
+        if loop is not None:
+            self.loop = loop
+        self._t0 = now
+        self._held_total = 0.0
+        if self._held_at is not None:
+            self._held_at = now
+        self._tick = -1
 
     def reported_joints(self, now: float | None = None) -> FloatArray:
         """Joint angles the emulated controller reports (stale while ``robot_frozen``)."""
@@ -237,6 +277,21 @@ class EmulatedCell:
         self._set_offset(self.offset_mm + value_mm - current)
         self._tick = -1  # resample
 
+    def shift_joint_offset(self, joint: int, delta_deg: float) -> float:
+        """Drift emulation: add ``delta_deg`` to the TRUE joint offset (DH theta error) of
+        ``joint`` (1..6). The controller keeps reporting the same joint angles; the cable
+        length and the true TCP follow the new truth. Returns the joint's new offset [deg]."""
+        if not 1 <= joint <= 6:
+            raise ValueError(f"joint: expected 1..6, got {joint}")
+        if not math.isfinite(delta_deg):
+            raise ValueError(f"delta_deg: not finite: {delta_deg}")
+        index = (joint - 1) * 4 + DH_THETA_COLUMN
+        theta = self.truth.theta.copy()
+        theta[index] += math.radians(delta_deg)
+        self.truth = TrueCell(self.truth.model, theta, self.truth.layout)
+        self._tick = -1  # resample
+        return math.degrees(float(theta[index]))
+
     def magnification_x1000(self) -> int:
         """Pulses → counts factor ×1000 (0.400 for two decimals)."""
         return int(MM_PER_PULSE * 1000 * 10**self.decimals + 0.5)
@@ -251,6 +306,9 @@ class EmulatedCell:
             "names": list(layout.names),
             "units": list(layout.units),
             "values": [float(v) for v in values],
+            "joint_offsets_deg": [
+                math.degrees(float(v)) for v in self.truth.theta[DH_THETA_COLUMN : 4 * 6 : 4]
+            ],
             "anchor_p0_mm": [float(v) for v in self.anchor_mm],
             "offset_mm": self.offset_mm,
             "noise_mm": self.config.indicator.noise_mm,
@@ -265,6 +323,7 @@ class EmulatedCell:
         return {
             "pose_index": i,
             "n_poses": int(self.poses_deg.shape[0]),
+            "loop": self.loop,
             "moving": moving,
             "held": self._held_at is not None,
             "joints_deg": [float(v) for v in q],

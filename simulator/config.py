@@ -24,8 +24,10 @@ class RobotSection(_Strict):
     model: str = "hsr-jr680"  # built-in name, or path to a .toml/.json model file
     dh_errors: Literal["table-xii-d1", "none"] = "table-xii-d1"
     tool_error_mm: tuple[float, float, float] = (0.8, -0.5, 1.2)
-    poses: str = "random"  # "random" or path to a CSV of joint angles [deg], 6 columns
-    n_poses: Annotated[int, Field(ge=1)] = 20
+    # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns
+    poses: str = "random"
+    n_poses: Annotated[int, Field(ge=1)] = 60
+    min_z_mm: float = 0.0  # the floor: random poses keep flange and hook point above it
     move_time_s: Annotated[float, Field(gt=0)] = 2.0
     dwell_s: Annotated[float, Field(ge=0)] = 3.0
     loop: bool = True
@@ -60,7 +62,8 @@ class IndicatorSection(_Strict):
 
 
 class ServerSection(_Strict):
-    """A TCP server of the emulated cell (``port = 0``: any free port)."""
+    """A TCP server of the emulated cell. ``port = 0`` (the default): any free port; the
+    bound port is in the READY mapping (:meth:`simulator.runner.CellRunner.ready`)."""
 
     enabled: bool = True
     host: str = "127.0.0.1"
@@ -76,6 +79,10 @@ class FaultSection(_Strict):
     over_range: bool = False
     robot_drop_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
     robot_reply_delay_s: Annotated[float, Field(ge=0)] = 0.0
+    # Emulated late replies: this fraction of robot replies is sent robot_late_delay_s late
+    # (after the driver's timeout, as a congested link or a busy controller would).
+    robot_late_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    robot_late_delay_s: Annotated[float, Field(ge=0)] = 0.3
     robot_frozen: bool = False
 
 
@@ -86,11 +93,15 @@ class SimConfig(_Strict):
     robot: RobotSection = RobotSection()
     cell: CellSection = CellSection()
     indicator: IndicatorSection = IndicatorSection()
-    robot_socketcmd: ServerSection = ServerSection(port=23333)
-    robot_modbus: ServerSection = ServerSection(port=5020)
-    control: ServerSection = ServerSection(port=0)
+    robot_socketcmd: ServerSection = ServerSection()  # real controllers: 23333
+    robot_modbus: ServerSection = ServerSection()  # real UR: 502
+    control: ServerSection = ServerSection()
     faults: FaultSection = FaultSection()
     base_dir: str = "."  # relative paths (model, poses) are resolved against this
+
+
+#: The TCP servers whose ports :func:`with_ports` sets.
+SERVER_SECTIONS = ("robot_socketcmd", "robot_modbus", "control")
 
 
 def load_config(path: str | Path | None) -> SimConfig:
@@ -101,4 +112,17 @@ def load_config(path: str | Path | None) -> SimConfig:
     p = Path(path)
     data = tomllib.loads(p.read_text(encoding="utf-8"))
     data.setdefault("base_dir", str(p.parent.resolve()))
+    return SimConfig.model_validate(data)
+
+
+def with_ports(config: SimConfig, **ports: int | None) -> SimConfig:
+    """``config`` with the TCP ports of the named servers (``robot_socketcmd``,
+    ``robot_modbus``, ``control``) replaced; ``None`` keeps the config's port, 0 asks for any
+    free port. Raises ``ValueError`` for an unknown server name or a port out of 0..65535."""
+    data = config.model_dump()
+    for key, port in ports.items():
+        if key not in SERVER_SECTIONS:
+            raise ValueError(f"unknown server {key!r}; known: {list(SERVER_SECTIONS)}")
+        if port is not None:
+            data[key]["port"] = port
     return SimConfig.model_validate(data)

@@ -94,6 +94,21 @@ class CellRunner:
             ),
         }
 
+    def ports(self) -> dict[str, int]:
+        """The TCP ports actually bound (after :meth:`start`), by READY key: those set to 0 in
+        the config show the free port the OS chose. Disabled endpoints are absent."""
+        out: dict[str, int] = {}
+        for key, value in self.ready().items():
+            if key != "indicator_port" and value is not None:
+                out[key] = int(value.rsplit(":", 1)[1])
+        return out
+
+    def summary(self) -> str:
+        """One human-readable line with every endpoint (printed on start)."""
+        ready = self.ready()
+        parts = [f"{key} {value}" for key, value in ready.items() if value is not None]
+        return "EMULATED cell endpoints: " + ", ".join(parts)
+
     async def stop(self) -> None:
         """Stop every endpoint and remove the work directory."""
         for task in list(self._tasks):
@@ -137,7 +152,8 @@ class CellRunner:
             writer.close()
 
     async def command(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Execute one control command.
+        """Execute one control command. (Over 80 lines because this docstring is the control
+        port's reference; the dispatch itself is short.)
 
         Commands (``cmd``):
 
@@ -154,13 +170,24 @@ class CellRunner:
             ``pose_index``, ``n_poses``, ``moving``, ``held``, ``joints_deg``,
             ``true_length_mm``, ``t_s``, ``faults``.
         ``poses``
-            The pose list (``poses_deg``).
+            The pose list (``poses_deg``) and ``loop``.
+        ``load_poses``
+            Follow a new pose list: ``poses_deg`` (list of 6-lists [deg]) or ``csv`` (path of a
+            plan CSV with ``q1..q6`` columns, relative to the config's directory); optional
+            ``loop``. The robot moves from where it is to the new pose 0, then dwells and
+            moves as usual. Replies like ``poses``.
+        ``shift_joint_offset``
+            Drift emulation: ``joint`` (1..6), ``delta_deg``: the TRUE joint offset moves by
+            ``delta_deg`` (the controller reports the same angles; the lengths change).
+            Replies ``joint``, ``joint_offset_deg`` (the new true offset) and the ``truth``
+            reply under ``truth``.
         ``hold``
             ``on``: true stops the motion schedule where it is (false resumes).
         ``fault``
             Any fault fields (``indicator_crc_error_rate``, ``indicator_drop_rate``,
             ``indicator_reply_delay_s``, ``over_range``, ``robot_drop_rate``,
-            ``robot_reply_delay_s``, ``robot_frozen``); ``clear: true`` resets all first.
+            ``robot_reply_delay_s``, ``robot_late_rate``, ``robot_late_delay_s``,
+            ``robot_frozen``); ``clear: true`` resets all first.
         ``link_down``
             ``target`` (``indicator``, ``indicator_tcp``, ``robot_socketcmd``,
             ``robot_modbus`` or ``all``), ``duration_s``: the endpoint goes away and comes
@@ -184,7 +211,15 @@ class CellRunner:
         if cmd == "state":
             return cell.state_report()
         if cmd == "poses":
-            return {"poses_deg": cell.poses_deg.tolist()}
+            return {"poses_deg": cell.poses_deg.tolist(), "loop": cell.loop}
+        if cmd == "load_poses":
+            return self._load_poses(request)
+        if cmd == "shift_joint_offset":
+            joint = request.get("joint")
+            if not isinstance(joint, int) or isinstance(joint, bool):
+                raise ValueError(f"joint: expected an integer 1..6, got {joint!r}")
+            new_deg = cell.shift_joint_offset(joint, float(request["delta_deg"]))
+            return {"joint": joint, "joint_offset_deg": new_deg, "truth": cell.truth_report()}
         if cmd == "hold":
             cell.hold(bool(request.get("on", True)))
             return cell.state_report()
@@ -221,12 +256,30 @@ class CellRunner:
             return {}
         raise ValueError(f"unknown cmd {cmd!r}")
 
+    def _load_poses(self, request: dict[str, Any]) -> dict[str, Any]:
+        """The ``load_poses`` command."""
+        cell = self.cell
+        has_csv, has_list = "csv" in request, "poses_deg" in request
+        if has_csv == has_list:
+            raise ValueError("load_poses: give exactly one of 'csv' (a path) or 'poses_deg'")
+        if has_csv:
+            poses = cell.read_poses_csv(str(request["csv"]))
+        else:
+            poses = np.asarray(request["poses_deg"], dtype=float)
+        loop = request.get("loop")
+        cell.load_poses(poses, loop=None if loop is None else bool(loop))
+        return {"poses_deg": cell.poses_deg.tolist(), "loop": cell.loop}
 
-async def serve_forever(config: SimConfig, out: Any = None) -> None:
-    """Run the cell until SIGINT/SIGTERM or a ``stop`` command; print ``READY {json}``."""
+
+async def serve_forever(config: SimConfig, out: Any = None, err: Any = None) -> None:
+    """Run the cell until SIGINT/SIGTERM or a ``stop`` command; print ``READY {json}`` (the
+    bound endpoints) on ``out`` and the same as a human-readable line on ``err``."""
     out = sys.stdout if out is None else out
+    err = sys.stderr if err is None else err
     runner = CellRunner(config)
     ready = await runner.start()
+    err.write(runner.summary() + "\n")
+    err.flush()
     out.write("READY " + json.dumps(ready) + "\n")
     out.flush()
     loop = asyncio.get_running_loop()
@@ -296,6 +349,12 @@ class SimulatorThread:
     def cell(self) -> EmulatedCell:
         assert self.runner is not None
         return self.runner.cell
+
+    @property
+    def ports(self) -> dict[str, int]:
+        """The bound TCP ports by READY key (see :meth:`CellRunner.ports`)."""
+        assert self.runner is not None
+        return self.runner.ports()
 
     def control(self, cmd: str, **fields: Any) -> dict[str, Any]:
         """One control command through the real control port."""

@@ -294,11 +294,22 @@ class TcpServer:
         raise NotImplementedError
 
     async def reply(
-        self, writer: asyncio.StreamWriter, data: bytes, drop_rate: float, delay_s: float
+        self,
+        writer: asyncio.StreamWriter,
+        data: bytes,
+        drop_rate: float,
+        delay_s: float,
+        late_rate: float = 0.0,
+        late_delay_s: float = 0.0,
     ) -> None:
-        """Send ``data`` unless dropped by the fault settings, after ``delay_s``."""
-        if drop_rate and self.cell.fault_rng.random() < drop_rate:
+        """Send ``data`` unless dropped by the fault settings, after ``delay_s`` (plus
+        ``late_delay_s`` for the fraction ``late_rate`` of replies). The caller awaits this
+        before reading the next request: replies stay in request order, as on one stream."""
+        rng = self.cell.fault_rng
+        if drop_rate and rng.random() < drop_rate:
             return
+        if late_rate and rng.random() < late_rate:
+            delay_s += late_delay_s
         if delay_s:
             await asyncio.sleep(delay_s)
         writer.write(data)
@@ -384,7 +395,12 @@ class HuashuSocketCmdServer(TcpServer):
                     out = f"i:{seq},e:{HS_UNKNOWN_COMMAND},d:unknown command@hs@"
             faults = self.cell.faults
             await self.reply(
-                writer, out.encode("ascii"), faults.robot_drop_rate, faults.robot_reply_delay_s
+                writer,
+                out.encode("ascii"),
+                faults.robot_drop_rate,
+                faults.robot_reply_delay_s,
+                faults.robot_late_rate,
+                faults.robot_late_delay_s,
             )
 
     async def alarm(self, code: int, text: str) -> int:
@@ -452,6 +468,8 @@ class UrModbusServer(TcpServer):
                     encode_mbap(head[0], head[1], reply),
                     faults.robot_drop_rate,
                     faults.robot_reply_delay_s,
+                    faults.robot_late_rate,
+                    faults.robot_late_delay_s,
                 )
 
 

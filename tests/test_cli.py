@@ -50,6 +50,7 @@ def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:
         ["serve", "--help"],
         ["simulate", "--help"],
         ["db", "export", "--help"],
+        ["plan", "--help"],
     ],
 )
 def test_help_imports_no_heavy_library(argv: list[str]) -> None:

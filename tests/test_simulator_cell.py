@@ -6,7 +6,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -124,14 +126,19 @@ def test_control_port_commands() -> None:
 
 
 def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> None:
+    with socket.socket() as probe:  # a free port to request as a fixed one
+        probe.bind(("127.0.0.1", 0))
+        fixed = probe.getsockname()[1]
     cfg = tmp_path / "sim.toml"
     text = (ROOT / "examples" / "sim.toml").read_text()
-    text = text.replace("port = 23333", "port = 0").replace("port = 5020", "port = 0")
+    text, n = re.subn(r"(\[robot_socketcmd\][^\[]*?\nport = )0", rf"\g<1>{fixed}", text)
+    assert n == 1
     cfg.write_text(text)
     proc = subprocess.Popen(
         [sys.executable, "-m", "simulator", "--config", str(cfg)],
         cwd=ROOT,
         stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
     )
     try:
@@ -142,10 +149,49 @@ def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> Non
         assert list(ready) == list(READY_KEYS)
         assert os.path.exists(ready["indicator_port"])
         assert ready["indicator_tcp"] is None
+        assert ready["robot_socketcmd"] == f"127.0.0.1:{fixed}"  # fixed on request
+        assert int(ready["robot_modbus"].rsplit(":", 1)[1]) > 0  # free by default, bound
         client = ControlClient(ready["control"])
-        assert client("state")["n_poses"] == 20
+        assert client("state")["n_poses"] == 60
         client.close()
     finally:
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=10) == 0
+        _, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0
     assert not os.path.exists(ready["indicator_port"])  # the pty symlink is removed
+    # The bound endpoints are also printed for humans (stderr).
+    summary = next(line for line in err.splitlines() if line.startswith("EMULATED cell"))
+    for key in ("robot_socketcmd", "robot_modbus", "control", "indicator_port"):
+        assert f"{key} {ready[key]}" in summary
+
+
+def test_cablecal_simulate_port_options_override_the_config() -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        fixed = probe.getsockname()[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "daemon.cli", "simulate", "--modbus-port", str(fixed)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("READY "), proc.stderr.read() if proc.stderr else line
+        ready = json.loads(line[len("READY ") :])
+        assert ready["robot_modbus"] == f"127.0.0.1:{fixed}"
+        assert int(ready["robot_socketcmd"].rsplit(":", 1)[1]) > 0  # unset: a free port
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=10)
+    bad = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "simulate", "--control-port", "70000"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert bad.returncode == 2
+    assert "--control-port" in bad.stderr

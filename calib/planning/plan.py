@@ -153,8 +153,9 @@ class _Setup:
     nuisance: IndexArray | None  # columns of rows that are anchor parameters (Ds), or None
 
 
-def _start_anchors(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
-    """P0 of each start anchor by multilateration with the nominal model, each (3,) [mm]."""
+def start_anchors_mm(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
+    """P0 of each start anchor by multilateration with the nominal model, each (3,) [mm]
+    (the anchor guess for planning more poses at a sensor that has not moved)."""
     pos = forward_position(model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm,
                            model.convention)  # fmt: skip
     idx = start.anchor_index()
@@ -176,7 +177,7 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
         theta[layout.anchor_slice(int(li))][:3] = anchors_mm[k]
     start_theta = theta.copy()
     if start is not None:
-        for aid, p0 in _start_anchors(model, start).items():
+        for aid, p0 in start_anchors_mm(model, start).items():
             start_theta[layout.anchor_slice(ids.index(aid))][:3] = p0
             if aid not in plan_ids:
                 theta[layout.anchor_slice(ids.index(aid))][:3] = p0

@@ -28,6 +28,8 @@ class AppState:
     jobs : JobManager
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
+    drift : daemon.drift.DriftMonitor or None
+        None until the lifespan has started it.
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
     """
@@ -37,6 +39,7 @@ class AppState:
     store: Store
     jobs: JobManager
     sampler: Any = None
+    drift: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
 
 

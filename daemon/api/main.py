@@ -14,9 +14,19 @@ from fastapi.responses import JSONResponse
 
 from daemon import metrics
 from daemon.api.deps import AppState
-from daemon.api.routes import campaigns, identifications, live, reports, robots, system
+from daemon.api.routes import (
+    apply,
+    campaigns,
+    identifications,
+    live,
+    plans,
+    reports,
+    robots,
+    system,
+)
 from daemon.api.web import mount_web
 from daemon.config import Settings
+from daemon.drift import DriftMonitor
 from daemon.jobs import JobManager
 from daemon.store import Store, StoreNotFound
 
@@ -112,8 +122,12 @@ def create_app(
                     known_poses_deg=state.store.poses_deg(cid),
                 )
                 log.info("auto capture resumed", extra={"campaign_id": cid})
+            state.drift = DriftMonitor(state.store, settings.drift, state.sampler)
+            await state.drift.start()
             yield
         finally:
+            if state.drift is not None:
+                await state.drift.stop()
             if state.sampler is not None:
                 await state.sampler.stop()
             await state.jobs.stop()
@@ -129,7 +143,7 @@ def create_app(
         redoc_url=None,
     )
     app.add_middleware(LatencyMiddleware)
-    for module in (system, live, campaigns, identifications, reports, robots):
+    for module in (system, live, campaigns, identifications, reports, robots, plans, apply):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
 

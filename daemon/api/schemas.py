@@ -133,4 +133,5 @@ class ServiceStatus(TypedDict):
     devices: dict[str, Any]
     sampler: dict[str, Any] | None
     jobs: dict[str, Any]
+    drift: dict[str, Any] | None
     uptime_s: float

@@ -13,9 +13,11 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import calibration, db, report, serve, simulate
+    from daemon.cli import apply, calibration, db, plan, report, serve, simulate
 
     calibration.register(app)
+    plan.register(app)
+    apply.register(app)
     report.register(app)
     serve.register(app)
     db.register(app)

@@ -117,6 +117,12 @@ def _summary(result: IdentifyResult) -> None:
         f"{np.round(data['anchor_mm'], 2).tolist()}, length_offset_mm = "
         f"{data['length_offset_mm']:.3f}"
     )
+    tcp = data.get("tcp_uncertainty_mm")
+    if tcp:
+        console.print(
+            f"predicted TCP position 1σ after best rigid alignment: RMS {tcp['rms']:.4f} mm, "
+            f"max {tcp['max']:.4f} mm (workspace sample within the joint limits)"
+        )
     console.print(
         f"identifiability: rank {ident['rank']}, cond {ident['condition_number']:.3g} "
         f"(base set {ident['condition_number_base']:.3g}); not identified: "

@@ -15,19 +15,35 @@ def simulate(
         None, "--config", "-c", help="sim.toml (see docs/hardware.md); defaults when omitted"
     ),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log protocol events"),
+    socketcmd_port: int | None = typer.Option(
+        None, min=0, max=65535, help="TCP port of the emulated Huashu SocketCmd (0: any free)"
+    ),
+    modbus_port: int | None = typer.Option(
+        None, min=0, max=65535, help="TCP port of the emulated Modbus-TCP robot (0: any free)"
+    ),
+    control_port: int | None = typer.Option(
+        None, min=0, max=65535, help="TCP port of the emulated cell's control port (0: any free)"
+    ),
 ) -> None:
     """Run the emulated cell (indicator on a pty, robot controllers on TCP).
 
-    Prints one line ``READY {json}`` with the endpoints, then serves until SIGINT/SIGTERM.
+    Prints one line ``READY {json}`` with the endpoints, then serves until SIGINT/SIGTERM. The
+    ports given here override the config file's; unset ports are free ports chosen at start.
     """
     import asyncio
     import logging
 
-    from simulator.config import load_config
+    from simulator.config import load_config, with_ports
     from simulator.runner import serve_forever
 
     logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING)
-    asyncio.run(serve_forever(load_config(config)))
+    cfg = with_ports(
+        load_config(config),
+        robot_socketcmd=socketcmd_port,
+        robot_modbus=modbus_port,
+        control=control_port,
+    )
+    asyncio.run(serve_forever(cfg))
 
 
 def register(app: typer.Typer) -> None:

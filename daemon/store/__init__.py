@@ -10,6 +10,8 @@ manager, ``cablecal db``). It is assembled from one module per concern:
 - :mod:`.robots`, :mod:`.campaigns`: robots, campaigns, samples, import and export.
 - :mod:`.jobs`: jobs, results, the calibrated model.
 - :mod:`.events`: the event log.
+- :mod:`.plans`: pose plans of campaigns.
+- :mod:`.checks`: drift checks and check poses.
 - :mod:`.rows`: the typed rows every method returns; :mod:`.errors`: the exceptions.
 
 Values returned
@@ -34,6 +36,7 @@ Units and time
 from __future__ import annotations
 
 from daemon.store.campaigns import EXPORT_FORMAT, EXPORT_FORMAT_VERSION, CampaignStore
+from daemon.store.checks import CheckPoses, CheckRow, CheckStore
 from daemon.store.db import BUSY_TIMEOUT_MS, DB_FILENAME, Row
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.events import EventStore
@@ -44,6 +47,7 @@ from daemon.store.jobs import (
     NO_CALIBRATION,
     JobStore,
 )
+from daemon.store.plans import MATCH_TOL_DEG, PlanRow, PlanStore, match_poses
 from daemon.store.rows import (
     CalibratedModel,
     CampaignExport,
@@ -66,7 +70,7 @@ from daemon.store.schema import (
 )
 
 
-class Store(CampaignStore, JobStore, EventStore):
+class Store(CampaignStore, JobStore, EventStore, PlanStore, CheckStore):
     """The SQLite store. Implements :class:`daemon.capture.CaptureSink`.
 
     ``Store(path)`` opens the file, creating or migrating it; ``Store(path, readonly=True)``
@@ -74,9 +78,9 @@ class Store(CampaignStore, JobStore, EventStore):
     export`` next to a running daemon). Parameters and errors: :class:`~daemon.store.db.StoreDB`.
 
     The methods live in :class:`~daemon.store.robots.RobotStore`,
-    :class:`~daemon.store.campaigns.CampaignStore`, :class:`~daemon.store.jobs.JobStore` and
-    :class:`~daemon.store.events.EventStore`, all on the one connection of
-    :class:`~daemon.store.db.StoreDB`.
+    :class:`~daemon.store.campaigns.CampaignStore`, :class:`~daemon.store.jobs.JobStore`,
+    :class:`~daemon.store.events.EventStore` and :class:`~daemon.store.plans.PlanStore`, all
+    on the one connection of :class:`~daemon.store.db.StoreDB`.
     """
 
 
@@ -88,17 +92,22 @@ __all__ = [
     "INTERRUPTED_ERROR",
     "JOB_STATUSES",
     "JOB_TERMINAL",
+    "MATCH_TOL_DEG",
     "MIGRATIONS",
     "NO_CALIBRATION",
     "SCHEMA_VERSION",
     "CalibratedModel",
     "CampaignExport",
     "CampaignRow",
+    "CheckPoses",
+    "CheckRow",
     "EventRow",
     "ExportedSample",
     "JobRow",
     "JobStatus",
     "Migration",
+    "PlanRow",
+    "PlanStore",
     "RawReading",
     "ResultRow",
     "RobotRow",
@@ -109,5 +118,6 @@ __all__ = [
     "StoreInvalid",
     "StoreNotFound",
     "apply_migrations",
+    "match_poses",
     "schema_version_of",
 ]

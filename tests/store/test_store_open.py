@@ -18,7 +18,7 @@ import pytest
 from _store_helpers import REPO, ROBOT, fake_result, make_capture
 
 from calib.models import builtin_model
-from daemon.store import SCHEMA_VERSION, Store, StoreError, apply_migrations
+from daemon.store import MIGRATIONS, SCHEMA_VERSION, Store, StoreError, apply_migrations
 
 
 # ---------------------------------------------------------------------------- opening
@@ -69,7 +69,7 @@ def test_version_1_file_is_migrated_on_open(tmp_path: Path) -> None:
     conn.close()
 
     with Store(path) as s:
-        assert s.schema_version == SCHEMA_VERSION == 2
+        assert s.schema_version == SCHEMA_VERSION == len(MIGRATIONS)
         sample = s.get_sample(1)
         assert sample is not None and sample["length_mm"] == 432.1
         assert sample["pose_group"] is None
@@ -81,7 +81,7 @@ def test_version_1_file_is_migrated_on_open(tmp_path: Path) -> None:
         assert s.integrity_check() == "ok"
     with sqlite3.connect(path) as conn:
         versions = [r[0] for r in conn.execute("SELECT version FROM schema_version ORDER BY 1")]
-    assert versions == [1, 2]
+    assert versions == list(range(1, SCHEMA_VERSION + 1))
 
 
 def test_newer_file_is_refused(tmp_path: Path) -> None:
@@ -90,7 +90,7 @@ def test_newer_file_is_refused(tmp_path: Path) -> None:
     with sqlite3.connect(path) as conn:
         conn.execute("INSERT INTO schema_version VALUES (99, 'from the future', 0)")
     with pytest.raises(StoreError, match=r"schema version 99 is newer than this cablecal "
-                       r"supports \(2\)"):  # fmt: skip
+                       rf"supports \({SCHEMA_VERSION}\)"):  # fmt: skip
         Store(path)
     with pytest.raises(StoreError, match="99 is newer"):
         Store(path, readonly=True)
@@ -124,7 +124,7 @@ def test_read_only_store(tmp_path: Path) -> None:
     conn = sqlite3.connect(old)
     apply_migrations(conn, upto=1)
     conn.close()
-    with pytest.raises(StoreError, match="older than 2"):
+    with pytest.raises(StoreError, match=f"older than {SCHEMA_VERSION}"):
         Store(old, readonly=True)
 
 

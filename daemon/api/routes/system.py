@@ -32,12 +32,15 @@ async def health(state: State) -> Health:
 @router.get("/status", summary="Devices, sampler mode and rates", dependencies=[ReadAuth])
 async def get_status(state: State) -> ServiceStatus:
     """Each device's connection state, last reading and its age, last error (with the last
-    frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs."""
+    frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs; the
+    last drift check (``drift``: ``state`` ok/drift/failed/none, ``last_check_at``, ``rms_mm``,
+    ``threshold_mm``, ``running``)."""
     st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
     return {
         "devices": st.get("devices", {}),
         "sampler": st.get("sampler"),
         "jobs": {"active": state.jobs.active},
+        "drift": state.drift.status() if state.drift is not None else None,
         "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
     }
 

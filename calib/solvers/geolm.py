@@ -1,0 +1,269 @@
+"""Levenberg–Marquardt with geodesic acceleration and a likelihood-based stopping test.
+
+Method ``geolm``: two descents (from ``x0`` and from the UKF's estimate), each as below.
+For ``min F(x) = ½‖r(x)‖²`` (``r`` shape (m,), ``x`` shape (k,)) each iteration works in
+scaled coordinates ``z = D x`` (``D`` = running column norms of ``J``, as in MINPACK and
+:mod:`calib.solvers.lm`), with the thin SVD ``J D⁻¹ = U diag(s) Vᵀ``:
+
+1. *Velocity* (the LM step)::
+
+       v = −V diag(s / (s² + λ)) Uᵀ r
+
+2. *Geodesic acceleration* (Transtrum & Sethna 2012): the second directional derivative of the
+   residual along ``v`` by one extra residual evaluation, ::
+
+       r_vv ≈ (2/h) · ((r(x + h v/D) − r(x)) / h − J D⁻¹ v),      h = ``fd_step``
+       a    = −V diag(s / (s² + λ)) Uᵀ r_vv
+
+   and the trial step is ``v + a/2``: the second-order Taylor term of a path that follows the
+   curved valley instead of the tangent. The step is refused (λ grows) when
+   ``2‖a‖/‖v‖ > alpha`` (the path is too curved for the local model to be trusted).
+3. *Acceptance and damping* as Nielsen / Madsen–Nielsen–Tingleff (2004): accept when the cost
+   decreases, ``λ ← λ · max(1/3, 1 − (2ρ − 1)³)`` with the gain ratio ``ρ`` of the velocity;
+   on rejection ``λ ← λν``, ``ν ← 2ν``.
+4. *Stopping.* (a) The scaled gradient test of MINPACK; (b) the iterate is within ``sigma_tol``
+   standard errors of the linearised optimum (the test of LM/VSLM,
+   :func:`calib.solvers.common.distance_to_optimum_sigma`); (c) **likelihood stall**: over the
+   last ``stall_window`` iterations the cost decreased by less than ``stall_chi2 · σ̂²/2``, with
+   ``σ̂² = 2F/(m − k)``; i.e. the log-likelihood of the fit under Gaussian noise of the size
+   the residuals show improved by less than ``stall_chi2/2``, a change no goodness-of-fit test
+   can see. Status 2 for (b) and (c), 1 for (a), 3 when no damping decreases the cost.
+
+References: M. K. Transtrum, J. P. Sethna, "Improvements to the Levenberg–Marquardt algorithm
+for nonlinear least-squares minimization", arXiv:1201.5885 (2012); M. K. Transtrum, B. B.
+Machta, J. P. Sethna, "Geometry of nonlinear least squares with applications to sloppy models
+and optimization", Phys. Rev. E 83, 036701 (2011); K. Madsen, H. B. Nielsen, O. Tingleff,
+"Methods for non-linear least squares problems", IMM DTU (2004).
+
+**Where the paper is vague or ill-posed (measured on the bundled HSR data, ML, base set).**
+The paper treats the identification as a well-posed minimisation and reports a fixed iteration
+count. On the bundled data (q1 only 1.4–10.6°, q6 constant) it is not: the maximum-likelihood
+cost has no minimiser. A long scipy ``least_squares`` run on the first 100 rows
+(trf, ``x_scale='jac'``, tolerances 1e-15) lowers the cost 3.786 → 3.712 → 3.684 mm² after
+1 000, 5 000, 20 000 evaluations while ``d5`` grows 339 → 9 787 → 19 642 mm and the tool
+point −17 m / −8 m: the valley runs off to infinity in the (d5, tool) direction, not only along
+the far-anchor ridge (the anchor stays ≈ 1.1 m from the base). "The optimum" is therefore an
+infimum approached along a curved, ever flatter valley; no local method reaches it in a fixed
+number of iterations, and the parameters along the valley are physically meaningless
+(DH errors of metres). Bounding the parameters to plausible values (DH ±10 mm / ±1°, tool
+±500 mm, the sensor's 2000 mm stroke bounding the anchor) is what a metrologist expects, but on
+these data it is not an answer either: the bounded optimum's cost is 200–300× the
+unbounded one (test RMSE 2.4–7.4 mm on the paper protocol, against 0.16–0.25 mm unbounded), so
+the nominal ``hsr-jr680`` geometry plus small errors does not describe these measurements.
+The cost also has several basins: on paper-protocol draw 1, LM-type descents from identify's
+start stall at 0.32–0.33 mm² (geolm) or stop at 0.246 (ukf-vslm, iteration limit), while the
+same descent from the UKF's estimate reaches 0.097 mm² (test RMSE 0.068 mm instead of
+0.19–0.24). On the first 100 bundled rows the UKF's basin goes down to 0.0998 mm² (geolm,
+converged) where ukf-vslm stops at 0.302 (iteration limit) and the long scipy run from
+identify's start at 3.684: the far ridge above is that of one basin only. So ``solve``
+descends from both starts, ``x0`` and the UKF's estimate (the paper's own M9 seed), and keeps
+the lower cost (``ukf_start``). "Best attainable" is then "the lowest cost any method found",
+which the benchmark reports beside the reference run's.
+This solver therefore keeps the paper's ML objective and defines "converged" statistically:
+it stops when further progress along the valley changes the likelihood by less than a
+``stall_chi2`` fraction of one unit of χ² per ``stall_window`` iterations (4c). The benchmark
+``bench/solver_real.py`` reports how far that is from a long reference run.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.cable import N_DH
+from calib.kinematics import FloatArray
+from calib.problem import Problem
+from calib.solvers import ukf
+from calib.solvers.common import (
+    LinearModel,
+    ProgressFn,
+    SolverResult,
+    Timer,
+    column_scale,
+    distance_to_optimum_sigma,
+    report,
+)
+
+
+@dataclass(frozen=True)
+class GeoLMOptions:
+    """Options of :func:`solve`. Tolerances are relative and unit-free."""
+
+    max_iterations: int = 400
+    tau: float = 1e-3  # initial λ relative to the largest squared singular value
+    alpha: float = 0.75  # largest accepted ratio 2‖a‖/‖v‖ (Transtrum & Sethna)
+    fd_step: float = 0.1  # finite-difference step h of r_vv, in scaled units of v
+    gtol: float = 1e-10
+    sigma_tol: float = 1e-3
+    sigma_damping: float = 1e-10
+    stall_window: int = 30
+    stall_chi2: float = 0.05  # stop when 2·ΔF over the window < stall_chi2 · σ̂²
+    max_rejections: int = 40
+    #: Also descend from the UKF's estimate (2 epochs, batches 1, 2, 4, … 32, initial 1σ of
+    #: ``ukf_sigma_mm`` / ``ukf_sigma_deg`` per DH error, 4× the millimetres for the tool and
+    #: the anchors, the same ``P0`` as identify gives ukf-vslm) and
+    #: keep the lower cost: the real-data cost has several basins (see the module docstring).
+    ukf_start: bool = True
+    ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
+    ukf_sigma_mm: float = 5.0
+    ukf_sigma_deg: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if not self.alpha > 0.0:
+            raise ValueError(f"alpha must be > 0, got {self.alpha}")
+        if not self.fd_step > 0.0:
+            raise ValueError(f"fd_step must be > 0, got {self.fd_step}")
+        if self.stall_window < 1:
+            raise ValueError(f"stall_window must be >= 1, got {self.stall_window}")
+        if not self.stall_chi2 >= 0.0:
+            raise ValueError(f"stall_chi2 must be >= 0, got {self.stall_chi2}")
+
+
+@dataclass
+class _State:
+    """The current iterate: ``x`` (k,), residual (m,), Jacobian (m, k), cost [mm²]."""
+
+    x: FloatArray
+    res: FloatArray
+    jac: FloatArray
+    cost: float
+
+
+def _geodesic_step(
+    problem: Problem, st: _State, js: FloatArray, scale: FloatArray, lam: float,
+    svd: tuple[FloatArray, FloatArray, FloatArray], opts: GeoLMOptions,
+) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
+    """Velocity ``v`` and total step ``v + a/2`` (scaled, shape (k,)); False if too curved."""
+    u, s, vt = svd
+    coeff = s / (s * s + lam)
+    v = -(vt.T @ (coeff * (u.T @ st.res)))
+    h = opts.fd_step
+    r_h = problem.residuals(st.x + h * v / scale)
+    if not np.all(np.isfinite(r_h)):
+        return v, v, False
+    r_vv = (2.0 / h) * ((r_h - st.res) / h - js @ v)
+    acc = -(vt.T @ (coeff * (u.T @ r_vv)))
+    ok = float(np.linalg.norm(acc)) <= opts.alpha * float(np.linalg.norm(v))
+    return v, v + 0.5 * acc, ok
+
+
+def solve(
+    problem: Problem,
+    x0: FloatArray | None = None,
+    options: GeoLMOptions | None = None,
+    progress: ProgressFn | None = None,
+    method: str = "geolm",
+) -> SolverResult:
+    """Minimise the problem's residual from ``x0`` (shape (k,)) and, with ``ukf_start``, also
+    from the UKF's estimate; the lower final cost wins. See the module docstring."""
+    opts = options or GeoLMOptions()
+    timer = Timer()
+    x = problem.x0() if x0 is None else np.array(x0, dtype=float)
+    if not opts.ukf_start:
+        out = descend(problem, x, opts, progress, method)
+        out.elapsed_s = timer.elapsed()
+        return out
+    first = descend(problem, x, opts, _stage(progress, 0.0, 0.4), method)
+    spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg), opts.ukf_sigma_mm)
+    spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
+    p0 = np.diag(spread[problem.free] ** 2)
+    seed = ukf.solve(problem, x, p0, opts.ukf, _stage(progress, 0.4, 0.5), method=f"{method}/ukf")
+    out = first
+    if seed.status >= 0:
+        second = descend(problem, seed.x, opts, _stage(progress, 0.5, 1.0), method)
+        second.iterations += seed.iterations
+        if problem.cost(second.x) < problem.cost(first.x):
+            second.message = f"from the UKF estimate: {second.message}"
+            out = second
+        else:
+            out.message = f"from x0: {out.message}"
+        out.iterations = first.iterations + second.iterations
+    out.elapsed_s = timer.elapsed()
+    return out
+
+
+def _stage(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
+    if progress is None:
+        return None
+    outer = progress
+    return lambda f, msg: outer(lo + (hi - lo) * f, msg)
+
+
+def descend(
+    problem: Problem,
+    x: FloatArray,
+    opts: GeoLMOptions,
+    progress: ProgressFn | None = None,
+    method: str = "geolm",
+) -> SolverResult:
+    """The geodesic-LM iteration from ``x`` (shape (k,)), one start."""
+    timer = Timer()
+    ev = problem.evaluate(x)
+    assert ev.jacobian is not None
+    st = _State(x, ev.residual, ev.jacobian, ev.cost)
+    history = [ev.data_rms_mm]
+    if not np.isfinite(st.cost):
+        return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
+    dof = max(problem.n_rows - x.shape[0], 1)
+    scale = column_scale(st.jac)
+    lam: float | None = None
+    nu = 2.0
+    costs: deque[float] = deque([st.cost], maxlen=opts.stall_window + 1)
+    status, message, it = 0, "iteration limit reached", 0
+    for it in range(1, opts.max_iterations + 1):
+        js = st.jac / scale
+        grad = js.T @ st.res
+        if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * st.cost):
+            status, message, it = 1, "gradient below gtol", it - 1
+            break
+        svd = np.linalg.svd(js, full_matrices=False)
+        s_max2 = float(svd[1][0] ** 2)
+        lin = LinearModel(s=svd[1], vt=svd[2], g=svd[0].T @ st.res)
+        distance = distance_to_optimum_sigma(lin, opts.sigma_damping * s_max2, st.cost, dof)
+        if distance <= opts.sigma_tol:
+            status, it = 2, it - 1
+            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+            break
+        lam = opts.tau * s_max2 if lam is None else lam
+        accepted = False
+        for _ in range(opts.max_rejections):
+            v, step, ok = _geodesic_step(problem, st, js, scale, lam, svd, opts)
+            trial = problem.evaluate(st.x + step / scale) if ok else None
+            if trial is not None and np.isfinite(trial.cost) and trial.cost < st.cost:
+                assert trial.jacobian is not None
+                predicted = 0.5 * float(v @ (lam * v - grad))
+                rho = min((st.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
+                st = _State(st.x + step / scale, trial.residual, trial.jacobian, trial.cost)
+                history.append(trial.data_rms_mm)
+                scale = column_scale(st.jac, scale)
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu, accepted = 2.0, True
+                break
+            lam *= nu
+            nu *= 2.0
+        report(progress, it / opts.max_iterations, f"{method} iteration {it}")
+        if not accepted:
+            history.append(history[-1])
+            status, message = 3, "no decrease possible at any damping (converged to precision)"
+            break
+        costs.append(st.cost)
+        sigma2 = 2.0 * st.cost / dof
+        if len(costs) == costs.maxlen and 2.0 * (costs[0] - st.cost) < opts.stall_chi2 * sigma2:
+            status = 2
+            message = (f"likelihood stalled: chi2 gain {2.0 * (costs[0] - st.cost) / sigma2:.2g} "
+                       f"over {opts.stall_window} iterations (stall_chi2)")  # fmt: skip
+            break
+    return SolverResult(
+        method=method,
+        x=st.x,
+        success=status > 0,
+        status=status,
+        message=message,
+        iterations=it,
+        cost_history_rms_mm=history,
+        elapsed_s=timer.elapsed(),
+    )

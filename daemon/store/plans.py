@@ -1,0 +1,173 @@
+"""Pose plans of campaigns (``POST /campaigns/{id}/plan``) and their progress.
+
+A plan is stored whole, as JSON: the options it was made with, its summary
+(:meth:`calib.planning.PlanResult.to_json`) and its poses (``PlanResult.csv_rows``: ``pose``,
+``q1..q6`` [deg], ``anchor``, ``extension_mm``, ``anchor_x_mm..anchor_z_mm``). A campaign may
+be planned again; :meth:`PlanStore.latest_plan` is the newest.
+
+Progress is not stored: :func:`match_poses` computes it from the campaign's samples each time
+it is asked (see its docstring for why that is enough).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, cast
+
+import numpy as np
+from typing_extensions import TypedDict
+
+from calib.dataset import JOINT_COLUMNS
+from calib.kinematics import FloatArray, IndexArray
+from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
+from daemon.store.errors import StoreInvalid, StoreNotFound
+
+#: Default tolerance per joint for a sample to count as a planned pose [deg].
+MATCH_TOL_DEG = 0.5
+
+
+class PlannedPoseRow(TypedDict):
+    """A planned pose as :meth:`calib.planning.PlanResult.csv_rows` gives it: joints [deg],
+    anchor id, predicted cable extension and the anchor guess [mm]."""
+
+    pose: int
+    q1: float
+    q2: float
+    q3: float
+    q4: float
+    q5: float
+    q6: float
+    anchor: str
+    extension_mm: float
+    anchor_x_mm: float
+    anchor_y_mm: float
+    anchor_z_mm: float
+
+
+class PlanHeader(TypedDict):
+    """What a stored plan is, apart from its poses: ``options`` as requested, ``summary``
+    (condition number, 1σ per base parameter, TCP σ plan vs random, times, anchor gain)."""
+
+    id: int
+    campaign_id: int
+    robot_id: int
+    created_at: float
+    options: dict[str, Any]
+    summary: dict[str, Any]
+
+
+class PlanRow(PlanHeader):
+    """A stored plan with its poses in visiting order."""
+
+    poses: list[PlannedPoseRow]
+
+
+def _plan_out(row: Row) -> PlanRow:
+    out = decode_row(row)
+    out["summary"] = json.loads(out.pop("summary_json"))
+    out["poses"] = json.loads(out.pop("poses_json"))
+    return cast(PlanRow, out)
+
+
+class PlanStore(StoreDB):
+    """Plans (part of :class:`daemon.store.Store`)."""
+
+    def save_plan(
+        self,
+        campaign_id: int,
+        options: dict[str, Any],
+        summary: dict[str, Any],
+        poses: list[dict[str, Any]],
+    ) -> PlanRow:
+        """Store a plan of campaign ``campaign_id`` (made for the campaign's robot).
+
+        Raises
+        ------
+        StoreNotFound
+            No such campaign.
+        StoreInvalid
+            No poses, or a pose without ``q1..q6`` or ``anchor``.
+        """
+        if not poses:
+            raise StoreInvalid("poses: a plan needs at least one pose")
+        for i, pose in enumerate(poses):
+            missing = [k for k in (*JOINT_COLUMNS, "anchor") if k not in pose]
+            if missing:
+                raise StoreInvalid(f"poses[{i}]: missing {', '.join(missing)}")
+        with self._write():
+            campaign = self._require("campaigns", "campaign", campaign_id)
+            table = self._table("plans").insert(
+                {"campaign_id": campaign_id, "robot_id": int(campaign["robot_id"]),
+                 "options_json": to_json(options, "options"),
+                 "summary_json": to_json(summary, "summary"),
+                 "poses_json": to_json(poses, "poses"), "created_at": now()}
+            )  # fmt: skip
+            row = self._get("plans", last_id(table))
+        assert row is not None
+        return _plan_out(row)
+
+    def latest_plan(self, campaign_id: int) -> PlanRow:
+        """The newest plan of the campaign.
+
+        Raises
+        ------
+        StoreNotFound
+            No such campaign (``campaign 3: not found``), or it has no plan (``campaign 3: no
+            plan yet``).
+        """
+        self._require("campaigns", "campaign", campaign_id)
+        row = self._one(
+            "SELECT * FROM plans WHERE campaign_id = ? ORDER BY id DESC LIMIT 1", [campaign_id]
+        )
+        if row is None:
+            raise StoreNotFound("campaign", campaign_id, "no plan yet")
+        return _plan_out(row)
+
+
+def match_poses(
+    planned_deg: FloatArray,
+    planned_anchor: list[str],
+    sample_deg: FloatArray,
+    sample_anchor: list[str],
+    tol_deg: float = MATCH_TOL_DEG,
+) -> IndexArray:
+    """For each planned pose, the sample that measured it, or -1.
+
+    A sample measures a planned pose when it was taken at the same anchor and every joint is
+    within ``tol_deg`` of the plan (a robot reaches a commanded pose to a few hundredths of a
+    degree; 0.5 deg also accepts a pose taught by hand near the plan). Among several, the
+    closest (smallest largest-joint difference) wins.
+
+    Progress is computed from the samples rather than stored when a capture happens: auto and
+    manual captures and CSV imports all end as samples, so every way of measuring a pose
+    counts, a sample excluded later (callers pass the included ones) makes its pose pending
+    again, and a restart loses nothing. The cost is one (n × m × 6) comparison per request
+    (500 planned poses × 2000 samples: 6 million differences, milliseconds).
+
+    Parameters
+    ----------
+    planned_deg : ndarray, shape (n, 6) [deg]
+    planned_anchor : list of str, length n
+    sample_deg : ndarray, shape (m, 6) [deg]
+    sample_anchor : list of str, length m
+    tol_deg : float
+        Largest allowed difference per joint [deg]; > 0.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        Index into the samples, or -1 (pending).
+    """
+    if not tol_deg > 0:
+        raise StoreInvalid(f"tol_deg: must be > 0, got {tol_deg}")
+    n = planned_deg.shape[0]
+    out = np.full(n, -1, dtype=int)
+    if n == 0 or sample_deg.shape[0] == 0:
+        return out
+    diff = np.abs(planned_deg[:, None, :] - sample_deg[None, :, :]).max(axis=2)  # (n, m)
+    same = np.asarray(planned_anchor)[:, None] == np.asarray(sample_anchor)[None, :]
+    diff = np.where(same, diff, np.inf)
+    best = np.argmin(diff, axis=1)
+    ok = diff[np.arange(n), best] <= tol_deg
+    out[ok] = best[ok]
+    return out

@@ -1,0 +1,61 @@
+"""Plans in the store: saved whole, the newest per campaign, migrated into old files; and the
+pose matching behind a plan's progress."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from _store_helpers import ROBOT
+
+from daemon.store import Store, StoreInvalid, StoreNotFound, apply_migrations, match_poses
+
+
+def _pose(i: int, anchor: str = "A") -> dict[str, Any]:
+    return {"pose": i, **{f"q{j}": float(10 * i + j) for j in range(1, 7)}, "anchor": anchor}
+
+
+def test_save_and_latest_plan(store: Store, campaign: dict[str, Any]) -> None:
+    cid = campaign["id"]
+    with pytest.raises(StoreNotFound, match=f"campaign {cid}: no plan yet"):
+        store.latest_plan(cid)
+    with pytest.raises(StoreNotFound, match="campaign 999 not found"):
+        store.latest_plan(999)
+    first = store.save_plan(cid, {"n": 1}, {"condition_number": float("inf")}, [_pose(1)])
+    assert first["summary"] == {"condition_number": None}  # strict JSON
+    second = store.save_plan(cid, {"n": 2}, {}, [_pose(1), _pose(2)])
+    latest = store.latest_plan(cid)
+    assert latest == second and latest["id"] > first["id"]
+    assert latest["robot_id"] == campaign["robot_id"] and latest["options"] == {"n": 2}
+    with pytest.raises(StoreInvalid, match="poses: a plan needs"):
+        store.save_plan(cid, {}, {}, [])
+    with pytest.raises(StoreInvalid, match=r"poses\[0\]: missing q6, anchor"):
+        store.save_plan(cid, {}, {}, [{"q1": 0, "q2": 0, "q3": 0, "q4": 0, "q5": 0}])
+    with pytest.raises(StoreNotFound):
+        store.save_plan(999, {}, {}, [_pose(1)])
+
+
+def test_an_older_file_gets_the_plans_table(tmp_path: Path) -> None:
+    path = tmp_path / "old.sqlite3"
+    conn = sqlite3.connect(path)
+    apply_migrations(conn, upto=2)
+    conn.close()
+    with Store(path) as s:
+        cid = s.create_campaign("c", s.ensure_builtin_robot(ROBOT)["id"])["id"]
+        assert s.save_plan(cid, {}, {}, [_pose(1)])["poses"] == [_pose(1)]
+
+
+def test_match_poses_tolerance_anchor_and_closest() -> None:
+    planned = np.array([[0.0] * 6, [10.0] * 6, [20.0] * 6])
+    samples = np.array([[0.4] * 6, [10.0] * 6, [0.1] * 6, [20.0, 20, 20, 20, 20, 20.6]])
+    got = match_poses(planned, ["A", "A", "A"], samples, ["A", "B", "A", "A"], tol_deg=0.5)
+    # Pose 0: the closer of two matches; pose 1: only a sample at another anchor; pose 2:
+    # one joint 0.6 deg off.
+    assert got.tolist() == [2, -1, -1]
+    assert match_poses(planned, ["A"] * 3, samples, ["A"] * 4, tol_deg=0.7).tolist() == [2, 1, 3]
+    assert match_poses(planned, ["A"] * 3, np.zeros((0, 6)), [], 0.5).tolist() == [-1, -1, -1]
+    with pytest.raises(StoreInvalid, match="tol_deg"):
+        match_poses(planned, ["A"] * 3, samples, ["A"] * 4, tol_deg=0.0)

@@ -1,0 +1,188 @@
+"""POST/GET /campaigns/{id}/plan: planning off the event loop, progress from the samples."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+from test_service import AUTH, TOKEN, FakeSampler, _settings
+
+from daemon.api.main import create_app
+from daemon.capture import Capture
+from daemon.datafiles import bundled_dataset_text
+
+ANCHOR = [1430.0, 330.0, 230.0]
+SMALL = {"anchors_mm": [ANCHOR], "n": 8, "candidates": 200, "seed": 2}
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+    app = create_app(_settings(tmp_path_factory.mktemp("plan")), TOKEN, sampler_factory=FakeSampler)
+    with TestClient(app) as c:
+        yield c
+
+
+def _campaign(client: TestClient) -> int:
+    r = client.post("/api/v1/campaigns", json={"name": "p", "robot_model": "hsr-jr680"},
+                    headers=AUTH)  # fmt: skip
+    assert r.status_code == 201, r.text
+    return int(r.json()["id"])
+
+
+def _plan(client: TestClient, cid: int, tol_deg: float | None = None) -> dict[str, Any]:
+    params = {} if tol_deg is None else {"tol_deg": tol_deg}
+    r = client.get(f"/api/v1/campaigns/{cid}/plan", headers=AUTH, params=params)
+    assert r.status_code == 200, r.text
+    return dict(r.json())
+
+
+def _q(pose: dict[str, Any], shift_deg: float = 0.0) -> list[float]:
+    return [float(pose[f"q{j}"]) + shift_deg for j in range(1, 7)]
+
+
+def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestClient) -> None:
+    cid = _campaign(client)
+    r = client.post(f"/api/v1/campaigns/{cid}/plan", json=SMALL, headers=AUTH)
+    assert r.status_code == 201, r.text
+    made = r.json()
+    assert len(made["poses"]) == 8 and made["options"]["n"] == 8
+    assert made["summary"]["tcp_sigma_mm"]["plan"]["rms"] > 0
+    assert made["progress"] == {"n_planned": 8, "n_done": 0, "n_pending": 8,
+                                "fraction_done": 0.0, "tol_deg": 0.5, "next_pose": 1}  # fmt: skip
+    poses = _plan(client, cid)["poses"]
+    assert poses == made["poses"]
+    assert all(p["status"] == "pending" and p["sample_id"] is None for p in poses)
+
+    # A manual capture 0.2 deg off pose 1 measures it; with a 0.1 deg tolerance it does not.
+    r = client.post(f"/api/v1/campaigns/{cid}/captures",
+                    json={"joints_deg": _q(poses[0], 0.2)}, headers=AUTH)  # fmt: skip
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    got = _plan(client, cid)
+    assert got["poses"][0]["status"] == "done" and got["poses"][0]["sample_id"] == sid
+    assert got["progress"]["n_done"] == 1 and got["progress"]["next_pose"] == 2
+    assert _plan(client, cid, tol_deg=0.1)["progress"]["n_done"] == 0
+
+    # The same pose at another anchor is another measurement: pose 2 stays pending.
+    r = client.post(f"/api/v1/campaigns/{cid}/captures",
+                    json={"joints_deg": _q(poses[1]), "anchor": "B"}, headers=AUTH)  # fmt: skip
+    assert r.status_code == 201, r.text
+    # A CSV import of poses 3 and 4 counts too.
+    csv = "q1,q2,q3,q4,q5,q6,L\n" + "".join(
+        ",".join(f"{v:.4f}" for v in _q(p)) + ",900.0\n" for p in poses[2:4]
+    )
+    r = client.post(f"/api/v1/campaigns/{cid}/samples/import", content=csv,
+                    headers={**AUTH, "Content-Type": "text/csv"})  # fmt: skip
+    assert r.status_code == 201, r.text
+    got = _plan(client, cid)
+    assert [p["status"] for p in got["poses"][:4]] == ["done", "pending", "done", "done"]
+    assert got["progress"]["n_done"] == 3 and got["progress"]["n_pending"] == 5
+
+    # Auto capture: the sampler hands its capture to the store (its sink), as here.
+    store = client.app.state.cablecal.store  # type: ignore[attr-defined]
+    q5 = _q(poses[4], -0.3)
+    store.store_capture(cid, Capture(joints_deg=(q5[0], q5[1], q5[2], q5[3], q5[4], q5[5]),
+                                     joints_std_deg=(0.001,) * 6,  # type: ignore[arg-type]
+                                     length_mm=900.0, length_std_mm=0.01, count=10,
+                                     anchor="A", t_start_wall=time.time() - 1,
+                                     t_end_wall=time.time(), mode="auto"))  # fmt: skip
+    got = _plan(client, cid)
+    assert got["poses"][4]["status"] == "done" and got["progress"]["n_done"] == 4
+
+    # Excluding the captured sample makes pose 1 pending again.
+    r = client.patch(f"/api/v1/samples/{sid}", json={"excluded": True}, headers=AUTH)
+    assert r.status_code == 200, r.text
+    got = _plan(client, cid)
+    assert got["poses"][0]["status"] == "pending" and got["progress"]["next_pose"] == 1
+
+
+def test_plan_from_the_campaigns_samples(client: TestClient) -> None:
+    cid = _campaign(client)
+    text = bundled_dataset_text()
+    r = client.post(f"/api/v1/campaigns/{cid}/samples/import",
+                    content="\n".join(text.splitlines()[:61]) + "\n",
+                    headers={**AUTH, "Content-Type": "text/csv"})  # fmt: skip
+    assert r.status_code == 201, r.text
+    body = {"n": 6, "candidates": 200, "start_from_samples": True}
+    r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
+    assert r.status_code == 201, r.text
+    summary = r.json()["summary"]
+    # The 60 measured rows alone are ill-conditioned; six planned poses help a lot.
+    assert summary["condition_number_start"] > 10 * summary["condition_number"]
+    assert summary["notes"] and "60 start samples" in summary["notes"][0]
+    assert {p["anchor"] for p in r.json()["poses"]} == {"A"}
+
+
+def test_not_found_auth_and_bounds(client: TestClient) -> None:
+    cid = _campaign(client)
+    r = client.get(f"/api/v1/campaigns/{cid}/plan", headers=AUTH)
+    assert (r.status_code, r.json()) == (404, {"detail": f"campaign {cid}: no plan yet"})
+    for method in ("GET", "POST"):
+        r = client.request(method, "/api/v1/campaigns/999999/plan", json=SMALL, headers=AUTH)
+        assert (r.status_code, r.json()) == (404, {"detail": "campaign 999999: not found"})
+        for headers in ({}, {"Authorization": "Bearer wrong"}):
+            r = client.request(method, f"/api/v1/campaigns/{cid}/plan", json=SMALL,
+                               headers=headers)  # fmt: skip
+            assert r.status_code == 401, (method, r.text)
+    bad = [
+        ({"n": 201}, "n"),
+        ({"candidates": 10_001}, "candidates"),
+        ({"anchors_mm": [[1.0, 2.0]]}, "anchors_mm"),
+        ({"anchors_mm": [ANCHOR] * 5}, "anchors_mm"),
+        ({"joint_speed_deg_s": [30.0] * 5}, "joint_speed_deg_s"),
+        ({"extension_mm": [-1.0, 100.0]}, "extension_mm"),
+        ({"dwell_s": -1}, "dwell_s"),
+        ({"noise_mm": 0}, "noise_mm"),
+        ({"colour": "red"}, "colour"),
+    ]
+    for change, field in bad:
+        r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
+        assert r.status_code == 422, (change, r.text)
+        assert field in {str(part) for e in r.json()["detail"] for part in e["loc"]}, r.text
+    # The engine's own checks are 422 naming the option too.
+    engine = [
+        ({"n": 50, "candidates": 20}, "candidates:"),
+        ({"anchors_mm": [[9000.0, 0.0, 0.0]]}, "anchor 1 at"),
+        ({"extension_mm": [900.0, 100.0]}, "extension_mm:"),
+        ({"anchors_mm": None}, "anchors_mm: required"),
+        ({"anchors_mm": None, "start_from_samples": True}, "start_from_samples:"),
+    ]
+    for change, text in engine:
+        r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
+        assert r.status_code == 422 and text in r.json()["detail"], (change, r.text)
+    spec = client.get("/openapi.json").json()["paths"]["/api/v1/campaigns/{campaign_id}/plan"]
+    assert spec["post"]["summary"] and spec["get"]["summary"]
+    r = client.get(f"/api/v1/campaigns/{cid}/plan", params={"tol_deg": 0}, headers=AUTH)
+    assert r.status_code == 422
+    assert client.get(f"/api/v1/campaigns/{cid}/plan", headers=AUTH).status_code == 404
+
+
+def test_planning_runs_off_the_event_loop(client: TestClient) -> None:
+    cid = _campaign(client)
+    result: dict[str, Any] = {}
+    body = {**SMALL, "n": 30, "candidates": 3000}
+
+    def post() -> None:
+        result["r"] = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
+
+    worker = threading.Thread(target=post)
+    worker.start()
+    state = client.app.state  # type: ignore[attr-defined]
+    deadline = time.monotonic() + 30
+    while getattr(state, "planning_campaign", None) is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert state.planning_campaign == cid
+    t0 = time.perf_counter()
+    assert client.get("/api/v1/health").status_code == 200
+    health_s = time.perf_counter() - t0
+    second = client.post(f"/api/v1/campaigns/{cid}/plan", json=SMALL, headers=AUTH)
+    still_planning = getattr(state, "planning_campaign", None) == cid
+    worker.join(timeout=120)
+    assert result["r"].status_code == 201, result["r"].text
+    if still_planning:  # the plan outlasted both requests (it takes seconds): they were served
+        assert second.status_code == 409 and "another plan" in second.json()["detail"]
+        assert health_s < 1.0, health_s

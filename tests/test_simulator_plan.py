@@ -1,0 +1,172 @@
+"""The emulated robot follows a plan: poses from a plan CSV (``q1..q6`` by header, as
+``cablecal plan`` writes and ``cablecal identify`` reads) or from the ``load_poses`` control
+command, visited in order with the usual move/dwell; bad CSV names the row and column."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.planning import CSV_COLUMNS
+from drivers import HuashuConfig, HuashuSocketCmdRobot
+from simulator.cell import EmulatedCell
+from simulator.config import SimConfig
+from simulator.poses import PoseCsvError, parse_poses_csv
+from simulator.runner import SimulatorThread
+
+pytestmark = pytest.mark.anyio
+
+#: Poses [deg] within the JR680's limits (q3 reads 60..300 deg), all different.
+PLAN_DEG = np.array(
+    [
+        [0.0, -30.0, 200.0, 0.0, 20.0, 0.0],
+        [15.0, -45.0, 215.0, 10.0, 35.0, -20.0],
+        [-20.0, -20.0, 185.0, -15.0, 10.0, 30.0],
+        [30.0, -60.0, 230.0, 25.0, 45.0, 10.0],
+    ]
+)
+
+
+def write_plan_csv(path: Path, q_deg: np.ndarray) -> Path:
+    """A CSV in the layout of ``cablecal plan`` (calib.planning.CSV_COLUMNS): ``pose`` first,
+    then q1..q6, then anchor/extension columns the emulated cell must ignore."""
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(CSV_COLUMNS)
+        for i, q in enumerate(q_deg):
+            writer.writerow([i + 1, *q, "A", 900.0 + i, 1400.0, 300.0, 200.0])
+    return path
+
+
+def test_plan_csv_is_read_by_header_ignoring_extra_columns(tmp_path: Path) -> None:
+    path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG)
+    cell = EmulatedCell(SimConfig(robot={"poses": str(path)}))
+    np.testing.assert_array_equal(cell.poses_deg, PLAN_DEG)  # not shifted by the pose column
+    # Column order does not matter; case does not matter; a header-less file is 6 columns.
+    text = "Q6,q5,x,q4,q3,q2,q1\n" + "".join(
+        f"{q[5]},{q[4]},999,{q[3]},{q[2]},{q[1]},{q[0]}\n" for q in PLAN_DEG
+    )
+    np.testing.assert_array_equal(parse_poses_csv(text), PLAN_DEG)
+    bare = "\n".join(",".join(str(v) for v in q) for q in PLAN_DEG)
+    np.testing.assert_array_equal(parse_poses_csv(bare), PLAN_DEG)
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("q1,q2,q4,q5,q6\n1,2,3,4,5\n", r"row 1: .*missing column\(s\) \['q3'\]"),
+        ("q1,q2,q3,q4,q5,q6\n0,0,200,0,0,0\n0,0,200,abc,0,0\n", r"row 3, column 'q4'.*'abc'"),
+        ("q1,q2,q3,q4,q5,q6\n0,0,200,0,0\n", r"row 2, column 'q6': .*missing value"),
+        ("q1,q2,q3,q4,q5,q6\n0,0,200,0,0,nan\n", r"row 2, column 'q6'.*not finite"),
+        ("q1,q2,q3,q4,q5,q6\n0,0,20,0,0,0\n", r"row 2, column 'q3'.*outside the joint limits"),
+        ("q1,q2,q3,q4,q5,q6\n", "no poses after the header"),
+        ("\n\n", "empty file"),
+    ],
+)
+def test_bad_plan_csv_names_row_and_column(tmp_path: Path, text: str, match: str) -> None:
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(PoseCsvError, match=match):
+        EmulatedCell(SimConfig(robot={"poses": str(path)}))
+
+
+def test_missing_plan_file_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"robot.poses: cannot read .*nope.csv"):
+        EmulatedCell(SimConfig(robot={"poses": "nope.csv"}, base_dir=str(tmp_path)))
+
+
+def test_schedule_visits_exactly_the_plan_in_order(tmp_path: Path) -> None:
+    path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG)
+    cell = EmulatedCell(
+        SimConfig(robot={"poses": str(path), "dwell_s": 1.0, "move_time_s": 0.5, "loop": False})
+    )
+    t0 = cell._t0
+    for i, q in enumerate(PLAN_DEG):
+        joints, index, moving = cell.motion(t0 + 1.5 * i + 0.5)  # mid-dwell at pose i
+        assert (index, moving) == (i, False)
+        np.testing.assert_array_equal(joints, q)
+    joints, index, moving = cell.motion(t0 + 100.0)  # loop = false: stays at the last pose
+    assert (index, moving) == (3, False)
+    np.testing.assert_array_equal(joints, PLAN_DEG[-1])
+
+
+def test_load_poses_moves_from_where_the_robot_is() -> None:
+    cell = EmulatedCell(SimConfig(robot={"dwell_s": 1.0, "move_time_s": 0.5}))
+    now = time.monotonic()
+    before, _, _ = cell.motion(now)
+    cell.load_poses(PLAN_DEG, loop=False, now=now)
+    assert cell.state_report(now)["n_poses"] == 4 and not cell.loop
+    q, index, moving = cell.motion(now)
+    assert moving and index == 0
+    np.testing.assert_allclose(q, before)  # no jump
+    q, _, moving = cell.motion(now + 0.25)
+    assert moving
+    np.testing.assert_allclose(q, (before + PLAN_DEG[0]) / 2)  # quintic: half way at s=0.5
+    for i in range(4):
+        q, index, moving = cell.motion(now + 0.5 + 1.5 * i + 0.5)
+        assert (index, moving) == (i, False)
+        np.testing.assert_array_equal(q, PLAN_DEG[i])
+    with pytest.raises(ValueError, match=r"row 2, q3: 20.0 deg .*outside the joint limits"):
+        cell.load_poses(np.vstack([PLAN_DEG[0], [0, 0, 20, 0, 0, 0]]))
+    with pytest.raises(ValueError, match=r"expected shape \(n, 6\)"):
+        cell.load_poses(np.zeros((2, 5)))
+
+
+def _plateaus(readings: list[tuple[float, ...]], min_repeat: int = 3) -> list[tuple[float, ...]]:
+    """Joint vectors reported at least ``min_repeat`` times in a row (the dwells), in order."""
+    out: list[tuple[float, ...]] = []
+    run = 0
+    for k, q in enumerate(readings):
+        run = run + 1 if k and np.allclose(q, readings[k - 1], atol=1e-9) else 1
+        if run == min_repeat and (not out or not np.allclose(q, out[-1], atol=1e-9)):
+            out.append(q)
+    return out
+
+
+async def _poll_joints(endpoint: str | None, duration_s: float) -> list[tuple[float, ...]]:
+    assert endpoint is not None
+    host, port = endpoint.rsplit(":", 1)
+    robot = HuashuSocketCmdRobot(HuashuConfig(host=host, port=int(port)))
+    readings = []
+    try:
+        end = time.monotonic() + duration_s
+        while time.monotonic() < end:
+            readings.append(tuple((await robot.read_joints()).joints_deg))
+            await asyncio.sleep(0.02)
+    finally:
+        await robot.close()
+    return readings
+
+
+async def test_driver_sees_the_plan_csv_poses_in_order(tmp_path: Path) -> None:
+    path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG)
+    robot = {"poses": str(path), "dwell_s": 0.35, "move_time_s": 0.15, "loop": False}
+    with SimulatorThread(SimConfig(robot=robot, indicator={"pty": False})) as sim:
+        readings = await _poll_joints(sim.ready["robot_socketcmd"], 4 * 0.5 + 0.4)
+    seen = _plateaus(readings)
+    np.testing.assert_allclose(np.array(seen), PLAN_DEG, atol=1e-6)  # 6 decimals on the wire
+
+
+async def test_load_poses_command_and_csv_over_the_control_port(tmp_path: Path) -> None:
+    path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG[::-1])
+    robot = {"dwell_s": 0.35, "move_time_s": 0.15}
+    with SimulatorThread(SimConfig(robot=robot, indicator={"pty": False})) as sim:
+        reply = sim.control("load_poses", poses_deg=PLAN_DEG.tolist(), loop=False)
+        assert reply["poses_deg"] == PLAN_DEG.tolist() and reply["loop"] is False
+        readings = await _poll_joints(sim.ready["robot_socketcmd"], 0.15 + 4 * 0.5 + 0.4)
+        np.testing.assert_allclose(np.array(_plateaus(readings)), PLAN_DEG, atol=1e-6)
+        reply = sim.control("load_poses", csv=str(path))
+        assert reply["poses_deg"] == PLAN_DEG[::-1].tolist()
+        assert sim.control("poses")["poses_deg"] == PLAN_DEG[::-1].tolist()
+        bad = tmp_path / "bad.csv"
+        bad.write_text("pose,q1,q2,q3,q4,q5,q6\n1,0,0,200,0,0,0\n2,0,x,200,0,0,0\n")
+        with pytest.raises(RuntimeError, match=r"row 3, column 'q2'"):
+            sim.control("load_poses", csv=str(bad))
+        with pytest.raises(RuntimeError, match="exactly one of"):
+            sim.control("load_poses")
+        assert sim.control("state")["n_poses"] == 4  # a failed load changes nothing

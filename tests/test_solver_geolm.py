@@ -1,0 +1,130 @@
+"""LM with geodesic acceleration (calib.solvers.geolm) on synthetic and on the bundled data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from calib.cable import predict_lengths
+from calib.dataset import SampleSet, make_samples
+from calib.identify import IdentifyOptions, identify
+from calib.methods import run as _run_method
+from calib.models import builtin_model
+from calib.problem import Problem
+from calib.solvers import geolm
+from calib.solvers.common import SolverResult
+from calib.synthetic import make_true_cell, random_poses_deg
+from daemon.datafiles import read_samples
+
+MODEL = builtin_model("hsr-jr680")
+#: scipy least_squares evaluations of the in-test reference (tolerances 1e-15): a few seconds.
+REFERENCE_NFEV = 1000
+
+
+def build_problem(samples: SampleSet) -> Problem:
+    """The ML problem identify() solves on all rows, rebuilt from its start point and base set."""
+    res = identify(MODEL, samples, IdentifyOptions(method="lm", test_fraction=0.0))
+    free = np.isin(res.layout.names, res.free_names)
+    assert res.theta_start is not None
+    return Problem(MODEL, res.layout, np.deg2rad(samples.joints_deg), samples.length_mm,
+                   samples.anchor_index(), free, res.theta_start)  # fmt: skip
+
+
+def reference_cost(problem: Problem, max_nfev: int) -> float:
+    """Cost after a tight scipy least_squares run (trf, analytic Jacobian) [mm²]."""
+    res = least_squares(problem.residuals, problem.x0(),
+                        jac=lambda x: problem.residuals_and_jacobian(x)[1], method="trf",
+                        x_scale="jac", ftol=1e-15, xtol=1e-15, gtol=1e-15,
+                        max_nfev=max_nfev)  # fmt: skip
+    return float(res.cost)
+
+
+@pytest.fixture(scope="module")
+def bundled_first_100() -> Problem:
+    return build_problem(read_samples(None).subset(np.arange(100)))
+
+
+def test_options_are_validated() -> None:
+    with pytest.raises(ValueError, match="alpha"):
+        geolm.GeoLMOptions(alpha=0.0)
+    with pytest.raises(ValueError, match="stall_window"):
+        geolm.GeoLMOptions(stall_window=0)
+
+
+def test_converges_to_the_truth_on_noise_free_synthetic_data() -> None:
+    cell = make_true_cell(MODEL)
+    q = random_poses_deg(cell, 120, np.random.default_rng(5))
+    samples = make_samples(q, cell.lengths_mm(q))
+    problem = build_problem(samples)
+    res = geolm.solve(problem)
+    assert res.success, res.message
+    theta = problem.full(res.x)
+    assert problem.data_rms_mm(res.x) < 1e-6
+    # The identified model predicts unseen poses exactly (the base set is identified only up to
+    # its null space, so parameters are compared through their predictions).
+    q_new = random_poses_deg(cell, 50, np.random.default_rng(6))
+    pred = predict_lengths(MODEL, theta, np.deg2rad(q_new), np.zeros(50, dtype=int))
+    np.testing.assert_allclose(pred, cell.lengths_mm(q_new), atol=1e-4)
+
+
+def test_noisy_synthetic_fit_matches_lm_optimum() -> None:
+    cell = make_true_cell(MODEL)
+    rng = np.random.default_rng(31)
+    q = random_poses_deg(cell, 150, rng)
+    samples = make_samples(q, cell.lengths_mm(q) + rng.normal(0, 0.05, 150))
+    problem = build_problem(samples)
+    ours = geolm.solve(problem)
+    assert ours.success, ours.message
+    assert problem.cost(ours.x) <= reference_cost(problem, 2000) * (1 + 1e-6)
+
+
+@pytest.mark.parametrize(
+    "method",
+    [
+        "geolm",
+        pytest.param(
+            "ukf-vslm",
+            marks=pytest.mark.xfail(
+                strict=True, reason="issue 10: stops at its iteration limit (status 0)"
+            ),
+        ),
+    ],
+)
+def test_first_100_bundled_rows_stop_by_a_test_near_a_long_reference(
+    bundled_first_100: Problem, method: str
+) -> None:
+    """Regression test for issue 10: a convergence test, not the iteration limit, ends the run,
+    at a cost within 1 % of what a tight scipy run reaches in REFERENCE_NFEV evaluations."""
+    problem = bundled_first_100
+    if method == "geolm":
+        res = geolm.solve(problem)
+    else:
+        res = _run_method(problem, problem.x0(), IdentifyOptions(method="ukf-vslm"), None)
+    assert res.status > 0, res.message
+    assert problem.cost(res.x) <= 1.01 * reference_cost(problem, REFERENCE_NFEV)
+
+
+@pytest.fixture(scope="module")
+def all_rows_fit() -> tuple[Problem, SolverResult]:
+    problem = build_problem(read_samples(None))
+    return problem, geolm.solve(problem)
+
+
+@pytest.mark.slow
+def test_all_bundled_rows_end_below_a_tight_reference_run(
+    all_rows_fit: tuple[Problem, SolverResult],
+) -> None:
+    problem, res = all_rows_fit
+    assert problem.cost(res.x) <= 1.01 * reference_cost(problem, REFERENCE_NFEV // 4)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 10, open: on all 2017 rows geolm stops at its iteration limit at a cost of "
+    "18.2 mm² (RMS 0.134 mm); a long least-squares run reaches RMS 0.090 mm",
+)
+def test_all_bundled_rows_converge(all_rows_fit: tuple[Problem, SolverResult]) -> None:
+    _, res = all_rows_fit
+    assert res.success, res.message
