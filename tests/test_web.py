@@ -57,6 +57,10 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
     missing: list[str] = []
     with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
         page.on("dialog", lambda d: d.accept())
+        failed: list[str] = []
+        page.on(
+            "response", lambda r: failed.append(f"{r.status} {r.url}") if r.status >= 400 else None
+        )
 
         # token: asked once, the live trace draws
         page.goto(url + "/")
@@ -80,11 +84,13 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         # plan (when the daemon has the route)
         if _has(routes, "POST", "/plan"):
             page.fill("#plan-form input[name=n]", "30")
+            for axis, value in zip("xyz", (1400, 300, 200), strict=True):  # the cell's sensor
+                page.fill(f"#plan-form input[name=a{axis}]", str(value))
             page.click("#plan-form button")
             page.wait_for_function(
                 "document.querySelectorAll('#plan-poses tbody tr').length >= 30", timeout=120000
             )
-            assert "Predicted TCP" in page.inner_text("#plan-summary")
+            assert "Predicted tool-point accuracy" in page.inner_text("#plan-summary")
         else:
             missing.append("plan")
         _shot(page, tmp_path, "2-campaign-plan")
@@ -161,7 +167,7 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         _shot(page, tmp_path, "6-apply")
 
         assert log.page_errors == []
-        assert log.console_errors == []
+        assert log.console_errors == [], failed
         assert log.blocked_requests == []
         assert page.locator(".message.error").count() == 0, page.inner_text("#messages")
     if missing:

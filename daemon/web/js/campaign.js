@@ -196,52 +196,67 @@ async function setAuto(enabled) {
 }
 
 // ------------------------------------------------------------------ plan
+let noPlanFor = null; // campaign id known to have no plan (no 404 polling)
+
 async function refreshPlan() {
   if (!hasRoute("GET", "/campaigns/{}/plan")) {
     $("plan-form").querySelector("button").disabled = true;
     setText("plan-summary", "Pose planning is not available on this daemon (no plan route); capture poses of your own choosing.");
     return;
   }
+  const id = state.campaign.id;
+  if (noPlanFor === id) { plan = null; renderPlan(); return; }
   try {
-    plan = await api("GET", `/campaigns/${state.campaign.id}/plan`, { quiet: true });
+    plan = await api("GET", `/campaigns/${id}/plan`, { quiet: true });
   } catch (exc) {
     if (exc.status !== 404) showMessage("error", `plan: ${exc.message}`, "plan");
+    else noPlanFor = id;
     plan = null;
   }
   renderPlan();
 }
 
-function planPoses(p) {
-  const rows = p?.poses || p?.result?.poses || [];
-  return rows.map((r) => (Array.isArray(r) ? r : r.joints_deg || JOINTS.map((q) => r[q])));
-}
-
 function renderPlan() {
-  const bar = $("plan-progress");
-  if (!plan) { bar.hidden = true; fillTable($("plan-poses"), [], [], "none"); return; }
-  const running = ["queued", "running"].includes(plan.status);
-  bar.hidden = !running;
-  bar.firstElementChild.style.width = `${100 * (plan.progress || 0)}%`;
-  const res = plan.result || plan;
-  const tcp = res.tcp_sigma_mm;
-  const poses = planPoses(plan);
-  const done = poses.map((q) => samples.some((s) => JOINTS.every((k, j) => Math.abs(s[k] - q[j]) <= 0.05)));
-  const nDone = done.filter(Boolean).length;
-  setText("plan-summary", running
-    ? `Planning … ${Math.round(100 * (plan.progress || 0))} % ${plan.message || ""}`
-    : `${poses.length} planned poses, ${nDone} captured, ${poses.length - nDone} to go.` +
-      (tcp ? ` Predicted TCP accuracy after calibration: σ ${fix(tcp.plan?.rms, 3)} mm RMS (max ${fix(tcp.plan?.max, 3)} mm); random poses would give ${fix(tcp.random?.rms, 3)} mm.` : ""));
-  fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })), { label: "status" }],
-    poses.map((q, i) => [String(i + 1), ...q.map((v) => fix(v, 2)), el("span", { class: done[i] ? "ok" : "muted" }, done[i] ? "done" : "pending")]),
-    JSON.stringify([poses.length, done]));
+  if (!plan) {
+    setText("plan-summary", "No plan yet. A plan picks the poses that make the calibration most accurate; give the sensor position roughly (or plan on top of samples already taken).");
+    fillTable($("plan-poses"), [], [], "none");
+    return;
+  }
+  const tcp = plan.summary?.tcp_sigma_mm;
+  const pr = plan.progress || {};
+  setText("plan-summary", `${pr.n_planned} planned poses: ${pr.n_done} captured, ${pr.n_pending} to go` +
+    (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") + "." +
+    (tcp ? ` Predicted tool-point accuracy after calibration: ${fix(tcp.plan?.rms, 3)} mm RMS (1σ; max ${fix(tcp.plan?.max, 3)} mm), against ${fix(tcp.random?.rms, 3)} mm with as many random poses.` : ""));
+  fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
+    { label: "anchor" }, { label: "status" }],
+  plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
+    el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
+  JSON.stringify([plan.id, plan.poses.map((p) => p.status)]));
 }
 
 async function startPlan(ev) {
   ev.preventDefault();
   const f = ev.target.elements;
-  plan = await api("POST", `/campaigns/${state.campaign.id}/plan`, {
-    json: { n: Number(f.n.value), min_z_mm: Number(f.min_z_mm.value), seed: Number(f.seed.value) },
-  });
+  const body = { n: Number(f.n.value), min_z_mm: Number(f.min_z_mm.value), seed: Number(f.seed.value),
+    start_from_samples: f.start_from_samples.checked };
+  if (f.ax.value !== "" || f.ay.value !== "" || f.az.value !== "") {
+    body.anchors_mm = [[Number(f.ax.value), Number(f.ay.value), Number(f.az.value)]];
+  } else if (!body.start_from_samples) {
+    showMessage("error", "Plan: give the sensor position x, y, z [mm] (roughly), or tick 'add to the samples already taken'.", "plan-anchor");
+    return;
+  }
+  const button = ev.target.querySelector("button");
+  button.disabled = true;
+  $("plan-progress").hidden = false;
+  $("plan-progress").firstElementChild.style.width = "100%";
+  setText("plan-summary", `Planning ${body.n} poses … (the cell PC computes for up to a minute)`);
+  try {
+    plan = await api("POST", `/campaigns/${state.campaign.id}/plan`, { json: body });
+    noPlanFor = null;
+  } finally {
+    button.disabled = false;
+    $("plan-progress").hidden = true;
+  }
   renderPlan();
 }
 
