@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -38,7 +38,9 @@ def _reading(t_wall: float, length_mm: float) -> PairedReading:
 class TraceSampler(FakeSampler):
     """FakeSampler with a ring buffer of 10 readings 0.1 s apart, the 4th over range."""
 
-    buffer = deque(_reading(NOW + 0.1 * i, math.nan if i == 3 else 800.0 + i) for i in range(10))
+    buffer: ClassVar[deque[PairedReading]] = deque(
+        _reading(NOW + 0.1 * i, math.nan if i == 3 else 800.0 + i) for i in range(10)
+    )
 
     def recent_readings(self, since_wall_s: float, limit: int) -> list[PairedReading]:
         return Sampler.recent_readings(SimpleNamespace(_buffer=self.buffer), since_wall_s, limit)  # type: ignore[arg-type]
