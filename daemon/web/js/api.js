@@ -76,6 +76,7 @@ export function detailText(body) {
 export async function api(method, path, opts = {}) {
   const used = getToken();
   const headers = { Authorization: `Bearer ${used}` };
+  if (opts.accept) headers.Accept = opts.accept;
   let body;
   if (opts.json !== undefined) {
     headers["Content-Type"] = "application/json";

@@ -1,7 +1,7 @@
 // View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
 // the drift-check state and history (the ``drift`` block of /status).
 import { api, saveBlob } from "./api.js";
-import { $, clock, el, every, fillTable, fix, hasRoute, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 let lastCsv = null;
 
@@ -36,17 +36,20 @@ async function compensate(ev) {
     return;
   }
   const rows = out.rows || [];
-  const keys = rows.length ? Object.keys(rows[0]) : [];
-  const unit = (k) => (/^q\d$/.test(k) ? `${k.replace("q", "J")} [deg]` : k.replace(/_mm$/, " [mm]").replace(/_deg$/, " [deg]").replaceAll("_", " "));
-  const cellOf = (k, v) => (/^q\d$/.test(k) ? fix(v, 4) : k.startsWith("residual") ? sig(v, 2) : cell(v));
-  fillTable($("compensate-result"), [{ label: "#", num: true }, ...keys.map((k) => ({ label: unit(k), num: typeof rows[0][k] === "number" }))],
-    rows.map((r, i) => [String(i + 1), ...keys.map((k) => cellOf(k, r[k]))]));
-  lastCsv = [keys.join(","), ...rows.map((r) => keys.map((k) => (r[k] == null ? "" : Array.isArray(r[k]) ? r[k].join(" ") : r[k])).join(","))].join("\n") + "\n";
+  const show = [["q1", "J1 [deg]", 4], ["q2", "J2 [deg]", 4], ["q3", "J3 [deg]", 4], ["q4", "J4 [deg]", 4],
+    ["q5", "J5 [deg]", 4], ["q6", "J6 [deg]", 4], ["max_correction_deg", "largest correction [deg]", 3],
+    ["uncompensated_error_mm", "error removed [mm]", 3], ["residual_mm", "IK residual [mm]", null], ["flags", "flags", null]];
+  fillTable($("compensate-result"), [{ label: "#", num: true }, ...show.map(([, label, d]) => ({ label, num: d !== null || label.includes("[") }))],
+    rows.map((r, i) => [String(i + 1), ...show.map(([k, , d]) => (k === "flags" ? el("span", { class: r[k] ? "bad" : "" }, r[k] || "ok")
+      : d == null ? sig(r[k], 2) : fix(r[k], d)))]));
+  // The server's own CSV (every column, nominal joints too), for the controller program.
+  lastCsv = await api("POST", `/robots/${c.robot_id}/compensate`, { body: text, type: "text/csv", accept: "text/csv" });
   $("compensate-download").hidden = false;
-  const summary = out.summary && typeof out.summary === "object"
-    ? Object.entries(out.summary).filter(([, v]) => typeof v !== "object").map(([k, v]) => `${k.replaceAll("_", " ")} ${cell(v)}`).join(", ")
-    : "";
-  setText("compensate-state", `${rows.length} ${out.kind || ""} targets compensated (${out.mode || "position"} mode) with the calibrated model of ${c.robot_name}. ${summary}${out.note ? ` — ${out.note}` : ""}`);
+  const m = out.summary || {};
+  setText("compensate-state", `${m.n ?? rows.length} ${out.kind || ""} targets compensated (${out.mode || "position"} mode) with the accepted calibration of ${c.robot_name}: ` +
+    `largest joint correction ${fix(m.max_correction_deg, 3)} deg, tool-point error removed ${fix(m.rms_uncompensated_error_mm, 3)} mm RMS, ` +
+    `largest IK residual ${sig(m.max_residual_mm, 2)} mm, ${m.n_flagged ?? 0} flagged.`);
+  setText("compensate-note", out.note || "");
   $("compensate-download").onclick = () => saveBlob(new Blob([lastCsv], { type: "text/csv" }), `robot-${c.robot_id}-compensated.csv`);
 }
 
@@ -93,4 +96,5 @@ export function initApply() {
   $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch((e) => showMessage("error", `compensate: ${e.message}`)));
   $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
   every(3000, renderDrift, () => state.view === "apply");
+  onChange((kind) => { if (kind === "view" && state.view === "apply") renderDrift().catch(() => {}); });
 }

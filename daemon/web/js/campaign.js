@@ -275,6 +275,7 @@ async function createCampaign(ev) {
   }
   const c = await api("POST", "/campaigns", { json: { name: f.name.value.trim(), robot_model: model, notes: f.notes.value } });
   ev.target.reset();
+  noPlanFor = c.id; // a new campaign has no plan: do not ask (a 404 in the console)
   await loadCampaigns();
   await select(c);
   showMessage("info", `Campaign #${c.id} "${c.name}" created. Plan poses or start capturing.`, "created");

@@ -43,10 +43,11 @@ export function costChart(node, height = 220) {
   return make(node, {
     height,
     legend: { show: false },
+    cursor: { show: false },
     scales: { x: { time: false }, y: { distr: 3 } },
     axes: [
       { ...AXIS, label: "iteration" },
-      { ...AXIS, label: "RMS residual [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) },
+      { ...AXIS, label: height < 200 ? "RMS [mm]" : "RMS residual [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) },
     ],
     series: [{}, { label: "RMS [mm]", stroke: COLORS.cost, width: 2, points: { show: true, size: 4 } }],
   }, [[], []]);
@@ -64,6 +65,7 @@ export function residualChart(node, sampleNo, beforeMm, afterMm) {
   data.push(afterMm);
   return make(node, {
     height: 260,
+    legend: { live: false },
     scales: { x: { time: false } },
     axes: [{ ...AXIS, label: "sample (in id order)" },
       { ...AXIS, label: "residual [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) }],
@@ -94,6 +96,8 @@ export function histogramChart(node, beforeMm, afterMm) {
   data.push(count(afterMm));
   return make(node, {
     height: 260,
+    legend: { live: false },
+    cursor: { show: false },
     scales: { x: { time: false, range: [-lim - step, lim + step] } },
     axes: [{ ...AXIS, label: "residual [mm]", values: (u, t) => t.map((v) => fmtTick(v)) },
       { ...AXIS, label: "samples", size: 50 }],

@@ -87,6 +87,7 @@ function renderJob() {
   }
   live.plot ||= costChart($("cost-live"), 150);
   live.plot.setData([live.x, live.y]);
+  if (FINISHED.includes(job.status)) $("job-list").dataset.key = "";
   if (job.status === "failed") showMessage("error", `Identification #${job.id} failed: ${job.error}`, `job-${job.id}`);
   updateNeed();
   if (job.status === "succeeded" && shownResult !== job.id) renderResult().catch((e) => showMessage("error", `result: ${e.message}`));
@@ -123,6 +124,7 @@ async function renderResult() {
   renderDh(r);
   renderIdent(r);
   $("result-notes").replaceChildren(...(r.notes || []).map((n) => el("li", {}, n)));
+  $("result-notes-card").hidden = !(r.notes || []).length;
   for (const p of plots.splice(0)) p.cleanup();
   const cost = r.cost_history_rms_mm || [];
   const cp = costChart($("chart-cost"));
