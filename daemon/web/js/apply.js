@@ -46,7 +46,7 @@ async function compensate(ev) {
   lastCsv = await api("POST", `/robots/${c.robot_id}/compensate`, { body: text, type: "text/csv", accept: "text/csv" });
   $("compensate-download").hidden = false;
   const m = out.summary || {};
-  setText("compensate-state", `${m.n ?? rows.length} ${out.kind || ""} targets compensated (${out.mode || "position"} mode) with the accepted calibration of ${c.robot_name}: ` +
+  setText("compensate-state", `${m.n ?? rows.length} ${out.kind === "joints" ? "joint-space" : out.kind || ""} targets compensated (${out.mode || "position"} mode) with the accepted calibration of ${c.robot_name}: ` +
     `largest joint correction ${fix(m.max_correction_deg, 3)} deg, tool-point error removed ${fix(m.rms_uncompensated_error_mm, 3)} mm RMS, ` +
     `largest IK residual ${sig(m.max_residual_mm, 2)} mm, ${m.n_flagged ?? 0} flagged.`);
   setText("compensate-note", out.note || "");

@@ -145,8 +145,8 @@ function renderCoverage() {
       for (const v of xs) rect(pos(v), "1.5", "#1f5fae", 14, 4);
     }
     const share = min == null ? 0 : (100 * (max - min)) / (hi - lo);
-    return el("div", { class: "joint" }, el("b", {}, `J${j + 1}`), svg,
-      el("span", { class: "range" }, min == null ? `limits ${lo}…${hi}` : `${fix(min, 0)}…${fix(max, 0)} of ${lo}…${hi}: ${share.toFixed(0)} %`));
+    return el("div", { class: "joint", title: `J${j + 1} limits ${lo}…${hi} deg` }, el("b", {}, `J${j + 1}`), svg,
+      el("span", { class: "range" }, min == null ? `limits ${lo}…${hi}` : `${fix(min, 0)}…${fix(max, 0)} (${share.toFixed(0)} %)`));
   }));
 }
 
