@@ -146,15 +146,16 @@ export function changed(kind) {
   }
 }
 
-/** Run ``fn`` now and every ``ms`` while ``active()`` (errors go to the message area). */
+/** Run ``fn`` now and then every ``ms`` while ``active()`` and the tab is visible (errors go to
+ * the message area). The next run is timed from the start of this one, so a slow answer
+ * shortens the pause instead of skipping a beat; never two runs at once. */
 export function every(ms, fn, active = () => true) {
-  let busy = false;
   const tick = async () => {
-    if (busy || !active() || document.hidden) return;
-    busy = true;
-    try { await fn(); } catch (exc) { if (!exc.status && exc.status !== 0) showMessage("error", `page: ${exc.message}`); }
-    finally { busy = false; }
+    const t0 = performance.now();
+    if (active() && !document.hidden) {
+      try { await fn(); } catch (exc) { if (!exc.status && exc.status !== 0) showMessage("error", `page: ${exc.message}`); }
+    }
+    setTimeout(tick, Math.max(0, ms - (performance.now() - t0)));
   };
   tick();
-  return setInterval(tick, ms);
 }
