@@ -8,12 +8,14 @@ for grouped hold-out). Other columns (``x, y, z``, …) are ignored. Every error
 
 from __future__ import annotations
 
+import array
 import csv
 import io
 import math
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import NoReturn
 
 import numpy as np
 
@@ -24,6 +26,11 @@ CABLE_MIN_MM = 0.0
 CABLE_MAX_MM = 2000.0
 JOINT_COLUMNS = tuple(f"q{j + 1}" for j in range(N_JOINTS))
 LENGTH_COLUMNS = ("l", "length_mm")
+
+#: Rows converted to an array at a time while parsing, and checked at a time by
+#: :func:`validate_values`: each numpy call holds the GIL only briefly, so a large import parsed
+#: in a worker thread does not stall the event loop of the service.
+_BLOCK_ROWS = 10_000
 
 #: A decimal number as a CSV cell may spell it: digits, one optional point, an optional
 #: exponent. No digit separators (Python's ``float("1_0")`` is 10), no ``nan``/``inf``.
@@ -115,21 +122,27 @@ def make_samples(
 
 def validate_values(samples: SampleSet) -> None:
     """Finite joints and lengths, lengths within the sensor range; errors name row and column
-    (the first bad cell in file order). Vectorised: half a million rows take milliseconds."""
-    q = np.asarray(samples.joints_deg, dtype=float)
-    length = np.asarray(samples.length_mm, dtype=float)
-    bad_q = ~np.isfinite(q)
-    with np.errstate(invalid="ignore"):
-        bad_len = ~np.isfinite(length) | (length < CABLE_MIN_MM) | (length > CABLE_MAX_MM)
-    bad_rows = np.flatnonzero(bad_q.any(axis=1) | bad_len)
-    if bad_rows.size == 0:
-        return
-    i = int(bad_rows[0])
-    if bad_q[i].any():
-        j = int(np.flatnonzero(bad_q[i])[0])
+    (the first bad cell in file order). Vectorised, in blocks of rows."""
+    q_all = np.asarray(samples.joints_deg, dtype=float)
+    length_all = np.asarray(samples.length_mm, dtype=float)
+    for start in range(0, max(len(length_all), 1), 5 * _BLOCK_ROWS):
+        q = q_all[start : start + 5 * _BLOCK_ROWS]
+        length = length_all[start : start + 5 * _BLOCK_ROWS]
+        bad_q = ~np.isfinite(q)
+        with np.errstate(invalid="ignore"):
+            bad_len = ~np.isfinite(length) | (length < CABLE_MIN_MM) | (length > CABLE_MAX_MM)
+        bad_rows = np.flatnonzero(bad_q.any(axis=1) | bad_len)
+        if bad_rows.size:
+            _raise_first(samples, start + int(bad_rows[0]), bad_q[bad_rows[0]])
+
+
+def _raise_first(samples: SampleSet, i: int, bad_q: np.ndarray) -> NoReturn:
+    """The :class:`SampleError` of row ``i`` (``bad_q``: its non-finite joints, shape (6,))."""
+    if bad_q.any():
+        j = int(np.flatnonzero(bad_q)[0])
         raise SampleError("joint angle is not finite", row=samples.line_of(i),
                           column=JOINT_COLUMNS[j])  # fmt: skip
-    value = float(length[i])
+    value = float(samples.length_mm[i])
     if not math.isfinite(value):
         raise SampleError("cable length is not finite", row=samples.line_of(i), column="L")
     raise SampleError(
@@ -216,23 +229,25 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
     cols, length_col = _header_columns(header)
     anchor_col = cols.get("anchor")
     group_col = cols.get("group")
-    joints: list[list[float]] = []
-    lengths: list[float] = []
+    # Flat lists of floats and ints (objects the garbage collector does not track, so a large
+    # file does not make every collection slower), turned into arrays block by block.
+    values: list[float] = []  # the current block of rows, q1..q6, L each
+    blocks: list[FloatArray] = []  # (k, 7) arrays, _BLOCK_ROWS rows each but the last
     anchors: list[str] = []
     groups: list[str] = []
-    lines: list[int] = []
+    lines = array.array("q")
     wanted = [(cols[name], "L" if name == length_col else name)
               for name in (*JOINT_COLUMNS, length_col)]  # fmt: skip
     for line_no, row in enumerate(reader, start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
-        values = []
         for idx, shown in wanted:
             if idx >= len(row):
                 raise SampleError("missing value", row=line_no, column=shown)
             values.append(_number(row[idx].strip(), line_no, shown))
-        joints.append(values[:N_JOINTS])
-        lengths.append(values[N_JOINTS])
+        if len(values) == _BLOCK_ROWS * (N_JOINTS + 1):
+            blocks.append(np.array(values, dtype=float).reshape(-1, N_JOINTS + 1))
+            values = []
         anchor = row[anchor_col].strip() if anchor_col is not None and anchor_col < len(row) else ""
         anchors.append(anchor or "A")
         if group_col is not None:
@@ -240,12 +255,15 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
         lines.append(line_no)
     if not lines:
         raise SampleError("no data rows after the header")
+    if values:
+        blocks.append(np.array(values, dtype=float).reshape(-1, N_JOINTS + 1))
+    table = np.concatenate(blocks)  # (n, 7): q1..q6 [deg], L [mm]
     samples = SampleSet(
-        joints_deg=np.array(joints, dtype=float),
-        length_mm=np.array(lengths, dtype=float),
+        joints_deg=table[:, :N_JOINTS].copy(),
+        length_mm=table[:, N_JOINTS].copy(),
         anchor=tuple(anchors),
         group=tuple(groups) if group_col is not None else None,
-        line=np.array(lines, dtype=int),
+        line=np.frombuffer(lines, dtype=np.int64).astype(int),
     )
     validate_values(samples)
     return samples

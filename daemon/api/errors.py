@@ -105,12 +105,19 @@ def not_found_detail(exc: StoreNotFound) -> str:
     return f"{API_KINDS.get(exc.kind, exc.kind)} {exc.id}: {exc.reason}"
 
 
+def _text(value: object) -> str:
+    """``str(value)`` that UTF-8 can encode (an unpaired surrogate, e.g. in an unknown key the
+    client sent, becomes ``\\ud800``), cut to :data:`MAX_MESSAGE_CHARS`."""
+    text = str(value)[:MAX_MESSAGE_CHARS]
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def _issues(errors: Sequence[Any]) -> list[dict[str, Any]]:
     """loc, msg and type of each error (not the input: it may be megabytes, or not JSON)."""
     out = []
     for e in errors:
-        loc = [p if isinstance(p, int) else str(p) for p in e.get("loc", ())]
-        msg = str(e.get("msg", ""))[:MAX_MESSAGE_CHARS]
+        loc = [p if isinstance(p, int) else _text(p) for p in e.get("loc", ())]
+        msg = _text(e.get("msg", ""))
         out.append({"loc": loc, "msg": msg, "type": str(e.get("type", "value_error"))})
     return out
 
@@ -126,7 +133,9 @@ def install(app: FastAPI) -> None:
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         detail: Any = exc.detail
         if exc.status_code == 422 and not isinstance(detail, list):
-            detail = [{"loc": ["body"], "msg": str(detail), "type": "value_error"}]
+            detail = [{"loc": ["body"], "msg": _text(detail), "type": "value_error"}]
+        elif isinstance(detail, str):
+            detail = _text(detail)
         headers = getattr(exc, "headers", None)
         return JSONResponse(
             {"detail": jsonable_encoder(detail)}, status_code=exc.status_code, headers=headers
@@ -136,13 +145,13 @@ def install(app: FastAPI) -> None:
     async def _not_found(request: Request, exc: StoreNotFound) -> JSONResponse:
         """The one not-found path: whatever the store (or the job manager) cannot find is a
         404 ``{"detail": "<kind> <id>: not found"}``; the routes do not check first."""
-        return JSONResponse({"detail": not_found_detail(exc)}, status_code=404)
+        return JSONResponse({"detail": _text(not_found_detail(exc))}, status_code=404)
 
     @app.exception_handler(StoreInvalid)
     async def _store_invalid(request: Request, exc: StoreInvalid) -> JSONResponse:
         """A value the schema let through but the store refuses: a 422, never a 500."""
         return JSONResponse(
-            {"detail": [{"loc": ["body"], "msg": str(exc), "type": "value_error"}]},
+            {"detail": [{"loc": ["body"], "msg": _text(exc), "type": "value_error"}]},
             status_code=422,
         )
 

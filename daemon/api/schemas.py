@@ -10,7 +10,7 @@ from pydantic import (
     ConfigDict,
     Field,
     StringConstraints,
-    model_validator,
+    field_validator,
 )
 from typing_extensions import TypedDict
 
@@ -60,11 +60,11 @@ class _Body(BaseModel):
 
     model_config = ConfigDict(extra="forbid", strict=True)
 
-    @model_validator(mode="before")
+    @field_validator("*", mode="before")
     @classmethod
-    def _unicode(cls, data: Any) -> Any:
-        _no_surrogates(data)
-        return data
+    def _unicode(cls, value: Any) -> Any:
+        _no_surrogates(value, "text")
+        return value
 
 
 class CampaignCreate(_Body):
