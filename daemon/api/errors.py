@@ -73,7 +73,7 @@ class ValidationErrors(BaseModel):
 
 
 _DESCRIPTIONS = {
-    400: "Bad request body (names the row and column for a CSV import)",
+    400: "Body that cannot be read (not UTF-8); a bad CSV import names its row and column",
     401: "Missing or wrong bearer token",
     404: "No such resource (names it)",
     409: "Conflict with the resource's state",

@@ -40,7 +40,7 @@ from daemon.capture import CaptureRejected
 
 log = logging.getLogger("cablecal.service")
 
-router = APIRouter(tags=["campaigns"], responses=error_responses(401, 413, 422))
+router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 422))
 
 
 @router.post(

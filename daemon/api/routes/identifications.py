@@ -12,7 +12,7 @@ from daemon.api.errors import error_responses, unprocessable
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
 
-router = APIRouter(tags=["identifications"], responses=error_responses(401, 404, 413, 422))
+router = APIRouter(tags=["identifications"], responses=error_responses(400, 401, 404, 413, 422))
 
 
 def _job_view(state: State, job: Mapping[str, Any]) -> JobView:

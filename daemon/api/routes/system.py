@@ -14,8 +14,8 @@ from daemon.api.deps import MAX_ID, PAGE_DEFAULT, ReadAuth, State, WriteAuth, li
 from daemon.api.errors import error_responses
 from daemon.api.schemas import EventOut, Health, ServiceStatus
 
-router = APIRouter(tags=["system"], responses=error_responses(401, 413, 422))
-metrics_router = APIRouter(tags=["system"], responses=error_responses(401, 413, 422))
+router = APIRouter(tags=["system"], responses=error_responses(400, 401, 413, 422))
+metrics_router = APIRouter(tags=["system"])
 
 VERSION = "0.1.0"
 
