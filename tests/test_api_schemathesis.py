@@ -75,14 +75,14 @@ def teardown_module() -> None:
 @schema.parametrize()
 @_BOUNDED
 def test_api_with_token(case: Any) -> None:
-    SENT[True, f"{case.method} {case.path}"] += 1
+    SENT[True, case.operation.label] += 1
     case.call_and_validate(headers=AUTH, checks=CHECKS)
 
 
 @schema.parametrize()
 @_BOUNDED
 def test_api_without_token(case: Any) -> None:
-    SENT[False, f"{case.method} {case.path}"] += 1
+    SENT[False, case.operation.label] += 1
     response = case.call_and_validate(checks=CHECKS)
     if case.path.startswith("/api/v1") and case.path != "/api/v1/health":
         assert response.status_code == 401, (case.method, case.path, response.status_code)
