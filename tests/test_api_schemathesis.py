@@ -65,6 +65,10 @@ SENT: Counter[tuple[bool, str]] = Counter()
 
 
 def teardown_module() -> None:
+    """Print the counts; stop the app (its job pool) now rather than at interpreter exit."""
+    from schemathesis.python import asgi
+
+    asgi.shutdown_lifespans()
     for token in (True, False):
         ops = {op for t, op in SENT if t == token}
         n = sum(c for (t, _), c in SENT.items() if t == token)
