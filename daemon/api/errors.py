@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -159,7 +159,6 @@ def install(app: FastAPI) -> None:
 __all__ = [
     "API_KINDS",
     "Error",
-    "HTTPException",
     "ValidationErrors",
     "error_responses",
     "install",
