@@ -569,11 +569,20 @@ class Sampler:
                 return
             try:
                 self._store(auto.campaign_id, auto.anchor, verdict.window, "auto")
-            except Exception:
+            except Exception as exc:
                 log.exception(
                     "storing an auto capture failed", extra={"campaign_id": auto.campaign_id}
                 )
                 auto.retry_after = now + max(cfg.error_backoff_s, cfg.settle_s)
+                # Counted and logged as an event, so a store that refuses every capture is
+                # visible in /metrics and /events, not only in the log.
+                metrics.CAPTURES.labels("failed", "store_error", "auto").inc()
+                self._event(
+                    "capture_failed",
+                    None,
+                    f"store_error: {type(exc).__name__}: {exc}",
+                    {"campaign_id": auto.campaign_id, "error": f"{type(exc).__name__}: {exc}"},
+                )
             return
         if verdict.joints_still and not auto.need_motion and not auto.pose_recorded:
             assert verdict.reason is not None
