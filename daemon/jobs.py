@@ -5,6 +5,9 @@ Design
 * The pool is a :class:`~concurrent.futures.ProcessPoolExecutor` on the ``forkserver`` context
   (the daemon has threads, so plain ``fork`` is unsafe), with ``calib.identify`` preloaded so a
   job starts without re-importing numpy and scipy.
+* Every child (the workers and the manager) runs :func:`daemon.workers.init_child`: it exits
+  within moments of the daemon's death, even a SIGKILL, and runs at a lower priority with
+  ``worker_blas_threads`` BLAS threads, so the sampler keeps its poll rate during a job.
 * A job gets a snapshot of the campaign's included samples at submission time, as plain lists
   (no precision lost), the nominal model as a mapping, and the options as a mapping.
 * Progress comes back through a manager queue; cancellation goes out through a manager dict
@@ -24,6 +27,7 @@ import queue
 import time
 from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
+from multiprocessing.managers import SyncManager
 from typing import Any
 
 import numpy as np
@@ -31,6 +35,7 @@ import numpy as np
 from daemon import metrics
 from daemon.config import JobSettings
 from daemon.store import StoreNotFound
+from daemon.workers import init_child
 
 log = logging.getLogger("cablecal.jobs")
 
@@ -139,10 +144,18 @@ class JobManager:
             log.warning("%d identification job(s) were interrupted by a restart", n)
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["calib.identify", "daemon.jobs"])
-        self._manager = ctx.Manager()
-        self._progress = self._manager.Queue()
-        self._cancel = self._manager.dict()
-        self._pool = ProcessPoolExecutor(max_workers=self.settings.workers, mp_context=ctx)
+        child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)
+        manager = SyncManager(ctx=ctx)
+        manager.start(initializer=init_child, initargs=child_args)
+        self._manager = manager
+        self._progress = manager.Queue()
+        self._cancel = manager.dict()
+        self._pool = ProcessPoolExecutor(
+            max_workers=self.settings.workers,
+            mp_context=ctx,
+            initializer=init_child,
+            initargs=child_args,
+        )
         # Warm the workers up now rather than in the first job.
         await asyncio.wrap_future(self._pool.submit(_noop))
         self._pump = asyncio.create_task(self._pump_progress(), name="job-progress")

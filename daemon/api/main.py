@@ -18,6 +18,7 @@ from daemon.api.page import OPERATOR_PAGE
 from daemon.api.routes import campaigns, identifications, robots, system
 from daemon.config import Settings
 from daemon.jobs import JobManager
+from daemon.lifecycle import record_start
 from daemon.store import Store, StoreNotFound
 
 log = logging.getLogger("cablecal.service")
@@ -99,7 +100,7 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         state = build_state(settings, token)
         app.state.cablecal = state
-        state.store.record_event("daemon_started", None, "cablecal serve started")
+        record_start(state.store)  # and unclean_shutdown if the previous run did not stop
         await state.jobs.start()
         try:
             state.sampler = (sampler_factory or _default_sampler)(state)
