@@ -14,7 +14,10 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import os
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from daemon.store import Store
 
 log = logging.getLogger("cablecal.lifecycle")
 
@@ -23,25 +26,7 @@ STOPPED = "daemon_stopped"
 UNCLEAN = "unclean_shutdown"
 
 
-class EventLog(Protocol):
-    """The part of :class:`daemon.store.Store` this module uses."""
-
-    def record_event(
-        self,
-        kind: str,
-        device: str | None,
-        message: str,
-        detail: dict[str, Any] | None = None,
-    ) -> None:
-        """Append an event."""
-        ...
-
-    def list_events(self, *, kind: str | None = None, limit: int = 100) -> list[Any]:
-        """The newest ``limit`` events of ``kind``, oldest first."""
-        ...
-
-
-def _newest(events: EventLog, kind: str) -> dict[str, Any] | None:
+def _newest(events: Store, kind: str) -> dict[str, Any] | None:
     rows = events.list_events(kind=kind, limit=1)
     return dict(rows[-1]) if rows else None
 
@@ -51,7 +36,7 @@ def iso_utc(t_wall: float) -> str:
     return dt.datetime.fromtimestamp(t_wall, dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def unclean_previous_run(events: EventLog) -> dict[str, Any] | None:
+def unclean_previous_run(events: Store) -> dict[str, Any] | None:
     """The ``daemon_started`` event of a previous run that has no ``daemon_stopped`` after
     it, or None (first start, or the previous run stopped cleanly)."""
     started = _newest(events, STARTED)
@@ -63,7 +48,7 @@ def unclean_previous_run(events: EventLog) -> dict[str, Any] | None:
     return started
 
 
-def record_start(events: EventLog) -> dict[str, Any] | None:
+def record_start(events: Store) -> dict[str, Any] | None:
     """Record this start; first an ``unclean_shutdown`` event if the previous run did not stop
     cleanly. Returns that event's detail, or None.
 

@@ -71,18 +71,6 @@ def test_an_old_world_readable_database_is_restricted_on_open(tmp_path: Path) ->
 
 # ------------------------------------------------------------------------- db export --out
 @pytest.fixture
-def cli() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def root() -> None:
-        """cablecal (test root)."""
-
-    cli_db.register(app)
-    return app
-
-
-@pytest.fixture
 def database(tmp_path: Path) -> tuple[Path, int]:
     path = tmp_path / "db.sqlite3"
     with Store(path) as s:
