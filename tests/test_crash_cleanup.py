@@ -1,9 +1,8 @@
 """A SIGKILLed daemon leaves no process behind, and its next start records the unclean stop.
 
 The real ``cablecal serve`` runs without devices (an unplugged indicator, the manual robot),
-as in tests/test_daemon_systemd.py. Processes are found in /proc by session: the daemon is
-started in a session of its own, and every process it creates (forkserver, pool workers,
-manager, resource tracker) stays in that session even after it is re-parented.
+as in tests/test_daemon_systemd.py. The daemon's descendants (forkserver, pool workers, manager,
+resource tracker) are found in /proc by parent pid before the kill, then watched by pid.
 """
 
 from __future__ import annotations
@@ -15,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -39,29 +39,47 @@ def proc_stat(pid: int) -> list[str] | None:
     return text.rsplit(")", 1)[1].split()
 
 
-def session_members(sid: int) -> dict[int, str]:
-    """Live (not zombie) processes of session ``sid``: pid → command line."""
-    found: dict[int, str] = {}
+def alive(pid: int) -> bool:
+    """The process exists and is not a zombie."""
+    fields = proc_stat(pid)
+    return fields is not None and fields[0] != "Z"
+
+
+def descendants(root: int) -> dict[int, str]:
+    """Live descendants of ``root`` (not ``root`` itself): pid → command line."""
+    parent: dict[int, int] = {}
     for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        fields = proc_stat(int(entry))
-        # fields[0] state, [1] ppid, [2] pgrp, [3] session
-        if fields is None or fields[0] == "Z" or int(fields[3]) != sid:
-            continue
-        try:
-            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except OSError:
-            continue
-        found[int(entry)] = cmd.strip()
+        if entry.isdigit() and (fields := proc_stat(int(entry))) is not None and fields[0] != "Z":
+            parent[int(entry)] = int(fields[1])
+    found: dict[int, str] = {}
+    frontier = {root}
+    while frontier:
+        frontier = {pid for pid, ppid in parent.items() if ppid in frontier} - found.keys()
+        for pid in frontier:
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                cmd = "?"
+            found[pid] = cmd.strip()
     return found
 
 
-def kill_session(sid: int) -> None:
-    """SIGKILL what a failed test left behind in session ``sid``."""
-    for pid in session_members(sid):
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
+def kill_all(pids: Iterable[int]) -> None:
+    """SIGKILL what a failed test left behind."""
+    for pid in pids:
+        if alive(pid):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+
+def short_name(cmdline: str, of_daemon: bool) -> str:
+    """``forkserver``, ``resource_tracker``, or ``child PID`` (forked by the forkserver: a pool
+    worker or the manager, which carry the forkserver's command line)."""
+    if "multiprocessing.resource_tracker import main" in cmdline:
+        return "resource_tracker"
+    if of_daemon:
+        return "forkserver"
+    return "child"
 
 
 def niceness(pid: int) -> int:
@@ -116,6 +134,7 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
 ) -> None:
     proc, url = start_daemon(tmp_path)
     daemon_pid = proc.popen.pid
+    children: dict[int, str] = {}
     try:
         api = api_client(url)
         assert events(api, "unclean_shutdown") == []
@@ -128,34 +147,41 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
             0.2,
             "the DE job to run",
         )
-        children = {p: c for p, c in session_members(daemon_pid).items() if p != daemon_pid}
+        children = descendants(daemon_pid)
         # forkserver, pool worker, manager, resource tracker
         assert len(children) >= 4, children
         workers = [p for p in children if niceness(p) == 10]
         assert len(workers) >= 2, {p: niceness(p) for p in children}  # pool worker and manager
+        # Each in a session (a scheduling autogroup) of its own, not the daemon's.
+        assert all(int((proc_stat(p) or ["0"] * 4)[3]) == p for p in workers)
         # The worker computes: its CPU time grows.
         cpu = {p: sum(map(int, (proc_stat(p) or ["0"] * 14)[11:13])) for p in workers}
         time.sleep(1.0)
         assert any(sum(map(int, (proc_stat(p) or ["0"] * 14)[11:13])) > cpu[p] for p in workers)
 
+        names = {p: short_name(c, int((proc_stat(p) or ["", "0"])[1]) == daemon_pid)
+                 for p, c in children.items()}  # fmt: skip
         t_kill = time.monotonic()
         os.kill(daemon_pid, signal.SIGKILL)
         left = children
+        gone_s: dict[str, float] = {}
         while left and time.monotonic() - t_kill < 10.0:
             time.sleep(0.02)
-            left = {p: c for p, c in session_members(daemon_pid).items() if p in children}
+            for p in [p for p in left if not alive(p)]:
+                gone_s[f"{names[p]} {p}"] = round(time.monotonic() - t_kill, 2)
+            left = {p: c for p, c in left.items() if alive(p)}
         gone_after_s = time.monotonic() - t_kill
         proc.popen.wait(timeout=5)
         with capsys.disabled():
             print(
                 f"\ncrash clean-up: {len(children)} children of the SIGKILLed daemon gone after "
-                f"{gone_after_s:.2f} s (limit {CLEANUP_LIMIT_S} s)"
+                f"{gone_after_s:.2f} s (limit {CLEANUP_LIMIT_S} s): {gone_s}"
             )
         assert not left, f"still alive {gone_after_s:.1f} s after SIGKILL: {left}"
         assert gone_after_s < CLEANUP_LIMIT_S
     finally:
         proc.stop()
-        kill_session(daemon_pid)
+        kill_all(children)
 
     # The restart records the unclean stop, naming the killed run's start and pid.
     proc, url = start_daemon(tmp_path)
@@ -216,26 +242,28 @@ if __name__ == "__main__":
         start_new_session=True,
         cwd=Path(__file__).resolve().parents[1],
     )
+    children: set[int] = set()
     try:
         assert popen.stdout is not None
         line = popen.stdout.readline()
         assert line.startswith("STATE"), line
         state = json.loads(line[len("STATE") :])
         assert all(s["nice"] >= 5 and s["watchdog"] for s in state), state
+        assert all(s["session"] == s["pid"] for s in state), state
         assert all(n == 1 for s in state for n in s["threads"].values()), state
         time.sleep(0.5)
-        children = {p for p in session_members(popen.pid) if p != popen.pid}
+        children = set(descendants(popen.pid))
         assert len(children) >= 3, children  # forkserver, 2 workers (and the tracker)
         t_kill = time.monotonic()
         popen.kill()
         popen.wait(5)
         while children and time.monotonic() - t_kill < 10:
             time.sleep(0.02)
-            children &= set(session_members(popen.pid))
+            children = {p for p in children if alive(p)}
         assert not children, children
         assert time.monotonic() - t_kill < CLEANUP_LIMIT_S
     finally:
         if popen.poll() is None:
             popen.kill()
             popen.wait(5)
-        kill_session(popen.pid)
+        kill_all(children)
