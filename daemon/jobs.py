@@ -13,9 +13,8 @@ Design
 * Progress comes back through a manager queue; a thread takes it and commits the newest of each
   job at most every ``PROGRESS_STORE_INTERVAL_S``, and a succeeded job's result is committed in
   a thread too: the event loop, which also runs the sampler, never waits for those fsyncs.
-  Cancellation goes out through a manager dict
-  the worker's progress callback polls, raising :class:`calib.solvers.common.Cancelled`. A queued
-  job is cancelled by cancelling its future.
+  Cancellation goes out through a manager dict the worker's progress callback polls, raising
+  :class:`calib.solvers.common.Cancelled`. A queued job is cancelled by cancelling its future.
 * The store holds every state change, so a restart finds each job queued, running or finished;
   :meth:`daemon.store.Store.mark_interrupted` turns the unfinished ones into ``failed``.
 """
