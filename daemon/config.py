@@ -75,6 +75,10 @@ class JobSettings(BaseModel):
     """A job still running after this long [s] is cancelled and marked failed."""
     noise_mm: Annotated[float, Field(gt=0)] = 0.05
     """Assumed 1-sigma cable-length noise [mm] (weights the prior and the filters' R)."""
+    worker_nice: Annotated[int, Field(ge=0, le=19)] = 10
+    """Niceness added to the worker processes, so the sampler keeps its poll rate during a job."""
+    worker_blas_threads: Annotated[int, Field(ge=1, le=64)] = 1
+    """BLAS/OpenMP threads per worker process [count]."""
     auto_accept: bool = True
     """Accept a succeeded job's model as the robot's calibrated model when its parameters
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""

@@ -24,6 +24,7 @@ from daemon.api.routes import apply, campaigns, identifications, plans, robots, 
 from daemon.config import Settings
 from daemon.drift import DriftMonitor
 from daemon.jobs import JobManager
+from daemon.lifecycle import record_start
 from daemon.store import Store
 
 log = logging.getLogger("cablecal.service")
@@ -98,7 +99,7 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         state = build_state(settings, token)
         app.state.cablecal = state
-        state.store.record_event("daemon_started", None, "cablecal serve started")
+        record_start(state.store)  # and unclean_shutdown if the previous run did not stop
         await state.jobs.start()
         try:
             state.sampler = (sampler_factory or _default_sampler)(state)

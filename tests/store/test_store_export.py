@@ -152,18 +152,6 @@ def test_export_json_has_campaign_robot_and_flagged_samples(
 
 
 # -------------------------------------------------------------------------------- CLI
-@pytest.fixture
-def cli() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def root() -> None:
-        """cablecal (test root)."""
-
-    cli_db.register(app)
-    return app
-
-
 def test_cli_db_export_csv_and_json(
     tmp_path: Path, cli: typer.Typer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
