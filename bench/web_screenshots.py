@@ -17,6 +17,7 @@ from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 ROOT = Path(__file__).resolve().parents[1]
 IMG = ROOT / "docs" / "img"
 N_SAMPLES = 45
+TOKEN = "screenshots-token-0123"
 ANCHOR_MM = (1400.0, 300.0, 200.0)  # the emulated cell's sensor (simulator default)
 
 
@@ -27,7 +28,7 @@ def main() -> None:
     IMG.mkdir(parents=True, exist_ok=True)
     with (
         tempfile.TemporaryDirectory(prefix="cablecal-shots-") as tmp,
-        Cell(Path(tmp), fast_cell_toml(300, 7, 0.35, 0.9), "shots", FAST_DAEMON_ENV) as cell,
+        Cell(Path(tmp), fast_cell_toml(300, 7, 0.35, 0.9), TOKEN, FAST_DAEMON_ENV) as cell,
     ):
         assert cell.daemon is not None
         api = cell.daemon.client(timeout_s=300)
@@ -49,7 +50,7 @@ def main() -> None:
         )
         url = cell.daemon.url
         with offline_page((1366, 768), allowed_origin=url) as (page, log):
-            page.goto(f"{url}/#token=shots")
+            page.goto(f"{url}/#token={TOKEN}")
             page.wait_for_function("window.__cablecal.trace.updates > 40", timeout=30000)
             page.screenshot(path=str(IMG / "web-cell.png"), full_page=True)
             for view, ready in (

@@ -17,7 +17,7 @@ import secrets
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag, field_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -33,6 +33,9 @@ from drivers import (
     ManualRobotConfig,
     ModbusRobotConfig,
 )
+
+#: Shortest accepted ``api_token`` [characters].
+MIN_TOKEN_CHARS = 16
 
 
 class ConfigError(ValueError):
@@ -72,6 +75,10 @@ class JobSettings(BaseModel):
     """A job still running after this long [s] is cancelled and marked failed."""
     noise_mm: Annotated[float, Field(gt=0)] = 0.05
     """Assumed 1-sigma cable-length noise [mm] (weights the prior and the filters' R)."""
+    worker_nice: Annotated[int, Field(ge=0, le=19)] = 10
+    """Niceness added to the worker processes, so the sampler keeps its poll rate during a job."""
+    worker_blas_threads: Annotated[int, Field(ge=1, le=64)] = 1
+    """BLAS/OpenMP threads per worker process [count]."""
     auto_accept: bool = True
     """Accept a succeeded job's model as the robot's calibrated model when its parameters
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
@@ -126,9 +133,9 @@ class Settings(BaseSettings):
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     """TCP port of the REST API (0: any free port)."""
     api_token: SecretStr | None = None
-    """Bearer token required on every write route (``CABLECAL_API_TOKEN``). Unset on
-    loopback: a random token is generated at start-up and written to
-    ``STATE_DIR/api-token`` (mode 0600)."""
+    """Bearer token required on every write route (``CABLECAL_API_TOKEN``), at least
+    :data:`MIN_TOKEN_CHARS` characters. Unset on loopback: a random token is generated at
+    start-up and written to ``STATE_DIR/api-token`` (mode 0600)."""
     public_reads: bool = False
     """Serve the read routes (GET) without a token. ``/health`` and ``/metrics`` are always
     open."""
@@ -150,6 +157,20 @@ class Settings(BaseSettings):
     drift: DriftSettings = DriftSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
+
+    @field_validator("api_token")
+    @classmethod
+    def _token_length(cls, value: SecretStr | None) -> SecretStr | None:
+        """A short token can be guessed: refuse it at load time, naming the setting."""
+        if value is None or not value.get_secret_value():
+            return value
+        n = len(value.get_secret_value())
+        if n < MIN_TOKEN_CHARS:
+            raise ValueError(
+                f"too short: {n} characters, at least {MIN_TOKEN_CHARS} are required "
+                "(generate one with: python -c 'import secrets; print(secrets.token_hex(32))')"
+            )
+        return value
 
     @classmethod
     def settings_customise_sources(

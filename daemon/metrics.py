@@ -38,7 +38,7 @@ LAST_READING_AGE = Gauge(
 CAPTURES = Counter(
     "cablecal_captures",
     "Capture attempts by outcome; reason is 'ok' for accepted ones.",
-    ["outcome", "reason", "mode"],  # outcome: accepted | rejected
+    ["outcome", "reason", "mode"],  # outcome: accepted | rejected | failed (not stored)
     registry=REGISTRY,
 )
 JOBS = Counter(

@@ -23,7 +23,7 @@ from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
-TOKEN = "web-test-token"
+TOKEN = "web-test-token-0123"
 N_CAPTURES = 40  # 32 training samples with the default 20 % test set (at least 25 needed)
 VIEWPORT = (1366, 768)
 

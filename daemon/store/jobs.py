@@ -121,15 +121,15 @@ class JobStore(StoreDB):
         """A job row (see :meth:`job`), or None."""
         return or_none(self.job, job_id)
 
-    def list_jobs(self, campaign_id: int | None = None) -> list[JobRow]:
-        """Jobs by id, all or one campaign's."""
+    def list_jobs(
+        self, campaign_id: int | None = None, after_id: int = 0, limit: int | None = None
+    ) -> list[JobRow]:
+        """Jobs with ``id > after_id`` by id, all or one campaign's, at most ``limit``
+        (None: all)."""
+        where = "id > ?" + ("" if campaign_id is None else " AND campaign_id = ?")
+        params = [after_id] + ([] if campaign_id is None else [campaign_id])
         with self._lock:
-            if campaign_id is None:
-                rows = list(self._table("jobs").rows_where(order_by="id"))
-            else:
-                rows = list(
-                    self._table("jobs").rows_where("campaign_id = ?", [campaign_id], order_by="id")
-                )
+            rows = list(self._table("jobs").rows_where(where, params, order_by="id", limit=limit))
         return [cast(JobRow, decode_row(r)) for r in rows]
 
     def mark_interrupted(self) -> int:

@@ -6,14 +6,20 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, Query
 
-from daemon.api.deps import ReadAuth, State
+from daemon.api.deps import ReadAuth, RobotId, State
+from daemon.api.errors import error_responses
 from daemon.api.schemas import CalibratedModelOut, RobotOut
 
-router = APIRouter(prefix="/robots", tags=["robots"], dependencies=[ReadAuth])
+router = APIRouter(
+    prefix="/robots",
+    tags=["robots"],
+    dependencies=[ReadAuth],
+    responses=error_responses(401, 404, 413, 422),
+)
 
 
 @router.get("/{robot_id}", summary="One robot and its nominal model")
-def get_robot(state: State, robot_id: int) -> RobotOut:
+def get_robot(state: State, robot_id: RobotId) -> RobotOut:
     return state.store.robot(robot_id)
 
 
@@ -24,7 +30,7 @@ def get_robot(state: State, robot_id: int) -> RobotOut:
 )
 def calibrated_model(
     state: State,
-    robot_id: int,
+    robot_id: RobotId,
     format: Literal["toml", "urdf", "json"] | None = Query(
         None, description="A model file (toml, json: for --robot) or a URDF, as a download."
     ),
