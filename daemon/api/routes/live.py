@@ -10,8 +10,9 @@ from fastapi import APIRouter, Query
 from typing_extensions import TypedDict
 
 from daemon.api.deps import ReadAuth, State
+from daemon.api.errors import error_responses
 
-router = APIRouter(tags=["system"])
+router = APIRouter(tags=["system"], responses=error_responses(401, 413, 422))
 
 #: Most readings one answer carries (the sampler's ring buffer spans ``history_s``).
 MAX_READINGS = 2000

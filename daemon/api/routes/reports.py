@@ -10,8 +10,9 @@ from fastapi.responses import HTMLResponse
 from typing_extensions import TypedDict
 
 from daemon.api.deps import ReadAuth, State
+from daemon.api.errors import error_responses
 
-router = APIRouter(tags=["identifications"])
+router = APIRouter(tags=["identifications"], responses=error_responses(401, 404, 409, 413, 422))
 
 
 class Residuals(TypedDict):
@@ -74,7 +75,7 @@ def residuals(state: State, job_id: int) -> Residuals:
     "/identifications/{job_id}/report.html",
     summary="The calibration report (HTML)",
     dependencies=[ReadAuth],
-    response_class=HTMLResponse,
+    responses={200: {"content": {"text/html": {}}, "description": "The report"}},
 )
 def report_html(state: State, job_id: int) -> HTMLResponse:
     """One self-contained HTML document (inline CSS and SVG, no script): the result with its
