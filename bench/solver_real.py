@@ -5,7 +5,7 @@ robust weights): anchors fitted with the nominal model, tool point and anchors r
 parameter set from the identifiability analysis (:func:`build_problem`). Then, for
 
 * ``n = 100``: the training rows of the paper protocol's draws, seeds 0–9
-  (:func:`bench.real_data.paper_protocol_split`; the 20 held-out rows give a test RMSE), and
+  (:func:`calib.protocol.paper_split`; the 20 held-out rows give a test RMSE), and
 * ``n = 2017``: every row (no test set),
 
 each method (``geolm``, ``ukf-vslm``, ``lm`` through identify's own dispatch, and scipy
@@ -41,14 +41,16 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from bench.real_data import ROBOT, paper_protocol_split
+from bench.real_data import ROBOT
+from calib import methods
 from calib.cable import N_DH, ParamLayout, length_jacobian, predict_lengths
 from calib.dataset import SampleSet
 from calib.identifiability import analyse
-from calib.identify import IdentifyOptions, _fit, _generic_jacobian, _run_method, fit_anchors
+from calib.identify import IdentifyOptions, _fit, _generic_jacobian, fit_anchors
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
 from calib.problem import Problem
+from calib.protocol import paper_split
 from calib.solvers import geolm
 from calib.solvers.common import SolverResult
 from daemon.datafiles import load_robot, read_samples
@@ -111,7 +113,7 @@ def _solver(method: str) -> Callable[[Problem], SolverResult]:
     if method == "scipy":
         return scipy_solve
     opts = IdentifyOptions(method=method)  # type: ignore[arg-type]
-    return lambda p: _run_method(p, p.x0(), opts, None)
+    return lambda p: methods.run(p, p.x0(), opts, None)
 
 
 def test_rmse_mm(problem: Problem, x: FloatArray, samples: SampleSet, rows: np.ndarray) -> float:
@@ -163,7 +165,7 @@ def paper_protocol(model: RobotModel, samples: SampleSet, seeds: range) -> dict[
     """Mean and worst test RMSE of geolm and ukf-vslm over paper-protocol draws."""
     rmse: dict[str, list[float]] = {"geolm": [], "ukf-vslm": []}
     for s in seeds:
-        train, test = paper_protocol_split(len(samples), s)
+        train, test = paper_split(len(samples), s)
         problem = build_problem(model, samples, train)
         for m in rmse:
             rmse[m].append(test_rmse_mm(problem, _solver(m)(problem).x, samples, test))
@@ -192,7 +194,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows: list[dict[str, Any]] = []
     refs: dict[str, Any] = {}
     for s in range(args.subsets):
-        train, test = paper_protocol_split(len(samples), s)
+        train, test = paper_split(len(samples), s)
         problem = build_problem(model, samples, train)
         ref = _reference(f"n100/seed{s}", problem, args.ref_nfev, cache, args.recompute)
         refs[f"n100/seed{s}"] = ref

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
 
-Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de"]
+Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de", "geolm"]
 Robust = Literal["none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
 

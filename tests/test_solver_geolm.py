@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from calib import methods
 from calib.cable import predict_lengths
 from calib.dataset import SampleSet, make_samples
-from calib.identify import IdentifyOptions, _run_method, identify
+from calib.identify import IdentifyOptions, identify
 from calib.models import builtin_model
 from calib.problem import Problem
 from calib.solvers import geolm
@@ -99,7 +100,7 @@ def test_first_100_bundled_rows_stop_by_a_test_near_a_long_reference(
     if method == "geolm":
         res = geolm.solve(problem)
     else:
-        res = _run_method(problem, problem.x0(), IdentifyOptions(method="ukf-vslm"), None)
+        res = methods.run(problem, problem.x0(), IdentifyOptions(method="ukf-vslm"), None)
     assert res.status > 0, res.message
     assert problem.cost(res.x) <= 1.01 * reference_cost(problem, REFERENCE_NFEV)
 

@@ -77,13 +77,13 @@ from calib.kinematics import FloatArray
 from calib.problem import Problem
 from calib.solvers import ukf
 from calib.solvers.common import (
+    GaussNewton,
     LinearModel,
     ProgressFn,
     SolverResult,
     Timer,
-    column_scale,
-    distance_to_optimum_sigma,
     report,
+    sub_progress,
 )
 
 
@@ -123,29 +123,19 @@ class GeoLMOptions:
             raise ValueError(f"stall_chi2 must be >= 0, got {self.stall_chi2}")
 
 
-@dataclass
-class _State:
-    """The current iterate: ``x`` (k,), residual (m,), Jacobian (m, k), cost [mm²]."""
-
-    x: FloatArray
-    res: FloatArray
-    jac: FloatArray
-    cost: float
-
-
 def _geodesic_step(
-    problem: Problem, st: _State, js: FloatArray, scale: FloatArray, lam: float,
+    problem: Problem, gn: GaussNewton, js: FloatArray, lam: float,
     svd: tuple[FloatArray, FloatArray, FloatArray], opts: GeoLMOptions,
 ) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
     """Velocity ``v`` and total step ``v + a/2`` (scaled, shape (k,)); False if too curved."""
     u, s, vt = svd
     coeff = s / (s * s + lam)
-    v = -(vt.T @ (coeff * (u.T @ st.res)))
+    v = -(vt.T @ (coeff * (u.T @ gn.res)))
     h = opts.fd_step
-    r_h = problem.residuals(st.x + h * v / scale)
+    r_h = problem.residuals(gn.x + h * v / gn.scale)
     if not np.all(np.isfinite(r_h)):
         return v, v, False
-    r_vv = (2.0 / h) * ((r_h - st.res) / h - js @ v)
+    r_vv = (2.0 / h) * ((r_h - gn.res) / h - js @ v)
     acc = -(vt.T @ (coeff * (u.T @ r_vv)))
     ok = float(np.linalg.norm(acc)) <= opts.alpha * float(np.linalg.norm(v))
     return v, v + 0.5 * acc, ok
@@ -157,9 +147,14 @@ def solve(
     options: GeoLMOptions | None = None,
     progress: ProgressFn | None = None,
     method: str = "geolm",
+    p0: FloatArray | None = None,
 ) -> SolverResult:
     """Minimise the problem's residual from ``x0`` (shape (k,)) and, with ``ukf_start``, also
-    from the UKF's estimate; the lower final cost wins. See the module docstring."""
+    from the UKF's estimate; the lower final cost wins. See the module docstring.
+
+    ``p0`` (shape (k, k)) is the UKF's initial covariance; None builds it from
+    ``ukf_sigma_mm`` / ``ukf_sigma_deg`` (identify passes its filters' ``P0``).
+    """
     opts = options or GeoLMOptions()
     timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
@@ -167,14 +162,16 @@ def solve(
         out = descend(problem, x, opts, progress, method)
         out.elapsed_s = timer.elapsed()
         return out
-    first = descend(problem, x, opts, _stage(progress, 0.0, 0.4), method)
-    spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg), opts.ukf_sigma_mm)
-    spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
-    p0 = np.diag(spread[problem.free] ** 2)
-    seed = ukf.solve(problem, x, p0, opts.ukf, _stage(progress, 0.4, 0.5), method=f"{method}/ukf")
+    first = descend(problem, x, opts, sub_progress(progress, 0.0, 0.4), method)
+    if p0 is None:
+        spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg),
+                          opts.ukf_sigma_mm)  # fmt: skip
+        spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
+        p0 = np.diag(spread[problem.free] ** 2)
+    seed = ukf.solve(problem, x, p0, opts.ukf, sub_progress(progress, 0.4, 0.5), f"{method}/ukf")
     out = first
     if seed.status >= 0:
-        second = descend(problem, seed.x, opts, _stage(progress, 0.5, 1.0), method)
+        second = descend(problem, seed.x, opts, sub_progress(progress, 0.5, 1.0), method)
         second.iterations += seed.iterations
         if problem.cost(second.x) < problem.cost(first.x):
             second.message = f"from the UKF estimate: {second.message}"
@@ -186,13 +183,6 @@ def solve(
     return out
 
 
-def _stage(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
-    if progress is None:
-        return None
-    outer = progress
-    return lambda f, msg: outer(lo + (hi - lo) * f, msg)
-
-
 def descend(
     problem: Problem,
     x: FloatArray,
@@ -201,45 +191,36 @@ def descend(
     method: str = "geolm",
 ) -> SolverResult:
     """The geodesic-LM iteration from ``x`` (shape (k,)), one start."""
-    timer = Timer()
-    ev = problem.evaluate(x)
-    assert ev.jacobian is not None
-    st = _State(x, ev.residual, ev.jacobian, ev.cost)
-    history = [ev.data_rms_mm]
-    if not np.isfinite(st.cost):
-        return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
-    dof = max(problem.n_rows - x.shape[0], 1)
-    scale = column_scale(st.jac)
+    gn = GaussNewton(problem, x, method)
+    failed = gn.start_failure()
+    if failed is not None:
+        return failed
     lam: float | None = None
     nu = 2.0
-    costs: deque[float] = deque([st.cost], maxlen=opts.stall_window + 1)
+    costs: deque[float] = deque([gn.cost], maxlen=opts.stall_window + 1)
     status, message, it = 0, "iteration limit reached", 0
     for it in range(1, opts.max_iterations + 1):
-        js = st.jac / scale
-        grad = js.T @ st.res
-        if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * st.cost):
+        scaled = gn.scaled(opts.gtol)
+        if scaled is None:
             status, message, it = 1, "gradient below gtol", it - 1
             break
-        svd = np.linalg.svd(js, full_matrices=False)
+        js, grad = scaled
+        svd = np.linalg.svd(js, full_matrices=False)  # U is needed to project r_vv
         s_max2 = float(svd[1][0] ** 2)
-        lin = LinearModel(s=svd[1], vt=svd[2], g=svd[0].T @ st.res)
-        distance = distance_to_optimum_sigma(lin, opts.sigma_damping * s_max2, st.cost, dof)
-        if distance <= opts.sigma_tol:
-            status, it = 2, it - 1
-            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+        lin = LinearModel(s=svd[1], vt=svd[2], g=svd[0].T @ gn.res)
+        stop = gn.within_sigma(lin, opts.sigma_damping * s_max2, opts.sigma_tol)
+        if stop is not None:
+            status, message, it = 2, stop, it - 1
             break
         lam = opts.tau * s_max2 if lam is None else lam
         accepted = False
         for _ in range(opts.max_rejections):
-            v, step, ok = _geodesic_step(problem, st, js, scale, lam, svd, opts)
-            trial = problem.evaluate(st.x + step / scale) if ok else None
-            if trial is not None and np.isfinite(trial.cost) and trial.cost < st.cost:
-                assert trial.jacobian is not None
+            v, step, ok = _geodesic_step(problem, gn, js, lam, svd, opts)
+            trial = problem.evaluate(gn.x + step / gn.scale) if ok else None
+            if trial is not None and np.isfinite(trial.cost) and trial.cost < gn.cost:
                 predicted = 0.5 * float(v @ (lam * v - grad))
-                rho = min((st.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
-                st = _State(st.x + step / scale, trial.residual, trial.jacobian, trial.cost)
-                history.append(trial.data_rms_mm)
-                scale = column_scale(st.jac, scale)
+                rho = min((gn.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
+                gn.accept(gn.x + step / gn.scale, trial)
                 lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu, accepted = 2.0, True
                 break
@@ -247,23 +228,24 @@ def descend(
             nu *= 2.0
         report(progress, it / opts.max_iterations, f"{method} iteration {it}")
         if not accepted:
-            history.append(history[-1])
+            gn.history.append(gn.history[-1])
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
-        costs.append(st.cost)
-        sigma2 = 2.0 * st.cost / dof
-        if len(costs) == costs.maxlen and 2.0 * (costs[0] - st.cost) < opts.stall_chi2 * sigma2:
-            status = 2
-            message = (f"likelihood stalled: chi2 gain {2.0 * (costs[0] - st.cost) / sigma2:.2g} "
-                       f"over {opts.stall_window} iterations (stall_chi2)")  # fmt: skip
+        costs.append(gn.cost)
+        stalled = _stalled(costs, gn.cost, gn.dof, opts)
+        if stalled is not None:
+            status, message = 2, stalled
             break
-    return SolverResult(
-        method=method,
-        x=st.x,
-        success=status > 0,
-        status=status,
-        message=message,
-        iterations=it,
-        cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
-    )
+    return gn.result(status, message, it)
+
+
+def _stalled(costs: deque[float], cost: float, dof: int, opts: GeoLMOptions) -> str | None:
+    """The stop message of the likelihood-stall test (4c), else None."""
+    sigma2 = 2.0 * cost / dof
+    if len(costs) < opts.stall_window + 1 or not sigma2 > 0.0:
+        return None
+    gain = 2.0 * (costs[0] - cost) / sigma2
+    if gain >= opts.stall_chi2:
+        return None
+    window = opts.stall_window
+    return f"likelihood stalled: chi2 gain {gain:.2g} over {window} iterations (stall_chi2)"
