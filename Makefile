@@ -32,9 +32,12 @@ run: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m daemon.cli.demo campaign --poses 100
 
-# Identification speed and the indicator poll rate (bench/results.*), then API latency under
+# Solvers on the bundled real data (bench/solver_real.*, its long reference runs cached in
+# bench/solver_real_reference.json: `python -m bench.solver_real --recompute` redoes them),
+# identification speed and the indicator poll rate (bench/results.*), then API latency under
 # load while the sampler runs (bench/api_results.*).
 bench: $(STAMP)
+	$(BIN)/python -m bench.solver_real
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
 

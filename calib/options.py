@@ -85,7 +85,7 @@ class IdentifyOptions:
     """
 
     method: Method = field(
-        default="ukf-vslm", metadata=_spec("Identification method", choices=METHODS)
+        default="geolm", metadata=_spec("Identification method", choices=METHODS)
     )
     test_fraction: float = field(
         default=0.2, metadata=_spec("Held-out share, 0 trains on all", ge=0.0, lt=1.0)
