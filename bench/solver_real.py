@@ -197,7 +197,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--splits", type=int, default=20)
     parser.add_argument("--no-full", action="store_true", help="skip the n = 2017 case")
     parser.add_argument("--full-only", action="store_true",
-                        help="rerun only the n = 2017 case, keeping the rest of solver_real.json")  # fmt: skip
+                        help="rerun only n = 2017, keep the rest of solver_real.json")  # fmt: skip
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
     if args.quick:
