@@ -1,6 +1,7 @@
 """Levenberg–Marquardt with geodesic acceleration and a likelihood-based stopping test.
 
-Method ``geolm``: two descents (from ``x0`` and from the UKF's estimate), each as below.
+Method ``geolm``: a descent from the UKF's estimate, and from ``x0`` when that one does not
+converge (see :func:`solve`), each as below.
 For ``min F(x) = ½‖r(x)‖²`` (``r`` shape (m,), ``x`` shape (k,)) each iteration works in
 scaled coordinates ``z = D x`` (``D`` = running column norms of ``J``, as in MINPACK and
 :mod:`calib.solvers.lm`), with the thin SVD ``J D⁻¹ = U diag(s) Vᵀ``:
@@ -56,8 +57,9 @@ same descent from the UKF's estimate reaches 0.097 mm² (test RMSE 0.068 mm inst
 0.19–0.24). On the first 100 bundled rows the UKF's basin goes down to 0.0998 mm² (geolm,
 converged) where ukf-vslm stops at 0.302 (iteration limit) and the long scipy run from
 identify's start at 3.684: the far ridge above is that of one basin only. So ``solve``
-descends from both starts, ``x0`` and the UKF's estimate (the paper's own M9 seed), and keeps
-the lower cost (``ukf_start``). "Best attainable" is then "the lowest cost any method found",
+descends from the UKF's estimate (the paper's own M9 seed, ``ukf_start``) and, when that
+descent stops at its iteration limit (or the UKF fails, or ``both_starts``), also from ``x0``,
+keeping the lower cost. "Best attainable" is then "the lowest cost any method found",
 which the benchmark reports beside the reference run's.
 This solver therefore keeps the paper's ML objective and defines "converged" statistically:
 it stops when further progress along the valley changes the likelihood by less than a
@@ -106,6 +108,11 @@ class GeoLMOptions:
     #: the anchors, the same ``P0`` as identify gives ukf-vslm) and
     #: keep the lower cost: the real-data cost has several basins (see the module docstring).
     ukf_start: bool = True
+    #: Also descend from ``x0`` when the descent from the UKF's estimate converged (by a test,
+    #: status > 0). Off: ``x0`` is the fallback when the UKF fails or its descent stops at the
+    #: iteration limit; on the bundled data the ``x0`` descent never ended more than 0.05 %
+    #: below the UKF one (10 random 100-row subsets), and it doubles the time.
+    both_starts: bool = False
     ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
     ukf_sigma_mm: float = 5.0
     ukf_sigma_deg: float = 0.5
@@ -149,8 +156,9 @@ def solve(
     method: str = "geolm",
     p0: FloatArray | None = None,
 ) -> SolverResult:
-    """Minimise the problem's residual from ``x0`` (shape (k,)) and, with ``ukf_start``, also
-    from the UKF's estimate; the lower final cost wins. See the module docstring.
+    """Minimise the problem's residual from the UKF's estimate (with ``ukf_start``) and from
+    ``x0`` (shape (k,)) when that descent did not converge (or always, ``both_starts``); the
+    lower final cost wins. See the module docstring.
 
     ``p0`` (shape (k, k)) is the UKF's initial covariance; None builds it from
     ``ukf_sigma_mm`` / ``ukf_sigma_deg`` (identify passes its filters' ``P0``).
@@ -162,23 +170,26 @@ def solve(
         out = descend(problem, x, opts, progress, method)
         out.elapsed_s = timer.elapsed()
         return out
-    first = descend(problem, x, opts, sub_progress(progress, 0.0, 0.4), method)
     if p0 is None:
         spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg),
                           opts.ukf_sigma_mm)  # fmt: skip
         spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
         p0 = np.diag(spread[problem.free] ** 2)
-    seed = ukf.solve(problem, x, p0, opts.ukf, sub_progress(progress, 0.4, 0.5), f"{method}/ukf")
-    out = first
+    seed = ukf.solve(problem, x, p0, opts.ukf, sub_progress(progress, 0.0, 0.1), f"{method}/ukf")
+    first: SolverResult | None = None
     if seed.status >= 0:
-        second = descend(problem, seed.x, opts, sub_progress(progress, 0.5, 1.0), method)
-        second.iterations += seed.iterations
-        if problem.cost(second.x) < problem.cost(first.x):
-            second.message = f"from the UKF estimate: {second.message}"
-            out = second
-        else:
-            out.message = f"from x0: {out.message}"
-        out.iterations = first.iterations + second.iterations
+        first = descend(problem, seed.x, opts, sub_progress(progress, 0.1, 0.55), method)
+        first.iterations += seed.iterations
+        first.message = f"from the UKF estimate: {first.message}"
+        if first.success and not opts.both_starts:
+            first.elapsed_s = timer.elapsed()
+            return first
+    out = descend(problem, x, opts, sub_progress(progress, 0.55, 1.0), method)
+    out.message = f"from x0: {out.message}"
+    if first is not None:
+        iterations = first.iterations + out.iterations
+        out = first if problem.cost(first.x) <= problem.cost(out.x) else out
+        out.iterations = iterations
     out.elapsed_s = timer.elapsed()
     return out
 
