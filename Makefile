@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed-stamp
 # make run PORT=9000 (0: any free port)
 PORT ?= 8080
 
-.PHONY: test lint typecheck unit run demo bench screenshots clean
+.PHONY: test test-long lint typecheck unit run demo bench screenshots clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,10 @@ unit: $(STAMP)
 
 test: lint typecheck unit
 
+# The tests that run for minutes (the solvers on all 2017 real rows), left out of make test.
+test-long: $(STAMP)
+	$(BIN)/pytest -m long
+
 # The daemon on the EMULATED cell (examples/sim.toml), store under .state/; Ctrl-C stops it.
 run: $(STAMP)
 	$(BIN)/python -m daemon.cli.demo serve --port $(PORT)
@@ -34,10 +38,13 @@ run: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m daemon.cli.demo campaign --poses 100
 
-# Identification speed and the indicator poll rate (bench/results.*), API latency under load
+# Solvers on the bundled real data (bench/solver_real.*, its long reference runs cached in
+# bench/solver_real_reference.json: `python -m bench.solver_real --recompute` redoes them),
+# identification speed and the indicator poll rate (bench/results.*), API latency under load
 # while the sampler runs (bench/api_results.*), and the poll rate while identification jobs run
 # against idle (bench/sampler_priority.*).
 bench: $(STAMP)
+	$(BIN)/python -m bench.solver_real
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
 	$(BIN)/python -m bench.sampler_priority

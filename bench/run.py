@@ -1,4 +1,4 @@
-"""`make bench`: identification speed and accuracy per method against a naive baseline.
+"""`make bench`: identification speed and accuracy per method, with a naive baseline for scale.
 
 For n = 100, 500 and 2000 poses of an emulated cell (Table XII D1 errors, σ = 0.05 mm noise,
 seeded), every method identifies the model through :func:`calib.identify.identify` (the whole
@@ -11,7 +11,11 @@ finite-difference Jacobian, ``ftol = xtol = gtol = 1e-8``) solves the *same* res
 (``IdentifyResult.theta_start``: nominal DH, tool point and anchor fitted) on the same training
 data. Two speed-ups are reported: end-to-end (the naive solve plus the same pipeline around it,
 i.e. the pipeline time of the default method, against the default method's total) and
-solver-only (naive solve against the default method's solver time).
+solver-only (naive solve against the default method's solver time). They are information, not
+a target: the issue's ">= 50x against a naive baseline" is withdrawn (issue 10; see
+``docs/calibration-results.md``). The real-data comparison that replaces it (the paper's
+1471 s, and how long a long scipy run needs to come within 1 % of the best cost) is
+:mod:`bench.solver_real`, whose section this module keeps in ``results.md``.
 
 Accuracy is the RMSE of the identified model against the *true* lengths of 200 held-out poses
 (and against their noisy measurements). Results go to ``bench/results.json`` and
@@ -39,6 +43,7 @@ from calib.dataset import SampleSet, make_samples
 from calib.identify import METHODS, IdentifyOptions, IdentifyResult, identify
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, builtin_model
+from calib.options import default as default_option
 from calib.problem import Problem
 from calib.synthetic import make_true_cell, random_poses_deg
 
@@ -48,10 +53,12 @@ N_TEST = 200
 NOISE_MM = 0.05
 REPEATS = 3
 DE_MAX_N = 500  # DE at n = 2000 takes minutes; it is a baseline, timed up to n = 500
-DEFAULT = "ukf-vslm"
+DEFAULT = str(default_option("method"))
 NAIVE = "naive-least_squares-fd"
 #: Held-out accuracy counts as equal when within this factor of the naive baseline's.
 ACCURACY_TOLERANCE = 1.01
+#: The ">= 50x against the naive baseline" target, withdrawn by issue 10 (reported, not judged).
+WITHDRAWN = "none (withdrawn)"
 
 
 def _case(n: int, seed: int = 0) -> tuple[RobotModel, FloatArray, FloatArray, SampleSet]:
@@ -186,17 +193,20 @@ def checks_for(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
         naive, ours = get(n, NAIVE), get(n, DEFAULT)
         checks[f"speedup_vs_naive_end_to_end_n{n}"] = {
             "measured": naive["time_s"] / ours["time_s"],
-            "target": ">= 50",
+            "target": WITHDRAWN,
         }
         checks[f"speedup_vs_naive_solver_only_n{n}"] = {
             "measured": naive["solver_time_s"] / ours["solver_time_s"],
-            "target": ">= 50",
+            "target": WITHDRAWN,
         }
         checks[f"accuracy_ratio_vs_naive_n{n}"] = {
             "measured": ours["heldout_rmse_vs_truth_mm"] / naive["heldout_rmse_vs_truth_mm"],
             "target": f"<= {ACCURACY_TOLERANCE}",
         }
     for value in checks.values():
+        if value["target"] == WITHDRAWN:
+            value["met"] = None
+            continue
         bound = float(value["target"].split()[-1])
         value["met"] = bool(value["measured"] <= bound if "<=" in value["target"]
                             else value["measured"] >= bound)  # fmt: skip
@@ -243,7 +253,8 @@ def _markdown(
         )
     lines += ["", "## Targets", "", "| check | measured | target | met |", "|---|---:|---:|---|"]
     for key, value in checks.items():
-        lines.append(f"| {key} | {value['measured']:.3f} | {value['target']} | {value['met']} |")
+        met = "–" if value["met"] is None else value["met"]
+        lines.append(f"| {key} | {value['measured']:.3f} | {value['target']} | {met} |")
     if extra:
         lines += ["", "## Indicator link", "", "```", json.dumps(extra, indent=2), "```"]
     return "\n".join(lines) + "\n"
@@ -270,6 +281,11 @@ def main(argv: list[str] | None = None) -> None:
     result = {"environment": env, "identification": rows, "checks": checks, "indicator": extra}
     (OUT / "results.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     (OUT / "results.md").write_text(_markdown(rows, checks, env, extra), encoding="utf-8")
+    real = OUT / "solver_real.md"
+    if real.exists():  # make bench runs bench.solver_real first; keep its section
+        from bench import solver_real
+
+        solver_real.update_results_md(OUT / "results.md", real.read_text(encoding="utf-8"))
     print(f"wrote {OUT / 'results.json'} and {OUT / 'results.md'}")
     if not args.skip_real_data:
         from bench import real_data

@@ -17,7 +17,7 @@ from calib.cable import N_DH, ParamLayout
 from calib.kinematics import FloatArray
 from calib.options import METHODS, IdentifyOptions
 from calib.problem import Problem
-from calib.solvers import de, ekf, lm, ukf, ukf_vslm, vslm
+from calib.solvers import de, ekf, geolm, lm, ukf, ukf_vslm, vslm
 from calib.solvers.common import ProgressFn, SolverResult
 
 SolveFn = Callable[[Problem, FloatArray, Any, IdentifyOptions, "ProgressFn | None"], SolverResult]
@@ -76,6 +76,10 @@ def _ukf_vslm_options(opts: IdentifyOptions) -> ukf_vslm.UKFVSLMOptions:
     return ukf_vslm.UKFVSLMOptions(ukf=stage1, vslm=_vslm_options(opts))
 
 
+def _geolm_options(opts: IdentifyOptions) -> geolm.GeoLMOptions:
+    return geolm.GeoLMOptions(ukf=_ukf_options(opts, geolm.GeoLMOptions().ukf))
+
+
 def _de_solve(
     problem: Problem, x0: FloatArray, solver: de.DEOptions, opts: IdentifyOptions,
     progress: ProgressFn | None,
@@ -110,6 +114,11 @@ REGISTRY: dict[str, MethodEntry] = {
         de.DEOptions,
         lambda o: de.DEOptions(max_generations=o.de_max_generations, seed=o.seed),
         _de_solve,
+    ),
+    "geolm": MethodEntry(
+        geolm.GeoLMOptions,
+        _geolm_options,
+        lambda p, x0, s, o, cb: geolm.solve(p, x0, s, cb, p0=initial_covariance(p, o)),
     ),
 }
 assert tuple(REGISTRY) == METHODS, "calib.options.Method and the registry must list the same"

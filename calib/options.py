@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
 
-Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de"]
+Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de", "geolm"]
 Robust = Literal["none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
 
@@ -91,7 +91,7 @@ class IdentifyOptions:
     """
 
     method: Method = field(
-        default="ukf-vslm", metadata=_spec("Identification method", choices=METHODS)
+        default="geolm", metadata=_spec("Identification method", choices=METHODS)
     )
     test_fraction: float = field(
         default=0.2, metadata=_spec("Held-out share, 0 trains on all", ge=0.0, lt=1.0)

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.options import default as default_option
 from daemon import metrics
 from daemon.config import JobSettings
 from daemon.store import StoreNotFound
@@ -217,7 +218,7 @@ class JobManager:
         robot_id = int(campaign["robot_id"])
         model = self.store.robot_model(robot_id)
         job = self.store.create_job(
-            campaign_id, robot_id, str(opts.get("method", "ukf-vslm")), opts
+            campaign_id, robot_id, str(opts.get("method", default_option("method"))), opts
         )
         job_id = int(job["id"])
         if self._pool is None:
@@ -261,7 +262,7 @@ class JobManager:
         sample_ids: list[int],
         opts: dict[str, Any],
     ) -> None:
-        method = str(opts.get("method", "ukf-vslm"))
+        method = str(opts.get("method", default_option("method")))
         t0 = time.monotonic()
         status = "failed"
         try:

@@ -89,6 +89,11 @@ def _uncalibrated_robot(client: TestClient) -> int:
     return int(r.json()["robot_id"])
 
 
+def _text(r: Any) -> str:
+    """The messages and locations of a 422 (the list form), as one string."""
+    return " ".join(f"{e['loc']} {e['msg']}" for e in r.json()["detail"])
+
+
 def test_new_routes_need_the_token(client: TestClient, calibrated: dict[str, int]) -> None:
     rid, jid = calibrated["robot_id"], calibrated["job_id"]
     for method, url in (
@@ -138,22 +143,93 @@ def test_compensate_errors_and_bounds(client: TestClient, calibrated: dict[str, 
     url = f"{API}/robots/{rid}/compensate"
     row = {f"q{j}": 10.0 for j in range(1, 7)}
     r = client.post(url, json=[row] * 10_001, headers=AUTH)
-    assert r.status_code == 422 and "10000" in r.json()["detail"]
+    assert r.status_code == 422 and "10000" in _text(r)
     r = client.post(url, json=[row, {**row, "q3": "x"}], headers=AUTH)
-    assert r.status_code == 422 and "body[1].q3" in r.json()["detail"]
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", 1, "q3"], r.text
     r = client.post(
         url,
         content="q1,q2,q3,q4,q5,q6\n1,2,3,4,5,x\n",
         headers={**AUTH, "Content-Type": "text/csv"},
     )
-    assert r.status_code == 422 and "line 2" in r.json()["detail"] and "q6" in r.json()["detail"]
+    assert r.status_code == 422 and "line 2" in _text(r) and "q6" in _text(r)
     r = client.post(url, json=[row], headers=AUTH, params={"tool_mm": "1,2"})
-    assert r.status_code == 422 and "tool_mm" in r.json()["detail"]
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "tool_mm"]
     r = client.post(url, json=[{"x": 1.0, "y": 2.0, "z": 3.0}], headers=AUTH)
-    assert r.status_code == 422 and "seed_deg" in r.json()["detail"]
+    assert r.status_code == 422 and "seed_deg" in _text(r)
     other = _uncalibrated_robot(client)
     r = client.post(f"{API}/robots/{other}/compensate", json=[row], headers=AUTH)
     assert r.status_code == 404 and "no accepted calibration" in r.json()["detail"]
+
+
+BIG = 2**63  # one past SQLite's largest INTEGER
+
+
+def test_ids_beyond_sqlite_integer_are_422(client: TestClient, calibrated: dict[str, int]) -> None:
+    cid = calibrated["campaign_id"]
+    for method, url, body in (
+        ("POST", f"/robots/{BIG}/compensate", [{f"q{j}": 0.0 for j in range(1, 7)}]),
+        ("PUT", f"/robots/{BIG}/check-poses", {"poses_deg": [[0.0] * 6] * 3}),
+        ("GET", f"/robots/{BIG}/check-poses", None),
+        ("POST", f"/robots/{BIG}/checks", None),
+        ("GET", f"/robots/{BIG}/checks", None),
+        ("GET", f"/robots/{BIG}/calibrated-model?format=toml", None),
+        ("POST", f"/identifications/{BIG}/verify", {"campaign_id": cid}),
+    ):
+        r = client.request(method, API + url, json=body, headers=AUTH)
+        assert r.status_code == 422, (method, url, r.text)
+        assert r.json()["detail"][0]["loc"][0] == "path", r.text
+    r = client.post(
+        f"{API}/identifications/{calibrated['job_id']}/verify",
+        json={"campaign_id": BIG},
+        headers=AUTH,
+    )
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "campaign_id"]
+
+
+def test_strings_booleans_and_non_finite_numbers_are_strict(
+    client: TestClient, calibrated: dict[str, int]
+) -> None:
+    rid, jid = calibrated["robot_id"], calibrated["job_id"]
+    url = f"{API}/robots/{rid}/compensate"
+    row = {f"q{j}": 10.0 for j in range(1, 7)}
+    for params, loc in (
+        ({"tool_mm": "1," * 200 + "1"}, ["query", "tool_mm"]),
+        ({"seed_deg": ""}, ["query", "seed_deg"]),
+        ({"tool_mm": " "}, ["query", "tool_mm"]),
+    ):
+        r = client.post(url, json=[row], params=params, headers=AUTH)
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == loc, (params, r.text)
+    for body, loc in (
+        ([{**row, "q1": "10"}], ["body", 0, "q1"]),
+        ([{**row, "q2": True}], ["body", 0, "q2"]),
+        ([{**row, "note": "x"}], ["body", 0, "note"]),
+        ([], ["body"]),
+    ):
+        r = client.post(url, json=body, headers=AUTH)
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == loc, (body, r.text)
+    r = client.post(url, content=b'[{"q1": NaN, "q2": 0, "q3": 0, "q4": 0, "q5": 0, "q6": 0}]',
+                    headers={**AUTH, "Content-Type": "application/json"})  # fmt: skip
+    assert r.status_code == 422, r.text
+    r = client.post(url, content=b"q1\n\xff\n", headers={**AUTH, "Content-Type": "text/csv"})
+    assert r.status_code == 400 and "UTF-8" in r.json()["detail"], r.text
+    r = client.post(
+        f"{API}/identifications/{jid}/verify",
+        json={"campaign_id": calibrated["campaign_id"], "refit_anchor": "yes"},
+        headers=AUTH,
+    )
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "refit_anchor"]
+    r = client.put(f"{API}/robots/{rid}/check-poses", json={"poses_deg": [["0"] * 6] * 3},
+                   headers=AUTH)  # fmt: skip
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"][:2] == ["body", "poses_deg"]
+
+
+def test_compensate_body_is_bounded_by_the_guard(
+    client: TestClient, calibrated: dict[str, int]
+) -> None:
+    url = f"{API}/robots/{calibrated['robot_id']}/compensate"
+    csv_body = "q1,q2,q3,q4,q5,q6\n" + "0,0,0,0,0,0\n" * (4 * 1024 * 1024 // 12 + 1)
+    r = client.post(url, content=csv_body, headers={**AUTH, "Content-Type": "text/csv"})
+    assert r.status_code == 413 and isinstance(r.json()["detail"], str), r.text
 
 
 def test_calibrated_model_formats(client: TestClient, calibrated: dict[str, int]) -> None:

@@ -153,7 +153,8 @@ def test_not_found_auth_and_bounds(client: TestClient) -> None:
     ]
     for change, text in engine:
         r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
-        assert r.status_code == 422 and text in r.json()["detail"], (change, r.text)
+        assert r.status_code == 422, (change, r.text)
+        assert any(text in e["msg"] for e in r.json()["detail"]), (change, r.text)
     spec = client.get("/openapi.json").json()["paths"]["/api/v1/campaigns/{campaign_id}/plan"]
     assert spec["post"]["summary"] and spec["get"]["summary"]
     r = client.get(f"/api/v1/campaigns/{cid}/plan", params={"tol_deg": 0}, headers=AUTH)
@@ -186,3 +187,42 @@ def test_planning_runs_off_the_event_loop(client: TestClient) -> None:
     if still_planning:  # the plan outlasted both requests (it takes seconds): they were served
         assert second.status_code == 409 and "another plan" in second.json()["detail"]
         assert health_s < 1.0, health_s
+
+
+BIG = 2**63  # one past SQLite's largest INTEGER
+
+
+def test_ids_beyond_sqlite_integer_blank_and_oversized_strings_are_422(
+    client: TestClient,
+) -> None:
+    for method in ("GET", "POST"):
+        r = client.request(method, f"/api/v1/campaigns/{BIG}/plan", json=SMALL, headers=AUTH)
+        assert r.status_code == 422, (method, r.text)
+        assert r.json()["detail"][0]["loc"] == ["path", "campaign_id"], r.text
+    cid = _campaign(client)
+    bad = [
+        ({"anchor_ids": [" "]}, ["body", "anchor_ids", 0]),
+        ({"anchor_ids": [""]}, ["body", "anchor_ids", 0]),
+        ({"anchor_ids": ["A" * 33]}, ["body", "anchor_ids", 0]),
+        ({"anchor_ids": ["A"] * 5}, ["body", "anchor_ids"]),
+        ({"start_from_samples": "yes"}, ["body", "start_from_samples"]),
+        ({"n": "8"}, ["body", "n"]),
+        ({"anchors_mm": [[1.0, 2.0, 3.0, 4.0]]}, ["body", "anchors_mm", 0]),
+    ]
+    for change, loc in bad:
+        r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
+        assert r.status_code == 422, (change, r.text)
+        assert r.json()["detail"][0]["loc"] == loc, (change, r.text)
+    # NaN (which Python's JSON reader accepts) is not a coordinate.
+    r = client.post(f"/api/v1/campaigns/{cid}/plan",
+                    content=b'{"anchors_mm": [[NaN, 0, 0]], "n": 8, "candidates": 200}',
+                    headers={**AUTH, "Content-Type": "application/json"})  # fmt: skip
+    assert r.status_code == 422, r.text
+    r = client.get(f"/api/v1/campaigns/{cid}/plan", params={"tol_deg": "nan"}, headers=AUTH)
+    assert r.status_code == 422, r.text
+
+
+def test_openapi_declares_the_plan_routes_statuses(client: TestClient) -> None:
+    spec = client.get("/openapi.json").json()["paths"]["/api/v1/campaigns/{campaign_id}/plan"]
+    assert {"400", "401", "404", "409", "413", "422"} <= set(spec["post"]["responses"])
+    assert {"401", "404", "413", "422"} <= set(spec["get"]["responses"])

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from calib import methods
 from calib.cable import predict_lengths
 from calib.dataset import SampleSet, make_samples
 from calib.identify import IdentifyOptions, identify
-from calib.methods import run as _run_method
 from calib.models import builtin_model
 from calib.problem import Problem
-from calib.solvers import geolm
+from calib.solvers import geolm, ukf
 from calib.solvers.common import SolverResult
 from calib.synthetic import make_true_cell, random_poses_deg
 from daemon.datafiles import read_samples
@@ -79,6 +81,20 @@ def test_noisy_synthetic_fit_matches_lm_optimum() -> None:
     assert problem.cost(ours.x) <= reference_cost(problem, 2000) * (1 + 1e-6)
 
 
+def best_reference_cost(problem: Problem, max_nfev: int) -> float:
+    """The lower cost of two tight scipy runs [mm²]: from identify's start and from the UKF
+    estimate geolm also descends from (the real-data cost has several basins)."""
+    opts = geolm.GeoLMOptions()
+    p0 = methods.initial_covariance(problem, IdentifyOptions())
+    seed = ukf.solve(problem, problem.x0(), p0, opts.ukf)
+    from_seed = dataclasses.replace(problem, theta0=problem.full(seed.x))
+    return min(reference_cost(problem, max_nfev), reference_cost(from_seed, max_nfev))
+
+
+def test_geolm_is_the_default_method() -> None:
+    assert IdentifyOptions().method == "geolm"
+
+
 @pytest.mark.parametrize(
     "method",
     [
@@ -94,15 +110,13 @@ def test_noisy_synthetic_fit_matches_lm_optimum() -> None:
 def test_first_100_bundled_rows_stop_by_a_test_near_a_long_reference(
     bundled_first_100: Problem, method: str
 ) -> None:
-    """Regression test for issue 10: a convergence test, not the iteration limit, ends the run,
-    at a cost within 1 % of what a tight scipy run reaches in REFERENCE_NFEV evaluations."""
+    """Regression test for issue 10: on the first 100 bundled rows, a convergence test, not the
+    iteration limit, ends the run, at a cost within 1 % of the lower of two long scipy runs
+    (REFERENCE_NFEV evaluations each, from identify's start and from the UKF estimate)."""
     problem = bundled_first_100
-    if method == "geolm":
-        res = geolm.solve(problem)
-    else:
-        res = _run_method(problem, problem.x0(), IdentifyOptions(method="ukf-vslm"), None)
+    res = methods.run(problem, problem.x0(), IdentifyOptions(method=method), None)  # type: ignore[arg-type]
     assert res.status > 0, res.message
-    assert problem.cost(res.x) <= 1.01 * reference_cost(problem, REFERENCE_NFEV)
+    assert problem.cost(res.x) <= 1.01 * best_reference_cost(problem, REFERENCE_NFEV)
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +125,8 @@ def all_rows_fit() -> tuple[Problem, SolverResult]:
     return problem, geolm.solve(problem)
 
 
-@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.timeout(900)
 def test_all_bundled_rows_end_below_a_tight_reference_run(
     all_rows_fit: tuple[Problem, SolverResult],
 ) -> None:
@@ -119,11 +134,12 @@ def test_all_bundled_rows_end_below_a_tight_reference_run(
     assert problem.cost(res.x) <= 1.01 * reference_cost(problem, REFERENCE_NFEV // 4)
 
 
-@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.timeout(900)
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 10, open: on all 2017 rows geolm stops at its iteration limit at a cost of "
-    "18.2 mm² (RMS 0.134 mm); a long least-squares run reaches RMS 0.090 mm",
+    reason="issue 10, open: on all 2017 rows geolm stops at its 2 x 1000 iteration limit at "
+    "17.36 mm², 1.5 % above a 5000-evaluation scipy least_squares run (17.11 mm²)",
 )
 def test_all_bundled_rows_converge(all_rows_fit: tuple[Problem, SolverResult]) -> None:
     _, res = all_rows_fit

@@ -52,6 +52,7 @@ _METHODS = {
     "ukf": "unscented Kalman filter (M3)",
     "ekf": "extended Kalman filter (M1)",
     "de": "differential evolution (M7)",
+    "geolm": "geodesic-acceleration LM (not in the paper)",
 }
 
 

@@ -143,7 +143,7 @@ def distance_to_optimum_sigma(model: LinearModel, lam: float, cost: float, dof: 
 
 
 class GaussNewton:
-    """The set-up and bookkeeping LM and VSLM share; they differ in their step policy only.
+    """The set-up and bookkeeping LM, VSLM and geodesic LM share; they differ in their steps.
 
     Holds the iterate ``x`` (shape (k,)), its residual ``res`` (m,), Jacobian ``jac`` (m, k)
     and cost ``½‖r‖²`` [mm²], the running column scale ``D`` (k,), the data RMS history [mm]
@@ -172,13 +172,22 @@ class GaussNewton:
             self.method, self.x, False, -1, "non-finite residual at the start", 0, self.history
         )
 
-    def linearise(self, gtol: float) -> tuple[LinearModel, FloatArray] | None:
-        """The scaled linear model and gradient ``(J D⁻¹)ᵀ r`` (k,); None if that is below
-        ``gtol ‖r‖`` (converged)."""
+    def scaled(self, gtol: float) -> tuple[FloatArray, FloatArray] | None:
+        """The scaled Jacobian ``J D⁻¹`` (m, k) and gradient ``(J D⁻¹)ᵀ r`` (k,); None if the
+        gradient is below ``gtol ‖r‖`` (converged: the cosine test of MINPACK)."""
         js = self.jac / self.scale
         grad = js.T @ self.res
         if np.max(np.abs(grad)) <= gtol * np.sqrt(2.0 * self.cost):
             return None
+        return js, grad
+
+    def linearise(self, gtol: float) -> tuple[LinearModel, FloatArray] | None:
+        """The scaled linear model and gradient ``(J D⁻¹)ᵀ r`` (k,); None if that is below
+        ``gtol ‖r‖`` (converged)."""
+        scaled = self.scaled(gtol)
+        if scaled is None:
+            return None
+        js, grad = scaled
         return LinearModel.from_jacobian(js, self.res), grad
 
     def within_sigma(self, lin: LinearModel, lam: float, sigma_tol: float) -> str | None:
@@ -229,3 +238,11 @@ def sample_batches(
 def report(progress: ProgressFn | None, fraction: float, message: str) -> None:
     if progress is not None:
         progress(min(max(fraction, 0.0), 1.0), message)
+
+
+def sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
+    """``progress`` for one stage of a solver: fractions 0–1 mapped onto ``lo``–``hi``."""
+    if progress is None:
+        return None
+    outer = progress
+    return lambda f, msg: outer(lo + (hi - lo) * f, msg)

@@ -1,6 +1,7 @@
 """Levenberg–Marquardt with geodesic acceleration and a likelihood-based stopping test.
 
-Method ``geolm``: two descents (from ``x0`` and from the UKF's estimate), each as below.
+Method ``geolm``: a descent from the UKF's estimate, and from ``x0`` when that one does not
+converge (see :func:`solve`), each as below.
 For ``min F(x) = ½‖r(x)‖²`` (``r`` shape (m,), ``x`` shape (k,)) each iteration works in
 scaled coordinates ``z = D x`` (``D`` = running column norms of ``J``, as in MINPACK and
 :mod:`calib.solvers.lm`), with the thin SVD ``J D⁻¹ = U diag(s) Vᵀ``:
@@ -56,8 +57,9 @@ same descent from the UKF's estimate reaches 0.097 mm² (test RMSE 0.068 mm inst
 0.19–0.24). On the first 100 bundled rows the UKF's basin goes down to 0.0998 mm² (geolm,
 converged) where ukf-vslm stops at 0.302 (iteration limit) and the long scipy run from
 identify's start at 3.684: the far ridge above is that of one basin only. So ``solve``
-descends from both starts, ``x0`` and the UKF's estimate (the paper's own M9 seed), and keeps
-the lower cost (``ukf_start``). "Best attainable" is then "the lowest cost any method found",
+descends from the UKF's estimate (the paper's own M9 seed, ``ukf_start``) and, when that
+descent stops at its iteration limit (or the UKF fails, or ``both_starts``), also from ``x0``,
+keeping the lower cost. "Best attainable" is then "the lowest cost any method found",
 which the benchmark reports beside the reference run's.
 This solver therefore keeps the paper's ML objective and defines "converged" statistically:
 it stops when further progress along the valley changes the likelihood by less than a
@@ -77,13 +79,13 @@ from calib.kinematics import FloatArray
 from calib.problem import Problem
 from calib.solvers import ukf
 from calib.solvers.common import (
+    GaussNewton,
     LinearModel,
     ProgressFn,
     SolverResult,
     Timer,
-    column_scale,
-    distance_to_optimum_sigma,
     report,
+    sub_progress,
 )
 
 
@@ -91,7 +93,9 @@ from calib.solvers.common import (
 class GeoLMOptions:
     """Options of :func:`solve`. Tolerances are relative and unit-free."""
 
-    max_iterations: int = 400
+    #: Per descent. Seed 0 of the bench's 100-row subsets needs about 850 to come within 1 %
+    #: of the best cost found (bench/solver_real.py).
+    max_iterations: int = 1000
     tau: float = 1e-3  # initial λ relative to the largest squared singular value
     alpha: float = 0.75  # largest accepted ratio 2‖a‖/‖v‖ (Transtrum & Sethna)
     fd_step: float = 0.1  # finite-difference step h of r_vv, in scaled units of v
@@ -106,6 +110,11 @@ class GeoLMOptions:
     #: the anchors, the same ``P0`` as identify gives ukf-vslm) and
     #: keep the lower cost: the real-data cost has several basins (see the module docstring).
     ukf_start: bool = True
+    #: Also descend from ``x0`` when the descent from the UKF's estimate converged (by a test,
+    #: status > 0). Off: ``x0`` is the fallback when the UKF fails or its descent stops at the
+    #: iteration limit; on the bundled data the ``x0`` descent never ended more than 0.05 %
+    #: below the UKF one (10 random 100-row subsets), and it doubles the time.
+    both_starts: bool = False
     ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
     ukf_sigma_mm: float = 5.0
     ukf_sigma_deg: float = 0.5
@@ -123,29 +132,19 @@ class GeoLMOptions:
             raise ValueError(f"stall_chi2 must be >= 0, got {self.stall_chi2}")
 
 
-@dataclass
-class _State:
-    """The current iterate: ``x`` (k,), residual (m,), Jacobian (m, k), cost [mm²]."""
-
-    x: FloatArray
-    res: FloatArray
-    jac: FloatArray
-    cost: float
-
-
 def _geodesic_step(
-    problem: Problem, st: _State, js: FloatArray, scale: FloatArray, lam: float,
+    problem: Problem, gn: GaussNewton, js: FloatArray, lam: float,
     svd: tuple[FloatArray, FloatArray, FloatArray], opts: GeoLMOptions,
 ) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
     """Velocity ``v`` and total step ``v + a/2`` (scaled, shape (k,)); False if too curved."""
     u, s, vt = svd
     coeff = s / (s * s + lam)
-    v = -(vt.T @ (coeff * (u.T @ st.res)))
+    v = -(vt.T @ (coeff * (u.T @ gn.res)))
     h = opts.fd_step
-    r_h = problem.residuals(st.x + h * v / scale)
+    r_h = problem.residuals(gn.x + h * v / gn.scale)
     if not np.all(np.isfinite(r_h)):
         return v, v, False
-    r_vv = (2.0 / h) * ((r_h - st.res) / h - js @ v)
+    r_vv = (2.0 / h) * ((r_h - gn.res) / h - js @ v)
     acc = -(vt.T @ (coeff * (u.T @ r_vv)))
     ok = float(np.linalg.norm(acc)) <= opts.alpha * float(np.linalg.norm(v))
     return v, v + 0.5 * acc, ok
@@ -157,9 +156,15 @@ def solve(
     options: GeoLMOptions | None = None,
     progress: ProgressFn | None = None,
     method: str = "geolm",
+    p0: FloatArray | None = None,
 ) -> SolverResult:
-    """Minimise the problem's residual from ``x0`` (shape (k,)) and, with ``ukf_start``, also
-    from the UKF's estimate; the lower final cost wins. See the module docstring."""
+    """Minimise the problem's residual from the UKF's estimate (with ``ukf_start``) and from
+    ``x0`` (shape (k,)) when that descent did not converge (or always, ``both_starts``); the
+    lower final cost wins. See the module docstring.
+
+    ``p0`` (shape (k, k)) is the UKF's initial covariance; None builds it from
+    ``ukf_sigma_mm`` / ``ukf_sigma_deg`` (identify passes its filters' ``P0``).
+    """
     opts = options or GeoLMOptions()
     timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
@@ -167,30 +172,28 @@ def solve(
         out = descend(problem, x, opts, progress, method)
         out.elapsed_s = timer.elapsed()
         return out
-    first = descend(problem, x, opts, _stage(progress, 0.0, 0.4), method)
-    spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg), opts.ukf_sigma_mm)
-    spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
-    p0 = np.diag(spread[problem.free] ** 2)
-    seed = ukf.solve(problem, x, p0, opts.ukf, _stage(progress, 0.4, 0.5), method=f"{method}/ukf")
-    out = first
+    if p0 is None:
+        spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg),
+                          opts.ukf_sigma_mm)  # fmt: skip
+        spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
+        p0 = np.diag(spread[problem.free] ** 2)
+    seed = ukf.solve(problem, x, p0, opts.ukf, sub_progress(progress, 0.0, 0.1), f"{method}/ukf")
+    first: SolverResult | None = None
     if seed.status >= 0:
-        second = descend(problem, seed.x, opts, _stage(progress, 0.5, 1.0), method)
-        second.iterations += seed.iterations
-        if problem.cost(second.x) < problem.cost(first.x):
-            second.message = f"from the UKF estimate: {second.message}"
-            out = second
-        else:
-            out.message = f"from x0: {out.message}"
-        out.iterations = first.iterations + second.iterations
+        first = descend(problem, seed.x, opts, sub_progress(progress, 0.1, 0.55), method)
+        first.iterations += seed.iterations
+        first.message = f"from the UKF estimate: {first.message}"
+        if first.success and not opts.both_starts:
+            first.elapsed_s = timer.elapsed()
+            return first
+    out = descend(problem, x, opts, sub_progress(progress, 0.55, 1.0), method)
+    out.message = f"from x0: {out.message}"
+    if first is not None:
+        iterations = first.iterations + out.iterations
+        out = first if problem.cost(first.x) <= problem.cost(out.x) else out
+        out.iterations = iterations
     out.elapsed_s = timer.elapsed()
     return out
-
-
-def _stage(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
-    if progress is None:
-        return None
-    outer = progress
-    return lambda f, msg: outer(lo + (hi - lo) * f, msg)
 
 
 def descend(
@@ -201,45 +204,36 @@ def descend(
     method: str = "geolm",
 ) -> SolverResult:
     """The geodesic-LM iteration from ``x`` (shape (k,)), one start."""
-    timer = Timer()
-    ev = problem.evaluate(x)
-    assert ev.jacobian is not None
-    st = _State(x, ev.residual, ev.jacobian, ev.cost)
-    history = [ev.data_rms_mm]
-    if not np.isfinite(st.cost):
-        return SolverResult(method, x, False, -1, "non-finite residual at the start", 0, history)
-    dof = max(problem.n_rows - x.shape[0], 1)
-    scale = column_scale(st.jac)
+    gn = GaussNewton(problem, x, method)
+    failed = gn.start_failure()
+    if failed is not None:
+        return failed
     lam: float | None = None
     nu = 2.0
-    costs: deque[float] = deque([st.cost], maxlen=opts.stall_window + 1)
+    costs: deque[float] = deque([gn.cost], maxlen=opts.stall_window + 1)
     status, message, it = 0, "iteration limit reached", 0
     for it in range(1, opts.max_iterations + 1):
-        js = st.jac / scale
-        grad = js.T @ st.res
-        if np.max(np.abs(grad)) <= opts.gtol * np.sqrt(2.0 * st.cost):
+        scaled = gn.scaled(opts.gtol)
+        if scaled is None:
             status, message, it = 1, "gradient below gtol", it - 1
             break
-        svd = np.linalg.svd(js, full_matrices=False)
+        js, grad = scaled
+        svd = np.linalg.svd(js, full_matrices=False)  # U is needed to project r_vv
         s_max2 = float(svd[1][0] ** 2)
-        lin = LinearModel(s=svd[1], vt=svd[2], g=svd[0].T @ st.res)
-        distance = distance_to_optimum_sigma(lin, opts.sigma_damping * s_max2, st.cost, dof)
-        if distance <= opts.sigma_tol:
-            status, it = 2, it - 1
-            message = f"within {distance:.2g} standard errors of the optimum (sigma_tol)"
+        lin = LinearModel(s=svd[1], vt=svd[2], g=svd[0].T @ gn.res)
+        stop = gn.within_sigma(lin, opts.sigma_damping * s_max2, opts.sigma_tol)
+        if stop is not None:
+            status, message, it = 2, stop, it - 1
             break
         lam = opts.tau * s_max2 if lam is None else lam
         accepted = False
         for _ in range(opts.max_rejections):
-            v, step, ok = _geodesic_step(problem, st, js, scale, lam, svd, opts)
-            trial = problem.evaluate(st.x + step / scale) if ok else None
-            if trial is not None and np.isfinite(trial.cost) and trial.cost < st.cost:
-                assert trial.jacobian is not None
+            v, step, ok = _geodesic_step(problem, gn, js, lam, svd, opts)
+            trial = problem.evaluate(gn.x + step / gn.scale) if ok else None
+            if trial is not None and np.isfinite(trial.cost) and trial.cost < gn.cost:
                 predicted = 0.5 * float(v @ (lam * v - grad))
-                rho = min((st.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
-                st = _State(st.x + step / scale, trial.residual, trial.jacobian, trial.cost)
-                history.append(trial.data_rms_mm)
-                scale = column_scale(st.jac, scale)
+                rho = min((gn.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
+                gn.accept(gn.x + step / gn.scale, trial)
                 lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu, accepted = 2.0, True
                 break
@@ -247,23 +241,24 @@ def descend(
             nu *= 2.0
         report(progress, it / opts.max_iterations, f"{method} iteration {it}")
         if not accepted:
-            history.append(history[-1])
+            gn.history.append(gn.history[-1])
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
-        costs.append(st.cost)
-        sigma2 = 2.0 * st.cost / dof
-        if len(costs) == costs.maxlen and 2.0 * (costs[0] - st.cost) < opts.stall_chi2 * sigma2:
-            status = 2
-            message = (f"likelihood stalled: chi2 gain {2.0 * (costs[0] - st.cost) / sigma2:.2g} "
-                       f"over {opts.stall_window} iterations (stall_chi2)")  # fmt: skip
+        costs.append(gn.cost)
+        stalled = _stalled(costs, gn.cost, gn.dof, opts)
+        if stalled is not None:
+            status, message = 2, stalled
             break
-    return SolverResult(
-        method=method,
-        x=st.x,
-        success=status > 0,
-        status=status,
-        message=message,
-        iterations=it,
-        cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
-    )
+    return gn.result(status, message, it)
+
+
+def _stalled(costs: deque[float], cost: float, dof: int, opts: GeoLMOptions) -> str | None:
+    """The stop message of the likelihood-stall test (4c), else None."""
+    sigma2 = 2.0 * cost / dof
+    if len(costs) < opts.stall_window + 1 or not sigma2 > 0.0:
+        return None
+    gain = 2.0 * (costs[0] - cost) / sigma2
+    if gain >= opts.stall_chi2:
+        return None
+    window = opts.stall_window
+    return f"likelihood stalled: chi2 gain {gain:.2g} over {window} iterations (stall_chi2)"

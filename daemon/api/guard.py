@@ -34,8 +34,11 @@ ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 MAX_JSON_BYTES: Final = 256 * 1024
 #: Largest CSV import [bytes]: 2000 poses are about 150 kB; 20 MB is over 250 000 rows.
 MAX_IMPORT_BYTES: Final = 20 * 1024 * 1024
+#: Largest compensation body [bytes], CSV or JSON: 10 000 pose rows are about 1 MB.
+MAX_COMPENSATE_BYTES: Final = 4 * 1024 * 1024
 
 _IMPORT_PATH = re.compile(r"/api/v1/campaigns/[^/]+/samples/import/?")
+_COMPENSATE_PATH = re.compile(r"/api/v1/robots/[^/]+/compensate/?")
 _OPEN_PATHS = frozenset({"/api/v1/health"})
 _READ_METHODS = frozenset({"GET", "HEAD"})
 
@@ -56,7 +59,9 @@ def token_matches(authorization: str | None, token: str) -> bool:
 
 def body_limit(path: str) -> int:
     """The largest body [bytes] a request to ``path`` may carry."""
-    return MAX_IMPORT_BYTES if _IMPORT_PATH.fullmatch(path) else MAX_JSON_BYTES
+    if _IMPORT_PATH.fullmatch(path):
+        return MAX_IMPORT_BYTES
+    return MAX_COMPENSATE_BYTES if _COMPENSATE_PATH.fullmatch(path) else MAX_JSON_BYTES
 
 
 def too_large(limit: int) -> HTTPException:

@@ -67,6 +67,10 @@ class _Body(BaseModel):
         return value
 
 
+#: The strict request body, for the bodies defined next to their routes.
+StrictBody = _Body
+
+
 class CampaignCreate(_Body):
     """A new calibration campaign."""
 

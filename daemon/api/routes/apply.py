@@ -7,31 +7,75 @@ thread, never on the event loop.
 from __future__ import annotations
 
 import asyncio
-import json
 import math
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
-from pydantic import BaseModel, ConfigDict, Field
+from fastapi.exceptions import RequestValidationError
+from pydantic import Field, TypeAdapter, ValidationError
 
-from daemon.api.deps import ReadAuth, State, WriteAuth
+from daemon.api.deps import MAX_ID, JobId, ReadAuth, RobotId, State, WriteAuth
+from daemon.api.errors import error_responses, unprocessable
+from daemon.api.schemas import StrictBody
 from daemon.drift import CheckConflict, check_poses
 from daemon.store import CheckPoses, CheckRow
 
-router = APIRouter(tags=["apply"])
+router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))
 
-#: Most targets one compensation request may carry.
+#: Most targets one compensation request may carry (the body is bounded by the request
+#: guard: :data:`daemon.api.guard.MAX_COMPENSATE_BYTES`).
 MAX_TARGETS = 10_000
-#: Largest compensation body [bytes] (10 000 Cartesian pose rows are about 1 MB).
-MAX_BODY_BYTES = 4 * 1024 * 1024
+#: Longest ``tool_mm`` / ``seed_deg`` query value [characters].
+MAX_QUERY_CHARS = 200
 
 EXPORT_MEDIA_TYPES = {
     "toml": "application/toml",
     "urdf": "application/xml",
     "json": "application/json",
 }
-_TARGET_KEYS = (("q1", "q2", "q3", "q4", "q5", "q6"), ("x", "y", "z", "rx", "ry", "rz"),
-                ("x", "y", "z"))  # fmt: skip
+
+JointDeg = Annotated[float, Field(ge=-3600.0, le=3600.0, allow_inf_nan=False)]
+LengthMm = Annotated[float, Field(ge=-100_000.0, le=100_000.0, allow_inf_nan=False)]
+
+
+class JointTarget(StrictBody):
+    """A target as joint angles q1..q6 [deg]."""
+
+    q1: JointDeg
+    q2: JointDeg
+    q3: JointDeg
+    q4: JointDeg
+    q5: JointDeg
+    q6: JointDeg
+
+
+class PositionTarget(StrictBody):
+    """A target as a TCP position x, y, z [mm] in the robot base frame."""
+
+    x: LengthMm
+    y: LengthMm
+    z: LengthMm
+
+
+class PoseTarget(PositionTarget):
+    """A target as a TCP position [mm] and orientation rx, ry, rz [deg]."""
+
+    rx: JointDeg
+    ry: JointDeg
+    rz: JointDeg
+
+
+def _targets(model: type[StrictBody]) -> Any:
+    return Annotated[list[model], Field(min_length=1, max_length=MAX_TARGETS)]  # type: ignore[valid-type]
+
+
+_TARGET_MODELS: tuple[type[StrictBody], ...] = (JointTarget, PoseTarget, PositionTarget)
+_TARGET_LISTS = {m: TypeAdapter(_targets(m)) for m in _TARGET_MODELS}
+_ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
+    Annotated[list[dict[str, Any]], Field(min_length=1, max_length=MAX_TARGETS)]
+)
+#: The JSON request body as documented: one of the three target lists.
+TARGETS_SCHEMA = {"anyOf": [TypeAdapter(_targets(m)).json_schema() for m in _TARGET_MODELS]}
 
 
 def _numbers(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
@@ -40,45 +84,59 @@ def _numbers(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise HTTPException(422, f"{name}: expected {n} comma-separated numbers") from None
+        raise unprocessable(
+            ("query", name), f"{name}: expected {n} comma-separated numbers"
+        ) from None
     if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise HTTPException(422, f"{name}: expected {n} finite comma-separated numbers")
+        raise unprocessable(("query", name), f"{name}: expected {n} finite comma-separated numbers")
     return values
 
 
-def _json_targets_csv(items: Any) -> str:
-    """A JSON list of target objects (``q1..q6``, or ``x, y, z`` [+ ``rx, ry, rz``]) as the
-    CSV text :func:`calib.compensate.parse_targets_csv` reads (errors name the list index)."""
-    if not isinstance(items, list) or not items:
-        raise HTTPException(422, "body: expected a non-empty JSON list of targets")
-    if len(items) > MAX_TARGETS:
-        raise HTTPException(422, f"body: {len(items)} targets, at most {MAX_TARGETS}")
-    first = items[0]
-    keys = next((k for k in _TARGET_KEYS if isinstance(first, dict) and set(k) <= set(first)),
-                None)  # fmt: skip
-    if keys is None:
-        raise HTTPException(422, "body[0]: a target needs q1..q6, or x, y, z (+ rx, ry, rz)")
+def _validated(errors: ValidationError) -> RequestValidationError:
+    """A pydantic error of the JSON body as the API's 422 (locations under ``body``)."""
+    issues = errors.errors(include_input=False, include_url=False)
+    return RequestValidationError([{**e, "loc": ("body", *e["loc"])} for e in issues])
+
+
+def _json_targets_csv(raw: bytes) -> str:
+    """A JSON list of target objects (``q1..q6``, or ``x, y, z`` [+ ``rx, ry, rz``]),
+    validated strictly (errors name the list index and key), as the CSV text
+    :func:`calib.compensate.parse_targets_csv` reads."""
+    try:
+        items = _ANY_TARGETS.validate_json(raw, strict=True)
+    except ValidationError as exc:
+        raise _validated(exc) from None
+    first = set(items[0])
+    model = next((m for m in _TARGET_MODELS if set(m.model_fields) <= first), None)
+    if model is None:
+        raise unprocessable(
+            ("body", 0), "body[0]: a target needs q1..q6, or x, y, z (+ rx, ry, rz)"
+        )
+    try:
+        targets = _TARGET_LISTS[model].validate_python(items)
+    except ValidationError as exc:
+        raise _validated(exc) from None
+    keys = list(model.model_fields)
     lines = [",".join(keys)]
-    for i, item in enumerate(items):
-        if not isinstance(item, dict):
-            raise HTTPException(422, f"body[{i}]: expected an object")
-        row = []
-        for k in keys:
-            v = item.get(k)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise HTTPException(422, f"body[{i}].{k}: expected a finite number, got {v!r}")
-            row.append(repr(float(v)))
-        lines.append(",".join(row))
+    lines += [",".join(repr(float(getattr(t, k))) for k in keys) for t in targets]
     return "\n".join(lines) + "\n"
 
 
 def _compensate(
-    state: State, robot_id: int, text: str, mode: str, tool: Any, seed: Any
-) -> dict[str, Any] | str:
-    """Parse and compensate (in a worker thread); the JSON mapping, or 422 text."""
+    state: State, robot_id: int, raw: bytes, is_csv: bool, mode: str, tool: Any, seed: Any
+) -> dict[str, Any]:
+    """Decode, validate, parse and compensate (in a worker thread); the JSON mapping with the
+    corrected CSV under ``csv``."""
     from calib.compensate import CompensateOptions, JointTargets, compensate, parse_targets_csv
     from calib.export import model_from_result
 
+    if is_csv:
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise HTTPException(400, f"body: not UTF-8 ({exc})") from None
+    else:
+        text = _json_targets_csv(raw)
     result = state.store.accepted_result(robot_id)["result"]
     nominal = state.store.robot_model(robot_id)
     try:
@@ -86,11 +144,11 @@ def _compensate(
         rows = targets.joints_deg if isinstance(targets, JointTargets) else targets.position_mm
         n = rows.shape[0]
         if n > MAX_TARGETS:
-            return f"body: {n} targets, at most {MAX_TARGETS}"
+            raise ValueError(f"{n} targets, at most {MAX_TARGETS}")
         options = CompensateOptions(mode=mode, tool_mm=tool or (0.0, 0.0, 0.0))  # type: ignore[arg-type]
         out = compensate(nominal, model_from_result(result, nominal), targets, options)
     except ValueError as exc:
-        return f"body: {exc}"
+        raise unprocessable(("body",), f"body: {exc}") from exc
     return out.to_json() | {"csv": out.to_csv()}
 
 
@@ -98,38 +156,44 @@ def _compensate(
     "/robots/{robot_id}/compensate",
     summary="Correct a program with the robot's accepted calibration",
     dependencies=[WriteAuth],
+    responses={200: {"content": {"text/csv": {}}}, **error_responses(400)},
+    openapi_extra={
+        "requestBody": {
+            "required": True,
+            "content": {
+                "application/json": {"schema": TARGETS_SCHEMA},
+                "text/csv": {"schema": {"type": "string"}},
+            },
+        }
+    },
 )
 async def compensate_targets(
     state: State,
-    robot_id: int,
+    robot_id: RobotId,
     request: Request,
     mode: Literal["position", "pose"] = Query("position"),
-    tool_mm: str | None = Query(None, description="TCP in the flange frame: X,Y,Z [mm]."),
-    seed_deg: str | None = Query(None, description="q1,…,q6 [deg]: IK branch of x,y,z rows."),
+    tool_mm: str | None = Query(
+        None, max_length=MAX_QUERY_CHARS, description="TCP in the flange frame: X,Y,Z [mm]."
+    ),
+    seed_deg: str | None = Query(
+        None, max_length=MAX_QUERY_CHARS, description="q1,…,q6 [deg]: IK branch of x,y,z rows."
+    ),
 ) -> Any:
     """Body: a CSV (``Content-Type: text/csv``, header ``q1..q6`` [deg] or ``x,y,z`` [mm]
-    [+ ``rx,ry,rz`` deg]) or a JSON list of objects with the same keys; at most
-    :data:`MAX_TARGETS` targets. Returns ``mode, kind, tool_mm, note, summary, rows`` (each
-    row: corrected ``q1..q6``, ``residual_mm``, ``residual_deg``, ``iterations``, ``flags``),
-    or the corrected CSV when the request accepts ``text/csv``. 404 without an accepted
-    calibration."""
+    [+ ``rx,ry,rz`` deg]) or a JSON list of objects with the same keys (strict: numbers only,
+    no other keys); at most :data:`MAX_TARGETS` targets and 4 MiB. Returns ``mode, kind,
+    tool_mm, note, summary, rows`` (each row: corrected ``q1..q6``, ``residual_mm``,
+    ``residual_deg``, ``iterations``, ``flags``), or the corrected CSV when the request
+    accepts ``text/csv``. 404 without an accepted calibration. Decoding, validation and the
+    IK run in a worker thread."""
     tool = _numbers(tool_mm, 3, "tool_mm")
     seed = _numbers(seed_deg, 6, "seed_deg")
-    body = await request.body()
-    if len(body) > MAX_BODY_BYTES:
-        raise HTTPException(413, f"body: {len(body)} bytes, at most {MAX_BODY_BYTES}")
-    state.store.accepted_result(robot_id)  # 404 before any parsing
-    if request.headers.get("content-type", "").split(";")[0].strip() == "text/csv":
-        text = body.decode("utf-8-sig", errors="replace")
-    else:
-        try:
-            items = json.loads(body)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise HTTPException(422, f"body: not JSON ({exc}); send text/csv for CSV") from None
-        text = _json_targets_csv(items)
-    out = await asyncio.to_thread(_compensate, state, robot_id, text, mode, tool, seed)
-    if isinstance(out, str):
-        raise HTTPException(422, out)
+    state.store.accepted_result(robot_id)  # 404 before the body is read
+    chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
+    is_csv = request.headers.get("content-type", "").split(";")[0].strip() == "text/csv"
+    out = await asyncio.to_thread(
+        _compensate, state, robot_id, b"".join(chunks), is_csv, mode, tool, seed
+    )
     csv_text = out.pop("csv")
     if "text/csv" in request.headers.get("accept", ""):
         return Response(
@@ -158,20 +222,20 @@ def export_response(state: State, robot_id: int, fmt: str) -> Response:
                     headers={"Content-Disposition": f'attachment; filename="{name}"'})  # fmt: skip
 
 
-class VerifyRequest(BaseModel):
+class VerifyRequest(StrictBody):
     """Verify an identification's result on another campaign."""
 
-    model_config = ConfigDict(extra="forbid")
-    campaign_id: int
-    refit_anchor: bool = False
+    campaign_id: int = Field(ge=1, le=MAX_ID, description="The campaign whose samples to predict")
+    refit_anchor: bool = Field(False, description="Fit the anchor and zero offset first")
 
 
 @router.post(
     "/identifications/{job_id}/verify",
     summary="Predict another campaign's lengths from a result",
     dependencies=[WriteAuth],
+    responses=error_responses(400, 409),
 )
-async def verify_result(state: State, job_id: int, body: VerifyRequest) -> dict[str, Any]:
+async def verify_result(state: State, job_id: JobId, body: VerifyRequest) -> dict[str, Any]:
     """RMSE, MAE, STD, MAX of ``measured − predicted`` over the campaign's included samples
     and the per-pose residuals (``calib.verify``); ``refit_anchor`` fits the anchor P0 and
     zero offset first (a moved sensor). 409 if the job has no result yet."""
@@ -183,41 +247,42 @@ async def verify_result(state: State, job_id: int, body: VerifyRequest) -> dict[
         raise HTTPException(409, f"identification {job_id}: has no result")
     samples, _ = state.store.sample_set(body.campaign_id)
     if len(samples) == 0:
-        raise HTTPException(422, f"campaign_id: campaign {body.campaign_id} has no samples")
+        raise unprocessable(
+            ("body", "campaign_id"), f"campaign_id: campaign {body.campaign_id} has no samples"
+        )
     try:
         out = await asyncio.to_thread(verify, result["result"], samples,
                                       VerifyOptions(refit_anchor=body.refit_anchor))  # fmt: skip
     except (ValueError, KeyError) as exc:
-        raise HTTPException(422, f"campaign {body.campaign_id}: {exc}") from exc
+        raise unprocessable(("body",), f"campaign {body.campaign_id}: {exc}") from exc
     return out.to_json()
 
 
-class CheckPosesBody(BaseModel):
+class CheckPosesBody(StrictBody):
     """A robot's check poses [deg]."""
 
-    model_config = ConfigDict(extra="forbid")
     poses_deg: Annotated[
-        list[Annotated[list[float], Field(min_length=6, max_length=6)]],
+        list[Annotated[list[JointDeg], Field(min_length=6, max_length=6)]],
         Field(min_length=3, max_length=100),
     ]
 
 
 @router.put(
-    "/robots/{robot_id}/check-poses", summary="Set the drift-check poses", dependencies=[WriteAuth]
+    "/robots/{robot_id}/check-poses",
+    summary="Set the drift-check poses",
+    dependencies=[WriteAuth],
+    responses=error_responses(400),
 )
-def put_check_poses(state: State, robot_id: int, body: CheckPosesBody) -> CheckPoses:
-    """3 to 100 joint vectors [deg]; they replace the default (spread poses of the
-    calibration's samples)."""
-    for i, pose in enumerate(body.poses_deg):
-        if not all(math.isfinite(v) for v in pose):
-            raise HTTPException(422, f"poses_deg[{i}]: not finite")
+def put_check_poses(state: State, robot_id: RobotId, body: CheckPosesBody) -> CheckPoses:
+    """3 to 100 joint vectors of finite numbers [deg]; they replace the default (spread poses
+    of the calibration's samples)."""
     return state.store.set_check_poses(robot_id, body.poses_deg)
 
 
 @router.get(
     "/robots/{robot_id}/check-poses", summary="The drift-check poses", dependencies=[ReadAuth]
 )
-def get_check_poses(state: State, robot_id: int) -> CheckPoses:
+def get_check_poses(state: State, robot_id: RobotId) -> CheckPoses:
     """The user's poses (``source`` user) or the default (``source`` default: spread poses
     of the accepted calibration's samples; 404 without one)."""
     return check_poses(state.store, robot_id, state.settings.drift.n_poses)
@@ -228,8 +293,9 @@ def get_check_poses(state: State, robot_id: int) -> CheckPoses:
     status_code=status.HTTP_202_ACCEPTED,
     summary="Start a drift check",
     dependencies=[WriteAuth],
+    responses=error_responses(409),
 )
-async def start_check(state: State, robot_id: int) -> CheckRow:
+async def start_check(state: State, robot_id: RobotId) -> CheckRow:
     """Creates the check campaign and switches auto capture to it (on the event loop, where
     the sampler and the check's task live); the robot must visit the check poses
     (``GET …/check-poses``). Follow it at ``GET /robots/{id}/checks``. 409 while another
@@ -244,7 +310,7 @@ async def start_check(state: State, robot_id: int) -> CheckRow:
 
 @router.get("/robots/{robot_id}/checks", summary="Drift-check history", dependencies=[ReadAuth])
 def list_checks(
-    state: State, robot_id: int, limit: int = Query(100, ge=1, le=1000)
+    state: State, robot_id: RobotId, limit: int = Query(100, ge=1, le=1000)
 ) -> list[CheckRow]:
     """The newest ``limit`` checks, oldest first: ``status`` running/ok/drift/failed,
     ``rms_mm``, ``threshold_mm``, ``campaign_id``, ``poses_deg``."""

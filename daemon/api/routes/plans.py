@@ -12,17 +12,19 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, status
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS, SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import PlanOptions, plan, start_anchors_mm
-from daemon.api.deps import ReadAuth, State, WriteAuth
+from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
+from daemon.api.errors import error_responses, unprocessable
+from daemon.api.schemas import Anchor, StrictBody
 from daemon.store import MATCH_TOL_DEG, match_poses
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
-router = APIRouter(tags=["plans"])
+router = APIRouter(tags=["plans"], responses=error_responses(401, 404, 413, 422))
 
 _D = PlanOptions()
 
@@ -32,23 +34,23 @@ MAX_CANDIDATES = 10_000
 MAX_ANCHORS = 4
 
 Coordinate = Annotated[float, Field(ge=-10_000.0, le=10_000.0, allow_inf_nan=False)]
+Extension = Annotated[float, Field(ge=0, le=10_000, allow_inf_nan=False)]
 
 
-class PlanRequest(BaseModel):
+class PlanRequest(StrictBody):
     """Options of a plan (see ``cablecal plan --help``; units in the names). The robot is the
-    campaign's."""
-
-    model_config = ConfigDict(extra="forbid")
+    campaign's. Strict: no unknown keys, ``"1"`` is not a number, ``"yes"`` not a boolean;
+    pairs and triples are JSON lists of that length."""
 
     anchors_mm: Annotated[
-        list[tuple[Coordinate, Coordinate, Coordinate]],
+        list[Annotated[list[Coordinate], Field(min_length=3, max_length=3)]],
         Field(min_length=1, max_length=MAX_ANCHORS),
     ] | None = Field(
         None,
         description="Anchor guesses [x, y, z] [mm] in the robot base frame, one per sensor "
         "position; default (with start_from_samples): where the campaign's samples put them.",
     )  # fmt: skip
-    anchor_ids: list[Annotated[str, Field(min_length=1, max_length=32)]] | None = Field(
+    anchor_ids: Annotated[list[Anchor], Field(min_length=1, max_length=MAX_ANCHORS)] | None = Field(
         None, description="Id per anchor (default A, B, …); an id of the samples means the "
         "sensor has not moved."
     )  # fmt: skip
@@ -58,19 +60,27 @@ class PlanRequest(BaseModel):
     )
     seed: int = Field(_D.seed, ge=0, le=2**32 - 1)
     min_z_mm: float = Field(
-        _D.min_z_mm, ge=-10_000, le=10_000, description="Flange and tool point above this z."
+        _D.min_z_mm, ge=-10_000, le=10_000, allow_inf_nan=False,
+        description="Flange and tool point above this z.",
+    )  # fmt: skip
+    extension_mm: Annotated[list[Extension], Field(min_length=2, max_length=2)] = Field(
+        list(_D.extension_mm), description="Allowed cable extension [min, max] [mm]."
     )
-    extension_mm: tuple[
-        Annotated[float, Field(ge=0, le=10_000)], Annotated[float, Field(ge=0, le=10_000)]
-    ] = Field(_D.extension_mm, description="Allowed cable extension [min, max] [mm].")
     anchor_uncertainty_mm: float = Field(
-        _D.anchor_uncertainty_mm, ge=0, le=1000, description="How far the guess may be off."
+        _D.anchor_uncertainty_mm, ge=0, le=1000, allow_inf_nan=False,
+        description="How far the guess may be off.",
+    )  # fmt: skip
+    noise_mm: float = Field(
+        _D.noise_mm, gt=0, le=10, allow_inf_nan=False, description="1σ length noise."
     )
-    noise_mm: float = Field(_D.noise_mm, gt=0, le=10, description="1σ length noise.")
     joint_speed_deg_s: Annotated[
-        list[Annotated[float, Field(gt=0, le=1000)]], Field(min_length=6, max_length=6)
+        list[Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]],
+        Field(min_length=6, max_length=6),
     ] = Field(list(_D.joint_speed_deg_s), description="Joint speeds for the moves [deg/s].")
-    dwell_s: float = Field(_D.dwell_s, ge=0, le=600, description="Settle and read time per pose.")
+    dwell_s: float = Field(
+        _D.dwell_s, ge=0, le=600, allow_inf_nan=False,
+        description="Settle and read time per pose.",
+    )  # fmt: skip
     start_from_samples: bool = Field(
         False, description="Plan more poses on top of the campaign's included samples."
     )
@@ -79,7 +89,8 @@ class PlanRequest(BaseModel):
         """The engine's options (anchor ids set by the caller when taken from samples)."""
         return PlanOptions(
             n=self.n, candidates=self.candidates, seed=self.seed, min_z_mm=self.min_z_mm,
-            extension_mm=self.extension_mm, anchor_uncertainty_mm=self.anchor_uncertainty_mm,
+            extension_mm=(self.extension_mm[0], self.extension_mm[1]),
+            anchor_uncertainty_mm=self.anchor_uncertainty_mm,
             noise_mm=self.noise_mm, joint_speed_deg_s=tuple(self.joint_speed_deg_s),
             dwell_s=self.dwell_s,
             anchor_ids=None if self.anchor_ids is None else tuple(self.anchor_ids),
@@ -143,11 +154,18 @@ def _compute(
         if start is None:
             raise ValueError("anchors_mm: required unless start_from_samples is true")
         found = start_anchors_mm(model, start)
-        anchors = [(float(p[0]), float(p[1]), float(p[2])) for p in found.values()]
+        anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
     res = plan(model, np.asarray(anchors, dtype=float), opts, start=start)
     return res.to_json(), res.csv_rows()
+
+
+def _loc(message: str) -> tuple[str, ...]:
+    """The location of an engine error: ``("body", "<option>")`` when the message starts with
+    an option's name (``"candidates: ..."``), else ``("body",)``."""
+    name = message.split(":", 1)[0].strip()
+    return ("body", name) if name in PlanRequest.model_fields else ("body",)
 
 
 @router.post(
@@ -155,10 +173,13 @@ def _compute(
     status_code=status.HTTP_201_CREATED,
     summary="Plan the campaign's poses",
     dependencies=[WriteAuth],
-    responses={409: {"description": "Another plan is being computed"}},
+    responses={
+        **error_responses(400),
+        409: {**error_responses(409)[409], "description": "Another plan is being computed"},
+    },
 )
 async def make_plan(
-    state: State, request: Request, campaign_id: int, body: PlanRequest
+    state: State, request: Request, campaign_id: CampaignId, body: PlanRequest
 ) -> PlanView:
     """Plans ``n`` poses for the campaign's robot (D-optimal on its identifiable parameters;
     ``cablecal plan`` does the same from the command line) and stores the plan. The planning
@@ -168,14 +189,17 @@ async def make_plan(
     model = state.store.robot_model(int(campaign["robot_id"]))
     start = state.store.sample_set(campaign_id)[0] if body.start_from_samples else None
     if start is not None and len(start) == 0:
-        raise HTTPException(422, "start_from_samples: the campaign has no included samples")
+        raise unprocessable(
+            ("body", "start_from_samples"),
+            "start_from_samples: the campaign has no included samples",
+        )
     if getattr(request.app.state, "planning_campaign", None) is not None:
         raise HTTPException(409, "plan: another plan is being computed; try again later")
     request.app.state.planning_campaign = campaign_id
     try:
         summary, poses = await asyncio.to_thread(_compute, model, body, start)
     except (ValueError, SampleError, np.linalg.LinAlgError) as exc:
-        raise HTTPException(422, str(exc)) from exc
+        raise unprocessable(_loc(str(exc)), str(exc)) from exc
     finally:
         request.app.state.planning_campaign = None
     options = body.model_dump(mode="json")
@@ -190,11 +214,12 @@ async def make_plan(
 )
 def get_plan(
     state: State,
-    campaign_id: int,
+    campaign_id: CampaignId,
     tol_deg: float = Query(
         MATCH_TOL_DEG,
         gt=0,
         le=10,
+        allow_inf_nan=False,
         description="Largest joint difference [deg] for a sample to count as a planned pose",
     ),
 ) -> PlanView:

@@ -27,6 +27,7 @@ def get_robot(state: State, robot_id: RobotId) -> RobotOut:
     "/{robot_id}/calibrated-model",
     summary="The latest accepted calibrated DH table, or a model file",
     response_model=CalibratedModelOut,
+    responses=error_responses(409),
 )
 def calibrated_model(
     state: State,
