@@ -70,7 +70,8 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         page.wait_for_function("window.__cablecal.trace.updates > 10", timeout=20000)
         assert page.locator("#trace canvas").count() == 1
         assert page.locator("#cell-devices tbody tr").count() == 2
-        assert float(page.inner_text("#cell-length")) > 0  # mm
+        length = page.inner_text("#cell-length")  # mm, or "over range" beyond the stroke
+        assert length == "over range" or float(length) > 0, length
         _shot(page, tmp_path, "1-cell")
 
         # campaign
