@@ -69,7 +69,9 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         page.click("#token-form button")
         page.wait_for_function("window.__cablecal.trace.updates > 10", timeout=20000)
         assert page.locator("#trace canvas").count() == 1
-        assert page.locator("#cell-devices tbody tr").count() == 2
+        page.wait_for_function(
+            "document.querySelectorAll('#cell-devices tbody tr').length === 2", timeout=10000
+        )
         length = page.inner_text("#cell-length")  # mm, or "over range" beyond the stroke
         assert length == "over range" or float(length) > 0, length
         _shot(page, tmp_path, "1-cell")
