@@ -49,7 +49,6 @@ from calib.dataset import SampleSet
 from calib.identifiability import analyse
 from calib.identify import IdentifyOptions, _fit, _generic_jacobian, fit_anchors
 from calib.kinematics import FloatArray
-from calib.methods import run as _run_method
 from calib.models import RobotModel
 from calib.options import default as default_option
 from calib.problem import Problem
