@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import methods, metrics
+from calib import methods, metrics, robust
 from calib.cable import (
     N_DH,
     N_KIN,
@@ -47,7 +47,6 @@ from calib.models import RobotModel
 from calib.options import METHODS, IdentifyOptions, validate
 from calib.problem import Problem
 from calib.report import IdentifyResult, covariance, plausibility, uncertainty
-from calib.robust import weights as robust_weights
 from calib.solvers import lm
 from calib.solvers.common import ProgressFn, SolverResult, Timer, report
 from calib.split import pose_groups, split_rows
@@ -220,38 +219,71 @@ def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> Progress
     return lambda f, msg: outer(lo + (hi - lo) * f, msg)
 
 
-def _solve(
-    problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None
-) -> tuple[SolverResult, Problem, FloatArray]:
-    """Step 5: run the method, as IRLS rounds when robust.
+@dataclass
+class _Solved:
+    """What step 5 found: the last solver result (iterations summed over rounds), the problem
+    with the final weights, the standardised residuals of the training rows (shape (n_train,)),
+    the flag threshold [robust σ], the rows flagged (indices into the training rows) and the
+    number of fits run."""
 
-    Returns the last solver result (iterations summed over rounds), the problem with the final
-    weights, and the standardised residuals of the training rows, shape (n_train,).
-    """
+    result: SolverResult
+    problem: Problem
+    u: FloatArray
+    threshold: float
+    flagged: np.ndarray
+    fits: int
+
+
+def _standardised_u(problem: Problem, x: FloatArray, w: FloatArray) -> FloatArray:
+    """Standardised, leverage-studentised residuals of every training row at ``x``, (n,)."""
+    pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
+                                     problem.anchor_index)  # fmt: skip
+    t = robust.studentised(pred - problem.length_mm, jac_full[:, problem.free], w)
+    return robust.standardised(t)
+
+
+def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) -> _Solved:
+    """Step 5: run the method; robustly, as IRLS rounds (huber, soft_l1) or as rejection
+    rounds (reject, auto; each refit starts from the common start, not from the contaminated
+    solution, so an outlier's pull does not carry over)."""
     n = problem.length_mm.size
-    x = problem.x0()
+    thr = robust.threshold(opts.robust, n, opts.flag_threshold)
+    rejecting = opts.robust in robust.REJECTING
     weights = np.ones(n)
-    u = np.zeros(n)
     rounds = 1 if opts.robust == "none" else 8
     result: SolverResult | None = None
-    total_iter = 0
+    total_iter, fits = 0, 0
+    x = problem.x0()
+    u = np.zeros(n)
     for r in range(rounds):
         prob_r = problem.with_weights(weights)
         lo = 0.05 + 0.9 * r / rounds
-        result = methods.run(prob_r, x, opts, _sub_progress(progress, lo, lo + 0.9 / rounds))
+        start = problem.x0() if rejecting else x
+        result = methods.run(prob_r, start, opts, _sub_progress(progress, lo, lo + 0.9 / rounds))
         total_iter += result.iterations
+        fits += 1
         x = result.x
         if opts.robust == "none":
             break
-        new_w, u = robust_weights(opts.robust, prob_r.predict(x) - problem.length_mm,
-                                  opts.robust_k, opts.flag_threshold)  # fmt: skip
+        u = _standardised_u(problem, x, weights)
+        new_w = robust.WEIGHTS[opts.robust](u, thr if rejecting else opts.robust_k)
         if np.max(np.abs(new_w - weights)) < 1e-3:
-            weights = new_w
             break
         weights = new_w
     assert result is not None
     result.iterations = total_iter
-    return result, problem.with_weights(weights), u
+    flagged = np.flatnonzero(weights == 0) if rejecting else np.flatnonzero(u > thr)
+    return _Solved(result, problem.with_weights(weights), u, thr, flagged, fits)
+
+
+def _robust_note(opts: IdentifyOptions, s: _Solved) -> str:
+    if opts.robust == "auto" and s.flagged.size == 0:
+        return (f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
+                f"robust σ, threshold {s.threshold:.2f}): the plain fit")  # fmt: skip
+    how = {"auto": "rejected, refit from the start", "reject": "rejected, refit from the start",
+           "huber": "down-weighted", "soft_l1": "down-weighted"}[opts.robust]  # fmt: skip
+    return (f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
+            f"({how}; {s.fits} fit(s))")  # fmt: skip
 
 
 def _figures(
@@ -309,9 +341,10 @@ def identify(
     ident, free = _free_set(d, theta_start, candidates, opts)
     notes: list[str] = []
     problem = _problem(d, theta_start, free, opts, notes)
-    result, final, u = _solve(problem, opts, progress)
+    solved = _solve(problem, opts, progress)
+    result, final = solved.result, solved.problem
     if opts.robust != "none":
-        notes.append(f"robust mode {opts.robust}: {int(np.sum(u > opts.flag_threshold))} flagged")
+        notes.append(_robust_note(opts, solved))
     report(progress, 0.96, "covariance and metrics")
 
     x = result.x
@@ -331,11 +364,7 @@ def identify(
             + ("" if plaus["cable_extension_mm"]["ok"] else ", cable extension")
             + "): the data do not constrain them; use --prior or more varied poses"
         )
-    flagged = (
-        [int(d.train_rows[i]) for i in np.flatnonzero(u > opts.flag_threshold)]
-        if opts.robust != "none"
-        else []
-    )
+    flagged = [int(d.train_rows[i]) for i in solved.flagged]
     report(progress, 1.0, "done")
     return IdentifyResult(
         model=d.model, layout=layout, method=opts.method, theta=theta,

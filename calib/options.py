@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from calib.dataset import SampleSet
 
 Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de"]
-Robust = Literal["none", "huber", "soft_l1", "reject"]
+Robust = Literal["auto", "none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
 
 METHODS: tuple[str, ...] = get_args(Method)
@@ -99,12 +99,20 @@ class IdentifyOptions:
         default=10,
         metadata=_spec("Pose clusters for a grouped hold-out without a group column", gt=0),
     )
-    robust: Robust = field(default="none", metadata=_spec("Robust fit mode", choices=ROBUST_MODES))
+    robust: Robust = field(
+        default="auto",
+        metadata=_spec(
+            "Robust fit mode; auto: plain fit, and only if it finds gross outliers "
+            "(beyond a threshold growing with n), reject them and refit",
+            choices=ROBUST_MODES,
+        ),
+    )
     robust_k: float = field(
         default=1.345, metadata=_spec("Huber / soft-L1 threshold [robust sigma]", gt=0)
     )
     flag_threshold: float = field(
-        default=3.5, metadata=_spec("Flag (reject) residuals beyond this [robust sigma]", gt=0)
+        default=3.5,
+        metadata=_spec("Flag (reject) residuals beyond this [robust sigma]; auto: at least", gt=0),
     )
     prior: bool = field(default=False, metadata=_spec("MAP prior toward the nominal model"))
     prior_mm: float = field(default=2.0, metadata=_spec("Prior 1σ of DH lengths [mm]", gt=0))
