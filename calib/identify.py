@@ -26,11 +26,12 @@ every reported figure in degrees and millimetres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from calib import methods, metrics, robust
+from calib import methods, metrics, prior, robust
 from calib.cable import (
     N_DH,
     N_KIN,
@@ -45,8 +46,15 @@ from calib.identifiability import Identifiability, analyse
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel
 from calib.options import METHODS, IdentifyOptions, validate
+from calib.prior import prior_block
 from calib.problem import Problem
-from calib.report import IdentifyResult, covariance, plausibility, uncertainty
+from calib.report import (
+    IdentifyResult,
+    covariance,
+    implausibility_advice,
+    plausibility,
+    uncertainty,
+)
 from calib.solvers import lm
 from calib.solvers.common import ProgressFn, SolverResult, Timer, report
 from calib.split import pose_groups, split_rows
@@ -212,6 +220,28 @@ def _problem(
                    noise_mm=opts.noise_mm)  # fmt: skip
 
 
+def _prior_weight(
+    d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
+    opts: IdentifyOptions, progress: ProgressFn | None,
+) -> tuple[IdentifyOptions, dict[str, Any]]:  # fmt: skip
+    """Step 5a: the options the fit runs with, the prior weighed as ``prior_weight`` says
+    (:mod:`calib.prior`): noise from the ML fit's residuals, and for ``cv`` the prior-width
+    scale chosen by grouped-fold cross-validation; and the detail for ``result.json``."""
+    if not opts.prior or opts.prior_weight == "fixed":
+        return opts, {}
+    report(progress, 0.05, "maximum-likelihood fit for the noise estimate")
+    ml_opts = replace(opts, prior=False)
+    ml = _solve(_problem(d, theta_start, free, ml_opts, []), ml_opts, None)
+    noise = prior.noise_from_fit(ml.problem, ml.result.x)
+    detail: dict[str, Any] = {"noise_estimated_mm": noise}
+    if opts.prior_weight == "estimated":
+        return prior.scaled_options(opts, noise, 1.0), detail
+    report(progress, 0.1, "cross-validating the prior scale over pose groups")
+    scale, scores = prior.cv_scale(d.model, samples, opts, d.train_rows, noise)
+    detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
+    return prior.scaled_options(opts, noise, scale), detail
+
+
 def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
     if progress is None:
         return None
@@ -340,8 +370,9 @@ def identify(
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
     notes: list[str] = []
-    problem = _problem(d, theta_start, free, opts, notes)
-    solved = _solve(problem, opts, progress)
+    used, prior_detail = _prior_weight(d, samples, theta_start, free, opts, progress)
+    problem = _problem(d, theta_start, free, used, notes)
+    solved = _solve(problem, used, progress)
     result, final = solved.result, solved.problem
     if opts.robust != "none":
         notes.append(_robust_note(opts, solved))
@@ -358,12 +389,7 @@ def identify(
                  - theta[N_KIN:].reshape(-1, 4)[d.aidx_all, 3])  # fmt: skip
     plaus = plausibility(layout, theta, d.model.tool_mm, extension)
     if not plaus["plausible"]:
-        notes.append(
-            "identified parameters are physically implausible ("
-            + ", ".join(plaus["outside_bounds"][:6])
-            + ("" if plaus["cable_extension_mm"]["ok"] else ", cable extension")
-            + "): the data do not constrain them; use --prior or more varied poses"
-        )
+        notes.append(implausibility_advice(layout, final.free_names, sigma, cov, plaus, opts))
     flagged = [int(d.train_rows[i]) for i in solved.flagged]
     report(progress, 1.0, "done")
     return IdentifyResult(
@@ -374,7 +400,9 @@ def identify(
         metrics=_figures(d, theta_before, theta), flagged_rows=flagged,
         train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
         notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
-        tcp_uncertainty_mm=tcp,
+        tcp_uncertainty_mm=tcp, prior=prior_block(opts, used, prior_detail),
+        robust_detail={"mode": opts.robust, "threshold": solved.threshold,
+                       "fits": solved.fits},
     )  # fmt: skip
 
 

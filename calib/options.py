@@ -21,10 +21,12 @@ if TYPE_CHECKING:
 Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de"]
 Robust = Literal["auto", "none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
+PriorWeight = Literal["estimated", "fixed", "cv"]
 
 METHODS: tuple[str, ...] = get_args(Method)
 ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
+PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
 
 #: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
 PAPER_N_TRAIN = 100
@@ -120,7 +122,17 @@ class IdentifyOptions:
     prior_tool_mm: float | None = field(
         default=None, metadata=_spec("Prior 1σ of the tool point [mm]", gt=0)
     )
-    noise_mm: float = field(default=0.1, metadata=_spec("Assumed 1-sigma length noise [mm]", gt=0))
+    prior_weight: PriorWeight = field(
+        default="estimated",
+        metadata=_spec(
+            "How the prior is weighed against the data: estimated (noise from the ML fit's "
+            "residuals), fixed (noise_mm), cv (prior scale by grouped-fold cross-validation)",
+            choices=PRIOR_WEIGHTS,
+        ),
+    )
+    noise_mm: float = field(
+        default=0.1, metadata=_spec("Assumed 1-sigma length noise (prior_weight fixed) [mm]", gt=0)
+    )
     fix: tuple[str, ...] = field(
         default=(), metadata=_spec("Parameter names held at their start (nominal) value")
     )

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 from typing_extensions import TypedDict
 
-from calib.options import Holdout, Method, Robust, default, spec
+from calib.options import Holdout, Method, PriorWeight, Robust, default, spec
 from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
 
@@ -76,6 +76,7 @@ class IdentificationRequest(_Body):
     prior: bool = _option("prior")
     prior_mm: float = _option("prior_mm")
     prior_deg: float = _option("prior_deg")
+    prior_weight: PriorWeight = _option("prior_weight")
     noise_mm: Annotated[float, Field(gt=spec("noise_mm").gt)] | None = Field(
         None, description=f"{spec('noise_mm').help}; default from the config."
     )
