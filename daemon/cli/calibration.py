@@ -183,7 +183,8 @@ def identify_cmd(
         opts = options_from_mapping(
             {"method": method, "test_fraction": test_fraction, "seed": seed,
              "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
-             "prior_deg": prior_deg, "prior_weight": prior_weight, "fix": _split_names(fix), "free": _split_names(free)}
+             "prior_deg": prior_deg, "prior_weight": prior_weight, "fix": _split_names(fix),
+             "free": _split_names(free)}
         )  # fmt: skip
         result = _run_identify(model, samples, opts)
     except (SampleError, ModelError, ValueError) as exc:
