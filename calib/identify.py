@@ -249,6 +249,10 @@ def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> Progress
     return lambda f, msg: outer(lo + (hi - lo) * f, msg)
 
 
+#: Most fits of the rejecting modes (the first, plain fit included).
+REJECT_ROUNDS = 5
+
+
 @dataclass
 class _Solved:
     """What step 5 found: the last solver result (iterations summed over rounds), the problem
@@ -280,7 +284,8 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
     thr = robust.threshold(opts.robust, n, opts.flag_threshold)
     rejecting = opts.robust in robust.REJECTING
     weights = np.ones(n)
-    rounds = 1 if opts.robust == "none" else 8
+    rounds = 1 if opts.robust == "none" else REJECT_ROUNDS if rejecting else 8
+    seen: list[FloatArray] = []
     result: SolverResult | None = None
     total_iter, fits = 0, 0
     x = problem.x0()
@@ -297,8 +302,11 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
             break
         u = _standardised_u(problem, x, weights)
         new_w = robust.WEIGHTS[opts.robust](u, thr if rejecting else opts.robust_k)
-        if np.max(np.abs(new_w - weights)) < 1e-3:
-            break
+        if np.max(np.abs(new_w - weights)) < 1e-3 or r == rounds - 1:
+            break  # converged, or out of rounds: keep the weights the last fit used
+        if rejecting and any(np.array_equal(new_w, w) for w in seen):
+            break  # a cycle of rejected sets (model error near the threshold): stop
+        seen.append(weights)
         weights = new_w
     assert result is not None
     result.iterations = total_iter

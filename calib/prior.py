@@ -14,7 +14,7 @@ weighs the prior ``(0.1/1)² = 1/100`` of what it should. ``prior_weight`` choos
 ``cv``
     ``σ̂`` as above, then the prior widths scaled by each of :data:`CV_SCALES` (and no prior at
     all) are scored by grouped-fold cross-validation on the training rows
-    (:func:`cv_scale`: :data:`CV_FOLDS` folds of whole pose groups, LM fits): the scale with
+    (:func:`cv_scale`: :data:`CV_FOLDS` folds of whole pose groups, plain LM fits): the scale with
     the lowest mean held-out RMSE is used. This is the honest way to choose a weight for
     accuracy at poses unlike the training poses; it costs ``CV_FOLDS × (len(CV_SCALES) + 1)``
     extra fits.
@@ -84,7 +84,8 @@ def cv_scale(
         return 1.0, {}
     fold_of = {g: i % CV_FOLDS for i, g in enumerate(present)}
     folds = np.array([fold_of[g] for g in labels])
-    base = replace(options, method="lm", test_fraction=0.0)
+    # LM without the robust step: the folds rank scales, the final fit deals with outliers.
+    base = replace(options, method="lm", test_fraction=0.0, robust="none")
     scores: dict[str, float] = {}
     for scale in (*CV_SCALES, float("inf")):
         errs = []

@@ -289,8 +289,9 @@ def implausibility_advice(
     if not plaus["cable_extension_mm"]["ok"]:
         outside += ", cable extension"
     text = (
-        f"identified parameters are physically implausible ({outside}): the poses do not "
-        f"excite them. Least constrained (1σ): {loose_text}; weakest direction: {direction}. "
+        f"identified parameters are physically implausible ({outside}): the data do not "
+        f"hold them within bounds. Least constrained (1σ): {loose_text}; "
+        f"weakest direction: {direction}. "
         "Measure poses that excite these: `cablecal plan --start DATA.csv` plans the next "
         "poses given those already measured"
     )
