@@ -32,11 +32,13 @@ run: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/python -m daemon.cli.demo campaign --poses 100
 
-# Identification speed and the indicator poll rate (bench/results.*), then API latency under
-# load while the sampler runs (bench/api_results.*).
+# Identification speed and the indicator poll rate (bench/results.*), API latency under load
+# while the sampler runs (bench/api_results.*), and the poll rate while identification jobs run
+# against idle (bench/sampler_priority.*).
 bench: $(STAMP)
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
+	$(BIN)/python -m bench.sampler_priority
 
 clean:
 	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache

@@ -11,7 +11,7 @@ targets (position and pose mode) and for Cartesian targets (nominal IK from a se
 then the calibrated IK). The corrected joints of both ways are compared.
 
 Accuracy: the *true* robot at the corrected joints against the nominal flange positions of
-the targets, after a rigid alignment (:func:`calib.verify.rigid_align`; the base rotation
+the targets, after a rigid alignment (:func:`calib.tcp.aligned_position_error_mm`; the base rotation
 about z and the shift along z are unobservable from cable lengths), against the uncorrected
 joints, and against the identification's own aligned flange error. In pose mode also the true
 flange orientation error (after the same alignment rotation).
@@ -45,7 +45,7 @@ from calib.ik import tool_pose
 from calib.kinematics import FloatArray, forward_frames
 from calib.models import RobotModel, builtin_model
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, noisy_lengths, random_poses_deg
-from calib.verify import rigid_align
+from calib.tcp import aligned_position_error_mm
 
 OUT = Path(__file__).parent
 N_TARGETS = 1000
@@ -110,13 +110,15 @@ def _accuracy(nominal: RobotModel, cell: TrueCell, calibrated: RobotModel) -> di
 
     def aligned(q_deg: FloatArray) -> tuple[float, float]:
         pos, rot = _true_frames(cell, q_deg)
-        _, res = rigid_align(pos, target_pos)
+        res = aligned_position_error_mm(pos, target_pos)
         centred = pos - pos.mean(axis=0)
         align, _ = Rotation.align_vectors(target_pos - target_pos.mean(axis=0), centred)
         err = Rotation.from_matrix(target_rot) * (align * Rotation.from_matrix(rot)).inv()
         return float(np.sqrt(np.mean(res * res))), float(np.degrees(np.median(err.magnitude())))
 
-    _, own_res = rigid_align(tool_pose(calibrated, q, np.zeros(3))[0], _true_frames(cell, q)[0])
+    own_res = aligned_position_error_mm(
+        tool_pose(calibrated, q, np.zeros(3))[0], _true_frames(cell, q)[0]
+    )
     own = float(np.sqrt(np.mean(own_res * own_res)))
     out: dict[str, Any] = {"identification_aligned_flange_rms_mm": own}
     out["uncompensated"] = dict(zip(("aligned_rms_mm", "orientation_median_deg"), aligned(q),

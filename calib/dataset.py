@@ -8,10 +8,14 @@ for grouped hold-out). Other columns (``x, y, z``, …) are ignored. Every error
 
 from __future__ import annotations
 
+import array
 import csv
 import io
 import math
+import re
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import NoReturn
 
 import numpy as np
 
@@ -22,6 +26,15 @@ CABLE_MIN_MM = 0.0
 CABLE_MAX_MM = 2000.0
 JOINT_COLUMNS = tuple(f"q{j + 1}" for j in range(N_JOINTS))
 LENGTH_COLUMNS = ("l", "length_mm")
+
+#: Rows converted to an array at a time while parsing, and checked at a time by
+#: :func:`validate_values`: each numpy call holds the GIL only briefly, so a large import parsed
+#: in a worker thread does not stall the event loop of the service.
+_BLOCK_ROWS = 10_000
+
+#: A decimal number as a CSV cell may spell it: digits, one optional point, an optional
+#: exponent. No digit separators (Python's ``float("1_0")`` is 10), no ``nan``/``inf``.
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 
 
 class SampleError(ValueError):
@@ -108,22 +121,36 @@ def make_samples(
 
 
 def validate_values(samples: SampleSet) -> None:
-    """Finite joints and lengths, lengths within the sensor range; errors name row and column."""
-    for i in range(len(samples)):
-        for j in range(N_JOINTS):
-            if not math.isfinite(samples.joints_deg[i, j]):
-                raise SampleError("joint angle is not finite", row=samples.line_of(i),
-                                  column=JOINT_COLUMNS[j])  # fmt: skip
-        value = samples.length_mm[i]
-        if not math.isfinite(value):
-            raise SampleError("cable length is not finite", row=samples.line_of(i), column="L")
-        if not CABLE_MIN_MM <= value <= CABLE_MAX_MM:
-            raise SampleError(
-                f"cable length {value} mm is outside the sensor range "
-                f"{CABLE_MIN_MM:.0f}..{CABLE_MAX_MM:.0f} mm",
-                row=samples.line_of(i),
-                column="L",
-            )
+    """Finite joints and lengths, lengths within the sensor range; errors name row and column
+    (the first bad cell in file order). Vectorised, in blocks of rows."""
+    q_all = np.asarray(samples.joints_deg, dtype=float)
+    length_all = np.asarray(samples.length_mm, dtype=float)
+    for start in range(0, max(len(length_all), 1), 5 * _BLOCK_ROWS):
+        q = q_all[start : start + 5 * _BLOCK_ROWS]
+        length = length_all[start : start + 5 * _BLOCK_ROWS]
+        bad_q = ~np.isfinite(q)
+        with np.errstate(invalid="ignore"):
+            bad_len = ~np.isfinite(length) | (length < CABLE_MIN_MM) | (length > CABLE_MAX_MM)
+        bad_rows = np.flatnonzero(bad_q.any(axis=1) | bad_len)
+        if bad_rows.size:
+            _raise_first(samples, start + int(bad_rows[0]), bad_q[bad_rows[0]])
+
+
+def _raise_first(samples: SampleSet, i: int, bad_q: np.ndarray) -> NoReturn:
+    """The :class:`SampleError` of row ``i`` (``bad_q``: its non-finite joints, shape (6,))."""
+    if bad_q.any():
+        j = int(np.flatnonzero(bad_q)[0])
+        raise SampleError("joint angle is not finite", row=samples.line_of(i),
+                          column=JOINT_COLUMNS[j])  # fmt: skip
+    value = float(samples.length_mm[i])
+    if not math.isfinite(value):
+        raise SampleError("cable length is not finite", row=samples.line_of(i), column="L")
+    raise SampleError(
+        f"cable length {value} mm is outside the sensor range "
+        f"{CABLE_MIN_MM:.0f}..{CABLE_MAX_MM:.0f} mm",
+        row=samples.line_of(i),
+        column="L",
+    )
 
 
 def validate_joint_limits(samples: SampleSet, model: RobotModel) -> None:
@@ -142,47 +169,85 @@ def validate_joint_limits(samples: SampleSet, model: RobotModel) -> None:
         )
 
 
+def _header_columns(header: list[str]) -> tuple[dict[str, int], str]:
+    """Column index by lower-case name, and the name of the length column. Raises
+    :class:`SampleError` (row 1) on a duplicated column, a missing q1..q6 or length column,
+    or both ``L`` and ``length_mm``."""
+    cols: dict[str, int] = {}
+    for i, name in enumerate(header):
+        key = name.strip().lower()
+        if key in cols:
+            raise SampleError(f"duplicated column {name.strip()!r} (columns {cols[key] + 1} "
+                              f"and {i + 1})", row=1, column=name.strip())  # fmt: skip
+        cols[key] = i
+    missing = [c for c in JOINT_COLUMNS if c not in cols]
+    if missing:
+        raise SampleError(f"missing column(s) {missing}; the header has {header}", row=1)
+    lengths = [c for c in LENGTH_COLUMNS if c in cols]
+    if not lengths:
+        raise SampleError(f"missing column 'L' (cable length in mm); the header has {header}",
+                          row=1)  # fmt: skip
+    if len(lengths) > 1:
+        raise SampleError("both 'L' and 'length_mm' are present; keep one cable length column",
+                          row=1)  # fmt: skip
+    return cols, lengths[0]
+
+
+def _number(cell: str, line_no: int, column: str) -> float:
+    """A finite decimal number; :class:`SampleError` naming the row and column otherwise."""
+    if _NUMBER.fullmatch(cell) is None:
+        low = cell.lower().lstrip("+-")
+        if low in ("nan", "inf", "infinity"):
+            raise SampleError(f"not a finite number: {cell!r}", row=line_no, column=column)
+        raise SampleError(f"not a number: {cell!r}", row=line_no, column=column)
+    value = float(cell)
+    if not math.isfinite(value):  # e.g. 1e999
+        raise SampleError(f"not a finite number: {cell!r}", row=line_no, column=column)
+    return value
+
+
 def parse_samples_csv(text: str) -> SampleSet:
-    """Parse CSV text into validated samples. Raises :class:`SampleError`."""
-    reader = csv.reader(io.StringIO(text))
+    """Parse CSV text into validated samples. Raises :class:`SampleError`.
+
+    Strict: lines end in LF or CRLF (a bare CR is an error), a field holds at most
+    131072 characters (the csv module's limit), column names are unique (case-insensitive),
+    exactly one of ``L`` and ``length_mm``, numbers are plain decimals (no ``1_0``).
+    """
+    reader = csv.reader(io.StringIO(text))  # splits on LF only: a bare CR is a csv.Error
+    try:
+        return _parse_rows(reader)
+    except csv.Error as exc:  # a bare CR, an over-long field, a stray quote
+        raise SampleError(f"malformed CSV: {exc}", row=max(reader.line_num, 1)) from None
+
+
+def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
+    """The body of :func:`parse_samples_csv` after the reader is made."""
     try:
         header = next(reader)
     except StopIteration:
         raise SampleError("the file is empty; expected a header with q1..q6 and L") from None
-    cols = {name.strip().lower(): i for i, name in enumerate(header)}
-    missing = [c for c in JOINT_COLUMNS if c not in cols]
-    if missing:
-        raise SampleError(f"missing column(s) {missing}; the header has {header}", row=1)
-    length_col = next((c for c in LENGTH_COLUMNS if c in cols), None)
-    if length_col is None:
-        raise SampleError(f"missing column 'L' (cable length in mm); the header has {header}",
-                          row=1)  # fmt: skip
+    cols, length_col = _header_columns(header)
     anchor_col = cols.get("anchor")
     group_col = cols.get("group")
-    joints: list[list[float]] = []
-    lengths: list[float] = []
+    # Flat lists of floats and ints (objects the garbage collector does not track, so a large
+    # file does not make every collection slower), turned into arrays block by block.
+    values: list[float] = []  # the current block of rows, q1..q6, L each
+    blocks: list[FloatArray] = []  # (k, 7) arrays, _BLOCK_ROWS rows each but the last
     anchors: list[str] = []
     groups: list[str] = []
-    lines: list[int] = []
+    lines = array.array("q")
+    wanted = [(cols[name], "L" if name == length_col else name)
+              for name in (*JOINT_COLUMNS, length_col)]  # fmt: skip
     for line_no, row in enumerate(reader, start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
-        values = []
-        for name in (*JOINT_COLUMNS, length_col):
-            idx = cols[name]
-            shown = "L" if name == length_col else name
+        for idx, shown in wanted:
             if idx >= len(row):
                 raise SampleError("missing value", row=line_no, column=shown)
-            cell = row[idx].strip()
-            try:
-                value = float(cell)
-            except ValueError:
-                raise SampleError(f"not a number: {cell!r}", row=line_no, column=shown) from None
-            if not math.isfinite(value):
-                raise SampleError(f"not a finite number: {cell!r}", row=line_no, column=shown)
-            values.append(value)
-        joints.append(values[:N_JOINTS])
-        lengths.append(values[N_JOINTS])
+            values.append(_number(row[idx].strip(), line_no, shown))
+        if len(values) == _BLOCK_ROWS * (N_JOINTS + 1):
+            blocks.append(np.array(values, dtype=float).reshape(-1, N_JOINTS + 1))
+            values = []
         anchor = row[anchor_col].strip() if anchor_col is not None and anchor_col < len(row) else ""
         anchors.append(anchor or "A")
         if group_col is not None:
@@ -190,12 +255,15 @@ def parse_samples_csv(text: str) -> SampleSet:
         lines.append(line_no)
     if not lines:
         raise SampleError("no data rows after the header")
+    if values:
+        blocks.append(np.array(values, dtype=float).reshape(-1, N_JOINTS + 1))
+    table = np.concatenate(blocks)  # (n, 7): q1..q6 [deg], L [mm]
     samples = SampleSet(
-        joints_deg=np.array(joints, dtype=float),
-        length_mm=np.array(lengths, dtype=float),
+        joints_deg=table[:, :N_JOINTS].copy(),
+        length_mm=table[:, N_JOINTS].copy(),
         anchor=tuple(anchors),
         group=tuple(groups) if group_col is not None else None,
-        line=np.array(lines, dtype=int),
+        line=np.frombuffer(lines, dtype=np.int64).astype(int),
     )
     validate_values(samples)
     return samples

@@ -37,6 +37,9 @@ PAPER_N_TEST = 20
 #: need at least one more row than parameters; fewer rows can never be enough.
 MIN_TRAINING_SAMPLES = 24
 
+#: Largest seed: numpy's legacy seeding (and so scipy's DE) takes 0..2**32-1.
+MAX_SEED = 2**32 - 1
+
 
 class OptionError(ValueError):
     """An identification option is invalid; ``field`` names it."""
@@ -56,6 +59,7 @@ class OptionSpec:
     gt: float | None = None
     ge: float | None = None
     lt: float | None = None
+    le: float | None = None
 
     def check(self, name: str, value: Any) -> None:
         """Raise :class:`OptionError` naming ``name`` when ``value`` is outside the spec."""
@@ -69,6 +73,8 @@ class OptionSpec:
             raise OptionError(name, f"must be >= {self.ge}; got {value}")
         if self.lt is not None and not value < self.lt:
             raise OptionError(name, f"must be < {self.lt}; got {value}")
+        if self.le is not None and not value <= self.le:
+            raise OptionError(name, f"must be <= {self.le}; got {value}")
 
 
 def _spec(help: str, **spec: Any) -> dict[str, OptionSpec]:
@@ -92,7 +98,9 @@ class IdentifyOptions:
     test_fraction: float = field(
         default=0.2, metadata=_spec("Held-out share, 0 trains on all", ge=0.0, lt=1.0)
     )
-    seed: int = field(default=0, metadata=_spec("Seed of the split (and of DE)"))
+    seed: int = field(
+        default=0, metadata=_spec("Seed of the split (and of DE), 0..2**32-1", ge=0, le=MAX_SEED)
+    )
     holdout: Holdout = field(
         default="random",
         metadata=_spec("Hold out random rows or whole pose groups", choices=HOLDOUTS),

@@ -180,8 +180,16 @@ def aligned_position_error_mm(points_mm: FloatArray, reference_mm: FloatArray) -
 
     The rigid motion (rotation and translation, no scale) minimising the sum of squared
     distances is applied to ``points_mm`` (shape (m, 3)); ``reference_mm`` has the same shape.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, are not (m, 3), or m < 3.
     """
     pa, pb = np.asarray(points_mm, dtype=float), np.asarray(reference_mm, dtype=float)
+    if pa.ndim != 2 or pa.shape[1] != 3 or pa.shape != pb.shape or pa.shape[0] < 3:
+        raise ValueError(f"points_mm, reference_mm: need equal shapes (m>=3, 3), got "
+                         f"{pa.shape} and {pb.shape}")  # fmt: skip
     ca, cb = pa.mean(axis=0), pb.mean(axis=0)
     rot, _ = Rotation.align_vectors(pb - cb, pa - ca)
     moved = rot.apply(pa - ca) + cb

@@ -10,8 +10,9 @@ robot's calibrated kinematics stay fixed and only each anchor's ``P0`` and zero 
 are fitted to the new data (:func:`calib.identify.fit_anchors`: multilateration, then LM).
 Four parameters per anchor absorb little, so a robot that drifted still shows.
 
-:func:`rigid_align` is the rigid (rotation + translation) alignment of point sets used to
-compare positions whose base frame is not observable from cable lengths.
+:func:`aligned_rms_mm` is the RMS distance after the rigid (rotation + translation) alignment
+of :func:`calib.tcp.aligned_position_error_mm`, used to compare positions whose base frame is
+not observable from cable lengths.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calib.cable import N_KIN, ParamLayout, predict_lengths
 from calib.dataset import JOINT_COLUMNS, SampleSet
@@ -33,6 +33,7 @@ from calib.identify import fit_anchors
 from calib.kinematics import FloatArray
 from calib.metrics import length_metrics
 from calib.predict import predict_lengths_from_result
+from calib.tcp import aligned_position_error_mm
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,8 @@ class VerifyResult:
         }
 
 
-def _reference_rmse(result: Mapping[str, Any]) -> float | None:
+def reference_rmse_mm(result: Mapping[str, Any]) -> float | None:
+    """The identification's own RMSE after calibration [mm]: test rows, else train."""
     after = (result.get("metrics") or {}).get("after") or {}
     for part in ("test", "train"):
         figures = after.get(part) or {}
@@ -192,7 +194,7 @@ def verify(
             predicted[rows] = predict_lengths_from_result(result, q[rows], aid)
         anchors = {aid: {**stored[aid], "refit": False} for aid in ids}
     figures = length_metrics(samples.length_mm, predicted)
-    reference = _reference_rmse(result)
+    reference = reference_rmse_mm(result)
     passed = None if opts.max_rmse_mm is None else bool(figures["rmse_mm"] <= opts.max_rmse_mm)
     notes = []
     if reference is not None:
@@ -212,33 +214,8 @@ def verify(
     )
 
 
-def rigid_align(points_mm: FloatArray, reference_mm: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Best rigid motion of ``points`` onto ``reference`` (least squares, Kabsch).
-
-    Parameters
-    ----------
-    points_mm, reference_mm : ndarray, shape (n, 3)
-        n ≥ 3 points not on one line.
-
-    Returns
-    -------
-    aligned_mm : ndarray, shape (n, 3)
-        ``R · points + t``.
-    residual_mm : ndarray, shape (n,)
-        ``|aligned − reference|`` per point.
-    """
-    a = np.asarray(points_mm, dtype=float)
-    b = np.asarray(reference_mm, dtype=float)
-    if a.ndim != 2 or a.shape[1] != 3 or a.shape != b.shape or a.shape[0] < 3:
-        raise ValueError(f"points_mm, reference_mm: need equal shapes (n>=3, 3), got "
-                         f"{a.shape} and {b.shape}")  # fmt: skip
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    rot, _ = Rotation.align_vectors(b - cb, a - ca)
-    aligned: FloatArray = rot.apply(a - ca) + cb
-    return aligned, np.linalg.norm(aligned - b, axis=1)
-
-
 def aligned_rms_mm(points_mm: FloatArray, reference_mm: FloatArray) -> float:
-    """RMS distance [mm] after :func:`rigid_align`."""
-    _, res = rigid_align(points_mm, reference_mm)
+    """RMS distance [mm] after the best rigid alignment
+    (:func:`calib.tcp.aligned_position_error_mm`); shapes (n, 3)."""
+    res = aligned_position_error_mm(points_mm, reference_mm)
     return float(np.sqrt(np.mean(res * res)))

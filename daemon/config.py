@@ -17,7 +17,7 @@ import secrets
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag, field_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -33,6 +33,9 @@ from drivers import (
     ManualRobotConfig,
     ModbusRobotConfig,
 )
+
+#: Shortest accepted ``api_token`` [characters].
+MIN_TOKEN_CHARS = 16
 
 
 class ConfigError(ValueError):
@@ -72,9 +75,38 @@ class JobSettings(BaseModel):
     """A job still running after this long [s] is cancelled and marked failed."""
     noise_mm: Annotated[float, Field(gt=0)] = 0.05
     """Assumed 1-sigma cable-length noise [mm] (weights the prior and the filters' R)."""
+    worker_nice: Annotated[int, Field(ge=0, le=19)] = 10
+    """Niceness added to the worker processes, so the sampler keeps its poll rate during a job."""
+    worker_blas_threads: Annotated[int, Field(ge=1, le=64)] = 1
+    """BLAS/OpenMP threads per worker process [count]."""
     auto_accept: bool = True
     """Accept a succeeded job's model as the robot's calibrated model when its parameters
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
+
+
+class DriftSettings(BaseModel):
+    """Drift checks of a calibrated robot (:mod:`daemon.drift`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    check_interval_h: Annotated[float, Field(gt=0)] | None = None
+    """Hours between scheduled checks of every calibrated robot; unset: manual checks only."""
+    threshold_mm: Annotated[float, Field(gt=0)] | None = None
+    """Absolute RMS [mm] above which a check is drift; unset: ``threshold_factor`` times the
+    calibration's own residual RMSE."""
+    threshold_factor: Annotated[float, Field(gt=0)] = 3.0
+    """Multiple of the calibration's residual RMSE used when ``threshold_mm`` is unset."""
+    min_threshold_mm: Annotated[float, Field(gt=0)] = 0.01
+    """Floor of the derived threshold [mm]."""
+    refit_anchor: bool = False
+    """Refit the anchor P0 and zero offset on the check poses (only after moving the sensor:
+    it absorbs part of a drift)."""
+    n_poses: Annotated[int, Field(ge=3, le=100)] = 8
+    """Default check poses: this many well-spread poses of the calibration's samples."""
+    pose_tol_deg: Annotated[float, Field(gt=0, le=10)] = 0.5
+    """A capture counts for a check pose within this on every joint [deg]."""
+    timeout_s: Annotated[float, Field(gt=0)] = 1800.0
+    """A check whose poses are not all captured after this long [s] fails."""
 
 
 def default_state_dir() -> Path:
@@ -101,9 +133,9 @@ class Settings(BaseSettings):
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     """TCP port of the REST API (0: any free port)."""
     api_token: SecretStr | None = None
-    """Bearer token required on every write route (``CABLECAL_API_TOKEN``). Unset on
-    loopback: a random token is generated at start-up and written to
-    ``STATE_DIR/api-token`` (mode 0600)."""
+    """Bearer token required on every write route (``CABLECAL_API_TOKEN``), at least
+    :data:`MIN_TOKEN_CHARS` characters. Unset on loopback: a random token is generated at
+    start-up and written to ``STATE_DIR/api-token`` (mode 0600)."""
     public_reads: bool = False
     """Serve the read routes (GET) without a token. ``/health`` and ``/metrics`` are always
     open."""
@@ -122,8 +154,23 @@ class Settings(BaseSettings):
     robot: RobotSettings = Field(default_factory=ManualRobotConfig)
     """The joint-angle source; ``kind`` manual (default), huashu-socketcmd or modbus-tcp."""
     jobs: JobSettings = JobSettings()
+    drift: DriftSettings = DriftSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
+
+    @field_validator("api_token")
+    @classmethod
+    def _token_length(cls, value: SecretStr | None) -> SecretStr | None:
+        """A short token can be guessed: refuse it at load time, naming the setting."""
+        if value is None or not value.get_secret_value():
+            return value
+        n = len(value.get_secret_value())
+        if n < MIN_TOKEN_CHARS:
+            raise ValueError(
+                f"too short: {n} characters, at least {MIN_TOKEN_CHARS} are required "
+                "(generate one with: python -c 'import secrets; print(secrets.token_hex(32))')"
+            )
+        return value
 
     @classmethod
     def settings_customise_sources(

@@ -5,11 +5,16 @@ Design
 * The pool is a :class:`~concurrent.futures.ProcessPoolExecutor` on the ``forkserver`` context
   (the daemon has threads, so plain ``fork`` is unsafe), with ``calib.identify`` preloaded so a
   job starts without re-importing numpy and scipy.
+* Every child (the workers and the manager) runs :func:`daemon.workers.init_child`: it exits
+  within moments of the daemon's death, even a SIGKILL, and runs at a lower priority with
+  ``worker_blas_threads`` BLAS threads, so the sampler keeps its poll rate during a job.
 * A job gets a snapshot of the campaign's included samples at submission time, as plain lists
   (no precision lost), the nominal model as a mapping, and the options as a mapping.
-* Progress comes back through a manager queue; cancellation goes out through a manager dict
-  the worker's progress callback polls, raising :class:`calib.solvers.common.Cancelled`. A queued
-  job is cancelled by cancelling its future.
+* Progress comes back through a manager queue; a thread takes it and commits the newest of each
+  job at most every ``PROGRESS_STORE_INTERVAL_S``, and a succeeded job's result is committed in
+  a thread too: the event loop, which also runs the sampler, never waits for those fsyncs.
+  Cancellation goes out through a manager dict the worker's progress callback polls, raising
+  :class:`calib.solvers.common.Cancelled`. A queued job is cancelled by cancelling its future.
 * The store holds every state change, so a restart finds each job queued, running or finished;
   :meth:`daemon.store.Store.mark_interrupted` turns the unfinished ones into ``failed``.
 """
@@ -21,9 +26,11 @@ import contextlib
 import logging
 import multiprocessing
 import queue
+import threading
 import time
 from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
+from multiprocessing.managers import SyncManager
 from typing import Any
 
 import numpy as np
@@ -31,11 +38,16 @@ import numpy as np
 from daemon import metrics
 from daemon.config import JobSettings
 from daemon.store import StoreNotFound
+from daemon.workers import init_child
 
 log = logging.getLogger("cablecal.jobs")
 
 #: Seconds between progress messages a worker sends (the last one is always sent).
 PROGRESS_INTERVAL_S = 0.2
+#: Seconds between two commits of progress to the store (the newest message of each job).
+PROGRESS_STORE_INTERVAL_S = 0.5
+#: Job states after which nothing changes.
+FINISHED = ("succeeded", "failed", "cancelled")
 
 
 #: Identification option name → its name in the REST request body, where they differ.
@@ -126,6 +138,9 @@ class JobManager:
         self._futures: dict[int, Future[dict[str, Any]]] = {}
         self._tasks: dict[int, asyncio.Task[None]] = {}
         self._pump: asyncio.Task[None] | None = None
+        # Held while a job's row is read and updated: the progress thread and the event loop.
+        self._row_lock = threading.Lock()
+        self._stopping = threading.Event()
 
     @property
     def active(self) -> int:
@@ -137,18 +152,28 @@ class JobManager:
         n = self.store.mark_interrupted()
         if n:
             log.warning("%d identification job(s) were interrupted by a restart", n)
+        self._stopping.clear()
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["calib.identify", "daemon.jobs"])
-        self._manager = ctx.Manager()
-        self._progress = self._manager.Queue()
-        self._cancel = self._manager.dict()
-        self._pool = ProcessPoolExecutor(max_workers=self.settings.workers, mp_context=ctx)
+        child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)
+        manager = SyncManager(ctx=ctx)
+        manager.start(initializer=init_child, initargs=child_args)
+        self._manager = manager
+        self._progress = manager.Queue()
+        self._cancel = manager.dict()
+        self._pool = ProcessPoolExecutor(
+            max_workers=self.settings.workers,
+            mp_context=ctx,
+            initializer=init_child,
+            initargs=child_args,
+        )
         # Warm the workers up now rather than in the first job.
         await asyncio.wrap_future(self._pool.submit(_noop))
         self._pump = asyncio.create_task(self._pump_progress(), name="job-progress")
 
     async def stop(self) -> None:
         """Cancel running jobs, stop the pool and the manager."""
+        self._stopping.set()
         for job_id in list(self._tasks):
             if self._cancel is not None:
                 self._cancel[job_id] = True
@@ -217,7 +242,7 @@ class JobManager:
         job = self.store.get_job(job_id)
         if job is None:
             raise StoreNotFound("identification", job_id)
-        if job["status"] in ("succeeded", "failed", "cancelled"):
+        if job["status"] in FINISHED:
             return dict(job)
         future = self._futures.get(job_id)
         if future is not None and future.cancel():
@@ -265,16 +290,7 @@ class JobManager:
         else:
             status = "succeeded"
             result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
-            plausible = bool(result.get("plausibility", {}).get("plausible", False))
-            accepted = self.settings.auto_accept and plausible
-            self.store.save_result(job_id, result, accepted=accepted)
-            if accepted:
-                message = "accepted"
-            elif not plausible:
-                message = "not accepted: parameters implausible"
-            else:
-                message = "not accepted automatically"
-            self._finish(job_id, status, message=message)
+            await asyncio.to_thread(self._succeeded, job_id, result)
         finally:
             metrics.JOBS.labels(method, status).inc()
             metrics.JOB_DURATION.labels(method, status).observe(time.monotonic() - t0)
@@ -283,6 +299,19 @@ class JobManager:
             if self._cancel is not None:
                 with contextlib.suppress(Exception):
                     self._cancel.pop(job_id, None)
+
+    def _succeeded(self, job_id: int, result: dict[str, Any]) -> None:
+        """Store a succeeded job's result (and accept it if plausible); runs in a thread."""
+        plausible = bool(result.get("plausibility", {}).get("plausible", False))
+        accepted = self.settings.auto_accept and plausible
+        self.store.save_result(job_id, result, accepted=accepted)
+        if accepted:
+            message = "accepted"
+        elif not plausible:
+            message = "not accepted: parameters implausible"
+        else:
+            message = "not accepted automatically"
+        self._finish(job_id, "succeeded", message=message)
 
     def _finish(
         self, job_id: int, status: str, message: str = "", error: str | None = None
@@ -294,21 +323,41 @@ class JobManager:
             fields["message"] = message
         if error is not None:
             fields["error"] = error
-        self.store.update_job(job_id, **fields)
+        with self._row_lock:
+            self.store.update_job(job_id, **fields)
         log.info("identification job %d %s", job_id, status, extra={"job_id": job_id})
 
     async def _pump_progress(self) -> None:
-        """Move progress messages from the workers into the store."""
-        while True:
+        """Move progress messages from the workers into the store (in a thread)."""
+        while not self._stopping.is_set():
             try:
-                job_id, fraction, message = await asyncio.to_thread(self._progress.get, True, 0.5)
-            except queue.Empty:
-                continue
+                await asyncio.to_thread(self._pump_batch)
             except (EOFError, OSError, BrokenPipeError):
                 return
+
+    def _pump_batch(self) -> None:
+        """Wait up to 0.5 s for progress, take every message queued, commit the newest of
+        each job, then wait ``PROGRESS_STORE_INTERVAL_S`` (runs in a thread)."""
+        try:
+            first = self._progress.get(True, 0.5)
+        except queue.Empty:
+            return
+        newest = {first[0]: first}
+        with contextlib.suppress(queue.Empty):
+            while True:
+                message = self._progress.get_nowait()
+                newest[message[0]] = message
+        for job_id, fraction, text in newest.values():
+            self._store_progress(int(job_id), float(fraction), str(text))
+        self._stopping.wait(PROGRESS_STORE_INTERVAL_S)
+
+    def _store_progress(self, job_id: int, fraction: float, message: str) -> None:
+        with self._row_lock:
+            if self._stopping.is_set():
+                return
             job = self.store.get_job(job_id)
-            if job is None or job["status"] in ("succeeded", "failed", "cancelled"):
-                continue
+            if job is None or job["status"] in FINISHED:
+                return
             fields: dict[str, Any] = {"progress": min(max(fraction, 0.0), 0.99), "message": message}
             if job["status"] == "queued":
                 fields.update(status="running", started_at=time.time())

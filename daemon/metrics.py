@@ -38,7 +38,7 @@ LAST_READING_AGE = Gauge(
 CAPTURES = Counter(
     "cablecal_captures",
     "Capture attempts by outcome; reason is 'ok' for accepted ones.",
-    ["outcome", "reason", "mode"],  # outcome: accepted | rejected
+    ["outcome", "reason", "mode"],  # outcome: accepted | rejected | failed (not stored)
     registry=REGISTRY,
 )
 JOBS = Counter(
@@ -59,5 +59,11 @@ HTTP_LATENCY = Histogram(
     "API request latency by route template and status code [s].",
     ["method", "route", "status"],
     buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1, 2.5),
+    registry=REGISTRY,
+)
+DRIFT_RMS = Gauge(
+    "cablecal_drift_rms_mm",
+    "RMS cable-length residual of the robot's last drift check against its calibration [mm].",
+    ["robot"],  # robot id
     registry=REGISTRY,
 )

@@ -152,7 +152,8 @@ class CellRunner:
             writer.close()
 
     async def command(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Execute one control command.
+        """Execute one control command. (Over 80 lines because this docstring is the control
+        port's reference; the dispatch itself is short.)
 
         Commands (``cmd``):
 

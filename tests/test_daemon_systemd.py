@@ -65,7 +65,7 @@ def test_ready_status_watchdog_and_a_hung_loop_stops_the_pings(tmp_path: Path) -
         "NOTIFY_SOCKET": str(tmp_path / "notify.sock"),
         "WATCHDOG_USEC": "1000000",  # WatchdogSec=1: a ping every 0.5 s
         "CABLECAL_STATE_DIR": str(tmp_path),
-        "CABLECAL_API_TOKEN": "tok",
+        "CABLECAL_API_TOKEN": "tok-0123456789abcdef",
         "CABLECAL_DEBUG_ROUTES": "true",
         "CABLECAL_INDICATOR__PORT": str(tmp_path / "no-such-adapter"),
         "CABLECAL_LOG_JSON": "true",
@@ -92,7 +92,7 @@ def test_ready_status_watchdog_and_a_hung_loop_stops_the_pings(tmp_path: Path) -
             httpx.post(
                 url + "/api/v1/debug/hang",
                 json={"seconds": 3.0},
-                headers={"Authorization": "Bearer tok"},
+                headers={"Authorization": "Bearer tok-0123456789abcdef"},
                 timeout=30,
             )
 

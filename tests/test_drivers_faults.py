@@ -179,8 +179,10 @@ async def test_huashu_late_replies_are_discarded() -> None:
             await robot.read_joints()
         s.control("fault", robot_reply_delay_s=0.0)
         await asyncio.sleep(0.1)  # the late reply is now in the socket buffer
+        # Hold the (moving) robot, so the truth read next is where it is when we read it: on a
+        # loaded machine the control round trip alone took long enough to move it ~1 deg.
+        truth = s.control("hold", on=True)["joints_deg"]
         reading = await robot.read_joints()
-        truth = s.control("state")["joints_deg"]
     finally:
         await robot.close()
         s.stop()

@@ -113,6 +113,8 @@ async def test_auto_mode_survives_a_failing_store_and_retries() -> None:
         await wait_until(lambda: len(sink.captures) == 1)
         await asyncio.sleep(3 * s.config.settle_s)
         assert s.running and len(sink.captures) == 1 and sink.failures == 0
+    failed = [e for e in sink.events if e[0] == "capture_failed"]
+    assert len(failed) == 2 and "database is locked" in failed[0][2], sink.events
 
 
 # --------------------------------------------------------------------------- emulated cell

@@ -26,7 +26,7 @@ from daemon.config import Settings
 from daemon.datafiles import read_samples
 from daemon.store import Store
 
-TOKEN = "test-token-123"
+TOKEN = "test-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 

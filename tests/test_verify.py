@@ -16,7 +16,8 @@ from calib.dataset import make_samples
 from calib.identify import IdentifyOptions, identify
 from calib.models import RobotModel, builtin_model
 from calib.synthetic import TrueCell, make_true_cell, noisy_lengths, random_poses_deg
-from calib.verify import VerifyOptions, aligned_rms_mm, rigid_align, verify
+from calib.tcp import aligned_position_error_mm
+from calib.verify import VerifyOptions, aligned_rms_mm, verify
 
 NOISE_MM = 0.05
 
@@ -95,10 +96,9 @@ def test_rigid_align_recovers_a_rigid_motion() -> None:
     pts = rng.uniform(-1000, 1000, size=(50, 3))
     rot = Rotation.from_rotvec([0.1, -0.2, 0.3])
     moved = rot.apply(pts) + np.array([10.0, -5.0, 2.0])
-    aligned, res = rigid_align(pts, moved)
-    np.testing.assert_allclose(aligned, moved, atol=1e-9)
-    assert res.max() < 1e-9
+    res = aligned_position_error_mm(pts, moved)
+    assert res.shape == (50,) and res.max() < 1e-9
     noisy = moved + rng.normal(0, 0.1, size=moved.shape)
     assert 0.1 < aligned_rms_mm(pts, noisy) < 0.2  # 3-D noise of 0.1 mm per axis: ~0.17
     with pytest.raises(ValueError, match="points_mm"):
-        rigid_align(pts[:, :2], moved[:, :2])
+        aligned_position_error_mm(pts[:, :2], moved[:, :2])

@@ -1,15 +1,17 @@
-"""Shared state and dependencies of the routes: the app state object and the auth checks."""
+"""Shared state and dependencies of the routes: the app state object, the auth checks, the
+id path parameters and the pagination of list routes."""
 
 from __future__ import annotations
 
-import hmac
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Annotated, Any
+from typing import Annotated, Any, Final
 
-from fastapi import Depends, HTTPException, Request, status
+from fastapi import Depends, HTTPException, Path, Query, Request, Response, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from daemon.api.guard import UNAUTHORIZED_DETAIL, token_matches
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store
@@ -28,6 +30,8 @@ class AppState:
     jobs : JobManager
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
+    drift : daemon.drift.DriftMonitor or None
+        None until the lifespan has started it.
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
     """
@@ -37,6 +41,7 @@ class AppState:
     store: Store
     jobs: JobManager
     sampler: Any = None
+    drift: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
 
 
@@ -52,10 +57,10 @@ _bearer = HTTPBearer(auto_error=False, description="Bearer token (CABLECAL_API_T
 
 
 def _check(state: AppState, creds: HTTPAuthorizationCredentials | None) -> None:
-    if creds is None or not hmac.compare_digest(creds.credentials.encode(), state.token.encode()):
+    if creds is None or not token_matches(f"Bearer {creds.credentials}", state.token):
         raise HTTPException(
             status_code=status.HTTP_401_UNAUTHORIZED,
-            detail="missing or wrong bearer token (Authorization: Bearer <CABLECAL_API_TOKEN>)",
+            detail=UNAUTHORIZED_DETAIL,
             headers={"WWW-Authenticate": "Bearer"},
         )
 
@@ -79,3 +84,64 @@ def require_read(
 
 WriteAuth = Depends(require_write)
 ReadAuth = Depends(require_read)
+
+
+# ------------------------------------------------------------------------------ ids, pages
+#: Largest row id (SQLite INTEGER is signed 64-bit): a larger one is a 422, not a 500.
+MAX_ID: Final = 2**63 - 1
+
+
+def _id(name: str) -> Any:
+    return Path(ge=1, le=MAX_ID, description=f"{name} id")
+
+
+CampaignId = Annotated[int, _id("Campaign")]
+SampleId = Annotated[int, _id("Sample")]
+JobId = Annotated[int, _id("Identification")]
+RobotId = Annotated[int, _id("Robot")]
+
+#: Rows of a list page: the default and the most a client may ask for.
+PAGE_DEFAULT: Final = 1000
+PAGE_MAX: Final = 10_000
+
+
+@dataclass(frozen=True)
+class Page:
+    """A page of a list route: rows with ``id > after_id``, by id, at most ``limit``.
+
+    The response is the JSON list of rows; when the page is full, a ``Link: <url>;
+    rel="next"`` header gives the next page (``after_id`` = the last id on this page). No
+    header: this was the last page.
+    """
+
+    after_id: int
+    limit: int
+
+
+def page(
+    after_id: int = Query(
+        0, ge=0, le=MAX_ID, description="Only rows with a larger id (the cursor of the next page)"
+    ),
+    limit: int = Query(
+        PAGE_DEFAULT, ge=1, le=PAGE_MAX, description=f"Rows per page (at most {PAGE_MAX})"
+    ),
+) -> Page:
+    """The ``after_id`` and ``limit`` query parameters of a list route."""
+    return Page(after_id, limit)
+
+
+Paged = Annotated[Page, Depends(page)]
+
+
+def link_next(
+    request: Request,
+    response: Response,
+    rows: Sequence[Mapping[str, Any]],
+    limit: int,
+    cursor: str = "after_id",
+) -> None:
+    """Set ``Link: <…?{cursor}=<last id>&limit=…>; rel="next"`` when the page is full."""
+    if len(rows) < limit or not rows:
+        return
+    url = request.url.include_query_params(**{cursor: int(rows[-1]["id"]), "limit": limit})
+    response.headers["Link"] = f'<{url.path}?{url.query}>; rel="next"'

@@ -4,22 +4,74 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    field_validator,
+)
 from typing_extensions import TypedDict
 
 from calib.options import Holdout, Method, PriorWeight, Robust, default, spec
 from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
+#: Longest campaign name, anchor id, exclusion reason and campaign notes [characters].
+MAX_NAME_CHARS = 200
+MAX_ANCHOR_CHARS = 32
+MAX_REASON_CHARS = 500
+MAX_NOTES_CHARS = 10_000
+
+
+def _no_surrogates(value: Any, where: str = "body") -> None:
+    """Raise ValueError if any string in ``value`` (recursively) cannot be UTF-8 (an unpaired
+    surrogate such as ``"\\ud800"``, which JSON can spell but SQLite cannot store)."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise ValueError(f"{where}: not valid Unicode text ({exc.reason})") from None
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _no_surrogates(k, where)
+            _no_surrogates(v, f"{where}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _no_surrogates(v, f"{where}[{i}]")
+
+
+def _not_blank(value: str) -> str:
+    if not value:
+        raise ValueError("must not be empty or blank")
+    return value
+
+
+_Stripped = StringConstraints(strip_whitespace=True)
+Name = Annotated[str, _Stripped, Field(max_length=MAX_NAME_CHARS), AfterValidator(_not_blank)]
+Anchor = Annotated[str, _Stripped, Field(max_length=MAX_ANCHOR_CHARS), AfterValidator(_not_blank)]
+Notes = Annotated[str, _Stripped, Field(max_length=MAX_NOTES_CHARS)]
+Reason = Annotated[str, _Stripped, Field(max_length=MAX_REASON_CHARS)]
+
 
 class _Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """Request bodies: no unknown keys, strict types (``"yes"`` is not a boolean, ``"1"`` not a
+    number), every string valid Unicode."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _unicode(cls, value: Any) -> Any:
+        _no_surrogates(value, "text")
+        return value
 
 
 class CampaignCreate(_Body):
     """A new calibration campaign."""
 
-    name: Annotated[str, Field(min_length=1, max_length=200)]
-    robot_model: str | dict[str, Any] = Field(
+    name: Name = Field(description=f"1..{MAX_NAME_CHARS} characters, not blank")
+    robot_model: Annotated[str, StringConstraints(max_length=64)] | dict[str, Any] = Field(
         "hsr-jr680",
         description=(
             "A built-in model name (hsr-jr680), or an uploaded model as a mapping: "
@@ -27,7 +79,7 @@ class CampaignCreate(_Body):
             "limits_deg}] (the TOML/JSON model file format of `cablecal identify --robot`)."
         ),
     )
-    notes: str = ""
+    notes: Notes = Field("", description=f"At most {MAX_NOTES_CHARS} characters")
 
 
 class CaptureRequest(_Body):
@@ -36,30 +88,31 @@ class CaptureRequest(_Body):
     joints_deg: Annotated[list[float], Field(min_length=6, max_length=6)] | None = Field(
         None, description="Joint angles [deg], only with the manual robot driver."
     )
-    anchor: Annotated[str, Field(min_length=1, max_length=32)] = Field(
-        "A", description="Sensor position id."
-    )
+    anchor: Anchor = Field("A", description="Sensor position id (not blank).")
 
 
 class AutoCapture(_Body):
     """Switch auto capture on or off."""
 
-    enabled: bool
-    anchor: Annotated[str, Field(min_length=1, max_length=32)] = "A"
+    enabled: bool = Field(description="JSON true or false (no strings, no numbers)")
+    anchor: Anchor = Field("A", description="Sensor position id (not blank).")
 
 
 class SamplePatch(_Body):
     """Exclude a sample from identification, or include it again."""
 
     excluded: bool
-    reason: str | None = Field(None, max_length=500)
+    reason: Reason | None = None
 
 
 def _option(name: str) -> Any:
     """The body field of identification option ``name``: default, bounds and description
     from :mod:`calib.options` (the literal types are imported from there too)."""
     sp = spec(name)
-    return Field(default(name), description=sp.help, gt=sp.gt, ge=sp.ge, lt=sp.lt)
+    return Field(default(name), description=sp.help, gt=sp.gt, ge=sp.ge, lt=sp.lt, le=sp.le)
+
+
+_ParamName = Annotated[str, StringConstraints(max_length=64)]
 
 
 class IdentificationRequest(_Body):
@@ -71,8 +124,12 @@ class IdentificationRequest(_Body):
     seed: int = _option("seed")
     holdout: Holdout = _option("holdout")
     robust: Robust = _option("robust")
-    fixed: list[str] = Field(default_factory=list, description=spec("fix").help)
-    free: list[str] = Field(default_factory=list, description=spec("free").help)
+    fixed: Annotated[list[_ParamName], Field(max_length=200)] = Field(
+        default_factory=list, description=spec("fix").help
+    )
+    free: Annotated[list[_ParamName], Field(max_length=200)] = Field(
+        default_factory=list, description=spec("free").help
+    )
     prior: bool = _option("prior")
     prior_mm: float = _option("prior_mm")
     prior_deg: float = _option("prior_deg")
@@ -134,4 +191,5 @@ class ServiceStatus(TypedDict):
     devices: dict[str, Any]
     sampler: dict[str, Any] | None
     jobs: dict[str, Any]
+    drift: dict[str, Any] | None
     uptime_s: float

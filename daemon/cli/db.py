@@ -5,7 +5,8 @@ format ``cablecal identify`` reads (included samples only); the JSON has the cam
 robot and every sample with std, count, timestamps and the excluded flag.
 
 The file is opened read-only, so exporting next to a running daemon is safe (WAL readers do
-not block the writer).
+not block the writer). ``--out`` never overwrites the database (nor its WAL or shared-memory
+file, also through a symlink or a hard link) or any other SQLite file: exit 2, nothing written.
 
 The store (sqlite-utils) is imported when the command runs, not when the command line is built.
 """
@@ -14,6 +15,8 @@ from __future__ import annotations
 
 import enum
 import json
+import os
+import stat
 from pathlib import Path
 from typing import Annotated
 
@@ -25,6 +28,9 @@ err_console = Console(stderr=True)
 
 EXIT_NOT_FOUND = 2  # no such campaign, or a bad argument
 EXIT_DB_ERROR = 1  # the database cannot be opened or read
+
+#: The first 16 bytes of every SQLite 3 database file.
+SQLITE_HEADER = b"SQLite format 3\x00"
 
 db_app = typer.Typer(
     name="db",
@@ -55,6 +61,41 @@ def _database_path(db: Path | None, config: Path | None) -> Path:
     return Settings.load(config).database_path
 
 
+def _same_file(a: os.stat_result, b: Path) -> bool:
+    try:
+        other = b.stat()
+    except OSError:
+        return False
+    return (a.st_dev, a.st_ino) == (other.st_dev, other.st_ino)
+
+
+def refuse_output(out: Path, database: Path) -> str | None:
+    """Why ``--out`` must not be written, or None: it is the database itself or one of its
+    ``-wal``/``-shm``/``-journal`` files (compared by device and inode, so a symlink or a hard
+    link is caught too), or any SQLite database (its first 16 bytes)."""
+    from daemon.store.db import SIDE_FILE_SUFFIXES
+
+    try:
+        st = out.stat()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        return f"--out {out}: {exc.strerror}"
+    for suffix in ("", *SIDE_FILE_SUFFIXES):
+        if _same_file(st, database.with_name(database.name + suffix)):
+            what = "the database" if not suffix else f"the database's {suffix} file"
+            return f"--out {out} is {what} {database}; refusing to overwrite it"
+    if stat.S_ISREG(st.st_mode):
+        try:
+            with out.open("rb") as f:
+                header = f.read(len(SQLITE_HEADER))
+        except OSError as exc:
+            return f"--out {out}: {exc.strerror}"
+        if header == SQLITE_HEADER:
+            return f"--out {out} is an SQLite database; refusing to overwrite it"
+    return None
+
+
 @db_app.command("export")
 def export_cmd(
     campaign: Annotated[str, typer.Argument(help="Campaign id, or its name if unique")],
@@ -83,6 +124,8 @@ def export_cmd(
         path = _database_path(db, config)
     except ValueError as exc:  # ConfigError and pydantic's ValidationError
         raise _fail(f"configuration: {exc}", EXIT_NOT_FOUND) from None
+    if out is not None and (refusal := refuse_output(out, path)) is not None:
+        raise _fail(refusal, EXIT_NOT_FOUND)
     try:
         with Store(path, readonly=True) as store:
             found = store.find_campaign(campaign)

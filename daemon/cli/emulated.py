@@ -194,7 +194,7 @@ class Cell:
         self,
         workdir: Path,
         sim_toml: str,
-        token: str = "cell-test-token",
+        token: str = "cell-test-token-emulated",
         daemon_env: dict[str, str] | None = None,
     ) -> None:
         self.workdir = workdir

@@ -121,105 +121,116 @@ def summary_renderables(data: dict[str, Any], has_start: bool = False) -> list[R
     return out
 
 
+PLAN_HELP = (
+    "Plan the poses of a campaign (D-optimal on the identifiable parameters) and print "
+    "the predicted accuracy against as many random poses."
+)
+
+
+def plan_cmd(
+    out: Annotated[Path, typer.Option(help="Write the plan CSV here (q1..q6 [deg], …)")],
+    robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
+        "hsr-jr680"
+    ),
+    anchor_mm: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Sensor anchor guess X,Y,Z [mm] in the robot base frame; repeat "
+            "for several anchors (default with --start: the start data's)"
+        ),
+    ] = None,
+    anchor_id: Annotated[
+        list[str] | None, typer.Option(help="Id per --anchor-mm (default A, B, …)")
+    ] = None,
+    n: Annotated[int | None, typer.Option(help="Poses to plan, all anchors (40)")] = None,
+    min_z_mm: Annotated[
+        float | None, typer.Option(help="Flange and tool point above this z [mm] (0)")
+    ] = None,
+    candidates: Annotated[
+        int | None, typer.Option(help="Random feasible candidate poses (3000)")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed (0)")] = None,
+    start: Annotated[
+        Path | None, typer.Option(help="CSV of poses already measured (identify's format)")
+    ] = None,
+    extension_mm: Annotated[
+        str | None, typer.Option(help="Allowed cable extension MIN,MAX [mm] (50,1950)")
+    ] = None,
+    anchor_uncertainty_mm: Annotated[
+        float | None, typer.Option(help="How far the anchor guess may be off [mm] (30)")
+    ] = None,
+    noise_mm: Annotated[
+        float | None, typer.Option(help="1σ length noise for the predictions [mm] (0.05)")
+    ] = None,
+    joint_speed_deg_s: Annotated[
+        str | None,
+        typer.Option(help="Six joint speeds [deg/s] (30,30,30,45,45,60)"),
+    ] = None,
+    dwell_s: Annotated[
+        float | None, typer.Option(help="Settle and read time per pose [s] (3)")
+    ] = None,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Write the summary as JSON here")
+    ] = None,
+) -> None:
+    """Plan the poses of a campaign (D-optimal on the identifiable parameters) and print
+    the predicted accuracy against as many random poses.
+
+    Over 80 lines only because its options are declared in its signature (typer's way); the
+    body is short. ``--help`` shows :data:`PLAN_HELP`, not this docstring.
+    """
+    from calib.dataset import SampleError
+    from calib.models import ModelError
+    from calib.planning import PlanOptions, plan, start_anchors_mm
+    from daemon.datafiles import load_robot, read_samples
+
+    console = Console()  # created here so COLUMNS is read at run time
+    try:
+        model = load_robot(robot)
+        kw: dict[str, Any] = {
+            k: v
+            for k, v in (("n", n), ("min_z_mm", min_z_mm), ("candidates", candidates),
+                         ("seed", seed), ("anchor_uncertainty_mm", anchor_uncertainty_mm),
+                         ("noise_mm", noise_mm), ("dwell_s", dwell_s))
+            if v is not None
+        }  # fmt: skip
+        if extension_mm is not None:
+            kw["extension_mm"] = parse_floats(extension_mm, "--extension-mm", 2,
+                                              "MIN,MAX in mm")  # fmt: skip
+        if joint_speed_deg_s is not None:
+            kw["joint_speed_deg_s"] = parse_floats(
+                joint_speed_deg_s, "--joint-speed-deg-s", 6, "six speeds in deg/s"
+            )
+        samples = read_samples(start) if start is not None else None
+        anchors = [parse_floats(a, "--anchor-mm", 3, "X,Y,Z in mm") for a in anchor_mm or []]
+        ids = list(anchor_id or [])
+        if not anchors:
+            if samples is None:
+                raise ValueError("--anchor-mm: required (X,Y,Z in mm) without --start")
+            found = start_anchors_mm(model, samples)
+            anchors, ids = [tuple(p0.tolist()) for p0 in found.values()], list(found)
+        if ids and len(ids) != len(anchors):
+            raise ValueError(f"--anchor-id: {len(ids)} ids for {len(anchors)} anchors")
+        if ids:
+            kw["anchor_ids"] = tuple(ids)
+        opts = PlanOptions(**kw)
+        with console.status("planning…"):
+            res = plan(model, anchors, opts, start=samples)  # type: ignore[arg-type]
+    except SampleError as exc:
+        raise _fail(f"--start {start}: {exc}") from None
+    except ModelError as exc:
+        raise _fail(f"--robot: {exc}") from None
+    except ValueError as exc:
+        raise _fail(option_error(str(exc))) from None
+    data = res.to_json()
+    for item in summary_renderables(data, has_start=samples is not None):
+        console.print(item)
+    out.write_text(res.to_csv(), encoding="utf-8")
+    console.print(f"wrote {out} ({data['n_poses']} poses)")
+    if json_out is not None:
+        json_out.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+
 def register(app: typer.Typer) -> None:
     """Add ``plan`` to ``app``."""
-
-    @app.command("plan")
-    def plan_cmd(
-        out: Annotated[Path, typer.Option(help="Write the plan CSV here (q1..q6 [deg], …)")],
-        robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
-            "hsr-jr680"
-        ),
-        anchor_mm: Annotated[
-            list[str] | None,
-            typer.Option(
-                help="Sensor anchor guess X,Y,Z [mm] in the robot base frame; repeat "
-                "for several anchors (default with --start: the start data's)"
-            ),
-        ] = None,
-        anchor_id: Annotated[
-            list[str] | None, typer.Option(help="Id per --anchor-mm (default A, B, …)")
-        ] = None,
-        n: Annotated[int | None, typer.Option(help="Poses to plan, all anchors (40)")] = None,
-        min_z_mm: Annotated[
-            float | None, typer.Option(help="Flange and tool point above this z [mm] (0)")
-        ] = None,
-        candidates: Annotated[
-            int | None, typer.Option(help="Random feasible candidate poses (3000)")
-        ] = None,
-        seed: Annotated[int | None, typer.Option(help="Random seed (0)")] = None,
-        start: Annotated[
-            Path | None, typer.Option(help="CSV of poses already measured (identify's format)")
-        ] = None,
-        extension_mm: Annotated[
-            str | None, typer.Option(help="Allowed cable extension MIN,MAX [mm] (50,1950)")
-        ] = None,
-        anchor_uncertainty_mm: Annotated[
-            float | None, typer.Option(help="How far the anchor guess may be off [mm] (30)")
-        ] = None,
-        noise_mm: Annotated[
-            float | None, typer.Option(help="1σ length noise for the predictions [mm] (0.05)")
-        ] = None,
-        joint_speed_deg_s: Annotated[
-            str | None,
-            typer.Option(help="Six joint speeds [deg/s] (30,30,30,45,45,60)"),
-        ] = None,
-        dwell_s: Annotated[
-            float | None, typer.Option(help="Settle and read time per pose [s] (3)")
-        ] = None,
-        json_out: Annotated[
-            Path | None, typer.Option("--json", help="Write the summary as JSON here")
-        ] = None,
-    ) -> None:
-        """Plan the poses of a campaign (D-optimal on the identifiable parameters) and print
-        the predicted accuracy against as many random poses."""
-        from calib.dataset import SampleError
-        from calib.models import ModelError
-        from calib.planning import PlanOptions, plan, start_anchors_mm
-        from daemon.datafiles import load_robot, read_samples
-
-        console = Console()  # created here so COLUMNS is read at run time
-        try:
-            model = load_robot(robot)
-            kw: dict[str, Any] = {
-                k: v
-                for k, v in (("n", n), ("min_z_mm", min_z_mm), ("candidates", candidates),
-                             ("seed", seed), ("anchor_uncertainty_mm", anchor_uncertainty_mm),
-                             ("noise_mm", noise_mm), ("dwell_s", dwell_s))
-                if v is not None
-            }  # fmt: skip
-            if extension_mm is not None:
-                kw["extension_mm"] = parse_floats(extension_mm, "--extension-mm", 2,
-                                                  "MIN,MAX in mm")  # fmt: skip
-            if joint_speed_deg_s is not None:
-                kw["joint_speed_deg_s"] = parse_floats(
-                    joint_speed_deg_s, "--joint-speed-deg-s", 6, "six speeds in deg/s"
-                )
-            samples = read_samples(start) if start is not None else None
-            anchors = [parse_floats(a, "--anchor-mm", 3, "X,Y,Z in mm") for a in anchor_mm or []]
-            ids = list(anchor_id or [])
-            if not anchors:
-                if samples is None:
-                    raise ValueError("--anchor-mm: required (X,Y,Z in mm) without --start")
-                found = start_anchors_mm(model, samples)
-                anchors, ids = [tuple(p0.tolist()) for p0 in found.values()], list(found)
-            if ids and len(ids) != len(anchors):
-                raise ValueError(f"--anchor-id: {len(ids)} ids for {len(anchors)} anchors")
-            if ids:
-                kw["anchor_ids"] = tuple(ids)
-            opts = PlanOptions(**kw)
-            with console.status("planning…"):
-                res = plan(model, anchors, opts, start=samples)  # type: ignore[arg-type]
-        except SampleError as exc:
-            raise _fail(f"--start {start}: {exc}") from None
-        except ModelError as exc:
-            raise _fail(f"--robot: {exc}") from None
-        except ValueError as exc:
-            raise _fail(option_error(str(exc))) from None
-        data = res.to_json()
-        for item in summary_renderables(data, has_start=samples is not None):
-            console.print(item)
-        out.write_text(res.to_csv(), encoding="utf-8")
-        console.print(f"wrote {out} ({data['n_poses']} poses)")
-        if json_out is not None:
-            json_out.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    app.command("plan", help=PLAN_HELP)(plan_cmd)

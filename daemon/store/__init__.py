@@ -11,6 +11,7 @@ manager, ``cablecal db``). It is assembled from one module per concern:
 - :mod:`.jobs`: jobs, results, the calibrated model.
 - :mod:`.events`: the event log.
 - :mod:`.plans`: pose plans of campaigns.
+- :mod:`.checks`: drift checks and check poses.
 - :mod:`.rows`: the typed rows every method returns; :mod:`.errors`: the exceptions.
 
 Values returned
@@ -35,6 +36,7 @@ Units and time
 from __future__ import annotations
 
 from daemon.store.campaigns import EXPORT_FORMAT, EXPORT_FORMAT_VERSION, CampaignStore
+from daemon.store.checks import CheckPoses, CheckRow, CheckStore
 from daemon.store.db import BUSY_TIMEOUT_MS, DB_FILENAME, Row
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.events import EventStore
@@ -68,7 +70,7 @@ from daemon.store.schema import (
 )
 
 
-class Store(CampaignStore, JobStore, EventStore, PlanStore):
+class Store(CampaignStore, JobStore, EventStore, PlanStore, CheckStore):
     """The SQLite store. Implements :class:`daemon.capture.CaptureSink`.
 
     ``Store(path)`` opens the file, creating or migrating it; ``Store(path, readonly=True)``
@@ -97,6 +99,8 @@ __all__ = [
     "CalibratedModel",
     "CampaignExport",
     "CampaignRow",
+    "CheckPoses",
+    "CheckRow",
     "EventRow",
     "ExportedSample",
     "JobRow",

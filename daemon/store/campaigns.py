@@ -7,8 +7,8 @@ against the campaign robot's joint limits before anything is written.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Final, cast
+from collections.abc import Iterator, Sequence
+from typing import Any, Final, cast
 
 import numpy as np
 
@@ -101,24 +101,32 @@ def _raw_records(capture: Capture) -> list[Row]:
     return raw
 
 
-def _import_records(campaign_id: int, samples: SampleSet) -> list[Row]:
-    """The ``samples`` rows of an import (source ``import``, no std, count or timestamps)."""
+#: Columns of an imported sample, in the order of :func:`_import_batches`' tuples.
+_IMPORT_COLUMNS = ("campaign_id", *_Q, "length_mm", "anchor", "excluded", "source",
+                   "pose_group", "created_at")  # fmt: skip
+#: Rows per ``executemany`` of an import (all batches run in one transaction).
+IMPORT_BATCH_ROWS: Final = 5000
+
+
+def _import_batches(campaign_id: int, samples: SampleSet) -> Iterator[Iterator[tuple[Any, ...]]]:
+    """The ``samples`` rows of an import (source ``import``, no std, count or timestamps), as
+    tuples in :data:`_IMPORT_COLUMNS` order, :data:`IMPORT_BATCH_ROWS` at a time. Each batch
+    is a generator: its tuples live only until SQLite has bound them."""
     created_at = now()
-    records: list[Row] = []
-    for i in range(len(samples)):
-        rec: Row = {"campaign_id": campaign_id}
-        rec.update(zip(_Q, (float(v) for v in samples.joints_deg[i]), strict=True))
-        group = samples.group[i] if samples.group is not None else None
-        rec.update(
-            length_mm=float(samples.length_mm[i]),
-            anchor=_anchor(samples.anchor[i], f"anchor (row {samples.line_of(i)})"),
-            excluded=False,
-            source="import",
-            pose_group=group or None,
-            created_at=created_at,
-        )
-        records.append(rec)
-    return records
+    anchors = [
+        _anchor(a, f"anchor (row {samples.line_of(i)})") for i, a in enumerate(samples.anchor)
+    ]
+    groups = samples.group
+    for start in range(0, len(samples), IMPORT_BATCH_ROWS):
+        stop = min(start + IMPORT_BATCH_ROWS, len(samples))
+        # Per batch: a whole-array tolist() would hold the GIL for a second at 500k rows.
+        q = samples.joints_deg[start:stop].tolist()
+        lengths = samples.length_mm[start:stop].tolist()
+        yield (
+            (campaign_id, *q[i - start], lengths[i - start], anchors[i], 0, "import",
+             (groups[i] or None) if groups is not None else None, created_at)
+            for i in range(start, stop)
+        )  # fmt: skip
 
 
 class CampaignStore(RobotStore):
@@ -162,9 +170,13 @@ class CampaignStore(RobotStore):
         """A campaign (see :meth:`campaign`), or None."""
         return or_none(self.campaign, campaign_id)
 
-    def list_campaigns(self) -> list[CampaignRow]:
-        """Every campaign, by id, with sample counts (see :meth:`campaign`)."""
-        rows = self._query(_CAMPAIGN_SELECT + " ORDER BY c.id")
+    def list_campaigns(self, after_id: int = 0, limit: int | None = None) -> list[CampaignRow]:
+        """Campaigns with ``id > after_id``, by id, at most ``limit`` (None: all), with sample
+        counts (see :meth:`campaign`)."""
+        rows = self._query(
+            _CAMPAIGN_SELECT + " WHERE c.id > ? ORDER BY c.id LIMIT ?",
+            [after_id, -1 if limit is None else limit],
+        )
         return [_campaign_out(r) for r in rows]
 
     def find_campaign(self, ref: str) -> CampaignRow:
@@ -190,18 +202,37 @@ class CampaignStore(RobotStore):
 
     def set_auto_capture(self, campaign_id: int, enabled: bool, anchor: str = "A") -> CampaignRow:
         """Switch auto capture on or off; ``anchor`` is the sensor position id to capture with.
+        Switching on switches every other campaign off, in the same transaction (auto capture
+        goes to one campaign at a time).
 
         Raises
         ------
         StoreNotFound
+        StoreInvalid
+            A blank anchor (nothing is changed).
         """
         anchor = _anchor(anchor)
         with self._write():
             self._require("campaigns", "campaign", campaign_id)
+            if enabled:
+                self.conn.execute(
+                    "UPDATE campaigns SET auto_capture = 0 WHERE auto_capture = 1 AND id != ?",
+                    (campaign_id,),
+                )
             self._table("campaigns").update(
                 campaign_id, {"auto_capture": bool(enabled), "auto_anchor": anchor}
             )
             return self.campaign(campaign_id)
+
+    def restore_auto_capture(self, rows: Sequence[CampaignRow]) -> None:
+        """Put auto capture back as it was: exactly the campaigns of ``rows`` (an earlier
+        :meth:`auto_capture_campaigns`) on, with their anchors; one transaction."""
+        with self._write():
+            self.conn.execute("UPDATE campaigns SET auto_capture = 0 WHERE auto_capture = 1")
+            for row in rows:
+                self._table("campaigns").update(
+                    int(row["id"]), {"auto_capture": True, "auto_anchor": row["auto_anchor"]}
+                )
 
     def auto_capture_campaigns(self) -> list[CampaignRow]:
         """Campaigns with auto capture on (to resume after a restart), by id."""
@@ -240,7 +271,10 @@ class CampaignStore(RobotStore):
 
         Checks first: finite values, lengths within the sensor range, and joint angles within
         the campaign robot's limits. CSV text is parsed by the caller
-        (:func:`calib.dataset.parse_samples_csv`).
+        (:func:`calib.dataset.parse_samples_csv`). The checks run without the store's lock;
+        the rows are then inserted :data:`IMPORT_BATCH_ROWS` at a time in one ``BEGIN
+        IMMEDIATE`` transaction. The service calls this from a worker thread, off the event
+        loop.
 
         Returns
         -------
@@ -254,21 +288,31 @@ class CampaignStore(RobotStore):
         calib.dataset.SampleError
             Naming the row (``samples.line``) and column; nothing is stored.
         """
-        with self._lock:
-            campaign = self._require("campaigns", "campaign", campaign_id)
-            validate_values(samples)
-            validate_joint_limits(samples, self.robot_model(int(campaign["robot_id"])))
-            records = _import_records(campaign_id, samples)
-            with self._write():
-                before = self.conn.execute("SELECT coalesce(max(id), 0) FROM samples").fetchone()
-                self._table("samples").insert_all(records)
-                rows = self.conn.execute(
-                    "SELECT id FROM samples WHERE id > ? ORDER BY id", (int(before[0]),)
-                ).fetchall()
-                ids = [int(r[0]) for r in rows]
-                if len(ids) != len(records):  # cannot happen with one writer; never half-store
-                    raise StoreError(f"import stored {len(ids)} rows, expected {len(records)}")
-            return ids
+        campaign = self._require("campaigns", "campaign", campaign_id)
+        if len(samples) == 0:
+            return []
+        validate_values(samples)  # checked before the write lock is taken
+        validate_joint_limits(samples, self.robot_model(int(campaign["robot_id"])))
+        sql = (
+            f"INSERT INTO samples ({', '.join(_IMPORT_COLUMNS)}) "
+            f"VALUES ({', '.join('?' * len(_IMPORT_COLUMNS))})"
+        )
+        with self._write():
+            self._require("campaigns", "campaign", campaign_id)  # not deleted meanwhile
+            before = int(
+                self.conn.execute("SELECT coalesce(max(id), 0) FROM samples").fetchone()[0]
+            )
+            for batch in _import_batches(campaign_id, samples):
+                self.conn.executemany(sql, batch)
+            # One writer inside one transaction: the new rows have the ids before+1..before+n
+            # in insert order. Checked, never assumed (and no 500k-tuple fetch).
+            count, low, high = self.conn.execute(
+                "SELECT count(*), min(id), max(id) FROM samples WHERE id > ?", (before,)
+            ).fetchone()
+            n = len(samples)
+            if (count, low, high) != (n, before + 1, before + n):  # never half-store
+                raise StoreError(f"import stored ids {low}..{high} ({count} rows), expected {n}")
+        return list(range(before + 1, before + n + 1))
 
     def sample(self, sample_id: int) -> SampleRow:
         """A sample row. Columns: ``id, campaign_id, q1..q6 [deg], length_mm, anchor,
@@ -285,8 +329,14 @@ class CampaignStore(RobotStore):
         """A sample row (see :meth:`sample`), or None."""
         return or_none(self.sample, sample_id)
 
-    def list_samples(self, campaign_id: int, include_excluded: bool = True) -> list[SampleRow]:
-        """A campaign's samples, by id.
+    def list_samples(
+        self,
+        campaign_id: int,
+        include_excluded: bool = True,
+        after_id: int = 0,
+        limit: int | None = None,
+    ) -> list[SampleRow]:
+        """A campaign's samples with ``id > after_id``, by id, at most ``limit`` (None: all).
 
         Raises
         ------
@@ -294,8 +344,12 @@ class CampaignStore(RobotStore):
         """
         with self._lock:
             self._require("campaigns", "campaign", campaign_id)
-            where = "campaign_id = ?" + ("" if include_excluded else " AND excluded = 0")
-            rows = list(self._table("samples").rows_where(where, [campaign_id], order_by="id"))
+            where = "campaign_id = ? AND id > ?" + ("" if include_excluded else " AND excluded = 0")
+            rows = list(
+                self._table("samples").rows_where(
+                    where, [campaign_id, after_id], order_by="id", limit=limit
+                )
+            )
         return [cast(SampleRow, decode_row(r)) for r in rows]
 
     def raw_readings(self, sample_id: int) -> list[RawReading]:

@@ -11,6 +11,12 @@ One writer
     Multi-row writes run in one ``BEGIN IMMEDIATE`` transaction (sqlite-utils 4 nests its own
     ``atomic()`` blocks inside it as savepoints): all or nothing.
 
+File modes
+    A new database is created 0640 (less the umask); SQLite gives the ``-wal`` and ``-shm``
+    files the database's mode, and an older file readable by others loses those bits on the
+    next read-write open. Under systemd (``UMask=0027``) the ``cablecal`` group, operators,
+    may read it; nobody else may.
+
 Read-only open
     ``readonly=True`` opens an existing file with ``mode=ro`` (``cablecal db export`` next to
     a running daemon): nothing is created or migrated, and the file must be at the current
@@ -25,7 +31,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sqlite3
+import stat
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -51,6 +59,10 @@ Row = dict[str, Any]
 
 DB_FILENAME: Final = "cablecal.sqlite3"
 BUSY_TIMEOUT_MS: Final = 5000
+#: Mode of a new database file (the umask may remove more); never readable by others.
+DB_FILE_MODE: Final = 0o640
+#: The files SQLite keeps next to the database (WAL mode: -wal, -shm; rollback: -journal).
+SIDE_FILE_SUFFIXES: Final = ("-wal", "-shm", "-journal")
 
 _BOOL_COLUMNS = ("excluded", "auto_capture", "interrupted", "accepted")
 _JSON_COLUMNS = ("model_json", "options_json", "result_json", "detail_json")
@@ -119,6 +131,32 @@ def or_none(lookup: Callable[[int], T], row_id: int) -> T | None:
         return None
 
 
+# ----------------------------------------------------------------------------- file modes
+def create_private(path: Path) -> bool:
+    """Create ``path`` empty with mode 0640 (less what the umask removes) unless it exists;
+    returns True if it was created. SQLite gives its ``-wal`` and ``-shm`` files the mode of
+    the database file, so none of the three is ever world-readable, whatever the umask."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, DB_FILE_MODE)
+    except FileExistsError:
+        return False
+    os.close(fd)
+    return True
+
+
+def restrict_modes(path: Path) -> None:
+    """Remove the "others" permission bits from the database and its ``-wal``, ``-shm`` and
+    ``-journal`` files (a database from before modes were set); a file we may not chmod (not
+    ours) is left as it is."""
+    for file in (path, *(path.with_name(path.name + s) for s in SIDE_FILE_SUFFIXES)):
+        try:
+            mode = stat.S_IMODE(file.stat().st_mode)
+            if mode & 0o007:
+                os.chmod(file, mode & ~0o007)
+        except (FileNotFoundError, PermissionError):
+            continue
+
+
 # --------------------------------------------------------------------------- connection
 class StoreDB:
     """One SQLite file: the connection, its pragmas, the lock and the write transaction.
@@ -152,12 +190,15 @@ class StoreDB:
             )
         else:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            create_private(self.path)
             conn = sqlite3.connect(
                 str(self.path), check_same_thread=False, timeout=BUSY_TIMEOUT_MS / 1000
             )
         self._conn: sqlite3.Connection | None = conn
         try:
             self._setup(conn)
+            if not readonly:
+                restrict_modes(self.path)
         except sqlite3.DatabaseError as exc:
             conn.close()
             self._conn = None

@@ -8,7 +8,6 @@ calibrated model.
 
 from __future__ import annotations
 
-import json
 from typing import Any, Final, cast
 
 from daemon.store.db import Row, StoreDB, decode_row, finite, last_id, now, or_none, to_json
@@ -122,15 +121,15 @@ class JobStore(StoreDB):
         """A job row (see :meth:`job`), or None."""
         return or_none(self.job, job_id)
 
-    def list_jobs(self, campaign_id: int | None = None) -> list[JobRow]:
-        """Jobs by id, all or one campaign's."""
+    def list_jobs(
+        self, campaign_id: int | None = None, after_id: int = 0, limit: int | None = None
+    ) -> list[JobRow]:
+        """Jobs with ``id > after_id`` by id, all or one campaign's, at most ``limit``
+        (None: all)."""
+        where = "id > ?" + ("" if campaign_id is None else " AND campaign_id = ?")
+        params = [after_id] + ([] if campaign_id is None else [campaign_id])
         with self._lock:
-            if campaign_id is None:
-                rows = list(self._table("jobs").rows_where(order_by="id"))
-            else:
-                rows = list(
-                    self._table("jobs").rows_where("campaign_id = ?", [campaign_id], order_by="id")
-                )
+            rows = list(self._table("jobs").rows_where(where, params, order_by="id", limit=limit))
         return [cast(JobRow, decode_row(r)) for r in rows]
 
     def mark_interrupted(self) -> int:
@@ -208,18 +207,12 @@ class JobStore(StoreDB):
         """
         with self._lock:
             robot = self._require("robots", "robot", robot_id)
-            row = self._one(
-                "SELECT * FROM results WHERE robot_id = ? AND accepted = 1 ORDER BY id DESC "
-                "LIMIT 1",
-                [robot_id],
-            )
-        if row is None:
-            raise StoreNotFound("robot", robot_id, NO_CALIBRATION)
-        result = json.loads(row["result_json"])
+            row = self.accepted_result(robot_id)
+        result = row["result"]
         return {
             "robot_id": robot_id,
             "robot": robot["name"],
-            "convention": result.get("convention", robot["convention"]),
+            "convention": str(result.get("convention") or robot["convention"]),
             "dh": result.get("dh"),
             "tool_mm": result.get("tool_mm"),
             "method": result.get("method"),
@@ -229,6 +222,26 @@ class JobStore(StoreDB):
             "created_at": row["created_at"],
             "metrics": (result.get("metrics") or {}).get("after"),
         }
+
+    def accepted_result(self, robot_id: int) -> ResultRow:
+        """The newest accepted result of a robot (``result`` decoded: the ``result.json``
+        mapping the calibrated model, compensation and drift checks use).
+
+        Raises
+        ------
+        StoreNotFound
+            No such robot, or (reason :data:`NO_CALIBRATION`) no accepted result for it.
+        """
+        with self._lock:
+            self._require("robots", "robot", robot_id)
+            row = self._one(
+                "SELECT * FROM results WHERE robot_id = ? AND accepted = 1 ORDER BY id DESC "
+                "LIMIT 1",
+                [robot_id],
+            )
+        if row is None:
+            raise StoreNotFound("robot", robot_id, NO_CALIBRATION)
+        return cast(ResultRow, decode_row(row))
 
     def latest_calibrated_model(self, robot_id: int) -> CalibratedModel | None:
         """The newest accepted result's calibrated model (see :meth:`calibrated_model`), or

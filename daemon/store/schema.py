@@ -151,11 +151,47 @@ def _migration_3(conn: sqlite3.Connection) -> None:
     conn.execute("CREATE INDEX plans_campaign_id ON plans(campaign_id)")
 
 
+def _migration_4(conn: sqlite3.Connection) -> None:
+    # Drift checks (daemon.store.checks, daemon.drift): the check poses of each robot and the
+    # history of checks.
+    statements = [
+        """CREATE TABLE check_poses (
+            robot_id INTEGER PRIMARY KEY REFERENCES robots(id),
+            poses_json TEXT NOT NULL,
+            updated_at REAL NOT NULL
+        )""",
+        """CREATE TABLE checks (
+            id INTEGER PRIMARY KEY,
+            robot_id INTEGER NOT NULL REFERENCES robots(id),
+            campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
+            result_id INTEGER NOT NULL REFERENCES results(id),
+            trigger TEXT NOT NULL CHECK (trigger IN ('manual', 'schedule')),
+            status TEXT NOT NULL CHECK (status IN ('running', 'ok', 'drift', 'failed')),
+            refit_anchor INTEGER NOT NULL CHECK (refit_anchor IN (0, 1)),
+            threshold_mm REAL NOT NULL CHECK (threshold_mm > 0),
+            rms_mm REAL,
+            mae_mm REAL,
+            max_mm REAL,
+            n INTEGER,
+            error TEXT,
+            started_at REAL NOT NULL,
+            finished_at REAL,
+            poses_json TEXT NOT NULL,
+            detail_json TEXT
+        )""",
+        "CREATE INDEX checks_robot_id ON checks(robot_id)",
+        "CREATE INDEX checks_status ON checks(status)",
+    ]
+    for sql in statements:
+        conn.execute(sql)
+
+
 #: The schema history, oldest first; ``version`` is the position (1-based).
 MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
     Migration(2, "jobs, results, events; samples.pose_group", _migration_2),
     Migration(3, "plans", _migration_3),
+    Migration(4, "drift checks: check_poses, checks", _migration_4),
 )
 SCHEMA_VERSION: Final = MIGRATIONS[-1].version
 

@@ -7,8 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import typer
 from _store_helpers import ROBOT
 
+from daemon.cli import db as cli_db
 from daemon.store import Store
 
 
@@ -23,3 +25,16 @@ def store(tmp_path: Path) -> Iterator[Store]:
 def campaign(store: Store) -> dict[str, Any]:
     robot = store.ensure_builtin_robot(ROBOT)
     return store.create_campaign("cell 1", robot["id"], notes="test")
+
+
+@pytest.fixture
+def cli() -> typer.Typer:
+    """A typer app with only ``cablecal db``."""
+    app = typer.Typer()
+
+    @app.callback()
+    def root() -> None:
+        """cablecal (test root)."""
+
+    cli_db.register(app)
+    return app

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,6 @@ from _store_helpers import (
     replace_cell,
     sample_count,
 )
-from sqlite_utils.db import Table
 from typer.testing import CliRunner
 
 from calib.dataset import SampleError, make_samples, parse_samples_csv
@@ -60,14 +60,19 @@ def test_import_joint_limit_violation_names_row_and_column(
 def test_import_samples_is_all_or_nothing(
     store: Store, campaign: dict[str, Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    samples = parse_samples_csv(csv_text(50))
-    real = Table.insert_all
+    import daemon.store.campaigns as campaigns_module
 
-    def insert_then_fail(self: Table, *args: Any, **kwargs: Any) -> Table:
-        real(self, *args, **kwargs)
+    samples = parse_samples_csv(csv_text(50))
+    real = campaigns_module._import_batches
+
+    def second_batch_fails(*args: Any) -> Iterator[Any]:
+        """The first batch (20 rows) is inserted, then the disk is full."""
+        batches = real(*args)
+        yield next(batches)
         raise sqlite3.OperationalError("database or disk is full")
 
-    monkeypatch.setattr(Table, "insert_all", insert_then_fail)
+    monkeypatch.setattr(campaigns_module, "IMPORT_BATCH_ROWS", 20)
+    monkeypatch.setattr(campaigns_module, "_import_batches", second_batch_fails)
     with pytest.raises(sqlite3.OperationalError):
         store.import_samples(campaign["id"], samples)
     monkeypatch.undo()
@@ -147,18 +152,6 @@ def test_export_json_has_campaign_robot_and_flagged_samples(
 
 
 # -------------------------------------------------------------------------------- CLI
-@pytest.fixture
-def cli() -> typer.Typer:
-    app = typer.Typer()
-
-    @app.callback()
-    def root() -> None:
-        """cablecal (test root)."""
-
-    cli_db.register(app)
-    return app
-
-
 def test_cli_db_export_csv_and_json(
     tmp_path: Path, cli: typer.Typer, monkeypatch: pytest.MonkeyPatch
 ) -> None:

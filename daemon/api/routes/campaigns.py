@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from starlette.concurrency import run_in_threadpool
 
 from calib.dataset import (
     JOINT_COLUMNS,
@@ -13,7 +16,17 @@ from calib.dataset import (
     validate_joint_limits,
 )
 from calib.models import ModelError, builtin_model, model_from_mapping
-from daemon.api.deps import ReadAuth, State, WriteAuth
+from daemon.api.deps import (
+    AppState,
+    CampaignId,
+    Paged,
+    ReadAuth,
+    SampleId,
+    State,
+    WriteAuth,
+    link_next,
+)
+from daemon.api.errors import Error, error_responses, unprocessable
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
@@ -25,10 +38,9 @@ from daemon.api.schemas import (
 )
 from daemon.capture import CaptureRejected
 
-router = APIRouter(tags=["campaigns"])
+log = logging.getLogger("cablecal.service")
 
-#: Largest CSV upload [bytes] (2000 poses are about 150 kB).
-MAX_IMPORT_BYTES = 20 * 1024 * 1024
+router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 422))
 
 
 @router.post(
@@ -44,26 +56,37 @@ def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
         try:
             builtin_model(body.robot_model)
         except (KeyError, ValueError) as exc:
-            raise HTTPException(
-                422, f"robot_model: unknown built-in model {body.robot_model!r} ({exc})"
+            raise unprocessable(
+                ("body", "robot_model"), f"unknown built-in model {body.robot_model!r} ({exc})"
             ) from exc
         robot = state.store.ensure_builtin_robot(body.robot_model)
     else:
         try:
             model = model_from_mapping(body.robot_model)
         except ModelError as exc:
-            raise HTTPException(422, f"robot_model.{exc}") from exc
+            raise unprocessable(("body", "robot_model"), f"robot_model.{exc}") from exc
         robot = state.store.add_robot(model, source="uploaded")
     return state.store.create_campaign(body.name, int(robot["id"]), body.notes)
 
 
-@router.get("/campaigns", summary="List campaigns", dependencies=[ReadAuth])
-def list_campaigns(state: State) -> list[CampaignOut]:
-    return state.store.list_campaigns()
+@router.get("/campaigns", summary="List campaigns (paginated)", dependencies=[ReadAuth])
+def list_campaigns(
+    state: State, request: Request, response: Response, page: Paged
+) -> list[CampaignOut]:
+    """By id, ``limit`` per page (default 1000) after ``after_id``; a full page has a
+    ``Link: <…>; rel="next"`` header."""
+    rows = state.store.list_campaigns(after_id=page.after_id, limit=page.limit)
+    link_next(request, response, rows, page.limit)
+    return rows
 
 
-@router.get("/campaigns/{campaign_id}", summary="One campaign", dependencies=[ReadAuth])
-def get_campaign(state: State, campaign_id: int) -> CampaignOut:
+@router.get(
+    "/campaigns/{campaign_id}",
+    summary="One campaign",
+    dependencies=[ReadAuth],
+    responses=error_responses(404),
+)
+def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
     return state.store.campaign(campaign_id)
 
 
@@ -73,11 +96,18 @@ def get_campaign(state: State, campaign_id: int) -> CampaignOut:
     summary="Manual capture",
     dependencies=[WriteAuth],
     responses={
-        409: {"description": "Robot moving / not settled, over-range, pose already captured"},
-        503: {"description": "A device is down or stale; names the device and its last error"},
+        **error_responses(404),
+        409: {
+            "model": Error,
+            "description": "Robot moving / not settled, over-range, pose already captured",
+        },
+        503: {
+            "model": Error,
+            "description": "A device is down or stale; names the device and its last error",
+        },
     },
 )
-async def capture(state: State, campaign_id: int, body: CaptureRequest) -> SampleOut:
+async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -> SampleOut:
     """Waits up to ``sampler.capture_timeout_s`` for the robot and the cable to settle, then
     stores the mean of the settled window and returns the stored sample. With the manual robot
     driver, ``joints_deg`` carries the joint angles [deg]."""
@@ -96,7 +126,7 @@ async def capture(state: State, campaign_id: int, body: CaptureRequest) -> Sampl
             {"reason": exc.reason, "detail": exc.detail, "device": exc.device},
         ) from exc
     except ValueError as exc:
-        raise HTTPException(422, str(exc)) from exc
+        raise unprocessable(("body",), str(exc)) from exc
     return sample
 
 
@@ -108,55 +138,92 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
         validate_joint_limits(pose, state.store.robot_model(robot_id))
     except SampleError as exc:
         j = JOINT_COLUMNS.index(exc.column) if exc.column in JOINT_COLUMNS else None
+        loc: tuple[str | int, ...] = ("body", "joints_deg") + (() if j is None else (j,))
         field = "joints_deg" if j is None else f"joints_deg[{j}]"
         message = str(exc).split(": ", 1)[-1]
-        raise HTTPException(422, f"{field}: {message}") from exc
+        raise unprocessable(loc, f"{field}: {message}") from exc
 
 
 @router.put(
     "/campaigns/{campaign_id}/auto-capture",
     summary="Auto capture on or off",
     dependencies=[WriteAuth],
+    responses=error_responses(404, 503),
 )
-def auto_capture(state: State, campaign_id: int, body: AutoCapture) -> CampaignOut:
+def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture) -> CampaignOut:
     """On: the sampler captures once at each new settled pose, for this campaign only (it
-    switches off any other campaign). The setting survives a daemon restart."""
-    state.store.campaign(campaign_id)  # 404 before the sampler is touched
+    switches off any other campaign). The setting survives a daemon restart.
+
+    Validated first (the body, the campaign, a running sampler), then stored (one
+    transaction), then applied to the sampler; if the sampler refuses, the stored change is
+    rolled back and the sampler put back as it was, so the database and the sampler agree."""
+    state.store.campaign(campaign_id)  # 404 before anything changes
+    if body.enabled and state.sampler is None:
+        raise HTTPException(503, "sampler: not running")
+    before = state.store.auto_capture_campaigns()
+    row = state.store.set_auto_capture(campaign_id, body.enabled, body.anchor)
+    try:
+        _apply_auto(state, campaign_id, body)
+    except Exception as exc:
+        state.store.restore_auto_capture(before)
+        _restore_sampler(state, before)
+        log.exception("auto capture: the sampler refused; rolled back")
+        raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
+    return row
+
+
+def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture) -> None:
+    """The stored auto-capture switch, applied to the sampler."""
     if body.enabled:
-        if state.sampler is None:
-            raise HTTPException(503, "sampler: not running")
-        for other in state.store.auto_capture_campaigns():
-            if int(other["id"]) != campaign_id:
-                state.store.set_auto_capture(int(other["id"]), False)
-        state.sampler.set_auto(
-            campaign_id, anchor=body.anchor, known_poses_deg=state.store.poses_deg(campaign_id)
-        )
+        known = state.store.poses_deg(campaign_id)
+        state.sampler.set_auto(campaign_id, anchor=body.anchor, known_poses_deg=known)
     elif state.sampler is not None and state.sampler.auto_campaign_id == campaign_id:
         state.sampler.set_auto(None)
-    return state.store.set_auto_capture(campaign_id, body.enabled, body.anchor)
+
+
+def _restore_sampler(state: AppState, before: list[CampaignOut]) -> None:
+    """The sampler as the restored rows say (best effort: logged if it fails again)."""
+    if state.sampler is None:
+        return
+    try:
+        if before:
+            cid = int(before[0]["id"])
+            known = state.store.poses_deg(cid)
+            state.sampler.set_auto(cid, anchor=before[0]["auto_anchor"], known_poses_deg=known)
+        else:
+            state.sampler.set_auto(None)
+    except Exception:
+        log.exception("auto capture: restoring the sampler failed")
 
 
 @router.get(
     "/campaigns/{campaign_id}/samples",
-    summary="Samples as JSON, or CSV with ?format=csv",
+    summary="Samples as JSON (paginated), or CSV with ?format=csv",
     dependencies=[ReadAuth],
-    responses={200: {"content": {"text/csv": {}}}},
+    responses={200: {"content": {"text/csv": {}}}, **error_responses(404)},
     response_model=list[SampleOut],
 )
 def list_samples(
     state: State,
-    campaign_id: int,
+    request: Request,
+    response: Response,
+    campaign_id: CampaignId,
+    page: Paged,
     format: str = Query("json", pattern="^(json|csv)$", description="json or csv"),
 ) -> list[SampleOut] | Response:
-    """JSON: every sample with its std, count, timestamps and excluded flag. CSV: the included
-    samples in the format ``cablecal identify`` reads."""
+    """JSON: the samples with their std, count, timestamps and excluded flag, by id,
+    ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
+    rel="next"`` header. CSV: every included sample (not paginated) in the format
+    ``cablecal identify`` reads."""
     if format == "csv":
         return Response(
             state.store.export_csv(campaign_id),
             media_type="text/csv",
             headers={"Content-Disposition": f'attachment; filename="campaign-{campaign_id}.csv"'},
         )
-    return state.store.list_samples(campaign_id)
+    rows = state.store.list_samples(campaign_id, after_id=page.after_id, limit=page.limit)
+    link_next(request, response, rows, page.limit)
+    return rows
 
 
 @router.post(
@@ -164,18 +231,26 @@ def list_samples(
     status_code=status.HTTP_201_CREATED,
     summary="Import samples from CSV",
     dependencies=[WriteAuth],
+    responses=error_responses(400, 404),
+    response_model=ImportResult,
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
     },
 )
-async def import_samples(state: State, campaign_id: int, request: Request) -> ImportResult:
-    """The request body is the CSV text (``Content-Type: text/csv``): header q1..q6 [deg] and
-    L [mm], optional ``anchor``. All or nothing: an error gives 400 naming the row (file line,
-    header = 1) and column, and nothing of the import is stored."""
+async def import_samples(state: State, campaign_id: CampaignId, request: Request) -> Response:
+    """The request body is the CSV text (``Content-Type: text/csv``, at most 20 MiB): header
+    q1..q6 [deg] and L [mm], optional ``anchor``. All or nothing: an error gives 400 naming
+    the row (file line, header = 1) and column, and nothing of the import is stored. Parsed
+    and stored in a worker thread, so the event loop (the sampler, ``/health``) keeps running."""
     state.store.campaign(campaign_id)  # 404 before the body is read
-    raw = await request.body()
-    if len(raw) > MAX_IMPORT_BYTES:
-        raise HTTPException(413, f"body: larger than {MAX_IMPORT_BYTES} bytes")
+    chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
+    body = await run_in_threadpool(_import_csv, state, campaign_id, b"".join(chunks))
+    return Response(body, status_code=201, media_type="application/json")
+
+
+def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
+    """Decode, parse, check and store a CSV import, and encode the :class:`ImportResult` (in a
+    worker thread: half a million ids take a second to encode)."""
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -184,14 +259,21 @@ async def import_samples(state: State, campaign_id: int, request: Request) -> Im
         ) from exc
     try:
         samples = parse_samples_csv(text)  # header, numbers, NaN, sensor range: row and column
-        ids = state.store.import_samples(campaign_id, samples)  # and the robot's joint limits
+        ids = state.store.import_samples(campaign_id, samples)  # and the joint limits
     except SampleError as exc:
         raise HTTPException(
             400, {"row": exc.row, "column": exc.column, "message": str(exc)}
         ) from exc
-    return {"imported": len(ids), "sample_ids": ids}
+    # The ImportResult, encoded in pieces: one json.dumps of 500k ids holds the GIL ~0.2 s.
+    pieces = [",".join(map(str, ids[k : k + 20_000])) for k in range(0, len(ids), 20_000)]
+    return f'{{"imported":{len(ids)},"sample_ids":[{",".join(pieces)}]}}'.encode()
 
 
-@router.patch("/samples/{sample_id}", summary="Exclude or include", dependencies=[WriteAuth])
-def patch_sample(state: State, sample_id: int, body: SamplePatch) -> SampleOut:
+@router.patch(
+    "/samples/{sample_id}",
+    summary="Exclude or include",
+    dependencies=[WriteAuth],
+    responses=error_responses(404),
+)
+def patch_sample(state: State, sample_id: SampleId, body: SamplePatch) -> SampleOut:
     return state.store.set_excluded(sample_id, body.excluded, body.reason)

@@ -5,13 +5,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, cast
 
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Request, Response, status
 
-from daemon.api.deps import ReadAuth, State, WriteAuth
+from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
+from daemon.api.errors import error_responses, unprocessable
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
 
-router = APIRouter(tags=["identifications"])
+router = APIRouter(tags=["identifications"], responses=error_responses(400, 401, 404, 413, 422))
 
 
 def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
@@ -32,35 +33,41 @@ def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
     summary="Start an identification job",
     dependencies=[WriteAuth],
 )
-async def start(state: State, campaign_id: int, body: IdentificationRequest) -> JobView:
+async def start(state: State, campaign_id: CampaignId, body: IdentificationRequest) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
     (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``."""
     try:
         job = state.jobs.submit(campaign_id, body.to_options())
     except JobError as exc:
-        raise HTTPException(422, str(exc)) from exc
+        raise unprocessable(("body",), str(exc)) from exc
     return _job_view(state, job)
 
 
 @router.get(
     "/campaigns/{campaign_id}/identifications",
-    summary="Jobs of a campaign",
+    summary="Jobs of a campaign (paginated)",
     dependencies=[ReadAuth],
 )
-def list_for_campaign(state: State, campaign_id: int) -> list[JobOut]:
+def list_for_campaign(
+    state: State, request: Request, response: Response, campaign_id: CampaignId, page: Paged
+) -> list[JobOut]:
+    """By id, ``limit`` per page (default 1000) after ``after_id``; a full page has a
+    ``Link: <…>; rel="next"`` header."""
     state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list
-    return state.store.list_jobs(campaign_id)
+    rows = state.store.list_jobs(campaign_id, after_id=page.after_id, limit=page.limit)
+    link_next(request, response, rows, page.limit)
+    return rows
 
 
 @router.get("/identifications/{job_id}", summary="Job status and result", dependencies=[ReadAuth])
-def get_job(state: State, job_id: int) -> JobView:
+def get_job(state: State, job_id: JobId) -> JobView:
     """``status`` is one of queued, running, succeeded, failed, cancelled; ``progress`` 0–1;
     ``result`` is the ``result.json`` contract of ``cablecal identify`` once succeeded."""
     return _job_view(state, state.store.job(job_id))
 
 
 @router.delete("/identifications/{job_id}", summary="Cancel a job", dependencies=[WriteAuth])
-def cancel(state: State, job_id: int) -> JobView:
+def cancel(state: State, job_id: JobId) -> JobView:
     """A queued job is cancelled at once; a running one stops at its next progress step."""
     return _job_view(state, state.jobs.cancel(job_id))
 
@@ -69,8 +76,9 @@ def cancel(state: State, job_id: int) -> JobView:
     "/identifications/{job_id}/accept",
     summary="Accept a result as the robot's calibrated model",
     dependencies=[WriteAuth],
+    responses=error_responses(409),
 )
-def accept(state: State, job_id: int) -> JobView:
+def accept(state: State, job_id: JobId) -> JobView:
     """For results not accepted automatically (e.g. flagged implausible) after review."""
     job = state.store.job(job_id)
     if job["status"] != "succeeded":

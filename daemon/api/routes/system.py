@@ -5,15 +5,16 @@ from __future__ import annotations
 import time
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi import APIRouter, HTTPException, Query, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from pydantic import BaseModel, Field
 
 from daemon import metrics
-from daemon.api.deps import ReadAuth, State, WriteAuth
+from daemon.api.deps import MAX_ID, PAGE_DEFAULT, ReadAuth, State, WriteAuth, link_next
+from daemon.api.errors import error_responses
 from daemon.api.schemas import EventOut, Health, ServiceStatus
 
-router = APIRouter(tags=["system"])
+router = APIRouter(tags=["system"], responses=error_responses(400, 401, 413, 422))
 metrics_router = APIRouter(tags=["system"])
 
 VERSION = "0.1.0"
@@ -32,26 +33,39 @@ async def health(state: State) -> Health:
 @router.get("/status", summary="Devices, sampler mode and rates", dependencies=[ReadAuth])
 async def get_status(state: State) -> ServiceStatus:
     """Each device's connection state, last reading and its age, last error (with the last
-    frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs."""
+    frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs; the
+    last drift check (``drift``: ``state`` ok/drift/failed/none, ``last_check_at``, ``rms_mm``,
+    ``threshold_mm``, ``running``)."""
     st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
     return {
         "devices": st.get("devices", {}),
         "sampler": st.get("sampler"),
         "jobs": {"active": state.jobs.active},
+        "drift": state.drift.status() if state.drift is not None else None,
         "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
     }
 
 
-@router.get("/events", summary="Device and daemon events", dependencies=[ReadAuth])
+@router.get("/events", summary="Device and daemon events (paginated)", dependencies=[ReadAuth])
 def list_events(
     state: State,
-    kind: str | None = Query(None, description="e.g. link_down, link_up, capture_rejected"),
-    since_id: int | None = Query(None, description="Only events with a larger id."),
-    limit: int = Query(100, ge=1, le=1000),
+    request: Request,
+    response: Response,
+    kind: str | None = Query(
+        None, max_length=64, description="e.g. link_down, link_up, capture_rejected"
+    ),
+    since_id: int | None = Query(
+        None, ge=0, le=MAX_ID, description="Only events with a larger id (the cursor)."
+    ),
+    limit: int = Query(100, ge=1, le=PAGE_DEFAULT),
 ) -> list[EventOut]:
     """Device errors, link drops and recoveries, rejected captures, daemon starts and stops,
-    newest last."""
-    return state.store.list_events(kind=kind, since_id=since_id, limit=limit)
+    newest last. Without ``since_id``: the newest ``limit`` events; with it: the first
+    ``limit`` after it. A full page has a ``Link: <…?since_id=<last id>…>; rel="next"``
+    header (follow it to read on)."""
+    rows = state.store.list_events(kind=kind, since_id=since_id, limit=limit)
+    link_next(request, response, rows, limit, cursor="since_id")
+    return rows
 
 
 @metrics_router.get("/metrics", summary="Prometheus metrics", response_class=Response)

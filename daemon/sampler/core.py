@@ -1,34 +1,7 @@
-"""The sampler: polls the indicator and the robot, detects settling, and captures samples.
+"""The sampler's core: the poll loop, the capture path and the status of :class:`Sampler`.
 
-One asyncio task polls both devices concurrently each cycle and pairs the two replies into a
-reading (joint angles, cable length, monotonic and wall stamps, over-range flag) kept in a ring
-buffer of ``history_s``. A device error never stops the loop: it is counted, logged with the
-device's last frames, recorded as an event at the start of each error episode, and the loop
-pauses ``error_backoff_s`` before the next poll.
-
-Settling
---------
-Settle detection is :func:`daemon.settle.evaluate` (pure: buffer, settings and time in,
-verdict out); the window rules are documented there. Each device's state, metrics and events
-are kept by a :class:`daemon.devices.Device`.
-
-The indicator's own "moving" status bit is not used: the readings themselves decide. An
-over-range reply (flagged, or raised as :class:`~drivers.IndicatorOverRange`) is a reading
-without a length: it is counted as a device error but opens no error episode. The manual
-robot's angles keep the stamp of their submission, so only the indicator's stamp is checked
-for staleness with that driver; a manual robot without angles (``RobotNoData``) is "no data",
-not a device error.
-
-A capture is the mean of a settled window (with the sample standard deviation and the count);
-no reading ever goes into two captures, and a capture only uses readings polled after it was
-requested. It is acknowledged only once :meth:`CaptureSink.store_capture` has committed it.
-
-Modes
------
-``manual``: :meth:`Sampler.capture` waits up to ``capture_timeout_s`` for a settled window.
-``auto`` (:meth:`Sampler.set_auto`): the loop captures once at each new settled pose; after a
-capture the robot must move before the next, and a pose within ``auto_new_pose_deg`` (every
-joint) of a pose already captured in the campaign is never captured again.
+The package docstring (:mod:`daemon.sampler`) describes the behaviour; auto mode's state and
+decisions are in :mod:`daemon.sampler.auto`, the settings in :mod:`daemon.sampler.config`.
 """
 
 from __future__ import annotations
@@ -40,16 +13,16 @@ import math
 import time
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from daemon import metrics
 from daemon.capture import CaptureRejected, CaptureSink, Joints
 from daemon.devices import Device
+from daemon.sampler.auto import AutoState, start_auto
+from daemon.sampler.config import MAX_BUFFER, SamplerConfig
 from daemon.settle import (
     NOT_SETTLED,
     Mode,
@@ -76,100 +49,6 @@ log = logging.getLogger("cablecal.sampler")
 
 FloatArray = NDArray[np.float64]
 _T = TypeVar("_T")
-
-#: Hard cap of the ring buffer, whatever ``history_s`` and the poll rate.
-MAX_BUFFER = 100_000
-
-
-class SamplerConfig(BaseModel):
-    """Settings of the sampler. Times in s, lengths in mm, angles in deg."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    poll_interval_s: float = Field(
-        default=0.0,
-        ge=0,
-        description="Time between the starts of two polls [s]; 0: as fast as the links allow.",
-    )
-    settle_s: float = Field(
-        default=0.5, gt=0, description="Window in which the robot must be still [s]."
-    )
-    settle_tol_mm: float = Field(
-        default=0.1,
-        gt=0,
-        description="Largest deviation of the cable length from the window mean [mm].",
-    )
-    settle_tol_deg: float = Field(
-        default=0.01,
-        gt=0,
-        description="Largest deviation of each joint from the window mean [deg].",
-    )
-    capture_timeout_s: float = Field(
-        default=10.0,
-        gt=0,
-        description="How long a manual capture waits for settling [s]; >= settle_s.",
-    )
-    stale_s: float = Field(
-        default=0.5,
-        gt=0,
-        description="A reading older than this when paired, joint and length stamps "
-        "further apart than this, or a gap between readings longer than this, is stale [s].",
-    )
-    min_readings: int = Field(
-        default=5, ge=2, description="Fewest paired readings in a settled window [count]."
-    )
-    auto_new_pose_deg: float = Field(
-        default=0.05,
-        ge=0,
-        description="Auto mode: a pose closer than this in every joint to a pose "
-        "already captured in the campaign is not new [deg].",
-    )
-    history_s: float = Field(
-        default=10.0,
-        gt=0,
-        description="Span of the ring buffer of paired readings [s]; >= settle_s.",
-    )
-    error_backoff_s: float = Field(
-        default=0.2, ge=0, description="Pause after a device error before the next poll [s]."
-    )
-
-    @model_validator(mode="after")
-    def _check(self) -> SamplerConfig:
-        if self.capture_timeout_s < self.settle_s:
-            raise ValueError("capture_timeout_s: must be >= settle_s")
-        if self.history_s < self.settle_s:
-            raise ValueError("history_s: must be >= settle_s")
-        return self
-
-
-# --------------------------------------------------------------------------- internals
-@dataclass
-class _Auto:
-    """Auto-capture state of one campaign."""
-
-    campaign_id: int
-    anchor: str
-    known: FloatArray  # shape (n, 6) [deg], poses captured in the campaign
-    since: float  # monotonic time auto mode was enabled
-    need_motion: bool = False  # captured (or refused) here: wait until the robot moves
-    pose_ref: FloatArray | None = None  # where need_motion was set [deg]
-    still_since: float | None = None
-    pose_recorded: bool = False  # a rejection was recorded at the current pose
-    reported_known: set[int] = field(default_factory=set)  # not_new_pose recorded per pose
-    fault_keys: set[tuple[str, int]] = field(default_factory=set)  # (device, episode)
-    retry_after: float = 0.0  # after a failed store
-
-    def stay(self, joints_deg: FloatArray) -> None:
-        """Captured or refused at this pose: the robot must move before the next capture."""
-        self.need_motion, self.pose_ref = True, joints_deg
-
-    def saw_joints(self, joints_deg: Joints, tol_deg: float) -> None:
-        """A robot reading (paired or not): once the robot left the pose, clear
-        ``need_motion`` and ``pose_recorded``."""
-        ref = self.pose_ref
-        if ref is not None and np.abs(ref - joints_deg).max() > tol_deg:
-            self.need_motion = self.pose_recorded = False
-            self.pose_ref = None
 
 
 def _as_error(result: _T | BaseException) -> _T | Exception:
@@ -217,7 +96,7 @@ class Sampler:
         self._buffer: deque[PairedReading] = deque(maxlen=MAX_BUFFER)
         self._verdict: Verdict = NOT_SETTLED
         self._used_until = -math.inf  # t_poll of the newest reading used by a capture
-        self._auto: _Auto | None = None
+        self._auto: AutoState | None = None
         self._task: asyncio.Task[None] | None = None
         self._tick = asyncio.Event()
         self._capture_lock = asyncio.Lock()
@@ -484,9 +363,7 @@ class Sampler:
         metrics.CAPTURES.labels("accepted", "ok", mode).inc()
         auto = self._auto
         if auto is not None and auto.campaign_id == campaign_id:
-            pose = np.array(capture.joints_deg)
-            auto.known = np.vstack([auto.known, pose[None, :]])
-            auto.stay(pose)
+            auto.captured(np.array(capture.joints_deg))
         log.info(
             "captured %s sample: length %.3f mm, %d readings",
             mode,
@@ -522,67 +399,36 @@ class Sampler:
         if campaign_id is None:
             self._auto = None
             return
-        known = np.empty((0, 6))
-        if known_poses_deg is not None:
-            known = np.asarray(known_poses_deg, dtype=float)
-            if known.size == 0:
-                known = np.empty((0, 6))
-            if known.ndim != 2 or known.shape[1] != 6:
-                raise ValueError(f"known_poses_deg: expected shape (n, 6), got {known.shape}")
-        if self._auto is not None and self._auto.campaign_id == campaign_id:
-            known = np.vstack([self._auto.known, known])
-        self._auto = _Auto(campaign_id, anchor, known, since=time.monotonic())
+        self._auto = start_auto(
+            campaign_id, anchor, known_poses_deg, self._auto, now=time.monotonic()
+        )
 
     def _auto_step(self, now: float) -> None:
+        """Take auto mode's decision for this cycle (:meth:`AutoState.decide`)."""
         auto = self._auto
         assert auto is not None
-        cfg = self.config
         verdict = self._evaluate(now, max(auto.since, self._used_until + 1e-9))
-        if verdict.joints_still is False:
-            auto.need_motion = auto.pose_recorded = False
-            auto.still_since = None
-        elif verdict.joints_still and auto.still_since is None:
-            auto.still_since = now
-
         fault = self._device_fault(now, auto.since)
-        if fault is not None:
-            rejection, dev = fault
-            key = (dev.role, dev.episode)
-            if key not in auto.fault_keys:
-                auto.fault_keys.add(key)
-                self._rejected(auto.campaign_id, rejection, "auto")
-            return
-        if verdict.reason is None:
-            if auto.need_motion or now < auto.retry_after:
-                return
-            q = np.array([r.joints_deg for r in verdict.window]).mean(axis=0)
-            near = np.flatnonzero(np.all(np.abs(auto.known - q) < cfg.auto_new_pose_deg, axis=1))
-            if near.size:
-                auto.stay(q)
-                index = int(near[0])
-                if index not in auto.reported_known:
-                    auto.reported_known.add(index)
-                    detail = f"pose {np.round(q, 3).tolist()} deg was captured already"
-                    self._rejected(
-                        auto.campaign_id, CaptureRejected("not_new_pose", detail), "auto"
-                    )
-                return
+        last = self._buffer[-1].joints_deg if self._buffer else None
+        action = auto.decide(verdict, fault, now, self.config, last)
+        if action.reject is not None:
+            self._rejected(auto.campaign_id, action.reject, "auto")
+        elif action.store:
             try:
                 self._store(auto.campaign_id, auto.anchor, verdict.window, "auto")
-            except Exception:
+            except Exception as exc:
                 log.exception(
                     "storing an auto capture failed", extra={"campaign_id": auto.campaign_id}
                 )
-                auto.retry_after = now + max(cfg.error_backoff_s, cfg.settle_s)
-            return
-        if verdict.joints_still and not auto.need_motion and not auto.pose_recorded:
-            assert verdict.reason is not None
-            stuck = auto.still_since is not None and now - auto.still_since > cfg.capture_timeout_s
-            if verdict.final or stuck:
-                auto.pose_recorded = True
-                auto.pose_ref = np.array(self._buffer[-1].joints_deg)
-                self._rejected(
-                    auto.campaign_id, CaptureRejected(verdict.reason, verdict.detail), "auto"
+                auto.store_failed(now, self.config)
+                # Counted and logged as an event, so a store that refuses every capture is
+                # visible in /metrics and /events, not only in the log.
+                metrics.CAPTURES.labels("failed", "store_error", "auto").inc()
+                self._event(
+                    "capture_failed",
+                    None,
+                    f"store_error: {type(exc).__name__}: {exc}",
+                    {"campaign_id": auto.campaign_id, "error": f"{type(exc).__name__}: {exc}"},
                 )
 
     # ------------------------------------------------------------------ status
@@ -650,6 +496,3 @@ def build_sampler(
     else:
         cfg = SamplerConfig.model_validate(dict(config))
     return Sampler(make_indicator(indicator_cfg), make_robot(robot_cfg), cfg, sink)
-
-
-__all__ = ["Sampler", "SamplerConfig", "build_sampler", "make_capture"]

@@ -1,0 +1,136 @@
+"""The request guard: the bearer token first, then the body-size bound while the body streams.
+
+A pure ASGI middleware in front of the routes, so that neither costs memory before it is
+decided:
+
+- **Auth before the body.** Under ``/api/v1``, every request but ``GET /health`` needs the
+  token (reads too, unless ``public_reads``). Without it the answer is 401 before a byte of the
+  body is read, so a client without the token can neither make the daemon buffer a large body
+  nor learn anything from a validation error. (The routes keep their own auth dependencies;
+  they also document the security scheme in OpenAPI.)
+- **Body limits while streaming.** A ``Content-Length`` over the limit is refused at once; a
+  body without one (chunked) is counted as it arrives and refused with 413 as soon as the
+  count passes the limit, so at most one chunk beyond the limit is ever held.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import re
+from collections.abc import Awaitable, Callable, MutableMapping
+from typing import Any, Final
+
+from starlette.exceptions import HTTPException
+
+Scope = MutableMapping[str, Any]
+Message = MutableMapping[str, Any]
+Receive = Callable[[], Awaitable[Message]]
+Send = Callable[[Message], Awaitable[None]]
+ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
+
+#: Largest JSON request body [bytes]. The largest legitimate one is a campaign with an uploaded
+#: robot model (about 2 kB) and notes of at most 10 000 characters (40 kB as UTF-8).
+MAX_JSON_BYTES: Final = 256 * 1024
+#: Largest CSV import [bytes]: 2000 poses are about 150 kB; 20 MB is over 250 000 rows.
+MAX_IMPORT_BYTES: Final = 20 * 1024 * 1024
+
+_IMPORT_PATH = re.compile(r"/api/v1/campaigns/[^/]+/samples/import/?")
+_OPEN_PATHS = frozenset({"/api/v1/health"})
+_READ_METHODS = frozenset({"GET", "HEAD"})
+
+UNAUTHORIZED_DETAIL: Final = (
+    "missing or wrong bearer token (Authorization: Bearer <CABLECAL_API_TOKEN>)"
+)
+
+
+def token_matches(authorization: str | None, token: str) -> bool:
+    """Whether an ``Authorization`` header carries ``Bearer <token>`` (constant-time)."""
+    if not authorization:
+        return False
+    scheme, _, credentials = authorization.partition(" ")
+    if scheme.lower() != "bearer":
+        return False
+    return hmac.compare_digest(credentials.strip().encode(), token.encode())
+
+
+def body_limit(path: str) -> int:
+    """The largest body [bytes] a request to ``path`` may carry."""
+    return MAX_IMPORT_BYTES if _IMPORT_PATH.fullmatch(path) else MAX_JSON_BYTES
+
+
+def too_large(limit: int) -> HTTPException:
+    """The 413 of a body over ``limit`` bytes."""
+    return HTTPException(413, f"body: larger than the limit of {limit} bytes")
+
+
+class RequestGuard:
+    """Auth, then the body bound; see the module docstring.
+
+    Parameters
+    ----------
+    app : ASGI app
+    token : str
+        The bearer token.
+    public_reads : bool
+        Serve GET and HEAD under ``/api/v1`` without the token.
+    prefix : str
+        The REST prefix the token guards.
+    """
+
+    def __init__(self, app: ASGIApp, *, token: str, public_reads: bool, prefix: str) -> None:
+        self.app = app
+        self.token = token
+        self.public_reads = public_reads
+        self.prefix = prefix
+
+    def _needs_token(self, method: str, path: str) -> bool:
+        if not (path == self.prefix or path.startswith(self.prefix + "/")):
+            return False
+        if path.rstrip("/") in _OPEN_PATHS and method in _READ_METHODS:
+            return False
+        return not (self.public_reads and method in _READ_METHODS)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        path, method = str(scope["path"]), str(scope["method"])
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
+        if self._needs_token(method, path) and not token_matches(
+            headers.get("authorization"), self.token
+        ):
+            await _reply(send, 401, UNAUTHORIZED_DETAIL, {"www-authenticate": "Bearer"})
+            return
+        limit = body_limit(path)
+        declared = headers.get("content-length")
+        if declared is not None:
+            if not declared.strip().isdigit():
+                await _reply(send, 400, f"Content-Length: not a number: {declared!r}")
+                return
+            if int(declared) > limit:
+                await _reply(send, 413, str(too_large(limit).detail))
+                return
+        received = 0
+
+        async def counted() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    # An HTTPException: FastAPI re-raises it from body parsing, so the
+                    # exception handler answers 413 (the route never runs).
+                    raise too_large(limit)
+            return message
+
+        await self.app(scope, counted, send)
+
+
+async def _reply(send: Send, status: int, detail: str, extra: dict[str, str] | None = None) -> None:
+    """A JSON error ``{"detail": ...}`` sent straight from the middleware."""
+    body = json.dumps({"detail": detail}).encode()
+    headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
+    headers += [(k.encode(), v.encode()) for k, v in (extra or {}).items()]
+    await send({"type": "http.response.start", "status": status, "headers": headers})
+    await send({"type": "http.response.body", "body": body})

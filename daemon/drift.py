@@ -1,0 +1,344 @@
+"""Drift checks: is the robot still the one its accepted calibration describes?
+
+The flow
+    1. A robot with an accepted calibration has **check poses**: the user's
+       (``PUT /robots/{id}/check-poses``), else :func:`spread_indices` picks
+       ``drift.n_poses`` (8) well-spread poses of the accepted calibration's own samples.
+    2. A check starts on ``POST /robots/{id}/checks`` or every ``drift.check_interval_h``
+       (default off). It creates a campaign ``check <n> of robot <id>`` and switches the
+       sampler's auto capture to it (not persisted: a restart fails the running check instead
+       of capturing on). The robot must now visit the check poses: a robot program on a real
+       cell, ``load_poses`` on the EMULATED cell's control port (``cablecal simulate``), or
+       manual captures into the check campaign. A capture counts for the check pose it is
+       within ``drift.pose_tol_deg`` of (every joint).
+    3. When every check pose has a capture (or ``drift.timeout_s`` passes: status ``failed``),
+       the captures are compared with the calibration's predictions by
+       :func:`calib.verify.verify` — **without** refitting the anchor by default: the sensor
+       stays mounted between checks, and refitting four parameters per anchor on 8 poses
+       would absorb part of a real drift. Set ``drift.refit_anchor = true`` after moving the
+       sensor (it needs at least 5 poses per anchor).
+    4. :func:`judge`: ``drift`` when the RMS exceeds the threshold
+       (:func:`threshold_mm`: ``drift.threshold_mm``, else ``drift.threshold_factor`` (3) ×
+       the calibration's own residual RMSE, never below ``drift.min_threshold_mm``).
+       The check row, a ``drift`` (or ``drift_check``) event, the gauge
+       ``cablecal_drift_rms_mm`` and the ``drift`` block of ``GET /status`` show it.
+
+numpy and ``calib`` are imported inside the functions that use them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+from daemon import metrics
+
+if TYPE_CHECKING:
+    from calib.kinematics import FloatArray
+    from daemon.config import DriftSettings
+    from daemon.store import CheckPoses, CheckRow, Store
+
+log = logging.getLogger("cablecal.drift")
+
+#: Seconds between looks at a running check's captures.
+POLL_S = 0.5
+
+
+class CheckConflict(RuntimeError):
+    """A check cannot start now (another check runs, or auto capture is on elsewhere)."""
+
+
+# ------------------------------------------------------------------ pure decisions
+def threshold_mm(reference_rmse_mm: float | None, settings: DriftSettings) -> float:
+    """The RMS [mm] above which a check is drift.
+
+    ``settings.threshold_mm`` when set; else ``threshold_factor × reference_rmse_mm`` (the
+    calibration's own residual RMSE), at least ``min_threshold_mm``.
+
+    Raises
+    ------
+    ValueError
+        No absolute threshold and no usable reference RMSE.
+    """
+    if settings.threshold_mm is not None:
+        return float(settings.threshold_mm)
+    if reference_rmse_mm is None or not math.isfinite(reference_rmse_mm):
+        raise ValueError("drift.threshold_mm: the calibration has no residual RMSE; set one")
+    return max(settings.threshold_factor * float(reference_rmse_mm), settings.min_threshold_mm)
+
+
+def judge(rms_mm: float, limit_mm: float) -> Literal["ok", "drift"]:
+    """``drift`` when ``rms_mm`` exceeds ``limit_mm`` (equal is ok); a NaN RMS is drift."""
+    return "ok" if rms_mm <= limit_mm else "drift"
+
+
+def spread_indices(joints_deg: FloatArray, k: int) -> list[int]:
+    """``k`` well-spread rows of ``joints_deg`` (shape (n, 6) [deg]), in row order.
+
+    Farthest-point sampling on the max-abs joint distance, starting from the pose nearest to
+    the mean pose: deterministic, and every pose far from the chosen ones. ``k >= n`` gives
+    all rows.
+    """
+    import numpy as np
+
+    q = np.asarray(joints_deg, dtype=float)
+    n = q.shape[0]
+    if k >= n:
+        return list(range(n))
+    first = int(np.argmin(np.abs(q - q.mean(axis=0)).max(axis=1)))
+    chosen = [first]
+    dist = np.abs(q - q[first]).max(axis=1)
+    while len(chosen) < k:
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.abs(q - q[nxt]).max(axis=1))
+    return sorted(chosen)
+
+
+def covered(poses_deg: FloatArray, captured_deg: FloatArray, tol_deg: float) -> FloatArray:
+    """Per check pose (rows of ``poses_deg``, (m, 6)), whether a capture (rows of
+    ``captured_deg``, (n, 6)) lies within ``tol_deg`` on every joint: bool array (m,)."""
+    import numpy as np
+
+    p = np.asarray(poses_deg, dtype=float)
+    c = np.asarray(captured_deg, dtype=float).reshape(-1, 6)
+    if c.shape[0] == 0:
+        return np.zeros(p.shape[0], dtype=bool)
+    near: FloatArray = (np.abs(p[:, None, :] - c[None, :, :]).max(axis=2) <= tol_deg).any(axis=1)
+    return near
+
+
+# ------------------------------------------------------------------ store-level helpers
+def check_poses(store: Store, robot_id: int, n_poses: int) -> CheckPoses:
+    """The robot's check poses: the user's, else ``n_poses`` spread poses of the accepted
+    calibration's campaign samples (:func:`spread_indices`).
+
+    Raises
+    ------
+    daemon.store.StoreNotFound
+        No such robot, or (default poses) no accepted calibration.
+    """
+    user = store.user_check_poses(robot_id)
+    if user is not None:
+        store.robot(robot_id)
+        return user
+    result = store.accepted_result(robot_id)
+    samples, _ = store.sample_set(int(result["campaign_id"]))
+    q = samples.joints_deg
+    rows = spread_indices(q, n_poses)
+    return {"robot_id": robot_id, "source": "default",
+            "poses_deg": [[float(v) for v in q[i]] for i in rows], "updated_at": None}  # fmt: skip
+
+
+@dataclass
+class Evaluation:
+    """What :func:`evaluate` found: ``status`` ok/drift, the figures, the threshold."""
+
+    status: Literal["ok", "drift"]
+    metrics: dict[str, float]
+    threshold_mm: float
+    detail: dict[str, Any]
+
+
+def evaluate(
+    result: dict[str, Any], samples: Any, limit_mm: float, refit_anchor: bool
+) -> Evaluation:
+    """Compare a check campaign's samples (a :class:`calib.dataset.SampleSet`) with a
+    ``result.json`` mapping's predictions (:func:`calib.verify.verify`) and judge them."""
+    from calib.verify import VerifyOptions, verify
+
+    out = verify(result, samples, VerifyOptions(refit_anchor=refit_anchor, max_rmse_mm=limit_mm))
+    figures = {k: float(v) for k, v in out.metrics.items()}
+    detail = {"reference_rmse_mm": out.reference_rmse_mm, "anchors": out.anchors,
+              "residual_mm": [float(v) for v in out.residual_mm]}  # fmt: skip
+    return Evaluation(judge(figures["rmse_mm"], limit_mm), figures, limit_mm, detail)
+
+
+# ------------------------------------------------------------------ the monitor
+class DriftMonitor:
+    """Runs drift checks in the daemon: one at a time, manual or scheduled.
+
+    Parameters
+    ----------
+    store : Store
+    settings : DriftSettings
+    sampler : object or None
+        The daemon's sampler (``set_auto``, ``auto_campaign_id``); None: captures come
+        from ``POST /campaigns/{id}/captures`` only.
+    """
+
+    def __init__(self, store: Store, settings: DriftSettings, sampler: Any = None) -> None:
+        self.store = store
+        self.settings = settings
+        self.sampler = sampler
+        self._task: asyncio.Task[None] | None = None
+        self._running: CheckRow | None = None
+        self._schedule: asyncio.Task[None] | None = None
+
+    async def start(self) -> None:
+        """Fail checks a stopped daemon left running; start the schedule if configured."""
+        n = self.store.fail_running_checks("interrupted by daemon restart")
+        if n:
+            log.warning("failed %d check(s) left running", n)
+        for check in self.store.list_checks(limit=1000):
+            if check["status"] in ("ok", "drift") and check["rms_mm"] is not None:
+                metrics.DRIFT_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
+        if self.settings.check_interval_h:
+            self._schedule = asyncio.create_task(self._scheduled(), name="drift-schedule")
+
+    async def stop(self) -> None:
+        """Cancel the schedule and a running check (it is marked failed)."""
+        for task in (self._schedule, self._task):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+
+    @property
+    def running(self) -> CheckRow | None:
+        """The check now running, or None."""
+        return self._running
+
+    def start_check(self, robot_id: int, trigger: str = "manual") -> CheckRow:
+        """Create the check campaign and row and start capturing; returns the row.
+
+        Raises
+        ------
+        CheckConflict
+            A check is running, or auto capture is on for another campaign.
+        daemon.store.StoreNotFound
+            No such robot, or no accepted calibration.
+        ValueError
+            No threshold can be derived (see :func:`threshold_mm`).
+        """
+        if self._running is not None:
+            raise CheckConflict(f"check {self._running['id']} is running")
+        busy = getattr(self.sampler, "auto_campaign_id", None)
+        if busy is not None:
+            raise CheckConflict(f"auto capture is on for campaign {busy}; switch it off first")
+        result_row = self.store.accepted_result(robot_id)
+        result = result_row["result"]
+        from calib.verify import reference_rmse_mm
+
+        limit = threshold_mm(reference_rmse_mm(result), self.settings)
+        poses = check_poses(self.store, robot_id, self.settings.n_poses)["poses_deg"]
+        n = len(self.store.list_checks(robot_id, limit=10_000)) + 1
+        campaign = self.store.create_campaign(
+            f"check {n} of robot {robot_id}", robot_id,
+            f"drift check ({trigger}) against result {result_row['id']}",
+        )  # fmt: skip
+        cid = int(campaign["id"])
+        check = self.store.create_check(
+            robot_id, cid, int(result_row["id"]), trigger=trigger, threshold_mm=limit,
+            refit_anchor=self.settings.refit_anchor, poses_deg=poses,
+        )  # fmt: skip
+        if self.sampler is not None and not getattr(self.sampler, "manual_robot", False):
+            self.sampler.set_auto(cid, anchor=str(result.get("anchor_id") or "A"))
+        self._running = check
+        self._task = asyncio.create_task(self._follow(check, result), name="drift-check")
+        log.info("drift check started", extra={"campaign_id": cid, "check_id": check["id"]})
+        return check
+
+    async def _follow(self, check: CheckRow, result: dict[str, Any]) -> None:
+        import numpy as np
+
+        cid, deadline = check["campaign_id"], time.monotonic() + self.settings.timeout_s
+        poses = np.asarray(check["poses_deg"], dtype=float)
+        try:
+            while True:
+                samples, _ = self.store.sample_set(cid)
+                near = covered(poses, samples.joints_deg, self.settings.pose_tol_deg)
+                if near.all():
+                    break
+                if time.monotonic() > deadline:
+                    self._finish(check, "failed", error=f"timed out after "
+                                 f"{self.settings.timeout_s:g} s: {int(near.sum())} of "
+                                 f"{len(near)} check poses captured")  # fmt: skip
+                    return
+                await asyncio.sleep(POLL_S)
+            self._release(cid)
+            ev = await asyncio.to_thread(evaluate, result, samples, check["threshold_mm"],
+                                         check["refit_anchor"])  # fmt: skip
+            self._finish(check, ev.status, metrics_=ev.metrics, detail=ev.detail)
+        except asyncio.CancelledError:
+            self._finish(check, "failed", error="cancelled (daemon stopping)")
+            raise
+        except Exception as exc:
+            log.exception("drift check failed", extra={"check_id": check["id"]})
+            self._finish(check, "failed", error=f"{type(exc).__name__}: {exc}")
+
+    def _release(self, campaign_id: int) -> None:
+        if self.sampler is not None and self.sampler.auto_campaign_id == campaign_id:
+            self.sampler.set_auto(None)
+
+    def _finish(
+        self,
+        check: CheckRow,
+        status: Literal["ok", "drift", "failed"],
+        *,
+        metrics_: dict[str, float] | None = None,
+        error: str | None = None,
+        detail: dict[str, Any] | None = None,
+    ) -> None:
+        self._release(check["campaign_id"])
+        self._running = None
+        row = self.store.finish_check(check["id"], status, metrics=metrics_, error=error,
+                                      detail=detail)  # fmt: skip
+        robot = check["robot_id"]
+        if status == "failed":
+            message = f"check {row['id']} of robot {robot} failed: {error}"
+        else:
+            metrics.DRIFT_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
+            message = (f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
+                       f"threshold {row['threshold_mm']:.4f} mm: {status}")  # fmt: skip
+        kind = "drift" if status == "drift" else "drift_check"
+        self.store.record_event(kind, None, message,
+                                {"check_id": row["id"], "robot_id": robot, "status": status,
+                                 "rms_mm": row["rms_mm"], "threshold_mm": row["threshold_mm"]},
+                                campaign_id=check["campaign_id"])  # fmt: skip
+        (log.warning if status != "ok" else log.info)(message)
+
+    async def _scheduled(self) -> None:
+        """Every ``check_interval_h``: a check of each robot with an accepted calibration,
+        one after the other; a robot that cannot be checked now is skipped (an event)."""
+        from daemon.store import StoreNotFound
+
+        period_s = float(self.settings.check_interval_h or 0) * 3600.0
+        while True:
+            await asyncio.sleep(period_s)
+            for robot in self.store.list_robots():
+                rid = int(robot["id"])
+                try:
+                    self.start_check(rid, "schedule")
+                except StoreNotFound:
+                    continue
+                except (CheckConflict, ValueError) as exc:
+                    message = f"scheduled check of robot {rid} skipped: {exc}"
+                    self.store.record_event("drift_check", None, message)
+                    continue
+                if self._task is not None:
+                    with contextlib.suppress(Exception):
+                        await self._task
+
+    def status(self) -> dict[str, Any]:
+        """The ``drift`` block of ``GET /status``: the last finished check (any robot)
+        ``last_check_at`` [s epoch], ``rms_mm``, ``threshold_mm``, ``state`` (ok, drift,
+        failed, or none before the first check), ``robot_id``, ``check_id``, and
+        ``running`` (the running check's id or None), ``check_interval_h``."""
+        done = [c for c in self.store.list_checks(limit=20) if c["status"] != "running"]
+        last = done[-1] if done else None
+        return {
+            "state": last["status"] if last else "none",
+            "last_check_at": last["finished_at"] if last else None,
+            "rms_mm": last["rms_mm"] if last else None,
+            "threshold_mm": last["threshold_mm"] if last else None,
+            "robot_id": last["robot_id"] if last else None,
+            "check_id": last["id"] if last else None,
+            "running": self._running["id"] if self._running else None,
+            "check_interval_h": self.settings.check_interval_h,
+        }

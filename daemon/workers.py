@@ -1,0 +1,166 @@
+"""Set-up of the daemon's child processes: they die with the daemon, yield the CPU to it, and
+use one BLAS thread each.
+
+:func:`init_child` is the initializer of the identification pool's workers and of the
+multiprocessing manager (:class:`daemon.jobs.JobManager`). It runs first thing in each child.
+
+Dying with the daemon
+---------------------
+The pool uses the ``forkserver`` start method, so its workers and the manager are forked by the
+forkserver process, not by the daemon, and each of them gets a copy of the write end of the
+forkserver's "alive" pipe: the forkserver exits only once the daemon *and* every one of its
+children are gone. ``prctl(PR_SET_PDEATHSIG)`` in a worker fires when the thread that forked
+it dies, which is the forkserver's, so after a SIGKILL of the daemon it would never fire: the
+workers keep the forkserver alive and the forkserver keeps no-one from running. (Under the
+``spawn`` method the forking thread would be whichever daemon thread submitted first, which
+may exit long before the daemon.)
+
+So each child watches the daemon itself: a thread blocks on the daemon's sentinel,
+``multiprocessing.parent_process().sentinel``, the read end of a pipe whose write end only the
+daemon holds. The kernel closes it when the daemon dies, however it dies (SIGKILL, OOM killer,
+crash); the read end then reports EOF and the thread ends the process with :func:`os._exit`
+(whatever the main thread is computing: ``_exit`` stops every thread). A child forked by the
+forkserver first SIGKILLs the forkserver, its parent, which serves only the dead daemon: left
+alone it would exit by itself once the children are gone, but only after tearing down an
+interpreter with numpy and scipy loaded (1.5 s on a loaded 2-core machine). The pid is the one
+recorded at start and is signalled only while it is still this process's parent, so it cannot
+have been reused. Then the multiprocessing resource tracker, whose pipe they all held, sees EOF
+and exits. It works on any POSIX system, not only Linux.
+
+Priority
+--------
+The sampler's poll loop runs in the daemon's event loop and must keep its rate while an
+identification runs on the same (small) machine. The children add ``nice`` to their niceness (at
+``nice`` 10 the kernel's fair scheduler weighs the daemon about nine times a child). Niceness
+alone is not enough where the kernel groups tasks by session (``sched_autogroup``, on by default
+on desktop kernels and for processes outside a cpu cgroup): it weighs only tasks within one
+group, and a busy worker in the daemon's group keeps that group always runnable, so the daemon
+loses the prompt wake-up a sleeping group gets and waits behind every other busy session (the
+poll rate fell 13 % while a job ran, with ``nice`` 10 alone). So a child with ``nice`` > 0 also
+starts a session of its own (``setsid``: its own autogroup) and gives that group the same
+``nice`` (``/proc/self/autogroup``); under systemd, where the service's cgroup replaces the
+autogroup, ``nice`` does the work. The children also limit BLAS/OpenMP to ``blas_threads``
+threads (threadpoolctl, for the libraries the forkserver preloaded; the environment variables,
+for any loaded later), so a job never occupies more cores than the pool has workers. A system
+that forbids raising the niceness (a seccomp filter without ``setpriority``, such as systemd's
+``SystemCallFilter=~@resources``) gets a warning, not a failure.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import multiprocessing.connection
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("cablecal.workers")
+
+#: Exit status of a child that saw the daemon die.
+EXIT_PARENT_GONE = 70
+
+#: Environment variables that size the thread pools of BLAS and OpenMP libraries.
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+_limits: Any = None  # keeps the threadpoolctl limiter of this process alive
+
+
+def watch_parent() -> threading.Thread | None:
+    """Start a daemon thread that ends this process as soon as its multiprocessing parent
+    dies; None in a process without one (the main process)."""
+    parent = multiprocessing.parent_process()
+    if parent is None or parent.sentinel is None:
+        return None
+    sentinel = parent.sentinel
+    # Forked by a forkserver: the parent process is not the multiprocessing parent.
+    forkserver = os.getppid() if os.getppid() != parent.pid else None
+
+    def wait_for_parent() -> None:
+        multiprocessing.connection.wait([sentinel])
+        if forkserver is not None and os.getppid() == forkserver:
+            with contextlib.suppress(OSError):
+                os.kill(forkserver, signal.SIGKILL)
+        os._exit(EXIT_PARENT_GONE)
+
+    thread = threading.Thread(target=wait_for_parent, name="cablecal-parent-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def lower_priority(nice: int) -> int:
+    """Add ``nice`` (>= 0) to this process's niceness; returns the niceness now.
+
+    Refused by the system (EPERM): a warning, and the niceness stays."""
+    if nice < 0:
+        raise ValueError(f"nice: must be >= 0, got {nice}")
+    try:
+        return os.nice(nice)
+    except OSError as exc:
+        log.warning("cannot lower the priority of worker %d by %d: %s", os.getpid(), nice, exc)
+        return os.nice(0)
+
+
+def own_sched_group(nice: int) -> bool:
+    """Start a session of its own (so a scheduling autogroup of its own) and set that group's
+    ``nice``; True if the process now runs in its own session. Not possible (already a group
+    leader, no autogroup support): the process stays where it is."""
+    try:
+        os.setsid()
+    except OSError as exc:
+        log.warning("worker %d cannot start its own session: %s", os.getpid(), exc)
+        return False
+    path = Path("/proc/self/autogroup")
+    if not path.exists():
+        return True
+    for _ in range(10):  # unprivileged writes are rate-limited system-wide (EAGAIN)
+        try:
+            path.write_text(f"{nice}\n")
+            return True
+        except BlockingIOError:
+            time.sleep(0.11)
+        except OSError as exc:
+            log.warning("worker %d cannot set its autogroup nice %d: %s", os.getpid(), nice, exc)
+            return True
+    log.warning("worker %d: autogroup nice %d not set (busy)", os.getpid(), nice)
+    return True
+
+
+def limit_threads(blas_threads: int) -> None:
+    """Use at most ``blas_threads`` (>= 1) threads in BLAS and OpenMP in this process."""
+    global _limits
+    if blas_threads < 1:
+        raise ValueError(f"blas_threads: must be >= 1, got {blas_threads}")
+    for name in THREAD_ENV:
+        os.environ[name] = str(blas_threads)
+    from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
+
+    _limits = threadpool_limits(limits=blas_threads)
+
+
+def init_child(nice: int, blas_threads: int) -> None:
+    """Initializer of a pool worker or the manager: watch the daemon, lower the priority by
+    ``nice`` (and, if ``nice`` > 0, in a scheduling group of its own), cap BLAS/OpenMP at
+    ``blas_threads`` threads."""
+    watch_parent()
+    lower_priority(nice)
+    if nice > 0:
+        own_sched_group(nice)
+    limit_threads(blas_threads)
+
+
+def child_state() -> dict[str, Any]:
+    """This process's pid, niceness and BLAS/OpenMP thread counts (for tests and the bench)."""
+    from threadpoolctl import threadpool_info
+
+    return {
+        "pid": os.getpid(),
+        "nice": os.nice(0),
+        "session": os.getsid(0),
+        "threads": {str(i.get("internal_api")): int(i["num_threads"]) for i in threadpool_info()},
+        "watchdog": any(t.name == "cablecal-parent-watch" for t in threading.enumerate()),
+    }
