@@ -32,6 +32,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--splits", type=int, default=10)
     parser.add_argument("--variants", default="ml,fixed,estimated,cv")
     parser.add_argument("--robust", default="none")
+    parser.add_argument("--first", type=int, default=0, help="Skip the first splits")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
     model, samples = load_robot(ROBOT), read_samples(None)
@@ -39,7 +40,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                            test_fraction=GROUPED_TEST_FRACTION,
                            robust=args.robust)  # fmt: skip
     rows: list[dict[str, Any]] = []
-    for seed in distinct_grouped_seeds(samples, args.splits):
+    for seed in distinct_grouped_seeds(samples, args.splits)[args.first :]:
         train, test = split_rows(samples, GROUPED_TEST_FRACTION, seed, "grouped", base.n_groups)
         variants = {"ml": replace(base, seed=seed),
                     "map, noise 0.1 mm": replace(base, seed=seed, prior=True,

@@ -11,10 +11,12 @@ The public entry point is :func:`identify`. It
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
-5. runs the chosen method (:data:`calib.methods.REGISTRY`), optionally robustly (IRLS with
-   Huber or soft-L1 weights, or iterative 3.5σ rejection, the scale being the MAD of the
-   residuals; :mod:`calib.robust`), optionally with a Gaussian prior toward the nominal model
-   (MAP);
+5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
+   maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
+   the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
+   the leverage-studentised residuals against a MAD scale and a threshold growing with ``n``,
+   and only on gross outliers rejects them and refits from the start; IRLS with Huber or
+   soft-L1 weights, or rejection at 3.5σ, on request (:mod:`calib.robust`);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
    metrics before and after on train and test, the plausibility of every parameter
    (:mod:`calib.report`) and the predicted tool-point σ after best rigid alignment
