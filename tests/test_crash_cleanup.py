@@ -28,6 +28,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 #: How long the children may outlive the daemon [s] (issue 11).
 CLEANUP_LIMIT_S = 2.0
+TOKEN = "crash-cleanup-test-token"  # the config needs at least 16 characters
 
 
 def proc_stat(pid: int) -> list[str] | None:
@@ -91,7 +92,7 @@ def niceness(pid: int) -> int:
 def start_daemon(tmp_path: Path) -> tuple[Process, str]:
     env = {
         "CABLECAL_STATE_DIR": str(tmp_path),
-        "CABLECAL_API_TOKEN": "tok",
+        "CABLECAL_API_TOKEN": TOKEN,
         "CABLECAL_INDICATOR__PORT": str(tmp_path / "no-such-adapter"),
         "CABLECAL_LOG_JSON": "true",
     }
@@ -103,7 +104,7 @@ def start_daemon(tmp_path: Path) -> tuple[Process, str]:
 
 
 def api_client(url: str) -> httpx.Client:
-    return httpx.Client(base_url=url, headers={"Authorization": "Bearer tok"}, timeout=30)
+    return httpx.Client(base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30)
 
 
 def start_long_de_job(api: httpx.Client) -> int:
