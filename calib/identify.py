@@ -11,10 +11,12 @@ The public entry point is :func:`identify`. It
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
-5. runs the chosen method (:data:`calib.methods.REGISTRY`), optionally robustly (IRLS with
-   Huber or soft-L1 weights, or iterative 3.5σ rejection, the scale being the MAD of the
-   residuals; :mod:`calib.robust`), optionally with a Gaussian prior toward the nominal model
-   (MAP);
+5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
+   maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
+   the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
+   the leverage-studentised residuals against a MAD scale and a threshold growing with ``n``,
+   and only on gross outliers rejects them and refits from the start; IRLS with Huber or
+   soft-L1 weights, or rejection at 3.5σ, on request (:mod:`calib.robust`);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
    metrics before and after on train and test, the plausibility of every parameter
    (:mod:`calib.report`) and the predicted tool-point σ after best rigid alignment
@@ -26,11 +28,12 @@ every reported figure in degrees and millimetres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
-from calib import methods, metrics
+from calib import methods, metrics, prior, robust
 from calib.cable import (
     N_DH,
     N_KIN,
@@ -45,9 +48,15 @@ from calib.identifiability import Identifiability, analyse
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel
 from calib.options import METHODS, IdentifyOptions, validate
+from calib.prior import prior_block
 from calib.problem import Problem
-from calib.report import IdentifyResult, covariance, plausibility, uncertainty
-from calib.robust import weights as robust_weights
+from calib.report import (
+    IdentifyResult,
+    covariance,
+    implausibility_advice,
+    plausibility,
+    uncertainty,
+)
 from calib.solvers import lm
 from calib.solvers.common import ProgressFn, SolverResult, Timer, report
 from calib.split import pose_groups, split_rows
@@ -213,6 +222,28 @@ def _problem(
                    noise_mm=opts.noise_mm)  # fmt: skip
 
 
+def _prior_weight(
+    d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
+    opts: IdentifyOptions, progress: ProgressFn | None,
+) -> tuple[IdentifyOptions, dict[str, Any]]:  # fmt: skip
+    """Step 5a: the options the fit runs with, the prior weighed as ``prior_weight`` says
+    (:mod:`calib.prior`): noise from the ML fit's residuals, and for ``cv`` the prior-width
+    scale chosen by grouped-fold cross-validation; and the detail for ``result.json``."""
+    if not opts.prior or opts.prior_weight == "fixed":
+        return opts, {}
+    report(progress, 0.05, "maximum-likelihood fit for the noise estimate")
+    ml_opts = replace(opts, prior=False)
+    ml = _solve(_problem(d, theta_start, free, ml_opts, []), ml_opts, None)
+    noise = prior.noise_from_fit(ml.problem, ml.result.x)
+    detail: dict[str, Any] = {"noise_estimated_mm": noise}
+    if opts.prior_weight == "estimated":
+        return prior.scaled_options(opts, noise, 1.0), detail
+    report(progress, 0.1, "cross-validating the prior scale over pose groups")
+    scale, scores = prior.cv_scale(d.model, samples, opts, d.train_rows, noise)
+    detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
+    return prior.scaled_options(opts, noise, scale), detail
+
+
 def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
     if progress is None:
         return None
@@ -220,38 +251,79 @@ def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> Progress
     return lambda f, msg: outer(lo + (hi - lo) * f, msg)
 
 
-def _solve(
-    problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None
-) -> tuple[SolverResult, Problem, FloatArray]:
-    """Step 5: run the method, as IRLS rounds when robust.
+#: Most fits of the rejecting modes (the first, plain fit included).
+REJECT_ROUNDS = 5
 
-    Returns the last solver result (iterations summed over rounds), the problem with the final
-    weights, and the standardised residuals of the training rows, shape (n_train,).
-    """
+
+@dataclass
+class _Solved:
+    """What step 5 found: the last solver result (iterations summed over rounds), the problem
+    with the final weights, the standardised residuals of the training rows (shape (n_train,)),
+    the flag threshold [robust σ], the rows flagged (indices into the training rows) and the
+    number of fits run."""
+
+    result: SolverResult
+    problem: Problem
+    u: FloatArray
+    threshold: float
+    flagged: np.ndarray
+    fits: int
+
+
+def _standardised_u(problem: Problem, x: FloatArray, w: FloatArray) -> FloatArray:
+    """Standardised, leverage-studentised residuals of every training row at ``x``, (n,)."""
+    pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
+                                     problem.anchor_index)  # fmt: skip
+    t = robust.studentised(pred - problem.length_mm, jac_full[:, problem.free], w)
+    return robust.standardised(t)
+
+
+def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) -> _Solved:
+    """Step 5: run the method; robustly, as IRLS rounds (huber, soft_l1) or as rejection
+    rounds (reject, auto; each refit starts from the common start, not from the contaminated
+    solution, so an outlier's pull does not carry over)."""
     n = problem.length_mm.size
-    x = problem.x0()
+    thr = robust.threshold(opts.robust, n, opts.flag_threshold)
+    rejecting = opts.robust in robust.REJECTING
     weights = np.ones(n)
-    u = np.zeros(n)
-    rounds = 1 if opts.robust == "none" else 8
+    rounds = 1 if opts.robust == "none" else REJECT_ROUNDS if rejecting else 8
+    seen: list[FloatArray] = []
     result: SolverResult | None = None
-    total_iter = 0
+    total_iter, fits = 0, 0
+    x = problem.x0()
+    u = np.zeros(n)
     for r in range(rounds):
         prob_r = problem.with_weights(weights)
         lo = 0.05 + 0.9 * r / rounds
-        result = methods.run(prob_r, x, opts, _sub_progress(progress, lo, lo + 0.9 / rounds))
+        start = problem.x0() if rejecting else x
+        result = methods.run(prob_r, start, opts, _sub_progress(progress, lo, lo + 0.9 / rounds))
         total_iter += result.iterations
+        fits += 1
         x = result.x
         if opts.robust == "none":
             break
-        new_w, u = robust_weights(opts.robust, prob_r.predict(x) - problem.length_mm,
-                                  opts.robust_k, opts.flag_threshold)  # fmt: skip
-        if np.max(np.abs(new_w - weights)) < 1e-3:
-            weights = new_w
-            break
+        u = _standardised_u(problem, x, weights)
+        new_w = robust.WEIGHTS[opts.robust](u, thr if rejecting else opts.robust_k)
+        if np.max(np.abs(new_w - weights)) < 1e-3 or r == rounds - 1:
+            break  # converged, or out of rounds: keep the weights the last fit used
+        if rejecting and any(np.array_equal(new_w, w) for w in seen):
+            break  # a cycle of rejected sets (model error near the threshold): stop
+        seen.append(weights)
         weights = new_w
     assert result is not None
     result.iterations = total_iter
-    return result, problem.with_weights(weights), u
+    flagged = np.flatnonzero(weights == 0) if rejecting else np.flatnonzero(u > thr)
+    return _Solved(result, problem.with_weights(weights), u, thr, flagged, fits)
+
+
+def _robust_note(opts: IdentifyOptions, s: _Solved) -> str:
+    if opts.robust == "auto" and s.flagged.size == 0:
+        return (f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
+                f"robust σ, threshold {s.threshold:.2f}): the plain fit")  # fmt: skip
+    how = {"auto": "rejected, refit from the start", "reject": "rejected, refit from the start",
+           "huber": "down-weighted", "soft_l1": "down-weighted"}[opts.robust]  # fmt: skip
+    return (f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
+            f"({how}; {s.fits} fit(s))")  # fmt: skip
 
 
 def _figures(
@@ -308,10 +380,12 @@ def identify(
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
     notes: list[str] = []
-    problem = _problem(d, theta_start, free, opts, notes)
-    result, final, u = _solve(problem, opts, progress)
+    used, prior_detail = _prior_weight(d, samples, theta_start, free, opts, progress)
+    problem = _problem(d, theta_start, free, used, notes)
+    solved = _solve(problem, used, progress)
+    result, final = solved.result, solved.problem
     if opts.robust != "none":
-        notes.append(f"robust mode {opts.robust}: {int(np.sum(u > opts.flag_threshold))} flagged")
+        notes.append(_robust_note(opts, solved))
     report(progress, 0.96, "covariance and metrics")
 
     x = result.x
@@ -325,17 +399,8 @@ def identify(
                  - theta[N_KIN:].reshape(-1, 4)[d.aidx_all, 3])  # fmt: skip
     plaus = plausibility(layout, theta, d.model.tool_mm, extension)
     if not plaus["plausible"]:
-        notes.append(
-            "identified parameters are physically implausible ("
-            + ", ".join(plaus["outside_bounds"][:6])
-            + ("" if plaus["cable_extension_mm"]["ok"] else ", cable extension")
-            + "): the data do not constrain them; use --prior or more varied poses"
-        )
-    flagged = (
-        [int(d.train_rows[i]) for i in np.flatnonzero(u > opts.flag_threshold)]
-        if opts.robust != "none"
-        else []
-    )
+        notes.append(implausibility_advice(layout, final.free_names, sigma, cov, plaus, opts))
+    flagged = [int(d.train_rows[i]) for i in solved.flagged]
     report(progress, 1.0, "done")
     return IdentifyResult(
         model=d.model, layout=layout, method=opts.method, theta=theta,
@@ -345,7 +410,9 @@ def identify(
         metrics=_figures(d, theta_before, theta), flagged_rows=flagged,
         train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
         notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
-        tcp_uncertainty_mm=tcp,
+        tcp_uncertainty_mm=tcp, prior=prior_block(opts, used, prior_detail),
+        robust_detail={"mode": opts.robust, "threshold": solved.threshold,
+                       "fits": solved.fits},
     )  # fmt: skip
 
 

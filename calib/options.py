@@ -19,12 +19,14 @@ if TYPE_CHECKING:
     from calib.dataset import SampleSet
 
 Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de", "geolm"]
-Robust = Literal["none", "huber", "soft_l1", "reject"]
+Robust = Literal["auto", "none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
+PriorWeight = Literal["estimated", "fixed", "cv"]
 
 METHODS: tuple[str, ...] = get_args(Method)
 ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
+PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
 
 #: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
 PAPER_N_TRAIN = 100
@@ -107,12 +109,20 @@ class IdentifyOptions:
         default=10,
         metadata=_spec("Pose clusters for a grouped hold-out without a group column", gt=0),
     )
-    robust: Robust = field(default="none", metadata=_spec("Robust fit mode", choices=ROBUST_MODES))
+    robust: Robust = field(
+        default="auto",
+        metadata=_spec(
+            "Robust fit mode; auto: plain fit, and only if it finds gross outliers "
+            "(beyond a threshold growing with n), reject them and refit",
+            choices=ROBUST_MODES,
+        ),
+    )
     robust_k: float = field(
         default=1.345, metadata=_spec("Huber / soft-L1 threshold [robust sigma]", gt=0)
     )
     flag_threshold: float = field(
-        default=3.5, metadata=_spec("Flag (reject) residuals beyond this [robust sigma]", gt=0)
+        default=3.5,
+        metadata=_spec("Flag (reject) residuals beyond this [robust sigma]; auto: at least", gt=0),
     )
     prior: bool = field(default=False, metadata=_spec("MAP prior toward the nominal model"))
     prior_mm: float = field(default=2.0, metadata=_spec("Prior 1σ of DH lengths [mm]", gt=0))
@@ -120,7 +130,17 @@ class IdentifyOptions:
     prior_tool_mm: float | None = field(
         default=None, metadata=_spec("Prior 1σ of the tool point [mm]", gt=0)
     )
-    noise_mm: float = field(default=0.1, metadata=_spec("Assumed 1-sigma length noise [mm]", gt=0))
+    prior_weight: PriorWeight = field(
+        default="estimated",
+        metadata=_spec(
+            "How the prior is weighed against the data: estimated (noise from the ML fit's "
+            "residuals), fixed (noise_mm), cv (prior scale by grouped-fold cross-validation)",
+            choices=PRIOR_WEIGHTS,
+        ),
+    )
+    noise_mm: float = field(
+        default=0.1, metadata=_spec("Assumed 1-sigma length noise (prior_weight fixed) [mm]", gt=0)
+    )
     fix: tuple[str, ...] = field(
         default=(), metadata=_spec("Parameter names held at their start (nominal) value")
     )

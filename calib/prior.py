@@ -1,69 +1,121 @@
-"""A MAP prior weight that keeps its meaning as the number of samples grows (issue 10, goal 3).
+"""The MAP prior's weight, chosen so that it keeps its meaning as the number of samples grows.
 
 The MAP problem (:mod:`calib.problem`) adds rows ``noise_mm · (x_j − μ_j)/σ_j`` to the data
 residuals ``L_model − L``. Its minimiser is the posterior mode only if ``noise_mm`` is the real
-1σ of the length residuals. :class:`calib.identify.IdentifyOptions` fixes it at 0.1 mm, while
-the bundled data's residuals are 0.2–1 mm: the prior then weighs ``(0.1/σ)² ≈ 1/100`` of what it
-should against each sample, and with 2017 rows the data swamp it entirely.
+1σ of the length residuals. A fixed 0.1 mm against residuals of about 1 mm (the bundled data)
+weighs the prior ``(0.1/1)² = 1/100`` of what it should. ``prior_weight`` chooses it:
 
-:func:`estimate_noise_mm` estimates ``σ`` from the residuals of a maximum-likelihood fit on the
-training rows, ``σ̂ = sqrt(Σ r² / (n − k))`` (the usual unbiased estimate, ``k`` free
-parameters), and :func:`map_options` returns the options with ``noise_mm = σ̂``. This is the
-empirical-Bayes choice for the noise level; the prior's own widths (``prior_mm``,
-``prior_deg``) keep their meaning as plausible DH errors. A model error that the ML fit absorbs
-into implausible parameters also lowers ``σ̂``, so the estimate is a lower bound on the noise the
-MAP fit will see; :func:`estimate_noise_mm` can iterate (``rounds``) by re-estimating ``σ̂``
-from the MAP fit's own residuals, a fixed point of ``σ̂ = rms(r_MAP(σ̂))·sqrt(n/(n − k))``.
+``estimated`` (default)
+    ``noise_mm`` = ``σ̂ = sqrt(Σ w r² / (n_w − k))`` of the maximum-likelihood fit on the
+    training rows (:func:`noise_from_fit`; the empirical-Bayes choice). The prior widths keep
+    their meaning as plausible DH errors, and the noise is the data's own.
+``fixed``
+    ``noise_mm`` as given (the option; 0.1 mm by default).
+``cv``
+    ``σ̂`` as above, then the prior widths scaled by each of :data:`CV_SCALES` (and no prior at
+    all) are scored by grouped-fold cross-validation on the training rows
+    (:func:`cv_scale`: :data:`CV_FOLDS` folds of whole pose groups, plain LM fits): the scale with
+    the lowest mean held-out RMSE is used. This is the honest way to choose a weight for
+    accuracy at poses unlike the training poses; it costs ``CV_FOLDS × (len(CV_SCALES) + 1)``
+    extra fits.
 
-Prototype: measured by ``python -m bench.prior_weight`` (grouped hold-out on the bundled data).
+A prior cannot make data excite parameters they do not excite: measured on the bundled data in
+``bench/prior_weight.md`` (see docs/calibration-results.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from calib.dataset import SampleSet
-from calib.identify import IdentifyOptions, identify
 from calib.models import RobotModel
+from calib.problem import Problem
+from calib.split import pose_groups
+
+if TYPE_CHECKING:
+    from calib.options import IdentifyOptions
+
+#: Multipliers of the prior widths (``prior_mm``, ``prior_deg``) that ``cv`` scores; ``inf``
+#: (no prior) is scored too.
+CV_SCALES: tuple[float, ...] = (0.25, 1.0, 4.0, 16.0)
+#: Folds of whole pose groups in ``cv``.
+CV_FOLDS = 3
+#: Fewest training rows per fold fit in ``cv``; folds below it are skipped.
+CV_MIN_TRAIN = 30
 
 
-def estimate_noise_mm(
-    model: RobotModel,
-    samples: SampleSet,
-    options: IdentifyOptions,
-    train_rows: np.ndarray,
-    rounds: int = 1,
-) -> float:
-    """Residual 1σ [mm] of a fit on ``train_rows``: ML first, then ``rounds − 1`` MAP refits.
+def noise_from_fit(problem: Problem, x: np.ndarray) -> float:
+    """``σ̂ = sqrt(Σ w r² / (n_w − k))`` [mm] of the data residuals at free values ``x``
+    (shape (k,)), ``n_w`` the rows with non-zero weight (rejected outliers do not count)."""
+    r = problem.predict(x) - problem.length_mm
+    w = problem.weights
+    n_w = int(np.count_nonzero(w > 0))
+    return float(np.sqrt(float(np.sum(w * r * r)) / max(n_w - problem.n_free, 1)))
 
-    ``options`` give the method and prior widths; the test rows are empty in these fits.
+
+def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> IdentifyOptions:
+    """The options the MAP fit runs with: ``noise_mm``, widths × ``scale`` (``inf``: no prior)."""
+    if not np.isfinite(scale):
+        return replace(options, prior=False, prior_weight="fixed", noise_mm=noise_mm)
+    return replace(
+        options, prior=True, prior_weight="fixed", noise_mm=noise_mm,
+        prior_mm=options.prior_mm * scale, prior_deg=options.prior_deg * scale,
+    )  # fmt: skip
+
+
+def cv_scale(
+    model: RobotModel, samples: SampleSet, options: IdentifyOptions, train_rows: np.ndarray,
+    noise_mm: float,
+) -> tuple[float, dict[str, float]]:  # fmt: skip
+    """The prior-width scale with the lowest mean grouped-fold held-out RMSE on ``train_rows``.
+
+    Returns the scale (``inf`` = no prior) and the mean held-out RMSE [mm] per scale, keyed by
+    the scale as text. Pose groups are those of the grouped hold-out (:func:`pose_groups`);
+    each fold holds out every :data:`CV_FOLDS`-th group present in the training rows.
     """
-    if rounds < 1:
-        raise ValueError(f"rounds must be >= 1, got {rounds}")
-    if train_rows.size == 0:
-        raise ValueError("train_rows: no training rows")
-    empty = np.zeros(0, dtype=int)
-    opts = replace(options, prior=False)
-    sigma = options.noise_mm
-    for _ in range(rounds):
-        res = identify(model, samples, opts, train_rows=train_rows, test_rows=empty)
-        k = len(res.free_names)
-        n = int(train_rows.size)
-        rms = res.metrics["after"]["train"]["rmse_mm"]
-        sigma = float(rms * np.sqrt(n / max(n - k, 1)))
-        opts = replace(options, prior=True, noise_mm=sigma)
-    return sigma
+    from calib.identify import identify  # calib.identify imports this module
+
+    labels = pose_groups(samples, options.n_groups)[train_rows]
+    present = np.unique(labels)
+    if present.size < 2:
+        return 1.0, {}
+    fold_of = {g: i % CV_FOLDS for i, g in enumerate(present)}
+    folds = np.array([fold_of[g] for g in labels])
+    # LM without the robust step: the folds rank scales, the final fit deals with outliers.
+    base = replace(options, method="lm", test_fraction=0.0, robust="none")
+    scores: dict[str, float] = {}
+    for scale in (*CV_SCALES, float("inf")):
+        errs = []
+        for f in range(min(CV_FOLDS, present.size)):
+            tr, te = train_rows[folds != f], train_rows[folds == f]
+            if tr.size < CV_MIN_TRAIN or te.size == 0:
+                continue
+            res = identify(model, samples, scaled_options(base, noise_mm, scale),
+                           train_rows=tr, test_rows=te)  # fmt: skip
+            errs.append(res.metrics["after"]["test"]["rmse_mm"])
+        if errs:
+            scores[str(scale)] = float(np.mean(errs))
+    if not scores:
+        return 1.0, {}
+    best = min(scores, key=lambda k: scores[k])
+    return float(best), scores
 
 
-def map_options(
-    model: RobotModel,
-    samples: SampleSet,
-    options: IdentifyOptions,
-    train_rows: np.ndarray,
-    rounds: int = 1,
-) -> IdentifyOptions:
-    """``options`` with the prior on and ``noise_mm`` estimated (:func:`estimate_noise_mm`)."""
-    sigma = estimate_noise_mm(model, samples, options, train_rows, rounds)
-    return replace(options, prior=True, noise_mm=sigma)
+def prior_block(
+    options: IdentifyOptions, used: IdentifyOptions, detail: dict[str, Any]
+) -> dict[str, Any]:
+    """``result.json``'s ``prior``: asked (``used``), the widths and noise the fit ran with,
+    and how the weight was chosen (``weight``, ``noise_estimated_mm``, ``cv_scale``, …)."""
+    return {
+        "used": options.prior,
+        "dh_mm": used.prior_mm,
+        "dh_deg": used.prior_deg,
+        "tool_mm": options.prior_tool_mm,
+        "noise_mm": used.noise_mm,
+        "weight": options.prior_weight,
+        "applied": used.prior,
+        **detail,
+    }

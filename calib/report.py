@@ -56,6 +56,10 @@ class IdentifyResult:
     #: Predicted 1σ tool-point error after best rigid alignment over a workspace sample,
     #: ``{"rms", "max"}`` [mm] (:func:`calib.tcp.tcp_uncertainty_for_problem`).
     tcp_uncertainty_mm: dict[str, float] | None = None
+    #: ``result.json``'s ``prior`` block (:func:`calib.prior.prior_block`); None: from options.
+    prior: dict[str, Any] | None = None
+    #: The robust step: ``{"mode", "threshold", "fits"}`` (threshold in robust σ).
+    robust_detail: dict[str, Any] | None = None
 
     def dh_table_deg_mm(self, errors_only: bool = False) -> FloatArray:
         """Calibrated (or error) DH table, shape (6, 4): alpha_deg, a_mm, d_mm, theta_deg."""
@@ -132,7 +136,8 @@ class IdentifyResult:
             "success": bool(self.solver.success),
             "message": self.solver.message,
             "cost_history_rms_mm": [float(v) for v in self.solver.cost_history_rms_mm],
-            "prior": {
+            "prior": self.prior
+            or {
                 "used": self.options.prior,
                 "dh_mm": self.options.prior_mm,
                 "dh_deg": self.options.prior_deg,
@@ -140,6 +145,7 @@ class IdentifyResult:
                 "noise_mm": self.options.noise_mm,
             },
             "robust": self.options.robust,
+            "robust_detail": self.robust_detail,
             "split": {
                 "holdout": self.options.holdout,
                 "test_fraction": self.options.test_fraction,
@@ -192,6 +198,20 @@ def uncertainty(
     return sigma, corr
 
 
+def plausible_bounds(layout: ParamLayout) -> FloatArray:
+    """Plausible magnitude of every parameter, shape (p,), in display units (deg, mm): of the
+    error for DH parameters, of the absolute value for the others."""
+    out = np.full(layout.size, PLAUSIBLE_ANCHOR_MM)
+    for i, name in enumerate(layout.names):
+        if i < N_DH:
+            out[i] = PLAUSIBLE_DH_DEG if layout.is_angle[i] else PLAUSIBLE_DH_MM
+        elif i < N_KIN:
+            out[i] = PLAUSIBLE_TOOL_MM
+        elif name.startswith("offset"):
+            out[i] = PLAUSIBLE_OFFSET_MM
+    return out
+
+
 def plausibility(
     layout: ParamLayout, theta: FloatArray, nominal_tool: FloatArray, extension_mm: FloatArray
 ) -> dict[str, Any]:
@@ -202,19 +222,13 @@ def plausibility(
     """
     scale = layout.display_scale
     names = layout.names
+    bounds = plausible_bounds(layout)
     items = []
     for i, name in enumerate(names):
         value = float(theta[i] * scale[i])
-        if i < N_DH:
-            bound = PLAUSIBLE_DH_DEG if layout.is_angle[i] else PLAUSIBLE_DH_MM
-            kind = "error"
-        elif i < N_KIN:
+        bound, kind = float(bounds[i]), "error" if i < N_DH else "absolute"
+        if N_DH <= i < N_KIN:
             value = float(nominal_tool[i - N_DH] + theta[i])
-            bound, kind = PLAUSIBLE_TOOL_MM, "absolute"
-        elif name.startswith("offset"):
-            bound, kind = PLAUSIBLE_OFFSET_MM, "absolute"
-        else:
-            bound, kind = PLAUSIBLE_ANCHOR_MM, "absolute"
         items.append({"name": name, "value": value, "unit": layout.units[i], "kind": kind,
                       "bound": bound, "ok": bool(abs(value) <= bound)})  # fmt: skip
     ext_ok = bool(extension_mm.size == 0 or (
@@ -230,3 +244,60 @@ def plausibility(
         },
         "parameters": items,
     }
+
+
+#: How many parameters the advice names, and how many terms of the weakest direction.
+ADVICE_NAMES = 4
+
+
+def weakest_direction(
+    layout: ParamLayout, free_names: list[str], cov: FloatArray
+) -> list[tuple[str, float]]:
+    """The least constrained combination of the solved parameters, relative to their plausible
+    sizes: the top eigenvector of ``D⁻¹ C D⁻¹`` (``C`` the (k, k) covariance in internal units,
+    ``D`` the plausible bounds in internal units), as ``(name, coefficient)`` pairs, largest
+    first (at most :data:`ADVICE_NAMES`), the sign fixed so the first is positive."""
+    idx = [layout.index(n) for n in free_names]
+    if not idx:
+        return []
+    bound = plausible_bounds(layout)[idx] / layout.display_scale[idx]
+    scaled = cov / np.outer(bound, bound)
+    _, vecs = np.linalg.eigh(scaled)
+    v = vecs[:, -1]
+    order = np.argsort(-np.abs(v))[:ADVICE_NAMES]
+    sign = 1.0 if v[order[0]] >= 0 else -1.0
+    return [(free_names[i], round(float(sign * v[i]), 2)) for i in order if abs(v[i]) >= 0.1]
+
+
+def implausibility_advice(
+    layout: ParamLayout, free_names: list[str], sigma: FloatArray, cov: FloatArray,
+    plaus: dict[str, Any], options: IdentifyOptions,
+) -> str:  # fmt: skip
+    """The note of an implausible result: what is out of bounds, which parameters the data
+    leave least constrained (largest 1σ against the plausible bound, and the weakest
+    direction), and what to do: plan poses that excite them (``cablecal plan --start``), and
+    ``--prior`` only when it is off. ``sigma`` (p,) 1σ in internal units; ``cov`` (k, k)."""
+    scale, bounds = layout.display_scale, plausible_bounds(layout)
+    idx = [layout.index(n) for n in free_names]
+    ratio = sigma[idx] * scale[idx] / bounds[idx]
+    loose = [idx[i] for i in np.argsort(-ratio)[:ADVICE_NAMES]]
+    loose_text = ", ".join(
+        f"{layout.names[i]} ±{sigma[i] * scale[i]:.3g} {layout.units[i]}" for i in loose
+    )
+    direction = " ".join(f"{c:+.2f}·{n}" for n, c in weakest_direction(layout, free_names, cov))
+    outside = ", ".join(plaus["outside_bounds"][:6]) or "no parameter"
+    if not plaus["cable_extension_mm"]["ok"]:
+        outside += ", cable extension"
+    text = (
+        f"identified parameters are physically implausible ({outside}): the data do not "
+        f"hold them within bounds. Least constrained (1σ): {loose_text}; "
+        f"weakest direction: {direction}. "
+        "Measure poses that excite these: `cablecal plan --start DATA.csv` plans the next "
+        "poses given those already measured"
+    )
+    if options.prior:
+        return text + (
+            f" (the prior, {options.prior_mm} mm / {options.prior_deg} deg, is on and does not "
+            "hold them at this weight)"
+        )
+    return text + "; or constrain them toward the nominal model with --prior"

@@ -72,11 +72,12 @@ def test_robust_mode_flags_gross_outliers_and_stays_close_to_clean(clean_case) -
     corrupted = noisy.copy()
     bad = rng.choice(train, size=5, replace=False)  # 5 % of 100 training samples
     corrupted[bad] += rng.choice([-1, 1], 5) * rng.uniform(5, 20, 5)
-    clean_res = identify(MODEL, make_samples(q, noisy), IdentifyOptions(method="lm"),
+    plain_opts = IdentifyOptions(method="lm", robust="none")
+    clean_res = identify(MODEL, make_samples(q, noisy), plain_opts,
                          train_rows=train, test_rows=test)  # fmt: skip
-    plain = identify(MODEL, make_samples(q, corrupted), IdentifyOptions(method="lm"),
+    plain = identify(MODEL, make_samples(q, corrupted), plain_opts,
                      train_rows=train, test_rows=test)  # fmt: skip
-    for mode in ("huber", "reject"):
+    for mode in ("huber", "reject", "auto"):
         opts = IdentifyOptions(robust=mode)  # type: ignore[arg-type]
         res = identify(MODEL, make_samples(q, corrupted), opts, train_rows=train,
                        test_rows=test)  # fmt: skip

@@ -1,14 +1,16 @@
-"""The MAP noise weight estimated from the residuals (calib.prior)."""
+"""The MAP prior's weight (calib.prior): the noise estimate and the options it yields."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from calib.cable import N_KIN, ParamLayout
 from calib.dataset import make_samples
-from calib.identify import IdentifyOptions
+from calib.identify import IdentifyOptions, identify
 from calib.models import builtin_model
-from calib.prior import estimate_noise_mm, map_options
+from calib.prior import noise_from_fit, scaled_options
+from calib.problem import Problem
 from calib.synthetic import make_true_cell, random_poses_deg
 
 MODEL = builtin_model("hsr-jr680")
@@ -20,18 +22,31 @@ def test_noise_estimate_recovers_the_simulated_noise(noise_mm: float) -> None:
     rng = np.random.default_rng(11)
     q = random_poses_deg(cell, 300, rng)
     samples = make_samples(q, cell.lengths_mm(q) + rng.normal(0, noise_mm, 300))
-    opts = IdentifyOptions(method="lm", test_fraction=0.0)
-    sigma = estimate_noise_mm(MODEL, samples, opts, np.arange(300))
-    assert sigma == pytest.approx(noise_mm, rel=0.15)
-    mapped = map_options(MODEL, samples, opts, np.arange(300))
-    assert mapped.prior and mapped.noise_mm == pytest.approx(sigma)
+    opts = IdentifyOptions(method="lm", test_fraction=0.0, prior=True)
+    block = identify(MODEL, samples, opts).to_json()["prior"]
+    assert block["noise_estimated_mm"] == pytest.approx(noise_mm, rel=0.15)
+    assert block["noise_mm"] == block["noise_estimated_mm"] and block["applied"]
 
 
-def test_bad_arguments_are_named() -> None:
+def test_rejected_rows_do_not_count_in_the_noise() -> None:
     cell = make_true_cell(MODEL)
-    q = random_poses_deg(cell, 40, np.random.default_rng(1))
-    samples = make_samples(q, cell.lengths_mm(q))
-    with pytest.raises(ValueError, match="rounds"):
-        estimate_noise_mm(MODEL, samples, IdentifyOptions(), np.arange(40), rounds=0)
-    with pytest.raises(ValueError, match="train_rows"):
-        estimate_noise_mm(MODEL, samples, IdentifyOptions(), np.zeros(0, dtype=int))
+    rng = np.random.default_rng(2)
+    q = random_poses_deg(cell, 50, rng)
+    lengths = cell.lengths_mm(q) + rng.normal(0, 0.1, 50)
+    lengths[:3] += 30.0
+    layout = ParamLayout(("A",))
+    free = np.zeros(layout.size, dtype=bool)
+    free[N_KIN:] = True
+    prob = Problem(MODEL, layout, np.deg2rad(q), lengths, np.zeros(50, int), free, cell.theta)
+    x = prob.x0()
+    assert noise_from_fit(prob, x) > 5.0
+    kept = prob.with_weights(np.r_[np.zeros(3), np.ones(47)])
+    assert noise_from_fit(kept, x) == pytest.approx(0.1, rel=0.3)
+
+
+def test_scaled_options_scale_the_widths_or_drop_the_prior() -> None:
+    base = IdentifyOptions(prior=True, prior_mm=2.0, prior_deg=0.2)
+    four = scaled_options(base, 0.3, 4.0)
+    assert (four.prior, four.prior_mm, four.prior_deg, four.noise_mm) == (True, 8.0, 0.8, 0.3)
+    assert four.prior_weight == "fixed"
+    assert not scaled_options(base, 0.3, float("inf")).prior

@@ -17,41 +17,34 @@ import httpx
 import numpy as np
 import pytest
 
-from daemon.cli.emulated import Cell, wait_for
+from daemon.cli.emulated import (
+    FAST_CELL_NOISE_MM,
+    FAST_DAEMON_ENV,
+    Cell,
+    fast_cell_toml,
+    wait_for,
+)
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
-NOISE_MM = 0.02
+NOISE_MM = FAST_CELL_NOISE_MM
 N_POSES = 60  # the schedule runs during daemon start-up; >= 25 remain for the soak
 MOVE_S, DWELL_S = 0.35, 0.9
 MIN_YIELD = 0.8
 SOAK_LIMIT_S = 180.0
 
-SIM_TOML = f"""
-seed = 7
-[robot]
-n_poses = {N_POSES}
-move_time_s = {MOVE_S}
-dwell_s = {DWELL_S}
-loop = false
-[indicator]
-noise_mm = {NOISE_MM}
-decimals = 2
-baud = 115200
-[robot_socketcmd]
-port = 0
-[robot_modbus]
-port = 0
-[faults]                      # emulated faults, active from the start
+# The fast emulated cell of make demo and the end-to-end tests, with the soak's emulated faults
+# active from the start.
+SIM_TOML = (
+    fast_cell_toml(N_POSES, seed=7, move_s=MOVE_S, dwell_s=DWELL_S)
+    + """
+[faults]
 robot_drop_rate = 0.1
 indicator_crc_error_rate = 0.1
 """
+)
 
-DAEMON_ENV = {
-    "CABLECAL_INDICATOR__BAUD": "115200",
-    "CABLECAL_SAMPLER__SETTLE_S": "0.3",
-    "CABLECAL_SAMPLER__SETTLE_TOL_MM": "0.08",
-}
+DAEMON_ENV = FAST_DAEMON_ENV
 
 
 def _samples(api: httpx.Client, cid: int) -> list[dict[str, Any]]:

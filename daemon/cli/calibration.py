@@ -37,7 +37,10 @@ if TYPE_CHECKING:
 console = Console()
 err_console = Console(stderr=True)
 
+#: Exit codes of ``cablecal identify`` (documented in README's CLI section and ``--help``).
+EXIT_NOT_CONVERGED = 1
 EXIT_BAD_INPUT = 2
+EXIT_IMPLAUSIBLE = 3
 
 
 def _fail(message: str) -> typer.Exit:
@@ -133,6 +136,10 @@ def _summary(result: IdentifyResult) -> None:
         f"{'on' if data['prior']['used'] else 'off'}, plausible: "
         f"{data['plausibility']['plausible']}, flagged: {len(data['flagged_samples'])}"
     )
+    flagged = data["flagged_samples"]
+    if flagged:
+        shown = ", ".join(str(i) for i in flagged[:40]) + (" …" if len(flagged) > 40 else "")
+        console.print(f"flagged samples (0-based data rows, excluded from the fit): {shown}")
     for note in data["notes"]:
         err_console.print(f"[yellow]note:[/] {note}")
 
@@ -152,11 +159,20 @@ def identify_cmd(
     prior: Annotated[bool, _opt("prior")] = default("prior"),
     prior_mm: Annotated[float, _opt("prior_mm")] = default("prior_mm"),
     prior_deg: Annotated[float, _opt("prior_deg")] = default("prior_deg"),
+    prior_weight: Annotated[str, _opt("prior_weight")] = default("prior_weight"),
     fix: Annotated[str, _opt("fix", ", comma-separated")] = "",
     free: Annotated[str, _opt("free", ", comma-separated")] = "",
     out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
+    strict: Annotated[
+        bool, typer.Option(help="Also exit 3 when the identified parameters are implausible")
+    ] = False,
 ) -> None:
-    """Identify the calibrated DH parameters from a CSV of poses and cable lengths."""
+    """Identify the calibrated DH parameters from a CSV of poses and cable lengths.
+
+    Exit codes: 0 done; 1 the solver did not converge (result.json is still written);
+    2 bad input (nothing written); 3 with --strict, the result is physically implausible
+    (result.json is still written).
+    """
     from calib.dataset import SampleError
     from calib.models import ModelError
     from daemon.datafiles import load_robot, read_samples
@@ -167,7 +183,8 @@ def identify_cmd(
         opts = options_from_mapping(
             {"method": method, "test_fraction": test_fraction, "seed": seed,
              "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
-             "prior_deg": prior_deg, "fix": _split_names(fix), "free": _split_names(free)}
+             "prior_deg": prior_deg, "prior_weight": prior_weight, "fix": _split_names(fix),
+             "free": _split_names(free)}
         )  # fmt: skip
         result = _run_identify(model, samples, opts)
     except (SampleError, ModelError, ValueError) as exc:
@@ -176,6 +193,21 @@ def identify_cmd(
     if out is not None:
         out.write_text(json.dumps(result.to_json(), indent=2) + "\n", encoding="utf-8")
         console.print(f"wrote {out}")
+    code = exit_code(result, strict)
+    if code:
+        raise typer.Exit(code)
+
+
+def exit_code(result: IdentifyResult, strict: bool) -> int:
+    """0, :data:`EXIT_NOT_CONVERGED` when the solver did not converge, or (``strict``)
+    :data:`EXIT_IMPLAUSIBLE` when the result is physically implausible; non-convergence wins."""
+    if not result.solver.success:
+        err_console.print(f"[bold red]not converged:[/] {escape(result.solver.message)}")
+        return EXIT_NOT_CONVERGED
+    if strict and not result.plausibility["plausible"]:
+        err_console.print("[bold red]implausible result[/] (--strict); see the notes above")
+        return EXIT_IMPLAUSIBLE
+    return 0
 
 
 def compare_cmd(
