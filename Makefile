@@ -3,8 +3,10 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
+# make run PORT=9000 (0: any free port)
+PORT ?= 8080
 
-.PHONY: test test-long lint typecheck unit run demo bench clean
+.PHONY: test test-long lint typecheck unit run demo bench screenshots clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,7 +32,7 @@ test-long: $(STAMP)
 
 # The daemon on the EMULATED cell (examples/sim.toml), store under .state/; Ctrl-C stops it.
 run: $(STAMP)
-	$(BIN)/python -m daemon.cli.demo serve
+	$(BIN)/python -m daemon.cli.demo serve --port $(PORT)
 
 # A whole campaign over the REST API against a fresh emulated cell (about 3 minutes).
 demo: $(STAMP)
@@ -46,6 +48,11 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
 	$(BIN)/python -m bench.sampler_priority
+	$(BIN)/python -m bench.web_bench
+
+# The README's screenshots of the operator page (docs/img/web-*.png), on a fresh emulated cell.
+screenshots: $(STAMP)
+	$(BIN)/python -m bench.web_screenshots
 
 clean:
 	rm -rf $(VENV) .mypy_cache .pytest_cache .ruff_cache

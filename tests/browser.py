@@ -56,8 +56,11 @@ class PageLog:
 
 
 @contextmanager
-def offline_page(viewport: tuple[int, int] = (1100, 900)) -> Iterator[tuple[Page, PageLog]]:
-    """A fresh chromium page that may load ``file://`` URLs only.
+def offline_page(
+    viewport: tuple[int, int] = (1100, 900), allowed_origin: str | None = None
+) -> Iterator[tuple[Page, PageLog]]:
+    """A fresh chromium page that may load ``file://`` URLs only, and URLs of
+    ``allowed_origin`` (e.g. ``http://127.0.0.1:8123``, the daemon under test) when given.
 
     Yields
     ------
@@ -67,10 +70,11 @@ def offline_page(viewport: tuple[int, int] = (1100, 900)) -> Iterator[tuple[Page
     from playwright.sync_api import Route, sync_playwright
 
     log = PageLog()
+    allowed = ("file://",) if allowed_origin is None else ("file://", allowed_origin + "/")
 
     def gate(route: Route) -> None:
         url = route.request.url
-        if url.startswith("file://"):
+        if url.startswith(allowed) or url.startswith(("blob:", "data:")):
             route.continue_()
         else:
             log.blocked_requests.append(url)
@@ -86,7 +90,9 @@ def offline_page(viewport: tuple[int, int] = (1100, 900)) -> Iterator[tuple[Page
         )
         try:
             context = browser.new_context(
-                viewport={"width": viewport[0], "height": viewport[1]}, offline=True
+                viewport={"width": viewport[0], "height": viewport[1]},
+                offline=allowed_origin is None,
+                accept_downloads=True,
             )
             context.route("**/*", gate)
             page = context.new_page()

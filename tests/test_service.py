@@ -84,6 +84,9 @@ class FakeSampler:
     def update_age_metrics(self) -> None:
         pass
 
+    def recent_readings(self, since_wall_s: float, limit: int) -> list[Any]:
+        return []
+
 
 def _settings(tmp: Path, **kw: Any) -> Settings:
     return Settings(state_dir=tmp, api_token=TOKEN, **kw)

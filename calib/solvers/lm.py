@@ -98,7 +98,11 @@ def solve(
             nu *= 2.0
         if not accepted:
             gn.history.append(gn.history[-1])
-        report(progress, it / opts.max_iterations, f"{method} iteration {it}")
+        report(
+            progress,
+            it / opts.max_iterations,
+            f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
+        )
         if status:
             break
         if not accepted:

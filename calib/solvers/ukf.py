@@ -149,7 +149,11 @@ def solve(
             if done % 50 == 0:
                 report(progress, done / total, f"{method} epoch {epoch + 1}")
         history.append(problem.data_rms_mm(x))
-        report(progress, (epoch + 1) / opts.epochs, f"{method} epoch {epoch + 1} done")
+        report(
+            progress,
+            (epoch + 1) / opts.epochs,
+            f"{method} epoch {epoch + 1} done, rms {history[-1]:.4f} mm",
+        )
     return SolverResult(
         method=method,
         x=x,

@@ -119,7 +119,11 @@ def solve(
                 accepted = True
                 break
             lam *= 10.0
-        report(progress, it / opts.max_iterations, f"{method} iteration {it}, step {delta:.3f}")
+        report(
+            progress,
+            it / opts.max_iterations,
+            f"{method} iteration {it}, step {delta:.3f}, rms {gn.history[-1]:.4f} mm",
+        )
         if not accepted:
             gn.history.append(gn.history[-1])
             status, message = 3, "no decrease possible at any damping (converged to precision)"

@@ -1,6 +1,6 @@
 """Assemble the FastAPI app: lifespan (store → jobs → sampler, stopped in reverse), routers,
 error handlers (:mod:`daemon.api.errors`), the request guard (:mod:`daemon.api.guard`: auth,
-then body limits), the latency middleware and the operator page."""
+then body limits), the latency middleware, the operator page and /docs (:mod:`daemon.api.web`)."""
 
 from __future__ import annotations
 
@@ -13,15 +13,23 @@ from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from typing import Any
 
 from fastapi import FastAPI
-from fastapi.responses import HTMLResponse
 
 from daemon import metrics
 from daemon.api import errors
 from daemon.api.deps import AppState
 from daemon.api.errors import API_KINDS, not_found_detail
 from daemon.api.guard import RequestGuard
-from daemon.api.page import OPERATOR_PAGE
-from daemon.api.routes import apply, campaigns, identifications, plans, robots, system
+from daemon.api.routes import (
+    apply,
+    campaigns,
+    identifications,
+    live,
+    plans,
+    reports,
+    robots,
+    system,
+)
+from daemon.api.web import mount_web
 from daemon.config import Settings
 from daemon.drift import DriftMonitor
 from daemon.jobs import JobManager
@@ -140,21 +148,20 @@ def create_app(
         version=system.VERSION,
         summary="Robot calibration with a drawstring sensor: campaigns, captures, identification.",
         lifespan=lifespan,
+        docs_url=None,  # served by mount_web from local files
+        redoc_url=None,
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
     app.add_middleware(
         RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
     )
     app.add_middleware(LatencyMiddleware)
-    for module in (system, campaigns, identifications, robots, plans, apply):
+    for module in (system, live, campaigns, identifications, reports, robots, plans, apply):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
     errors.install(app)
 
-    @app.get("/", include_in_schema=False, response_class=HTMLResponse)
-    async def operator_page() -> str:
-        return OPERATOR_PAGE
-
+    mount_web(app)
     return app
 
 

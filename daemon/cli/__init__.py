@@ -13,11 +13,12 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import apply, calibration, db, plan, serve, simulate
+    from daemon.cli import apply, calibration, db, plan, report, serve, simulate
 
     calibration.register(app)
     plan.register(app)
     apply.register(app)
+    report.register(app)
     serve.register(app)
     db.register(app)
     simulate.register(app)

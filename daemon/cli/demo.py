@@ -63,7 +63,9 @@ def serve_cmd(
         sim.stop()
         raise
     console.print(f"[bold]cablecal[/] on the EMULATED cell ({sim_config.name})")
-    console.print(f"  operator page  {daemon.url}/")
+    console.print("  open (URL with the token, one line; the page keeps the token for the tab):")
+    # Plain print: one line that a terminal does not wrap or restyle, to copy as it is.
+    print(f"  {daemon.url}/#token={token}", flush=True)
     console.print(f"  REST API docs  {daemon.url}/docs")
     console.print(f"  token          {token}")
     console.print(f"  database       {state_dir / 'cablecal.sqlite3'}")

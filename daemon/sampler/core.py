@@ -472,6 +472,18 @@ class Sampler:
             },
         }
 
+    def recent_readings(self, since_wall_s: float, limit: int) -> list[PairedReading]:
+        """The paired readings of the ring buffer (the last ``history_s``) whose length
+        stamp ``t_wall`` is later than ``since_wall_s`` [s, Unix time], oldest first, at
+        most the newest ``limit`` of them (the operator page's live trace)."""
+        out: list[PairedReading] = []
+        for reading in reversed(self._buffer):
+            if reading.t_wall <= since_wall_s or len(out) >= limit:
+                break
+            out.append(reading)
+        out.reverse()
+        return out
+
     def update_age_metrics(self) -> None:
         """Set :data:`metrics.LAST_READING_AGE` of both devices (NaN before any reading)."""
         now = time.monotonic()

@@ -1,0 +1,100 @@
+// View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
+// the drift-check state and history (the ``drift`` block of /status).
+import { api, saveBlob } from "./api.js";
+import { $, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
+
+let lastCsv = null;
+
+function cell(v) {
+  if (typeof v === "number") return Number.isInteger(v) ? String(v) : sig(v, 6);
+  if (typeof v === "boolean") return v ? "yes" : "no";
+  if (v == null) return "–";
+  if (Array.isArray(v)) return v.map((x) => (typeof x === "number" ? fix(x, 3) : String(x))).join(", ");
+  return typeof v === "object" ? JSON.stringify(v) : String(v);
+}
+
+async function compensate(ev) {
+  ev.preventDefault();
+  const c = state.campaign;
+  if (!hasRoute("POST", "/robots/{}/compensate")) {
+    showMessage("error", "Compensate: this daemon has no compensation route (POST /robots/{id}/compensate).");
+    return;
+  }
+  if (!c) { showMessage("error", "Compensate: select the campaign of the robot first (tab 2)."); return; }
+  const f = ev.target.elements;
+  const file = f.file.files[0];
+  const text = file ? await file.text() : f.csv.value;
+  if (!text.trim()) { showMessage("error", "Compensate: paste targets (CSV with q1..q6 in deg) or choose a file."); return; }
+  setText("compensate-state", "Compensating …");
+  let out;
+  try {
+    out = await api("POST", `/robots/${c.robot_id}/compensate`, { body: text, type: "text/csv", quiet: true });
+  } catch (exc) {
+    const why = exc.status === 404 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
+    setText("compensate-state", `Compensation failed: ${why}`);
+    showMessage("error", `Compensate: ${why}`, "compensate");
+    return;
+  }
+  const rows = out.rows || [];
+  const show = [["q1", "J1 [deg]", 4], ["q2", "J2 [deg]", 4], ["q3", "J3 [deg]", 4], ["q4", "J4 [deg]", 4],
+    ["q5", "J5 [deg]", 4], ["q6", "J6 [deg]", 4], ["max_correction_deg", "largest correction [deg]", 3],
+    ["uncompensated_error_mm", "error removed [mm]", 3], ["residual_mm", "IK residual [mm]", null], ["flags", "flags", null]];
+  fillTable($("compensate-result"), [{ label: "#", num: true }, ...show.map(([, label, d]) => ({ label, num: d !== null || label.includes("[") }))],
+    rows.map((r, i) => [String(i + 1), ...show.map(([k, , d]) => (k === "flags" ? el("span", { class: r[k] ? "bad" : "" }, r[k] || "ok")
+      : d == null ? sig(r[k], 2) : fix(r[k], d)))]));
+  // The server's own CSV (every column, nominal joints too), for the controller program.
+  lastCsv = await api("POST", `/robots/${c.robot_id}/compensate`, { body: text, type: "text/csv", accept: "text/csv" });
+  $("compensate-download").hidden = false;
+  const m = out.summary || {};
+  setText("compensate-state", `${m.n ?? rows.length} ${out.kind === "joints" ? "joint-space" : out.kind || ""} targets compensated (${out.mode || "position"} mode) with the accepted calibration of ${c.robot_name}: ` +
+    `largest joint correction ${fix(m.max_correction_deg, 3)} deg, tool-point error removed ${fix(m.rms_uncompensated_error_mm, 3)} mm RMS, ` +
+    `largest IK residual ${sig(m.max_residual_mm, 2)} mm, ${m.n_flagged ?? 0} flagged.`);
+  setText("compensate-note", out.note || "");
+  $("compensate-download").onclick = () => saveBlob(new Blob([lastCsv], { type: "text/csv" }), `robot-${c.robot_id}-compensated.csv`);
+}
+
+const DRIFT_WORDS = {
+  ok: "Last drift check OK: the robot still matches its calibration.",
+  drift: "DRIFT: the last check is above the threshold. Calibrate the robot again.",
+  failed: "The last drift check failed (see its error below).",
+  none: "No drift check yet.",
+};
+
+async function renderDrift() {
+  const drift = state.status?.drift;
+  const node = $("drift-state");
+  if (!drift) {
+    setText(node, "Drift checks are not available on this daemon.");
+    $("drift-start").disabled = true;
+    return;
+  }
+  node.className = `sentence ${drift.state === "drift" || drift.state === "failed" ? "bad" : drift.state === "ok" ? "ok" : ""}`;
+  const last = drift.last_check_at ? ` Check #${drift.check_id} at ${clock(drift.last_check_at)}: ${fix(drift.rms_mm, 3)} mm RMS against a threshold of ${fix(drift.threshold_mm, 3)} mm.` : "";
+  const running = drift.running ? ` Check #${drift.running} is running: move the robot through the check poses.` : "";
+  const every = drift.check_interval_h ? ` Scheduled every ${drift.check_interval_h} h.` : " No scheduled checks.";
+  setText(node, `${DRIFT_WORDS[drift.state] || drift.state}${last}${running}${every}`);
+  const c = state.campaign;
+  if (!c || !hasRoute("GET", "/robots/{}/checks")) return;
+  const list = await api("GET", `/robots/${c.robot_id}/checks`);
+  const items = (Array.isArray(list) ? list : list.items || []).slice().reverse();
+  fillTable($("drift-history"), [{ label: "#", num: true }, { label: "started" }, { label: "trigger" }, { label: "status" },
+    { label: "RMS [mm]", num: true }, { label: "max [mm]", num: true }, { label: "threshold [mm]", num: true }, { label: "poses", num: true }],
+  items.map((k) => [String(k.id), clock(k.started_at), k.trigger,
+    el("span", { class: k.status === "ok" ? "ok" : k.status === "running" ? "" : "bad", title: k.error || "" }, k.status),
+    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), k.n == null ? "–" : String(k.n)]),
+  JSON.stringify(items.map((k) => [k.id, k.status])));
+}
+
+async function startDrift() {
+  const c = state.campaign;
+  if (!c) { showMessage("error", "Drift check: select the campaign of the robot first (tab 2)."); return; }
+  const k = await api("POST", `/robots/${c.robot_id}/checks`);
+  showMessage("info", `Drift check #${k.id} started: auto capture now records the check poses.`, "drift");
+}
+
+export function initApply() {
+  $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch((e) => showMessage("error", `compensate: ${e.message}`)));
+  $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
+  every(3000, renderDrift, () => state.view === "apply");
+  onChange((kind) => { if (kind === "view" && state.view === "apply") renderDrift().catch(() => {}); });
+}

@@ -1,0 +1,300 @@
+// View 2, Campaign: create and pick a campaign, plan poses, capture (manual with a joint form
+// for the manual robot, or auto), the samples with exclude/include, the joint coverage.
+import { api, download } from "./api.js";
+import { isManualRobot } from "./cell.js";
+import { $, changed, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, state } from "./ui.js";
+
+const CAMPAIGN_KEY = "cablecal-campaign";
+const JOINTS = ["q1", "q2", "q3", "q4", "q5", "q6"];
+let samples = [];
+let robot = null; // GET /robots/{id} of the selected campaign
+let plan = null; // GET /campaigns/{id}/plan, or null
+
+/** Included samples needed before Identify is offered (the API's rule, calib.options). */
+export function samplesNeeded(testFraction = 0.2) {
+  // n_train = n - round(test_fraction * n) must reach MIN_TRAINING_SAMPLES.
+  const min = state.minTrainingSamples;
+  let n = min;
+  while (n - Math.round(testFraction * n) < min) n++;
+  return n;
+}
+
+export const campaignSamples = () => samples;
+
+async function loadCampaigns() {
+  const list = await api("GET", "/campaigns");
+  const items = Array.isArray(list) ? list : list.items || [];
+  const selected = state.campaign?.id;
+  fillTable($("campaign-list"), [
+    { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "samples", num: true },
+    { label: "excluded", num: true }, { label: "auto" }, { label: "created" },
+  ], items.slice().reverse().map((c) => ({
+    class: c.id === selected ? "selected" : "",
+    onclick: () => select(c),
+    cells: [String(c.id), c.name, c.robot_name, String(c.n_samples), String(c.n_excluded),
+      c.auto_capture ? "on" : "", clock(c.created_at)],
+  })), JSON.stringify([selected, items]));
+  if (selected) {
+    const fresh = items.find((c) => c.id === selected);
+    if (fresh && JSON.stringify(fresh) !== JSON.stringify(state.campaign)) {
+      state.campaign = fresh;
+      changed("campaign-data");
+    }
+  }
+  return items;
+}
+
+/** Make ``c`` the selected campaign (remembered for this browser tab). */
+export async function select(c) {
+  state.campaign = c;
+  sessionStorage.setItem(CAMPAIGN_KEY, String(c.id));
+  robot = await api("GET", `/robots/${c.robot_id}`);
+  samples = [];
+  plan = null;
+  $("campaign-list").dataset.key = "";
+  changed("campaign");
+  await refreshDetail();
+}
+
+/** Reload the selected campaign's samples and plan, and redraw its view. */
+export async function refreshDetail() {
+  const c = state.campaign;
+  $("campaign-detail").hidden = !c;
+  if (!c) return;
+  const list = await api("GET", `/campaigns/${c.id}/samples`);
+  samples = Array.isArray(list) ? list : list.items || [];
+  renderCounts();
+  renderSamples();
+  renderCoverage();
+  await refreshPlan();
+  renderCaptureState();
+}
+
+function renderCounts() {
+  const c = state.campaign;
+  const included = samples.filter((s) => !s.excluded).length;
+  const need = samplesNeeded();
+  setText("campaign-title", `Campaign #${c.id}: ${c.name}`);
+  setText("campaign-counts", `robot ${c.robot_name} · ${samples.length} samples, ${included} included, ${samples.length - included} excluded`);
+  const bar = $("campaign-need-bar");
+  bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
+  bar.className = included >= need ? "done" : "";
+  setText("campaign-need", included >= need
+    ? `${included} included samples: enough to identify (at least ${need} with a 20 % test set). More poses, spread over the workspace, give a more accurate result.`
+    : `${included} of at least ${need} included samples needed before Identify (${state.minTrainingSamples} training samples with a 20 % test set).`);
+}
+
+function renderSamples() {
+  const rows = samples.slice().reverse().map((s) => {
+    const action = s.excluded
+      ? el("button", { class: "secondary small", onclick: () => setExcluded(s, false) }, "Include")
+      : el("button", { class: "secondary small", onclick: () => setExcluded(s, true) }, "Exclude");
+    return {
+      class: s.excluded ? "excluded" : "",
+      cells: [String(s.id), clock(s.t_end ?? s.created_at), ...JOINTS.map((q) => fix(s[q], 3)),
+        fix(s.length_mm, 3), fix(s.length_std_mm, 4), s.count == null ? "–" : String(s.count),
+        s.mode || s.source, el("span", { class: "keep" }, s.excluded ? `excluded: ${s.excluded_reason || "no reason"}` : "included"), action],
+    };
+  });
+  fillTable($("samples"), [
+    { label: "#", num: true }, { label: "time" }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
+    { label: "length [mm]", num: true }, { label: "std [mm]", num: true }, { label: "readings", num: true },
+    { label: "how" }, { label: "status", class: "keep" }, { label: "" },
+  ], rows, JSON.stringify(samples.map((s) => [s.id, s.excluded, s.excluded_reason])));
+}
+
+async function setExcluded(s, excluded) {
+  let reason = null;
+  if (excluded) {
+    reason = prompt(`Why exclude sample #${s.id}? (kept with the sample)`, "outlier");
+    if (reason === null) return;
+  }
+  await api("PATCH", `/samples/${s.id}`, { json: { excluded, reason } });
+  await refreshDetail();
+  await loadCampaigns();
+}
+
+function limitsDeg() {
+  const joints = robot?.model?.joints || [];
+  return JOINTS.map((_, j) => joints[j]?.limits_deg || [-180, 180]);
+}
+
+function renderCoverage() {
+  const box = $("coverage");
+  const lim = limitsDeg();
+  const used = samples.filter((s) => !s.excluded);
+  const key = JSON.stringify([lim, used.map((s) => s.id)]);
+  if (box.dataset.key === key) return;
+  box.dataset.key = key;
+  const ns = "http://www.w3.org/2000/svg";
+  box.replaceChildren(...JOINTS.map((q, j) => {
+    const [lo, hi] = lim[j];
+    const xs = used.map((s) => s[q]);
+    const min = xs.length ? Math.min(...xs) : null;
+    const max = xs.length ? Math.max(...xs) : null;
+    const pos = (v) => `${(100 * (v - lo)) / (hi - lo)}%`;
+    const svg = document.createElementNS(ns, "svg");
+    const rect = (x, w, fill, h = 14, y = 4) => {
+      const r = document.createElementNS(ns, "rect");
+      Object.entries({ x, width: w, y, height: h, fill, rx: 2 }).forEach(([k, v]) => r.setAttribute(k, v));
+      svg.append(r);
+    };
+    rect("0%", "100%", "#e3e8ef");
+    if (min != null) {
+      rect(pos(min), `${(100 * (max - min)) / (hi - lo)}%`, "#9cc0ef");
+      for (const v of xs) rect(pos(v), "1.5", "#1f5fae", 14, 4);
+    }
+    const share = min == null ? 0 : (100 * (max - min)) / (hi - lo);
+    return el("div", { class: "joint", title: `J${j + 1} limits ${lo}…${hi} deg` }, el("b", {}, `J${j + 1}`), svg,
+      el("span", { class: "range" }, min == null ? `limits ${lo}…${hi}` : `${fix(min, 0)}…${fix(max, 0)} (${share.toFixed(0)} %)`));
+  }));
+}
+
+// ------------------------------------------------------------------ capture
+function renderCaptureState() {
+  const manual = isManualRobot();
+  $("manual-joints").hidden = !manual;
+  const s = state.status?.sampler;
+  const auto = $("auto-capture");
+  const on = !!state.campaign && s?.mode === "auto" && s.auto_campaign_id === state.campaign.id;
+  if (document.activeElement !== auto) auto.checked = on;
+  $("capture-now").disabled = on;
+  setText("capture-state", on
+    ? `Auto capture is on: ${samples.length} samples so far. Move the robot through the poses; each new still pose is captured once.`
+    : manual ? "Manual robot: enter the six joint angles, then Capture now." : "Press Capture now when the robot stands still at a pose.");
+}
+
+async function captureNow() {
+  const body = { anchor: $("capture-anchor").value || "A" };
+  if (isManualRobot()) {
+    const form = $("manual-joints");
+    if (!form.reportValidity()) return;
+    body.joints_deg = JOINTS.map((q) => Number(form.elements[q].value));
+  }
+  const button = $("capture-now");
+  button.disabled = true;
+  setText(button, "Capturing … (waiting for the robot to settle)");
+  try {
+    const s = await api("POST", `/campaigns/${state.campaign.id}/captures`, { json: body });
+    showMessage("info", `Sample #${s.id} captured: length ${fix(s.length_mm, 3)} mm (std ${fix(s.length_std_mm, 4)} mm over ${s.count} readings).`, "capture");
+    if (isManualRobot()) $("manual-joints").reset();
+  } catch { /* shown in the message area */ } finally {
+    button.disabled = false;
+    setText(button, "Capture now");
+  }
+  await refreshDetail();
+  await loadCampaigns();
+}
+
+async function setAuto(enabled) {
+  try {
+    await api("PUT", `/campaigns/${state.campaign.id}/auto-capture`, { json: { enabled, anchor: $("capture-anchor").value || "A" } });
+  } catch {
+    $("auto-capture").checked = !enabled;
+  }
+  await loadCampaigns();
+}
+
+// ------------------------------------------------------------------ plan
+let noPlanFor = null; // campaign id known to have no plan (no 404 polling)
+
+async function refreshPlan() {
+  if (!hasRoute("GET", "/campaigns/{}/plan")) {
+    $("plan-form").querySelector("button").disabled = true;
+    setText("plan-summary", "Pose planning is not available on this daemon (no plan route); capture poses of your own choosing.");
+    return;
+  }
+  const id = state.campaign.id;
+  if (noPlanFor === id) { plan = null; renderPlan(); return; }
+  try {
+    plan = await api("GET", `/campaigns/${id}/plan`, { quiet: true });
+  } catch (exc) {
+    if (exc.status !== 404) showMessage("error", `plan: ${exc.message}`, "plan");
+    else noPlanFor = id;
+    plan = null;
+  }
+  renderPlan();
+}
+
+function renderPlan() {
+  if (!plan) {
+    setText("plan-summary", "No plan yet. A plan picks the poses that make the calibration most accurate; give the sensor position roughly (or plan on top of samples already taken).");
+    fillTable($("plan-poses"), [], [], "none");
+    return;
+  }
+  const tcp = plan.summary?.tcp_sigma_mm;
+  const pr = plan.progress || {};
+  setText("plan-summary", `${pr.n_planned} planned poses: ${pr.n_done} captured, ${pr.n_pending} to go` +
+    (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") + "." +
+    (tcp ? ` Predicted tool-point accuracy after calibration: ${fix(tcp.plan?.rms, 3)} mm RMS (1σ; max ${fix(tcp.plan?.max, 3)} mm), against ${fix(tcp.random?.rms, 3)} mm with as many random poses.` : ""));
+  fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
+    { label: "anchor" }, { label: "status" }],
+  plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
+    el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
+  JSON.stringify([plan.id, plan.poses.map((p) => p.status)]));
+}
+
+async function startPlan(ev) {
+  ev.preventDefault();
+  const f = ev.target.elements;
+  const body = { n: Number(f.n.value), min_z_mm: Number(f.min_z_mm.value), seed: Number(f.seed.value),
+    start_from_samples: f.start_from_samples.checked };
+  if (f.ax.value !== "" || f.ay.value !== "" || f.az.value !== "") {
+    body.anchors_mm = [[Number(f.ax.value), Number(f.ay.value), Number(f.az.value)]];
+  } else if (!body.start_from_samples) {
+    showMessage("error", "Plan: give the sensor position x, y, z [mm] (roughly), or tick 'add to the samples already taken'.", "plan-anchor");
+    return;
+  }
+  const button = ev.target.querySelector("button");
+  button.disabled = true;
+  $("plan-progress").hidden = false;
+  $("plan-progress").firstElementChild.style.width = "100%";
+  setText("plan-summary", `Planning ${body.n} poses … (the cell PC computes for up to a minute)`);
+  try {
+    plan = await api("POST", `/campaigns/${state.campaign.id}/plan`, { json: body });
+    noPlanFor = null;
+  } finally {
+    button.disabled = false;
+    $("plan-progress").hidden = true;
+  }
+  renderPlan();
+}
+
+// ------------------------------------------------------------------ create
+async function createCampaign(ev) {
+  ev.preventDefault();
+  const f = ev.target.elements;
+  let model = f.robot_model.value;
+  if (model === "__file__") {
+    const file = f.robot_file.files[0];
+    if (!file) { showMessage("error", "Robot model: choose a .json model file."); return; }
+    try { model = JSON.parse(await file.text()); } catch (exc) {
+      showMessage("error", `Robot model file ${file.name}: not JSON (${exc.message})`);
+      return;
+    }
+  }
+  const c = await api("POST", "/campaigns", { json: { name: f.name.value.trim(), robot_model: model, notes: f.notes.value } });
+  ev.target.reset();
+  noPlanFor = c.id; // a new campaign has no plan: do not ask (a 404 in the console)
+  await loadCampaigns();
+  await select(c);
+  showMessage("info", `Campaign #${c.id} "${c.name}" created. Plan poses or start capturing.`, "created");
+}
+
+export async function restoreCampaign() {
+  const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
+  const items = await loadCampaigns();
+  const c = items.find((x) => x.id === id) || (items.length ? items[items.length - 1] : null);
+  if (c) await select(c);
+}
+
+export function initCampaign() {
+  $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
+  $("robot-model").addEventListener("change", (ev) => { $("robot-file-label").hidden = ev.target.value !== "__file__"; });
+  $("plan-form").addEventListener("submit", (ev) => startPlan(ev).catch(() => {}));
+  $("capture-now").addEventListener("click", () => captureNow());
+  $("auto-capture").addEventListener("change", (ev) => setAuto(ev.target.checked));
+  $("download-samples").addEventListener("click", () => download(`/campaigns/${state.campaign.id}/samples?format=csv`, `campaign-${state.campaign.id}-samples.csv`).catch(() => {}));
+  onChange((kind) => { if (kind === "status" && state.view === "campaign" && state.campaign) renderCaptureState(); });
+  every(2000, async () => { await loadCampaigns(); await refreshDetail(); }, () => state.view === "campaign");
+}

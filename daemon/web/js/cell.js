@@ -1,0 +1,166 @@
+// View 1, Cell: the live cable-length trace (last 60 s, polled at 5 Hz), joint readings,
+// devices and the sampler in words, device errors kept until dismissed.
+import { api } from "./api.js";
+import { traceChart } from "./charts.js";
+import { $, age, changed, clock, el, every, fillTable, fix, setText, state } from "./ui.js";
+
+const WINDOW_S = 60;
+const TRACE_MS = 150; // about 6.7 Hz nominal: at least 5 Hz on a busy cell PC
+const STATUS_MS = 1000;
+
+const trace = { t: [], length: [], last: 0, offset: 0, plot: null, updates: 0, readings: 0 };
+/** Counters the bench reads (bench/web_bench.py): chart updates and readings received. */
+window.__cablecal = { trace };
+
+const SETTLE_WORDS = {
+  settled: "The robot is still and the cable length is steady: ready to capture.",
+  moving: "The robot or the cable is moving.",
+  stale: "The readings are late (a device is slow or down).",
+  over_range: "The indicator is over range (cable outside the sensor's stroke).",
+  no_data: "No readings yet.",
+};
+
+export function isManualRobot() {
+  return state.status?.devices?.robot?.driver === "ManualRobot";
+}
+
+async function pollTrace() {
+  const r = await api("GET", `/readings?since_wall_s=${trace.last}&limit=2000`, { quiet: true });
+  const nowLocal = Date.now() / 1000;
+  trace.offset = r.now_wall_s - nowLocal;
+  for (let i = 0; i < r.t_wall_s.length; i++) {
+    trace.t.push(r.t_wall_s[i]);
+    trace.length.push(r.length_mm[i]);
+  }
+  trace.readings += r.t_wall_s.length;
+  if (r.t_wall_s.length) trace.last = r.t_wall_s[r.t_wall_s.length - 1];
+  const horizon = r.now_wall_s - WINDOW_S;
+  let drop = 0;
+  while (drop < trace.t.length && trace.t[drop] < horizon) drop++;
+  if (drop) { trace.t.splice(0, drop); trace.length.splice(0, drop); }
+  const x = trace.t.map((t) => t - r.now_wall_s);
+  trace.plot ||= traceChart($("trace"));
+  trace.plot.setData([x, trace.length.slice()]);
+  trace.updates += 1;
+  const lastL = trace.length[trace.length.length - 1];
+  setText("cell-length", lastL == null ? "over range" : fix(lastL, 3));
+}
+
+function rateText() {
+  let prev = { updates: trace.updates, readings: trace.readings, at: performance.now() };
+  setInterval(() => {
+    const dt = (performance.now() - prev.at) / 1000;
+    const hz = (trace.updates - prev.updates) / dt;
+    const rps = (trace.readings - prev.readings) / dt;
+    prev = { updates: trace.updates, readings: trace.readings, at: performance.now() };
+    if (!document.hidden && state.view === "cell") {
+      setText("trace-rate", `Chart updates ${hz.toFixed(1)} per s; ${rps.toFixed(0)} paired readings per s; ${trace.t.length} points shown.`);
+    }
+  }, 2000);
+}
+
+function samplerWords(s) {
+  if (!s) return ["The sampler is not running.", ""];
+  let mode;
+  if (s.mode === "auto") {
+    mode = `Auto capture is ON for campaign #${s.auto_campaign_id} (anchor ${s.auto_anchor}): one sample at each new still pose; ${s.auto_known_poses} poses already in the campaign.`;
+  } else {
+    mode = "Manual mode: a sample is taken when you press Capture (tab 2).";
+  }
+  const settle = SETTLE_WORDS[s.settle_state] || `Not settled: ${String(s.settle_state).replaceAll("_", " ")}.`;
+  return [`${mode} ${settle}`, s.settled ? "" : s.settle_detail || ""];
+}
+
+function renderDevices(devices) {
+  const rows = Object.values(devices).map((d) => {
+    const reading = d.last_reading;
+    let value = "–";
+    if (reading) {
+      value = Array.isArray(reading.value) ? "6 joints (see above)" : `${fix(reading.value, 3)} mm`;
+      if (reading.over_range) value = "over range";
+    } else if (d.waiting_for) {
+      value = `waiting for ${d.waiting_for}`;
+    }
+    const stateCell = el("span", { class: d.state === "ok" ? "ok" : "bad" }, d.state === "ok" ? "connected" : d.state);
+    return [d.name, d.role, d.driver, stateCell, value, reading ? age(reading.age_s) : "–",
+      fix(d.poll_rate_hz, 1), String(d.polls), String(d.errors)];
+  });
+  fillTable($("cell-devices"), [
+    { label: "device" }, { label: "role" }, { label: "driver" }, { label: "state" },
+    { label: "last reading" }, { label: "age", num: true }, { label: "poll rate [Hz]", num: true },
+    { label: "polls", num: true }, { label: "errors", num: true },
+  ], rows);
+}
+
+function renderJoints(robot) {
+  const q = robot?.last_reading?.value;
+  const rows = [0, 1, 2, 3, 4, 5].map((j) => [`J${j + 1}`, el("span", { class: "num" }, Array.isArray(q) ? `${fix(q[j], 3)} deg` : "–")]);
+  fillTable($("cell-joints"), [{ label: "" }, { label: "" }], rows, Array.isArray(q) ? q.join() : "none");
+  $("cell-joints").querySelector("thead").hidden = true;
+  setText("cell-joints-note", isManualRobot()
+    ? "Manual robot: the angles are typed in at each capture (tab 2)."
+    : robot?.last_reading ? `Read ${age(robot.last_reading.age_s)} ago.` : "No joint reading yet.");
+}
+
+// Device errors: one entry per device, class and message, kept until dismissed.
+const deviceErrors = new Map();
+
+function collectErrors(devices) {
+  for (const d of Object.values(devices)) {
+    const e = d.last_error;
+    if (!e || e.t_wall == null) continue;
+    const key = `${d.name}|${e.class}|${e.message}`;
+    const known = deviceErrors.get(key);
+    if (known) {
+      if (known.t_wall !== e.t_wall) { known.t_wall = e.t_wall; known.count += 1; known.frames = e.frames_hex; renderErrors(); }
+      continue;
+    }
+    if (dismissedBefore(key, e.t_wall)) continue;
+    deviceErrors.set(key, { device: d.name, ...e, frames: e.frames_hex, count: 1 });
+    renderErrors();
+  }
+}
+
+const dismissedAt = new Map();
+const dismissedBefore = (key, t) => dismissedAt.has(key) && t <= dismissedAt.get(key);
+
+function renderErrors() {
+  const box = $("device-errors");
+  box.replaceChildren(...[...deviceErrors.entries()].map(([key, e]) => el("div", { class: "device-error" },
+    el("div", { class: "row" },
+      el("b", {}, `${e.device}: ${e.class}`),
+      el("span", { class: "muted" }, `last at ${clock(e.t_wall)}${e.count > 1 ? `, ${e.count} times` : ""}`),
+      el("button", { class: "secondary small", onclick: () => { dismissedAt.set(key, e.t_wall); deviceErrors.delete(key); renderErrors(); } }, "Dismiss")),
+    el("div", {}, e.message),
+    e.frames?.length ? el("pre", {}, `last frames (hex):\n${e.frames.join("\n")}`) : null)));
+  $("device-errors-card").hidden = deviceErrors.size === 0;
+}
+
+async function pollStatus() {
+  const s = await api("GET", "/status");
+  state.status = s;
+  const devices = s.devices || {};
+  const down = Object.values(devices).filter((d) => d.state !== "ok");
+  const pill = $("top-devices");
+  pill.className = `pill ${down.length ? "bad" : "ok"}`;
+  setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}` : "devices connected");
+  changed("status");
+  collectErrors(devices);
+  if (state.view !== "cell") return;
+  renderDevices(devices);
+  renderJoints(devices.robot);
+  const [words, detail] = samplerWords(s.sampler);
+  setText("cell-sampler", words);
+  setText("cell-sampler-detail", detail);
+}
+
+export function initCell() {
+  $("device-errors-clear").addEventListener("click", () => {
+    for (const [key, e] of deviceErrors) dismissedAt.set(key, e.t_wall);
+    deviceErrors.clear();
+    renderErrors();
+  });
+  every(STATUS_MS, pollStatus);
+  every(TRACE_MS, pollTrace, () => state.view === "cell");
+  rateText();
+}

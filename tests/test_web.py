@@ -1,0 +1,208 @@
+"""The operator page in a real browser (Playwright on Debian's chromium) against real processes:
+the EMULATED cell (``cablecal simulate``) and ``cablecal serve``, as in tests/test_e2e.py.
+
+One test walks the whole operator flow: token → campaign → plan → auto capture → identify →
+result plots → accept → download the report → compensate, with no console error and no
+request to another host; a screenshot of each step goes to the test's tmp dir. Steps whose
+REST route this daemon does not have yet (plan, compensate) end the test as xfail after every
+other step passed.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from browser import offline_page, require_chromium
+
+from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
+TOKEN = "web-test-token-0123"
+N_CAPTURES = 40  # 32 training samples with the default 20 % test set (at least 25 needed)
+VIEWPORT = (1366, 768)
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
+    require_chromium()
+    work = tmp_path_factory.mktemp("web-cell")
+    with Cell(work, fast_cell_toml(200, 5, 0.35, 0.9), TOKEN, FAST_DAEMON_ENV) as c:
+        yield c
+
+
+def _routes(url: str) -> set[str]:
+    spec = httpx.get(url + "/openapi.json").json()
+    return {f"{m.upper()} {p}" for p, ops in spec["paths"].items() for m in ops}
+
+
+def _has(routes: set[str], method: str, suffix: str) -> bool:
+    return any(r.startswith(f"{method} /api/v1") and r.endswith(suffix) for r in routes)
+
+
+def _shot(page: Any, out: Path, name: str) -> None:
+    page.screenshot(path=str(out / f"{name}.png"), full_page=True)
+
+
+def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    api = cell.daemon.client()
+    routes = _routes(url)
+    missing: list[str] = []
+    with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
+        page.on("dialog", lambda d: d.accept())
+        failed: list[str] = []
+        page.on(
+            "response", lambda r: failed.append(f"{r.status} {r.url}") if r.status >= 400 else None
+        )
+
+        # token: asked once, the live trace draws
+        page.goto(url + "/")
+        page.wait_for_selector("#token-dialog[open]")
+        page.fill("#token-input", TOKEN)
+        page.click("#token-form button")
+        page.wait_for_function("window.__cablecal.trace.updates > 10", timeout=20000)
+        assert page.locator("#trace canvas").count() == 1
+        page.wait_for_function(
+            "document.querySelectorAll('#cell-devices tbody tr').length === 2", timeout=10000
+        )
+        length = page.inner_text("#cell-length")  # mm, or "over range" beyond the stroke
+        assert length == "over range" or float(length) > 0, length
+        _shot(page, tmp_path, "1-cell")
+
+        # campaign
+        page.click("#tabs button[data-view=campaign]")
+        page.fill("#campaign-form input[name=name]", "browser test")
+        page.click("#campaign-form button[type=submit]")
+        page.wait_for_selector("#campaign-detail:not([hidden])")
+        cid = int(api.get("/campaigns").json()[-1]["id"])
+        assert f"Campaign #{cid}" in page.inner_text("#campaign-title")
+
+        # plan (when the daemon has the route)
+        if _has(routes, "POST", "/plan"):
+            page.fill("#plan-form input[name=n]", "30")
+            for axis, value in zip("xyz", (1400, 300, 200), strict=True):  # the cell's sensor
+                page.fill(f"#plan-form input[name=a{axis}]", str(value))
+            page.click("#plan-form button")
+            page.wait_for_function(
+                "document.querySelectorAll('#plan-poses tbody tr').length >= 30", timeout=120000
+            )
+            assert "Predicted tool-point accuracy" in page.inner_text("#plan-summary")
+        else:
+            missing.append("plan")
+        _shot(page, tmp_path, "2-campaign-plan")
+
+        # auto capture to N
+        page.check("#auto-capture")
+        wait_for(
+            lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= N_CAPTURES,
+            timeout_s=N_CAPTURES * 6.0,
+            interval_s=1.0,
+            what=f"{N_CAPTURES} auto captures",
+        )
+        page.uncheck("#auto-capture")
+        page.wait_for_function(
+            f"document.querySelectorAll('#samples tbody tr').length >= {N_CAPTURES}",
+            timeout=15000,
+        )
+        assert page.locator("#coverage svg").count() == 6
+        _shot(page, tmp_path, "3-campaign-samples")
+
+        # identify
+        page.click("#tabs button[data-view=identify]")
+        page.wait_for_selector("#identify-start:not([disabled])", timeout=15000)
+        page.click("#identify-start")
+        page.wait_for_function(
+            "!document.getElementById('result').hidden"
+            " || document.getElementById('job-state').textContent.includes('Failed')",
+            timeout=240000,
+        )
+        assert "Failed" not in page.inner_text("#job-state"), page.inner_text("#job-state")
+        page.wait_for_selector("#chart-residuals canvas", timeout=60000)
+        for chart in ("#chart-residuals", "#chart-histogram", "#chart-cost", "#cost-live"):
+            assert page.locator(f"{chart} canvas").count() == 1, chart
+        assert page.locator("#dh-table tbody tr").count() == 7  # six joints and the tool
+        assert "±" in page.inner_text("#dh-table")
+        _shot(page, tmp_path, "4-identify-result")
+
+        # accept
+        if page.is_visible("#accept"):
+            page.click("#accept")
+        page.wait_for_function(
+            "document.getElementById('result-verdict').textContent.startsWith('accepted')",
+            timeout=15000,
+        )
+        job_id = int(api.get(f"/campaigns/{cid}/identifications").json()[-1]["id"])
+        assert api.get(f"/identifications/{job_id}").json()["accepted"] is True
+
+        # the report, downloaded with the token
+        with page.expect_download() as info:
+            page.click("[data-download=report]")
+        report = Path(info.value.path()).read_text(encoding="utf-8")
+        assert report.startswith("<!DOCTYPE html>") and f"identification {job_id}" in report
+        with page.expect_download() as info:
+            page.click("[data-download=result]")
+        result = json.loads(Path(info.value.path()).read_text(encoding="utf-8"))
+        assert result["method"] == "ukf-vslm" and len(result["dh_error"]) == 6
+        _shot(page, tmp_path, "5-accepted")
+
+        # compensate (when the daemon has the route)
+        page.click("#tabs button[data-view=apply]")
+        if _has(routes, "POST", "/compensate"):
+            poses = [s for s in api.get(f"/campaigns/{cid}/samples").json()][:5]
+            csv = "q1,q2,q3,q4,q5,q6\n" + "\n".join(
+                ",".join(f"{s[f'q{j}']:.3f}" for j in range(1, 7)) for s in poses
+            )
+            page.fill("#compensate-form textarea", csv)
+            page.click("#compensate-form button[type=submit]")
+            page.wait_for_function(
+                "document.querySelectorAll('#compensate-result tbody tr').length >= 5",
+                timeout=30000,
+            )
+        else:
+            missing.append("compensate")
+        _shot(page, tmp_path, "6-apply")
+
+        assert log.page_errors == []
+        assert log.console_errors == [], failed
+        assert log.blocked_requests == []
+        assert page.locator(".message.error").count() == 0, page.inner_text("#messages")
+    if missing:
+        pytest.xfail(f"route not merged yet: {', '.join(missing)} (every other step passed)")
+
+
+def test_wrong_token_says_401_and_asks_again(cell: Cell) -> None:
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
+        page.goto(url + "/#token=wrong")
+        page.wait_for_selector("#token-dialog[open]", timeout=10000)
+        assert "401" in page.inner_text("#messages")
+        assert "#token" not in page.url  # dropped from the address bar
+        page.fill("#token-input", TOKEN)
+        page.click("#token-form button")
+        page.wait_for_function("window.__cablecal.trace.updates > 3", timeout=15000)
+        # the error stays, with its time, until dismissed
+        page.wait_for_timeout(2500)
+        assert page.locator(".message.error").count() >= 1
+        page.click(".message.error button")
+        assert page.locator(".message.error").count() == 0
+        assert log.page_errors == []
+        assert log.blocked_requests == []
+
+
+def test_docs_page_works_offline(cell: Cell) -> None:
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
+        page.goto(url + "/docs")
+        page.wait_for_selector(".swagger-ui .opblock", timeout=20000)
+        assert page.locator(".opblock").count() > 10
+        assert log.blocked_requests == []
+        assert log.page_errors == []
