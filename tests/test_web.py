@@ -19,6 +19,7 @@ import httpx
 import pytest
 from browser import offline_page, require_chromium
 
+from calib.options import default
 from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -149,7 +150,7 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         with page.expect_download() as info:
             page.click("[data-download=result]")
         result = json.loads(Path(info.value.path()).read_text(encoding="utf-8"))
-        assert result["method"] == "ukf-vslm" and len(result["dh_error"]) == 6
+        assert result["method"] == default("method") and len(result["dh_error"]) == 6
         _shot(page, tmp_path, "5-accepted")
 
         # compensate (when the daemon has the route)
