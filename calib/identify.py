@@ -239,13 +239,16 @@ def _weighed_solve(
         return opts, {}, _solve(_problem(d, theta_start, free, opts, notes), opts, progress)
     used = opts
     noise = opts.noise_mm
+    warm = theta_start  # each round starts where the last ended (the prior mean stays)
     for rounds in range(1, prior.NOISE_ROUNDS + 1):
         report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
-        solved = _solve(_problem(d, theta_start, free, used, []), used, progress)
+        problem = _problem(d, theta_start, free, used, []).with_theta0(warm)
+        solved = _solve(problem, used, progress)
         noise = prior.noise_from_map(solved.problem, solved.result.x)
         if abs(noise / used.noise_mm - 1.0) < prior.NOISE_RTOL:
             break
         used = prior.scaled_options(opts, noise, 1.0)
+        warm = solved.problem.full(solved.result.x)
     detail: dict[str, Any] = {"noise_estimated_mm": noise, "noise_rounds": rounds}
     if opts.prior_weight == "estimated":
         _problem(d, theta_start, free, used, notes)  # the prior's note, as fitted
