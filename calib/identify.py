@@ -211,7 +211,7 @@ def _problem(
         prior_sigma[N_DH:N_KIN] = np.inf if opts.prior_tool_mm is None else opts.prior_tool_mm
         notes.append(
             f"MAP prior toward the nominal model: {opts.prior_mm} mm / {opts.prior_deg} deg "
-            f"per DH error, noise {opts.noise_mm} mm"
+            f"per DH error, noise {opts.noise_mm:.3g} mm"
         )
     prior_mean = theta_start.copy()
     prior_mean[:N_DH] = 0.0
