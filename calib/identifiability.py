@@ -21,6 +21,10 @@ every time. Anchor parameters (P0, c) and then the tool point are taken first, s
 be estimated anyway; DH parameters fill the remaining rank in pivot order. Each parameter
 left out gets a reason: a known structural cause, the kept parameters it is a combination of,
 and whether it would be identifiable with well-spread poses (``structural_jacobian``).
+
+Before any data are fitted, :func:`max_solved` counts the parameters identify can solve at
+most for a robot, its anchors and the ``fix``/``free`` names (the base set at well-spread
+generic poses): :func:`calib.options.validate` needs more training rows than that.
 """
 
 from __future__ import annotations
