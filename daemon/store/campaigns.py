@@ -172,11 +172,14 @@ class CampaignStore(RobotStore):
 
     def list_campaigns(self, after_id: int = 0, limit: int | None = None) -> list[CampaignRow]:
         """Campaigns with ``id > after_id``, by id, at most ``limit`` (None: all), with sample
-        counts (see :meth:`campaign`)."""
-        rows = self._query(
-            _CAMPAIGN_SELECT + " WHERE c.id > ? ORDER BY c.id LIMIT ?",
-            [after_id, -1 if limit is None else limit],
-        )
+        counts (see :meth:`campaign`).
+
+        Raises
+        ------
+        StoreInvalid
+            ``limit`` outside 1..10000.
+        """
+        rows = self._page(_CAMPAIGN_SELECT, [("c.id > ?", after_id)], limit=limit, id_column="c.id")
         return [_campaign_out(r) for r in rows]
 
     def find_campaign(self, ref: str) -> CampaignRow:
@@ -341,15 +344,14 @@ class CampaignStore(RobotStore):
         Raises
         ------
         StoreNotFound
+        StoreInvalid
+            ``limit`` outside 1..10000.
         """
+        filters = [("campaign_id = ?", campaign_id), ("id > ?", after_id),
+                   ("excluded = ?", None if include_excluded else 0)]  # fmt: skip
         with self._lock:
             self._require("campaigns", "campaign", campaign_id)
-            where = "campaign_id = ? AND id > ?" + ("" if include_excluded else " AND excluded = 0")
-            rows = list(
-                self._table("samples").rows_where(
-                    where, [campaign_id, after_id], order_by="id", limit=limit
-                )
-            )
+            rows = self._page("SELECT * FROM samples", filters, limit=limit)
         return [cast(SampleRow, decode_row(r)) for r in rows]
 
     def raw_readings(self, sample_id: int) -> list[RawReading]:
