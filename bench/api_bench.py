@@ -121,7 +121,17 @@ def _rss_mb(pid: int) -> dict[str, float]:
     return out
 
 
-def _load(url: str, token: str, rate_hz: float, duration_s: float) -> dict[str, Any]:
+def _load(
+    url: str,
+    token: str,
+    rate_hz: float,
+    duration_s: float,
+    idle_max_s: float = KEEPALIVE_IDLE_MAX_S,
+) -> dict[str, Any]:
+    """GET ``url`` open-loop at ``rate_hz`` for ``duration_s`` (the :data:`LOADGEN` process);
+    pooled connections idle longer than ``idle_max_s`` are closed, not reused. Returns the
+    request count, errors (and ``error_kinds``: count per kind), achieved rate and latency
+    percentiles [ms]."""
     rest = url.split("://", 1)[1]
     hostport, path = rest.split("/", 1)
     host, port = hostport.rsplit(":", 1)
@@ -136,7 +146,7 @@ def _load(url: str, token: str, rate_hz: float, duration_s: float) -> dict[str, 
             token,
             str(rate_hz),
             str(duration_s),
-            str(KEEPALIVE_IDLE_MAX_S),
+            str(idle_max_s),
         ],
         capture_output=True,
         text=True,
