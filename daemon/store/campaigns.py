@@ -36,7 +36,8 @@ _CAMPAIGN_SELECT = """
     SELECT c.*, r.name AS robot_name,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id) AS n_samples,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id AND s.excluded = 1)
-            AS n_excluded
+            AS n_excluded,
+        (SELECT max(p.id) FROM plans p WHERE p.campaign_id = c.id) AS plan_id
     FROM campaigns c JOIN robots r ON r.id = c.robot_id
 """
 
@@ -61,6 +62,7 @@ def _pose_deg(row: SampleRow) -> list[float]:
 def _campaign_out(row: Row) -> CampaignRow:
     out = decode_row(row)
     out["n_included"] = out["n_samples"] - out["n_excluded"]
+    out["plan_id"] = out.pop("plan_id")  # last, as in CampaignRow
     return cast(CampaignRow, out)
 
 
@@ -154,8 +156,8 @@ class CampaignStore(RobotStore):
             return self.campaign(last_id(table))
 
     def campaign(self, campaign_id: int) -> CampaignRow:
-        """A campaign with its robot name and sample counts (``n_samples``, ``n_included``,
-        ``n_excluded``).
+        """A campaign with its robot name, sample counts (``n_samples``, ``n_included``,
+        ``n_excluded``) and the id of its current (newest) plan, ``plan_id`` (None: no plan).
 
         Raises
         ------
