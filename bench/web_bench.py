@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench.api_bench import SIM, _load
+from bench.api_bench import SIM, _load, errors_text
 from daemon.cli.emulated import FAST_DAEMON_ENV, Cell
 
 OUT = Path(__file__).resolve().parent
@@ -148,6 +148,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f"{ok('status_p99')} |",
         f"| GET /status p99, no page (baseline, same run) | {wo['p99_ms']} ms (p50 "
         f"{wo['p50_ms']}) | | |",
+        f"| GET /status errors (kinds), page open / no page | {errors_text(w)} / "
+        f"{errors_text(wo)} of {w['requests']} / {wo['requests']} | | |",
         f"| console errors / requests to other hosts | {len(r['console_errors'])} / "
         f"{len(r['blocked_requests'])} | 0 / 0 | "
         f"{ok('no_console_errors')} / {ok('no_other_host')} |",

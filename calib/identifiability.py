@@ -21,17 +21,23 @@ every time. Anchor parameters (P0, c) and then the tool point are taken first, s
 be estimated anyway; DH parameters fill the remaining rank in pivot order. Each parameter
 left out gets a reason: a known structural cause, the kept parameters it is a combination of,
 and whether it would be identifiable with well-spread poses (``structural_jacobian``).
+
+Before any data are fitted, :func:`max_solved` counts the parameters identify can solve at
+most for a robot, its anchors and the ``fix``/``free`` names (the base set at well-spread
+generic poses): :func:`calib.options.validate` needs more training rows than that.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import cast
 
 import numpy as np
 
-from calib.cable import N_DH, N_KIN
-from calib.kinematics import FloatArray
+from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
+from calib.kinematics import N_JOINTS, FloatArray
+from calib.models import RobotModel
 
 
 @dataclass
@@ -242,3 +248,104 @@ def analyse(
         singular_values=[float(v / s[0]) for v in s] if s.size else [],
         rtol=rtol,
     )
+
+
+# ------------------------------------------------------------------ what identify solves
+#: Poses of :func:`generic_jacobian` and the seed that draws them.
+GENERIC_POSES = 200
+GENERIC_SEED = 20230410
+#: The start :func:`max_solved` assumes where identify fits one from the data: a tool-point
+#: error [mm] off the flange axis (a hook point on the axis hides ``alpha6``, ``d5``,
+#: ``theta5``), and anchor positions [mm] off every axis (anchor ``k`` at
+#: ``GENERIC_ANCHOR_MM + k * GENERIC_ANCHOR_STEP_MM``). Any such generic point gives the
+#: largest rank, which a fitted start can only reach, never exceed.
+GENERIC_TOOL_ERROR_MM = (37.0, -23.0, 61.0)
+GENERIC_ANCHOR_MM = (1130.0, -457.0, 312.0)
+GENERIC_ANCHOR_STEP_MM = (-611.0, 733.0, 97.0)
+
+
+def generic_jacobian(model: RobotModel, layout: ParamLayout, theta: FloatArray) -> FloatArray:
+    """``∂L/∂θ`` at :data:`GENERIC_POSES` fixed well-spread poses, shape (200, p), internal
+    units: tells structural redundancy from a lack of excitation in the data.
+
+    The poses are drawn uniformly within the joint limits (clipped to ±170 deg) with a fixed
+    seed; the anchors take turns.
+    """
+    rng = np.random.default_rng(GENERIC_SEED)
+    limits = model.joint_limits_deg
+    lo = np.full(N_JOINTS, -170.0) if limits is None else np.maximum(limits[:, 0], -170.0)
+    hi = np.full(N_JOINTS, 170.0) if limits is None else np.minimum(limits[:, 1], 170.0)
+    hi = np.where(hi > lo, hi, lo + 1.0)
+    q = np.deg2rad(rng.uniform(lo, hi, size=(GENERIC_POSES, N_JOINTS)))
+    aidx = np.arange(GENERIC_POSES) % len(layout.anchors)
+    _, jac = length_jacobian(model, theta, q, aidx)
+    return jac
+
+
+def candidate_mask(layout: ParamLayout, identify_tool: bool, fix: Iterable[str]) -> np.ndarray:
+    """Parameters identify may solve, shape (p,) bool: all but the tool point (unless
+    ``identify_tool``) and the names in ``fix``."""
+    candidates = np.ones(layout.size, dtype=bool)
+    if not identify_tool:
+        candidates[N_DH:N_KIN] = False
+    for name in fix:
+        candidates[layout.index(name)] = False
+    return candidates
+
+
+def solved_mask(
+    layout: ParamLayout, base: Sequence[str], candidates: np.ndarray, free: Iterable[str]
+) -> np.ndarray:
+    """The parameters identify solves, shape (p,) bool: the base set within the candidates,
+    plus the names in ``free``."""
+    solved = np.asarray(np.array([n in base for n in layout.names]) & candidates, dtype=bool)
+    for name in free:
+        solved[layout.index(name)] = True
+    return solved
+
+
+def max_solved(
+    model: RobotModel,
+    layout: ParamLayout,
+    candidates: np.ndarray,
+    free: Iterable[str],
+    *,
+    rtol: float = 1e-8,
+) -> int:
+    """The most parameters identify can solve for this robot, these anchors and options,
+    before any data are seen.
+
+    The base set at :func:`generic_jacobian`'s well-spread poses from a generic start
+    (:data:`GENERIC_TOOL_ERROR_MM` when the tool point is solved, otherwise the nominal
+    ``model.tool_mm``; anchors at :data:`GENERIC_ANCHOR_MM`), plus the names in ``free``.
+    Data with little excitation can only lower the rank, so identify never solves more (up
+    to a name in ``free`` that the data's base set would otherwise replace).
+
+    Parameters
+    ----------
+    model : RobotModel
+        Nominal model, with any tool override applied.
+    layout : ParamLayout
+    candidates : ndarray of bool, shape (p,)
+        See :func:`candidate_mask`.
+    free : iterable of str
+        Parameter names solved even if unidentifiable.
+    rtol : float
+        As :func:`analyse`.
+    """
+    theta = np.zeros(layout.size)
+    if candidates[N_DH:N_KIN].any():
+        theta[N_DH:N_KIN] = GENERIC_TOOL_ERROR_MM
+    for k in range(len(layout.anchors)):
+        p0 = np.add(GENERIC_ANCHOR_MM, np.multiply(k, GENERIC_ANCHOR_STEP_MM))
+        theta[layout.anchor_slice(k)] = [*p0, 0.0]
+    jac = generic_jacobian(model, layout, theta)
+    ident = analyse(jac, layout.names, candidates, rtol=rtol)
+    return int(np.count_nonzero(solved_mask(layout, ident.base, candidates, free)))
+
+
+def with_tool(model: RobotModel, tool_mm: Sequence[float] | None) -> RobotModel:
+    """``model`` with its nominal tool point replaced by ``tool_mm`` [mm] (None: as it is)."""
+    if tool_mm is None:
+        return model
+    return replace(model, tool_mm=np.asarray(tool_mm, dtype=float))

@@ -44,10 +44,17 @@ from calib.cable import (
     predict_lengths,
 )
 from calib.dataset import SampleError, SampleSet, validate_joint_limits
-from calib.identifiability import Identifiability, analyse
-from calib.kinematics import N_JOINTS, FloatArray, forward_position
+from calib.identifiability import (
+    Identifiability,
+    analyse,
+    candidate_mask,
+    generic_jacobian,
+    solved_mask,
+    with_tool,
+)
+from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
-from calib.options import METHODS, IdentifyOptions, validate
+from calib.options import METHODS, IdentifyOptions, check_training_rows, validate
 from calib.prior import prior_block
 from calib.problem import Problem
 from calib.report import (
@@ -148,11 +155,9 @@ def _prepare(
         train_rows, test_rows = split_rows(
             samples, opts.test_fraction, opts.seed, opts.holdout, opts.n_groups
         )
-    validate(samples, opts, train_rows)
+    validate(samples, opts, train_rows, model=model)
     layout = ParamLayout(samples.anchor_ids)
-    if opts.tool_mm is not None:
-        model = RobotModel(model.name, model.convention, model.dh_table, model.joint_limits_deg,
-                           np.asarray(opts.tool_mm, dtype=float))  # fmt: skip
+    model = with_tool(model, opts.tool_mm)
     data = _Data(model, layout, samples, np.deg2rad(samples.joints_deg), samples.anchor_index(),
                  train_rows, test_rows)  # fmt: skip
     for k, aid in enumerate(layout.anchors):
@@ -166,11 +171,7 @@ def _start_point(
 ) -> tuple[FloatArray, np.ndarray]:
     """Step 3: the common start (nominal DH, tool and anchors fitted) and the candidate mask."""
     layout = d.layout
-    candidates = np.ones(layout.size, dtype=bool)
-    if not opts.identify_tool:
-        candidates[N_DH:N_KIN] = False
-    for name in opts.fix:
-        candidates[layout.index(name)] = False
+    candidates = candidate_mask(layout, opts.identify_tool, opts.fix)
     theta_start = theta_before
     if candidates[N_DH:N_KIN].any():
         free0 = np.zeros(layout.size, dtype=bool)
@@ -185,18 +186,11 @@ def _free_set(
     """Step 4: identifiability at the start, and the solved set (base set, ± names)."""
     layout = d.layout
     _, jac = length_jacobian(d.model, theta_start, d.q, d.aidx)
-    generic = _generic_jacobian(d.model, layout, theta_start)
+    generic = generic_jacobian(d.model, layout, theta_start)
     ident = analyse(jac, layout.names, candidates, rtol=opts.rtol, structural_jacobian=generic)
-    free = np.array([n in ident.base for n in layout.names]) & candidates
-    for name in opts.free:
-        free[layout.index(name)] = True
-    n_free = int(np.count_nonzero(free))
-    n_train = d.train_rows.size
-    if n_train < n_free + 1:
-        raise SampleError(
-            f"{n_train} training samples for {n_free} parameters; need at least "
-            f"{n_free + 1} (more rows, or fix parameters)"
-        )
+    free = solved_mask(layout, ident.base, candidates, opts.free)
+    # validate() checked the bound before any fit; this checks the count on these data.
+    check_training_rows(d.train_rows.size, len(d.samples), int(np.count_nonzero(free)))
     return ident, free
 
 
@@ -429,16 +423,3 @@ def identify(
         robust_detail={"mode": opts.robust, "threshold": solved.threshold,
                        "fits": solved.fits},
     )  # fmt: skip
-
-
-def _generic_jacobian(model: RobotModel, layout: ParamLayout, theta: FloatArray) -> FloatArray:
-    """Jacobian at 200 fixed well-spread poses, to tell structural from data-limited rank."""
-    rng = np.random.default_rng(20230410)
-    limits = model.joint_limits_deg
-    lo = np.full(N_JOINTS, -170.0) if limits is None else np.maximum(limits[:, 0], -170.0)
-    hi = np.full(N_JOINTS, 170.0) if limits is None else np.minimum(limits[:, 1], 170.0)
-    hi = np.where(hi > lo, hi, lo + 1.0)
-    q = np.deg2rad(rng.uniform(lo, hi, size=(200, N_JOINTS)))
-    aidx = np.arange(200) % len(layout.anchors)
-    _, jac = length_jacobian(model, theta, q, aidx)
-    return jac

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Literal, get_args
 
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
+    from calib.models import RobotModel
 
 Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de", "geolm"]
 Robust = Literal["auto", "none", "huber", "soft_l1", "reject"]
@@ -32,9 +33,10 @@ PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
 PAPER_N_TRAIN = 100
 PAPER_N_TEST = 20
 
-#: Fewest training rows an identification accepts. The base parameter set of a one-anchor cell
-#: has 23 parameters on the bundled real data (and on the synthetic benchmark), and the solvers
-#: need at least one more row than parameters; fewer rows can never be enough.
+#: Fewest training rows an identification accepts, whatever is fixed: a floor below the real
+#: rule of :func:`validate`, which needs more training rows than the parameters identify will
+#: solve (on the built-in model with one anchor and the tool point solved: 24 parameters, so
+#: 25 rows; each further anchor adds 4).
 MIN_TRAINING_SAMPLES = 24
 
 #: Largest seed: numpy's legacy seeding (and so scipy's DE) takes 0..2**32-1.
@@ -202,34 +204,70 @@ def options_from_mapping(values: Mapping[str, Any]) -> IdentifyOptions:
     return IdentifyOptions(**kwargs)
 
 
-def validate(samples: SampleSet, options: IdentifyOptions, train_rows: Sized | None = None) -> None:
-    """Check options against a sample set, before any computation.
+def validate(
+    samples: SampleSet,
+    options: IdentifyOptions,
+    train_rows: Sized | None = None,
+    *,
+    model: RobotModel,
+) -> None:
+    """Check options against a sample set and the robot, before any computation.
 
     Checks the choices and bounds of every field, the ``fix``/``free`` names against the
-    parameter layout of the samples' anchors, and that at least :data:`MIN_TRAINING_SAMPLES`
-    rows train (``train_rows``, or what ``test_fraction`` leaves).
+    parameter layout of the samples' anchors, and that the training rows (``train_rows``, or
+    what ``test_fraction`` leaves) are more than the parameters identify will solve
+    (:func:`calib.identifiability.max_solved`: the base set of this robot and these anchors
+    at well-spread poses, less ``fix``, plus ``free``), and at least
+    :data:`MIN_TRAINING_SAMPLES`. Costs one Jacobian at 200 poses (milliseconds).
 
     Raises
     ------
     OptionError
         A field is out of range or names an unknown parameter (the message names the field).
     calib.dataset.SampleError
-        Too few training samples.
+        Too few training samples (the message names how many are needed and why).
     """
     from calib.cable import ParamLayout
-    from calib.dataset import SampleError
+    from calib.identifiability import candidate_mask, max_solved, with_tool
 
     for f in fields(options):
         spec(f.name).check(f.name, getattr(options, f.name))
-    known = ParamLayout(samples.anchor_ids or ("A",)).names
+    layout = ParamLayout(samples.anchor_ids or ("A",))
+    known = layout.names
     for key in ("fix", "free"):
         bad = [n for n in getattr(options, key) if n not in known]
         if bad:
             raise OptionError(key, f"unknown parameter name(s) {bad}; known: {known}")
     n = len(samples)
     n_train = len(train_rows) if train_rows is not None else n - round(options.test_fraction * n)
-    if n_train < MIN_TRAINING_SAMPLES:
-        raise SampleError(
-            f"samples: {n_train} training samples for identification (of {n} included); "
-            f"need at least {MIN_TRAINING_SAMPLES}"
-        )
+    candidates = candidate_mask(layout, options.identify_tool, options.fix)
+    n_params = max_solved(
+        with_tool(model, options.tool_mm), layout, candidates, options.free, rtol=options.rtol
+    )
+    check_training_rows(n_train, n, n_params)
+
+
+def check_training_rows(n_train: int, n_included: int, n_params: int) -> None:
+    """The one rule on the number of training rows: more than the ``n_params`` parameters
+    solved (else the fit is exactly determined or worse), and at least
+    :data:`MIN_TRAINING_SAMPLES`.
+
+    Raises
+    ------
+    calib.dataset.SampleError
+        Naming the rows given, the rows needed and why.
+    """
+    from calib.dataset import SampleError
+
+    need = max(n_params + 1, MIN_TRAINING_SAMPLES)
+    if n_train >= need:
+        return
+    why = (
+        f"identify solves {n_params} parameters here and needs more training rows than parameters"
+        if need == n_params + 1
+        else f"no identification trains on fewer than {MIN_TRAINING_SAMPLES} rows"
+    )
+    raise SampleError(
+        f"samples: {n_train} training samples for identification (of {n_included} included); "
+        f"need at least {need}: {why} (add samples, lower test_fraction, or fix parameters)"
+    )

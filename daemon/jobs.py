@@ -208,15 +208,15 @@ class JobManager:
             raise StoreNotFound("campaign", campaign_id)
         opts = {"noise_mm": self.settings.noise_mm, **dict(options)}
         samples, sample_ids = self.store.sample_set(campaign_id)
+        robot_id = int(campaign["robot_id"])
+        model = self.store.robot_model(robot_id)
         try:
-            validate(samples, options_from_mapping(opts))
+            validate(samples, options_from_mapping(opts), model=model)
         except OptionError as exc:
             # The REST body spells ``fix`` as ``fixed``.
             raise JobError(f"{_REST_NAMES.get(exc.field, exc.field)}: {exc.reason}") from exc
         except (TypeError, ValueError) as exc:
             raise JobError(f"campaign {campaign_id}: {exc}") from exc
-        robot_id = int(campaign["robot_id"])
-        model = self.store.robot_model(robot_id)
         job = self.store.create_job(
             campaign_id, robot_id, str(opts.get("method", default_option("method"))), opts
         )

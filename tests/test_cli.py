@@ -1,17 +1,22 @@
-"""The command line's shape: ``--help`` loads no heavy library, and only ``daemon/cli/`` may
-import the emulated cell."""
+"""The command line's shape: ``--help`` loads no heavy library and reads whole at 80 columns,
+and only ``daemon/cli/`` may import the emulated cell."""
 
 from __future__ import annotations
 
 import ast
+import inspect
+import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
+import click
 import pytest
+import typer.main
 
 from calib.identify import METHODS
-from daemon.cli import calibration
+from daemon.cli import app, calibration, demo
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -57,6 +62,56 @@ def test_help_imports_no_heavy_library(argv: list[str]) -> None:
     loaded = _imported_modules(["-m", "daemon.cli", *argv])
     assert "typer" in loaded
     assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
+
+
+#: Text columns of ``--help`` at COLUMNS=80: typer's rich panel indents the prose by one
+#: column and keeps one free at the right.
+HELP_TEXT_COLUMNS = 78
+
+
+def _help_texts(command: click.Command, path: str) -> Iterator[tuple[str, str]]:
+    """``(where, text)`` of every help text of ``command`` and its subcommands."""
+    yield path, command.help or ""
+    for param in command.params:
+        yield f"{path} {param.name}", getattr(param, "help", None) or ""
+    for name, sub in getattr(command, "commands", {}).items():
+        yield from _help_texts(sub, f"{path} {name}")
+
+
+def test_help_paragraphs_break_only_where_every_line_fits_80_columns() -> None:
+    """typer's rich help keeps a line break inside a paragraph and re-wraps the lines, so a
+    docstring wrapped at 100 columns shows at 80 as lines broken mid-sentence. A paragraph is
+    one line (rich wraps it), or short lines on purpose (a list, each line shown whole)."""
+    broken = [
+        (where, line)
+        for root, name in ((app, "cablecal"), (demo.app, "python -m daemon.cli.demo"))
+        for where, text in _help_texts(typer.main.get_command(root), name)
+        for paragraph in inspect.cleandoc(text).split("\n\n")
+        if "\n" in paragraph.strip()
+        for line in paragraph.strip().splitlines()
+        if len(line) > HELP_TEXT_COLUMNS
+    ]
+    assert broken == []
+
+
+def test_identify_help_shows_each_exit_code_whole_at_80_columns() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "daemon.cli", "identify", "--help"],
+        cwd=REPO,
+        env={**os.environ, "COLUMNS": "80", "NO_COLOR": "1"},
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    lines = [line.strip() for line in proc.stdout.splitlines()]
+    assert max(len(line) for line in proc.stdout.splitlines()) <= 80
+    for code in (
+        "1 the solver did not converge (result.json is still written)",
+        "2 bad input (nothing written)",
+        "3 with --strict: physically implausible result (result.json is still written)",
+    ):
+        assert code in lines, proc.stdout
 
 
 def test_a_command_still_imports_what_it_uses() -> None:

@@ -46,9 +46,16 @@ def _q(pose: dict[str, Any], shift_deg: float = 0.0) -> list[float]:
 
 def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestClient) -> None:
     cid = _campaign(client)
+    assert client.get(f"/api/v1/campaigns/{cid}", headers=AUTH).json()["plan_id"] is None
     r = client.post(f"/api/v1/campaigns/{cid}/plan", json=SMALL, headers=AUTH)
     assert r.status_code == 201, r.text
     made = r.json()
+    # The campaign names its current plan (the page asks for a plan only then: no 404).
+    listed = {c["id"]: c for c in client.get("/api/v1/campaigns", headers=AUTH).json()}
+    assert listed[cid]["plan_id"] == made["id"]
+    again = client.post(f"/api/v1/campaigns/{cid}/plan", json=SMALL, headers=AUTH).json()
+    assert client.get(f"/api/v1/campaigns/{cid}", headers=AUTH).json()["plan_id"] == again["id"]
+    assert again["id"] > made["id"]
     assert len(made["poses"]) == 8 and made["options"]["n"] == 8
     assert made["summary"]["tcp_sigma_mm"]["plan"]["rms"] > 0
     assert made["progress"] == {"n_planned": 8, "n_done": 0, "n_pending": 8,

@@ -358,6 +358,26 @@ def test_identification_bad_options(client: TestClient) -> None:
     )
 
 
+def test_too_few_training_rows_is_422_naming_the_count(client: TestClient) -> None:
+    """The job submission runs calib.options.validate with the campaign's robot: 30 real rows
+    leave 24 for training at the default 20 % test set, one short of the 24 parameters + 1."""
+    cid = _campaign(client)
+    client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=_real_csv(30),
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
+    url = f"/api/v1/campaigns/{cid}/identifications"
+    r = client.post(url, json={}, headers=AUTH)
+    assert r.status_code == 422, r.text
+    assert "24 training samples" in r.text and "need at least 25" in r.text, r.text
+    assert "solves 24 parameters" in r.text, r.text
+    r = client.post(url, json={"test_fraction": 0.0}, headers=AUTH)  # 30 rows train: accepted
+    assert r.status_code == 202, r.text
+    client.delete(f"/api/v1/identifications/{r.json()['id']}", headers=AUTH)
+    assert _wait_job(client, r.json()["id"])["status"] in ("cancelled", "succeeded")
+
+
 def test_cancel_a_running_job(client: TestClient) -> None:
     cid = _campaign(client)
     client.post(

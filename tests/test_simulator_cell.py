@@ -12,7 +12,11 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -125,27 +129,59 @@ def test_control_port_commands() -> None:
         assert sim.control("fault", clear=True)["faults"]["indicator_drop_rate"] == 0.0
 
 
-def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> None:
-    with socket.socket() as probe:  # a free port to request as a fixed one
+def _free_port() -> int:
+    """A free TCP port on 127.0.0.1, to request as a fixed one."""
+    with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
-        fixed = probe.getsockname()[1]
-    cfg = tmp_path / "sim.toml"
-    text = (ROOT / "examples" / "sim.toml").read_text()
-    text, n = re.subn(r"(\[robot_socketcmd\][^\[]*?\nport = )0", rf"\g<1>{fixed}", text)
-    assert n == 1
-    cfg.write_text(text)
+        return int(probe.getsockname()[1])
+
+
+@dataclass
+class _Simulate:
+    """A ``cablecal simulate`` process: its READY mapping; after it stopped, its exit code and
+    stderr."""
+
+    ready: dict[str, Any]
+    returncode: int | None = None
+    stderr: str = ""
+
+
+@contextmanager
+def _simulate(*module_args: str) -> Iterator[_Simulate]:
+    """Run ``python -m MODULE_ARGS`` (the EMULATED cell) from the repository, wait for its
+    ``READY {json}`` line and yield it parsed; on leaving, SIGTERM it and record its exit code
+    and stderr. No READY line: the process is killed and the test fails with its stderr."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "simulator", "--config", str(cfg)],
+        [sys.executable, "-m", *module_args],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    if not line.startswith("READY "):
+        proc.kill()
+        _, err = proc.communicate(timeout=10)
+        pytest.fail(f"no READY line, got {line!r}; stderr: {err[-2000:]}")
+    run = _Simulate(json.loads(line[len("READY ") :]))
     try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        assert line.startswith("READY ")
-        ready = json.loads(line[len("READY ") :])
+        yield run
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, run.stderr = proc.communicate(timeout=10)
+        run.returncode = proc.returncode
+
+
+def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> None:
+    fixed = _free_port()
+    cfg = tmp_path / "sim.toml"
+    text = (ROOT / "examples" / "sim.toml").read_text()
+    text, n = re.subn(r"(\[robot_socketcmd\][^\[]*?\nport = )0", rf"\g<1>{fixed}", text)
+    assert n == 1
+    cfg.write_text(text)
+    with _simulate("simulator", "--config", str(cfg)) as sim:
+        ready = sim.ready
         assert list(ready) == list(READY_KEYS)
         assert os.path.exists(ready["indicator_port"])
         assert ready["indicator_tcp"] is None
@@ -154,38 +190,19 @@ def test_cablecal_simulate_prints_ready_and_stops_cleanly(tmp_path: Path) -> Non
         client = ControlClient(ready["control"])
         assert client("state")["n_poses"] == 60
         client.close()
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=10)
-        assert proc.returncode == 0
+    assert sim.returncode == 0
     assert not os.path.exists(ready["indicator_port"])  # the pty symlink is removed
     # The bound endpoints are also printed for humans (stderr).
-    summary = next(line for line in err.splitlines() if line.startswith("EMULATED cell"))
+    summary = next(line for line in sim.stderr.splitlines() if line.startswith("EMULATED cell"))
     for key in ("robot_socketcmd", "robot_modbus", "control", "indicator_port"):
         assert f"{key} {ready[key]}" in summary
 
 
 def test_cablecal_simulate_port_options_override_the_config() -> None:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        fixed = probe.getsockname()[1]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli", "simulate", "--modbus-port", str(fixed)],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        assert line.startswith("READY "), proc.stderr.read() if proc.stderr else line
-        ready = json.loads(line[len("READY ") :])
-        assert ready["robot_modbus"] == f"127.0.0.1:{fixed}"
-        assert int(ready["robot_socketcmd"].rsplit(":", 1)[1]) > 0  # unset: a free port
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        proc.communicate(timeout=10)
+    fixed = _free_port()
+    with _simulate("daemon.cli", "simulate", "--modbus-port", str(fixed)) as sim:
+        assert sim.ready["robot_modbus"] == f"127.0.0.1:{fixed}"
+        assert int(sim.ready["robot_socketcmd"].rsplit(":", 1)[1]) > 0  # unset: a free port
     bad = subprocess.run(
         [sys.executable, "-m", "daemon.cli", "simulate", "--control-port", "70000"],
         cwd=ROOT,

@@ -198,6 +198,30 @@ def test_wrong_token_says_401_and_asks_again(cell: Cell) -> None:
         assert log.blocked_requests == []
 
 
+def test_campaign_without_a_plan_loads_without_a_failing_request(cell: Cell) -> None:
+    """The page learns from the campaign (``plan_id``) that there is no plan, so it does not
+    ask for one: no 404 in the console (GET /campaigns/{id}/plan stays a 404)."""
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    api = cell.daemon.client()
+    cid = api.post("/campaigns", json={"name": "no plan", "robot_model": "hsr-jr680"}).json()["id"]
+    assert api.get(f"/campaigns/{cid}/plan").status_code == 404
+    with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
+        failed: list[str] = []
+        page.on(
+            "response", lambda r: failed.append(f"{r.status} {r.url}") if r.status >= 400 else None
+        )
+        page.goto(f"{url}/#token={TOKEN}")
+        page.click("#tabs button[data-view=campaign]")
+        page.wait_for_function(
+            f"document.getElementById('campaign-title').textContent.startsWith('Campaign #{cid}:')"
+        )
+        page.wait_for_timeout(2500)  # one 2 s refresh of the campaign view
+        assert page.inner_text("#plan-summary").startswith("No plan yet")
+        assert failed == []
+        assert log.console_errors == [] and log.page_errors == []
+
+
 def test_docs_page_works_offline(cell: Cell) -> None:
     assert cell.daemon is not None
     url = cell.daemon.url

@@ -15,6 +15,7 @@ from daemon.api.guard import UNAUTHORIZED_DETAIL, token_matches
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store
+from daemon.store.db import MAX_PAGE_ROWS
 
 
 @dataclass
@@ -102,7 +103,7 @@ RobotId = Annotated[int, _id("Robot")]
 
 #: Rows of a list page: the default and the most a client may ask for.
 PAGE_DEFAULT: Final = 1000
-PAGE_MAX: Final = 10_000
+PAGE_MAX: Final = MAX_PAGE_ROWS
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,19 @@ EXIT_NOT_CONVERGED = 1
 EXIT_BAD_INPUT = 2
 EXIT_IMPLAUSIBLE = 3
 
+#: ``cablecal identify --help``. typer's rich help keeps a single line break inside a paragraph
+#: and re-wraps the lines too, so prose is one string per paragraph and the exit codes are
+#: one short line each (each fits the 80-column help: no break mid-sentence).
+IDENTIFY_HELP = (
+    "Identify the calibrated DH parameters from a CSV of poses and cable lengths.\n\n"
+    "Exit codes:\n"
+    "0 done\n"
+    f"{EXIT_NOT_CONVERGED} the solver did not converge (result.json is still written)\n"
+    f"{EXIT_BAD_INPUT} bad input (nothing written)\n"
+    f"{EXIT_IMPLAUSIBLE} with --strict: physically implausible result "
+    "(result.json is still written)"
+)
+
 
 def _fail(message: str) -> typer.Exit:
     err_console.print(f"[bold red]error:[/] {message}")
@@ -167,12 +180,8 @@ def identify_cmd(
         bool, typer.Option(help="Also exit 3 when the identified parameters are implausible")
     ] = False,
 ) -> None:
-    """Identify the calibrated DH parameters from a CSV of poses and cable lengths.
-
-    Exit codes: 0 done; 1 the solver did not converge (result.json is still written);
-    2 bad input (nothing written); 3 with --strict, the result is physically implausible
-    (result.json is still written).
-    """
+    """Identify the calibrated DH parameters from a CSV of poses and cable lengths; the exit
+    code says how it went (see :data:`IDENTIFY_HELP`, which ``--help`` shows)."""
     from calib.dataset import SampleError
     from calib.models import ModelError
     from daemon.datafiles import load_robot, read_samples
@@ -255,7 +264,7 @@ def compare_cmd(
 
 def register(app: typer.Typer) -> None:
     """Add ``identify`` and ``compare`` to ``app``."""
-    app.command("identify")(identify_cmd)
+    app.command("identify", help=IDENTIFY_HELP)(identify_cmd)
     app.command("compare")(compare_cmd)
 
 

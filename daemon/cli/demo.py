@@ -34,7 +34,14 @@ from daemon.cli.emulated import (
     wait_for,
 )
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+#: ``--help``: one paragraph, one string (typer's rich help would keep the docstring's line
+#: breaks and re-wrap its lines, breaking them mid-sentence at 80 columns).
+DEMO_HELP = (
+    "make run and make demo: the daemon against an EMULATED cell on this machine (no hardware "
+    "is touched). serve: the cell and cablecal serve until Ctrl-C; campaign: a whole campaign "
+    "through the REST API in a temporary directory."
+)
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=DEMO_HELP)
 console = Console()
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -37,8 +37,10 @@ def report_cmd(
         ),
     ] = None,
 ) -> None:
-    """Write the self-contained HTML calibration report (inline charts, no script, opens
-    offline, prints on A4) of a result.json."""
+    """Write the self-contained HTML calibration report of a result.json.
+
+    Inline charts and no script: the page opens offline and prints on A4.
+    """
     from calib.dataset import SampleError
     from calib.html_report import render_report_html, sample_residuals
     from calib.models import ModelError

@@ -9,6 +9,15 @@ from pathlib import Path
 
 import typer
 
+#: ``cablecal simulate --help``: one string per paragraph (typer's rich help keeps a line
+#: break inside a paragraph, and it would break the text mid-sentence at 80 columns).
+SIMULATE_HELP = (
+    "Run the emulated cell (indicator on a pty, robot controllers on TCP).\n\n"
+    "Prints one line 'READY {json}' with the endpoints, then serves until SIGINT/SIGTERM. "
+    "The ports given here override the config file's; unset ports are free ports chosen at "
+    "start."
+)
+
 
 def simulate(
     config: Path | None = typer.Option(
@@ -25,11 +34,7 @@ def simulate(
         None, min=0, max=65535, help="TCP port of the emulated cell's control port (0: any free)"
     ),
 ) -> None:
-    """Run the emulated cell (indicator on a pty, robot controllers on TCP).
-
-    Prints one line ``READY {json}`` with the endpoints, then serves until SIGINT/SIGTERM. The
-    ports given here override the config file's; unset ports are free ports chosen at start.
-    """
+    """Run the emulated cell until SIGINT/SIGTERM (``--help``: :data:`SIMULATE_HELP`)."""
     import asyncio
     import logging
 
@@ -48,4 +53,4 @@ def simulate(
 
 def register(app: typer.Typer) -> None:
     """Add the ``simulate`` command to ``app``."""
-    app.command("simulate")(simulate)
+    app.command("simulate", help=SIMULATE_HELP)(simulate)

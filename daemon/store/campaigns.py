@@ -36,7 +36,8 @@ _CAMPAIGN_SELECT = """
     SELECT c.*, r.name AS robot_name,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id) AS n_samples,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id AND s.excluded = 1)
-            AS n_excluded
+            AS n_excluded,
+        (SELECT max(p.id) FROM plans p WHERE p.campaign_id = c.id) AS plan_id
     FROM campaigns c JOIN robots r ON r.id = c.robot_id
 """
 
@@ -61,6 +62,7 @@ def _pose_deg(row: SampleRow) -> list[float]:
 def _campaign_out(row: Row) -> CampaignRow:
     out = decode_row(row)
     out["n_included"] = out["n_samples"] - out["n_excluded"]
+    out["plan_id"] = out.pop("plan_id")  # last, as in CampaignRow
     return cast(CampaignRow, out)
 
 
@@ -154,8 +156,8 @@ class CampaignStore(RobotStore):
             return self.campaign(last_id(table))
 
     def campaign(self, campaign_id: int) -> CampaignRow:
-        """A campaign with its robot name and sample counts (``n_samples``, ``n_included``,
-        ``n_excluded``).
+        """A campaign with its robot name, sample counts (``n_samples``, ``n_included``,
+        ``n_excluded``) and the id of its current (newest) plan, ``plan_id`` (None: no plan).
 
         Raises
         ------
@@ -172,11 +174,14 @@ class CampaignStore(RobotStore):
 
     def list_campaigns(self, after_id: int = 0, limit: int | None = None) -> list[CampaignRow]:
         """Campaigns with ``id > after_id``, by id, at most ``limit`` (None: all), with sample
-        counts (see :meth:`campaign`)."""
-        rows = self._query(
-            _CAMPAIGN_SELECT + " WHERE c.id > ? ORDER BY c.id LIMIT ?",
-            [after_id, -1 if limit is None else limit],
-        )
+        counts (see :meth:`campaign`).
+
+        Raises
+        ------
+        StoreInvalid
+            ``limit`` outside 1..10000.
+        """
+        rows = self._page(_CAMPAIGN_SELECT, [("c.id > ?", after_id)], limit=limit, id_column="c.id")
         return [_campaign_out(r) for r in rows]
 
     def find_campaign(self, ref: str) -> CampaignRow:
@@ -341,15 +346,14 @@ class CampaignStore(RobotStore):
         Raises
         ------
         StoreNotFound
+        StoreInvalid
+            ``limit`` outside 1..10000.
         """
+        filters = [("campaign_id = ?", campaign_id), ("id > ?", after_id),
+                   ("excluded = ?", None if include_excluded else 0)]  # fmt: skip
         with self._lock:
             self._require("campaigns", "campaign", campaign_id)
-            where = "campaign_id = ? AND id > ?" + ("" if include_excluded else " AND excluded = 0")
-            rows = list(
-                self._table("samples").rows_where(
-                    where, [campaign_id, after_id], order_by="id", limit=limit
-                )
-            )
+            rows = self._page("SELECT * FROM samples", filters, limit=limit)
         return [cast(SampleRow, decode_row(r)) for r in rows]
 
     def raw_readings(self, sample_id: int) -> list[RawReading]:

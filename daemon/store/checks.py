@@ -213,21 +213,19 @@ class CheckStore(StoreDB):
     def list_checks(
         self, robot_id: int | None = None, limit: int = 100, status: str | None = None
     ) -> list[CheckRow]:
-        """The newest ``limit`` checks (all robots or one), oldest first."""
-        if not 1 <= limit <= 10_000:
-            raise StoreInvalid(f"limit: must be within 1..10000, got {limit}")
-        where: list[str] = []
-        params: list[Any] = []
-        if robot_id is not None:
-            where.append("robot_id = ?")
-            params.append(robot_id)
-        if status is not None:
-            where.append("status = ?")
-            params.append(status)
-        clause = (" WHERE " + " AND ".join(where)) if where else ""
-        rows = self._query(f"SELECT * FROM checks{clause} ORDER BY id DESC LIMIT ?",
-                           [*params, limit])  # fmt: skip
-        rows.reverse()
+        """The newest ``limit`` checks (all robots or one, any or one status), oldest first.
+
+        Raises
+        ------
+        StoreInvalid
+            ``limit`` outside 1..10000.
+        """
+        rows = self._page(
+            "SELECT * FROM checks",
+            [("robot_id = ?", robot_id), ("status = ?", status)],
+            limit=limit,
+            newest=True,
+        )
         return [_check_row(r) for r in rows]
 
     def fail_running_checks(self, reason: str) -> int:

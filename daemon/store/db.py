@@ -63,6 +63,8 @@ BUSY_TIMEOUT_MS: Final = 5000
 DB_FILE_MODE: Final = 0o640
 #: The files SQLite keeps next to the database (WAL mode: -wal, -shm; rollback: -journal).
 SIDE_FILE_SUFFIXES: Final = ("-wal", "-shm", "-journal")
+#: The most rows one list call may return (``limit``); the REST pages share it.
+MAX_PAGE_ROWS: Final = 10_000
 
 _BOOL_COLUMNS = ("excluded", "auto_capture", "interrupted", "accepted")
 _JSON_COLUMNS = ("model_json", "options_json", "result_json", "detail_json")
@@ -129,6 +131,27 @@ def or_none(lookup: Callable[[int], T], row_id: int) -> T | None:
         return lookup(row_id)
     except StoreNotFound:
         return None
+
+
+def check_limit(limit: int) -> int:
+    """``limit`` if it is within 1..:data:`MAX_PAGE_ROWS`; :class:`StoreInvalid` naming
+    ``limit`` otherwise."""
+    if not 1 <= limit <= MAX_PAGE_ROWS:
+        raise StoreInvalid(f"limit: must be within 1..{MAX_PAGE_ROWS}, got {limit}")
+    return limit
+
+
+def where_clause(filters: Sequence[tuple[str, Any]]) -> tuple[str, list[Any]]:
+    """A ``WHERE`` clause and its parameters from ``(condition, value)`` pairs.
+
+    Each condition holds one ``?`` for its value; a pair whose value is None is left out (the
+    filter was not asked for). Returns ``(" WHERE a = ? AND b > ?", [va, vb])``, or ``("",
+    [])`` when no filter applies.
+    """
+    used = [(cond, value) for cond, value in filters if value is not None]
+    if not used:
+        return "", []
+    return " WHERE " + " AND ".join(c for c, _ in used), [v for _, v in used]
 
 
 # ----------------------------------------------------------------------------- file modes
@@ -278,6 +301,30 @@ class StoreDB:
     def _one(self, sql: str, params: Sequence[Any] = ()) -> Row | None:
         rows = self._query(sql, params)
         return rows[0] if rows else None
+
+    def _page(
+        self,
+        select: str,
+        filters: Sequence[tuple[str, Any]],
+        *,
+        limit: int | None,
+        newest: bool = False,
+        id_column: str = "id",
+    ) -> list[Row]:
+        """Rows of ``select`` (``SELECT … FROM …``, no ``WHERE``) that match ``filters`` (see
+        :func:`where_clause`), in ``id_column`` order, at most ``limit`` of them.
+
+        ``newest=False``: the first ``limit`` rows (a page after a cursor); ``newest=True``:
+        the last ``limit`` rows, still oldest first. ``limit`` None: every row; otherwise it
+        must pass :func:`check_limit`.
+        """
+        clause, params = where_clause(filters)
+        cap = -1 if limit is None else check_limit(limit)
+        order = "DESC" if newest else "ASC"
+        rows = self._query(f"{select}{clause} ORDER BY {id_column} {order} LIMIT ?", [*params, cap])
+        if newest:
+            rows.reverse()
+        return rows
 
     def _get(self, table: str, row_id: int) -> Row | None:
         with self._lock:

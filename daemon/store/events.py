@@ -67,25 +67,16 @@ class EventStore(StoreDB):
         With ``since_id``: the first ``limit`` events after it (to follow the log). Without:
         the newest ``limit`` events. Rows: ``id, t_wall [s epoch], kind, device, campaign_id,
         message, detail``.
+
+        Raises
+        ------
+        StoreInvalid
+            ``limit`` outside 1..10000.
         """
-        if not 1 <= limit <= 10_000:
-            raise StoreInvalid(f"limit: must be within 1..10000, got {limit}")
-        where: list[str] = []
-        params: list[Any] = []
-        if kind is not None:
-            where.append("kind = ?")
-            params.append(kind)
-        if campaign_id is not None:
-            where.append("campaign_id = ?")
-            params.append(campaign_id)
-        if since_id is not None:
-            where.append("id > ?")
-            params.append(since_id)
-        clause = (" WHERE " + " AND ".join(where)) if where else ""
-        order = "ASC" if since_id is not None else "DESC"
-        rows = self._query(
-            f"SELECT * FROM events{clause} ORDER BY id {order} LIMIT ?", [*params, limit]
+        rows = self._page(
+            "SELECT * FROM events",
+            [("kind = ?", kind), ("campaign_id = ?", campaign_id), ("id > ?", since_id)],
+            limit=limit,
+            newest=since_id is None,
         )
-        if since_id is None:
-            rows.reverse()
         return [cast(EventRow, decode_row(r)) for r in rows]

@@ -125,11 +125,17 @@ class JobStore(StoreDB):
         self, campaign_id: int | None = None, after_id: int = 0, limit: int | None = None
     ) -> list[JobRow]:
         """Jobs with ``id > after_id`` by id, all or one campaign's, at most ``limit``
-        (None: all)."""
-        where = "id > ?" + ("" if campaign_id is None else " AND campaign_id = ?")
-        params = [after_id] + ([] if campaign_id is None else [campaign_id])
-        with self._lock:
-            rows = list(self._table("jobs").rows_where(where, params, order_by="id", limit=limit))
+        (None: all).
+
+        Raises
+        ------
+        StoreInvalid
+            ``limit`` outside 1..10000.
+        """
+        rows = self._page(
+            "SELECT * FROM jobs", [("id > ?", after_id), ("campaign_id = ?", campaign_id)],
+            limit=limit,
+        )  # fmt: skip
         return [cast(JobRow, decode_row(r)) for r in rows]
 
     def mark_interrupted(self) -> int:

@@ -35,7 +35,9 @@ class RobotRow(TypedDict):
 
 
 class CampaignRow(TypedDict):
-    """A campaign with its robot's name and its sample counts."""
+    """A campaign with its robot's name, its sample counts, and ``plan_id``: the id of its
+    current (newest) pose plan, None while it has none (``GET /campaigns/{id}/plan`` is then a
+    404, so a client asks for the plan only when this is set)."""
 
     id: int
     name: str
@@ -48,6 +50,7 @@ class CampaignRow(TypedDict):
     n_samples: int
     n_excluded: int
     n_included: int
+    plan_id: int | None
 
 
 class SampleRow(TypedDict):

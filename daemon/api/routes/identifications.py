@@ -35,7 +35,10 @@ def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
 )
 async def start(state: State, campaign_id: CampaignId, body: IdentificationRequest) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
-    (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``."""
+    (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``. 422 for a bad
+    option, or when the samples left for training (after ``test_fraction``) are not more than
+    the parameters the identification would solve for this robot and these anchors (25 training
+    rows for the built-in model with one anchor; the message names the count)."""
     try:
         job = state.jobs.submit(campaign_id, body.to_options())
     except JobError as exc:

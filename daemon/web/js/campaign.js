@@ -196,21 +196,20 @@ async function setAuto(enabled) {
 }
 
 // ------------------------------------------------------------------ plan
-let noPlanFor = null; // campaign id known to have no plan (no 404 polling)
-
 async function refreshPlan() {
   if (!hasRoute("GET", "/campaigns/{}/plan")) {
     $("plan-form").querySelector("button").disabled = true;
     setText("plan-summary", "Pose planning is not available on this daemon (no plan route); capture poses of your own choosing.");
     return;
   }
-  const id = state.campaign.id;
-  if (noPlanFor === id) { plan = null; renderPlan(); return; }
+  // The campaign says whether it has a plan (plan_id): no request, so no 404 in the console,
+  // while it has none. A plan made elsewhere (cablecal plan) shows up with the 2 s refresh.
+  const { id, plan_id: planId } = state.campaign;
+  if (planId == null) { plan = null; renderPlan(); return; }
   try {
     plan = await api("GET", `/campaigns/${id}/plan`, { quiet: true });
   } catch (exc) {
     if (exc.status !== 404) showMessage("error", `plan: ${exc.message}`, "plan");
-    else noPlanFor = id;
     plan = null;
   }
   renderPlan();
@@ -252,7 +251,7 @@ async function startPlan(ev) {
   setText("plan-summary", `Planning ${body.n} poses … (the cell PC computes for up to a minute)`);
   try {
     plan = await api("POST", `/campaigns/${state.campaign.id}/plan`, { json: body });
-    noPlanFor = null;
+    state.campaign.plan_id = plan.id;
   } finally {
     button.disabled = false;
     $("plan-progress").hidden = true;
@@ -275,7 +274,6 @@ async function createCampaign(ev) {
   }
   const c = await api("POST", "/campaigns", { json: { name: f.name.value.trim(), robot_model: model, notes: f.notes.value } });
   ev.target.reset();
-  noPlanFor = c.id; // a new campaign has no plan: do not ask (a 404 in the console)
   await loadCampaigns();
   await select(c);
   showMessage("info", `Campaign #${c.id} "${c.name}" created. Plan poses or start capturing.`, "created");
