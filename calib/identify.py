@@ -28,7 +28,7 @@ every reported figure in degrees and millimetres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -205,7 +205,7 @@ def _problem(
         prior_sigma[N_DH:N_KIN] = np.inf if opts.prior_tool_mm is None else opts.prior_tool_mm
         notes.append(
             f"MAP prior toward the nominal model: {opts.prior_mm} mm / {opts.prior_deg} deg "
-            f"per DH error, noise {opts.noise_mm} mm"
+            f"per DH error, noise {opts.noise_mm:.3g} mm"
         )
     prior_mean = theta_start.copy()
     prior_mean[:N_DH] = 0.0
@@ -216,26 +216,42 @@ def _problem(
                    noise_mm=opts.noise_mm)  # fmt: skip
 
 
-def _prior_weight(
+def _weighed_solve(
     d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
-    opts: IdentifyOptions, progress: ProgressFn | None,
-) -> tuple[IdentifyOptions, dict[str, Any]]:  # fmt: skip
-    """Step 5a: the options the fit runs with, the prior weighed as ``prior_weight`` says
-    (:mod:`calib.prior`): noise from the ML fit's residuals, and for ``cv`` the prior-width
-    scale chosen by grouped-fold cross-validation; and the detail for ``result.json``."""
+    opts: IdentifyOptions, progress: ProgressFn | None, notes: list[str],
+) -> tuple[IdentifyOptions, dict[str, Any], _Solved]:  # fmt: skip
+    """Step 5: the fit, its prior weighed as ``prior_weight`` says (:mod:`calib.prior`).
+
+    ``fixed`` (or no prior): one solve. ``estimated``: the noise fixed point, each round a
+    MAP solve with the noise the last one estimated (from the option's ``noise_mm``), until
+    ``σ̂`` agrees with the noise used within ``prior.NOISE_RTOL``; the last round is the fit.
+    ``cv``: that noise, then the prior-width scale chosen by grouped-fold cross-validation,
+    and a final solve. Returns the options the fit ran with, the detail for ``result.json``
+    and the solve.
+    """
     if not opts.prior or opts.prior_weight == "fixed":
-        return opts, {}
-    report(progress, 0.05, "maximum-likelihood fit for the noise estimate")
-    ml_opts = replace(opts, prior=False)
-    ml = _solve(_problem(d, theta_start, free, ml_opts, []), ml_opts, None)
-    noise = prior.noise_from_fit(ml.problem, ml.result.x)
-    detail: dict[str, Any] = {"noise_estimated_mm": noise}
+        return opts, {}, _solve(_problem(d, theta_start, free, opts, notes), opts, progress)
+    used = opts
+    noise = opts.noise_mm
+    warm = theta_start  # each round starts where the last ended (the prior mean stays)
+    for rounds in range(1, prior.NOISE_ROUNDS + 1):
+        report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
+        problem = _problem(d, theta_start, free, used, []).with_theta0(warm)
+        solved = _solve(problem, used, progress)
+        noise = prior.noise_from_map(solved.problem, solved.result.x)
+        if abs(noise / used.noise_mm - 1.0) < prior.NOISE_RTOL:
+            break
+        used = prior.scaled_options(opts, noise, 1.0)
+        warm = solved.problem.full(solved.result.x)
+    detail: dict[str, Any] = {"noise_estimated_mm": noise, "noise_rounds": rounds}
     if opts.prior_weight == "estimated":
-        return prior.scaled_options(opts, noise, 1.0), detail
+        _problem(d, theta_start, free, used, notes)  # the prior's note, as fitted
+        return used, detail, solved
     report(progress, 0.1, "cross-validating the prior scale over pose groups")
-    scale, scores = prior.cv_scale(d.model, samples, opts, d.train_rows, noise)
+    scale, scores = prior.cv_scale(d.model, samples, opts, d.train_rows, used.noise_mm)
     detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
-    return prior.scaled_options(opts, noise, scale), detail
+    used = prior.scaled_options(opts, used.noise_mm, scale)
+    return used, detail, _solve(_problem(d, theta_start, free, used, notes), used, progress)
 
 
 def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
@@ -374,9 +390,8 @@ def identify(
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
     notes: list[str] = []
-    used, prior_detail = _prior_weight(d, samples, theta_start, free, opts, progress)
-    problem = _problem(d, theta_start, free, used, notes)
-    solved = _solve(problem, used, progress)
+    used, prior_detail, solved = _weighed_solve(d, samples, theta_start, free, opts, progress,
+                                                notes)  # fmt: skip
     result, final = solved.result, solved.problem
     if opts.robust != "none":
         notes.append(_robust_note(opts, solved))

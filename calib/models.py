@@ -179,8 +179,14 @@ def parse_model_text(text: str, fmt: str) -> RobotModel:
     return model_from_mapping(data)
 
 
-#: The paper's Table I. The joint limits are assumptions (the paper gives none) wide enough for
-#: every pose of the HSR-RobotCali dataset; see examples/hsr-jr680.toml.
+#: The paper's Table I: alpha, a and d as printed. Its theta column is the joint angle at the
+#: drawn (home) pose, not an offset to add: in eq. (1) theta_i is the joint variable itself, and
+#: the HSR-RobotCali angles (q3 about 215 deg) are those DH angles. Measured on the bundled 2017
+#: rows, nominal model with only P0, c and the hook point fitted: 0.097 mm RMS with zero offsets,
+#: 4.64 mm with Table I's theta added (the joint-5 offset alone trades with the hook point, the
+#: joint-2 and joint-3 offsets do not). So the controller offsets are 0. The joint limits are
+#: assumptions (the paper gives none) wide enough for every pose of the dataset; see
+#: examples/hsr-jr680.toml.
 HSR_JR680: dict[str, Any] = {
     "name": "hsr-jr680",
     "convention": "dh",
@@ -188,13 +194,13 @@ HSR_JR680: dict[str, Any] = {
     "joints": [
         {"alpha_deg": -90.0, "a_mm": 250.0, "d_mm": 653.5, "theta_deg": 0.0,
          "limits_deg": [-180.0, 180.0]},
-        {"alpha_deg": 0.0, "a_mm": 900.0, "d_mm": 0.0, "theta_deg": -90.0,
+        {"alpha_deg": 0.0, "a_mm": 900.0, "d_mm": 0.0, "theta_deg": 0.0,
          "limits_deg": [-155.0, 90.0]},
-        {"alpha_deg": 90.0, "a_mm": -205.0, "d_mm": 0.0, "theta_deg": 180.0,
+        {"alpha_deg": 90.0, "a_mm": -205.0, "d_mm": 0.0, "theta_deg": 0.0,
          "limits_deg": [60.0, 300.0]},
         {"alpha_deg": -90.0, "a_mm": 0.0, "d_mm": 1030.2, "theta_deg": 0.0,
          "limits_deg": [-360.0, 360.0]},
-        {"alpha_deg": 90.0, "a_mm": 0.0, "d_mm": 0.0, "theta_deg": 90.0,
+        {"alpha_deg": 90.0, "a_mm": 0.0, "d_mm": 0.0, "theta_deg": 0.0,
          "limits_deg": [-125.0, 125.0]},
         {"alpha_deg": 0.0, "a_mm": 0.0, "d_mm": 200.6, "theta_deg": 0.0,
          "limits_deg": [-360.0, 360.0]},

@@ -126,7 +126,7 @@ class IdentifyOptions:
         default=3.5,
         metadata=_spec("Flag (reject) residuals beyond this [robust sigma]; auto: at least", gt=0),
     )
-    prior: bool = field(default=False, metadata=_spec("MAP prior toward the nominal model"))
+    prior: bool = field(default=True, metadata=_spec("MAP prior toward the nominal model"))
     prior_mm: float = field(default=2.0, metadata=_spec("Prior 1σ of DH lengths [mm]", gt=0))
     prior_deg: float = field(default=0.2, metadata=_spec("Prior 1σ of DH angles [deg]", gt=0))
     prior_tool_mm: float | None = field(
@@ -135,8 +135,9 @@ class IdentifyOptions:
     prior_weight: PriorWeight = field(
         default="estimated",
         metadata=_spec(
-            "How the prior is weighed against the data: estimated (noise from the ML fit's "
-            "residuals), fixed (noise_mm), cv (prior scale by grouped-fold cross-validation)",
+            "How the prior is weighed against the data: estimated (noise from the MAP fit's "
+            "own residuals), fixed (noise_mm), cv (prior scale by grouped-fold "
+            "cross-validation)",
             choices=PRIOR_WEIGHTS,
         ),
     )

@@ -59,13 +59,15 @@ import time
 from pathlib import Path
 from typing import Any
 
+from daemon.blas import BLAS_THREAD_VARIABLES
+
 log = logging.getLogger("cablecal.workers")
 
 #: Exit status of a child that saw the daemon die.
 EXIT_PARENT_GONE = 70
 
 #: Environment variables that size the thread pools of BLAS and OpenMP libraries.
-THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+THREAD_ENV = BLAS_THREAD_VARIABLES
 
 _limits: Any = None  # keeps the threadpoolctl limiter of this process alive
 

@@ -12,10 +12,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
-import pytest
-from helpers import start_emulated_cell
+from daemon.blas import single_threaded_blas
 
-from simulator.runner import SimulatorThread
+single_threaded_blas()  # as the cablecal command does, before the tests import numpy
+
+import pytest  # noqa: E402
+from helpers import start_emulated_cell  # noqa: E402
+
+from simulator.runner import SimulatorThread  # noqa: E402
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -142,3 +142,21 @@ def test_only_daemon_cli_imports_the_simulator() -> None:
                 if n.split(".")[0] == "simulator"
             ]
     assert offenders == []
+
+
+@pytest.mark.parametrize(("preset", "expected"), [(None, "1"), ("3", "3")])
+def test_the_command_runs_numpy_with_one_blas_thread_unless_told(
+    preset: str | None, expected: str
+) -> None:
+    """daemon.blas: the cablecal command defaults BLAS to one thread before numpy loads, and an
+    operator's own setting wins. Checked in the child's environment after importing the CLI."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if preset is not None:
+        env["OPENBLAS_NUM_THREADS"] = preset
+    code = "import os, daemon.cli; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=60)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == expected

@@ -33,9 +33,10 @@ CHART_IDS = (
 
 @pytest.fixture(scope="module")
 def real_case() -> tuple[dict[str, Any], SampleSet]:
-    """LM on the first 120 real rows, 20 % random hold-out: implausible parameters."""
+    """LM by maximum likelihood (--no-prior) on the first 120 real rows, 20 % random hold-out:
+    implausible parameters (the default MAP fit is plausible on them)."""
     samples = parse_samples_csv(DATA.read_text()).subset(np.arange(120))
-    result = identify(MODEL, samples, IdentifyOptions(method="lm")).to_json()
+    result = identify(MODEL, samples, IdentifyOptions(method="lm", prior=False)).to_json()
     return result, samples
 
 

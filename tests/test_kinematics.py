@@ -58,9 +58,12 @@ def test_forward_matches_literal_matrix_product(convention: str) -> None:
 
 
 def test_jr680_home_pose_golden() -> None:
-    """Golden value: all joints at zero, flange centre, computed by hand from Table I."""
+    """Golden value: the home pose of Table I (its theta column: the controller reports the DH
+    angle itself, the model's offsets are 0), flange centre, computed by hand."""
     model = builtin_model("hsr-jr680")
-    pos = forward_position(model.dh_internal(), np.zeros((1, 6)), np.zeros(3))
+    assert np.all(model.dh_table[:, 3] == 0.0)
+    home_rad = np.deg2rad([[0.0, -90.0, 180.0, 0.0, 90.0, 0.0]])
+    pos = forward_position(model.dh_internal(), home_rad, np.zeros(3))
     # Joint 1 puts frame 1 at (a1, 0, d1) = (250, 0, 653.5); θ2 = -90° turns the upper arm
     # (a2 = 900) vertical: (250, 0, 1553.5); θ3 = 180° with a3 = -205 adds 205 upwards:
     # (250, 0, 1758.5); the forearm d4 = 1030.2 points along +x: (1280.2, 0, 1758.5); θ5 = 90°

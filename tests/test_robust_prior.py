@@ -142,7 +142,8 @@ def _csv(tmp_path: Path, name: str, q: np.ndarray, lengths: np.ndarray) -> Path:
 
 @pytest.fixture(scope="module")
 def cases(tmp_path_factory) -> dict[str, Path]:
-    """good: well spread; local: a few degrees (LM does not converge, implausible);
+    """good: well spread; local: a few degrees (by maximum likelihood, --no-prior, LM does not
+    converge; the default MAP fit does);
     long_tool: a 600 mm hook point (converges, implausible: tool beyond 500 mm)."""
     tmp = tmp_path_factory.mktemp("exit")
     cell = make_true_cell(MODEL)
@@ -174,9 +175,11 @@ def _identify(path: Path, *extra: str) -> tuple[int, str, dict]:
 def test_exit_codes(cases: dict[str, Path]) -> None:
     code, _, data = _identify(cases["good"], "--strict")
     assert code == 0 and data["success"] and data["plausibility"]["plausible"]
-    code, output, data = _identify(cases["local"])
+    code, output, data = _identify(cases["local"], "--no-prior")
     assert code == 1 and not data["success"]  # written, and the exit says not converged
     assert "not converged" in output
+    code, output, data = _identify(cases["local"])  # the default MAP fit is well posed
+    assert code == 0 and data["success"] and data["plausibility"]["plausible"]
     code, _, data = _identify(cases["bad"])
     assert code == 2 and data == {}
     code, _, data = _identify(cases["long_tool"])
@@ -200,15 +203,15 @@ def _advice(data: dict) -> str:
 
 
 def test_advice_names_parameters_and_is_never_circular(cases: dict[str, Path]) -> None:
-    _, _, off = _identify(cases["local"])
+    _, _, off = _identify(cases["local"], "--no-prior")
     text = _advice(off)
     assert "cablecal plan --start" in text
     named = [n for n in off["correlation"]["names"] if f"{n} ±" in text]
     assert len(named) >= 3, text  # the least constrained solved parameters, by name
     assert "--prior" in text  # off: may be suggested
-    _, _, on = _identify(cases["local"], "--prior")
+    _, _, on = _identify(cases["local"])  # the prior is on by default
     assert on["plausibility"]["plausible"]  # here the prior is enough: no advice at all
-    _, _, on = _identify(cases["long_tool"], "--prior")  # a 600 mm tool: no prior holds it
+    _, _, on = _identify(cases["long_tool"])  # a 600 mm tool: no prior holds it
     text = _advice(on)
     assert on["prior"]["used"] and "cablecal plan --start" in text
     assert "--prior" not in text  # on already: never advised

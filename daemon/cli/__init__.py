@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-import typer
+from daemon.blas import single_threaded_blas
+
+single_threaded_blas()  # before anything imports numpy (daemon.blas says why)
+
+import typer  # noqa: E402
 
 app = typer.Typer(
     name="cablecal",
