@@ -125,8 +125,6 @@ def all_rows_fit() -> tuple[Problem, SolverResult]:
     return problem, geolm.solve(problem)
 
 
-@pytest.mark.long
-@pytest.mark.timeout(900)
 def test_all_bundled_rows_end_below_a_tight_reference_run(
     all_rows_fit: tuple[Problem, SolverResult],
 ) -> None:
@@ -134,8 +132,6 @@ def test_all_bundled_rows_end_below_a_tight_reference_run(
     assert problem.cost(res.x) <= 1.01 * reference_cost(problem, REFERENCE_NFEV // 4)
 
 
-@pytest.mark.long
-@pytest.mark.timeout(900)
 def test_all_bundled_rows_converge(all_rows_fit: tuple[Problem, SolverResult]) -> None:
     _, res = all_rows_fit
     assert res.success, res.message
