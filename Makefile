@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed-stamp
 # make run PORT=9000 (0: any free port)
 PORT ?= 8080
 
-.PHONY: test test-long lint typecheck unit run demo bench screenshots clean
+.PHONY: test lint typecheck unit run demo bench screenshots clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,10 +25,6 @@ unit: $(STAMP)
 	$(BIN)/pytest
 
 test: lint typecheck unit
-
-# The tests that run for minutes (the solvers on all 2017 real rows), left out of make test.
-test-long: $(STAMP)
-	$(BIN)/pytest -m long
 
 # The daemon on the EMULATED cell (examples/sim.toml), store under .state/; Ctrl-C stops it.
 run: $(STAMP)

@@ -60,8 +60,8 @@ from bench.real_data import ROBOT
 from calib import methods
 from calib.cable import N_DH, ParamLayout, length_jacobian, predict_lengths
 from calib.dataset import SampleSet
-from calib.identifiability import analyse
-from calib.identify import IdentifyOptions, _fit, _generic_jacobian, fit_anchors, identify
+from calib.identifiability import analyse, generic_jacobian
+from calib.identify import IdentifyOptions, _fit, fit_anchors, identify
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
 from calib.options import default as default_option
@@ -100,7 +100,7 @@ def build_problem(
     _, jac = length_jacobian(model, start, q, aidx)
     ident = analyse(jac, layout.names, np.ones(layout.size, dtype=bool),
                     rtol=IdentifyOptions().rtol,
-                    structural_jacobian=_generic_jacobian(model, layout, start))  # fmt: skip
+                    structural_jacobian=generic_jacobian(model, layout, start))  # fmt: skip
     free = np.array([n in ident.base for n in layout.names])
     problem = Problem(model, layout, q, length, aidx, free, start)
     if objective == "ml":
