@@ -186,7 +186,10 @@ def _free_set(
     layout = d.layout
     _, jac = length_jacobian(d.model, theta_start, d.q, d.aidx)
     generic = _generic_jacobian(d.model, layout, theta_start)
-    ident = analyse(jac, layout.names, candidates, rtol=opts.rtol, structural_jacobian=generic)
+    plausible = methods.internal_sigma(layout, opts.prior_mm, opts.prior_deg, np.inf)
+    ident = analyse(jac, layout.names, candidates, rtol=opts.rtol, structural_jacobian=generic,
+                    noise_mm=opts.noise_mm if opts.noise_rank else None,
+                    plausible=plausible)  # fmt: skip
     free = np.array([n in ident.base for n in layout.names]) & candidates
     for name in opts.free:
         free[layout.index(name)] = True
