@@ -43,7 +43,12 @@ from calib.planning.candidates import draw_candidates, flange_and_tool_mm
 from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S, campaign_time_s, order_poses
 from calib.planning.result import PlanResult
 from calib.problem import BoolArray
-from calib.tcp import TcpUncertainty, tcp_uncertainty, workspace_sample_deg
+from calib.tcp import (
+    TcpUncertainty,
+    aligned_tcp_jacobian,
+    tcp_uncertainty,
+    workspace_sample_deg,
+)
 
 
 @dataclass(frozen=True)
@@ -91,6 +96,11 @@ class PlanOptions:
         Rank tolerance of the base-set analysis (:func:`calib.identifiability.analyse`).
     compare_single_anchors : bool
         With several anchors, also plan at each anchor alone and report the gain.
+    criterion : str
+        ``"tcp"`` (default): the D/Ds-optimal design is then refined by exchanges that lower
+        the predicted mean aligned TCP variance over the workspace sample (I-optimality,
+        summed over the anchor hypotheses), the figure a calibration is judged by.
+        ``"d"``: stop at the D/Ds-optimal design.
     """
 
     n: int = 40
@@ -111,6 +121,7 @@ class PlanOptions:
     rtol: float = 1e-8
     compare_single_anchors: bool = True
     anchors_nuisance: bool = True
+    criterion: str = "tcp"
 
     def validate(self, n_anchors: int) -> None:
         """Raise ``ValueError`` naming the first bad option."""
@@ -133,6 +144,8 @@ class PlanOptions:
                              f"got {self.joint_speed_deg_s}")  # fmt: skip
         if self.dwell_s < 0:
             raise ValueError(f"dwell_s: must be >= 0, got {self.dwell_s}")
+        if self.criterion not in ("tcp", "d"):
+            raise ValueError(f"criterion: 'tcp' or 'd', got {self.criterion!r}")
         if self.anchor_ids is not None and len(self.anchor_ids) != n_anchors:
             raise ValueError(f"anchor_ids: {len(self.anchor_ids)} ids for {n_anchors} anchors")
 
@@ -251,6 +264,26 @@ def _kinematic_log_det(s: _Setup, jac: FloatArray) -> float:
     return design.log_det(schur) / int(np.count_nonzero(kin))
 
 
+def _tcp_weight(model: RobotModel, s: _Setup, ws_q_deg: FloatArray) -> FloatArray:
+    """``W`` (k, k) of :func:`design.tcp_trace` for the scaled base set at the nominal model."""
+    b = aligned_tcp_jacobian(model, s.layout, s.theta, s.free, ws_q_deg) / s.scale
+    out: FloatArray = b.T @ b / ws_q_deg.shape[0]
+    return out
+
+
+def _select(s: _Setup, fixed: FloatArray, opts: PlanOptions, weight: FloatArray,
+            among: IndexArray | None = None) -> tuple[IndexArray, int]:  # fmt: skip
+    """Design (candidate indices) among ``among`` (default all): D/Ds-optimal, then, for
+    ``criterion="tcp"``, TCP-variance exchanges. Returns it and the exchanges made."""
+    sub = np.arange(s.rows.shape[1]) if among is None else among
+    rows = s.rows[:, sub]
+    chosen, made = design.select(rows, fixed, opts.n, opts.max_exchanges, s.nuisance)
+    if opts.criterion == "tcp":
+        chosen, more = design.tcp_exchange(rows, fixed, weight, chosen, opts.max_exchanges)
+        made += more
+    return sub[np.asarray(chosen)], made
+
+
 def _fixed(s: _Setup, ridge: float) -> FloatArray:
     """Start-data information plus ridge, scaled, one copy per anchor hypothesis (H, k, k)."""
     u = s.start_jac / s.scale
@@ -280,27 +313,33 @@ def _random_baseline(model: RobotModel, s: _Setup, opts: PlanOptions,
 
 
 def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatArray,
-                 all_jac: FloatArray, all_tcp: TcpUncertainty,
+                 weight: FloatArray, all_jac: FloatArray, all_tcp: TcpUncertainty,
                  ws_q_deg: FloatArray) -> tuple[dict[str, Any], IndexArray]:  # fmt: skip
     """Plan at each anchor alone and compare with the plan over all anchors.
 
     Returns the comparison and the best single-anchor design (candidate indices): the joint
-    exchange is a local search and may end below a single-anchor design, which then wins.
+    exchange is a local search and may end below a single-anchor design, which then wins
+    (by the plan's criterion: TCP σ for ``"tcp"``, kinematic D-efficiency for ``"d"``).
+    Which anchors the final plan uses is added by :func:`_anchors_used`.
     """
     singles: dict[str, Any] = {}
     designs: dict[str, IndexArray] = {}
     for li in s.plan_anchor_index:
         aid = s.layout.anchors[int(li)]
-        sub = np.flatnonzero(s.cand_anchor == li)
-        chosen, _ = design.select(s.rows[:, sub], fixed, opts.n, opts.max_exchanges, s.nuisance)
-        picked = sub[np.asarray(chosen)]
+        picked, _ = _select(s, fixed, opts, weight, np.flatnonzero(s.cand_anchor == li))
         designs[aid] = picked
         jac, _, tcp = _predict(model, s, picked, opts, ws_q_deg)
         singles[aid] = {"kinematic_log_det": _kinematic_log_det(s, jac), "tcp_sigma_mm":
                         tcp.to_dict()}  # fmt: skip
-    best = max(singles, key=lambda a: singles[a]["kinematic_log_det"])
+    if opts.criterion == "tcp":
+        best = min(singles, key=lambda a: singles[a]["tcp_sigma_mm"]["rms"])
+        joint_wins = all_tcp.rms_mm <= singles[best]["tcp_sigma_mm"]["rms"]
+    else:
+        best = max(singles, key=lambda a: singles[a]["kinematic_log_det"])
     all_ld = _kinematic_log_det(s, all_jac)
     gain = float(np.exp(all_ld - singles[best]["kinematic_log_det"]))
+    if opts.criterion != "tcp":
+        joint_wins = gain >= 1.0
     return {
         "single_anchor": singles,
         "best_single_anchor": best,
@@ -309,8 +348,25 @@ def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatAr
         # selection over all anchors to the best single anchor's.
         "d_efficiency_gain": gain,
         "tcp_rms_ratio": float(singles[best]["tcp_sigma_mm"]["rms"] / all_tcp.rms_mm),
-        "plan_uses": "all" if gain >= 1.0 else best,
+        "joint_selection_wins": bool(joint_wins),
     }, designs[best]
+
+
+def _anchors_used(s: _Setup, picked: IndexArray, gain: dict[str, Any] | None) -> list[str]:
+    """Count the final plan's poses per anchor; record in ``gain`` which anchors it uses
+    (``plan_uses``: ``"all"``, or the ids that got poses) and return a note when an anchor
+    got none (the optimum may put every pose at one anchor, joint selection or not)."""
+    counts = {s.layout.anchors[int(li)]: int(np.count_nonzero(s.cand_anchor[picked] == li))
+              for li in s.plan_anchor_index}  # fmt: skip
+    used = [a for a, c in counts.items() if c > 0]
+    if gain is not None:
+        gain["poses_per_anchor"] = counts
+        gain["plan_uses"] = "all" if len(used) == len(counts) else ", ".join(used)
+    unused = [a for a, c in counts.items() if c == 0]
+    if not unused:
+        return []
+    return [f"all {len(picked)} poses are at anchor(s) {', '.join(used)}: anchor(s) "
+            f"{', '.join(unused)} add nothing the plan's criterion rewards"]  # fmt: skip
 
 
 def plan(
@@ -357,16 +413,17 @@ def _plan(
         validate_joint_limits(start, model)
     s = _setup(model, anchors, opts, start)
     fixed = _fixed(s, opts.ridge)
-    chosen, exchanges = design.select(s.rows, fixed, opts.n, opts.max_exchanges, s.nuisance)
-    picked = np.asarray(chosen)
     ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
+    weight = _tcp_weight(model, s, ws)
+    picked, exchanges = _select(s, fixed, opts, weight)
     jac, cov, tcp = _predict(model, s, picked, opts, ws)
     gain = None
     if anchors.shape[0] > 1 and opts.compare_single_anchors:
-        gain, single = _anchor_gain(model, s, opts, fixed, jac, tcp, ws)
-        if gain["plan_uses"] != "all":
+        gain, single = _anchor_gain(model, s, opts, fixed, weight, jac, tcp, ws)
+        if not gain["joint_selection_wins"]:
             picked = single
             jac, cov, tcp = _predict(model, s, picked, opts, ws)
+    notes = _anchors_used(s, picked, gain)
     speed = np.asarray(opts.joint_speed_deg_s)
     order: list[int] = []
     travel = campaign = 0.0
@@ -381,7 +438,6 @@ def _plan(
                        for li in s.cand_anchor[order]])  # fmt: skip
     ext = np.linalg.norm(flange_and_tool_mm(model, q)[1] - anchors[plan_k], axis=1)
     free_idx = np.flatnonzero(s.free)
-    notes = []
     if start is not None:
         notes.append(f"{len(start)} start samples included; their anchors multilaterated "
                      "with the nominal model")  # fmt: skip
