@@ -280,9 +280,11 @@ def analyse(
             continue
         if i in noisy:
             sig, plaus = noisy[i]
-            reasons[name] = (f"below the noise: predicted 1σ {sig:.3g} exceeds a plausible "
-                             f"error {plaus:.3g} (internal units, noise {noise_mm} mm); "
-                             "fixed at nominal")  # fmt: skip
+            angle = name.startswith(("alpha", "theta"))
+            f, unit = (180.0 / np.pi, "deg") if angle else (1.0, "mm")
+            reasons[name] = (f"below the noise: predicted 1σ {sig * f:.3g} {unit} exceeds a "
+                             f"plausible error {plaus * f:.3g} {unit} at {noise_mm} mm noise; "
+                             f"fixed at nominal")  # fmt: skip
             continue
         coef = coefs[:, col]
         order = np.argsort(-np.abs(coef))

@@ -231,3 +231,13 @@ def test_tcp_exchange_makes_the_best_single_exchange_and_lowers_the_trace() -> N
     full, _ = design.tcp_exchange(rows, fixed, weight, start)
     assert len(set(full)) == 6
     assert design.tcp_trace(rows, fixed, weight, np.array(full)) <= best + 1e-12
+
+
+def test_tcp_criterion_lowers_the_predicted_tcp_sigma_of_the_d_design() -> None:
+    guess = _guess(4)
+    d_only = plan(MODEL, guess, PlanOptions(n=30, candidates=1500, seed=4, criterion="d"))
+    tcp = plan(MODEL, guess, PlanOptions(n=30, candidates=1500, seed=4))
+    assert tcp.exchanges > d_only.exchanges  # the TCP exchanges ran after the same D design
+    assert tcp.tcp.rms_mm < 0.97 * d_only.tcp.rms_mm
+    with pytest.raises(ValueError, match="criterion"):
+        plan(MODEL, guess, PlanOptions(criterion="a"))
