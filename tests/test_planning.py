@@ -130,7 +130,7 @@ def _assert_anchor_report_is_true(res: PlanResult) -> None:
     used = [a for a, c in counts.items() if c > 0]
     assert gain["plan_uses"] == ("all" if len(used) == len(counts) else ", ".join(used))
     unused = [a for a, c in counts.items() if c == 0]
-    assert any(f"anchor(s) {', '.join(unused)} add nothing" in n for n in res.notes) == bool(unused)
+    assert any(f"gives anchor(s) {', '.join(unused)} none" in n for n in res.notes) == bool(unused)
 
 
 def test_two_anchor_plan_says_when_it_uses_one_anchor() -> None:

@@ -245,15 +245,14 @@ def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatAr
         jac, _, tcp = _predict(model, s, picked, opts, ws_q_deg)
         singles[aid] = {"kinematic_log_det": _kinematic_log_det(s, jac), "tcp_sigma_mm":
                         tcp.to_dict()}  # fmt: skip
+    all_ld = _kinematic_log_det(s, all_jac)
     if opts.criterion == "tcp":
         best = min(singles, key=lambda a: singles[a]["tcp_sigma_mm"]["rms"])
-        joint_wins = all_tcp.rms_mm <= singles[best]["tcp_sigma_mm"]["rms"]
     else:
         best = max(singles, key=lambda a: singles[a]["kinematic_log_det"])
-    all_ld = _kinematic_log_det(s, all_jac)
     gain = float(np.exp(all_ld - singles[best]["kinematic_log_det"]))
-    if opts.criterion != "tcp":
-        joint_wins = gain >= 1.0
+    joint_wins = (all_tcp.rms_mm <= singles[best]["tcp_sigma_mm"]["rms"]
+                  if opts.criterion == "tcp" else gain >= 1.0)  # fmt: skip
     return {
         "single_anchor": singles,
         "best_single_anchor": best,
@@ -279,8 +278,9 @@ def _anchors_used(s: _Setup, picked: IndexArray, gain: dict[str, Any] | None) ->
     unused = [a for a, c in counts.items() if c == 0]
     if not unused:
         return []
-    return [f"all {len(picked)} poses are at anchor(s) {', '.join(used)}: anchor(s) "
-            f"{', '.join(unused)} add nothing the plan's criterion rewards"]  # fmt: skip
+    return [f"all {len(picked)} poses are at anchor(s) {', '.join(used)}: the best design "
+            f"found gives anchor(s) {', '.join(unused)} none (their own P0 and offset cost "
+            "more than their cable directions add)"]  # fmt: skip
 
 
 def plan(
