@@ -25,6 +25,20 @@ and whether it would be identifiable with well-spread poses (``structural_jacobi
 Before any data are fitted, :func:`max_solved` counts the parameters identify can solve at
 most for a robot, its anchors and the ``fix``/``free`` names (the base set at well-spread
 generic poses): :func:`calib.options.validate` needs more training rows than that.
+
+**Noise-level threshold** (``noise_mm`` and ``plausible``). ``rtol`` only removes what is
+redundant to rounding. A DH parameter can pass it and still be worth fixing: with the hook
+point near the flange axis, ``d5`` and ``theta5`` are nearly redundant with the tool point and
+each other, and their least-squares 1σ on 40 good poses at 0.05 mm noise is 3–14 times a
+plausible manufacturing error (``a5``/``alpha5`` go with them). Fixing a parameter at nominal
+costs a bias of the order of its true error, of which the other parameters absorb all but the
+part outside their span; solving for it costs its standard deviation
+``σ_i = noise · sqrt([(JᵀJ)⁻¹]_ii)``. So, given the length noise and a plausible error size
+``δ_i`` per parameter, DH parameters are dropped one at a time, worst ``σ_i/δ_i`` first, until
+every remaining one has ``σ_i ≤ δ_i``. In terms of the scaled Jacobian ``J_i δ_i`` this is a
+relative threshold on each column's component outside the span of the others: it must exceed
+``noise`` (mm of length over the whole data set), i.e. the parameter's plausible error must
+leave a trace in the data above one noise σ. The anchors and the tool point are never dropped.
 """
 
 from __future__ import annotations
@@ -162,6 +176,34 @@ def _base_set(jac_unit: FloatArray, forced: list[int], rest: list[int], rtol: fl
     return sorted(chosen)
 
 
+def _noise_limited(
+    jac_unit: FloatArray, norms: FloatArray, base: list[int], noise_mm: float,
+    plausible: FloatArray,
+) -> tuple[list[int], dict[int, tuple[float, float]]]:  # fmt: skip
+    """Drop DH columns of ``base`` whose predicted 1σ exceeds their plausible error.
+
+    ``jac_unit`` (r, p) unit columns, ``norms`` (p,) their original norms, ``plausible`` (p,)
+    the plausible error per parameter (internal units; ``inf`` never drops). Returns the kept
+    base and, per dropped column, ``(σ, δ)`` in internal units.
+    """
+    base = list(base)
+    dropped: dict[int, tuple[float, float]] = {}
+    while base:
+        u = jac_unit[:, base]
+        evals, evecs = np.linalg.eigh(u.T @ u)
+        if evals[0] <= 0:
+            break  # rank-deficient: left to rtol
+        inv_diag = np.einsum("ij,j,ij->i", evecs, 1.0 / evals, evecs)
+        sigma = noise_mm * np.sqrt(inv_diag) / norms[base]
+        ratio = np.where(np.array(base) < N_DH, sigma / plausible[base], 0.0)
+        worst = int(np.argmax(ratio))
+        if ratio[worst] <= 1.0:
+            break
+        dropped[base[worst]] = (float(sigma[worst]), float(plausible[base[worst]]))
+        del base[worst]
+    return base, dropped
+
+
 def _structural_reason(name: str, tool_free: bool) -> str | None:
     if name == "theta1":
         return "rotation about the base z axis: absorbed by the anchor position P0"
@@ -179,6 +221,8 @@ def analyse(
     *,
     rtol: float = 1e-8,
     structural_jacobian: FloatArray | None = None,
+    noise_mm: float | None = None,
+    plausible: FloatArray | None = None,
 ) -> Identifiability:
     """Rank, conditioning and base set of the candidate parameters.
 
@@ -195,6 +239,12 @@ def analyse(
     structural_jacobian : ndarray, shape (m, p), optional
         The same Jacobian at well-spread generic poses; used to tell structural redundancy from
         a lack of excitation in these data.
+    noise_mm : float, optional
+        1σ length noise [mm]; with ``plausible``, DH parameters whose predicted 1σ exceeds
+        their plausible error are left out too (the noise-level threshold of the module
+        docstring). Default: rank by ``rtol`` only.
+    plausible : ndarray, shape (p,), optional
+        Plausible error size per parameter, internal units (mm, rad).
     """
     names = list(names)
     idx = [i for i in range(len(names)) if candidates[i]]
@@ -205,6 +255,12 @@ def analyse(
     forced = [i for i in idx if i >= N_KIN] + [i for i in idx if i in tool_idx]
     rest = [i for i in idx if i < N_DH and norms[i] > 0]
     base = _base_set(jac_unit, forced, rest, rtol)
+    noisy: dict[int, tuple[float, float]] = {}
+    if noise_mm is not None and plausible is not None:
+        if jac.shape[1] != np.size(plausible):
+            raise ValueError(f"plausible: {np.size(plausible)} values for {jac.shape[1]} "
+                             "parameters")  # fmt: skip
+        base, noisy = _noise_limited(jac_unit, norms, base, noise_mm, np.asarray(plausible))
     _, cond_base = _condition(jac_unit[:, base])
     tool_free = all(candidates[i] for i in tool_idx) and all(i in base for i in tool_idx)
 
@@ -227,6 +283,14 @@ def analyse(
         known = _structural_reason(name, tool_free)
         if norms[i] == 0:
             reasons[name] = "does not change the cable length at these poses"
+            continue
+        if i in noisy:
+            sig, plaus = noisy[i]
+            angle = name.startswith(("alpha", "theta"))
+            f, unit = (180.0 / np.pi, "deg") if angle else (1.0, "mm")
+            reasons[name] = (f"below the noise: predicted 1σ {sig * f:.3g} {unit} exceeds a "
+                             f"plausible error {plaus * f:.3g} {unit} at {noise_mm} mm noise; "
+                             f"fixed at nominal")  # fmt: skip
             continue
         coef = coefs[:, col]
         order = np.argsort(-np.abs(coef))

@@ -187,7 +187,10 @@ def _free_set(
     layout = d.layout
     _, jac = length_jacobian(d.model, theta_start, d.q, d.aidx)
     generic = generic_jacobian(d.model, layout, theta_start)
-    ident = analyse(jac, layout.names, candidates, rtol=opts.rtol, structural_jacobian=generic)
+    plausible = methods.internal_sigma(layout, opts.prior_mm, opts.prior_deg, np.inf)
+    ident = analyse(jac, layout.names, candidates, rtol=opts.rtol, structural_jacobian=generic,
+                    noise_mm=opts.noise_mm if opts.noise_rank else None,
+                    plausible=plausible)  # fmt: skip
     free = solved_mask(layout, ident.base, candidates, opts.free)
     # validate() checked the bound before any fit; this checks the count on these data.
     check_training_rows(d.train_rows.size, len(d.samples), int(np.count_nonzero(free)))

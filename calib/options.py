@@ -142,7 +142,8 @@ class IdentifyOptions:
         ),
     )
     noise_mm: float = field(
-        default=0.1, metadata=_spec("Assumed 1-sigma length noise (prior_weight fixed) [mm]", gt=0)
+        default=0.1,
+        metadata=_spec("Assumed 1-sigma length noise (prior_weight fixed, noise_rank) [mm]", gt=0),
     )
     fix: tuple[str, ...] = field(
         default=(), metadata=_spec("Parameter names held at their start (nominal) value")
@@ -155,6 +156,15 @@ class IdentifyOptions:
         default=None, metadata=_spec("Nominal tool point override [mm]")
     )
     rtol: float = field(default=1e-8, metadata=_spec("Identifiability threshold", gt=0))
+    noise_rank: bool = field(
+        default=False,
+        metadata=_spec(
+            "Also fix DH parameters whose predicted 1σ at noise_mm exceeds a plausible error "
+            "(prior_mm / prior_deg): near-redundant ones such as d5/theta5 vs the tool point. "
+            "Off by default: the default prior holds them softly (planned poses, 10 emulated "
+            "seeds: aligned TCP error 0.0615 mm without, 0.0614 with)"
+        ),
+    )
     filter_sigma_mm: float = field(
         default=5.0, metadata=_spec("Filters' initial 1σ of lengths [mm]", gt=0)
     )

@@ -118,6 +118,23 @@ def remove_rigid(points_mm: FloatArray, a: FloatArray) -> FloatArray:
     return out
 
 
+def aligned_tcp_jacobian(
+    model: RobotModel, layout: ParamLayout, theta: FloatArray, free: BoolArray, q_deg: FloatArray
+) -> FloatArray:
+    """Tool-point Jacobian of the free parameters with the rigid motions removed, (3m, k).
+
+    Rows ``(x_1, y_1, z_1, x_2, …)`` of the ``m`` poses ``q_deg`` (m, 6) [deg]; columns the
+    free parameters (internal units; anchor columns are zero). ``σ² = rowᵀ C row`` summed over
+    a pose's three rows is its aligned TCP variance for a parameter covariance ``C``.
+    """
+    dh, tool = kinematic_parts(model, theta)
+    pos, jac = position_jacobian(dh, np.deg2rad(q_deg), tool, model.convention)  # (m,3,27)
+    m = np.asarray(q_deg).shape[0]
+    a_full = np.zeros((3 * m, layout.size))
+    a_full[:, :N_KIN] = jac.reshape(3 * m, N_KIN)
+    return remove_rigid(pos, a_full[:, np.asarray(free, dtype=bool)])
+
+
 def tcp_uncertainty(
     model: RobotModel,
     layout: ParamLayout,
@@ -149,12 +166,8 @@ def tcp_uncertainty(
         raise ValueError(f"cov_free: expected shape ({k}, {k}) for {k} free parameters, "
                          f"got {cov_free.shape}")  # fmt: skip
     q = workspace_sample_deg(model, n_poses, seed) if q_deg is None else np.asarray(q_deg)
-    dh, tool = kinematic_parts(model, theta)
-    pos, jac = position_jacobian(dh, np.deg2rad(q), tool, model.convention)  # (m,3), (m,3,27)
+    b = aligned_tcp_jacobian(model, layout, theta, free, q)
     m = q.shape[0]
-    a_full = np.zeros((3 * m, layout.size))
-    a_full[:, :N_KIN] = jac.reshape(3 * m, N_KIN)
-    b = remove_rigid(pos, a_full[:, free])
     var = np.einsum("ij,jk,ik->i", b, cov_free, b).reshape(m, 3).sum(axis=1)
     sigma = np.sqrt(np.clip(var, 0.0, None))
     return TcpUncertainty(float(np.sqrt(np.mean(sigma**2))), float(sigma.max()), sigma)

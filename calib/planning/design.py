@@ -165,3 +165,61 @@ def select(
         raise ValueError(f"n: {n_pick} poses requested but only {rows.shape[1]} candidates")
     start = greedy(rows, fixed, n_pick, nuisance)
     return fedorov_exchange(rows, fixed, start, max_exchanges, nuisance)
+
+
+def tcp_trace(rows: FloatArray, fixed: FloatArray, weight: FloatArray, design: IndexArray) -> float:
+    """``Σ_h tr(W M_h⁻¹)``: the summed mean aligned TCP variance per unit noise variance.
+
+    ``weight`` (k, k) is ``W = D⁻¹ BᵀB D⁻¹ / m`` for the rigid-motion-free TCP Jacobian ``B``
+    (3m, k) of a workspace sample and the column scales ``D``, so that ``σ² tr(W M⁻¹)`` is the
+    predicted mean square aligned TCP error (what :func:`calib.tcp.tcp_uncertainty` reports
+    as ``rms²``). Other shapes as :func:`criterion`.
+    """
+    total = 0.0
+    for x, f in zip(rows, fixed, strict=True):
+        sub = x[design]
+        total += float(np.trace(np.linalg.solve(f + sub.T @ sub, weight)))
+    return total
+
+
+def tcp_exchange(
+    rows: FloatArray,
+    fixed: FloatArray,
+    weight: FloatArray,
+    design: list[int],
+    max_exchanges: int = 200,
+) -> tuple[list[int], int]:
+    """Improve a design by single-row exchanges that lower :func:`tcp_trace` (I-optimality).
+
+    Exchanging design row ``x_i`` for candidate ``x_j`` is evaluated exactly for all pairs at
+    once: add ``x_j`` (``V_j = V − V x_j x_jᵀ V / (1 + d_j)``), then remove ``x_i``
+    (``tr(W V') = tr(W V_j) + (V_j x_i)ᵀ W (V_j x_i) / (1 − x_iᵀ V_j x_i)``), with
+    ``V_j x_i = V x_i − V x_j d_ij / (1 + d_j)``. Stops when the best exchange lowers the trace
+    by less than :data:`EXCHANGE_TOL` (relative) or after ``max_exchanges``.
+    Returns the new design and the number of exchanges made.
+    """
+    design = list(design)
+    made = 0
+    for _ in range(max_exchanges):
+        lower = np.zeros((len(design), rows.shape[1]))
+        current = 0.0
+        for x, f in zip(rows, fixed, strict=True):
+            v = np.linalg.inv(f + x[design].T @ x[design])
+            current += float(np.sum(v * weight))
+            b = x @ v  # (n, k): V x_j
+            a = b[design]  # (m, k): V x_i
+            d_j = np.einsum("nk,nk->n", b, x)
+            d_ij = a @ x.T  # (m, n)
+            bw, aw = b @ weight, a @ weight
+            bwb = np.einsum("nk,nk->n", bw, b)
+            c = d_ij / (1.0 + d_j)
+            vjx_w = np.einsum("mk,mk->m", aw, a)[:, None] - 2.0 * c * (aw @ b.T) + c**2 * bwb
+            keep = 1.0 - (d_j[design][:, None] - d_ij * c)
+            lower += bwb / (1.0 + d_j) - vjx_w / np.maximum(keep, 1e-12)
+        lower[:, design] = -np.inf
+        i, j = divmod(int(np.argmax(lower)), rows.shape[1])
+        if lower[i, j] <= EXCHANGE_TOL * current:
+            break
+        design[i] = j
+        made += 1
+    return design, made

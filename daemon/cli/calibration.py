@@ -173,6 +173,8 @@ def identify_cmd(
     prior_mm: Annotated[float, _opt("prior_mm")] = default("prior_mm"),
     prior_deg: Annotated[float, _opt("prior_deg")] = default("prior_deg"),
     prior_weight: Annotated[str, _opt("prior_weight")] = default("prior_weight"),
+    noise_mm: Annotated[float, _opt("noise_mm")] = default("noise_mm"),
+    noise_rank: Annotated[bool, _opt("noise_rank")] = default("noise_rank"),
     fix: Annotated[str, _opt("fix", ", comma-separated")] = "",
     free: Annotated[str, _opt("free", ", comma-separated")] = "",
     out: Annotated[Path | None, typer.Option(help="Write result.json here")] = None,
@@ -192,7 +194,8 @@ def identify_cmd(
         opts = options_from_mapping(
             {"method": method, "test_fraction": test_fraction, "seed": seed,
              "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
-             "prior_deg": prior_deg, "prior_weight": prior_weight, "fix": _split_names(fix),
+             "prior_deg": prior_deg, "prior_weight": prior_weight, "noise_mm": noise_mm,
+             "noise_rank": noise_rank, "fix": _split_names(fix),
              "free": _split_names(free)}
         )  # fmt: skip
         result = _run_identify(model, samples, opts)

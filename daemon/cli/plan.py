@@ -122,8 +122,9 @@ def summary_renderables(data: dict[str, Any], has_start: bool = False) -> list[R
 
 
 PLAN_HELP = (
-    "Plan the poses of a campaign (D-optimal on the identifiable parameters) and print "
-    "the predicted accuracy against as many random poses."
+    "Plan the poses of a campaign (D-optimal on the identifiable parameters, then refined "
+    "for the predicted TCP accuracy) and print the predicted accuracy against as many "
+    "random poses."
 )
 
 
@@ -169,6 +170,10 @@ def plan_cmd(
     dwell_s: Annotated[
         float | None, typer.Option(help="Settle and read time per pose [s] (3)")
     ] = None,
+    criterion: Annotated[
+        str | None,
+        typer.Option(help="tcp: D-optimal then TCP-variance exchanges (default); d: D only"),
+    ] = None,
     json_out: Annotated[
         Path | None, typer.Option("--json", help="Write the summary as JSON here")
     ] = None,
@@ -191,7 +196,8 @@ def plan_cmd(
             k: v
             for k, v in (("n", n), ("min_z_mm", min_z_mm), ("candidates", candidates),
                          ("seed", seed), ("anchor_uncertainty_mm", anchor_uncertainty_mm),
-                         ("noise_mm", noise_mm), ("dwell_s", dwell_s))
+                         ("noise_mm", noise_mm), ("dwell_s", dwell_s),
+                         ("criterion", criterion))
             if v is not None
         }  # fmt: skip
         if extension_mm is not None:
