@@ -30,7 +30,11 @@ function updateNeed() {
   const n = campaignSamples().filter((s) => !s.excluded).length;
   const tf = Number($("identify-form").elements.test_fraction.value) || 0;
   const need = samplesNeeded(tf);
-  if (need == null) return;
+  if (need == null) {
+    $("identify-start").disabled = true;
+    setText("identify-need", "Pick or create a campaign in tab 2.");
+    return;
+  }
   const c = state.campaign;
   const anchors = Math.max(1, c.anchors.length);
   $("identify-start").disabled = n < need || (job && !FINISHED.includes(job.status));
