@@ -112,7 +112,8 @@ def _accuracy_markdown(acc: dict[str, Any]) -> list[str]:
     lines = [
         "## Planned against random poses (EMULATED cells)",
         "",
-        f"Seeds 0..{acc['seeds'] - 1}; identify defaults (LM); aligned TCP RMS error [mm] at "
+        f"Seeds 0..{acc['seeds'] - 1}; identify defaults with method LM (MAP prior toward the "
+        "nominal model, noise estimated); aligned TCP RMS error [mm] at "
         f"500 held-out workspace poses; random = mean of {acc['random_designs']} random "
         f"designs of {acc['n_poses']} poses per seed (same limits, stroke, floor).",
         "",

@@ -179,15 +179,23 @@ class DriftMonitor:
         self._task: asyncio.Task[None] | None = None
         self._running: CheckRow | None = None
         self._schedule: asyncio.Task[None] | None = None
+        #: The newest finished check (any robot), kept here so ``status()`` (``GET /status``,
+        #: polled) never queries SQLite; None before the first check. The monitor is the only
+        #: writer of finished checks (``_finish``, and ``start`` failing leftovers), so it is
+        #: exact once loaded.
+        self._last: CheckRow | None = None
+        self._last_loaded = False
 
     async def start(self) -> None:
         """Fail checks a stopped daemon left running; start the schedule if configured."""
         n = self.store.fail_running_checks("interrupted by daemon restart")
         if n:
             log.warning("failed %d check(s) left running", n)
-        for check in self.store.list_checks(limit=1000):
+        checks = self.store.list_checks(limit=1000)
+        for check in checks:
             if check["status"] in ("ok", "drift") and check["rms_mm"] is not None:
                 metrics.DRIFT_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
+        self._remember_last(checks)
         if self.settings.check_interval_h:
             self._schedule = asyncio.create_task(self._scheduled(), name="drift-schedule")
 
@@ -289,6 +297,7 @@ class DriftMonitor:
         self._running = None
         row = self.store.finish_check(check["id"], status, metrics=metrics_, error=error,
                                       detail=detail)  # fmt: skip
+        self._last, self._last_loaded = row, True
         robot = check["robot_id"]
         if status == "failed":
             message = f"check {row['id']} of robot {robot} failed: {error}"
@@ -325,13 +334,23 @@ class DriftMonitor:
                     with contextlib.suppress(Exception):
                         await self._task
 
+    def _remember_last(self, checks: list[CheckRow]) -> None:
+        """Keep the newest finished check of ``checks`` (oldest first) for :meth:`status`."""
+        done = [c for c in checks if c["status"] != "running"]
+        self._last, self._last_loaded = (done[-1] if done else None), True
+
     def status(self) -> dict[str, Any]:
         """The ``drift`` block of ``GET /status``: the last finished check (any robot)
         ``last_check_at`` [s epoch], ``rms_mm``, ``threshold_mm``, ``state`` (ok, drift,
         failed, or none before the first check), ``robot_id``, ``check_id``, and
-        ``running`` (the running check's id or None), ``check_interval_h``."""
-        done = [c for c in self.store.list_checks(limit=20) if c["status"] != "running"]
-        last = done[-1] if done else None
+        ``running`` (the running check's id or None), ``check_interval_h``.
+
+        From memory: the last check is read from the store once (in :meth:`start`, or here on
+        the first call without it) and replaced when :meth:`_finish` stores one, so a busy
+        store (a capture or an import writing) never delays ``GET /status``."""
+        if not self._last_loaded:
+            self._remember_last(self.store.list_checks(limit=20))
+        last = self._last
         return {
             "state": last["status"] if last else "none",
             "last_check_at": last["finished_at"] if last else None,

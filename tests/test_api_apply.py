@@ -374,7 +374,12 @@ def test_check_refused_while_auto_capture_runs(
     assert client.post(f"{API}/robots/{other}/checks", headers=AUTH).status_code == 404
 
 
-def test_check_times_out_and_fails(tmp_path: Path, cell: TrueCell) -> None:
+def test_check_times_out_and_status_reads_it_from_memory(
+    tmp_path: Path, cell: TrueCell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A check whose poses are never visited fails at its timeout. ``GET /status`` must not
+    query SQLite (the store lock can be held by a capture or an import): after start-up the
+    drift block comes from the monitor's memory, and a check it stores shows at once."""
     settings = Settings(state_dir=tmp_path, api_token=TOKEN, drift={"timeout_s": 1.0})
     with TestClient(create_app(settings, TOKEN, sampler_factory=FakeSampler)) as c:
         cid = _campaign(c, cell, 40, seed=3)
@@ -382,10 +387,25 @@ def test_check_times_out_and_fails(tmp_path: Path, cell: TrueCell) -> None:
         rid = c.get(f"{API}/campaigns/{cid}", headers=AUTH).json()["robot_id"]
         job = store.create_job(cid, rid, "lm", {})
         store.save_result(job["id"], {**_fake_result(), "robot": "hsr-jr680"})
+        queries: list[object] = []
+        list_checks = store.list_checks
+        monkeypatch.setattr(
+            store, "list_checks", lambda *a, **k: queries.append(a) or list_checks(*a, **k)
+        )
+        for _ in range(20):
+            assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["state"] == "none"
+        assert queries == []
         r = c.post(f"{API}/robots/{rid}/checks", headers=AUTH)
         assert r.status_code == 202, r.text
+        assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["running"] == r.json()["id"]
         done = _wait_check(c, rid, r.json()["id"])
         assert done["status"] == "failed" and "0 of 8 check poses" in done["error"]
+        n_before = len(queries)  # start_check counts the robot's checks: not /status
+        for _ in range(20):
+            drift = c.get(f"{API}/status", headers=AUTH).json()["drift"]
+            assert drift["state"] == "failed" and drift["check_id"] == done["id"]
+            assert drift["running"] is None and drift["last_check_at"] == done["finished_at"]
+        assert len(queries) == n_before
 
 
 def _fake_result() -> dict[str, Any]:

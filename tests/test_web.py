@@ -16,11 +16,14 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from browser import offline_page, require_chromium
 
+from calib.dataset import make_samples, samples_to_csv
 from calib.options import default
 from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
+from daemon.datafiles import read_samples
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -220,6 +223,46 @@ def test_campaign_without_a_plan_loads_without_a_failing_request(cell: Cell) -> 
         page.wait_for_timeout(2500)  # one 2 s refresh of the campaign view
         assert page.inner_text("#plan-summary").startswith("No plan yet")
         assert failed == []
+        assert log.console_errors == [] and log.page_errors == []
+
+
+def test_identify_is_offered_from_the_count_the_api_gives(cell: Cell) -> None:
+    """Two anchors need more samples than one (4 more parameters): the page shows "N of M"
+    with the campaign's ``min_samples_to_identify`` and enables Identify only at M."""
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    api = cell.daemon.client()
+    body = {"name": "two anchors", "robot_model": "hsr-jr680"}
+    cid = api.post("/campaigns", json=body).json()["id"]
+    one_anchor = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
+    data = read_samples(None)
+
+    def add(rows: range) -> None:
+        part = data.subset(np.asarray(rows))
+        csv = samples_to_csv(
+            make_samples(part.joints_deg, part.length_mm, ["AB"[i % 2] for i in rows])
+        )
+        headers = {"Content-Type": "text/csv"}
+        assert api.post(f"/campaigns/{cid}/samples/import", content=csv, headers=headers).is_success
+
+    add(range(2))  # one sample at each anchor: the campaign now says what two anchors need
+    need = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
+    assert need > one_anchor
+    add(range(2, need - 1))
+    with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
+        page.goto(f"{url}/#token={TOKEN}")
+        page.click("#tabs button[data-view=campaign]")
+        page.wait_for_function(
+            "document.getElementById('campaign-need').textContent"
+            f".startsWith('{need - 1} of {need} samples needed')"
+        )
+        page.click("#tabs button[data-view=identify]")
+        page.wait_for_function(
+            f"document.getElementById('identify-need').textContent.startsWith('{need - 1} of')"
+        )
+        assert page.is_disabled("#identify-start")
+        add(range(need - 1, need))
+        page.wait_for_selector("#identify-start:not([disabled])", timeout=10000)
         assert log.console_errors == [] and log.page_errors == []
 
 

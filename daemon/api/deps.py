@@ -12,6 +12,7 @@ from fastapi import Depends, HTTPException, Path, Query, Request, Response, stat
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.guard import UNAUTHORIZED_DETAIL, token_matches
+from daemon.api.min_samples import MinSamplesCache
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store
@@ -29,6 +30,8 @@ class AppState:
         The bearer token of write routes (and of read routes unless ``public_reads``).
     store : Store
     jobs : JobManager
+    min_samples : MinSamplesCache
+        The samples identify needs, per robot and anchor count.
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
     drift : daemon.drift.DriftMonitor or None
@@ -41,6 +44,7 @@ class AppState:
     token: str
     store: Store
     jobs: JobManager
+    min_samples: MinSamplesCache
     sampler: Any = None
     drift: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)

@@ -19,6 +19,7 @@ from daemon.api import errors
 from daemon.api.deps import AppState
 from daemon.api.errors import API_KINDS, not_found_detail
 from daemon.api.guard import RequestGuard
+from daemon.api.min_samples import MinSamplesCache
 from daemon.api.routes import (
     apply,
     campaigns,
@@ -93,7 +94,11 @@ def build_state(settings: Settings, token: str) -> AppState:
     settings.state_dir.mkdir(parents=True, exist_ok=True)
     store = Store(settings.database_path)
     return AppState(
-        settings=settings, token=token, store=store, jobs=JobManager(store, settings.jobs)
+        settings=settings,
+        token=token,
+        store=store,
+        jobs=JobManager(store, settings.jobs),
+        min_samples=MinSamplesCache(store),
     )
 
 

@@ -157,12 +157,23 @@ class IdentificationRequest(_Body):
 # (daemon.store.rows: one definition for the store, the routes and /docs); pydantic validates
 # it on the way out. Keys may be added, never removed or renamed.
 
-CampaignOut = CampaignRow
 SampleOut = SampleRow
 RobotOut = RobotRow
 CalibratedModelOut = CalibratedModel
 EventOut = EventRow
 JobOut = JobRow
+
+
+class CampaignOut(CampaignRow):
+    """A campaign with what identify needs of it at the default options
+    (:mod:`daemon.api.min_samples`): ``min_samples_to_identify``, the fewest included samples
+    ``POST /campaigns/{id}/identifications`` accepts (default ``test_fraction`` 0.2), and
+    ``min_training_samples``, the fewest training rows (for another test fraction: the
+    smallest ``n`` with ``n - round(test_fraction * n)`` at least that). Both follow the robot
+    model and the number of ``anchors`` (each further anchor adds 4 parameters)."""
+
+    min_training_samples: int
+    min_samples_to_identify: int
 
 
 class JobView(JobRow):

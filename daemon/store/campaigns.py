@@ -7,6 +7,7 @@ against the campaign robot's joint limits before anything is written.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator, Sequence
 from typing import Any, Final, cast
 
@@ -32,12 +33,22 @@ EXPORT_FORMAT_VERSION: Final = 1
 _Q = JOINT_COLUMNS  # ("q1", ..., "q6")
 _Q_STD = tuple(f"{q}_std" for q in JOINT_COLUMNS)
 
+#: A campaign row. ``anchors``, the sorted distinct anchors of the included samples, is a skip
+#: scan of the index ``samples(campaign_id, excluded, anchor)``: one seek per anchor (the
+#: next larger one), not a read of every sample, so polling ``GET /campaigns`` stays cheap.
 _CAMPAIGN_SELECT = """
     SELECT c.*, r.name AS robot_name,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id) AS n_samples,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id AND s.excluded = 1)
             AS n_excluded,
-        (SELECT max(p.id) FROM plans p WHERE p.campaign_id = c.id) AS plan_id
+        (SELECT max(p.id) FROM plans p WHERE p.campaign_id = c.id) AS plan_id,
+        (WITH RECURSIVE an(a) AS (
+            SELECT min(s.anchor) FROM samples s WHERE s.campaign_id = c.id AND s.excluded = 0
+            UNION ALL
+            SELECT (SELECT min(s.anchor) FROM samples s
+                    WHERE s.campaign_id = c.id AND s.excluded = 0 AND s.anchor > an.a)
+            FROM an WHERE an.a IS NOT NULL)
+         SELECT json_group_array(a) FROM an WHERE a IS NOT NULL) AS anchors
     FROM campaigns c JOIN robots r ON r.id = c.robot_id
 """
 
@@ -62,7 +73,8 @@ def _pose_deg(row: SampleRow) -> list[float]:
 def _campaign_out(row: Row) -> CampaignRow:
     out = decode_row(row)
     out["n_included"] = out["n_samples"] - out["n_excluded"]
-    out["plan_id"] = out.pop("plan_id")  # last, as in CampaignRow
+    out["plan_id"] = out.pop("plan_id")  # in CampaignRow's order
+    out["anchors"] = json.loads(out.pop("anchors"))
     return cast(CampaignRow, out)
 
 
@@ -157,7 +169,8 @@ class CampaignStore(RobotStore):
 
     def campaign(self, campaign_id: int) -> CampaignRow:
         """A campaign with its robot name, sample counts (``n_samples``, ``n_included``,
-        ``n_excluded``) and the id of its current (newest) plan, ``plan_id`` (None: no plan).
+        ``n_excluded``), the id of its current (newest) plan, ``plan_id`` (None: no plan), and
+        the ``anchors`` of its included samples (sorted; empty without any).
 
         Raises
         ------

@@ -35,9 +35,10 @@ class RobotRow(TypedDict):
 
 
 class CampaignRow(TypedDict):
-    """A campaign with its robot's name, its sample counts, and ``plan_id``: the id of its
+    """A campaign with its robot's name, its sample counts, ``plan_id``: the id of its
     current (newest) pose plan, None while it has none (``GET /campaigns/{id}/plan`` is then a
-    404, so a client asks for the plan only when this is set)."""
+    404, so a client asks for the plan only when this is set), and ``anchors``: the anchor
+    ids of its included samples, sorted (each anchor adds parameters to identify)."""
 
     id: int
     name: str
@@ -51,6 +52,7 @@ class CampaignRow(TypedDict):
     n_excluded: int
     n_included: int
     plan_id: int | None
+    anchors: list[str]
 
 
 class SampleRow(TypedDict):

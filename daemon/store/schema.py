@@ -186,12 +186,20 @@ def _migration_4(conn: sqlite3.Connection) -> None:
         conn.execute(sql)
 
 
+def _migration_5(conn: sqlite3.Connection) -> None:
+    # A campaign's counts and anchors (daemon.store.campaigns) from the index alone: the
+    # excluded count is a range count, the distinct anchors a few seeks (a skip scan), instead
+    # of reading every sample row of the campaign on each GET /campaigns.
+    conn.execute("CREATE INDEX samples_campaign_anchor ON samples(campaign_id, excluded, anchor)")
+
+
 #: The schema history, oldest first; ``version`` is the position (1-based).
 MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
     Migration(2, "jobs, results, events; samples.pose_group", _migration_2),
     Migration(3, "plans", _migration_3),
     Migration(4, "drift checks: check_poses, checks", _migration_4),
+    Migration(5, "samples index (campaign_id, excluded, anchor)", _migration_5),
 )
 SCHEMA_VERSION: Final = MIGRATIONS[-1].version
 

@@ -13,6 +13,7 @@ from sqlite_utils.db import Table
 
 from calib.models import builtin_model
 from daemon.store import Store, StoreInvalid, StoreNotFound
+from daemon.store.campaigns import _CAMPAIGN_SELECT
 
 
 # ----------------------------------------------------------------------------- robots
@@ -69,6 +70,27 @@ def test_campaigns_with_counts_and_auto_capture(store: Store, campaign: dict[str
     with pytest.raises(StoreInvalid, match="name"):
         store.create_campaign("  ", campaign["robot_id"])
     assert store.get_campaign(42) is None
+
+
+def test_campaign_anchors_are_those_of_the_included_samples(
+    store: Store, campaign: dict[str, Any]
+) -> None:
+    cid = campaign["id"]
+    assert store.campaign(cid)["anchors"] == []
+    ids = {a: store.store_capture(cid, make_capture((0, 0, 90, 0, 0, k), 500.0, anchor=a))["id"]
+           for k, a in enumerate(("C", "A", "B,x"))}  # fmt: skip
+    store.store_capture(cid, make_capture((0, 0, 90, 0, 0, 9), 500.0, anchor="A"))
+    assert store.campaign(cid)["anchors"] == ["A", "B,x", "C"]  # sorted, each once
+    store.set_excluded(ids["C"], True, "moved the sensor")
+    assert [c["anchors"] for c in store.list_campaigns()] == [["A", "B,x"]]
+    # The counts and the anchors come from indexes (the anchors by a skip scan), never from a
+    # read of the sample rows.
+    sql = "EXPLAIN QUERY PLAN " + _CAMPAIGN_SELECT + " WHERE c.id = ?"
+    plan = [str(row[-1]) for row in store.conn.execute(sql, (cid,)).fetchall()]
+    on_samples = [p for p in plan if p.startswith(("SEARCH s ", "SCAN s"))]
+    assert len(on_samples) == 4, plan  # n_samples, n_excluded, the first and the next anchor
+    assert all("COVERING INDEX" in p for p in on_samples), plan
+    assert sum("samples_campaign_anchor" in p for p in on_samples) == 3, plan
 
 
 # ---------------------------------------------------------------------------- samples

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from typing import cast
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
@@ -37,6 +38,7 @@ from daemon.api.schemas import (
     SamplePatch,
 )
 from daemon.capture import CaptureRejected
+from daemon.store import CampaignRow
 
 log = logging.getLogger("cablecal.service")
 
@@ -66,7 +68,17 @@ def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
         except ModelError as exc:
             raise unprocessable(("body", "robot_model"), f"robot_model.{exc}") from exc
         robot = state.store.add_robot(model, source="uploaded")
-    return state.store.create_campaign(body.name, int(robot["id"]), body.notes)
+    return _out(state, state.store.create_campaign(body.name, int(robot["id"]), body.notes))
+
+
+def _out(state: AppState, row: CampaignRow) -> CampaignOut:
+    """The stored campaign with what identify needs of it (:class:`CampaignOut`): cached per
+    robot and anchor count, so a poll of ``GET /campaigns`` computes nothing new."""
+    need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"]))
+    out = cast(CampaignOut, dict(row))
+    out["min_training_samples"] = need.training_samples
+    out["min_samples_to_identify"] = need.samples
+    return out
 
 
 @router.get("/campaigns", summary="List campaigns (paginated)", dependencies=[ReadAuth])
@@ -77,7 +89,7 @@ def list_campaigns(
     ``Link: <…>; rel="next"`` header."""
     rows = state.store.list_campaigns(after_id=page.after_id, limit=page.limit)
     link_next(request, response, rows, page.limit)
-    return rows
+    return [_out(state, r) for r in rows]
 
 
 @router.get(
@@ -87,7 +99,10 @@ def list_campaigns(
     responses=error_responses(404),
 )
 def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
-    return state.store.campaign(campaign_id)
+    """With ``anchors`` (of the included samples), ``min_samples_to_identify`` (the fewest
+    included samples an identification with the default options accepts) and
+    ``min_training_samples``."""
+    return _out(state, state.store.campaign(campaign_id))
 
 
 @router.post(
@@ -169,7 +184,7 @@ def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture) -> Ca
         _restore_sampler(state, before)
         log.exception("auto capture: the sampler refused; rolled back")
         raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
-    return row
+    return _out(state, row)
 
 
 def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture) -> None:
@@ -181,7 +196,7 @@ def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture) -> None:
         state.sampler.set_auto(None)
 
 
-def _restore_sampler(state: AppState, before: list[CampaignOut]) -> None:
+def _restore_sampler(state: AppState, before: list[CampaignRow]) -> None:
     """The sampler as the restored rows say (best effort: logged if it fails again)."""
     if state.sampler is None:
         return

@@ -2,7 +2,7 @@
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
 import { api, download } from "./api.js";
 import { isManualRobot } from "./cell.js";
-import { $, changed, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, state } from "./ui.js";
+import { $, changed, clock, el, every, fillTable, fix, hasRoute, heldOut, onChange, setText, showMessage, state } from "./ui.js";
 
 const CAMPAIGN_KEY = "cablecal-campaign";
 const JOINTS = ["q1", "q2", "q3", "q4", "q5", "q6"];
@@ -10,13 +10,27 @@ let samples = [];
 let robot = null; // GET /robots/{id} of the selected campaign
 let plan = null; // GET /campaigns/{id}/plan, or null
 
-/** Included samples needed before Identify is offered (the API's rule, calib.options). */
+/** Included samples needed before Identify is offered: the API's count for the campaign's robot
+ * and anchors (``min_samples_to_identify`` at the default test fraction 0.2; for another, the
+ * fewest ``n`` whose training part reaches ``min_training_samples``). Null before a campaign. */
 export function samplesNeeded(testFraction = 0.2) {
-  // n_train = n - round(test_fraction * n) must reach MIN_TRAINING_SAMPLES.
-  const min = state.minTrainingSamples;
-  let n = min;
-  while (n - Math.round(testFraction * n) < min) n++;
+  const c = state.campaign;
+  if (!c) return null;
+  if (testFraction === 0.2) return c.min_samples_to_identify;
+  const train = c.min_training_samples;
+  let n = train;
+  while (n - heldOut(testFraction, n) < train) n++;
   return n;
+}
+
+/** Reload the selected campaign's row (its counts, anchors and the samples identify needs). */
+export async function refreshCampaign() {
+  if (!state.campaign) return;
+  const fresh = await api("GET", `/campaigns/${state.campaign.id}`);
+  if (state.campaign?.id === fresh.id && JSON.stringify(fresh) !== JSON.stringify(state.campaign)) {
+    state.campaign = fresh;
+    changed("campaign-data");
+  }
 }
 
 export const campaignSamples = () => samples;
@@ -79,9 +93,10 @@ function renderCounts() {
   const bar = $("campaign-need-bar");
   bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
   bar.className = included >= need ? "done" : "";
+  const anchors = c.anchors.length > 1 ? `, ${c.anchors.length} anchors` : "";
   setText("campaign-need", included >= need
-    ? `${included} included samples: enough to identify (at least ${need} with a 20 % test set). More poses, spread over the workspace, give a more accurate result.`
-    : `${included} of at least ${need} included samples needed before Identify (${state.minTrainingSamples} training samples with a 20 % test set).`);
+    ? `${included} of ${need} samples: enough to identify (with a 20 % test set${anchors}). More poses, spread over the workspace, give a more accurate result.`
+    : `${included} of ${need} samples needed before Identify (${c.min_training_samples} to train on with a 20 % test set${anchors}).`);
 }
 
 function renderSamples() {

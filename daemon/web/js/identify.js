@@ -2,9 +2,9 @@
 // and after, histogram, convergence, DH errors ±1σ (implausible ones in red), identifiability,
 // TCP uncertainty, Accept, and downloads sent with the token.
 import { api, download, saveBlob } from "./api.js";
-import { campaignSamples, refreshDetail, samplesNeeded } from "./campaign.js";
+import { campaignSamples, refreshCampaign, refreshDetail, samplesNeeded } from "./campaign.js";
 import { costChart, histogramChart, residualChart } from "./charts.js";
-import { $, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, el, every, fillTable, fix, hasRoute, heldOut, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 const FINISHED = ["succeeded", "failed", "cancelled"];
 const DH = [["alpha", "α", "deg"], ["a", "a", "mm"], ["d", "d", "mm"], ["theta", "θ", "deg"]];
@@ -30,10 +30,17 @@ function updateNeed() {
   const n = campaignSamples().filter((s) => !s.excluded).length;
   const tf = Number($("identify-form").elements.test_fraction.value) || 0;
   const need = samplesNeeded(tf);
+  if (need == null) {
+    $("identify-start").disabled = true;
+    setText("identify-need", "Pick or create a campaign in tab 2.");
+    return;
+  }
+  const c = state.campaign;
+  const anchors = Math.max(1, c.anchors.length);
   $("identify-start").disabled = n < need || (job && !FINISHED.includes(job.status));
   setText("identify-need", n < need
-    ? `Needs at least ${need} included samples with this test fraction (${state.minTrainingSamples} for training); the campaign has ${n}. Capture more in tab 2.`
-    : `${n} included samples: ${n - Math.round(tf * n)} for training, ${Math.round(tf * n)} held out to test.`);
+    ? `${n} of ${need} samples: Identify needs at least ${need} included samples with this test fraction (${c.min_training_samples} to train on, for this robot and ${anchors} anchor${anchors > 1 ? "s" : ""}). Capture more in tab 2.`
+    : `${n} included samples: ${n - heldOut(tf, n)} for training, ${heldOut(tf, n)} held out to test.`);
 }
 
 async function start(ev) {
@@ -221,7 +228,7 @@ export function initIdentify() {
     $("identify-body").hidden = !has;
   });
   every(700, poll, () => state.view === "identify");
-  every(3000, async () => { await refreshDetail(); await loadJobs(); updateNeed(); }, () => state.view === "identify");
+  every(3000, async () => { await refreshCampaign(); await refreshDetail(); await loadJobs(); updateNeed(); }, () => state.view === "identify");
 }
 
 export const currentJob = () => job;

@@ -107,14 +107,19 @@ export function dismiss(key) {
   }
 }
 
+/** The samples of ``n`` held out to test at ``testFraction``: ``round(testFraction * n)`` with
+ * Python's rounding (halves to even), as calib.options.validate and calib.split count them. */
+export function heldOut(testFraction, n) {
+  const x = testFraction * n;
+  const f = Math.floor(x);
+  return x - f > 0.5 || (x - f === 0.5 && f % 2 !== 0) ? f + 1 : f;
+}
+
 // ------------------------------------------------------------------ shared state
 /** What the views share: the selected campaign, its robot, the latest /status. */
 export const state = {
   campaign: null, // the campaign row
   status: null, // the latest GET /status
-  // calib.options.MIN_TRAINING_SAMPLES is 24, but the solver needs more training rows than the
-  // 24 parameters of one anchor: 25.
-  minTrainingSamples: 25,
   listeners: [],
   view: "cell",
   routes: new Set(), // "METHOD /path/{}" of every route in /openapi.json
