@@ -226,7 +226,8 @@ def markdown(data: dict[str, Any]) -> str:
         paper = r["method"] in PAPER_TABLE_VIII_D1
         p = [f"{v:.2f}" for v in PAPER_TABLE_VIII_D1[r["method"]]] if paper else ["–"] * 3
         label = (f"{r['method']} ({PAPER_LABEL[r['method']]})" if paper
-                 else f"{r['method']} (the default)")  # fmt: skip
+                 else f"{r['method']} (the default)" if r["method"].endswith("+ prior")
+                 else f"{r['method']} (ML, not in the paper)")  # fmt: skip
         lines.append(
             f"| {label} | {p[0]} | {p[1]} | {p[2]} | {_f(r['rmse_mm'])} | "
             f"{_f(r['rmse_mm_sd'])} | {_f(r['mae_mm'])} | {_f(r['max_mm'])} | "
