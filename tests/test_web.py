@@ -154,6 +154,7 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             page.click("[data-download=result]")
         result = json.loads(Path(info.value.path()).read_text(encoding="utf-8"))
         assert result["method"] == default("method") and len(result["dh_error"]) == 6
+        assert result["prior"]["used"] == default("prior")  # the page's defaults are identify's
         _shot(page, tmp_path, "5-accepted")
 
         # compensate (when the daemon has the route)
