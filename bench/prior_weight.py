@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows: list[dict[str, Any]] = []
     for seed in distinct_grouped_seeds(samples, args.splits)[args.first :]:
         train, test = split_rows(samples, GROUPED_TEST_FRACTION, seed, "grouped", base.n_groups)
-        variants = {"ml": replace(base, seed=seed),
+        variants = {"ml": replace(base, seed=seed, prior=False),
                     "map, noise 0.1 mm": replace(base, seed=seed, prior=True,
                                                  prior_weight="fixed"),
                     "map, noise estimated": replace(base, seed=seed, prior=True),

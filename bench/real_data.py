@@ -47,6 +47,8 @@ ROBOT = "hsr-jr680"
 SEEDS = tuple(range(10))
 N_TRAIN, N_TEST = PAPER_N_TRAIN, PAPER_N_TEST
 GROUPED_TEST_FRACTION = 0.2
+#: identify's default method, run with its default MAP prior beside the paper's ML fits.
+DEFAULT_METHOD = str(default("method"))
 
 #: The paper's Table VIII, dataset D1: RMSE, "STD" (in fact the MAE), MAX [mm].
 PAPER_TABLE_VIII_D1: dict[str, tuple[float, float, float]] = {
@@ -154,17 +156,20 @@ def _identify(
 
 
 def run_paper_protocol(
-    model: RobotModel, samples: SampleSet, methods: tuple[str, ...], seeds: tuple[int, ...]
-) -> tuple[list[dict[str, Any]], dict[str, list[dict[str, Any]]]]:
-    """Mean rows per method and the per-seed records."""
-    per_seed: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
-    for run in run_protocol(model, samples, methods, seeds):
-        s, m = run.seed, run.method
+    model: RobotModel, samples: SampleSet, methods: tuple[str, ...], seeds: tuple[int, ...],
+    prior: bool = False,
+) -> tuple[list[dict[str, Any]], dict[str, list[dict[str, Any]]]]:  # fmt: skip
+    """Mean rows per method (labelled as :class:`Variant` does) and the per-seed records: the
+    paper's maximum-likelihood fits, or with the MAP prior (identify's default)."""
+    labels = {m: Variant(m, prior).label for m in methods}
+    per_seed: dict[str, list[dict[str, Any]]] = {labels[m]: [] for m in methods}
+    for run in run_protocol(model, samples, methods, seeds, prior=prior):
+        s, m = run.seed, labels[run.method]
         rec = _run_record(run.result, run.elapsed_s)
         per_seed[m].append({"seed": s, **rec})
         print(f"paper protocol seed {s} {m:9s} rmse {rec['rmse_mm']:.3f} mm "
               f"({rec['time_s']:.2f} s)", flush=True)  # fmt: skip
-    return [_summary(m, per_seed[m]) for m in methods], per_seed
+    return [_summary(labels[m], per_seed[labels[m]]) for m in methods], per_seed
 
 
 def run_grouped(
@@ -218,10 +223,13 @@ def markdown(data: dict[str, Any]) -> str:
     lines.append(f"| before (nominal, P0 and c fitted) | {pb[0]:.2f} | {pb[1]:.2f} | {pb[2]:.2f} | "
                  f"{_f(before)} | | | | | | |")  # fmt: skip
     for r in rows:
-        p = PAPER_TABLE_VIII_D1[r["method"]]
-        label = f"{r['method']} ({PAPER_LABEL[r['method']]})"
+        paper = r["method"] in PAPER_TABLE_VIII_D1
+        p = [f"{v:.2f}" for v in PAPER_TABLE_VIII_D1[r["method"]]] if paper else ["–"] * 3
+        label = (f"{r['method']} ({PAPER_LABEL[r['method']]})" if paper
+                 else f"{r['method']} (the default)" if r["method"].endswith("+ prior")
+                 else f"{r['method']} (ML, not in the paper)")  # fmt: skip
         lines.append(
-            f"| {label} | {p[0]:.2f} | {p[1]:.2f} | {p[2]:.2f} | {_f(r['rmse_mm'])} | "
+            f"| {label} | {p[0]} | {p[1]} | {p[2]} | {_f(r['rmse_mm'])} | "
             f"{_f(r['rmse_mm_sd'])} | {_f(r['mae_mm'])} | {_f(r['max_mm'])} | "
             f"{r['iterations']:.0f} | {r['time_s']:.2f} | {r['plausible']}/{r['n_seeds']} |"
         )
@@ -290,7 +298,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     samples = read_samples(None)
     t0 = time.perf_counter()
     paper_rows, paper_runs = run_paper_protocol(model, samples, methods, seeds)
-    variants = (*(Variant(m) for m in methods), Variant("ukf-vslm", True), Variant("lm", True))
+    default_rows, default_runs = run_paper_protocol(model, samples, (DEFAULT_METHOD,), seeds,
+                                                    prior=True)  # fmt: skip
+    paper_rows, paper_runs = default_rows + paper_rows, default_runs | paper_runs
+    variants = (Variant(DEFAULT_METHOD, True), *(Variant(m) for m in methods),
+                Variant("ukf-vslm", True), Variant("lm", True))  # fmt: skip
     grouped_seeds = distinct_grouped_seeds(samples, len(seeds))
     grouped_rows, grouped_runs = run_grouped(model, samples, variants, grouped_seeds)
     data: dict[str, Any] = {
