@@ -101,10 +101,10 @@ def compensation_summary(out: CompensateResult, con: Console) -> None:
     flagged = [r for r in out.csv_rows() if r["flags"]][:10]
     if flagged:
         rows = Table(title="Flagged targets (first 10)")
-        for col in ("row", "residual [mm]", "iter", "flags"):
+        for col in ("index", "residual [mm]", "iter", "flags"):
             rows.add_column(escape(col), justify="right" if col != "flags" else "left")
         for r in flagged:
-            rows.add_row(str(r["index"] + 1), f"{r['residual_mm']:.4f}", str(r["iterations"]),
+            rows.add_row(str(r["index"]), f"{r['residual_mm']:.4f}", str(r["iterations"]),
                          r["flags"].replace(";", ", "))  # fmt: skip
         con.print(rows)
     con.print(f"[bold]note:[/] {out.note}", highlight=False)
@@ -130,10 +130,10 @@ def verify_tables(out: VerifyResult, con: Console) -> None:
         order = np.sort(np.argsort(-np.abs(out.residual_mm))[:MAX_PRINTED_ROWS])
         title += f", the {MAX_PRINTED_ROWS} largest of {n} (all: --out)"
     rows = Table(title=title)
-    for col in ("pose", "anchor", "measured [mm]", "predicted [mm]", "residual [mm]"):
+    for col in ("index", "anchor", "measured [mm]", "predicted [mm]", "residual [mm]"):
         rows.add_column(escape(col), justify="right")
     for i in order:
-        rows.add_row(str(int(i) + 1), out.anchor[i], f"{out.measured_mm[i]:.3f}",
+        rows.add_row(str(int(i)), out.anchor[i], f"{out.measured_mm[i]:.3f}",
                      f"{out.predicted_mm[i]:.3f}", f"{out.residual_mm[i]:+.4f}")  # fmt: skip
     con.print(rows)
     for note in out.notes:
