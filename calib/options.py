@@ -238,29 +238,47 @@ def validate(
         Too few training samples (the message names how many are needed and why).
     """
     from calib.cable import ParamLayout
-    from calib.identifiability import candidate_mask, max_solved, with_tool
 
     for f in fields(options):
         spec(f.name).check(f.name, getattr(options, f.name))
-    layout = ParamLayout(samples.anchor_ids or ("A",))
-    known = layout.names
+    anchors = samples.anchor_ids or ("A",)
+    known = ParamLayout(anchors).names
     for key in ("fix", "free"):
         bad = [n for n in getattr(options, key) if n not in known]
         if bad:
             raise OptionError(key, f"unknown parameter name(s) {bad}; known: {known}")
     n = len(samples)
     n_train = len(train_rows) if train_rows is not None else n - round(options.test_fraction * n)
+    check_training_rows(n_train, n, parameters_to_solve(model, anchors, options))
+
+
+def parameters_to_solve(
+    model: RobotModel, anchor_ids: tuple[str, ...], options: IdentifyOptions
+) -> int:
+    """The most parameters identify solves for ``model`` with these anchors and options
+    (:func:`calib.identifiability.max_solved`: the base set at well-spread poses, less ``fix``,
+    plus ``free``). Costs one Jacobian at 200 poses. ``fix``/``free`` must name parameters of
+    the anchors' layout (:func:`validate` checks that first)."""
+    from calib.cable import ParamLayout
+    from calib.identifiability import candidate_mask, max_solved, with_tool
+
+    layout = ParamLayout(anchor_ids)
     candidates = candidate_mask(layout, options.identify_tool, options.fix)
-    n_params = max_solved(
+    return max_solved(
         with_tool(model, options.tool_mm), layout, candidates, options.free, rtol=options.rtol
     )
-    check_training_rows(n_train, n, n_params)
+
+
+def training_rows_needed(n_params: int) -> int:
+    """The fewest training rows :func:`check_training_rows` accepts for ``n_params`` solved
+    parameters: one more than the parameters, and at least :data:`MIN_TRAINING_SAMPLES`."""
+    return max(n_params + 1, MIN_TRAINING_SAMPLES)
 
 
 def check_training_rows(n_train: int, n_included: int, n_params: int) -> None:
     """The one rule on the number of training rows: more than the ``n_params`` parameters
     solved (else the fit is exactly determined or worse), and at least
-    :data:`MIN_TRAINING_SAMPLES`.
+    :data:`MIN_TRAINING_SAMPLES` (:func:`training_rows_needed`).
 
     Raises
     ------
@@ -269,7 +287,7 @@ def check_training_rows(n_train: int, n_included: int, n_params: int) -> None:
     """
     from calib.dataset import SampleError
 
-    need = max(n_params + 1, MIN_TRAINING_SAMPLES)
+    need = training_rows_needed(n_params)
     if n_train >= need:
         return
     why = (

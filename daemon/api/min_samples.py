@@ -8,10 +8,12 @@ number of anchors (each further anchor adds its P0 and offset, 4 parameters), so
 cannot hard-code it: the campaign JSON carries it (``min_samples_to_identify`` at the
 default options, and ``min_training_samples`` for another test fraction).
 
-Nothing here restates calib's rule: :func:`min_samples` searches for the smallest counts that
-``check_training_rows`` accepts. ``max_solved`` costs one Jacobian at 200 poses (about 5 ms),
-so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors): ``GET
-/campaigns`` is polled by the page.
+Nothing here restates calib's rule: the parameter count is
+:func:`calib.options.parameters_to_solve`, the training rows it needs
+:func:`calib.options.training_rows_needed`, and :func:`min_samples` searches for the fewest
+samples whose training part reaches that. ``max_solved`` costs one Jacobian at 200 poses
+(about 5 ms), so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors):
+``GET /campaigns`` is polled by the page.
 """
 
 from __future__ import annotations
@@ -21,11 +23,8 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from calib.cable import ParamLayout
-from calib.dataset import SampleError
-from calib.identifiability import candidate_mask, max_solved, with_tool
 from calib.models import RobotModel
-from calib.options import IdentifyOptions, check_training_rows
+from calib.options import IdentifyOptions, parameters_to_solve, training_rows_needed
 from daemon.store import Store
 
 #: Upper bound of the searches (a test fraction below 1 always ends far below it).
@@ -41,7 +40,8 @@ class MinSamples:
     n_params : int
         The most parameters identify solves (:func:`calib.identifiability.max_solved`).
     training_samples : int
-        The fewest training rows :func:`calib.options.check_training_rows` accepts.
+        The fewest training rows :func:`calib.options.check_training_rows` accepts
+        (:func:`calib.options.training_rows_needed`).
     samples : int
         The fewest included samples whose training part (``n - round(test_fraction * n)``,
         the random hold-out of :func:`calib.options.validate`) is enough.
@@ -52,14 +52,6 @@ class MinSamples:
     training_samples: int
     samples: int
     test_fraction: float
-
-
-def _enough(n_train: int, n_included: int, n_params: int) -> bool:
-    try:
-        check_training_rows(n_train, n_included, n_params)
-    except SampleError:
-        return False
-    return True
 
 
 def _smallest(ok: Callable[[int], bool], what: str) -> int:
@@ -94,16 +86,13 @@ def min_samples(
     if n_anchors < 0:
         raise ValueError(f"n_anchors: must be >= 0, got {n_anchors}")
     opts = options if options is not None else IdentifyOptions()
-    layout = ParamLayout(anchor_ids(n_anchors))
-    candidates = candidate_mask(layout, opts.identify_tool, opts.fix)
-    n_params = max_solved(
-        with_tool(model, opts.tool_mm), layout, candidates, opts.free, rtol=opts.rtol
-    )
+    n_params = parameters_to_solve(model, anchor_ids(n_anchors), opts)
+    need = training_rows_needed(n_params)
     tf = opts.test_fraction
     return MinSamples(
         n_params=n_params,
-        training_samples=_smallest(lambda n: _enough(n, n, n_params), "training_samples"),
-        samples=_smallest(lambda n: _enough(n - round(tf * n), n, n_params), "samples"),
+        training_samples=need,
+        samples=_smallest(lambda n: n - round(tf * n) >= need, "samples"),
         test_fraction=tf,
     )
 
