@@ -197,19 +197,13 @@ def _free_set(
     return ident, free
 
 
-def _problem(
-    d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions, notes: list[str]
-) -> Problem:
+def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions) -> Problem:
     """The problem the method solves: ML, or MAP with a Gaussian prior toward the nominal."""
     layout = d.layout
     prior_sigma = None
     if opts.prior:
         prior_sigma = methods.internal_sigma(layout, opts.prior_mm, opts.prior_deg, np.inf)
         prior_sigma[N_DH:N_KIN] = np.inf if opts.prior_tool_mm is None else opts.prior_tool_mm
-        notes.append(
-            f"MAP prior toward the nominal model: {opts.prior_mm} mm / {opts.prior_deg} deg "
-            f"per DH error, noise {opts.noise_mm:.3g} mm"
-        )
     prior_mean = theta_start.copy()
     prior_mean[:N_DH] = 0.0
     if opts.prior_tool_mm is not None:
@@ -221,7 +215,7 @@ def _problem(
 
 def _weighed_solve(
     d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
-    opts: IdentifyOptions, progress: ProgressFn | None, notes: list[str],
+    opts: IdentifyOptions, progress: ProgressFn | None,
 ) -> tuple[IdentifyOptions, dict[str, Any], _Solved]:  # fmt: skip
     """Step 5: the fit, its prior weighed as ``prior_weight`` says (:mod:`calib.prior`).
 
@@ -233,13 +227,13 @@ def _weighed_solve(
     and the solve.
     """
     if not opts.prior or opts.prior_weight == "fixed":
-        return opts, {}, _solve(_problem(d, theta_start, free, opts, notes), opts, progress)
+        return opts, {}, _solve(_problem(d, theta_start, free, opts), opts, progress)
     used = opts
     noise = opts.noise_mm
     warm = theta_start  # each round starts where the last ended (the prior mean stays)
     for rounds in range(1, prior.NOISE_ROUNDS + 1):
         report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
-        problem = _problem(d, theta_start, free, used, []).with_theta0(warm)
+        problem = _problem(d, theta_start, free, used).with_theta0(warm)
         solved = _solve(problem, used, progress)
         noise = prior.noise_from_map(solved.problem, solved.result.x)
         if abs(noise / used.noise_mm - 1.0) < prior.NOISE_RTOL:
@@ -248,13 +242,12 @@ def _weighed_solve(
         warm = solved.problem.full(solved.result.x)
     detail: dict[str, Any] = {"noise_estimated_mm": noise, "noise_rounds": rounds}
     if opts.prior_weight == "estimated":
-        _problem(d, theta_start, free, used, notes)  # the prior's note, as fitted
         return used, detail, solved
     report(progress, 0.1, "cross-validating the prior scale over pose groups")
     scale, scores = prior.cv_scale(d.model, samples, opts, d.train_rows, used.noise_mm)
     detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
     used = prior.scaled_options(opts, used.noise_mm, scale)
-    return used, detail, _solve(_problem(d, theta_start, free, used, notes), used, progress)
+    return used, detail, _solve(_problem(d, theta_start, free, used), used, progress)
 
 
 def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
@@ -392,9 +385,13 @@ def identify(
     theta_start, candidates = _start_point(d, theta_before, opts)
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
+    used, prior_detail, solved = _weighed_solve(d, samples, theta_start, free, opts, progress)
     notes: list[str] = []
-    used, prior_detail, solved = _weighed_solve(d, samples, theta_start, free, opts, progress,
-                                                notes)  # fmt: skip
+    if used.prior:
+        notes.append(
+            f"MAP prior toward the nominal model: {used.prior_mm} mm / {used.prior_deg} deg "
+            f"per DH error, noise {used.noise_mm:.3g} mm"
+        )
     result, final = solved.result, solved.problem
     if opts.robust != "none":
         notes.append(_robust_note(opts, solved))

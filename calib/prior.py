@@ -69,14 +69,17 @@ def effective_dof(problem: Problem, x: np.ndarray) -> float:
     """
     ev = problem.evaluate(x)
     assert ev.jacobian is not None
-    jac = ev.jacobian
+    return _data_hat_trace(ev.jacobian, problem.n_samples)
+
+
+def _data_hat_trace(jac: np.ndarray, n: int) -> float:
+    """:func:`effective_dof` from the stacked Jacobian (shape (n[+k], k)), ``n`` data rows."""
     norms = np.linalg.norm(jac, axis=0)
     norms[norms == 0.0] = 1.0
     u, s, _ = np.linalg.svd(jac / norms, full_matrices=False)
     if s.size == 0 or not s[0] > 0.0:
         return 0.0
     keep = s > s[0] * 1e-12 * max(jac.shape)
-    n = problem.n_samples
     return float(np.sum(u[:n, keep] ** 2))
 
 
@@ -85,11 +88,13 @@ def noise_from_map(problem: Problem, x: np.ndarray) -> float:
     (shape (k,)), ``n_w`` the rows with non-zero weight (rejected outliers do not count) and
     ``k_eff`` the effective number of parameters (:func:`effective_dof`; ``k`` for an ML fit
     of full rank), so that it holds for the MAP fit too."""
-    r = problem.predict(x) - problem.length_mm
-    w = problem.weights
-    n_w = int(np.count_nonzero(w > 0))
-    dof = max(n_w - effective_dof(problem, x), 1.0)
-    return float(np.sqrt(float(np.sum(w * r * r)) / dof))
+    ev = problem.evaluate(x)  # one model pass: the weighted residual and the Jacobian
+    assert ev.jacobian is not None
+    n = problem.n_samples
+    weighted = ev.residual[:n]  # sqrt(w) · (L_model − L)
+    n_w = int(np.count_nonzero(problem.weights > 0))
+    dof = max(n_w - _data_hat_trace(ev.jacobian, n), 1.0)
+    return float(np.sqrt(float(weighted @ weighted) / dof))
 
 
 def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> IdentifyOptions:
