@@ -45,11 +45,11 @@ the ML fit lowers that to about 0.07 mm by sliding metres along unexcited direct
 and the hook point: ``d5`` ≈ 8.6 m on all rows). "The optimum" is an infimum approached along
 a flat, curved valley, and the parameters there mean nothing physically. identify therefore
 solves the MAP problem by default (:mod:`calib.prior`), whose minimiser is unique and near the
-nominal model: about 13 iterations here. For the ML problem this solver keeps the paper's
-objective and defines "converged" statistically: it stops when further progress along the
-valley changes the likelihood by less than a ``stall_chi2`` fraction of one unit of χ² per
-``stall_window`` iterations (4c). The benchmark ``bench/solver_real.py`` reports how far that
-is from a long reference run.
+nominal model: 2–3 iterations here (bench/solver_real.md). For the ML problem this solver
+keeps the paper's objective and defines "converged" statistically: it stops when further
+progress along the valley changes the likelihood by less than a ``stall_chi2`` fraction of one
+unit of χ² per ``stall_window`` iterations (4c). The benchmark ``bench/solver_real.py``
+reports how far that is from a long reference run.
 Earlier, with Table I's theta column wrongly added as joint offsets, the ML cost also had
 several basins and a descent from the UKF's estimate (the paper's own M9 seed) found lower
 ones; ``ukf_start`` keeps that option. With the corrected model the descents from identify's
@@ -83,8 +83,9 @@ from calib.solvers.common import (
 class GeoLMOptions:
     """Options of :func:`solve`. Tolerances are relative and unit-free."""
 
-    #: Per descent. Seed 0 of the bench's 100-row subsets needs about 850 to come within 1 %
-    #: of the best cost found (bench/solver_real.py).
+    #: Per descent. The ML problem on the bench's 100-row subsets of the bundled data stops by
+    #: a test after 151 iterations on average, on all 2017 rows after 219
+    #: (bench/solver_real.md); the MAP problem after 2–3.
     max_iterations: int = 1000
     #: Initial λ relative to the largest squared singular value. Madsen–Nielsen–Tingleff advise
     #: 1e-6 when the start is believed good, 1e-3 or more otherwise; identify's start (nominal
@@ -110,8 +111,9 @@ class GeoLMOptions:
     ukf_start: bool = False
     #: Also descend from ``x0`` when the descent from the UKF's estimate converged (by a test,
     #: status > 0). Off: ``x0`` is the fallback when the UKF fails or its descent stops at the
-    #: iteration limit; on the bundled data the ``x0`` descent never ended more than 0.05 %
-    #: below the UKF one (10 random 100-row subsets), and it doubles the time.
+    #: iteration limit (measured with the old, wrong joint offsets: the ``x0`` descent never
+    #: ended more than 0.05 % below the UKF one on 10 random 100-row subsets, and it doubles
+    #: the time). Only used with ``ukf_start``.
     both_starts: bool = False
     ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
     ukf_sigma_mm: float = 5.0
