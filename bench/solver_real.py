@@ -65,6 +65,7 @@ from calib.identify import IdentifyOptions, _fit, fit_anchors, identify
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
 from calib.options import default as default_option
+from calib.prior import with_prior
 from calib.problem import Problem
 from calib.protocol import paper_split
 from calib.solvers.common import SolverResult
@@ -108,11 +109,8 @@ def build_problem(
     opts = IdentifyOptions(test_fraction=0.0, robust="none")
     fitted = identify(model, samples, opts, train_rows=np.asarray(rows),
                       test_rows=np.zeros(0, dtype=int))  # fmt: skip
-    sigma = methods.internal_sigma(layout, opts.prior_mm, opts.prior_deg, np.inf)
-    mean = start.copy()
-    mean[:N_DH] = 0.0
-    return dataclasses.replace(problem, prior_sigma=sigma, prior_mean=mean,
-                               noise_mm=float(fitted.to_json()["prior"]["noise_mm"]))  # fmt: skip
+    noise_mm = float(fitted.to_json()["prior"]["noise_mm"])
+    return with_prior(problem, dataclasses.replace(opts, noise_mm=noise_mm))
 
 
 def fingerprint(problem: Problem) -> str:

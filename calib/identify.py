@@ -199,18 +199,11 @@ def _free_set(
 
 def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions) -> Problem:
     """The problem the method solves: ML, or MAP with a Gaussian prior toward the nominal."""
-    layout = d.layout
-    prior_sigma = None
-    if opts.prior:
-        prior_sigma = methods.internal_sigma(layout, opts.prior_mm, opts.prior_deg, np.inf)
-        prior_sigma[N_DH:N_KIN] = np.inf if opts.prior_tool_mm is None else opts.prior_tool_mm
-    prior_mean = theta_start.copy()
-    prior_mean[:N_DH] = 0.0
-    if opts.prior_tool_mm is not None:
-        prior_mean[N_DH:N_KIN] = 0.0
-    return Problem(d.model, layout, d.q, d.length_mm, d.aidx, free, theta_start,
-                   prior_sigma=prior_sigma, prior_mean=prior_mean,
-                   noise_mm=opts.noise_mm)  # fmt: skip
+    # noise_mm also sizes the filters' measurement noise, with or without the prior.
+    ml = Problem(
+        d.model, d.layout, d.q, d.length_mm, d.aidx, free, theta_start, noise_mm=opts.noise_mm
+    )
+    return prior.with_prior(ml, opts)
 
 
 def _weighed_solve(

@@ -36,7 +36,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from calib.cable import N_DH, N_KIN
 from calib.dataset import SampleSet
+from calib.methods import internal_sigma
 from calib.models import RobotModel
 from calib.problem import Problem
 from calib.split import pose_groups
@@ -56,6 +58,28 @@ CV_SCALES: tuple[float, ...] = (0.25, 1.0, 4.0, 16.0)
 CV_FOLDS = 3
 #: Fewest training rows per fold fit in ``cv``; folds below it are skipped.
 CV_MIN_TRAIN = 30
+
+
+def with_prior(problem: Problem, options: IdentifyOptions) -> Problem:
+    """``problem`` with the MAP prior rows ``options`` ask for (itself without a prior).
+
+    Prior 1σ: ``prior_mm`` per DH length, ``prior_deg`` per DH angle, ``prior_tool_mm`` per
+    tool coordinate (none by default), none on the anchors; mean: the problem's ``theta0``
+    with the DH errors (and, with ``prior_tool_mm``, the tool error) at 0, i.e. the nominal
+    model with the fitted anchors; rows weighed by ``noise_mm``. identify's MAP problem, and
+    the benchmark's and tests' rebuilds of it.
+    """
+    if not options.prior:
+        return problem
+    layout = problem.layout
+    sigma = internal_sigma(layout, options.prior_mm, options.prior_deg, np.inf)
+    tool_sigma = options.prior_tool_mm
+    sigma[N_DH:N_KIN] = np.inf if tool_sigma is None else tool_sigma
+    mean = problem.theta0.copy()
+    mean[:N_DH] = 0.0
+    if tool_sigma is not None:
+        mean[N_DH:N_KIN] = 0.0
+    return replace(problem, prior_sigma=sigma, prior_mean=mean, noise_mm=options.noise_mm)
 
 
 def effective_dof(problem: Problem, x: np.ndarray) -> float:

@@ -13,6 +13,7 @@ from calib.cable import predict_lengths
 from calib.dataset import SampleSet, make_samples
 from calib.identify import IdentifyOptions, identify
 from calib.models import builtin_model
+from calib.prior import with_prior
 from calib.problem import Problem
 from calib.solvers import geolm, ukf
 from calib.solvers.common import SolverResult
@@ -156,11 +157,10 @@ def test_default_identify_on_bundled_rows_reaches_the_map_optimum_in_a_few_itera
     assert block["used"] and block["weight"] == "estimated"
     free = np.isin(res.layout.names, res.free_names)
     assert res.theta_start is not None
-    sigma = methods.internal_sigma(res.layout, block["dh_mm"], block["dh_deg"], np.inf)
-    mean = res.theta_start.copy()
-    mean[:24] = 0.0
-    problem = Problem(MODEL, res.layout, np.deg2rad(samples.joints_deg), samples.length_mm,
-                      samples.anchor_index(), free, res.theta_start, prior_sigma=sigma,
-                      prior_mean=mean, noise_mm=block["noise_mm"])  # fmt: skip
+    ml = Problem(MODEL, res.layout, np.deg2rad(samples.joints_deg), samples.length_mm,
+                 samples.anchor_index(), free, res.theta_start)  # fmt: skip
+    fitted = IdentifyOptions(prior_mm=block["dh_mm"], prior_deg=block["dh_deg"],
+                             noise_mm=block["noise_mm"])  # fmt: skip
+    problem = with_prior(ml, fitted)
     ours = problem.cost(res.theta[free])
     assert ours <= reference_cost(problem, 200) * (1 + 1e-6)
