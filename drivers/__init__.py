@@ -35,6 +35,7 @@ from drivers.huashu import HuashuConfig, HuashuSocketCmdRobot
 from drivers.indicator import IndicatorConfig, IndicatorReading, ModbusIndicator, RegisterMap
 from drivers.modbus_robot import JointRegisterMap, ModbusRobotConfig, ModbusTcpRobot
 from drivers.robot import JointReading, ManualRobot, ManualRobotConfig, RobotDriver
+from drivers.ur_rtde import UrRtdeConfig, UrRtdeRobot
 
 
 @runtime_checkable
@@ -85,6 +86,7 @@ ROBOT_KINDS: dict[str, RobotKind] = {
     "manual": RobotKind(ManualRobotConfig, ManualRobot),
     "huashu-socketcmd": RobotKind(HuashuConfig, HuashuSocketCmdRobot),
     "modbus-tcp": RobotKind(ModbusRobotConfig, ModbusTcpRobot),
+    "ur-rtde": RobotKind(UrRtdeConfig, UrRtdeRobot),
 }
 
 
@@ -140,6 +142,8 @@ __all__ = [
     "RobotProtocolError",
     "RobotStale",
     "RobotTimeout",
+    "UrRtdeConfig",
+    "UrRtdeRobot",
     "make_indicator",
     "make_robot",
 ]

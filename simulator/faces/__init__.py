@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from simulator.faces.base import FaceServer
+from simulator.faces.ur_rtde import UrRtdeServer
 
 
 class Face(NamedTuple):
@@ -24,7 +25,9 @@ class Face(NamedTuple):
 
 #: Every face the cell can serve, by robot kind. A face whose server is not written yet is
 #: absent (its READY key is then always null).
-FACES: dict[str, Face] = {}
+FACES: dict[str, Face] = {
+    "ur-rtde": Face("robot_ur_rtde", "robot_ur_rtde", UrRtdeServer),
+}
 
 #: READY keys of every controller family's face, present (or null) in every READY mapping.
 FACE_READY_KEYS = ("robot_abb_rws", "robot_ur_rtde", "robot_kuka_varproxy", "robot_fanuc_rmi")
