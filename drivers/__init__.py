@@ -11,6 +11,7 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 from pydantic import BaseModel
 
+from drivers.abb_rws import AbbRwsConfig, AbbRwsRobot
 from drivers.ascii_indicator import AsciiIndicator, AsciiIndicatorConfig
 from drivers.errors import (
     DeviceError,
@@ -87,6 +88,7 @@ ROBOT_KINDS: dict[str, RobotKind] = {
     "huashu-socketcmd": RobotKind(HuashuConfig, HuashuSocketCmdRobot),
     "modbus-tcp": RobotKind(ModbusRobotConfig, ModbusTcpRobot),
     "ur-rtde": RobotKind(UrRtdeConfig, UrRtdeRobot),
+    "abb-rws": RobotKind(AbbRwsConfig, AbbRwsRobot),
 }
 
 
@@ -108,6 +110,8 @@ def make_robot(config: Mapping[str, Any] | BaseModel) -> RobotDriver:
 
 __all__ = [
     "ROBOT_KINDS",
+    "AbbRwsConfig",
+    "AbbRwsRobot",
     "AsciiIndicator",
     "AsciiIndicatorConfig",
     "DeviceError",

@@ -18,7 +18,8 @@ from simulator.faces.base import free_loopback_host
 from simulator.runner import READY_KEYS
 
 
-def test_make_robot_dispatches_through_the_table() -> None:
+def test_make_robot_dispatches_through_the_table(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CABLECAL_ROBOT_PASSWORD", "for-the-kinds-with-a-login")
     for kind, entry in ROBOT_KINDS.items():
         config = entry.config.model_validate({"kind": kind})
         assert make_robot({"kind": kind}).__class__ is entry.driver

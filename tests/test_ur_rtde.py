@@ -17,7 +17,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from helpers import host_port, start_emulated_cell
+from helpers import deviation_from_truth_deg, host_port, start_emulated_cell
 
 from drivers import RobotStale, UrRtdeConfig, UrRtdeRobot
 from drivers.errors import DeviceError
@@ -78,7 +78,9 @@ def test_ur_rtde_client_reads_the_emulated_truth(moving_cell: SimulatorThread) -
     face = _face(moving_cell)
     period_s = 1 / 125
     errors = [
-        _deviation_deg(moving_cell, tuple(np.degrees(q)), face.t0 + t0 - period_s, face.t0 + t1)
+        deviation_from_truth_deg(
+            moving_cell, tuple(np.degrees(q)), face.t0 + t0 - period_s, face.t0 + t1
+        )
         for t0, q, t1, _, _ in rows
     ]
     assert max(errors) <= AGREE_DEG, errors
@@ -90,22 +92,6 @@ def test_ur_rtde_client_reads_the_emulated_truth(moving_cell: SimulatorThread) -
 def _robot(sim: SimulatorThread, **cfg: float) -> UrRtdeRobot:
     host, port = host_port(sim.ready["robot_ur_rtde"])
     return UrRtdeRobot(UrRtdeConfig(host=host, port=port, **cfg))
-
-
-def _deviation_deg(
-    sim: SimulatorThread, joints_deg: tuple[float, ...], t0: float, t1: float
-) -> float:
-    """``min_t max_j |truth_j(t) - reading_j|`` over t in [t0, t1] [deg]: a 0.2 ms grid, then
-    a 2 µs grid around its best instant."""
-    reading = np.asarray(joints_deg)
-
-    def best(times: np.ndarray) -> tuple[float, float]:
-        devs = [float(np.abs(sim.cell.reported_joints(t) - reading).max()) for t in times]
-        k = int(np.argmin(devs))
-        return float(times[k]), devs[k]
-
-    t_best, _ = best(np.arange(t0, t1 + 0.0002, 0.0002))
-    return best(np.arange(t_best - 0.0002, t_best + 0.0002, 0.000002))[1]
 
 
 async def test_driver_under_drops_and_late_packages_returns_only_fresh_truth(
@@ -129,7 +115,7 @@ async def test_driver_under_drops_and_late_packages_returns_only_fresh_truth(
     finally:
         await robot.close()
     for reading, t_asked in checked:
-        dev = _deviation_deg(
+        dev = deviation_from_truth_deg(
             moving_cell, reading.joints_deg, t_asked - period_s - 0.01, reading.t_monotonic_s
         )
         assert dev <= 0.002, f"{reading} is {dev:.4f} deg from the truth"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from simulator.faces.abb_rws import AbbRwsServer
 from simulator.faces.base import FaceServer
 from simulator.faces.ur_rtde import UrRtdeServer
 
@@ -26,6 +27,7 @@ class Face(NamedTuple):
 #: Every face the cell can serve, by robot kind. A face whose server is not written yet is
 #: absent (its READY key is then always null).
 FACES: dict[str, Face] = {
+    "abb-rws": Face("robot_abb_rws", "robot_abb_rws", AbbRwsServer),
     "ur-rtde": Face("robot_ur_rtde", "robot_ur_rtde", UrRtdeServer),
 }
 
