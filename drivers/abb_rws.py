@@ -13,9 +13,10 @@ challenge per session, and ``close()`` logs out (``GET /logout``): a controller 
 sessions (70 on an IRC5).
 
 Why not abb_robot_client (pip ``abb-robot-client``, maintained by Wason Technology): its
-``RWS`` class is blocking (requests) with no timeout on any request, so a controller that
-stops answering blocks the caller forever; its ``rws_aio`` variant has no timeouts either and
-speaks RWS 1.0 only (digest, ``_embedded._state``). Reading one resource needs a GET and a
+``RWS`` class is blocking (requests) and passes no timeout to any request, so a controller
+that stops answering blocks the caller forever; its asyncio ``RWS`` (``rws_aio``, httpx) has
+no timeout setting (httpx's fixed 5 s default) and both speak RWS 1.0 only (digest auth,
+``_embedded._state``), not an OmniCore's RWS 2.0. Reading one resource needs a GET and a
 JSON lookup, which httpx (already a dependency) does with per-request timeouts and both
 authentication schemes; the cross-check test reads the emulated controller with
 abb_robot_client's ``RWS`` to hold both to the same wire.
