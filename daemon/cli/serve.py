@@ -171,7 +171,7 @@ def register(app: typer.Typer) -> None:
             None,
             "--robot-kind",
             help="With --simulated-cell: the emulated controller face the robot driver reads, "
-            "a [robot] kind other than manual (default huashu-socketcmd).",
+            "any robot kind but manual (default huashu-socketcmd).",
         ),
     ) -> None:
         """Run the daemon: sampler, SQLite store, identification jobs and the REST API."""
