@@ -5,9 +5,11 @@ KUKAVARPROXY ``readMsg``): the reply echoes the request's message id, its ``leng
 the 3-byte tail ``00 01 status``, requests are answered in order (several may arrive in one
 TCP segment). Variables:
 
-``$AXIS_ACT``
+``$AXIS_ACT``, ``$AXIS_ACT_MEAS``
     ``{E6AXIS: A1 …, A6 …, E1 0.0, …}``: the cell's reported joints [deg] (frozen while the
     ``robot_frozen`` fault is on), 7 significant digits as KRL prints a ``REAL``. Read-only.
+    (On a controller the first is the commanded, the second the measured position; at a fine
+    stop they agree to the servo error, which the emulation does not model.)
 ``$OV_PRO``
     Program override [%], ``100`` at start; a write of an integer 0..100 is kept.
 ``$MODE_OP``, ``$ROBNAME[]``
@@ -57,7 +59,7 @@ class KukaVarProxyServer(TcpServer):
     def read_variable(self, name: str) -> str | None:
         """The value string of ``name``, or None for an unknown variable."""
         key = name.upper()
-        if key == "$AXIS_ACT":
+        if key in ("$AXIS_ACT", "$AXIS_ACT_MEAS"):
             return format_e6axis([float(v) for v in self.cell.reported_joints()])
         if key == "$OV_PRO":
             return str(self.override_pct)
