@@ -203,8 +203,6 @@ class FanucRmiConfig(BaseModel):
     frame_log_size: Annotated[int, Field(ge=1)] = 16
 
 
-#: Unsolicited packets the controller may send (manual 2.2.3, 2.2.4, 2.5.2).
-UNSOLICITED = ("FRC_SystemFault", "FRC_Record")
 #: The marker command sent after a silent request (see the module docstring).
 MARKER = "FRC_GetStatus"
 
