@@ -49,12 +49,9 @@ import math
 import time
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from drivers.backoff import ReconnectBackoff, SilentAttempts
-from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
-from drivers.frames import FrameLog
-from drivers.robot import JointReading, StaleGuard, joint_reading
+from drivers.robot_link import LinkConfig, LinkedRobot, LinkLost, Unattributable
 
 TERMINATOR = b"\r\n"
 #: Longest packet line accepted [bytes] (a joint reply is ~250).
@@ -177,67 +174,45 @@ class RmiError(Exception):
         self.error_id = error_id
 
 
-class FanucRmiConfig(BaseModel):
+class FanucRmiConfig(LinkConfig):
     """Configuration of :class:`FanucRmiRobot` (``[robot] kind = "fanuc-rmi"``).
 
     ``host``/``port``: the controller and its RMI connect port (16001; the session port comes
     from the ``FRC_Connect`` reply). ``group``: the motion group read (1..8; 1 is sent as the
     manual's default, i.e. without the optional ``Group`` key). No credentials: RMI has none.
-    Timeouts and retries as for every robot link [s, count].
+    Timeouts, retries, back-off and ``max_unchanged_s``:
+    :class:`drivers.robot_link.LinkConfig` (``timeout_s`` bounds the whole session opening).
     """
 
-    model_config = ConfigDict(extra="forbid")
-
     kind: Literal["fanuc-rmi"] = "fanuc-rmi"
-    name: str = "robot"
-    host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 16001
     group: Annotated[int, Field(ge=1, le=8)] = 1
-    timeout_s: Annotated[float, Field(gt=0)] = 1.0
-    fast_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
-    retries: Annotated[int, Field(ge=0)] = 2
-    reconnect_after_timeouts: Annotated[int, Field(ge=1)] = 3
-    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
-    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
-    max_unchanged_s: Annotated[float | None, Field(gt=0)] = None
-    frame_log_size: Annotated[int, Field(ge=1)] = 16
 
 
 #: The marker command sent after a silent request (see the module docstring).
 MARKER = "FRC_GetStatus"
 
 
-class FanucRmiRobot:
-    """Asyncio driver of a FANUC controller through RMI (reads ``FRC_ReadJointAngles``)."""
+class FanucRmiRobot(LinkedRobot):
+    """Asyncio driver of a FANUC controller through RMI (reads ``FRC_ReadJointAngles``); the
+    link policy (retries, back-off, stale joints) is :class:`drivers.robot_link.LinkedRobot`."""
 
     def __init__(self, config: FanucRmiConfig) -> None:
+        super().__init__(config)
         self.config = config
-        self.name = config.name
-        self.frames = FrameLog(config.frame_log_size)
+        self.joints_what = "FRC_ReadJointAngles"
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
         #: A request got no reply in time: the next one is preceded by a marker.
         self._unsynced = False
-        self._lock = asyncio.Lock()
-        self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
-        #: Retry policy and its counters (silent attempts, reads saved by a retry).
-        self.attempts = SilentAttempts(
-            config.retries,
-            config.reconnect_after_timeouts,
-            min(config.fast_reply_timeout_s, config.timeout_s),
-            config.timeout_s,
-        )
-        self._stale = StaleGuard(config.name, config.max_unchanged_s)
-        #: Sessions opened since creation [count]; the session port of the last one.
-        self.connects = 0
+        #: The session port of the last session opened.
         self.session_port: int | None = None
         #: Replies discarded as answers to abandoned requests (or markers) [count].
         self.late_discarded = 0
         #: ``FRC_SystemFault`` packets received (their SequenceID), newest last.
         self.system_faults: list[int] = []
 
-    @property
-    def connected(self) -> bool:
+    def _is_open(self) -> bool:
         return self._writer is not None and not self._writer.is_closing()
 
     def _request(self) -> dict[str, Any]:
@@ -246,64 +221,64 @@ class FanucRmiRobot:
             packet["Group"] = self.config.group
         return packet
 
-    # ------------------------------------------------------------------ link
-    async def open(self, timeout_s: float) -> None:
-        """``FRC_Connect`` on the connect port, then connect to the session port.
-
-        Raises :class:`RobotLinkDown` (no connection; RMIT-026: another client holds the
-        session) or :class:`RobotProtocolError` (an answer that is not an FRC_Connect reply).
-        """
+    async def _open(self) -> None:
+        """``FRC_Connect`` on the connect port, then connect to the session port. A refusal
+        (RMIT-026: another client holds the one session) or an answer that is not an
+        FRC_Connect reply is a :class:`LinkLost` naming it (the caller makes it a
+        :class:`~drivers.errors.RobotLinkDown`)."""
         cfg = self.config
-        where = f"{cfg.host}:{cfg.port}"
-        deadline = time.monotonic() + timeout_s
+        reader, writer = await asyncio.open_connection(cfg.host, cfg.port)
         try:
-            reader, writer = await asyncio.wait_for(
-                asyncio.open_connection(cfg.host, cfg.port), timeout_s
-            )
-            try:
-                packet = encode_packet({"Communication": "FRC_Connect"})
-                self.frames.add("tx", packet)
-                writer.write(packet)
-                await writer.drain()
-                line = await asyncio.wait_for(
-                    reader.readuntil(TERMINATOR), max(deadline - time.monotonic(), 1e-3)
-                )
-                self.frames.add("rx", line)
-            finally:
-                writer.close()
+            packet = encode_packet({"Communication": "FRC_Connect"})
+            self.frames.add("tx", packet)
+            writer.write(packet)
+            await writer.drain()
+            line = await reader.readuntil(TERMINATOR)
+            self.frames.add("rx", line)
+        except asyncio.IncompleteReadError as exc:
+            raise LinkLost("the connect port closed before answering FRC_Connect") from exc
+        finally:
+            writer.close()
+        try:
             port = session_port(decode_packet(line))
-            self._reader, self._writer = await asyncio.wait_for(
-                asyncio.open_connection(cfg.host, port), max(deadline - time.monotonic(), 1e-3)
-            )
         except RmiError as exc:
-            self.frames.note(f"FRC_Connect refused: {exc}")
-            raise RobotLinkDown(
-                self.name, f"{where}: FRC_Connect refused: {exc}", self.frames.snapshot()
-            ) from exc
+            raise LinkLost(f"FRC_Connect refused: {exc}") from exc
         except (ValueError, UnicodeDecodeError) as exc:
-            raise RobotProtocolError(
-                self.name, f"{where}: FRC_Connect: {exc}", self.frames.snapshot()
-            ) from exc
-        except (TimeoutError, OSError, asyncio.IncompleteReadError) as exc:
-            self.frames.note(f"connect {where} failed: {exc!r}")
-            raise RobotLinkDown(
-                self.name, f"cannot open an RMI session at {where}: {exc!r}", self.frames.snapshot()
-            ) from exc
+            raise LinkLost(f"FRC_Connect answered with no usable session port: {exc}") from exc
+        self._reader, self._writer = await asyncio.open_connection(cfg.host, port)
         self.session_port = port
         self._unsynced = False
-        self.connects += 1
         self.frames.note(f"RMI session on port {port}")
 
-    async def request_joints(self, timeout_s: float) -> tuple[float, ...]:
+    async def _close(self) -> None:
+        """``FRC_Disconnect`` (best effort, its reply awaited at most ``fast_reply_timeout_s``),
+        then close the session's connection."""
+        reader, writer = self._reader, self._writer
+        self._reader = self._writer = None
+        if writer is None:
+            return
+        with contextlib.suppress(Exception):
+            if not writer.is_closing():
+                writer.write(encode_packet({"Communication": "FRC_Disconnect"}))
+                await writer.drain()
+                if reader is not None:
+                    await asyncio.wait_for(
+                        reader.readuntil(TERMINATOR), self.config.fast_reply_timeout_s
+                    )
+        writer.close()
+        with contextlib.suppress(Exception):
+            await writer.wait_closed()
+
+    async def _request_joints(self, timeout_s: float) -> tuple[float, ...]:
         """One ``FRC_ReadJointAngles`` → J1..J6 [deg].
 
         Raises :class:`TimeoutError` (no reply in time; the next call re-synchronises with a
-        marker first), :class:`RobotProtocolError` (``ErrorID`` not 0, a malformed reply; an
-        unattributable one also closes the session), :class:`RobotLinkDown` (connection lost,
-        or the controller sent ``FRC_Terminate``).
+        marker first), :class:`RobotProtocolError` (``ErrorID`` not 0 as ``.code``, a
+        malformed reply), :class:`Unattributable` (an unreadable or unexpected packet),
+        :class:`LinkLost` (connection lost, or the controller sent ``FRC_Terminate``).
         """
         if self._reader is None or self._writer is None:
-            raise RobotLinkDown(self.name, "not connected", self.frames.snapshot())
+            raise LinkLost("not connected")
         deadline = time.monotonic() + timeout_s
         try:
             if self._unsynced:
@@ -315,19 +290,16 @@ class FanucRmiRobot:
         except TimeoutError:
             self._unsynced = True
             raise
-        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError) as exc:
-            self._drop(f"link lost: {exc!r}")
-            raise RobotLinkDown(self.name, f"link lost: {exc!r}", self.frames.snapshot()) from exc
+        except (OSError, asyncio.IncompleteReadError) as exc:
+            raise LinkLost(repr(exc)) from exc
+        except asyncio.LimitOverrunError as exc:
+            raise Unattributable(f"RMI line longer than the reader's limit: {exc}") from exc
         try:
             return joint_angles(reply)
         except RmiError as exc:
-            raise RobotProtocolError(
-                self.name, str(exc), self.frames.snapshot(), code=exc.error_id
-            ) from exc
+            raise self.protocol_error(str(exc), code=exc.error_id) from exc
         except ValueError as exc:
-            raise RobotProtocolError(
-                self.name, f"FRC_ReadJointAngles: {exc}", self.frames.snapshot()
-            ) from exc
+            raise self.protocol_error(f"FRC_ReadJointAngles: {exc}") from exc
 
     async def _send(self, packet: dict[str, Any]) -> None:
         assert self._writer is not None
@@ -349,19 +321,13 @@ class FanucRmiRobot:
             try:
                 packet = decode_packet(line)
             except (ValueError, UnicodeDecodeError) as exc:
-                self._drop("malformed packet; session closed to re-synchronise")
-                raise RobotProtocolError(self.name, str(exc), self.frames.snapshot()) from exc
+                raise Unattributable(f"unreadable RMI packet: {exc}") from exc
             first = next(iter(packet))
             name = packet[first]
             if first == "Command" and name == command:
                 return packet
             if first == "Communication" and name == "FRC_Terminate":
-                self._drop("controller sent FRC_Terminate")
-                raise RobotLinkDown(
-                    self.name,
-                    "the controller ended the RMI session (FRC_Terminate)",
-                    self.frames.snapshot(),
-                )
+                raise LinkLost("the controller ended the RMI session (FRC_Terminate)")
             if first == "Communication" and name == "FRC_SystemFault":
                 seq = packet.get("SequenceID")
                 self.system_faults.append(seq if isinstance(seq, int) else -1)
@@ -372,86 +338,6 @@ class FanucRmiRobot:
                 self.frames.note(f"{name} reply discarded (answers an abandoned request)")
                 continue
             if first == "Command" and name == "FRC_Record":
-                self.frames.note(f"{name} packet discarded (not the reply awaited)")
+                self.frames.note("FRC_Record packet (pendant's Record key) skipped")
                 continue
-            self._drop(f"unattributable packet {first}={name!r}; session closed")
-            raise RobotProtocolError(
-                self.name,
-                f"unexpected packet {first}={name!r} awaiting {command}",
-                self.frames.snapshot(),
-            )
-
-    async def close(self) -> None:
-        """``FRC_Disconnect`` (best effort, its reply awaited at most ``fast_reply_timeout_s``),
-        then close the session's connection."""
-        reader, writer = self._reader, self._writer
-        self._reader = self._writer = None
-        if writer is None:
-            return
-        with contextlib.suppress(Exception):
-            writer.write(encode_packet({"Communication": "FRC_Disconnect"}))
-            await writer.drain()
-            if reader is not None:
-                await asyncio.wait_for(
-                    reader.readuntil(TERMINATOR), self.config.fast_reply_timeout_s
-                )
-        writer.close()
-        with contextlib.suppress(Exception):
-            await writer.wait_closed()
-
-    def _drop(self, why: str) -> None:
-        self.frames.note(why)
-        if self._writer is not None:
-            self._writer.close()
-        self._reader = self._writer = None
-        self._backoff.dropped()
-
-    # ------------------------------------------------------------------ RobotDriver
-    async def connect(self) -> None:
-        """Open the session now. Raises :class:`RobotLinkDown`."""
-        async with self._lock:
-            await self._ensure_connected(force=True)
-
-    async def _ensure_connected(self, force: bool = False) -> None:
-        if self.connected:
-            return
-        cfg = self.config
-        wait_s = self._backoff.remaining_s(time.monotonic())
-        if not force and wait_s > 0:
-            raise RobotLinkDown(
-                self.name,
-                f"{cfg.host}:{cfg.port} down; next reconnect in {wait_s:.2f} s",
-                self.frames.snapshot(),
-            )
-        try:
-            await self.open(cfg.timeout_s)
-        except (RobotLinkDown, RobotProtocolError):
-            self._backoff.failed()
-            raise
-        self._backoff.succeeded()
-        self.attempts.reset()
-
-    async def read_joints(self) -> JointReading:
-        """Current J1..J6 [deg]; retries a silent attempt at once (see the module docstring).
-
-        Raises :class:`RobotLinkDown`, :class:`RobotTimeout` (no reply to ``1 + retries``
-        attempts), :class:`RobotProtocolError`, :class:`~drivers.errors.RobotStale`.
-        """
-        async with self._lock:
-            await self._ensure_connected()
-            for attempt, timeout_s in enumerate(self.attempts.timeouts_s()):
-                try:
-                    joints = await self.request_joints(timeout_s)
-                except TimeoutError as exc:
-                    self.frames.note(f"no reply within {timeout_s} s")
-                    action = self.attempts.silent(attempt)
-                    if action == "retry":
-                        continue
-                    if action == "reopen":
-                        await self.close()
-                        self.attempts.reset()
-                    text = self.attempts.failure_text(attempt)
-                    raise RobotTimeout(self.name, text, self.frames.snapshot()) from exc
-                self.attempts.replied(attempt)
-                return self._stale.check(joint_reading(joints, self.name))
-        raise AssertionError("unreachable: the last attempt returns or raises")
+            raise Unattributable(f"unexpected packet {first}={name!r} awaiting {command}")

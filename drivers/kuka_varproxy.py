@@ -52,12 +52,9 @@ import time
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from drivers.backoff import ReconnectBackoff, SilentAttempts
-from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
-from drivers.frames import FrameLog
-from drivers.robot import JointReading, StaleGuard, joint_reading
+from drivers.robot_link import LinkConfig, LinkedRobot, LinkLost, Unattributable
 
 #: Functions of the OpenShowVar protocol.
 FUNCTION_READ, FUNCTION_WRITE = 0, 1
@@ -244,93 +241,64 @@ def format_e6axis(axes_deg: tuple[float, ...] | list[float]) -> str:
     return "{E6AXIS: " + ", ".join(parts) + "}"
 
 
-class KukaVarProxyConfig(BaseModel):
+class KukaVarProxyConfig(LinkConfig):
     """Configuration of :class:`KukaVarProxyRobot` (``[robot] kind = "kuka-varproxy"``).
 
     ``host``/``port``: the KukaVarProxy endpoint (the proxy listens on 7000). ``variable``:
-    the E6AXIS variable read ($AXIS_ACT: actual axis positions). No credentials: the
-    protocol has none. Timeouts and retries as for every robot link [s, count].
+    the E6AXIS variable read (``$AXIS_ACT``; ``$AXIS_ACT_MEAS`` for the measured position on
+    KSS 8). No credentials: the protocol has none. Timeouts, retries, back-off and
+    ``max_unchanged_s``: :class:`drivers.robot_link.LinkConfig`.
     """
 
-    model_config = ConfigDict(extra="forbid")
-
     kind: Literal["kuka-varproxy"] = "kuka-varproxy"
-    name: str = "robot"
-    host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 7000
     variable: Annotated[
         str, Field(min_length=1, max_length=64, pattern=r"^[$A-Za-z0-9_.\[\]]+$")
     ] = "$AXIS_ACT"
-    timeout_s: Annotated[float, Field(gt=0)] = 1.0
-    fast_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
-    retries: Annotated[int, Field(ge=0)] = 2
-    reconnect_after_timeouts: Annotated[int, Field(ge=1)] = 3
-    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
-    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
-    max_unchanged_s: Annotated[float | None, Field(gt=0)] = None
-    frame_log_size: Annotated[int, Field(ge=1)] = 16
 
 
-class KukaVarProxyRobot:
-    """Asyncio driver of a KUKA controller through KukaVarProxy (reads ``$AXIS_ACT``)."""
+class KukaVarProxyRobot(LinkedRobot):
+    """Asyncio driver of a KUKA controller through KukaVarProxy (reads ``$AXIS_ACT``); the
+    link policy (retries, back-off, stale joints) is :class:`drivers.robot_link.LinkedRobot`."""
 
     def __init__(self, config: KukaVarProxyConfig) -> None:
+        super().__init__(config)
         self.config = config
-        self.name = config.name
-        self.frames = FrameLog(config.frame_log_size)
+        self.joints_what = config.variable
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._rx = bytearray()
         self._msg_id = 0
-        self._lock = asyncio.Lock()
-        self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
-        #: Retry policy and its counters (silent attempts, reads saved by a retry).
-        self.attempts = SilentAttempts(
-            config.retries,
-            config.reconnect_after_timeouts,
-            min(config.fast_reply_timeout_s, config.timeout_s),
-            config.timeout_s,
-        )
-        self._stale = StaleGuard(config.name, config.max_unchanged_s)
-        #: Successful TCP connects since creation [count].
-        self.connects = 0
         #: Late replies (to an abandoned request) discarded since creation [count].
         self.late_discarded = 0
 
-    @property
-    def connected(self) -> bool:
+    def _is_open(self) -> bool:
         return self._writer is not None and not self._writer.is_closing()
 
-    # ------------------------------------------------------------------ link
-    async def open(self, timeout_s: float) -> None:
-        """Open the TCP connection. Raises :class:`RobotLinkDown`."""
-        cfg = self.config
-        try:
-            self._reader, self._writer = await asyncio.wait_for(
-                asyncio.open_connection(cfg.host, cfg.port), timeout_s
-            )
-        except (TimeoutError, OSError) as exc:
-            self.frames.note(f"connect {cfg.host}:{cfg.port} failed: {exc!r}")
-            raise RobotLinkDown(
-                self.name,
-                f"cannot connect to {cfg.host}:{cfg.port}: {exc!r}",
-                self.frames.snapshot(),
-            ) from exc
+    async def _open(self) -> None:
+        self._reader, self._writer = await asyncio.open_connection(
+            self.config.host, self.config.port
+        )
         self._rx.clear()
-        self.connects += 1
-        self.frames.note(f"connected {cfg.host}:{cfg.port}")
 
-    async def request_joints(self, timeout_s: float) -> tuple[float, ...]:
+    async def _close(self) -> None:
+        writer, self._reader, self._writer = self._writer, None, None
+        if writer is not None:
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
+
+    async def _request_joints(self, timeout_s: float) -> tuple[float, ...]:
         """One read of the configured variable → A1..A6 [deg].
 
         Raises :class:`TimeoutError` when no reply with this request's message id comes
         within ``timeout_s`` (a late reply to an earlier id is discarded whenever it comes),
-        :class:`RobotProtocolError` for a failed read, an empty value or a malformed
-        E6AXIS (a malformed frame also closes the connection), :class:`RobotLinkDown` when
-        the connection is lost.
+        :class:`RobotProtocolError` for a failed read, an empty value or a malformed E6AXIS,
+        :class:`Unattributable` for a frame whose lengths or tail do not add up,
+        :class:`LinkLost` when the connection is lost.
         """
         if self._reader is None or self._writer is None:
-            raise RobotLinkDown(self.name, "not connected", self.frames.snapshot())
+            raise LinkLost("not connected")
         self._msg_id = (self._msg_id + 1) & 0xFFFF
         msg_id = self._msg_id
         request = encode_read(msg_id, self.config.variable)
@@ -348,8 +316,7 @@ class KukaVarProxyRobot:
         except TimeoutError:
             raise
         except (OSError, asyncio.IncompleteReadError) as exc:
-            self._drop(f"link lost: {exc!r}")
-            raise RobotLinkDown(self.name, f"link lost: {exc!r}", self.frames.snapshot()) from exc
+            raise LinkLost(repr(exc)) from exc
 
     async def _next_reply(self, deadline: float) -> Reply:
         """The next complete reply frame (bytes kept across timeouts: a frame cut by a
@@ -364,8 +331,7 @@ class KukaVarProxyRobot:
                 try:
                     return decode_reply(frame)
                 except ValueError as exc:
-                    self._drop("malformed frame; connection reset to re-synchronise")
-                    raise RobotProtocolError(self.name, str(exc), self.frames.snapshot()) from exc
+                    raise Unattributable(f"malformed frame: {exc}") from exc
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise TimeoutError
@@ -377,83 +343,12 @@ class KukaVarProxyRobot:
     def _joints_of(self, reply: Reply) -> tuple[float, ...]:
         var = self.config.variable
         if not reply.ok:
-            raise RobotProtocolError(
-                self.name,
-                f"{var}: the proxy reports a failed read (status 0)",
-                self.frames.snapshot(),
-            )
+            raise self.protocol_error(f"{var}: the proxy reports a failed read (status 0)")
         if not reply.value:
-            raise RobotProtocolError(
-                self.name,
-                f"{var}: empty value (unknown variable, or the proxy lost CrossComm)",
-                self.frames.snapshot(),
+            raise self.protocol_error(
+                f"{var}: empty value (unknown variable, or the proxy lost CrossComm)"
             )
         try:
             return parse_e6axis(reply.value.decode("ascii"))
         except (ValueError, UnicodeDecodeError) as exc:
-            raise RobotProtocolError(self.name, f"{var}: {exc}", self.frames.snapshot()) from exc
-
-    async def close(self) -> None:
-        """Close the connection."""
-        writer, self._reader, self._writer = self._writer, None, None
-        if writer is not None:
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
-
-    def _drop(self, why: str) -> None:
-        self.frames.note(why)
-        if self._writer is not None:
-            self._writer.close()
-        self._reader = self._writer = None
-        self._backoff.dropped()
-
-    # ------------------------------------------------------------------ RobotDriver
-    async def connect(self) -> None:
-        """Open the connection now. Raises :class:`RobotLinkDown`."""
-        async with self._lock:
-            await self._ensure_connected(force=True)
-
-    async def _ensure_connected(self, force: bool = False) -> None:
-        if self.connected:
-            return
-        cfg = self.config
-        wait_s = self._backoff.remaining_s(time.monotonic())
-        if not force and wait_s > 0:
-            raise RobotLinkDown(
-                self.name,
-                f"{cfg.host}:{cfg.port} down; next reconnect in {wait_s:.2f} s",
-                self.frames.snapshot(),
-            )
-        try:
-            await self.open(cfg.timeout_s)
-        except RobotLinkDown:
-            self._backoff.failed()
-            raise
-        self._backoff.succeeded()
-        self.attempts.reset()
-
-    async def read_joints(self) -> JointReading:
-        """Current A1..A6 [deg]; retries a silent attempt at once (see the module docstring).
-
-        Raises :class:`RobotLinkDown`, :class:`RobotTimeout` (no reply to ``1 + retries``
-        attempts), :class:`RobotProtocolError`, :class:`~drivers.errors.RobotStale`.
-        """
-        async with self._lock:
-            await self._ensure_connected()
-            for attempt, timeout_s in enumerate(self.attempts.timeouts_s()):
-                try:
-                    joints = await self.request_joints(timeout_s)
-                except TimeoutError as exc:
-                    self.frames.note(f"no reply within {timeout_s} s")
-                    action = self.attempts.silent(attempt)
-                    if action == "retry":
-                        continue
-                    if action == "reopen":
-                        await self.close()
-                        self.attempts.reset()
-                    text = self.attempts.failure_text(attempt)
-                    raise RobotTimeout(self.name, text, self.frames.snapshot()) from exc
-                self.attempts.replied(attempt)
-                return self._stale.check(joint_reading(joints, self.name))
-        raise AssertionError("unreachable: the last attempt returns or raises")
+            raise self.protocol_error(f"{var}: {exc}") from exc

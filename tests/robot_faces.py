@@ -1,46 +1,13 @@
-"""Helpers of the brand-face tests (KUKA VarProxy, FANUC RMI): a face started on an
-emulated cell's loop, and how far a joint reading is from the cell's truth."""
+"""Helpers of the brand-face tests (KUKA VarProxy, FANUC RMI): how far a joint reading is
+from the emulated cell's truth."""
 
 from __future__ import annotations
 
-import asyncio
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from typing import TypeVar
+from collections.abc import Sequence
 
 import numpy as np
 
-from simulator.cell import EmulatedCell
 from simulator.runner import SimulatorThread
-from simulator.servers import TcpServer
-
-Face = TypeVar("Face", bound=TcpServer)
-
-
-@contextmanager
-def face_on(sim: SimulatorThread, make: Callable[[EmulatedCell], Face]) -> Iterator[Face]:
-    """A face built by ``make(cell)`` started on ``sim``'s event loop, stopped after."""
-    face = make(sim.cell)
-    asyncio.run_coroutine_threadsafe(face.start(), sim.loop).result(timeout=5)
-    try:
-        yield face
-    finally:
-        asyncio.run_coroutine_threadsafe(face.stop(), sim.loop).result(timeout=5)
-
-
-def link_down(sim: SimulatorThread, face: TcpServer, duration_s: float) -> None:
-    """Take ``face`` away for ``duration_s`` (returns once it is down)."""
-    asyncio.run_coroutine_threadsafe(_down(face, duration_s), sim.loop).result(timeout=5)
-
-
-async def _down(face: TcpServer, duration_s: float) -> None:
-    task = asyncio.ensure_future(face.link_down(duration_s))
-    _TASKS.add(task)
-    task.add_done_callback(_TASKS.discard)
-    await asyncio.sleep(0.05)
-
-
-_TASKS: set[asyncio.Future[None]] = set()
 
 
 def deviation_from_truth_deg(

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from expected_protocol import expected_protocol_tcp
 from fanuc_rmi import RobotClient
-from helpers import start_emulated_cell
-from robot_faces import deviation_from_truth_deg, face_on, last_tx_s, link_down
+from helpers import host_port, start_emulated_cell
+from robot_faces import deviation_from_truth_deg, last_tx_s
 
 from drivers.errors import RobotError, RobotLinkDown, RobotProtocolError, RobotStale
 from drivers.fanuc_rmi import (
@@ -50,8 +50,11 @@ def _fanuc_cell(moving: bool) -> Iterator[Fanuc]:
     robot = {"move_time_s": 1.0, "dwell_s": 0.0} if moving else {}
     sim = start_emulated_cell(hold=not moving, seed=11, robot=robot)
     try:
-        with face_on(sim, lambda cell: FanucRmiServer(cell, "127.0.0.1", 0)) as face:
-            yield sim, face
+        assert sim.runner is not None
+        face = sim.runner.faces["robot_fanuc_rmi"]
+        assert isinstance(face, FanucRmiServer)
+        assert host_port(sim.ready["robot_fanuc_rmi"]) == (face.host, face.port)
+        yield sim, face
     finally:
         sim.stop()
 
@@ -192,7 +195,7 @@ async def test_link_down_then_back(fanuc: Fanuc) -> None:
     robot = _driver(face, timeout_s=0.2, fast_reply_timeout_s=0.1)
     try:
         await robot.read_joints()
-        link_down(sim, face, 0.5)
+        sim.control("link_down", target="robot_fanuc_rmi", duration_s=0.5)
         with pytest.raises(RobotLinkDown):
             await robot.read_joints()
         t0 = time.monotonic()

@@ -14,9 +14,9 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 from expected_protocol import expected_protocol_tcp
-from helpers import start_emulated_cell
+from helpers import host_port, start_emulated_cell
 from py_openshowvar import openshowvar
-from robot_faces import deviation_from_truth_deg, face_on, last_tx_s, link_down
+from robot_faces import deviation_from_truth_deg, last_tx_s
 
 from drivers.errors import RobotError, RobotLinkDown, RobotProtocolError, RobotStale
 from drivers.kuka_varproxy import (
@@ -46,8 +46,11 @@ def _kuka_cell(moving: bool) -> Iterator[Kuka]:
     robot = {"move_time_s": 1.0, "dwell_s": 0.0} if moving else {}
     sim = start_emulated_cell(hold=not moving, seed=11, robot=robot)
     try:
-        with face_on(sim, lambda cell: KukaVarProxyServer(cell, "127.0.0.1", 0)) as face:
-            yield sim, face
+        assert sim.runner is not None
+        face = sim.runner.faces["robot_kuka_varproxy"]
+        assert isinstance(face, KukaVarProxyServer)
+        assert host_port(sim.ready["robot_kuka_varproxy"]) == (face.host, face.port)
+        yield sim, face
     finally:
         sim.stop()
 
@@ -183,7 +186,7 @@ async def test_link_down_then_back(kuka: Kuka) -> None:
     robot = _driver(face, timeout_s=0.2, fast_reply_timeout_s=0.1)
     try:
         await robot.read_joints()
-        link_down(sim, face, 0.5)
+        sim.control("link_down", target="robot_kuka_varproxy", duration_s=0.5)
         with pytest.raises(RobotLinkDown):
             await robot.read_joints()
         t0 = time.monotonic()

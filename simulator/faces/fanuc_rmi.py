@@ -42,7 +42,8 @@ from drivers.fanuc_rmi import (
     encode_packet,
 )
 from simulator.cell import EmulatedCell
-from simulator.servers import TcpServer
+from simulator.config import ServerSection
+from simulator.faces.base import FaceServer
 
 log = logging.getLogger("cablecal.simulator")
 
@@ -62,13 +63,13 @@ async def read_line(reader: asyncio.StreamReader) -> bytes:
         raise ValueError("RMI line too long") from exc
 
 
-class FanucRmiSession(TcpServer):
+class FanucRmiSession(FaceServer):
     """The session port of :class:`FanucRmiServer`."""
 
     label = "fanuc-rmi-session"
 
-    def __init__(self, cell: EmulatedCell, host: str, port: int) -> None:
-        super().__init__(cell, host, port)
+    def __init__(self, cell: EmulatedCell, section: ServerSection) -> None:
+        super().__init__(cell, section)
         self.granted_at: float | None = None
         self.active = False
         self.override_pct = 100
@@ -108,15 +109,7 @@ class FanucRmiSession(TcpServer):
                     request = None
                 reply, end = self.answer(request)
                 self.requests += 1
-                faults = self.cell.faults
-                await self.reply(
-                    writer,
-                    encode_packet(reply),
-                    faults.robot_drop_rate,
-                    faults.robot_reply_delay_s,
-                    faults.robot_late_rate,
-                    faults.robot_late_delay_s,
-                )
+                await self.send(writer, encode_packet(reply))
                 if end:
                     return
         finally:
@@ -194,14 +187,16 @@ class FanucRmiSession(TcpServer):
         return {"Command": name, "ErrorID": RMIT_INVALID_COMMAND}
 
 
-class FanucRmiServer(TcpServer):
-    """EMULATED FANUC RMI: the connect port (READY's endpoint) and its session port."""
+class FanucRmiServer(FaceServer):
+    """EMULATED FANUC RMI, ``[robot_fanuc_rmi]``: the connect port (READY's endpoint) and its
+    session port (``session_port``; 0, the default: a free port)."""
 
     label = "fanuc-rmi"
 
-    def __init__(self, cell: EmulatedCell, host: str, port: int, session_port: int = 0) -> None:
-        super().__init__(cell, host, port)
-        self.session = FanucRmiSession(cell, host, session_port)
+    def __init__(self, cell: EmulatedCell, section: ServerSection, session_port: int = 0) -> None:
+        super().__init__(cell, section)
+        session = ServerSection(enabled=True, host=section.host, port=session_port)
+        self.session = FanucRmiSession(cell, session)
 
     async def start(self) -> None:
         await super().start()

@@ -37,7 +37,8 @@ from drivers.kuka_varproxy import (
     split_request,
 )
 from simulator.cell import EmulatedCell
-from simulator.servers import TcpServer
+from simulator.config import ServerSection
+from simulator.faces.base import FaceServer
 
 log = logging.getLogger("cablecal.simulator")
 
@@ -45,13 +46,13 @@ log = logging.getLogger("cablecal.simulator")
 FIXED_VARIABLES = {"$MODE_OP": "#EX", "$ROBNAME[]": '"EMULATED KR"', "PING": "PONG"}
 
 
-class KukaVarProxyServer(TcpServer):
-    """EMULATED KukaVarProxy on TCP (the real one listens on 7000)."""
+class KukaVarProxyServer(FaceServer):
+    """EMULATED KukaVarProxy on TCP (the real one listens on 7000), ``[robot_kuka_varproxy]``."""
 
     label = "kuka-varproxy"
 
-    def __init__(self, cell: EmulatedCell, host: str, port: int) -> None:
-        super().__init__(cell, host, port)
+    def __init__(self, cell: EmulatedCell, section: ServerSection) -> None:
+        super().__init__(cell, section)
         self.override_pct = 100
         #: Requests answered or dropped since start [count].
         self.requests = 0
@@ -101,12 +102,4 @@ class KukaVarProxyServer(TcpServer):
                     log.debug("kuka-varproxy: malformed request; connection closed")
                     return
                 self.requests += 1
-                faults = self.cell.faults
-                await self.reply(
-                    writer,
-                    self.answer(*request),
-                    faults.robot_drop_rate,
-                    faults.robot_reply_delay_s,
-                    faults.robot_late_rate,
-                    faults.robot_late_delay_s,
-                )
+                await self.send(writer, self.answer(*request))
