@@ -269,3 +269,27 @@ async def test_scripted_session_skips_unsolicited_packets_and_checks_replies() -
                     await robot.read_joints()
             finally:
                 await robot.close()
+
+
+async def test_unreadable_packet_closes_the_session_and_the_next_read_reopens(
+    fanuc: Fanuc,
+) -> None:
+    """A reply that is not JSON cannot be attributed: RobotProtocolError, session closed;
+    the next read opens a new session (FRC_Connect again) and reads the truth."""
+    sim, face = fanuc
+    robot = _driver(face)
+    try:
+        await robot.read_joints()
+        # Make the next line the driver reads unreadable (as if garbled on the wire).
+        assert robot._reader is not None
+        robot._reader.feed_data(b"{not json\r\n")
+        with pytest.raises(RobotProtocolError, match="unreadable RMI packet"):
+            await robot.read_joints()
+        assert not robot.connected
+        await asyncio.sleep(0.15)  # the back-off after a reset (reconnect_min_s 0.1 s)
+        reading = await robot.read_joints()
+    finally:
+        await robot.close()
+    truth = np.asarray(sim.control("state")["joints_deg"])
+    assert np.abs(np.asarray(reading.joints_deg) - truth).max() <= RESOLUTION_DEG
+    assert robot.connects == 2

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import socket
 import time
 from collections.abc import Iterator
 
@@ -249,3 +250,41 @@ async def test_bad_replies_are_protocol_errors(value: str, ok: bool, word: str) 
         finally:
             await robot.close()
     assert "$AXIS_ACT" in str(info.value)
+
+
+async def test_late_reply_is_skipped_and_a_broken_frame_resets_the_link() -> None:
+    """Scripted proxy: a reply to an older id before the awaited one is skipped (counted);
+    then a frame with a broken tail is a protocol error that closes the connection (the
+    stream cannot be trusted), and the next read opens a new one."""
+    q = "{E6AXIS: A1 1.0, A2 2.0, A3 3.0, A4 4.0, A5 5.0, A6 6.0}"
+    broken = bytearray(encode_reply(2, 0, q.encode(), True))
+    broken[-2] = 0x07  # tail 00 07 01
+    script = [
+        (
+            encode_read(1, "$AXIS_ACT"),
+            encode_reply(0, 0, b"{stale}", True) + encode_reply(1, 0, q.encode(), True),
+        ),
+        (encode_read(2, "$AXIS_ACT"), bytes(broken)),
+    ]
+    async with expected_protocol_tcp(script) as port:
+        robot = KukaVarProxyRobot(KukaVarProxyConfig(port=port, retries=0))
+        try:
+            assert (await robot.read_joints()).joints_deg == (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+            assert robot.late_discarded == 1
+            with pytest.raises(RobotProtocolError, match="tail 00 07 01"):
+                await robot.read_joints()
+            assert not robot.connected
+        finally:
+            await robot.close()
+
+
+def test_face_answers_pipelined_requests_in_order(kuka: Kuka) -> None:
+    """Two requests in one TCP segment (the proxy splits them): two replies, ids echoed."""
+    _, face = kuka
+    with socket.create_connection((face.host, face.port), timeout=2) as sock:
+        sock.sendall(encode_read(7, "$OV_PRO") + encode_read(8, "PING"))
+        data = b""
+        while len(data) < 13 + 14:  # "100" and "PONG" replies
+            data += sock.recv(256)
+    first, second = decode_reply(data[:13]), decode_reply(data[13:])
+    assert (first.msg_id, first.value, second.msg_id, second.value) == (7, b"100", 8, b"PONG")
