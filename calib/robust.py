@@ -1,31 +1,50 @@
-"""Robust weighting for iteratively reweighted least squares: one small function per mode.
+"""Robust fitting: the outlier screening of ``auto`` and ``reject``, and the IRLS weights.
 
-Each weight function maps standardised residuals ``u = |t| / s``, shape (n,), to IRLS weights
-of the same shape, given the threshold ``k`` in robust standard deviations. ``t`` are the
-residuals studentised by their leverage (:func:`studentised`): a fitted row's residual has
-variance ``σ²(1 − h)``, an excluded row's prediction error ``σ²(1 + h)``; ``s`` is 1.4826 × the
-median absolute deviation of ``t``, so ``s`` estimates the noise σ itself, not the smaller
-spread of the fitted residuals. :data:`WEIGHTS` is the table ``robust`` option name → weight
-function, as scipy's ``least_squares`` keeps its losses.
+Residuals are first made comparable. A row in the fit with leverage ``h_i`` (the diagonal of
+the hat matrix of the stacked data + prior problem, :func:`leverage`: the prior's rows count,
+so a parameter the prior holds does not make a row look more fitted than it is) has a residual
+of variance ``σ²(1 − h_i)``; an excluded row's prediction error has ``σ²(1 + g_i)``. Dividing
+by those factors gives studentised residuals ``t`` (:func:`studentised`) of variance ``σ²``
+each. ``Σ (1 − h_i)`` over the rows in the fit is the redundancy ``ν = n − p_eff``: the
+degrees of freedom left after the fit, the prior's effective parameters included.
 
-``auto`` (the default) and ``reject`` share one loop in :mod:`calib.identify`: a plain fit;
-rows beyond the threshold get weight 0 and the method refits *from the start* (not from the
-contaminated solution); repeat until the rejected set is stable. ``auto`` uses the threshold
-:func:`auto_threshold`, which grows with ``n`` so that clean Gaussian data have a 1 % chance
-of any flag at all: on clean data ``auto`` returns the plain fit itself.
+:func:`screen` standardises ``t`` by a robust scale (1.4826 × their median absolute deviation,
+never below the indicator's resolution, :func:`calib.noise.noise_floor_mm`) and compares them
+with a threshold. ``auto`` (the default) screens only when the redundancy is at least
+:data:`calib.options.SCREEN_MIN_DOF`: below it, ``ν`` residuals carry the information of
+``n`` rows, the scale is a guess, and an ordinary sample cannot be told from an outlier
+(the screening then says so, and how many more rows would allow it). Its threshold is the
+quantile of Student's t with ``ν − 1`` degrees of freedom (the scale estimated without the
+tested row) at which ``n`` clean Gaussian rows have a :data:`AUTO_FALSE_FLAG_PROBABILITY`
+chance of any flag (at least ``flag_threshold``): it grows with ``n``, and with the
+uncertainty of the scale. At every redundancy a row whose deletion residual (its prediction
+error from the fit without it, ``r_i / (1 − h_i)``) exceeds :data:`GROSS_ERROR_MM` is a gross
+error and is rejected: no kinematic error leaves centimetres after an identification.
+
+``auto`` and ``reject`` share one loop in :mod:`calib.identify`: a plain fit; flagged rows get
+weight 0 and the method refits *from the start* (not from the contaminated solution); repeat
+until the rejected set is stable. :data:`WEIGHTS` is the table ``robust`` option name → IRLS
+weight function ``(u, k) -> w`` of standardised residuals ``u``, shape (n,), as scipy's
+``least_squares`` keeps its losses.
+
+Imports only numpy at module level; scipy.special when a threshold is first computed.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import norm
 
 from calib.kinematics import FloatArray
+from calib.options import SCREEN_MIN_DOF
 
 #: Family-wise false-flag probability of ``auto`` on clean Gaussian data (all ``n`` rows).
 AUTO_FALSE_FLAG_PROBABILITY = 0.01
+#: A deletion residual beyond this is a gross error at any redundancy [mm].
+GROSS_ERROR_MM = 10.0
 
 WeightFn = Callable[[FloatArray, float], FloatArray]
 
@@ -61,47 +80,124 @@ WEIGHTS: dict[str, WeightFn] = {
 REJECTING = ("reject", "auto")
 
 
-def auto_threshold(n: int, flag_threshold: float) -> float:
+def auto_threshold(n: int, flag_threshold: float, dof: float = math.inf) -> float:
     """Rejection threshold of ``auto`` [robust σ] for ``n`` rows: at least ``flag_threshold``,
-    and at least the two-sided Gaussian quantile at which ``n`` clean rows have a
-    :data:`AUTO_FALSE_FLAG_PROBABILITY` chance of any flag (3.9 at n = 100, 4.8 at 2000)."""
-    return max(flag_threshold, float(norm.isf(AUTO_FALSE_FLAG_PROBABILITY / (2 * max(n, 1)))))
+    and at least the two-sided quantile at which ``n`` clean rows have a
+    :data:`AUTO_FALSE_FLAG_PROBABILITY` chance of any flag: of the Gaussian with the scale
+    known (``dof`` inf), of Student's t with ``dof`` degrees of freedom for an estimated one."""
+    from scipy.special import ndtri, stdtrit  # lazily: not on identify's import path
+
+    p = AUTO_FALSE_FLAG_PROBABILITY / (2 * max(n, 1))
+    q = float(-ndtri(p)) if not math.isfinite(dof) else float(-stdtrit(max(dof, 1.0), p))
+    return max(flag_threshold, q)
 
 
-def threshold(mode: str, n: int, flag_threshold: float) -> float:
-    """The flag threshold [robust σ] of ``mode`` for ``n`` rows."""
-    return auto_threshold(n, flag_threshold) if mode == "auto" else flag_threshold
+def leverage(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None = None) -> FloatArray:
+    """``g_i = j_i (J̃ᵀJ̃)⁺ j_iᵀ``, shape (n,), with ``J̃`` the stacked ``[sqrt(w) J; prior]``.
+
+    ``jac`` (n, k) the unweighted Jacobian of the data residuals in the free parameters,
+    ``w`` (n,) the weights of the fit, ``prior_jac`` (m, k) the prior rows' Jacobian (None:
+    no prior). A row in the fit has leverage ``h_i = w_i g_i``. Columns are scaled to unit
+    norm and the pseudo-inverse drops singular values below 1e-10 of the largest.
+    """
+    stacked = np.sqrt(w)[:, None] * jac
+    if prior_jac is not None and prior_jac.size:
+        stacked = np.vstack([stacked, prior_jac])
+    norms = np.linalg.norm(stacked, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    _, sv, vt = np.linalg.svd(stacked / norms, full_matrices=False)
+    keep = sv > sv.max(initial=0.0) * 1e-10
+    proj = ((jac / norms) @ vt[keep].T) / sv[keep]
+    return np.asarray(np.sum(proj * proj, axis=1))
 
 
-def studentised(res: FloatArray, jac: FloatArray, w: FloatArray) -> FloatArray:
+def studentised(
+    res: FloatArray, jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None = None
+) -> FloatArray:
     """Residuals divided by their leverage factor, shape (n,) [mm].
 
-    ``res`` (n,) unweighted residuals [mm]; ``jac`` (n, k) their Jacobian in the free
-    parameters; ``w`` (n,) the weights of the fit. With ``g_i = j_i (JᵀWJ)⁺ j_iᵀ`` a row in the
-    fit (``w_i > 0``) is divided by ``sqrt(1 − w_i g_i)``, an excluded row by ``sqrt(1 + g_i)``.
+    ``res`` (n,) unweighted residuals [mm], ``jac``, ``w``, ``prior_jac`` as for
+    :func:`leverage`: a row in the fit (``w_i > 0``) is divided by ``sqrt(1 − w_i g_i)``, an
+    excluded row by ``sqrt(1 + g_i)``.
     """
-    norms = np.linalg.norm(jac, axis=0)
-    js = jac / np.where(norms > 0, norms, 1.0)
-    _, sv, vt = np.linalg.svd(np.sqrt(w)[:, None] * js, full_matrices=False)
-    keep = sv > sv.max(initial=0.0) * 1e-10
-    proj = (js @ vt[keep].T) / sv[keep]
-    g = np.sum(proj * proj, axis=1)
+    g = leverage(jac, w, prior_jac)
     factor = np.where(w > 0, 1.0 - w * g, 1.0 + g)
     return np.asarray(res / np.sqrt(np.clip(factor, 1e-6, None)))
 
 
-def standardised(res: FloatArray) -> FloatArray:
-    """``|r| / s``, shape (n,), with ``s`` = 1.4826 MAD of ``res`` [mm] (at least 1e-6 mm)."""
+def standardised(res: FloatArray, floor_mm: float = 0.0) -> FloatArray:
+    """``|r| / s``, shape (n,), with ``s`` = 1.4826 MAD of ``res`` [mm], at least ``floor_mm``
+    and 1e-6 mm."""
+    return np.asarray(np.abs(res) / _mad_scale(res, floor_mm))
+
+
+def _mad_scale(res: FloatArray, floor_mm: float) -> float:
     med = np.median(res)
-    scale = max(1.4826 * np.median(np.abs(res - med)), 1e-6)
-    return np.asarray(np.abs(res) / scale)
+    return max(1.4826 * float(np.median(np.abs(res - med))), floor_mm, 1e-6)
 
 
-def weights(
-    mode: str, res: FloatArray, k: float, flag_threshold: float
-) -> tuple[FloatArray, FloatArray]:
-    """IRLS weights and standardised residuals, both shape (n,), for residuals ``res`` [mm]
-    (studentised already, :func:`studentised`, when the caller has the Jacobian).
-    ``flag_threshold`` is the rejecting modes' threshold (:func:`threshold`)."""
-    u = standardised(res)
-    return WEIGHTS[mode](u, flag_threshold if mode in REJECTING else k), u
+@dataclass(frozen=True)
+class Screening:
+    """The outlier screening of one fit (:func:`screen`).
+
+    Attributes
+    ----------
+    u : ndarray, shape (n,)
+        ``|t| / scale``: studentised residuals in robust σ.
+    deletion_mm : ndarray, shape (n,)
+        Each row's prediction error from the fit without it [mm]: ``r / (1 − h)`` for a row in
+        the fit, ``r`` for an excluded one.
+    scale_mm : float
+        The robust scale of the studentised residuals of the rows in the fit [mm].
+    redundancy : float
+        ``ν = Σ (1 − h_i)`` over the rows in the fit: rows less effective parameters.
+    threshold : float
+        The flag threshold [robust σ]; inf when the screening is off.
+    screening : bool
+        Whether residuals are screened against ``threshold`` (``auto``: the redundancy is at
+        least :data:`calib.options.SCREEN_MIN_DOF`); rows beyond :data:`GROSS_ERROR_MM` are
+        flagged either way.
+    """
+
+    u: FloatArray
+    deletion_mm: FloatArray
+    scale_mm: float
+    redundancy: float
+    threshold: float
+    screening: bool
+
+    def flags(self) -> np.ndarray:
+        """Rows beyond the threshold or the gross-error bound, bool (n,)."""
+        return np.asarray((self.u > self.threshold) | (np.abs(self.deletion_mm) > GROSS_ERROR_MM))
+
+    def rows_short(self) -> int:
+        """Training rows the screening of ``auto`` lacks (0 when it screens)."""
+        return max(0, math.ceil(SCREEN_MIN_DOF - self.redundancy - 1e-9))
+
+
+def screen(
+    mode: str, res: FloatArray, jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None,
+    flag_threshold: float, floor_mm: float = 0.0,
+) -> Screening:  # fmt: skip
+    """Screen the residuals of one fit for outliers.
+
+    ``mode`` the ``robust`` option; ``res`` (n,) unweighted residuals [mm]; ``jac``, ``w``,
+    ``prior_jac`` as for :func:`leverage`; ``flag_threshold`` the option [robust σ] (the
+    threshold of ``reject``, huber's and soft-L1's flag, and the least threshold of ``auto``);
+    ``floor_mm`` the least scale (:func:`calib.noise.noise_floor_mm`).
+    """
+    g = leverage(jac, w, prior_jac)
+    inside = w > 0
+    h = np.where(inside, w * g, 0.0)
+    factor = np.clip(np.where(inside, 1.0 - h, 1.0 + g), 1e-6, None)
+    t = res / np.sqrt(factor)
+    deletion = np.where(inside, res / np.clip(1.0 - h, 1e-6, None), res)
+    scale = _mad_scale(t[inside] if np.any(inside) else t, floor_mm)
+    redundancy = float(np.sum(1.0 - h[inside]))
+    n_in = int(np.count_nonzero(inside))
+    if mode == "auto":
+        screening = redundancy >= SCREEN_MIN_DOF
+        thr = auto_threshold(n_in, flag_threshold, redundancy - 1.0) if screening else math.inf
+    else:
+        screening, thr = True, flag_threshold
+    return Screening(np.abs(t) / scale, deletion, scale, redundancy, thr, screening)
