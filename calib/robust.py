@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.kinematics import FloatArray
-from calib.options import SCREEN_MIN_DOF
+from calib.options import SCREEN_MIN_DOF, training_rows_recommended
 
 #: Family-wise false-flag probability of ``auto`` on clean Gaussian data (all ``n`` rows).
 AUTO_FALSE_FLAG_PROBABILITY = 0.01
@@ -157,6 +157,10 @@ class Screening:
         Whether residuals are screened against ``threshold`` (``auto``: the redundancy is at
         least :data:`calib.options.SCREEN_MIN_DOF`); rows beyond :data:`GROSS_ERROR_MM` are
         flagged either way.
+    n_in : int
+        Rows in the fit.
+    n_params : int
+        Free parameters of the fit (the most effective parameters it can have).
     """
 
     u: FloatArray
@@ -165,14 +169,21 @@ class Screening:
     redundancy: float
     threshold: float
     screening: bool
+    n_in: int = 0
+    n_params: int = 0
 
     def flags(self) -> np.ndarray:
         """Rows beyond the threshold or the gross-error bound, bool (n,)."""
         return np.asarray((self.u > self.threshold) | (np.abs(self.deletion_mm) > GROSS_ERROR_MM))
 
     def rows_short(self) -> int:
-        """Training rows the screening of ``auto`` lacks (0 when it screens)."""
-        return max(0, math.ceil(SCREEN_MIN_DOF - self.redundancy - 1e-9))
+        """Rows in the fit that would let ``auto`` screen whatever the prior's share: those of
+        the recommended count (:func:`calib.options.training_rows_recommended`, the free
+        parameters plus :data:`calib.options.SCREEN_MIN_DOF`) less the rows in the fit; 0
+        when it screens."""
+        if self.screening:
+            return 0
+        return max(1, training_rows_recommended(self.n_params) - self.n_in)
 
 
 def screen(
@@ -200,4 +211,5 @@ def screen(
         thr = auto_threshold(n_in, flag_threshold, redundancy - 1.0) if screening else math.inf
     else:
         screening, thr = True, flag_threshold
-    return Screening(np.abs(t) / scale, deletion, scale, redundancy, thr, screening)
+    return Screening(np.abs(t) / scale, deletion, scale, redundancy, thr, screening, n_in,
+                     int(jac.shape[1]))  # fmt: skip

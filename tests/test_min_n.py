@@ -13,7 +13,7 @@ import pytest
 from calib.dataset import make_samples
 from calib.identify import IdentifyOptions, identify
 from calib.noise import display_step_mm, median_dof, noise_floor_mm
-from calib.options import SCREEN_MIN_DOF, samples_for_training_rows, training_rows_recommended
+from calib.options import SCREEN_MIN_DOF, samples_for_training_rows
 from daemon.api.min_samples import min_samples
 
 REPO = Path(__file__).resolve().parents[1]
@@ -50,7 +50,8 @@ def test_at_the_minimum_auto_says_how_many_more_samples_screening_needs() -> Non
     note = next(n for n in res.notes if n.startswith("robust auto"))
     assert "too few samples to screen outliers" in note, note
     more = int(note.split("outliers: ")[1].split(" more")[0])
-    assert 0 < more <= training_rows_recommended(24) + 10 - 31
+    # the same count as the campaign's recommended_samples: one rule
+    assert more == min_samples(MODEL, 1).recommended_samples - 31
     bigger = case(0, 31 + more)
     res = identify(MODEL, make_samples(bigger.q_deg, bigger.length_mm), IdentifyOptions())
     assert res.robust_detail is not None and res.robust_detail["screened"], res.notes
