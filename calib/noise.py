@@ -15,7 +15,7 @@ bound what they can mean:
   often above the truth as below at every ``ν``, and the same as dividing by ``ν`` once ``ν``
   is large (``m(ν) ≈ ν − 2/3``).
 
-Imports only numpy at module level; scipy.special when :func:`median_dof` is first called.
+Imports only numpy.
 """
 
 from __future__ import annotations
@@ -56,7 +56,8 @@ def noise_floor_mm(length_mm: FloatArray) -> float:
 
 
 def median_dof(dof: float) -> float:
-    """The median of χ² with ``dof`` (> 0, not necessarily whole) degrees of freedom."""
-    from scipy.special import gammaincinv  # lazily: 50 ms of import, not on every path
-
-    return float(2.0 * gammaincinv(0.5 * dof, 0.5))
+    """The median of χ² with ``dof`` (>= 1, not necessarily whole) degrees of freedom, by the
+    Wilson–Hilferty approximation ``dof · (1 − 2/(9 dof))³``: 3.4 % above the exact median at
+    1 degree of freedom, 1.3 % at 2, under 0.1 % from 10 (numpy only: scipy.special costs
+    50 ms of import on every identify)."""
+    return float(dof * (1.0 - 2.0 / (9.0 * dof)) ** 3)

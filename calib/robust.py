@@ -27,7 +27,8 @@ until the rejected set is stable. :data:`WEIGHTS` is the table ``robust`` option
 weight function ``(u, k) -> w`` of standardised residuals ``u``, shape (n,), as scipy's
 ``least_squares`` keeps its losses.
 
-Imports only numpy at module level; scipy.special when a threshold is first computed.
+Imports only numpy and the standard library (scipy.special only for a Student-t quantile
+below :data:`T_EXPANSION_MIN_DOF` degrees of freedom, which ``auto`` never asks for).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -80,16 +82,39 @@ WEIGHTS: dict[str, WeightFn] = {
 REJECTING = ("reject", "auto")
 
 
+#: Fewest degrees of freedom at which :func:`t_quantile` uses its expansion (0.5 % accurate
+#: there at the tail probabilities of :func:`auto_threshold`); below, scipy's exact quantile.
+T_EXPANSION_MIN_DOF = 9.0
+
+
+def t_quantile(upper: float, dof: float) -> float:
+    """The quantile of Student's t with ``dof`` degrees of freedom (inf: the Gaussian) that
+    leaves ``upper`` (0 < upper < 0.5) above it. From ``dof`` >= :data:`T_EXPANSION_MIN_DOF` by
+    the Cornish–Fisher expansion in ``1/dof`` around the Gaussian quantile (Abramowitz and
+    Stegun 26.7.5; stdlib only, so identify does not import scipy.stats or scipy.special);
+    below it by scipy.special, imported then."""
+    z = NormalDist().inv_cdf(1.0 - upper)
+    if not math.isfinite(dof):
+        return z
+    if dof < T_EXPANSION_MIN_DOF:
+        from scipy.special import stdtrit  # lazily: few degrees of freedom only
+
+        return float(-stdtrit(max(dof, 1.0), upper))
+    g1 = (z**3 + z) / 4
+    g2 = (5 * z**5 + 16 * z**3 + 3 * z) / 96
+    g3 = (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / 384
+    g4 = (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / 92160
+    return z + g1 / dof + g2 / dof**2 + g3 / dof**3 + g4 / dof**4
+
+
 def auto_threshold(n: int, flag_threshold: float, dof: float = math.inf) -> float:
     """Rejection threshold of ``auto`` [robust σ] for ``n`` rows: at least ``flag_threshold``,
     and at least the two-sided quantile at which ``n`` clean rows have a
     :data:`AUTO_FALSE_FLAG_PROBABILITY` chance of any flag: of the Gaussian with the scale
-    known (``dof`` inf), of Student's t with ``dof`` degrees of freedom for an estimated one."""
-    from scipy.special import ndtri, stdtrit  # lazily: not on identify's import path
-
-    p = AUTO_FALSE_FLAG_PROBABILITY / (2 * max(n, 1))
-    q = float(-ndtri(p)) if not math.isfinite(dof) else float(-stdtrit(max(dof, 1.0), p))
-    return max(flag_threshold, q)
+    known (``dof`` inf), of Student's t with ``dof`` degrees of freedom for an estimated one
+    (:func:`t_quantile`)."""
+    upper = AUTO_FALSE_FLAG_PROBABILITY / (2 * max(n, 1))
+    return max(flag_threshold, t_quantile(upper, dof))
 
 
 def leverage(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None = None) -> FloatArray:
