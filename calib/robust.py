@@ -125,6 +125,13 @@ def leverage(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None = None
     no prior). A row in the fit has leverage ``h_i = w_i g_i``. Columns are scaled to unit
     norm and the pseudo-inverse drops singular values below 1e-10 of the largest.
     """
+    proj = _projection(jac, w, prior_jac)
+    return np.asarray(np.sum(proj * proj, axis=1))
+
+
+def _projection(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None) -> FloatArray:
+    """``P`` (n, r) with ``P Pᵀ = J (J̃ᵀJ̃)⁺ Jᵀ``: the hat matrix of the rows in the fit is
+    ``sqrt(w) P (sqrt(w) P)ᵀ`` (:func:`leverage`)."""
     stacked = np.sqrt(w)[:, None] * jac
     if prior_jac is not None and prior_jac.size:
         stacked = np.vstack([stacked, prior_jac])
@@ -132,8 +139,7 @@ def leverage(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None = None
     norms = np.where(norms > 0, norms, 1.0)
     _, sv, vt = np.linalg.svd(stacked / norms, full_matrices=False)
     keep = sv > sv.max(initial=0.0) * 1e-10
-    proj = ((jac / norms) @ vt[keep].T) / sv[keep]
-    return np.asarray(np.sum(proj * proj, axis=1))
+    return np.asarray(((jac / norms) @ vt[keep].T) / sv[keep])
 
 
 def studentised(
@@ -222,7 +228,8 @@ def screen(
     threshold of ``reject``, huber's and soft-L1's flag, and the least threshold of ``auto``);
     ``floor_mm`` the least scale (:func:`calib.noise.noise_floor_mm`).
     """
-    g = leverage(jac, w, prior_jac)
+    proj = _projection(jac, w, prior_jac)
+    g = np.sum(proj * proj, axis=1)
     inside = w > 0
     h = np.where(inside, w * g, 0.0)
     factor = np.clip(np.where(inside, 1.0 - h, 1.0 + g), 1e-6, None)
@@ -236,5 +243,69 @@ def screen(
         thr = auto_threshold(n_in, flag_threshold, redundancy - 1.0) if screening else math.inf
     else:
         screening, thr = True, flag_threshold
-    return Screening(np.abs(t) / scale, deletion, scale, redundancy, thr, screening, n_in,
+    u = np.abs(t) / scale
+    if mode in REJECTING and screening and np.all((w == 0) | (w == 1)):
+        u, scale = _unmasked(np.sqrt(w)[:, None] * proj, res, t, inside, scale, floor_mm)
+    return Screening(u, deletion, scale, redundancy, thr, screening, n_in,
                      int(jac.shape[1]))  # fmt: skip
+
+
+#: A row joins the backward search's deleted set when deleting it (with the set) cuts the
+#: robust scale of the other rows below this share of the scale before (:func:`_unmasked`).
+SCALE_DROP = 0.7
+
+
+def _unmasked(
+    a: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray, scale: float,
+    floor_mm: float,
+) -> tuple[FloatArray, float]:  # fmt: skip
+    """Standardised residuals (n,) and scale [mm] once outliers that mask each other are set
+    aside: a backward search in the linearised fit.
+
+    With few rows to spare, a least-squares fit spreads an outlier over the other residuals
+    (``r = (I − H) e``), so two outliers can inflate the MAD scale until neither stands out.
+    Deleting a set ``S`` of rows from the fit changes the other rows' residuals to
+    ``r + H_{·S} (I − H_SS)⁻¹ r_S`` and leverages to ``h + diag(H_{·S} (I − H_SS)⁻¹ H_{S·})``
+    without a refit. Rows are deleted one at a time, the largest studentised residual of the
+    rest first, as long as each deletion cuts the robust scale of the rest below
+    :data:`SCALE_DROP` of what it was (a good row's deletion moves a median by a few per cent)
+    and leaves the rest the redundancy screening needs (:data:`calib.options.SCREEN_MIN_DOF`:
+    with less, the scale of the rest is itself too uncertain).
+    The rest are then standardised by their scale after deletion, each deleted row by its
+    prediction error ``((I − H_SS)⁻¹ r_S)_i / sqrt(((I − H_SS)⁻¹)_ii)``. ``a`` (n, r): the
+    rows in the fit's factor of the hat matrix ``H = a aᵀ`` (zero rows for excluded rows);
+    ``t`` (n,) the studentised residuals [mm]. Excluded rows keep ``|t|`` over the new scale.
+    """
+    rows = np.flatnonzero(inside)
+    deleted: list[int] = []
+    u = np.abs(t) / scale
+    for _ in range(max(1, rows.size // 5)):
+        cand_u = np.abs(u).copy()
+        cand_u[~inside] = -1.0
+        cand_u[deleted] = -1.0
+        trial = [*deleted, int(np.argmax(cand_u))]
+        new_u, new_scale, redundancy = _deleted(a, res, t, inside, trial, floor_mm)
+        if redundancy < SCREEN_MIN_DOF or not new_scale < SCALE_DROP * scale:
+            break
+        deleted, u, scale = trial, new_u, new_scale
+    return u, scale
+
+
+def _deleted(
+    a: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray, deleted: list[int],
+    floor_mm: float,
+) -> tuple[FloatArray, float, float]:  # fmt: skip
+    """:func:`_unmasked`'s standardised residuals (n,), scale [mm] and redundancy with
+    ``deleted`` rows out of the linearised fit."""
+    a_s = a[deleted]  # (s, r)
+    m = np.linalg.pinv(np.eye(len(deleted)) - a_s @ a_s.T)  # (I − H_SS)⁻¹
+    cross = a @ a_s.T  # H_{·S}, (n, s)
+    e_s = m @ res[deleted]
+    r_new = res + cross @ e_s
+    h_new = np.sum(a * a, axis=1) + np.sum((cross @ m) * cross, axis=1)
+    rest = inside.copy()
+    rest[deleted] = False
+    t_new = np.where(rest, r_new / np.sqrt(np.clip(1.0 - h_new, 1e-6, None)), t)
+    t_new[deleted] = e_s / np.sqrt(np.clip(np.diag(m), 1e-6, None))
+    scale = _mad_scale(t_new[rest], floor_mm)
+    return np.abs(t_new) / scale, scale, float(np.sum(1.0 - h_new[rest]))
