@@ -284,16 +284,18 @@ class _Solved:
 
 
 def _screen(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOptions,
-            floor_mm: float) -> robust.Screening:  # fmt: skip
+            floor_mm: float, first: robust.Screening | None) -> robust.Screening:  # fmt: skip
     """The outlier screening of every training row at ``x`` under weights ``w`` (n,), the
-    prior's rows counted in the leverage (:func:`calib.robust.screen`). ``problem`` has unit
-    weights, so its Jacobian's data rows are the unweighted ones."""
+    prior's rows counted in the leverage (:func:`calib.robust.screen`); whether ``auto``
+    screens is decided on the ``first`` (plain) fit. ``problem`` has unit weights, so its
+    Jacobian's data rows are the unweighted ones."""
     ev = problem.evaluate(x)
     assert ev.jacobian is not None
     n = problem.n_samples
     prior_jac = ev.jacobian[n:] if problem.has_prior else None
     return robust.screen(opts.robust, ev.residual[:n], ev.jacobian[:n], w, prior_jac,
-                         opts.flag_threshold, floor_mm)  # fmt: skip
+                         opts.flag_threshold, floor_mm,
+                         None if first is None else first.screening)  # fmt: skip
 
 
 def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) -> _Solved:
@@ -306,6 +308,7 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
     rejecting = opts.robust in robust.REJECTING
     weights = np.ones(n)
     scr: robust.Screening | None = None
+    first: robust.Screening | None = None
     rounds = 1 if opts.robust == "none" else REJECT_ROUNDS if rejecting else 8
     seen: list[FloatArray] = []
     result: SolverResult | None = None
@@ -322,10 +325,11 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
         x = result.x
         if opts.robust == "none":
             break
-        scr = _screen(problem, x, weights, opts, floor_mm)
+        scr = _screen(problem, x, weights, opts, floor_mm, first)
+        first = first or scr
         u, thr = scr.u, scr.threshold
         if rejecting:
-            new_w = (~scr.flags()).astype(float)
+            new_w = (~scr.rejected(weights)).astype(float)
         else:
             new_w = robust.WEIGHTS[opts.robust](u, opts.robust_k)
         if np.max(np.abs(new_w - weights)) < 1e-3 or r == rounds - 1:

@@ -4,7 +4,7 @@ Residuals are first made comparable. A row in the fit with leverage ``h_i`` (the
 the hat matrix of the stacked data + prior problem, :func:`leverage`: the prior's rows count,
 so a parameter the prior holds does not make a row look more fitted than it is) has a residual
 of variance ``σ²(1 − h_i)``; an excluded row's prediction error has ``σ²(1 + g_i)``. Dividing
-by those factors gives studentised residuals ``t`` (:func:`studentised`) of variance ``σ²``
+by those factors gives studentised residuals ``t`` (:func:`screen`) of variance ``σ²``
 each. ``Σ (1 − h_i)`` over the rows in the fit is the redundancy ``ν = n − p_eff``: the
 degrees of freedom left after the fit, the prior's effective parameters included.
 
@@ -142,26 +142,6 @@ def _projection(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None) ->
     return np.asarray(((jac / norms) @ vt[keep].T) / sv[keep])
 
 
-def studentised(
-    res: FloatArray, jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None = None
-) -> FloatArray:
-    """Residuals divided by their leverage factor, shape (n,) [mm].
-
-    ``res`` (n,) unweighted residuals [mm], ``jac``, ``w``, ``prior_jac`` as for
-    :func:`leverage`: a row in the fit (``w_i > 0``) is divided by ``sqrt(1 − w_i g_i)``, an
-    excluded row by ``sqrt(1 + g_i)``.
-    """
-    g = leverage(jac, w, prior_jac)
-    factor = np.where(w > 0, 1.0 - w * g, 1.0 + g)
-    return np.asarray(res / np.sqrt(np.clip(factor, 1e-6, None)))
-
-
-def standardised(res: FloatArray, floor_mm: float = 0.0) -> FloatArray:
-    """``|r| / s``, shape (n,), with ``s`` = 1.4826 MAD of ``res`` [mm], at least ``floor_mm``
-    and 1e-6 mm."""
-    return np.asarray(np.abs(res) / _mad_scale(res, floor_mm))
-
-
 def _mad_scale(res: FloatArray, floor_mm: float) -> float:
     med = np.median(res)
     return max(1.4826 * float(np.median(np.abs(res - med))), floor_mm, 1e-6)
@@ -203,9 +183,29 @@ class Screening:
     n_in: int = 0
     n_params: int = 0
 
+    def severity(self) -> FloatArray:
+        """How far beyond its bound each row is, (n,): the larger of ``u`` over the threshold
+        and the deletion residual over :data:`GROSS_ERROR_MM`; above 1 is flagged."""
+        over = self.u / self.threshold if math.isfinite(self.threshold) else 0.0 * self.u
+        return np.asarray(np.maximum(over, np.abs(self.deletion_mm) / GROSS_ERROR_MM))
+
     def flags(self) -> np.ndarray:
         """Rows beyond the threshold or the gross-error bound, bool (n,)."""
-        return np.asarray((self.u > self.threshold) | (np.abs(self.deletion_mm) > GROSS_ERROR_MM))
+        return np.asarray(self.severity() > 1.0)
+
+    def rejected(self, w: FloatArray) -> np.ndarray:
+        """The rows the next fit leaves out, bool (n,), given this fit's weights ``w`` (n,):
+        rows left out already that are still flagged, and the rows newly flagged whose
+        severity is at least :data:`PEEL` of the largest newly flagged one. An outlier of
+        centimetres pulls the fit and makes good rows look bad (their residuals and deletion
+        residuals grow with it), so the grossest go first and the rest are judged again by
+        the refit without them."""
+        sev = self.severity()
+        flagged = sev > 1.0
+        new = flagged & (w > 0)
+        if not new.any():
+            return np.asarray(flagged)
+        return np.asarray((flagged & (w == 0)) | (new & (sev >= PEEL * float(sev[new].max()))))
 
     def rows_short(self) -> int:
         """Rows in the fit that would let ``auto`` screen whatever the prior's share: those of
@@ -219,14 +219,17 @@ class Screening:
 
 def screen(
     mode: str, res: FloatArray, jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None,
-    flag_threshold: float, floor_mm: float = 0.0,
+    flag_threshold: float, floor_mm: float = 0.0, screening: bool | None = None,
 ) -> Screening:  # fmt: skip
     """Screen the residuals of one fit for outliers.
 
     ``mode`` the ``robust`` option; ``res`` (n,) unweighted residuals [mm]; ``jac``, ``w``,
     ``prior_jac`` as for :func:`leverage`; ``flag_threshold`` the option [robust σ] (the
     threshold of ``reject``, huber's and soft-L1's flag, and the least threshold of ``auto``);
-    ``floor_mm`` the least scale (:func:`calib.noise.noise_floor_mm`).
+    ``floor_mm`` the least scale (:func:`calib.noise.noise_floor_mm`); ``screening`` whether
+    ``auto`` screens, None to decide by the redundancy of this fit (the rejection loop decides
+    on its first, plain fit and keeps the decision, so that rejecting rows near the bound does
+    not switch the screening off and on).
     """
     proj = _projection(jac, w, prior_jac)
     g = np.sum(proj * proj, axis=1)
@@ -239,56 +242,80 @@ def screen(
     redundancy = float(np.sum(1.0 - h[inside]))
     n_in = int(np.count_nonzero(inside))
     if mode == "auto":
-        screening = redundancy >= SCREEN_MIN_DOF
+        if screening is None:
+            screening = redundancy >= SCREEN_MIN_DOF
         thr = auto_threshold(n_in, flag_threshold, redundancy - 1.0) if screening else math.inf
     else:
         screening, thr = True, flag_threshold
     u = np.abs(t) / scale
-    if mode in REJECTING and screening and np.all((w == 0) | (w == 1)):
-        u, scale = _unmasked(np.sqrt(w)[:, None] * proj, res, t, inside, scale, floor_mm)
-    return Screening(u, deletion, scale, redundancy, thr, screening, n_in,
+    if mode in REJECTING and bool(screening) and np.all((w == 0) | (w == 1)):
+        u = _unmasked(np.sqrt(w)[:, None] * proj, res, t, inside, scale, floor_mm)
+    return Screening(u, deletion, scale, redundancy, thr, bool(screening), n_in,
                      int(jac.shape[1]))  # fmt: skip
 
 
-#: A row joins the backward search's deleted set when deleting it (with the set) cuts the
-#: robust scale of the other rows below this share of the scale before (:func:`_unmasked`).
-SCALE_DROP = 0.7
+#: Share of the largest severity a newly flagged row needs to be rejected in the same round
+#: (:meth:`Screening.rejected`).
+PEEL = 0.1
+#: The backward search (:func:`_unmasked`) sets rows aside only when that cuts the robust
+#: scale of the rest to this share of the scale before, or less: outliers of millimetres that
+#: mask each other inflate it tens of times (virtual cells, 0.02 mm noise: 46-59×), while
+#: deleting up to ten of the largest good rows shrinks it up to 4.5× (their residuals are
+#: the tails, and each deletion takes a degree of freedom).
+SCALE_DROP = 0.1
+#: The backward search keeps the first deleted set whose scale is within this factor of the
+#: least along its path (the elbow).
+ELBOW = 1.5
+#: Most rows the backward search deletes (it also stops where the rest would have less than
+#: :data:`calib.options.SCREEN_MIN_DOF` redundancy, and at a fifth of the rows).
+MAX_DELETIONS = 10
 
 
 def _unmasked(
     a: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray, scale: float,
     floor_mm: float,
-) -> tuple[FloatArray, float]:  # fmt: skip
-    """Standardised residuals (n,) and scale [mm] once outliers that mask each other are set
-    aside: a backward search in the linearised fit.
+) -> FloatArray:  # fmt: skip
+    """Standardised residuals (n,) once outliers that mask each other are set aside: a
+    backward search in the linearised fit.
 
     With few rows to spare, a least-squares fit spreads an outlier over the other residuals
     (``r = (I − H) e``), so two outliers can inflate the MAD scale until neither stands out.
     Deleting a set ``S`` of rows from the fit changes the other rows' residuals to
     ``r + H_{·S} (I − H_SS)⁻¹ r_S`` and leverages to ``h + diag(H_{·S} (I − H_SS)⁻¹ H_{S·})``
     without a refit. Rows are deleted one at a time, the largest studentised residual of the
-    rest first, as long as each deletion cuts the robust scale of the rest below
-    :data:`SCALE_DROP` of what it was (a good row's deletion moves a median by a few per cent)
-    and leaves the rest the redundancy screening needs (:data:`calib.options.SCREEN_MIN_DOF`:
-    with less, the scale of the rest is itself too uncertain).
-    The rest are then standardised by their scale after deletion, each deleted row by its
-    prediction error ``((I − H_SS)⁻¹ r_S)_i / sqrt(((I − H_SS)⁻¹)_ii)``. ``a`` (n, r): the
-    rows in the fit's factor of the hat matrix ``H = a aᵀ`` (zero rows for excluded rows);
-    ``t`` (n,) the studentised residuals [mm]. Excluded rows keep ``|t|`` over the new scale.
+    rest first (at most :data:`MAX_DELETIONS`, a fifth of the rows, and while the rest keep the
+    redundancy screening needs, :data:`calib.options.SCREEN_MIN_DOF`). If the smallest robust
+    scale of the rest along the way is at most :data:`SCALE_DROP` of the scale before, the
+    first deleted set whose scale is within :data:`ELBOW` of that smallest is judged by its
+    prediction errors ``((I − H_SS)⁻¹ r_S)_i / sqrt(((I − H_SS)⁻¹)_ii)`` over the scale of the
+    rest. The other rows keep their standardised residuals until the refit without the rows
+    flagged: the linearisation is rough while centimetres pull the fit, and could make good
+    rows look like outliers. ``a`` (n, r): the rows in the fit's factor of the hat matrix
+    ``H = a aᵀ`` (zero rows for excluded rows); ``t`` (n,) the studentised residuals [mm].
     """
-    rows = np.flatnonzero(inside)
     deleted: list[int] = []
-    u = np.abs(t) / scale
-    for _ in range(max(1, rows.size // 5)):
-        cand_u = np.abs(u).copy()
+    u0 = np.abs(t) / scale
+    u = u0
+    path: list[tuple[list[int], FloatArray, float]] = []
+    for _ in range(min(MAX_DELETIONS, int(np.count_nonzero(inside)) // 5)):
+        cand_u = u.copy()
         cand_u[~inside] = -1.0
         cand_u[deleted] = -1.0
         trial = [*deleted, int(np.argmax(cand_u))]
         new_u, new_scale, redundancy = _deleted(a, res, t, inside, trial, floor_mm)
-        if redundancy < SCREEN_MIN_DOF or not new_scale < SCALE_DROP * scale:
+        if redundancy < SCREEN_MIN_DOF:
             break
-        deleted, u, scale = trial, new_u, new_scale
-    return u, scale
+        deleted, u = trial, new_u
+        path.append((trial, new_u, new_scale))
+    least = min((sc for _, _, sc in path), default=scale)
+    if least > SCALE_DROP * scale:
+        return u0
+    # the first set that comes close to the least scale: deleting more good rows after the
+    # outliers only trims the tails of the rest and shrinks its scale a little further
+    rows, u_set, _ = next(p for p in path if p[2] <= ELBOW * least)
+    out = u0.copy()
+    out[rows] = u_set[rows]
+    return out
 
 
 def _deleted(
