@@ -24,7 +24,7 @@ RMI_MOVE TP program and keeps program control until ``FRC_Abort``, which would s
 operator's own program from running the calibration plan. ``FRC_ReadJointAngles`` needs only
 the connection (manual 2.3: commands available once ``FRC_Connect`` is accepted).
 
-Why the protocol is written here: the public Python client fanuc-rmi (0.3.1, 2025) is
+Why the protocol is written here: the public Python client fanuc-rmi (0.3.1) is
 blocking, prints every packet, appends every joint reading to a JSONL file in the working
 directory, and reads the session port from a ``Port`` key where the manual (and FANUC's C++
 client) say ``PortNumber``, so against a real controller it only works by falling back to
