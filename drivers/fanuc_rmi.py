@@ -35,9 +35,11 @@ Late replies: RMI command replies carry no request id (``TimeTag`` is the contro
 clock, not an echo), but replies come in request order on one TCP stream. After a request
 got no reply in time, the next request is preceded by a marker, ``FRC_GetStatus``, and every
 ``FRC_ReadJointAngles`` reply before the marker's reply is discarded (it answers an
-abandoned request); no joint request is sent while a marker is outstanding. A reply is thus
-never attributed to the wrong request, and a dropped reply costs no reconnect. A marker
-answered with an error (e.g. RMIT-027, previous command not done) still marks the position.
+abandoned request); no joint request is sent while a marker is outstanding. Only a marker
+answered with ``ErrorID`` 0 counts: the controller accepts a command only when the previous
+one is done (else RMIT-027, Wait for Command Done, possibly before the earlier reply), so an
+accepted marker comes after every earlier reply; a refused one is followed by another. A
+reply is thus never attributed to the wrong request, and a dropped reply costs no reconnect.
 """
 
 from __future__ import annotations
@@ -189,8 +191,10 @@ class FanucRmiConfig(LinkConfig):
     group: Annotated[int, Field(ge=1, le=8)] = 1
 
 
-#: The marker command sent after a silent request (see the module docstring).
+#: The marker command sent after a silent request (see the module docstring), and the pause
+#: before another marker when one is refused [s].
 MARKER = "FRC_GetStatus"
+MARKER_PAUSE_S = 0.01
 
 
 class FanucRmiRobot(LinkedRobot):
@@ -281,10 +285,14 @@ class FanucRmiRobot(LinkedRobot):
             raise LinkLost("not connected")
         deadline = time.monotonic() + timeout_s
         try:
-            if self._unsynced:
+            while self._unsynced:
                 await self._send({"Command": MARKER})
-                await self._await_reply(MARKER, deadline)
-                self._unsynced = False
+                marker = await self._await_reply(MARKER, deadline)
+                if marker.get("ErrorID") == 0:
+                    self._unsynced = False
+                else:  # refused (RMIT-027): an earlier command is still running
+                    self.frames.note(f"marker refused ({marker.get('ErrorID')}); retrying")
+                    await asyncio.sleep(min(MARKER_PAUSE_S, max(deadline - time.monotonic(), 0)))
             await self._send(self._request())
             reply = await self._await_reply("FRC_ReadJointAngles", deadline)
         except TimeoutError:

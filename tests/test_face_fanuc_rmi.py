@@ -293,3 +293,34 @@ async def test_unreadable_packet_closes_the_session_and_the_next_read_reopens(
     truth = np.asarray(sim.control("state")["joints_deg"])
     assert np.abs(np.asarray(reading.joints_deg) - truth).max() <= RESOLUTION_DEG
     assert robot.connects == 2
+
+
+async def test_refused_marker_is_not_taken_for_synchronisation() -> None:
+    """Scripted controller: the joint request goes unanswered; the marker is refused with
+    RMIT-027 (Wait for Command Done) *before* the late joint reply arrives; only the second,
+    accepted marker re-synchronises, and the value returned is the new reply's, never the
+    late one's."""
+    old, new = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0], [11.0, 12.0, 13.0, 14.0, 15.0, 16.0]
+    marker = encode_packet({"Command": "FRC_GetStatus"})
+    refused = encode_packet({"Command": "FRC_GetStatus", "ErrorID": 2556955})
+    accepted = encode_packet({"Command": "FRC_GetStatus", "ErrorID": 0, "ServoReady": 1})
+    bye = {"Communication": "FRC_Disconnect"}
+    session = [
+        (READ, b""),  # silent: the driver retries after fast_reply_timeout_s
+        (marker, refused + _joint_reply(old)),
+        (marker, accepted),
+        (READ, _joint_reply(new)),
+        (encode_packet(bye), encode_packet(bye | {"ErrorID": 0})),
+    ]
+    async with expected_protocol_tcp(session) as session_port:
+        hello_reply = {"Communication": "FRC_Connect", "ErrorID": 0, "PortNumber": session_port}
+        hello = [(encode_packet({"Communication": "FRC_Connect"}), encode_packet(hello_reply))]
+        async with expected_protocol_tcp(hello) as port:
+            cfg = FanucRmiConfig(port=port, retries=1, fast_reply_timeout_s=0.1, timeout_s=2.0)
+            robot = FanucRmiRobot(cfg)
+            try:
+                assert (await robot.read_joints()).joints_deg == tuple(new)
+                assert robot.late_discarded == 1
+                assert robot.attempts.recovered_total == 1
+            finally:
+                await robot.close()
