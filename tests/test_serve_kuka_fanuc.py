@@ -21,7 +21,7 @@ from daemon.cli.emulated import (
 )
 
 #: Samples captured per kind [count].
-N_SAMPLES = 3
+N_SAMPLES = 2
 
 
 def _enough_samples(api: httpx.Client, campaign: int) -> list[dict[str, Any]] | None:
