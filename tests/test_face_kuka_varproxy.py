@@ -149,15 +149,15 @@ async def test_driver_reads_the_truth_through_drops_and_late_replies(
     good: list[tuple[float, ...]] = []
     errors: list[RobotError] = []
     try:
-        for _ in range(60):
+        for _ in range(40):
             try:
                 good.append((await robot.read_joints()).joints_deg)
             except RobotError as exc:
                 errors.append(exc)
     finally:
         await robot.close()
-    assert robot.attempts.silent_total >= 5, robot.attempts.silent_total  # faults exercised
-    assert len(good) >= 55, [str(e) for e in errors]
+    assert robot.attempts.silent_total >= 4, robot.attempts.silent_total  # faults exercised
+    assert len(good) >= 37, [str(e) for e in errors]
     assert np.abs(np.asarray(good) - truth).max() <= RESOLUTION_DEG
     assert robot.late_discarded >= 2  # late replies came and were not taken
 
