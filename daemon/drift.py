@@ -195,6 +195,7 @@ class DriftMonitor:
         for check in checks:
             if check["status"] in ("ok", "drift") and check["rms_mm"] is not None:
                 metrics.DRIFT_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
+                metrics.DRIFT_THRESHOLD.labels(str(check["robot_id"])).set(check["threshold_mm"])
         self._remember_last(checks)
         if self.settings.check_interval_h:
             self._schedule = asyncio.create_task(self._scheduled(), name="drift-schedule")
@@ -303,6 +304,7 @@ class DriftMonitor:
             message = f"check {row['id']} of robot {robot} failed: {error}"
         else:
             metrics.DRIFT_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
+            metrics.DRIFT_THRESHOLD.labels(str(robot)).set(float(row["threshold_mm"]))
             message = (f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
                        f"threshold {row['threshold_mm']:.4f} mm: {status}")  # fmt: skip
         kind = "drift" if status == "drift" else "drift_check"

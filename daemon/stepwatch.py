@@ -11,9 +11,11 @@ Two questions a plant engineer asks while a campaign runs or a check comes back:
    the recent clean residuals (their median, which follows a slow drift), is beyond the band
    ``max(k_sigma × scale, min_step_mm / 2)``; ``scale`` is the MAD-based sigma of the recent
    clean residuals (before 5 are known: ``prior_scale_mm``, the fit's own residual RMSE), at
-   least ``sigma_floor_mm``. A CUSUM of exceedances (+1 beyond the band,
-   −1 inside, floored at 0) raises an alarm when it reaches ``min_run`` and at least
-   ``min_run`` samples since the run began exceeded: one outlier (or two) is never a move.
+   least ``sigma_floor_mm``. A CUSUM of exceedances (+1 beyond the band, −``clean_decay``
+   inside) opens a run at the first exceedance and closes it when it falls back to 0; an
+   alarm needs ``min_run`` exceedances within one run, so one outlier (or two) is never a
+   move, while a pose whose cable happens to be square to the bump (inside the band) does
+   not end the run.
    Exceedances of either sign count, so a bump across the cable, which lengthens some poses'
    cable and shortens others', is seen as well as one along it. The run's first sample is
    where the sensor moved; the alarm names it and the median length change.
@@ -54,11 +56,12 @@ class StepSettings:
     min_step_mm: float = 1.0  # smallest length change called a move [mm]
     sigma_floor_mm: float = 0.05  # the scale never goes below this [mm]
     k_sigma: float = 5.0  # band half-width in scales
-    min_run: int = 3  # exceedances needed (and CUSUM level) for an alarm
+    min_run: int = 3  # exceedances within one run needed for an alarm
+    clean_decay: float = 0.5  # CUSUM decrement per sample inside the band
     history: int = 30  # clean residuals kept for level and scale
 
     def __post_init__(self) -> None:
-        for name in ("min_step_mm", "sigma_floor_mm", "k_sigma"):
+        for name in ("min_step_mm", "sigma_floor_mm", "k_sigma", "clean_decay"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
@@ -101,7 +104,7 @@ class StepDetector:
     settings: StepSettings = field(default_factory=StepSettings)
     _clean: deque[float] = field(init=False)
     _run: list[tuple[Hashable, float, bool]] = field(init=False, default_factory=list)
-    _score: int = field(init=False, default=0)
+    _score: float = field(init=False, default=0.0)
     #: Scale [mm] to use until 5 clean residuals are known (e.g. the fit's residual RMSE).
     prior_scale_mm: float = 0.0
 
@@ -112,7 +115,7 @@ class StepDetector:
         """Forget everything (after a move: the new anchor session starts afresh)."""
         self._clean.clear()
         self._run.clear()
-        self._score = 0
+        self._score = 0.0
 
     @property
     def level_mm(self) -> float:
@@ -151,13 +154,13 @@ class StepDetector:
             self._score += 1
             self._run.append((key, d, True))
         elif self._run:
-            self._score = max(0, self._score - 1)
+            self._score = max(0.0, self._score - self.settings.clean_decay)
             self._run.append((key, d, False))
         else:
             self._clean.append(residual_mm)
         if not self._run:
             return None
-        if self._score == 0:
+        if self._score <= 0.0:
             # The run died out: its samples were outliers; the clean ones rejoin the history.
             for _, dev, bad in self._run:
                 if not bad:
@@ -165,7 +168,7 @@ class StepDetector:
             self._run.clear()
             return None
         over = [dev for _, dev, bad in self._run if bad]
-        if self._score >= self.settings.min_run and len(over) >= self.settings.min_run:
+        if len(over) >= self.settings.min_run:
             step = float(np.median(over))
             size = float(np.median(np.abs(over)))
             alarm = StepAlarm(self._run[0][0], self.suspects, step, size, len(self._run))

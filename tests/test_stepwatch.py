@@ -99,3 +99,10 @@ def test_explain_change_tells_a_moved_sensor_from_a_joint_offset() -> None:
     assert explain_change(rezero, a, j, noise_mm=0.02)["kind"] == "sensor"
     # Too few poses to tell.
     assert explain_change(sensor[:5], a[:5], j[:5], noise_mm=0.02)["kind"] == "unclear"
+
+
+def test_a_pose_square_to_the_bump_does_not_end_the_run() -> None:
+    det = StepDetector()
+    feed(det, np.random.default_rng(6).normal(0.0, 0.05, 20))
+    alarms = feed(det, np.array([3.9, 0.3, 3.8, 3.9]), start=20)
+    assert [(at, a.first_key, a.keys) for at, a in alarms] == [(23, 20, (20, 21, 22, 23))]

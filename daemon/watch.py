@@ -1,0 +1,371 @@
+"""Live sensor watch: after each new sample, did the drawstring sensor move?
+
+The flow (the decisions are pure, in :mod:`daemon.stepwatch`):
+
+1. The sampler's sink is wrapped (:meth:`SensorWatch.wrap`): every stored capture is queued
+   for its campaign, and one task per campaign takes them in order, off the event loop.
+2. The **running fit** predicts the new sample's cable length without having seen it. It is
+   fitted on the campaign's included samples so far, minus those under suspicion, and
+   refitted as the campaign grows (after each new sample while small, every ~10 % later):
+
+   - ``identify``: the campaign's own full identification (DH errors, tool, every anchor's P0
+     and c; :func:`calib.identify.identify`, no hold-out, no robust pass) once there are
+     enough samples for it (25 with one anchor); mm-level DH errors then stay out of the
+     residuals (0.01-0.05 mm on the emulated cell, where the nominal model leaves 3-4 mm);
+   - ``calibration``: before that, the robot's accepted calibration with this campaign's
+     anchors (P0 and c) fitted;
+   - ``nominal``: else the nominal model with the anchors fitted. Its residuals are as large
+     as the DH errors, so the test's scale (their RMSE) makes it blind to bumps of that size;
+     it still catches a gross one.
+
+   An anchor with fewer than 5 samples cannot be located: its samples are not tested (the
+   first samples of a campaign and of a new anchor session).
+3. :class:`daemon.stepwatch.StepDetector` tests the residual. On an alarm the samples from the
+   run's first on go to a new anchor session (:func:`daemon.stepwatch.next_anchor`), auto
+   capture goes on with it, and the event ``sensor_moved`` (size, first sample id and row),
+   the counter ``cablecal_sensor_moved_total`` and the ``watch`` block of ``GET /status``
+   (the page's banner) tell the operator, who can undo it
+   (``POST /campaigns/{id}/sensor-moved/undo``: :meth:`SensorWatch.undo`).
+
+numpy and ``calib`` are imported inside the functions that use them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+from daemon import metrics
+from daemon.stepwatch import StepDetector, StepSettings, next_anchor
+
+if TYPE_CHECKING:
+    from calib.cable import ParamLayout
+    from calib.dataset import SampleSet
+    from calib.kinematics import FloatArray
+    from calib.models import RobotModel
+    from daemon.capture import Capture, CaptureSink
+    from daemon.store import Store
+
+log = logging.getLogger("cablecal.watch")
+
+FitKind = Literal["identify", "calibration", "nominal"]
+#: Samples an anchor needs before it can be located (:func:`calib.identify.fit_anchors`).
+MIN_ANCHOR_SAMPLES = 5
+#: Refit when the clean samples grew by this fraction since the last fit (at least one).
+REFIT_FRACTION = 0.1
+
+SENSOR_MOVED = "sensor_moved"
+SENSOR_MOVED_UNDONE = "sensor_moved_undone"
+
+
+class NothingToUndo(LookupError):
+    """The campaign has no automatic anchor split left to undo."""
+
+
+@dataclass
+class RunningFit:
+    """A fitted model of one campaign: predicts a sample's cable length [mm]."""
+
+    kind: FitKind
+    model: RobotModel
+    layout: ParamLayout
+    theta: FloatArray
+    rmse_mm: float
+    n_rows: int
+
+    def predict_mm(self, joints_deg: FloatArray, anchor: str) -> float | None:
+        """The predicted length [mm] of one pose (6,) [deg]; None for an anchor not fitted."""
+        import numpy as np
+
+        from calib.cable import predict_lengths
+
+        if anchor not in self.layout.anchors:
+            return None
+        q = np.deg2rad(np.asarray(joints_deg, dtype=float).reshape(1, 6))
+        index = np.array([self.layout.anchors.index(anchor)])
+        return float(predict_lengths(self.model, self.theta, q, index)[0])
+
+
+def fit_campaign(
+    samples: SampleSet, nominal: RobotModel, calibration: Mapping[str, Any] | None
+) -> RunningFit | None:
+    """The running fit of ``samples`` (see the module docstring); None when no anchor has
+    :data:`MIN_ANCHOR_SAMPLES` samples. Pure computation (runs in a worker thread)."""
+    import numpy as np
+
+    from calib.cable import ParamLayout, predict_lengths
+    from calib.dataset import SampleError
+    from calib.export import model_from_result
+    from calib.identify import IdentifyOptions, fit_anchors, identify
+
+    counts = {a: samples.anchor.count(a) for a in samples.anchor_ids}
+    keep = np.array([counts[a] >= MIN_ANCHOR_SAMPLES for a in samples.anchor])
+    if not keep.any():
+        return None
+    sub = samples.subset(np.flatnonzero(keep)) if not keep.all() else samples
+    q, length = sub.joints_deg, sub.length_mm
+    names = {f.name for f in dataclasses.fields(IdentifyOptions)}
+    extra: dict[str, Any] = {"drift": "none"} if "drift" in names else {}
+    try:
+        res = identify(nominal, sub, IdentifyOptions(test_fraction=0.0, robust="none", **extra))
+        model, layout, theta, kind = res.model, res.layout, res.theta, "identify"
+    except (SampleError, ValueError, np.linalg.LinAlgError):
+        layout = ParamLayout(sub.anchor_ids)
+        model = nominal if calibration is None else model_from_result(calibration)
+        kind = "nominal" if calibration is None else "calibration"
+        theta = fit_anchors(model, layout, np.zeros(layout.size), np.deg2rad(q),
+                            sub.anchor_index(), length)  # fmt: skip
+    fitted = predict_lengths(model, theta, np.deg2rad(q), sub.anchor_index())
+    rmse = float(np.sqrt(np.mean((length - fitted) ** 2)))
+    return RunningFit(kind, model, layout, theta, rmse, len(sub))  # type: ignore[arg-type]
+
+
+@dataclass
+class CampaignWatch:
+    """The watch's state of one campaign."""
+
+    campaign_id: int
+    robot_id: int
+    detector: StepDetector
+    queue: list[dict[str, Any]] = field(default_factory=list)
+    fit: RunningFit | None = None
+    fit_clean: int = 0  # clean samples the fit saw
+    task: asyncio.Task[None] | None = None
+    tested: int = 0
+    last_residual_mm: float | None = None
+
+
+class WatchedSink:
+    """A :class:`daemon.capture.CaptureSink` that tells the watch about each stored capture
+    (everything else goes to the wrapped sink)."""
+
+    def __init__(self, inner: CaptureSink, watch: SensorWatch) -> None:
+        self._inner = inner
+        self._watch = watch
+
+    def store_capture(self, campaign_id: int, capture: Capture) -> Mapping[str, Any]:
+        row = self._inner.store_capture(campaign_id, capture)
+        self._watch.saw_sample(campaign_id, dict(row))
+        return row
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+
+class SensorWatch:
+    """Watches every campaign's new samples for a moved sensor (see the module docstring).
+
+    Parameters
+    ----------
+    store : Store
+    settings : StepSettings
+    sampler : object or None
+        The daemon's sampler (``auto_campaign_id``, ``set_auto_anchor``).
+    enabled : bool
+    """
+
+    def __init__(
+        self, store: Store, settings: StepSettings, sampler: Any = None, enabled: bool = True
+    ) -> None:
+        self.store = store
+        self.settings = settings
+        self.sampler = sampler
+        self.enabled = enabled
+        self._campaigns: dict[int, CampaignWatch] = {}
+        #: Newest unacknowledged move per campaign (the page's banner): the event detail.
+        self._moves: dict[int, dict[str, Any]] = {}
+
+    def wrap(self, sink: CaptureSink) -> WatchedSink:
+        """``sink`` with this watch listening to its stored captures."""
+        return WatchedSink(sink, self)
+
+    async def stop(self) -> None:
+        """Cancel the campaigns' tasks."""
+        for cw in self._campaigns.values():
+            if cw.task is not None:
+                cw.task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await cw.task
+
+    async def idle(self) -> None:
+        """Wait until every queued sample was tested (tests and benchmarks)."""
+        while any(cw.task is not None and not cw.task.done() for cw in self._campaigns.values()):
+            await asyncio.sleep(0.01)
+
+    # ------------------------------------------------------------------ per sample
+    def saw_sample(self, campaign_id: int, row: dict[str, Any]) -> None:
+        """A sample was stored (called on the event loop, from the sink): queue it."""
+        if not self.enabled:
+            return
+        cw = self._campaigns.get(campaign_id)
+        if cw is None:
+            try:
+                robot_id = int(self.store.campaign(campaign_id)["robot_id"])
+            except Exception:
+                log.exception("watch: campaign %d unreadable", campaign_id)
+                return
+            cw = CampaignWatch(campaign_id, robot_id, StepDetector(self.settings))
+            self._campaigns[campaign_id] = cw
+            metrics.SENSOR_MOVED.labels(str(robot_id))  # the series exists at 0 (alerts)
+        cw.queue.append(row)
+        if cw.task is None or cw.task.done():
+            cw.task = asyncio.get_running_loop().create_task(
+                self._drain(cw), name=f"watch-{campaign_id}"
+            )
+
+    async def _drain(self, cw: CampaignWatch) -> None:
+        while cw.queue:
+            row = cw.queue.pop(0)
+            try:
+                await self._test(cw, row)
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("watch: testing sample %s failed", row.get("id"))
+
+    async def _test(self, cw: CampaignWatch, row: dict[str, Any]) -> None:
+        import numpy as np
+
+        sample_id = int(row["id"])
+        current = self.store.get_sample(sample_id)
+        if current is None or current["excluded"]:
+            return
+        samples, ids = self.store.sample_set(cw.campaign_id)
+        suspects = set(cw.detector.suspects)
+        clean = [i for i, sid in enumerate(ids) if sid < sample_id and sid not in suspects]
+        if cw.fit is None or len(clean) - cw.fit_clean >= max(1, REFIT_FRACTION * cw.fit_clean):
+            await self._refit(cw, samples.subset(np.array(clean, dtype=int)), len(clean))
+        fit = cw.fit
+        if fit is None:
+            return
+        row_q = (current["q1"], current["q2"], current["q3"], current["q4"], current["q5"],
+                 current["q6"])  # fmt: skip
+        q: FloatArray = np.asarray(row_q, dtype=np.float64)
+        predicted = fit.predict_mm(q, str(current["anchor"]))
+        if predicted is None:
+            return
+        residual = float(current["length_mm"]) - predicted
+        cw.tested += 1
+        cw.last_residual_mm = residual
+        alarm = cw.detector.update(sample_id, residual)
+        if alarm is not None:
+            self._moved(cw, alarm, ids)
+
+    async def _refit(self, cw: CampaignWatch, samples: SampleSet, n_clean: int) -> None:
+        if len(samples) < MIN_ANCHOR_SAMPLES:
+            return
+        nominal = self.store.robot_model(cw.robot_id)
+        calibration: Mapping[str, Any] | None = None
+        with contextlib.suppress(Exception):
+            calibration = self.store.accepted_result(cw.robot_id)["result"]
+        fit = await asyncio.to_thread(fit_campaign, samples, nominal, calibration)
+        if fit is None:
+            return
+        if cw.fit is not None and cw.fit.kind != fit.kind:
+            cw.detector.reset()  # another model: the old residual scale no longer holds
+        cw.detector.prior_scale_mm = fit.rmse_mm
+        cw.fit, cw.fit_clean = fit, n_clean
+
+    # ------------------------------------------------------------------ a move
+    def _moved(self, cw: CampaignWatch, alarm: Any, ids: list[int]) -> None:
+        cid = cw.campaign_id
+        first = self.store.sample(int(alarm.first_key))
+        previous = str(first["anchor"])
+        campaign = self.store.campaign(cid)
+        new = next_anchor(previous, campaign["anchors"])
+        moved = [int(k) for k in alarm.keys]
+        self.store.move_samples_to_anchor(cid, moved, new)
+        auto = self.sampler is not None and self.sampler.auto_campaign_id == cid
+        if auto:
+            self.store.set_auto_capture(cid, True, new)
+            self.sampler.set_auto_anchor(new)
+        row = ids.index(moved[0]) + 1 if moved[0] in ids else None
+        fit = cw.fit
+        detail = {
+            "campaign_id": cid, "robot_id": cw.robot_id, "sample_id": moved[0], "row": row,
+            "detected_at_sample_id": moved[-1], "delay_samples": alarm.delay,
+            "step_mm": round(alarm.step_mm, 4), "size_mm": round(alarm.size_mm, 4),
+            "previous_anchor": previous, "new_anchor": new, "moved_sample_ids": moved,
+            "auto_capture_switched": auto, "fit": fit.kind if fit else None,
+            "fit_rmse_mm": round(fit.rmse_mm, 4) if fit else None,
+        }  # fmt: skip
+        message = (
+            f"sensor moved at sample {moved[0]} (row {row}) of campaign {cid}: length change "
+            f"{alarm.step_mm:+.2f} mm (median |change| {alarm.size_mm:.2f} mm); "
+            f"{len(moved)} sample(s) and the next captures go to new anchor {new!r}"
+        )
+        self.store.record_event(SENSOR_MOVED, None, message, detail, campaign_id=cid)
+        metrics.SENSOR_MOVED.labels(str(cw.robot_id)).inc()
+        self._moves[cid] = detail
+        cw.fit = None  # the new anchor has too few samples; refit from the next one
+        log.warning(message, extra={"campaign_id": cid, "sample_id": moved[0]})
+
+    def undo(self, campaign_id: int) -> dict[str, Any]:
+        """Undo the newest automatic anchor split of a campaign: its new anchor's samples go
+        back to the previous anchor, and so does auto capture when it uses the new one.
+
+        Raises
+        ------
+        daemon.store.StoreNotFound
+            No such campaign.
+        NothingToUndo
+            No ``sensor_moved`` event for the campaign, or it was undone already.
+        """
+        self.store.campaign(campaign_id)
+        events = self.store.list_events(kind=SENSOR_MOVED, campaign_id=campaign_id, limit=1)
+        if not events:
+            raise NothingToUndo(f"campaign {campaign_id} has no sensor_moved event")
+        event = events[-1]
+        undone = self.store.list_events(kind=SENSOR_MOVED_UNDONE, campaign_id=campaign_id,
+                                        limit=1)  # fmt: skip
+        if undone and (undone[-1]["detail"] or {}).get("event_id") == event["id"]:
+            raise NothingToUndo(f"sensor_moved event {event['id']} was undone already")
+        detail = event["detail"] or {}
+        new, previous = str(detail["new_anchor"]), str(detail["previous_anchor"])
+        ids = [int(r["id"]) for r in self.store.list_samples(campaign_id) if r["anchor"] == new]
+        self.store.move_samples_to_anchor(campaign_id, ids, previous)
+        auto = self.sampler is not None and self.sampler.auto_campaign_id == campaign_id
+        if auto and self.sampler.auto_anchor == new:
+            self.store.set_auto_capture(campaign_id, True, previous)
+            self.sampler.set_auto_anchor(previous)
+        out = {"event_id": event["id"], "anchor": previous, "from_anchor": new,
+               "sample_ids": ids}  # fmt: skip
+        self.store.record_event(
+            SENSOR_MOVED_UNDONE, None,
+            f"sensor move of campaign {campaign_id} undone by the operator: {len(ids)} "
+            f"sample(s) back from anchor {new!r} to {previous!r}", out, campaign_id=campaign_id,
+        )  # fmt: skip
+        self._moves.pop(campaign_id, None)
+        cw = self._campaigns.get(campaign_id)
+        if cw is not None:
+            cw.detector.reset()
+            cw.fit = None
+        return out
+
+    def status(self) -> dict[str, Any]:
+        """The ``watch`` block of ``GET /status``: ``enabled``, ``moves`` (per campaign with
+        an automatic split not undone since this start: the ``sensor_moved`` detail without
+        the sample id list), ``campaigns`` (per watched campaign: ``fit``, ``fit_rmse_mm``,
+        ``tested``, ``last_residual_mm``, ``band_mm``)."""
+        moves = [{k: v for k, v in d.items() if k != "moved_sample_ids"}
+                 for d in self._moves.values()]  # fmt: skip
+        campaigns = []
+        for cw in self._campaigns.values():
+            fit = cw.fit
+            campaigns.append({
+                "campaign_id": cw.campaign_id, "fit": fit.kind if fit else None,
+                "fit_rmse_mm": None if fit is None else _round(fit.rmse_mm),
+                "tested": cw.tested, "last_residual_mm": _round(cw.last_residual_mm),
+                "band_mm": _round(cw.detector.band_mm),
+            })  # fmt: skip
+        return {"enabled": self.enabled, "moves": moves, "campaigns": campaigns}
+
+
+def _round(v: float | None) -> float | None:
+    return None if v is None or not math.isfinite(v) else round(v, 4)
