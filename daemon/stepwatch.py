@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 import re
 from collections import deque
-from collections.abc import Hashable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -77,7 +76,7 @@ class StepAlarm:
 
     Attributes
     ----------
-    first_key : hashable
+    first_key : int
         Key (sample id) of the run's first sample: where the sensor moved.
     keys : tuple
         Keys of every sample since then (in order), exceeding or not: they belong to the new
@@ -90,8 +89,8 @@ class StepAlarm:
         Samples from the first of the run to the alarm, both counted.
     """
 
-    first_key: Hashable
-    keys: tuple[Hashable, ...]
+    first_key: int
+    keys: tuple[int, ...]
     step_mm: float
     size_mm: float
     delay: int
@@ -103,7 +102,7 @@ class StepDetector:
 
     settings: StepSettings = field(default_factory=StepSettings)
     _clean: deque[float] = field(init=False)
-    _run: list[tuple[Hashable, float, bool]] = field(init=False, default_factory=list)
+    _run: list[tuple[int, float, bool]] = field(init=False, default_factory=list)
     _score: float = field(init=False, default=0.0)
     #: Scale [mm] to use until 5 clean residuals are known (e.g. the fit's residual RMSE).
     prior_scale_mm: float = 0.0
@@ -138,12 +137,12 @@ class StepDetector:
         return max(s.k_sigma * self.scale_mm, s.min_step_mm / 2.0)
 
     @property
-    def suspects(self) -> tuple[Hashable, ...]:
+    def suspects(self) -> tuple[int, ...]:
         """Keys of the samples of the current run (not yet an alarm): a fit should leave
         them out."""
         return tuple(key for key, _, _ in self._run)
 
-    def update(self, key: Hashable, residual_mm: float) -> StepAlarm | None:
+    def update(self, key: int, residual_mm: float) -> StepAlarm | None:
         """Take one sample's residual [mm]; an alarm or None. A non-finite residual raises
         ``ValueError`` naming the key."""
         if not math.isfinite(residual_mm):

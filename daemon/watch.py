@@ -10,13 +10,17 @@ The flow (the decisions are pure, in :mod:`daemon.stepwatch`):
 
    - ``identify``: the campaign's own full identification (DH errors, tool, every anchor's P0
      and c; :func:`calib.identify.identify`, no hold-out, no robust pass) once there are
-     enough samples for it (25 with one anchor); mm-level DH errors then stay out of the
-     residuals (0.01-0.05 mm on the emulated cell, where the nominal model leaves 3-4 mm);
+     :data:`MIN_DOF` more samples than it solves parameters (30 with one anchor on the
+     HSR JR680); mm-level DH errors then stay out of the residuals;
    - ``calibration``: before that, the robot's accepted calibration with this campaign's
      anchors (P0 and c) fitted;
-   - ``nominal``: else the nominal model with the anchors fitted. Its residuals are as large
-     as the DH errors, so the test's scale (their RMSE) makes it blind to bumps of that size;
-     it still catches a gross one.
+   - ``nominal``: else the nominal model with the anchors fitted. Its prediction errors are
+     as large as the DH errors (several mm), as large as the bumps to find, so its residuals
+     are **not tested**: a campaign of a robot without a calibration is watched from its
+     ~30th sample on.
+
+   The test's scale starts from the fit's expected prediction error
+   (:attr:`RunningFit.scale_mm`) and then follows the tested residuals.
 
    An anchor with fewer than 5 samples cannot be located: its samples are not tested (the
    first samples of a campaign and of a new anchor session).
@@ -42,7 +46,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
 from daemon import metrics
-from daemon.stepwatch import StepDetector, StepSettings, next_anchor
+from daemon.stepwatch import StepAlarm, StepDetector, StepSettings, next_anchor
 
 if TYPE_CHECKING:
     from calib.cable import ParamLayout
@@ -57,6 +61,8 @@ log = logging.getLogger("cablecal.watch")
 FitKind = Literal["identify", "calibration", "nominal"]
 #: Samples an anchor needs before it can be located (:func:`calib.identify.fit_anchors`).
 MIN_ANCHOR_SAMPLES = 5
+#: Rows beyond the parameters a fit needs before its predictions are used (identify).
+MIN_DOF = 5
 #: Refit when the clean samples grew by this fraction since the last fit (at least one).
 REFIT_FRACTION = 0.1
 
@@ -78,6 +84,21 @@ class RunningFit:
     theta: FloatArray
     rmse_mm: float
     n_rows: int
+    n_params: int
+
+    @property
+    def testable(self) -> bool:
+        """Whether its predictions are good enough to test samples with: not the nominal
+        model (its errors are as large as a bump)."""
+        return self.kind != "nominal"
+
+    @property
+    def scale_mm(self) -> float:
+        """Expected 1σ prediction error of a new sample [mm]: the residual RMSE corrected
+        for the parameters fitted (``sqrt(n / (n − p))``) and for their uncertainty at a new
+        pose (``sqrt(1 + p / n)``, the mean leverage)."""
+        n, p = self.n_rows, self.n_params
+        return self.rmse_mm * math.sqrt(n / max(n - p, 1)) * math.sqrt(1.0 + p / n)
 
     def predict_mm(self, joints_deg: FloatArray, anchor: str) -> float | None:
         """The predicted length [mm] of one pose (6,) [deg]; None for an anchor not fitted."""
@@ -112,18 +133,83 @@ def fit_campaign(
     q, length = sub.joints_deg, sub.length_mm
     names = {f.name for f in dataclasses.fields(IdentifyOptions)}
     extra: dict[str, Any] = {"drift": "none"} if "drift" in names else {}
+    kind: FitKind | None = None
     try:
         res = identify(nominal, sub, IdentifyOptions(test_fraction=0.0, robust="none", **extra))
-        model, layout, theta, kind = res.model, res.layout, res.theta, "identify"
+        n_params = len(res.free_names)
+        if len(sub) - n_params >= MIN_DOF:
+            model, layout, theta, kind = res.model, res.layout, res.theta, "identify"
     except (SampleError, ValueError, np.linalg.LinAlgError):
+        pass
+    if kind is None:
         layout = ParamLayout(sub.anchor_ids)
         model = nominal if calibration is None else model_from_result(calibration)
         kind = "nominal" if calibration is None else "calibration"
+        n_params = 4 * len(layout.anchors)
         theta = fit_anchors(model, layout, np.zeros(layout.size), np.deg2rad(q),
                             sub.anchor_index(), length)  # fmt: skip
     fitted = predict_lengths(model, theta, np.deg2rad(q), sub.anchor_index())
     rmse = float(np.sqrt(np.mean((length - fitted) ** 2)))
-    return RunningFit(kind, model, layout, theta, rmse, len(sub))  # type: ignore[arg-type]
+    return RunningFit(kind, model, layout, theta, rmse, len(sub), n_params)
+
+
+@dataclass
+class LiveTester:
+    """The per-sample test of one campaign, without I/O: the running fit and the detector.
+
+    The daemon (:class:`SensorWatch`) and the benchmark (``bench/drift_watch.py``) drive it
+    the same way: :meth:`clean_rows` → (:meth:`needs_refit` → :meth:`refit`) → :meth:`test`.
+    """
+
+    nominal: RobotModel
+    calibration: Mapping[str, Any] | None
+    detector: StepDetector
+    fit: RunningFit | None = None
+    fit_clean: int = 0  # clean samples the fit saw
+
+    def clean_rows(self, ids: list[int], sample_id: int) -> list[int]:
+        """Rows of ``ids`` (sample ids, in order) the fit may use for ``sample_id``: the
+        samples before it, minus those of the detector's open run."""
+        suspects = set(self.detector.suspects)
+        return [i for i, sid in enumerate(ids) if sid < sample_id and sid not in suspects]
+
+    def needs_refit(self, n_clean: int) -> bool:
+        """Refit when the clean samples grew by :data:`REFIT_FRACTION` (at least one)."""
+        grown = n_clean - self.fit_clean
+        return self.fit is None or grown >= max(1.0, REFIT_FRACTION * self.fit_clean)
+
+    def refit(self, samples: SampleSet, n_clean: int) -> None:
+        """Fit ``samples`` (the clean rows; CPU-bound: the daemon runs it in a thread)."""
+        if len(samples) < MIN_ANCHOR_SAMPLES:
+            return
+        fit = fit_campaign(samples, self.nominal, self.calibration)
+        if fit is None:
+            return
+        if self.fit is not None and self.fit.kind != fit.kind:
+            self.detector.reset()  # another model: the old residual scale no longer holds
+        self.detector.prior_scale_mm = fit.scale_mm
+        self.fit, self.fit_clean = fit, n_clean
+
+    def test(
+        self, sample_id: int, joints_deg: FloatArray, length_mm: float, anchor: str
+    ) -> tuple[float | None, StepAlarm | None]:
+        """``(residual_mm, alarm)`` of one sample; residual None when the fit cannot predict
+        it (no fit yet, or its anchor has too few samples). The nominal model's residuals
+        are not tested (alarm None)."""
+        if self.fit is None:
+            return None, None
+        predicted = self.fit.predict_mm(joints_deg, anchor)
+        if predicted is None:
+            return None, None
+        residual = float(length_mm) - predicted
+        if not self.fit.testable:
+            return residual, None
+        return residual, self.detector.update(sample_id, residual)
+
+    def moved(self) -> None:
+        """After a move: the new anchor session needs a new fit."""
+        self.fit = None
+        self.fit_clean = 0
 
 
 @dataclass
@@ -132,10 +218,8 @@ class CampaignWatch:
 
     campaign_id: int
     robot_id: int
-    detector: StepDetector
+    tester: LiveTester
     queue: list[dict[str, Any]] = field(default_factory=list)
-    fit: RunningFit | None = None
-    fit_clean: int = 0  # clean samples the fit saw
     task: asyncio.Task[None] | None = None
     tested: int = 0
     last_residual_mm: float | None = None
@@ -210,7 +294,12 @@ class SensorWatch:
             except Exception:
                 log.exception("watch: campaign %d unreadable", campaign_id)
                 return
-            cw = CampaignWatch(campaign_id, robot_id, StepDetector(self.settings))
+            nominal = self.store.robot_model(robot_id)
+            calibration: Mapping[str, Any] | None = None
+            with contextlib.suppress(Exception):  # none accepted yet
+                calibration = self.store.accepted_result(robot_id)["result"]
+            tester = LiveTester(nominal, calibration, StepDetector(self.settings))
+            cw = CampaignWatch(campaign_id, robot_id, tester)
             self._campaigns[campaign_id] = cw
             metrics.SENSOR_MOVED.labels(str(robot_id))  # the series exists at 0 (alerts)
         cw.queue.append(row)
@@ -237,43 +326,24 @@ class SensorWatch:
         if current is None or current["excluded"]:
             return
         samples, ids = self.store.sample_set(cw.campaign_id)
-        suspects = set(cw.detector.suspects)
-        clean = [i for i, sid in enumerate(ids) if sid < sample_id and sid not in suspects]
-        if cw.fit is None or len(clean) - cw.fit_clean >= max(1, REFIT_FRACTION * cw.fit_clean):
-            await self._refit(cw, samples.subset(np.array(clean, dtype=int)), len(clean))
-        fit = cw.fit
-        if fit is None:
-            return
+        tester = cw.tester
+        clean = tester.clean_rows(ids, sample_id)
+        if tester.needs_refit(len(clean)):
+            subset = samples.subset(np.array(clean, dtype=int))
+            await asyncio.to_thread(tester.refit, subset, len(clean))
         row_q = (current["q1"], current["q2"], current["q3"], current["q4"], current["q5"],
                  current["q6"])  # fmt: skip
         q: FloatArray = np.asarray(row_q, dtype=np.float64)
-        predicted = fit.predict_mm(q, str(current["anchor"]))
-        if predicted is None:
+        residual, alarm = tester.test(sample_id, q, current["length_mm"], str(current["anchor"]))
+        if residual is None:
             return
-        residual = float(current["length_mm"]) - predicted
         cw.tested += 1
         cw.last_residual_mm = residual
-        alarm = cw.detector.update(sample_id, residual)
         if alarm is not None:
             self._moved(cw, alarm, ids)
 
-    async def _refit(self, cw: CampaignWatch, samples: SampleSet, n_clean: int) -> None:
-        if len(samples) < MIN_ANCHOR_SAMPLES:
-            return
-        nominal = self.store.robot_model(cw.robot_id)
-        calibration: Mapping[str, Any] | None = None
-        with contextlib.suppress(Exception):
-            calibration = self.store.accepted_result(cw.robot_id)["result"]
-        fit = await asyncio.to_thread(fit_campaign, samples, nominal, calibration)
-        if fit is None:
-            return
-        if cw.fit is not None and cw.fit.kind != fit.kind:
-            cw.detector.reset()  # another model: the old residual scale no longer holds
-        cw.detector.prior_scale_mm = fit.rmse_mm
-        cw.fit, cw.fit_clean = fit, n_clean
-
     # ------------------------------------------------------------------ a move
-    def _moved(self, cw: CampaignWatch, alarm: Any, ids: list[int]) -> None:
+    def _moved(self, cw: CampaignWatch, alarm: StepAlarm, ids: list[int]) -> None:
         cid = cw.campaign_id
         first = self.store.sample(int(alarm.first_key))
         previous = str(first["anchor"])
@@ -286,7 +356,7 @@ class SensorWatch:
             self.store.set_auto_capture(cid, True, new)
             self.sampler.set_auto_anchor(new)
         row = ids.index(moved[0]) + 1 if moved[0] in ids else None
-        fit = cw.fit
+        fit = cw.tester.fit
         detail = {
             "campaign_id": cid, "robot_id": cw.robot_id, "sample_id": moved[0], "row": row,
             "detected_at_sample_id": moved[-1], "delay_samples": alarm.delay,
@@ -303,7 +373,7 @@ class SensorWatch:
         self.store.record_event(SENSOR_MOVED, None, message, detail, campaign_id=cid)
         metrics.SENSOR_MOVED.labels(str(cw.robot_id)).inc()
         self._moves[cid] = detail
-        cw.fit = None  # the new anchor has too few samples; refit from the next one
+        cw.tester.moved()  # the new anchor has too few samples; refit from the next one
         log.warning(message, extra={"campaign_id": cid, "sample_id": moved[0]})
 
     def undo(self, campaign_id: int) -> dict[str, Any]:
@@ -344,8 +414,8 @@ class SensorWatch:
         self._moves.pop(campaign_id, None)
         cw = self._campaigns.get(campaign_id)
         if cw is not None:
-            cw.detector.reset()
-            cw.fit = None
+            cw.tester.detector.reset()
+            cw.tester.moved()
         return out
 
     def status(self) -> dict[str, Any]:
@@ -357,12 +427,12 @@ class SensorWatch:
                  for d in self._moves.values()]  # fmt: skip
         campaigns = []
         for cw in self._campaigns.values():
-            fit = cw.fit
+            fit = cw.tester.fit
             campaigns.append({
                 "campaign_id": cw.campaign_id, "fit": fit.kind if fit else None,
                 "fit_rmse_mm": None if fit is None else _round(fit.rmse_mm),
                 "tested": cw.tested, "last_residual_mm": _round(cw.last_residual_mm),
-                "band_mm": _round(cw.detector.band_mm),
+                "band_mm": _round(cw.tester.detector.band_mm),
             })  # fmt: skip
         return {"enabled": self.enabled, "moves": moves, "campaigns": campaigns}
 
