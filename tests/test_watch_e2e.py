@@ -4,7 +4,8 @@ so the test does not wait for 30 captures); then the daemon's auto capture takes
 readings over the pty and TCP while the cell visits 30 new poses. After a few captures the
 sensor stand is bumped (control command ``move_anchor``, 4 mm along x): a ``sensor_moved``
 event must follow within 15 samples, the samples from the bump on go to a new anchor, auto
-capture goes on with it, and the operator's undo puts them back."""
+capture goes on with it, the operator page (Playwright on Debian's chromium, when installed)
+shows a banner, and its undo button puts the samples back."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from browser import CHROMIUM_PATH, offline_page
 
 from daemon.cli.emulated import FAST_CELL_NOISE_MM, FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 
@@ -79,13 +81,35 @@ def test_a_bumped_sensor_is_found_within_15_samples_and_can_be_undone(
         metrics = httpx.get(cell.daemon.url + "/metrics").text
         assert 'cablecal_sensor_moved_total{robot="' in metrics
 
-        r = api.post(f"/campaigns/{cid}/sensor-moved/undo")
-        assert r.status_code == 200, r.text
-        assert r.json()["anchor"] == "A" and r.json()["from_anchor"] == "A2"
+        if CHROMIUM_PATH.exists():
+            _undo_on_the_page(cell, cid, detail)
+        else:  # no browser: the same route the page's button calls
+            r = api.post(f"/campaigns/{cid}/sensor-moved/undo")
+            assert r.status_code == 200, r.text
+            assert r.json()["anchor"] == "A" and r.json()["from_anchor"] == "A2"
         assert {s["anchor"] for s in _samples(api, cid)} == {"A"}
+        assert api.get("/status").json()["sampler"]["auto_anchor"] == "A"
         assert api.get("/status").json()["watch"]["moves"] == []
         assert api.post(f"/campaigns/{cid}/sensor-moved/undo").status_code == 409
         with capsys.disabled():
             print(f"\nwatch e2e: bump after sample {n_before}, detected at sample "
                   f"{detected_at} ({detected_at - n_before} later), step "
                   f"{detail['step_mm']:+.2f} mm; {time.monotonic() - t0:.0f} s")  # fmt: skip
+
+
+def _undo_on_the_page(cell: Cell, cid: int, detail: dict[str, Any]) -> None:
+    """The banner names the campaign, the sample and the size; its button undoes the split."""
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    with offline_page(allowed_origin=url) as (page, log):
+        page.goto(f"{url}/#token={cell.daemon.token}")
+        banner = page.locator("#watch-banner")
+        banner.wait_for(timeout=15000)
+        text = banner.inner_text()
+        assert f"Campaign #{cid}: from sample #{detail['sample_id']}" in text, text
+        assert f"{detail['step_mm']:+.2f} mm" in text and "anchor session A2" in text, text
+        page.get_by_role("button", name="Undo: back to anchor A").click()
+        banner.wait_for(state="detached", timeout=10000)
+        page.wait_for_selector("text=are back in anchor A", timeout=5000)
+        assert log.page_errors == [] and log.console_errors == [], log
+        assert log.blocked_requests == []
