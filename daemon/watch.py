@@ -14,13 +14,20 @@ The flow (the decisions are pure, in :mod:`daemon.stepwatch`):
      HSR JR680); mm-level DH errors then stay out of the residuals;
    - ``calibration``: before that, the robot's accepted calibration with this campaign's
      anchors (P0 and c) fitted;
+   - ``map``: without a calibration, from :data:`MAP_MIN_ROWS` samples, a MAP fit of the
+     whole model with identify's prior toward the nominal model (:func:`map_fit`), once it
+     predicts the newest :data:`MAP_HOLDOUT` samples, fitted without them, to
+     :data:`MAP_MAX_HOLDOUT_MM` (about 20 samples on the emulated cell);
    - ``nominal``: else the nominal model with the anchors fitted. Its prediction errors are
      as large as the DH errors (several mm), as large as the bumps to find, so its residuals
      are **not tested**: a campaign of a robot without a calibration is watched from its
      ~30th sample on.
 
    The test's scale starts from the fit's expected prediction error
-   (:attr:`RunningFit.scale_mm`) and then follows the tested residuals.
+   (:attr:`RunningFit.scale_mm`) and then follows the tested residuals. At the first
+   testable fit of a campaign without a calibration, a **look back** (:func:`scan_for_step`)
+   asks whether the sensor moved among the samples no fit could test yet (a split into two
+   anchor sessions that explains them much better).
 
    An anchor with fewer than 5 samples cannot be located: its samples are not tested (the
    first samples of a campaign and of a new anchor session).
@@ -58,11 +65,21 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("cablecal.watch")
 
-FitKind = Literal["identify", "calibration", "nominal"]
+FitKind = Literal["identify", "calibration", "map", "nominal"]
 #: Samples an anchor needs before it can be located (:func:`calib.identify.fit_anchors`).
 MIN_ANCHOR_SAMPLES = 5
 #: Rows beyond the parameters a fit needs before its predictions are used (identify).
 MIN_DOF = 5
+#: The early MAP fit (no calibration, too few samples for identify): used once it predicts
+#: the newest MAP_HOLDOUT clean samples, fitted without them, to MAP_MAX_HOLDOUT_MM RMS.
+MAP_MIN_ROWS = 12
+MAP_HOLDOUT = 4
+MAP_MAX_HOLDOUT_MM = 0.25
+#: Prior 1σ of the tool point in the early MAP fit [mm] (the DH priors are identify's).
+MAP_TOOL_PRIOR_MM = 5.0
+#: The look back at the first testable fit: a split of the samples into two anchor sessions
+#: must cut the residual RMS by this factor to be called a move that happened before.
+SCAN_RATIO = 5.0
 #: Refit when the clean samples grew by this fraction since the last fit (at least one).
 REFIT_FRACTION = 0.1
 
@@ -85,6 +102,7 @@ class RunningFit:
     rmse_mm: float
     n_rows: int
     n_params: int
+    holdout_mm: float = 0.0  # RMS prediction error on held-out newest samples (map) [mm]
 
     @property
     def testable(self) -> bool:
@@ -98,7 +116,8 @@ class RunningFit:
         for the parameters fitted (``sqrt(n / (n − p))``) and for their uncertainty at a new
         pose (``sqrt(1 + p / n)``, the mean leverage)."""
         n, p = self.n_rows, self.n_params
-        return self.rmse_mm * math.sqrt(n / max(n - p, 1)) * math.sqrt(1.0 + p / n)
+        corrected = self.rmse_mm * math.sqrt(n / max(n - p, 1)) * math.sqrt(1.0 + p / n)
+        return max(corrected, self.holdout_mm)
 
     def predict_mm(self, joints_deg: FloatArray, anchor: str) -> float | None:
         """The predicted length [mm] of one pose (6,) [deg]; None for an anchor not fitted."""
@@ -141,6 +160,10 @@ def fit_campaign(
             model, layout, theta, kind = res.model, res.layout, res.theta, "identify"
     except (SampleError, ValueError, np.linalg.LinAlgError):
         pass
+    if kind is None and calibration is None and len(sub) >= MAP_MIN_ROWS:
+        early = _map_fit_checked(nominal, sub)
+        if early is not None:
+            return early
     if kind is None:
         layout = ParamLayout(sub.anchor_ids)
         model = nominal if calibration is None else model_from_result(calibration)
@@ -151,6 +174,119 @@ def fit_campaign(
     fitted = predict_lengths(model, theta, np.deg2rad(q), sub.anchor_index())
     rmse = float(np.sqrt(np.mean((length - fitted) ** 2)))
     return RunningFit(kind, model, layout, theta, rmse, len(sub), n_params)
+
+
+def map_fit(model: RobotModel, samples: SampleSet) -> tuple[ParamLayout, FloatArray]:
+    """A maximum a-posteriori fit of every DH error, the tool point and every anchor's P0
+    and c, with identify's Gaussian prior toward the nominal model (``prior_mm``,
+    ``prior_deg``) and :data:`MAP_TOOL_PRIOR_MM` on the tool: determined with fewer samples
+    than parameters. Returns the layout and the full parameter vector."""
+    import numpy as np
+    from scipy.optimize import least_squares
+
+    from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian, predict_lengths
+    from calib.identify import IdentifyOptions, fit_anchors
+
+    opts = IdentifyOptions()
+    layout = ParamLayout(samples.anchor_ids)
+    q, idx, length = np.deg2rad(samples.joints_deg), samples.anchor_index(), samples.length_mm
+    start = fit_anchors(model, layout, np.zeros(layout.size), q, idx, length)
+    joint = [math.radians(opts.prior_deg), opts.prior_mm, opts.prior_mm,
+             math.radians(opts.prior_deg)]  # fmt: skip
+    weight = np.zeros(layout.size)
+    weight[:N_DH] = 1.0 / np.tile(joint, 6)
+    weight[N_DH:N_KIN] = 1.0 / MAP_TOOL_PRIOR_MM
+    noise = opts.noise_mm
+
+    def fun(theta: FloatArray) -> FloatArray:
+        r = (length - predict_lengths(model, theta, q, idx)) / noise
+        return np.concatenate([r, weight * theta])
+
+    def jac(theta: FloatArray) -> FloatArray:
+        _, j = length_jacobian(model, theta, q, idx)
+        return np.vstack([-j / noise, np.diag(weight)])
+
+    res = least_squares(fun, start, jac=jac, method="trf", x_scale="jac", max_nfev=200)
+    theta: FloatArray = np.asarray(res.x, dtype=float)
+    return layout, theta
+
+
+def _map_fit_checked(nominal: RobotModel, samples: SampleSet) -> RunningFit | None:
+    """The early MAP fit, if it predicts the newest samples it did not see well enough."""
+    import numpy as np
+
+    from calib.cable import predict_lengths
+
+    n = len(samples)
+    older = samples.subset(np.arange(n - MAP_HOLDOUT))
+    newest = samples.subset(np.arange(n - MAP_HOLDOUT, n))
+    if any(a not in older.anchor_ids for a in newest.anchor_ids):
+        return None
+    layout, theta = map_fit(nominal, older)
+    index = np.array([layout.anchors.index(a) for a in newest.anchor])
+    missed = newest.length_mm - predict_lengths(nominal, theta, np.deg2rad(newest.joints_deg),
+                                                index)  # fmt: skip
+    holdout = float(np.sqrt(np.mean(missed**2)))
+    if holdout > MAP_MAX_HOLDOUT_MM:
+        return None
+    layout, theta = map_fit(nominal, samples)
+    fitted = predict_lengths(nominal, theta, np.deg2rad(samples.joints_deg),
+                             samples.anchor_index())  # fmt: skip
+    rmse = float(np.sqrt(np.mean((samples.length_mm - fitted) ** 2)))
+    return RunningFit("map", nominal, layout, theta, rmse, n, 4 * len(layout.anchors), holdout)
+
+
+def scan_for_step(
+    model: RobotModel, samples: SampleSet, min_step_mm: float
+) -> tuple[int, float, float] | None:
+    """Look back over samples no fit could test yet: did the sensor move among them?
+
+    For each split row ``k`` (at least :data:`MIN_ANCHOR_SAMPLES` on each side), a MAP fit
+    (:func:`map_fit`) with the rows from ``k`` on as a second anchor session, against one
+    session. A move is a split that cuts the residual RMS by :data:`SCAN_RATIO` and changes
+    the cable lengths by at least half of ``min_step_mm`` (median over the moved rows).
+
+    Returns ``(k, step_mm, size_mm)`` (step: median signed length change [mm]) or None.
+    Samples of several anchors are not scanned.
+    """
+    import numpy as np
+
+    from calib.cable import predict_lengths
+
+    n = len(samples)
+    if len(samples.anchor_ids) != 1 or n < 2 * MIN_ANCHOR_SAMPLES:
+        return None
+    q = np.deg2rad(samples.joints_deg)
+
+    def rms(layout: Any, theta: FloatArray, anchors: tuple[str, ...]) -> float:
+        index = np.array([layout.anchors.index(a) for a in anchors])
+        r = samples.length_mm - predict_lengths(model, theta, q, index)
+        return float(np.sqrt(np.mean(r**2)))
+
+    layout, theta = map_fit(model, samples)
+    single = rms(layout, theta, samples.anchor)
+    if single < min_step_mm / 4.0:
+        return None
+    old = samples.anchor[0]
+    best: tuple[float, int, Any, FloatArray] | None = None
+    for k in range(MIN_ANCHOR_SAMPLES, n - MIN_ANCHOR_SAMPLES + 1):
+        anchors = (old,) * k + (old + "~moved",) * (n - k)
+        split = dataclasses.replace(samples, anchor=anchors, group=None)
+        lay2, th2 = map_fit(model, split)
+        value = rms(lay2, th2, anchors)
+        if best is None or value < best[0]:
+            best = (value, k, lay2, th2)
+    if best is None or best[0] * SCAN_RATIO > single:
+        return None
+    _, k, lay2, th2 = best
+    moved = q[k:]
+    before = predict_lengths(model, th2, moved, np.full(n - k, lay2.anchors.index(old)))
+    after = predict_lengths(model, th2, moved, np.full(n - k, lay2.anchors.index(old + "~moved")))
+    change = after - before
+    size = float(np.median(np.abs(change)))
+    if size < min_step_mm / 2.0:
+        return None
+    return k, float(np.median(change)), size
 
 
 @dataclass
@@ -166,6 +302,8 @@ class LiveTester:
     detector: StepDetector
     fit: RunningFit | None = None
     fit_clean: int = 0  # clean samples the fit saw
+    scanned: bool = False  # the look back (scan_for_step) ran in this anchor session
+    found: StepAlarm | None = None  # a move the look back found, reported by the next test
 
     def clean_rows(self, ids: list[int], sample_id: int) -> list[int]:
         """Rows of ``ids`` (sample ids, in order) the fit may use for ``sample_id``: the
@@ -178,13 +316,23 @@ class LiveTester:
         grown = n_clean - self.fit_clean
         return self.fit is None or grown >= max(1.0, REFIT_FRACTION * self.fit_clean)
 
-    def refit(self, samples: SampleSet, n_clean: int) -> None:
-        """Fit ``samples`` (the clean rows; CPU-bound: the daemon runs it in a thread)."""
+    def refit(self, samples: SampleSet, n_clean: int, ids: list[int] | None = None) -> None:
+        """Fit ``samples`` (the clean rows, sample ids ``ids``; CPU-bound: the daemon runs it
+        in a thread). At the first testable fit of an anchor session, look back over the
+        samples no fit could test (:func:`scan_for_step`)."""
         if len(samples) < MIN_ANCHOR_SAMPLES:
             return
         fit = fit_campaign(samples, self.nominal, self.calibration)
         if fit is None:
             return
+        if fit.testable and not self.scanned and fit.kind != "calibration":
+            self.scanned = True
+            step = scan_for_step(self.nominal, samples, self.detector.settings.min_step_mm)
+            if step is not None and ids is not None:
+                k, step_mm, size_mm = step
+                keys = tuple(ids[k:])
+                self.found = StepAlarm(keys[0], keys, step_mm, size_mm, len(keys))
+                return
         if self.fit is not None and self.fit.kind != fit.kind:
             self.detector.reset()  # another model: the old residual scale no longer holds
         self.detector.prior_scale_mm = fit.scale_mm
@@ -196,6 +344,10 @@ class LiveTester:
         """``(residual_mm, alarm)`` of one sample; residual None when the fit cannot predict
         it (no fit yet, or its anchor has too few samples). The nominal model's residuals
         are not tested (alarm None)."""
+        if self.found is not None:
+            found, self.found = self.found, None
+            keys = (*found.keys, sample_id)
+            return None, dataclasses.replace(found, keys=keys, delay=len(keys))
         if self.fit is None:
             return None, None
         predicted = self.fit.predict_mm(joints_deg, anchor)
@@ -210,6 +362,7 @@ class LiveTester:
         """After a move: the new anchor session needs a new fit."""
         self.fit = None
         self.fit_clean = 0
+        self.scanned = True  # a session after a move has a fitted model of the robot
 
 
 @dataclass
@@ -330,15 +483,15 @@ class SensorWatch:
         clean = tester.clean_rows(ids, sample_id)
         if tester.needs_refit(len(clean)):
             subset = samples.subset(np.array(clean, dtype=int))
-            await asyncio.to_thread(tester.refit, subset, len(clean))
+            clean_ids = [ids[i] for i in clean]
+            await asyncio.to_thread(tester.refit, subset, len(clean), clean_ids)
         row_q = (current["q1"], current["q2"], current["q3"], current["q4"], current["q5"],
                  current["q6"])  # fmt: skip
         q: FloatArray = np.asarray(row_q, dtype=np.float64)
         residual, alarm = tester.test(sample_id, q, current["length_mm"], str(current["anchor"]))
-        if residual is None:
-            return
-        cw.tested += 1
-        cw.last_residual_mm = residual
+        if residual is not None:
+            cw.tested += 1
+            cw.last_residual_mm = residual
         if alarm is not None:
             self._moved(cw, alarm, ids)
 
