@@ -14,10 +14,6 @@ The flow (the decisions are pure, in :mod:`daemon.stepwatch`):
      HSR JR680); mm-level DH errors then stay out of the residuals;
    - ``calibration``: before that, the robot's accepted calibration with this campaign's
      anchors (P0 and c) fitted;
-   - ``map``: without a calibration, from :data:`MAP_MIN_ROWS` samples, a MAP fit of the
-     whole model with identify's prior toward the nominal model (:func:`map_fit`), once it
-     predicts the newest :data:`MAP_HOLDOUT` samples, fitted without them, to
-     :data:`MAP_MAX_HOLDOUT_MM` (about 20 samples on the emulated cell);
    - ``nominal``: else the nominal model with the anchors fitted. Its prediction errors are
      as large as the DH errors (several mm), as large as the bumps to find, so its residuals
      are **not tested**: a campaign of a robot without a calibration is watched from its
@@ -27,7 +23,10 @@ The flow (the decisions are pure, in :mod:`daemon.stepwatch`):
    (:attr:`RunningFit.scale_mm`) and then follows the tested residuals. At the first
    testable fit of a campaign without a calibration, a **look back** (:func:`scan_for_step`)
    asks whether the sensor moved among the samples no fit could test yet (a split into two
-   anchor sessions that explains them much better).
+   anchor sessions that explains them much better; MAP fits with identify's prior toward
+   the nominal model, :func:`map_fit`, determined with few samples). A MAP fit is not used
+   as the running fit: on 20-odd samples it predicts some poses well and others to a mm, and
+   a check on a few held-out samples cannot tell which (a false alarm at 0.2 mm noise).
 
    An anchor with fewer than 5 samples cannot be located: its samples are not tested (the
    first samples of a campaign and of a new anchor session).
@@ -65,17 +64,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("cablecal.watch")
 
-FitKind = Literal["identify", "calibration", "map", "nominal"]
+FitKind = Literal["identify", "calibration", "nominal"]
 #: Samples an anchor needs before it can be located (:func:`calib.identify.fit_anchors`).
 MIN_ANCHOR_SAMPLES = 5
 #: Rows beyond the parameters a fit needs before its predictions are used (identify).
 MIN_DOF = 5
-#: The early MAP fit (no calibration, too few samples for identify): used once it predicts
-#: the newest MAP_HOLDOUT clean samples, fitted without them, to MAP_MAX_HOLDOUT_MM RMS.
-MAP_MIN_ROWS = 12
-MAP_HOLDOUT = 4
-MAP_MAX_HOLDOUT_MM = 0.25
-#: Prior 1σ of the tool point in the early MAP fit [mm] (the DH priors are identify's).
+#: Prior 1σ of the tool point in the look back's MAP fits [mm] (the DH priors are identify's).
 MAP_TOOL_PRIOR_MM = 5.0
 #: The look back at the first testable fit: a split of the samples into two anchor sessions
 #: must cut the residual RMS by this factor to be called a move that happened before.
@@ -102,7 +96,6 @@ class RunningFit:
     rmse_mm: float
     n_rows: int
     n_params: int
-    holdout_mm: float = 0.0  # RMS prediction error on held-out newest samples (map) [mm]
 
     @property
     def testable(self) -> bool:
@@ -116,8 +109,7 @@ class RunningFit:
         for the parameters fitted (``sqrt(n / (n − p))``) and for their uncertainty at a new
         pose (``sqrt(1 + p / n)``, the mean leverage)."""
         n, p = self.n_rows, self.n_params
-        corrected = self.rmse_mm * math.sqrt(n / max(n - p, 1)) * math.sqrt(1.0 + p / n)
-        return max(corrected, self.holdout_mm)
+        return self.rmse_mm * math.sqrt(n / max(n - p, 1)) * math.sqrt(1.0 + p / n)
 
     def predict_mm(self, joints_deg: FloatArray, anchor: str) -> float | None:
         """The predicted length [mm] of one pose (6,) [deg]; None for an anchor not fitted."""
@@ -160,10 +152,6 @@ def fit_campaign(
             model, layout, theta, kind = res.model, res.layout, res.theta, "identify"
     except (SampleError, ValueError, np.linalg.LinAlgError):
         pass
-    if kind is None and calibration is None and len(sub) >= MAP_MIN_ROWS:
-        early = _map_fit_checked(nominal, sub)
-        if early is not None:
-            return early
     if kind is None:
         layout = ParamLayout(sub.anchor_ids)
         model = nominal if calibration is None else model_from_result(calibration)
@@ -209,31 +197,6 @@ def map_fit(model: RobotModel, samples: SampleSet) -> tuple[ParamLayout, FloatAr
     res = least_squares(fun, start, jac=jac, method="trf", x_scale="jac", max_nfev=200)
     theta: FloatArray = np.asarray(res.x, dtype=float)
     return layout, theta
-
-
-def _map_fit_checked(nominal: RobotModel, samples: SampleSet) -> RunningFit | None:
-    """The early MAP fit, if it predicts the newest samples it did not see well enough."""
-    import numpy as np
-
-    from calib.cable import predict_lengths
-
-    n = len(samples)
-    older = samples.subset(np.arange(n - MAP_HOLDOUT))
-    newest = samples.subset(np.arange(n - MAP_HOLDOUT, n))
-    if any(a not in older.anchor_ids for a in newest.anchor_ids):
-        return None
-    layout, theta = map_fit(nominal, older)
-    index = np.array([layout.anchors.index(a) for a in newest.anchor])
-    missed = newest.length_mm - predict_lengths(nominal, theta, np.deg2rad(newest.joints_deg),
-                                                index)  # fmt: skip
-    holdout = float(np.sqrt(np.mean(missed**2)))
-    if holdout > MAP_MAX_HOLDOUT_MM:
-        return None
-    layout, theta = map_fit(nominal, samples)
-    fitted = predict_lengths(nominal, theta, np.deg2rad(samples.joints_deg),
-                             samples.anchor_index())  # fmt: skip
-    rmse = float(np.sqrt(np.mean((samples.length_mm - fitted) ** 2)))
-    return RunningFit("map", nominal, layout, theta, rmse, n, 4 * len(layout.anchors), holdout)
 
 
 def scan_for_step(
