@@ -124,7 +124,8 @@ def create_app(
             await state.sampler.start()
             state.watch = SensorWatch(state.store, settings.watch.step_settings(),
                                       state.sampler, enabled=settings.watch.enabled)  # fmt: skip
-            state.sampler.sink = state.watch.wrap(state.sampler.sink)
+            if hasattr(state.sampler, "sink"):  # test doubles may store nothing
+                state.sampler.sink = state.watch.wrap(state.sampler.sink)
             for campaign in state.store.auto_capture_campaigns():
                 cid = int(campaign["id"])
                 state.sampler.set_auto(
