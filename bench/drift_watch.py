@@ -98,7 +98,7 @@ def replay(
             sub = SampleSet(joints_deg=q[rows], length_mm=length[rows],
                             anchor=tuple(anchors[r] for r in rows), group=None,
                             line=rows + 2)  # fmt: skip
-            tester.refit(sub, len(clean))
+            tester.refit(sub, len(clean), [int(r) for r in rows])
         _, alarm = tester.test(i, q[i], float(length[i]), anchors[i])
         if alarm is not None:
             alarms.append({"at": i, "first": alarm.first_key, "step_mm": alarm.step_mm,
@@ -187,7 +187,8 @@ def markdown(out: dict[str, Any]) -> str:
         "errors, random spread poses, one seed per campaign), Gaussian noise, 0.01 mm",
         f"quantisation, {out['samples']} samples per campaign, no accepted calibration: the",
         "running fit is the campaign's own identification once it has 5 samples more than",
-        "parameters (about 30); before that the nominal model's residuals are not tested.",
+        "parameters (about 30); before that the nominal model's residuals are not tested, and",
+        "that first fit looks back over the untested samples for a move among them.",
         "",
         "## False alarms on clean campaigns (target 0)",
         "",
