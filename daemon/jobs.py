@@ -294,6 +294,8 @@ class JobManager:
             await asyncio.to_thread(self._succeeded, job_id, result)
         finally:
             metrics.JOBS.labels(method, status).inc()
+            if status == "failed":
+                metrics.IDENTIFICATIONS_FAILED.inc()
             metrics.JOB_DURATION.labels(method, status).observe(time.monotonic() - t0)
             self._futures.pop(job_id, None)
             self._tasks.pop(job_id, None)

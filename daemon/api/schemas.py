@@ -212,4 +212,5 @@ class ServiceStatus(TypedDict):
     sampler: dict[str, Any] | None
     jobs: dict[str, Any]
     drift: dict[str, Any] | None
+    watch: dict[str, Any] | None
     uptime_s: float
