@@ -1,6 +1,6 @@
 // View 2, Campaign: create and pick a campaign, plan poses, capture (manual with a joint form
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
-import { api, download } from "./api.js";
+import { api, download, saveBlob } from "./api.js";
 import { isManualRobot } from "./cell.js";
 import { $, changed, clock, el, every, fillTable, fix, hasRoute, heldOut, onChange, setText, showMessage, state } from "./ui.js";
 
@@ -211,6 +211,28 @@ async function setAuto(enabled) {
 }
 
 // ------------------------------------------------------------------ plan
+/** Download buttons of the plan, one per format of the REST enum (CSV and the robot programs
+ * the pendant runs); the file name is the one the daemon gives (a KRL or Fanuc program must
+ * keep it). */
+function renderPlanDownloads() {
+  const box = $("plan-downloads");
+  box.hidden = !plan || !state.downloadFormats.length;
+  const key = box.hidden ? "" : String(state.campaign.id);
+  if (box.dataset.key === key) return; // drawn already: keep the buttons (and focus)
+  box.dataset.key = key;
+  if (box.hidden) return;
+  const fetchOne = async (fmt) => {
+    const r = await api("GET", `/campaigns/${state.campaign.id}/plan?format=${fmt}`, { raw: true });
+    const m = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
+    saveBlob(await r.blob(), m ? m[1] : `campaign-${state.campaign.id}-plan.${fmt}`);
+  };
+  box.replaceChildren("Download the plan for the robot: ", ...state.downloadFormats.map((fmt) => {
+    const b = el("button", { type: "button", "data-format": fmt }, fmt);
+    b.addEventListener("click", () => fetchOne(fmt).catch(() => {}));
+    return b;
+  }));
+}
+
 async function refreshPlan() {
   if (!hasRoute("GET", "/campaigns/{}/plan")) {
     $("plan-form").querySelector("button").disabled = true;
@@ -231,6 +253,7 @@ async function refreshPlan() {
 }
 
 function renderPlan() {
+  renderPlanDownloads();
   if (!plan) {
     setText("plan-summary", "No plan yet. A plan picks the poses that make the calibration most accurate; give the sensor position roughly (or plan on top of samples already taken).");
     fillTable($("plan-poses"), [], [], "none");
