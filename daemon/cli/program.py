@@ -118,6 +118,42 @@ def program_cmd(
         console.print(note, highlight=False)
 
 
+EMULATED_RUN_HELP = (
+    "Make the EMULATED robot run a program (any format of 'cablecal program', or a plan CSV): "
+    "it moves through the program's joint targets in order with the emulated cell's own move "
+    "and dwell times. --control is the cell's control endpoint ('make run' prints it)."
+)
+
+
+def emulated_robot_run_cmd(
+    program: Annotated[Path, typer.Argument(help="Robot program or plan CSV")],
+    control: Annotated[str, typer.Option(help="The EMULATED cell's control port HOST:PORT")],
+    loop: Annotated[bool, typer.Option(help="Repeat the program")] = False,
+) -> None:
+    """Load ``program`` into the emulated robot (help: :data:`EMULATED_RUN_HELP`)."""
+    from simulator.runner import ControlClient
+
+    host, _, port = control.rpartition(":")
+    if not host or not port.isdigit():
+        raise _fail(f"--control: expected HOST:PORT, got {control!r}")
+    try:
+        client = ControlClient(control)
+    except OSError as exc:
+        raise _fail(f"--control {control}: cannot connect: {exc}") from None
+    try:
+        reply = client("load_poses", program=str(program.resolve()), loop=loop)
+    except RuntimeError as exc:
+        raise _fail(str(exc)) from None
+    finally:
+        client.close()
+    Console().print(
+        f"the EMULATED robot runs {program.name}: {len(reply['poses_deg'])} targets"
+        + (", repeated" if reply["loop"] else ""),
+        highlight=False,
+    )
+
+
 def register(app: typer.Typer) -> None:
-    """Add ``program`` to ``app``."""
+    """Add ``program`` and ``emulated-robot-run`` to ``app``."""
     app.command("program", help=PROGRAM_HELP)(program_cmd)
+    app.command("emulated-robot-run", help=EMULATED_RUN_HELP)(emulated_robot_run_cmd)
