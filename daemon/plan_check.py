@@ -34,7 +34,9 @@ def plan_check(
         ``n_samples``, ``n_off_plan`` (samples at no planned pose), ``on_plan`` (every planned
         pose measured), ``tol_deg``, ``planned_tcp_sigma_mm`` and ``achieved_tcp_sigma_mm``
         (``{"rms", "max"}`` [mm]), ``sigma_ratio`` (achieved / planned RMS), ``plan_noise_mm``
-        (the noise the plan assumed), ``note``.
+        (the noise the plan assumed), ``fit_noise_mm`` (the noise the fit ran with),
+        ``planned_rms_at_fit_noise_mm`` (the plan's RMS scaled to that noise: σ is linear in
+        the noise) and ``sigma_ratio_at_fit_noise`` (achieved over it), ``note``.
     """
     try:
         plan = store.latest_plan(campaign_id)
@@ -56,6 +58,15 @@ def plan_check(
     p_rms, a_rms = planned_tcp.get("rms"), achieved.get("rms")
     ratio = float(a_rms) / float(p_rms) if p_rms and a_rms is not None else None
     on_plan = n_measured == n_planned
+    # The plan assumed a length noise; the fit estimates its own (captures are window means,
+    # so usually quieter). The plan's σ at the fit's noise separates design from noise.
+    plan_noise = summary.get("noise_mm")
+    fit_noise = (result.get("prior") or {}).get("noise_mm")
+    same_noise = (
+        float(p_rms) * float(fit_noise) / float(plan_noise)
+        if p_rms and plan_noise and fit_noise
+        else None
+    )
     sigma = (
         f"tool-point σ RMS {a_rms:.3f} mm against {p_rms:.3f} mm planned (x{ratio:.2f})"
         if ratio is not None
@@ -88,7 +99,12 @@ def plan_check(
         "planned_tcp_sigma_mm": planned_tcp,
         "achieved_tcp_sigma_mm": achieved,
         "sigma_ratio": ratio,
-        "plan_noise_mm": summary.get("noise_mm"),
+        "plan_noise_mm": plan_noise,
+        "fit_noise_mm": fit_noise,
+        "planned_rms_at_fit_noise_mm": same_noise,
+        "sigma_ratio_at_fit_noise": (
+            float(a_rms) / same_noise if same_noise and a_rms is not None else None
+        ),
         "note": note,
     }
 
