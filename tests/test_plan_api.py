@@ -262,3 +262,7 @@ def test_plan_downloads_as_csv_and_robot_programs(client: TestClient) -> None:
     for bad in ({"format": "gcode"}, {"format": "krl", "speed_pct": 0}):
         r = client.get(url, headers=AUTH, params=bad)
         assert r.status_code == 422, r.text
+    r = client.get(url, headers=AUTH, params={"format": "krl", "anchor": "Z"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "anchor"], r.text
+    r = client.get(url, headers=AUTH, params={"format": "krl", "anchor": "A"})
+    assert r.status_code == 200 and "plan_A.src" in r.headers["content-disposition"]

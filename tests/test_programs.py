@@ -166,3 +166,23 @@ def test_names_valid_for_each_controller(tmp_path: Path) -> None:
     assert code == 0, text
     assert out.read_text().startswith("/PROG  P2ND_PLAN")  # upper case, a letter first
     assert "rename the file P2ND_PLAN.LS" in " ".join(text.split())
+
+
+def test_a_plan_for_two_anchors_gives_one_program_per_anchor(tmp_path: Path) -> None:
+    q = plan_csv(tmp_path / "plan.csv", n=6)
+    rows = (tmp_path / "plan.csv").read_text().splitlines()
+    rows[4:] = [r.replace(",A,", ",B,") for r in rows[4:]]  # poses 4..6 at anchor B
+    (tmp_path / "plan.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "two.src"
+    code, text = run([str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out)])
+    assert code == 2 and "--anchor: " in text and "anchors A, B" in " ".join(text.split())
+    assert not out.exists()
+    code, text = run([str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out),
+                      "--anchor", "B"])  # fmt: skip
+    assert code == 0, text
+    back = parse_program("krl", out.read_text())
+    np.testing.assert_allclose(np.array(back.joints_deg), q[3:], atol=0.0005 + 1e-9)
+    assert "sensor at anchor B" in " ".join(back.comments)
+    code, text = run([str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out),
+                      "--anchor", "C"])  # fmt: skip
+    assert code == 2 and "'C' is not in" in text

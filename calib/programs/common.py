@@ -141,13 +141,15 @@ class TargetRows:
     rows: tuple[int, ...]
 
 
-def read_targets_csv(text: str, source: str = "targets") -> TargetRows:
+def read_targets_csv(text: str, source: str = "targets", anchor: str | None = None) -> TargetRows:
     """Joint targets of a CSV: a plan (``cablecal plan``: ``pose, q1..q6, anchor, …``) or
     corrected targets (``cablecal compensate``: ``index, q1_nominal.., q1..q6, …, flags``).
 
     The header names ``q1..q6`` [deg] (any case, any order); other columns are ignored except
     ``flags``: a target ``compensate`` flagged (no solution, outside the limits, a branch jump)
-    is refused, since a program must not drive the robot there.
+    is refused, since a program must not drive the robot there. A plan for several sensor
+    anchors (an ``anchor`` column with more than one id) needs ``anchor``: the sensor is moved
+    by hand between them, so each anchor gets a program of its own.
 
     Raises
     ------
@@ -173,11 +175,18 @@ def read_targets_csv(text: str, source: str = "targets") -> TargetRows:
         )
     cols = [names.index(c) for c in JOINT_COLUMNS]
     flags_col = names.index("flags") if "flags" in names else None
+    anchor_col = names.index("anchor") if "anchor" in names else None
+    anchors_seen: dict[str, None] = {}
     joints: list[Joints] = []
     rows: list[int] = []
     for line_no, row in enumerate(reader, start=2):
         if not any(c.strip() for c in row):
             continue
+        if anchor_col is not None:
+            row_anchor = row[anchor_col].strip() if anchor_col < len(row) else ""
+            anchors_seen[row_anchor] = None
+            if anchor is not None and row_anchor != anchor:
+                continue
         if flags_col is not None and flags_col < len(row) and row[flags_col].strip():
             raise ProgramError(
                 f"{source}: row {line_no}: the target is flagged "
@@ -205,6 +214,14 @@ def read_targets_csv(text: str, source: str = "targets") -> TargetRows:
             values.append(v)
         joints.append((values[0], values[1], values[2], values[3], values[4], values[5]))
         rows.append(line_no)
+    if anchor is not None and anchor not in anchors_seen:
+        known = ", ".join(anchors_seen) or "none (no anchor column)"
+        raise ProgramError(f"anchor: {anchor!r} is not in {source}; its anchors: {known}")
+    if anchor is None and len(anchors_seen) > 1:
+        raise ProgramError(
+            f"anchor: {source} plans poses at anchors {', '.join(anchors_seen)}; the sensor is "
+            "moved between them by hand, so write one program per anchor (choose one)"
+        )
     if not joints:
         raise ProgramError(f"{source}: no targets after the header")
     if len(joints) > MAX_TARGETS:

@@ -80,18 +80,20 @@ def program_from_csv(
     comments: Sequence[str] = (),
     source: str = "targets",
     created_utc: str = "",
+    anchor: str | None = None,
 ) -> tuple[JointProgram, str]:
     """A program of the joint targets in CSV ``text`` (a plan or compensated targets) and its
     text in ``fmt``. Everything is checked before anything is returned: the CSV (row and
-    column), the joints against ``limits_deg`` (shape (6, 2) [deg]; row and joint), the name
-    against the controller's rule, the speed and the dwell.
+    column; ``anchor`` picks one anchor's poses of a plan), the joints against
+    ``limits_deg`` (shape (6, 2) [deg]; row and joint), the name against the controller's
+    rule, the speed and the dwell.
 
     Raises
     ------
     ProgramError
     """
     rule = name_rule(fmt)
-    targets = read_targets_csv(text, source)
+    targets = read_targets_csv(text, source, anchor)
     check_limits(targets.joints_deg, limits_deg, targets.rows)
     program = JointProgram(
         name=rule.check(name),

@@ -68,15 +68,16 @@ def download(
     speed_pct: float = DEFAULT_SPEED_PCT,
     dwell_s: float | None,
     settle_s: float,
+    anchor: str | None = None,
 ) -> Response:
     """``csv_text`` (joint targets with ``q1..q6``) as an attachment in format ``fmt``. The
     program is named from ``stem`` by the controller's rules, and so is the file (KRL and
     Fanuc find a program by its file name). A target outside ``model``'s limits or flagged
     is a 422 naming the row and joint."""
-    if fmt == "csv":
+    if fmt == "csv":  # every anchor's poses, as the plan has them
         body, filename = csv_text, f"{stem}.csv"
     else:
-        name = name_rule(fmt).from_text(stem)
+        name = name_rule(fmt).from_text(stem if anchor is None else f"{stem}-{anchor}")
         now = dt.datetime.now(dt.UTC).replace(microsecond=0)
         dwell = dwell_s if dwell_s is not None else dwell_s_for_settle(settle_s)
         try:
@@ -95,8 +96,12 @@ def download(
                 ),
                 source=what,
                 created_utc=f"{now:%Y-%m-%d %H:%M:%S}",
+                anchor=anchor,
             )
         except ProgramError as exc:
+            message = str(exc)
+            if message.startswith("anchor:"):
+                raise unprocessable(("query", "anchor"), message) from exc
             raise unprocessable(("query", "format"), f"format: {exc}") from exc
         filename = name + SUFFIX[fmt]
     return Response(

@@ -53,6 +53,10 @@ def program_cmd(
     config: Annotated[
         Path | None, typer.Option("--config", "-c", help="The daemon's TOML settings")
     ] = None,
+    anchor: Annotated[
+        str | None,
+        typer.Option(help="A plan for several sensor anchors: this anchor's poses only"),
+    ] = None,
 ) -> None:
     """Write the targets as a robot program (help: :data:`PROGRAM_HELP`)."""
     from calib.models import ModelError
@@ -89,7 +93,7 @@ def program_cmd(
     now = dt.datetime.now(dt.UTC).replace(microsecond=0)
     comments = (
         f"cablecal program of {targets.name}",
-        f"robot {model.name}",
+        f"robot {model.name}" + (f", sensor at anchor {anchor}" if anchor else ""),
         f"made {now:%Y-%m-%d %H:%M} UTC",
         f"speed {speed_pct:g} %, dwell {dwell_s:g} s",
     )
@@ -104,9 +108,11 @@ def program_cmd(
             comments=comments,
             source=str(targets),
             created_utc=f"{now:%Y-%m-%d %H:%M:%S}",
+            anchor=anchor,
         )
     except ProgramError as exc:
-        raise _fail(str(exc)) from None
+        message = str(exc)
+        raise _fail("--" + message if message.startswith("anchor:") else message) from None
     out.write_text(body, encoding="utf-8", newline="\n" if fmt_name != "fanuc-ls" else "\r\n")
     console = Console()
     console.print(

@@ -24,7 +24,7 @@ from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
-from daemon.api.schemas import Anchor, StrictBody
+from daemon.api.schemas import MAX_ANCHOR_CHARS, Anchor, StrictBody
 from daemon.store import MATCH_TOL_DEG, match_poses
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
@@ -240,6 +240,12 @@ def get_plan(
     format: DownloadFormat | None = Query(None, description=FORMAT_HELP),
     speed_pct: SpeedPct = DEFAULT_SPEED_PCT,
     dwell_s: DwellS = None,
+    anchor: str | None = Query(
+        None,
+        min_length=1,
+        max_length=MAX_ANCHOR_CHARS,
+        description="Program formats, a plan for several anchors: this anchor's poses.",
+    ),
 ) -> Any:
     """The newest plan: its options, summary (condition number, 1σ per base parameter,
     predicted TCP σ plan vs random, times) and poses in visiting order, each ``done`` (with
@@ -264,4 +270,5 @@ def get_plan(
         speed_pct=speed_pct,
         dwell_s=dwell_s,
         settle_s=state.settings.sampler.settle_s,
+        anchor=anchor,
     )

@@ -218,18 +218,23 @@ async function setAuto(enabled) {
 function renderPlanDownloads() {
   const box = $("plan-downloads");
   box.hidden = !plan || !state.downloadFormats.length;
-  const key = box.hidden ? "" : String(state.campaign.id);
+  const key = box.hidden ? "" : `${state.campaign.id}:${plan.id}`;
   if (box.dataset.key === key) return; // drawn already: keep the buttons (and focus)
   box.dataset.key = key;
   if (box.hidden) return;
-  const fetchOne = async (fmt) => {
-    const r = await api("GET", `/campaigns/${state.campaign.id}/plan?format=${fmt}`, { raw: true });
+  const fetchOne = async (fmt, anchor) => {
+    const q = anchor == null ? "" : `&anchor=${encodeURIComponent(anchor)}`;
+    const r = await api("GET", `/campaigns/${state.campaign.id}/plan?format=${fmt}${q}`, { raw: true });
     const m = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
     saveBlob(await r.blob(), m ? m[1] : `campaign-${state.campaign.id}-plan.${fmt}`);
   };
-  box.replaceChildren("Download the plan for the robot: ", ...state.downloadFormats.map((fmt) => {
-    const b = el("button", { type: "button", "data-format": fmt }, fmt);
-    b.addEventListener("click", () => fetchOne(fmt).catch(() => {}));
+  // The sensor is moved by hand between anchors: one program per anchor (the CSV has all).
+  const anchors = [...new Set(plan.poses.map((p) => p.anchor))];
+  const choices = state.downloadFormats.flatMap((fmt) => (fmt === "csv" || anchors.length < 2
+    ? [[fmt, null]] : anchors.map((a) => [fmt, a])));
+  box.replaceChildren("Download the plan for the robot: ", ...choices.map(([fmt, anchor]) => {
+    const b = el("button", { type: "button", "data-format": fmt, "data-anchor": anchor }, anchor == null ? fmt : `${fmt} (sensor at ${anchor})`);
+    b.addEventListener("click", () => fetchOne(fmt, anchor).catch(() => {}));
     return b;
   }));
 }
