@@ -31,8 +31,10 @@ from drivers.errors import (
     RobotStale,
     RobotTimeout,
 )
+from drivers.fanuc_rmi import FanucRmiConfig, FanucRmiRobot
 from drivers.huashu import HuashuConfig, HuashuSocketCmdRobot
 from drivers.indicator import IndicatorConfig, IndicatorReading, ModbusIndicator, RegisterMap
+from drivers.kuka_varproxy import KukaVarProxyConfig, KukaVarProxyRobot
 from drivers.modbus_robot import JointRegisterMap, ModbusRobotConfig, ModbusTcpRobot
 from drivers.robot import JointReading, ManualRobot, ManualRobotConfig, RobotDriver
 
@@ -85,6 +87,8 @@ ROBOT_KINDS: dict[str, RobotKind] = {
     "manual": RobotKind(ManualRobotConfig, ManualRobot),
     "huashu-socketcmd": RobotKind(HuashuConfig, HuashuSocketCmdRobot),
     "modbus-tcp": RobotKind(ModbusRobotConfig, ModbusTcpRobot),
+    "kuka-varproxy": RobotKind(KukaVarProxyConfig, KukaVarProxyRobot),
+    "fanuc-rmi": RobotKind(FanucRmiConfig, FanucRmiRobot),
 }
 
 

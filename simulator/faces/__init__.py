@@ -12,6 +12,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from simulator.faces.base import FaceServer
+from simulator.faces.fanuc_rmi import FanucRmiServer
+from simulator.faces.kuka_varproxy import KukaVarProxyServer
 
 
 class Face(NamedTuple):
@@ -24,7 +26,10 @@ class Face(NamedTuple):
 
 #: Every face the cell can serve, by robot kind. A face whose server is not written yet is
 #: absent (its READY key is then always null).
-FACES: dict[str, Face] = {}
+FACES: dict[str, Face] = {
+    "kuka-varproxy": Face("robot_kuka_varproxy", "robot_kuka_varproxy", KukaVarProxyServer),
+    "fanuc-rmi": Face("robot_fanuc_rmi", "robot_fanuc_rmi", FanucRmiServer),
+}
 
 #: READY keys of every controller family's face, present (or null) in every READY mapping.
 FACE_READY_KEYS = ("robot_abb_rws", "robot_ur_rtde", "robot_kuka_varproxy", "robot_fanuc_rmi")
