@@ -25,7 +25,7 @@ from simulator.config import (
     MAX_DRIFT_TAU_S,
     SimConfig,
 )
-from simulator.poses import parse_poses_csv, spread_poses_deg
+from simulator.poses import parse_poses_file, spread_poses_deg
 
 #: Display limits of the 6-digit indicator (counts).
 DISPLAY_MIN, DISPLAY_MAX = -199999, 999999
@@ -204,15 +204,16 @@ class EmulatedCell:
         return q, i, True
 
     def read_poses_csv(self, path: str) -> FloatArray:
-        """Joint angles [deg], shape (n, 6), of a plan CSV (``q1..q6`` columns, see
-        :mod:`simulator.poses`), checked against the model's joint limits. A relative path is
-        resolved against the config's ``base_dir``."""
+        """Joint angles [deg], shape (n, 6), of a plan CSV (``q1..q6`` columns) or a robot
+        program (RAPID, URScript, KRL, Fanuc LS: its joint moves; see :mod:`simulator.poses`),
+        checked against the model's joint limits. A relative path is resolved against the
+        config's ``base_dir``."""
         full = Path(self.config.base_dir) / path
         try:
             text = full.read_text(encoding="utf-8")
         except OSError as exc:
             raise ValueError(f"robot.poses: cannot read {full}: {exc.strerror}") from None
-        return parse_poses_csv(text, str(full), joint_limits_deg(self.truth.model))
+        return parse_poses_file(text, str(full), joint_limits_deg(self.truth.model))
 
     def load_poses(
         self, poses_deg: FloatArray, loop: bool | None = None, now: float | None = None

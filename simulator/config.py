@@ -24,7 +24,8 @@ class RobotSection(_Strict):
     model: str = "hsr-jr680"  # built-in name, or path to a .toml/.json model file
     dh_errors: Literal["table-xii-d1", "none"] = "table-xii-d1"
     tool_error_mm: tuple[float, float, float] = (0.8, -0.5, 1.2)
-    # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns
+    # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns, or a
+    # robot program (RAPID .mod, URScript, KRL .src, Fanuc .LS) whose joint moves it runs
     poses: str = "random"
     n_poses: Annotated[int, Field(ge=1)] = 60
     min_z_mm: float = 0.0  # the floor: random poses keep flange and hook point above it

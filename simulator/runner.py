@@ -196,8 +196,10 @@ class CellRunner:
         ``poses``
             The pose list (``poses_deg``) and ``loop``.
         ``load_poses``
-            Follow a new pose list: ``poses_deg`` (list of 6-lists [deg]) or ``csv`` (path of a
-            plan CSV with ``q1..q6`` columns, relative to the config's directory); optional
+            Follow a new pose list: ``poses_deg`` (list of 6-lists [deg]), ``csv`` (path of a
+            plan CSV with ``q1..q6`` columns, relative to the config's directory) or
+            ``program`` (path of a robot program in any format of ``cablecal program``: the
+            robot runs its joint moves; a CSV is read as with ``csv``); optional
             ``loop``. The robot moves from where it is to the new pose 0, then dwells and
             moves as usual. Replies like ``poses``.
         ``shift_joint_offset``
@@ -300,11 +302,13 @@ class CellRunner:
     def _load_poses(self, request: dict[str, Any]) -> dict[str, Any]:
         """The ``load_poses`` command."""
         cell = self.cell
-        has_csv, has_list = "csv" in request, "poses_deg" in request
-        if has_csv == has_list:
-            raise ValueError("load_poses: give exactly one of 'csv' (a path) or 'poses_deg'")
-        if has_csv:
-            poses = cell.read_poses_csv(str(request["csv"]))
+        given = [k for k in ("csv", "program", "poses_deg") if k in request]
+        if len(given) != 1:
+            raise ValueError(
+                "load_poses: give exactly one of 'csv' (a path), 'program' (a path) or 'poses_deg'"
+            )
+        if given[0] != "poses_deg":
+            poses = cell.read_poses_csv(str(request[given[0]]))
         else:
             poses = np.asarray(request["poses_deg"], dtype=float)
         loop = request.get("loop")
