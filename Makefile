@@ -41,10 +41,12 @@ demo: $(STAMP)
 # against idle (bench/sampler_priority.*).
 bench: $(STAMP)
 	$(BIN)/python -m bench.solver_real
+	$(BIN)/python -m bench.min_n
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
 	$(BIN)/python -m bench.sampler_priority
 	$(BIN)/python -m bench.web_bench
+	$(BIN)/python -m bench.drift_watch
 
 # The README's screenshots of the operator page (docs/img/web-*.png), on a fresh emulated cell.
 screenshots: $(STAMP)

@@ -291,9 +291,11 @@ class JobManager:
         else:
             status = "succeeded"
             result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
-            await asyncio.to_thread(self._succeeded, job_id, result)
+            await asyncio.to_thread(self._succeeded, job_id, result, sample_ids)
         finally:
             metrics.JOBS.labels(method, status).inc()
+            if status == "failed":
+                metrics.IDENTIFICATIONS_FAILED.inc()
             metrics.JOB_DURATION.labels(method, status).observe(time.monotonic() - t0)
             self._futures.pop(job_id, None)
             self._tasks.pop(job_id, None)
@@ -301,8 +303,21 @@ class JobManager:
                 with contextlib.suppress(Exception):
                     self._cancel.pop(job_id, None)
 
-    def _succeeded(self, job_id: int, result: dict[str, Any]) -> None:
-        """Store a succeeded job's result (and accept it if plausible); runs in a thread."""
+    def _succeeded(
+        self, job_id: int, result: dict[str, Any], sample_ids: list[int] | None = None
+    ) -> None:
+        """Store a succeeded job's result (and accept it if plausible); runs in a thread.
+        With ``sample_ids`` (the samples identified), the result says whether they followed
+        the campaign's plan (:mod:`daemon.plan_check`)."""
+        if sample_ids is not None:
+            from daemon.plan_check import add_plan_check
+
+            job = self.store.get_job(job_id)
+            if job is not None:
+                try:
+                    add_plan_check(self.store, int(job["campaign_id"]), sample_ids, result)
+                except Exception:  # the check must never lose a result
+                    log.exception("plan check of job %d failed", job_id)
         plausible = bool(result.get("plausibility", {}).get("plausible", False))
         accepted = self.settings.auto_accept and plausible
         self.store.save_result(job_id, result, accepted=accepted)

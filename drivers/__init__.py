@@ -32,8 +32,10 @@ from drivers.errors import (
     RobotStale,
     RobotTimeout,
 )
+from drivers.fanuc_rmi import FanucRmiConfig, FanucRmiRobot
 from drivers.huashu import HuashuConfig, HuashuSocketCmdRobot
 from drivers.indicator import IndicatorConfig, IndicatorReading, ModbusIndicator, RegisterMap
+from drivers.kuka_varproxy import KukaVarProxyConfig, KukaVarProxyRobot
 from drivers.modbus_robot import JointRegisterMap, ModbusRobotConfig, ModbusTcpRobot
 from drivers.robot import JointReading, ManualRobot, ManualRobotConfig, RobotDriver
 from drivers.ur_rtde import UrRtdeConfig, UrRtdeRobot
@@ -89,6 +91,8 @@ ROBOT_KINDS: dict[str, RobotKind] = {
     "modbus-tcp": RobotKind(ModbusRobotConfig, ModbusTcpRobot),
     "ur-rtde": RobotKind(UrRtdeConfig, UrRtdeRobot),
     "abb-rws": RobotKind(AbbRwsConfig, AbbRwsRobot),
+    "kuka-varproxy": RobotKind(KukaVarProxyConfig, KukaVarProxyRobot),
+    "fanuc-rmi": RobotKind(FanucRmiConfig, FanucRmiRobot),
 }
 
 

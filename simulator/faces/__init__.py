@@ -13,6 +13,8 @@ from typing import NamedTuple
 
 from simulator.faces.abb_rws import AbbRwsServer
 from simulator.faces.base import FaceServer
+from simulator.faces.fanuc_rmi import FanucRmiServer
+from simulator.faces.kuka_varproxy import KukaVarProxyServer
 from simulator.faces.ur_rtde import UrRtdeServer
 
 
@@ -29,6 +31,8 @@ class Face(NamedTuple):
 FACES: dict[str, Face] = {
     "abb-rws": Face("robot_abb_rws", "robot_abb_rws", AbbRwsServer),
     "ur-rtde": Face("robot_ur_rtde", "robot_ur_rtde", UrRtdeServer),
+    "kuka-varproxy": Face("robot_kuka_varproxy", "robot_kuka_varproxy", KukaVarProxyServer),
+    "fanuc-rmi": Face("robot_fanuc_rmi", "robot_fanuc_rmi", FanucRmiServer),
 }
 
 #: READY keys of every controller family's face, present (or null) in every READY mapping.
