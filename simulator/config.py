@@ -96,6 +96,20 @@ class UrRtdeSection(ServerSection):
     port: Annotated[int, Field(ge=0, le=65535)] = 30004
 
 
+class AbbRwsSection(ServerSection):
+    """The emulated ABB Robot Web Services face (``simulator.faces.abb_rws``). ``rws``:
+    ``"1.0"`` an IRC5 (HTTP, digest authentication), ``"2.0"`` an OmniCore (HTTPS, basic
+    authentication; ``cert_file``/``key_file`` PEM, or a self-signed certificate generated at
+    start with the ``openssl`` command). ``username``/``password``: the accepted login (ABB's
+    factory default, as on a new controller; an emulator's, not a secret)."""
+
+    rws: Literal["1.0", "2.0"] = "1.0"
+    username: str = "Default User"
+    password: str = "robotics"
+    cert_file: str | None = None
+    key_file: str | None = None
+
+
 class FaultSection(_Strict):
     """Faults active from the start; all can be changed while running (control port)."""
 
@@ -121,7 +135,7 @@ class SimConfig(_Strict):
     indicator: IndicatorSection = IndicatorSection()
     robot_socketcmd: ServerSection = ServerSection()  # real controllers: 23333
     robot_modbus: ServerSection = ServerSection()  # real UR: 502
-    robot_abb_rws: ServerSection = ServerSection()  # real IRC5: 80 (RWS 1.0)
+    robot_abb_rws: AbbRwsSection = AbbRwsSection()  # real IRC5: 80, OmniCore: 443
     robot_ur_rtde: UrRtdeSection = UrRtdeSection()  # real UR: 30004
     robot_kuka_varproxy: ServerSection = ServerSection()  # real KukaVarProxy: 7000
     robot_fanuc_rmi: ServerSection = ServerSection()  # real RMI: 16001
