@@ -15,6 +15,8 @@ from collections.abc import Mapping, Sized
 from dataclasses import MISSING, dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
+from calib.drift import DRIFT_MODES, DriftMode
+
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
     from calib.models import RobotModel
@@ -187,6 +189,15 @@ class IdentifyOptions:
     vslm_delta0: float = field(default=0.8, metadata=_spec("VSLM initial step size", gt=0))
     vslm_mu: float = field(default=0.95, metadata=_spec("VSLM step-size decay", gt=0, lt=1))
     de_max_generations: int = field(default=300, metadata=_spec("DE generations", gt=0))
+    drift: DriftMode = field(
+        default="auto",
+        metadata=_spec(
+            "Model how the measurement changes over the campaign (calib.drift): auto (BIC "
+            "chooses none, steps, a smooth drift or both), none, steps (re-zero or sensor "
+            "moved), smooth (offset drift over time); geolm, lm and vslm only",
+            choices=DRIFT_MODES,
+        ),
+    )
 
     def __post_init__(self) -> None:
         for f in fields(self):
