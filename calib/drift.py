@@ -46,7 +46,9 @@ steps on top of the chosen smooth drift.
   offset's drift explains the residual, and a smooth 3-D anchor drift is nearly collinear with
   the offset drift over a short capture.
 * A change point can only be located between two *training* rows; it is reported at the first
-  training row after it (the test rows between them are evaluated with the step on).
+  training row after it, and placed at the midpoint of the two rows' times (held-out rows in
+  between are evaluated with the step on past the midpoint: a held-out row right at a step
+  may be off by the step's size).
 * Test rows get the drift interpolated at their own time; the train/test split is random over
   rows, so held-out times lie inside the training span. A smooth drift is separable from the
   geometry only if the pose order is not correlated with the geometry's sensitivities; the
@@ -57,14 +59,13 @@ steps on top of the chosen smooth drift.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, get_args
+from typing import Any, Literal
 
 import numpy as np
 
 from calib.kinematics import FloatArray
+from calib.options import DriftMode
 
-DriftMode = Literal["auto", "none", "steps", "smooth"]
-DRIFT_MODES: tuple[str, ...] = get_args(DriftMode)
 StepKind = Literal["rezero", "sensor_moved"]
 
 #: Knot counts (both ends included) the smooth drift may take; a count needs at least
@@ -75,6 +76,10 @@ ROWS_PER_KNOT = 15
 MAX_STEPS = 6
 #: Fewest training rows on either side of a change point.
 MIN_SEGMENT_ROWS = 8
+#: Fewest training rows on either side of a sensor move: locating a new P0 (4 unknowns) from
+#: fewer poses is an extrapolation (on 120 rows of the HSR data, 11 rows "found" a 5.8 mm
+#: move whose offset and P0 cancel, and the held-out error grew by half).
+MIN_MOVE_ROWS = 30
 #: Least share of the plain fit's residual sum of squares a model (and each of its steps, of
 #: the residual left before it) must explain to be chosen over none by ``auto``: BIC assumes
 #: independent errors, but unmodelled robot error (compliance, the robot's own warm-up) is
@@ -86,8 +91,9 @@ MIN_GAIN = 0.1
 
 @dataclass(frozen=True)
 class Step:
-    """A change point at time ``t`` (first training row after it: ``row``, 0-based in the
-    samples) of kind ``rezero`` (offset) or ``sensor_moved`` (P0 and offset)."""
+    """A change point at time ``t`` (midway between two training rows; the first training
+    row after it: ``row``, 0-based in the samples) of kind ``rezero`` (offset) or
+    ``sensor_moved`` (P0 and offset)."""
 
     t: float
     row: int
@@ -179,6 +185,7 @@ class Selection:
     model: DriftModel
     bic: dict[str, float] = field(default_factory=dict)
     rss_mm2: dict[str, float] = field(default_factory=dict)
+    press_mm2: dict[str, float] = field(default_factory=dict)
 
 
 class _Linear:
@@ -205,6 +212,15 @@ class _Linear:
         qb = orthonormal(bp)
         proj = qb.T @ self.r
         return max(self.rss0 - float(proj @ proj), 1e-300)
+
+    def press(self, b: FloatArray) -> float:
+        """Leave-one-out prediction error sum of squares [mm²] of the data rows with the
+        columns ``b`` (n, m) added (``Σ (r_i / (1 − h_ii))²``, ``h`` the hat matrix of the
+        stacked Jacobian and ``b``): held-out cross-validation within the training rows."""
+        lin = self.with_columns(b) if b.shape[1] else self
+        h = np.sum(lin.q[: self.n] ** 2, axis=1)
+        r = lin.r[: self.n] / np.maximum(1.0 - h, 1e-6)
+        return float(r @ r)
 
     def with_columns(self, b: FloatArray) -> _Linear:
         """The same problem with the columns ``b`` (n, m) added to the Jacobian."""
@@ -234,7 +250,8 @@ def _scan(lin: _Linear, order: np.ndarray, unit: FloatArray, n_cols: int) -> tup
     Gram matrix and right-hand side at each split are reverse cumulative sums.
     """
     n = lin.n
-    if n < 2 * MIN_SEGMENT_ROWS:
+    least = MIN_SEGMENT_ROWS if n_cols == 1 else MIN_MOVE_ROWS
+    if n < 2 * least:
         return -1, 0.0
     v = np.ones((n, 1)) if n_cols == 1 else np.column_stack([np.ones(n), -unit])
     v = v[order]
@@ -248,7 +265,7 @@ def _scan(lin: _Linear, order: np.ndarray, unit: FloatArray, n_cols: int) -> tup
     raw = rev(v[:, :, None] * v[:, None, :])  # (n, cols, cols)
     gram = raw - np.einsum("kap,kbp->kab", c, c)
     rhs = rev(r[:, None] * v)  # (n, cols); Qᵀ r = 0
-    ks = np.arange(MIN_SEGMENT_ROWS, n - MIN_SEGMENT_ROWS + 1)
+    ks = np.arange(least, n - least + 1)
     sol = np.einsum("kab,kb->ka", np.linalg.pinv(gram[ks], rcond=1e-8, hermitian=True), rhs[ks])
     drop = np.einsum("ka,ka->k", rhs[ks], sol)
     best = int(np.argmax(drop))
@@ -278,8 +295,9 @@ def _steps(
             rss = max(cur.rss0 - drop, 1e-300)
             cand = _bic(rss, n_bic, params + n_cols + 1)
             if best is None or cand < best[0]:
-                i = int(order[pos])
-                step = Step(t=float(t[i]), row=int(rows[i]), kind=kind)  # type: ignore[arg-type]
+                i, before = int(order[pos]), int(order[pos - 1])
+                mid = 0.5 * (float(t[i]) + float(t[before]))  # held-out rows between: half each
+                step = Step(t=mid, row=int(rows[i]), kind=kind)  # type: ignore[arg-type]
                 b = DriftModel(steps=(step,)).basis(t, unit)
                 best = (cand, step, b, n_cols + 1)
         if best is None or best[0] >= bic:
@@ -356,11 +374,16 @@ def select(
         if steps:
             cands["steps"] = (score, DriftModel(steps=tuple(steps), time_unit=time_unit))
             sel.bic["steps"] = score
+    press0 = lin.press(np.zeros((n, 0)))
+    sel.press_mm2["none"] = press0
     for name, (_, model) in list(cands.items()):
         if name == "none":
             continue
-        sel.rss_mm2[name] = lin.rss(model.basis(t, unit))
-        if mode == "auto" and sel.rss_mm2[name] > (1.0 - MIN_GAIN) * lin.rss0:
+        b = model.basis(t, unit)
+        sel.rss_mm2[name] = lin.rss(b)
+        sel.press_mm2[name] = lin.press(b)
+        if mode == "auto" and (sel.rss_mm2[name] > (1.0 - MIN_GAIN) * lin.rss0
+                               or sel.press_mm2[name] > (1.0 - MIN_GAIN) * press0):  # fmt: skip
             cands.pop(name)
     sel.model = min(cands.values(), key=lambda c: c[0])[1]
     return sel
@@ -371,7 +394,8 @@ def report(
 ) -> dict[str, Any]:
     """``result.json``'s ``drift`` block: the model, the steps (row, kind, sizes [mm]), the
     smooth drift (knots, values [mm], peak-to-peak [mm], steepest rate [mm/h or mm per 100
-    samples]) and the criterion's scores."""
+    samples]) and the criterion's scores (BIC, leave-one-out PRESS [mm²]). The caller adds
+    ``per_sample_mm`` (n,): the drift term at every sample [mm], in sample order."""
     per = "mm_per_h" if model.time_unit == "s" else "mm_per_100_samples"
     scale = 3600.0 if model.time_unit == "s" else 100.0
     out: dict[str, Any] = {"mode": mode, "model": model.name, "time_unit": model.time_unit,
@@ -406,6 +430,7 @@ def report(
         }
     if selection is not None:
         out["bic"] = {k: round(v, 3) for k, v in selection.bic.items()}
+        out["loo_press_mm2"] = {k: round(v, 6) for k, v in selection.press_mm2.items()}
     return out
 
 

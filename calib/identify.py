@@ -500,6 +500,8 @@ def identify(
     if opts.drift != "none":
         drift_block = drift.report(d.drift_model or drift.DriftModel(time_unit=d.times[1]), beta,
                                    selection, opts.drift)  # fmt: skip
+        every = np.arange(len(samples))
+        drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
         if opts.method not in DRIFT_METHODS:
             drift_block["note"] = f"not modelled: method {opts.method} does not support it"
         elif d.drift_model is not None:

@@ -15,8 +15,6 @@ from collections.abc import Mapping, Sized
 from dataclasses import MISSING, dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
-from calib.drift import DRIFT_MODES, DriftMode
-
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
     from calib.models import RobotModel
@@ -25,11 +23,13 @@ Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de", "geolm"]
 Robust = Literal["auto", "none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
 PriorWeight = Literal["estimated", "fixed", "cv"]
+DriftMode = Literal["auto", "none", "steps", "smooth"]
 
 METHODS: tuple[str, ...] = get_args(Method)
 ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
 PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
+DRIFT_MODES: tuple[str, ...] = get_args(DriftMode)
 
 #: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
 PAPER_N_TRAIN = 100
