@@ -87,6 +87,9 @@ MIN_MOVE_ROWS = 30
 #: lower) a change is not worth a model; above it, on the campaigns of issue 19, it is 40 %
 #: to 99 %.
 MIN_GAIN = 0.1
+#: Rows beyond this many robust σ of the residual a chosen model leaves are gross outliers:
+#: the choice is made again without them.
+GROSS_SIGMA = 6.0
 
 
 @dataclass(frozen=True)
@@ -186,6 +189,7 @@ class Selection:
     bic: dict[str, float] = field(default_factory=dict)
     rss_mm2: dict[str, float] = field(default_factory=dict)
     press_mm2: dict[str, float] = field(default_factory=dict)
+    excluded_rows: list[int] = field(default_factory=list)
 
 
 class _Linear:
@@ -241,7 +245,9 @@ def _bic(rss: float, n: int, params: int) -> float:
     return float(n * np.log(rss / n) + params * np.log(n))
 
 
-def _scan(lin: _Linear, order: np.ndarray, unit: FloatArray, n_cols: int) -> tuple[int, float]:
+def _scan(
+    lin: _Linear, order: np.ndarray, unit: FloatArray, n_cols: int, taken: list[int]
+) -> tuple[int, float]:
     """Best change point for a step of ``n_cols`` columns (1: re-zero, 4: sensor moved).
 
     ``order`` (n,) sorts the training rows by time. Returns the position in that order of
@@ -268,6 +274,10 @@ def _scan(lin: _Linear, order: np.ndarray, unit: FloatArray, n_cols: int) -> tup
     ks = np.arange(least, n - least + 1)
     sol = np.einsum("kab,kb->ka", np.linalg.pinv(gram[ks], rcond=1e-8, hermitian=True), rhs[ks])
     drop = np.einsum("ka,ka->k", rhs[ks], sol)
+    for p in taken:  # a segment between two steps is at least as long as one at the ends
+        drop[np.abs(ks - p) < least] = -np.inf
+    if not np.isfinite(drop).any():
+        return -1, 0.0
     best = int(np.argmax(drop))
     return int(ks[best]), float(drop[best])
 
@@ -286,10 +296,11 @@ def _steps(
     params = base_params
     cur = lin
     bic = _bic(cur.rss0, n_bic, params)
+    taken: list[int] = []
     for _ in range(MAX_STEPS):
-        best: tuple[float, Step, FloatArray, int] | None = None
+        best: tuple[float, Step, FloatArray, int, int] | None = None
         for kind, n_cols in (("rezero", 1), ("sensor_moved", 4)):
-            pos, drop = _scan(cur, order, unit, n_cols)
+            pos, drop = _scan(cur, order, unit, n_cols, taken)
             if pos < 0 or drop < MIN_GAIN * cur.rss0:
                 continue
             rss = max(cur.rss0 - drop, 1e-300)
@@ -299,11 +310,12 @@ def _steps(
                 mid = 0.5 * (float(t[i]) + float(t[before]))  # held-out rows between: half each
                 step = Step(t=mid, row=int(rows[i]), kind=kind)  # type: ignore[arg-type]
                 b = DriftModel(steps=(step,)).basis(t, unit)
-                best = (cand, step, b, n_cols + 1)
+                best = (cand, step, b, n_cols + 1, pos)
         if best is None or best[0] >= bic:
             break
-        bic, step, b, extra = best
+        bic, step, b, extra, pos = best
         steps.append(step)
+        taken.append(pos)
         cols = np.hstack([cols, b])
         params += extra
         cur = cur.with_columns(b)
@@ -335,6 +347,29 @@ def select(
     unit : ndarray, shape (n, 3)
         Unit vectors from ``P0`` to the tool at the plain fit.
     """
+    n = t.shape[0]
+    sel = _select_once(mode, residual, jacobian, t, rows, unit, time_unit)
+    if sel.model.is_none:
+        return sel
+    # Gross outliers (beyond GROSS_SIGMA robust σ of the residual the chosen model leaves)
+    # would pass for steps: choose again without them (the robust step screens them later).
+    lin = _Linear(residual, jacobian, n).with_columns(sel.model.basis(t, unit))
+    r = lin.r[:n]
+    scale = 1.4826 * float(np.median(np.abs(r)))
+    gross = np.abs(r) > GROSS_SIGMA * scale
+    if not gross.any() or scale <= 0:
+        return sel
+    keep = np.concatenate([~gross, np.ones(residual.shape[0] - n, dtype=bool)])
+    again = _select_once(mode, residual * keep, jacobian * keep[:, None], t, rows, unit, time_unit)
+    again.excluded_rows = [int(v) for v in rows[gross]]
+    return again
+
+
+def _select_once(
+    mode: DriftMode, residual: FloatArray, jacobian: FloatArray, t: FloatArray,
+    rows: np.ndarray, unit: FloatArray, time_unit: str,
+) -> Selection:  # fmt: skip
+    """One pass of :func:`select` over every row given."""
     n = t.shape[0]
     lin = _Linear(residual, jacobian, n)
     sel = Selection(DriftModel(time_unit=time_unit))
@@ -394,7 +429,8 @@ def report(
 ) -> dict[str, Any]:
     """``result.json``'s ``drift`` block: the model, the steps (row, kind, sizes [mm]), the
     smooth drift (knots, values [mm], peak-to-peak [mm], steepest rate [mm/h or mm per 100
-    samples]) and the criterion's scores (BIC, leave-one-out PRESS [mm²]). The caller adds
+    samples]) and the criterion's scores (BIC, leave-one-out PRESS [mm²]), and the gross
+    outliers left out of the choice. The caller adds
     ``per_sample_mm`` (n,): the drift term at every sample [mm], in sample order."""
     per = "mm_per_h" if model.time_unit == "s" else "mm_per_100_samples"
     scale = 3600.0 if model.time_unit == "s" else 100.0
@@ -431,6 +467,7 @@ def report(
     if selection is not None:
         out["bic"] = {k: round(v, 3) for k, v in selection.bic.items()}
         out["loo_press_mm2"] = {k: round(v, 6) for k, v in selection.press_mm2.items()}
+        out["rows_left_out_of_the_choice"] = selection.excluded_rows
     return out
 
 
