@@ -70,7 +70,7 @@ StepKind = Literal["rezero", "sensor_moved"]
 
 #: Knot counts (both ends included) the smooth drift may take; a count needs at least
 #: :data:`ROWS_PER_KNOT` training rows per knot.
-KNOT_CHOICES: tuple[int, ...] = (2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24, 32)
+KNOT_CHOICES: tuple[int, ...] = (2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24, 32, 40, 48)
 ROWS_PER_KNOT = 15
 #: Most change points binary segmentation keeps.
 MAX_STEPS = 6
@@ -90,6 +90,9 @@ MIN_GAIN = 0.1
 #: Rows beyond this many robust σ of the residual a chosen model leaves are gross outliers:
 #: the choice is made again without them.
 GROSS_SIGMA = 6.0
+#: Fewest training rows to model a drift at all: with fewer, a drift cannot be told from the
+#: robot's geometry and the outliers (the 120-pose sets of issue 19 train on 96 rows).
+MIN_ROWS = 60
 
 
 @dataclass(frozen=True)
@@ -348,7 +351,17 @@ def select(
         Unit vectors from ``P0`` to the tool at the plain fit.
     """
     n = t.shape[0]
+    if n < MIN_ROWS:
+        return _select_once("none", residual, jacobian, t, rows, unit, time_unit)
+    # Gross outliers of the plain fit first (beyond GROSS_SIGMA robust σ of its residual: a
+    # drift widens that spread, so its rows stay in).
+    plain = np.abs(_Linear(residual, jacobian, n).r[:n])
+    gross0 = plain > GROSS_SIGMA * 1.4826 * float(np.median(plain))
+    if gross0.any():
+        keep0 = np.concatenate([~gross0, np.ones(residual.shape[0] - n, dtype=bool)])
+        residual, jacobian = residual * keep0, jacobian * keep0[:, None]
     sel = _select_once(mode, residual, jacobian, t, rows, unit, time_unit)
+    sel.excluded_rows = [int(v) for v in rows[gross0]]
     if sel.model.is_none:
         return sel
     # Gross outliers (beyond GROSS_SIGMA robust σ of the residual the chosen model leaves)
@@ -361,7 +374,7 @@ def select(
         return sel
     keep = np.concatenate([~gross, np.ones(residual.shape[0] - n, dtype=bool)])
     again = _select_once(mode, residual * keep, jacobian * keep[:, None], t, rows, unit, time_unit)
-    again.excluded_rows = [int(v) for v in rows[gross]]
+    again.excluded_rows = sorted({*sel.excluded_rows, *(int(v) for v in rows[gross])})
     return again
 
 
