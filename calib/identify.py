@@ -504,8 +504,6 @@ def identify(
         drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
         if opts.method not in DRIFT_METHODS:
             drift_block["note"] = f"not modelled: method {opts.method} does not support it"
-        elif d.drift_model is not None:
-            notes.append(drift.summary(drift_block))
     cov, _ = covariance(final, x)
     sigma, corr = uncertainty(final, x, cov)
     # The covariance propagated to the tool point over a workspace sample within the joint

@@ -15,6 +15,7 @@ if str(REPO) not in sys.path:  # bench/ is a top-level package of the repo, not 
 
 from bench.drift_bench import campaign, tcp_error_mm  # noqa: E402
 from calib.dataset import make_samples, parse_samples_csv, samples_to_csv  # noqa: E402
+from calib.drift import summary  # noqa: E402
 from calib.identify import IdentifyOptions, identify  # noqa: E402
 from calib.models import builtin_model  # noqa: E402
 from calib.options import OptionError, options_from_mapping  # noqa: E402
@@ -54,7 +55,7 @@ def test_steps_found_at_the_right_row_with_the_right_size_and_kind() -> None:
     assert step["kind"] == "rezero"
     assert abs(step["row"] - int(0.6 * N)) <= 3
     assert step["offset_mm"] == pytest.approx(5.0, abs=0.05)
-    assert "indicator re-zeroed at row" in " ".join(js["notes"])
+    assert "indicator re-zeroed at row" in summary(js["drift"])
 
 
 def test_drift_rate_recovered_in_mm_per_h_from_the_t_s_column() -> None:
@@ -86,3 +87,27 @@ def test_drift_option_is_validated_by_name() -> None:
     assert options_from_mapping({"drift": "steps"}).drift == "steps"
     with pytest.raises(OptionError, match="drift"):
         options_from_mapping({"drift": "sometimes"})
+
+
+def test_cli_summary_names_the_step_at_80_columns(tmp_path: Path) -> None:
+    """``cablecal identify`` says what moved, where and by how much, in a 80-column terminal;
+    ``--drift none`` leaves it out and the fit is far worse."""
+    import json
+    import os
+    import subprocess
+
+    _, samples = campaign("bump", N, 1)
+    data = tmp_path / "bump.csv"
+    data.write_text(samples_to_csv(samples))
+    base = [sys.executable, "-m", "daemon.cli", "identify", str(data),
+            "--robot", str(REPO / "examples" / "abb-irb120.toml")]  # fmt: skip
+    env = {**os.environ, "COLUMNS": "80", "NO_COLOR": "1"}
+    proc = subprocess.run([*base, "--out", str(tmp_path / "r.json")], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=120, check=True)  # fmt: skip
+    flat = " ".join((proc.stdout + proc.stderr).split())
+    assert "drift auto: sensor moved at row 15" in flat, flat
+    assert max(len(line) for line in proc.stdout.splitlines()) <= 80
+    assert json.loads((tmp_path / "r.json").read_text())["drift"]["model"] == "steps"
+    off = subprocess.run([*base, "--drift", "none"], cwd=REPO, env=env, capture_output=True,
+                         text=True, timeout=120, check=False)  # fmt: skip
+    assert "sensor moved" not in off.stdout
