@@ -71,7 +71,7 @@ StepKind = Literal["rezero", "sensor_moved"]
 #: Knot counts (both ends included) the smooth drift may take; a count needs at least
 #: :data:`ROWS_PER_KNOT` training rows per knot.
 KNOT_CHOICES: tuple[int, ...] = (2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24, 32, 40, 48)
-ROWS_PER_KNOT = 15
+ROWS_PER_KNOT = 8
 #: Most change points binary segmentation keeps.
 MAX_STEPS = 6
 #: Fewest training rows on either side of a change point.
