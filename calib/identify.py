@@ -11,6 +11,10 @@ The public entry point is :func:`identify`. It
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
+   then (``drift``, :mod:`calib.drift`) tests the plain fit for steps and a smooth drift of
+   the measurement over the campaign; a chosen model's terms are profiled out of the problem
+   (:class:`calib.problem.Problem`'s drift basis) for every later fit, and the test rows'
+   figures add them at each row's time;
 5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
    maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
    the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
