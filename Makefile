@@ -42,6 +42,7 @@ demo: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m bench.solver_real
 	$(BIN)/python -m bench.min_n
+	$(BIN)/python -m bench.drift_bench
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
 	$(BIN)/python -m bench.sampler_priority

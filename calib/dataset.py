@@ -1,9 +1,11 @@
 """Calibration samples and their CSV form (parsed from text; the caller reads the file).
 
 CSV: a header with ``q1..q6`` (any case) in degrees and ``L`` (or ``length_mm``) in mm; an
-optional ``anchor`` column (sensor position id) and an optional ``group`` column (pose group
-for grouped hold-out). Other columns (``x, y, z``, …) are ignored. Every error names the line
-(the header is line 1) and the column, and nothing is returned on error.
+optional ``anchor`` column (sensor position id), an optional ``group`` column (pose group
+for grouped hold-out) and an optional ``t_s`` column (capture time [s], any origin, for the
+drift model of :mod:`calib.drift`; without it the row order is the time). Other columns
+(``x, y, z``, …) are ignored. Every error names the line (the header is line 1) and the
+column, and nothing is returned on error.
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ class SampleSet:
         Pose group per sample, from a ``group`` column; None when absent.
     line : ndarray of int, shape (n,)
         Source line in the file (1-based, header = 1), for error messages.
+    t_s : ndarray, shape (n,) or None
+        Capture time [s] (any origin), from a ``t_s`` column; None when absent.
     """
 
     joints_deg: FloatArray
@@ -72,6 +76,7 @@ class SampleSet:
     anchor: tuple[str, ...]
     group: tuple[str, ...] | None = None
     line: np.ndarray | None = None
+    t_s: FloatArray | None = None
 
     def __len__(self) -> int:
         return int(self.length_mm.shape[0])
@@ -93,6 +98,7 @@ class SampleSet:
             anchor=tuple(self.anchor[i] for i in rows),
             group=None if self.group is None else tuple(self.group[i] for i in rows),
             line=None if self.line is None else self.line[rows],
+            t_s=None if self.t_s is None else self.t_s[rows],
         )
 
     def line_of(self, i: int) -> int:
@@ -229,6 +235,8 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
     cols, length_col = _header_columns(header)
     anchor_col = cols.get("anchor")
     group_col = cols.get("group")
+    time_col = cols.get("t_s")
+    times: list[float] = []
     # Flat lists of floats and ints (objects the garbage collector does not track, so a large
     # file does not make every collection slower), turned into arrays block by block.
     values: list[float] = []  # the current block of rows, q1..q6, L each
@@ -252,6 +260,10 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
         anchors.append(anchor or "A")
         if group_col is not None:
             groups.append(row[group_col].strip() if group_col < len(row) else "")
+        if time_col is not None:
+            if time_col >= len(row):
+                raise SampleError("missing value", row=line_no, column="t_s")
+            times.append(_number(row[time_col].strip(), line_no, "t_s"))
         lines.append(line_no)
     if not lines:
         raise SampleError("no data rows after the header")
@@ -264,6 +276,7 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
         anchor=tuple(anchors),
         group=tuple(groups) if group_col is not None else None,
         line=np.frombuffer(lines, dtype=np.int64).astype(int),
+        t_s=np.array(times, dtype=float) if time_col is not None else None,
     )
     validate_values(samples)
     return samples
@@ -274,11 +287,14 @@ def samples_to_csv(samples: SampleSet) -> str:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     header = [*JOINT_COLUMNS, "L", "anchor"] + (["group"] if samples.group is not None else [])
+    header += ["t_s"] if samples.t_s is not None else []
     writer.writerow(header)
     for i in range(len(samples)):
         row = [f"{v:.6f}" for v in samples.joints_deg[i]] + [f"{samples.length_mm[i]:.6f}",
                                                              samples.anchor[i]]  # fmt: skip
         if samples.group is not None:
             row.append(samples.group[i])
+        if samples.t_s is not None:
+            row.append(f"{samples.t_s[i]:.3f}")
         writer.writerow(row)
     return out.getvalue()

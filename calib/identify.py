@@ -11,6 +11,10 @@ The public entry point is :func:`identify`. It
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
+   then (``drift``, :mod:`calib.drift`) tests the plain fit for steps and a smooth drift of
+   the measurement over the campaign; a chosen model's terms are profiled out of the problem
+   (:class:`calib.problem.Problem`'s drift basis) for every later fit, and the test rows'
+   figures add them at each row's time;
 5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
    maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
    the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
@@ -34,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from calib import methods, metrics, noise, prior, robust
+from calib import drift, methods, metrics, noise, prior, robust
 from calib.cable import (
     N_DH,
     N_KIN,
@@ -130,6 +134,23 @@ class _Data:
     aidx_all: np.ndarray  # (n,) anchor index per sample
     train_rows: np.ndarray  # (n_train,)
     test_rows: np.ndarray  # (n_test,)
+    drift_model: drift.DriftModel | None = None  # chosen by _select_drift, None: no drift
+    drift_basis: FloatArray | None = None  # (n_train, m) its basis at the training rows
+
+    @property
+    def times(self) -> tuple[FloatArray, str]:
+        """Capture time of every sample (n,) [s, from ``t_s``; else the row index] and unit."""
+        if self.samples.t_s is not None:
+            return np.asarray(self.samples.t_s, dtype=float), "s"
+        return np.arange(len(self.samples), dtype=float), "row"
+
+    def units(self, theta: FloatArray, rows: np.ndarray) -> FloatArray:
+        """Unit vectors (r, 3) from each row's ``P0`` to the tool under ``theta``."""
+        dh, tool = kinematic_parts(self.model, theta)
+        pos = forward_position(dh, self.q_all[rows], tool, self.model.convention)
+        diff = pos - theta[N_KIN:].reshape(-1, 4)[self.aidx_all[rows], :3]
+        out: FloatArray = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-9)[:, None]
+        return out
 
     @property
     def q(self) -> FloatArray:
@@ -208,9 +229,8 @@ def _free_set(
 def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions) -> Problem:
     """The problem the method solves: ML, or MAP with a Gaussian prior toward the nominal."""
     # noise_mm also sizes the filters' measurement noise, with or without the prior.
-    ml = Problem(
-        d.model, d.layout, d.q, d.length_mm, d.aidx, free, theta_start, noise_mm=opts.noise_mm
-    )
+    ml = Problem(d.model, d.layout, d.q, d.length_mm, d.aidx, free, theta_start,
+                 noise_mm=opts.noise_mm, drift_basis=d.drift_basis)  # fmt: skip
     return prior.with_prior(ml, opts)
 
 
@@ -374,17 +394,53 @@ def _robust_detail(opts: IdentifyOptions, s: _Solved) -> dict[str, Any]:
             "redundancy": None if scr is None else scr.redundancy}  # fmt: skip
 
 
+#: Methods whose solvers see the problem through ``Problem.evaluate`` (the drift's projection).
+DRIFT_METHODS = ("geolm", "lm", "vslm")
+
+
+def _select_drift(
+    d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions
+) -> drift.Selection | None:
+    """Step 4b: the drift model (:func:`calib.drift.select`) at a plain MAP (or ML) fit with
+    the options' noise; sets ``d.drift_model`` and ``d.drift_basis`` unless it is none."""
+    if opts.drift == "none" or opts.method not in DRIFT_METHODS:
+        return None
+    base = _problem(d, theta_start, free, opts)
+    x = lm.solve(base, None, lm.LMOptions(max_iterations=100)).x
+    ev = base.evaluate(x)
+    assert ev.jacobian is not None
+    t_all, unit = d.times
+    units = d.units(base.full(x), d.train_rows)
+    t = t_all[d.train_rows]
+    sel = drift.select(opts.drift, ev.residual, ev.jacobian, t, d.train_rows, units, unit)
+    if not sel.model.is_none:
+        d.drift_model = sel.model
+        d.drift_basis = sel.model.basis(t, units)
+    return sel
+
+
+def _drift_mm(d: _Data, theta: FloatArray, beta: FloatArray, rows: np.ndarray) -> FloatArray:
+    """The drift terms (r,) [mm] at ``rows`` (interpolated at their times) under ``theta``."""
+    if d.drift_model is None or rows.size == 0:
+        return np.zeros(rows.size)
+    basis = d.drift_model.basis(d.times[0][rows], d.units(theta, rows))
+    return np.asarray(basis @ beta, dtype=float)
+
+
 def _figures(
-    d: _Data, theta_before: FloatArray, theta: FloatArray
+    d: _Data, theta_before: FloatArray, theta: FloatArray, beta: FloatArray
 ) -> dict[str, dict[str, dict[str, float]]]:
-    """Length metrics before and after, on the training and the test rows."""
-    return {
-        label: {
-            part: metrics.length_metrics(d.samples.length_mm[rows], d.lengths(th, rows))
-            for part, rows in (("train", d.train_rows), ("test", d.test_rows))
-        }
-        for label, th in (("before", theta_before), ("after", theta))
-    }
+    """Length metrics before and after, on the training and the test rows; the after figures
+    with the drift terms ``beta`` (m,) [mm] at each row's time (none before)."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for label, th in (("before", theta_before), ("after", theta)):
+        out[label] = {}
+        for part, rows in (("train", d.train_rows), ("test", d.test_rows)):
+            pred = d.lengths(th, rows)
+            if label == "after":
+                pred = pred + _drift_mm(d, th, beta, rows)
+            out[label][part] = metrics.length_metrics(d.samples.length_mm[rows], pred)
+    return out
 
 
 def identify(
@@ -427,6 +483,8 @@ def identify(
     theta_start, candidates = _start_point(d, theta_before, opts)
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
+    report(progress, 0.06, "testing for drift and steps of the measurement")
+    selection = _select_drift(d, theta_start, free, opts)
     used, prior_detail, solved = _weighed_solve(d, samples, theta_start, free, opts, progress)
     notes: list[str] = []
     if used.prior:
@@ -441,6 +499,15 @@ def identify(
 
     x = result.x
     theta = final.full(x)
+    beta = final.drift_coefficients(x)
+    drift_block = None
+    if opts.drift != "none":
+        drift_block = drift.report(d.drift_model or drift.DriftModel(time_unit=d.times[1]), beta,
+                                   selection, opts.drift)  # fmt: skip
+        every = np.arange(len(samples))
+        drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
+        if opts.method not in DRIFT_METHODS:
+            drift_block["note"] = f"not modelled: method {opts.method} does not support it"
     cov, _ = covariance(final, x)
     sigma, corr = uncertainty(final, x, cov)
     # The covariance propagated to the tool point over a workspace sample within the joint
@@ -458,9 +525,9 @@ def identify(
         theta_before=theta_before,
         free_names=[n for n, f in zip(layout.names, free, strict=True) if f],
         sigma=sigma, correlation=corr, identifiability=ident, solver=result,
-        metrics=_figures(d, theta_before, theta), flagged_rows=flagged,
+        metrics=_figures(d, theta_before, theta, beta), flagged_rows=flagged,
         train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
         notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
         tcp_uncertainty_mm=tcp, prior=prior_block(opts, used, prior_detail),
-        robust_detail=_robust_detail(opts, solved),
+        robust_detail=_robust_detail(opts, solved), drift=drift_block,
     )  # fmt: skip

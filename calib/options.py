@@ -23,11 +23,13 @@ Method = Literal["ukf-vslm", "lm", "vslm", "ukf", "ekf", "de", "geolm"]
 Robust = Literal["auto", "none", "huber", "soft_l1", "reject"]
 Holdout = Literal["random", "grouped"]
 PriorWeight = Literal["estimated", "fixed", "cv"]
+DriftMode = Literal["auto", "none", "steps", "smooth"]
 
 METHODS: tuple[str, ...] = get_args(Method)
 ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
 PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
+DRIFT_MODES: tuple[str, ...] = get_args(DriftMode)
 
 #: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
 PAPER_N_TRAIN = 100
@@ -187,6 +189,15 @@ class IdentifyOptions:
     vslm_delta0: float = field(default=0.8, metadata=_spec("VSLM initial step size", gt=0))
     vslm_mu: float = field(default=0.95, metadata=_spec("VSLM step-size decay", gt=0, lt=1))
     de_max_generations: int = field(default=300, metadata=_spec("DE generations", gt=0))
+    drift: DriftMode = field(
+        default="auto",
+        metadata=_spec(
+            "Model how the measurement changes over the campaign (calib.drift): auto (BIC "
+            "chooses none, steps, a smooth drift or both), none, steps (re-zero or sensor "
+            "moved), smooth (offset drift over time); geolm, lm and vslm only",
+            choices=DRIFT_MODES,
+        ),
+    )
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -10,6 +10,11 @@ the full vector ``θ`` (shape ``(p,)``, see :mod:`calib.cable`), the other entri
 ``theta0``. ``w_i`` are robust weights (1 by default). With the prior rows the minimiser is the
 MAP estimate under Gaussian noise of ``noise_mm`` and a Gaussian prior ``N(μ, σ²)`` on each
 free parameter.
+
+With a drift basis ``B`` (shape ``(n, m)``, :mod:`calib.drift`) the data rows carry ``m``
+nuisance terms ``B β`` more; being linear and independent of ``θ`` they are profiled out
+(variable projection): the weighted data residual and Jacobian are projected onto the
+complement of ``span(√w · B)``, so every solver works on the robot's parameters only.
 """
 
 from __future__ import annotations
@@ -82,6 +87,7 @@ class Problem:
     prior_sigma: FloatArray | None = None
     prior_mean: FloatArray | None = None
     noise_mm: float = 0.1
+    drift_basis: FloatArray | None = None
 
     def __post_init__(self) -> None:
         n = self.q_rad.shape[0]
@@ -130,6 +136,38 @@ class Problem:
         return np.sqrt(self.weights)
 
     @cached_property
+    def drift_q(self) -> FloatArray | None:
+        """Orthonormal basis (n, r) of ``span(√w · B)``, or None without a drift basis."""
+        if self.drift_basis is None or self.drift_basis.shape[1] == 0:
+            return None
+        from calib.drift import orthonormal
+
+        return orthonormal(self.sqrt_weights[:, None] * self.drift_basis)
+
+    @property
+    def n_drift(self) -> int:
+        """Nuisance columns profiled out (the rank of the weighted drift basis)."""
+        q = self.drift_q
+        return 0 if q is None else int(q.shape[1])
+
+    def project(self, rows: FloatArray) -> FloatArray:
+        """Weighted data rows (n,) or (n, k) with the drift basis projected out."""
+        q = self.drift_q
+        if q is None:
+            return rows
+        out: FloatArray = rows - q @ (q.T @ rows)
+        return out
+
+    def drift_coefficients(self, x: FloatArray) -> FloatArray:
+        """``β`` (m,) [mm]: the drift terms that best explain the data at ``x`` (shape (k,))."""
+        if self.drift_basis is None:
+            return np.zeros(0)
+        from calib.drift import coefficients
+
+        sw = self.sqrt_weights
+        return coefficients(sw[:, None] * self.drift_basis, sw * (self.length_mm - self.predict(x)))
+
+    @cached_property
     def trig(self) -> JointTrig:
         """``cos``/``sin`` of the joint angles, each (6, n), computed once per problem."""
         return joint_trig(self.q_rad)
@@ -154,7 +192,11 @@ class Problem:
         else:
             pred, jac = self.predict(x), None
         raw = pred - self.length_mm
-        res = self.sqrt_weights * raw
+        res = self.project(self.sqrt_weights * raw)
+        if jac is not None:
+            jac = self.project(jac)
+        if self.drift_q is not None:
+            raw = res / np.where(self.sqrt_weights > 0, self.sqrt_weights, 1.0)
         if self.has_prior:
             pres, pjac = self._prior_rows(x)
             res = np.concatenate([res, pres])
@@ -184,7 +226,7 @@ class Problem:
 
     def residuals(self, x: FloatArray) -> FloatArray:
         """Stacked residual vector, shape (n,) or (n + k,) with the prior [mm]."""
-        data = self.sqrt_weights * (self.predict(x) - self.length_mm)
+        data = self.project(self.sqrt_weights * (self.predict(x) - self.length_mm))
         if not self.has_prior:
             return data
         return np.concatenate([data, self._prior_rows(x)[0]])
@@ -203,4 +245,7 @@ class Problem:
     def data_rms_mm(self, x: FloatArray) -> float:
         """Unweighted RMS of the data residuals [mm] (no prior rows)."""
         r = self.predict(x) - self.length_mm
+        if self.drift_q is not None:
+            sw = self.sqrt_weights
+            r = self.project(sw * r) / np.where(sw > 0, sw, 1.0)
         return float(np.sqrt(np.mean(r * r)))

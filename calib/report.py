@@ -60,6 +60,9 @@ class IdentifyResult:
     prior: dict[str, Any] | None = None
     #: The robust step: ``{"mode", "threshold", "fits"}`` (threshold in robust σ).
     robust_detail: dict[str, Any] | None = None
+    #: ``result.json``'s ``drift`` block (:func:`calib.drift.report`): how the measurement
+    #: changed over the campaign, left out of every robot figure.
+    drift: dict[str, Any] | None = None
 
     def dh_table_deg_mm(self, errors_only: bool = False) -> FloatArray:
         """Calibrated (or error) DH table, shape (6, 4): alpha_deg, a_mm, d_mm, theta_deg."""
@@ -146,6 +149,7 @@ class IdentifyResult:
             },
             "robust": self.options.robust,
             "robust_detail": self.robust_detail,
+            "drift": self.drift,
             "split": {
                 "holdout": self.options.holdout,
                 "test_fraction": self.options.test_fraction,
@@ -163,10 +167,10 @@ def covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]
     pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
                                      problem.anchor_index)  # fmt: skip
     sw = np.sqrt(problem.weights)
-    res = sw * (pred - problem.length_mm)
-    jac = sw[:, None] * jac_full[:, problem.free]
+    res = problem.project(sw * (pred - problem.length_mm))  # drift terms profiled out
+    jac = problem.project(sw[:, None] * jac_full[:, problem.free])
     k = jac.shape[1]
-    dof = max(int(np.count_nonzero(problem.weights > 0)) - k, 1)
+    dof = max(int(np.count_nonzero(problem.weights > 0)) - k - problem.n_drift, 1)
     sigma2 = max(float(res @ res) / dof, 1e-18)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)

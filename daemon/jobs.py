@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import multiprocessing
 import queue
@@ -72,6 +73,7 @@ def run_identification(
     options: dict[str, Any],
     progress_queue: Any,
     cancel_flags: Any,
+    t_s: list[float] | None = None,
 ) -> dict[str, Any]:
     """Worker-side body of a job (runs in a pool process).
 
@@ -91,6 +93,9 @@ def run_identification(
     progress_queue, cancel_flags
         Manager proxies: ``(job_id, fraction, message)`` tuples go out; ``cancel_flags[job_id]``
         set true asks the job to stop.
+    t_s : list of n floats, optional
+        Capture time of each sample [s] (:meth:`daemon.store.Store.sample_set`), for the
+        drift model; None: the row order.
 
     Returns
     -------
@@ -105,6 +110,8 @@ def run_identification(
 
     model = model_from_mapping(model_mapping)
     samples = make_samples(np.asarray(joints_deg, dtype=float), np.asarray(length_mm), anchors)
+    if t_s is not None:  # capture times for the drift model
+        samples = dataclasses.replace(samples, t_s=np.asarray(t_s, dtype=float))
     opts = options_from_mapping(options)
     progress_queue.put((job_id, 0.0, "started"))
     last = [time.monotonic()]
@@ -233,6 +240,7 @@ class JobManager:
             opts,
             self._progress,
             self._cancel,
+            None if samples.t_s is None else samples.t_s.tolist(),
         )
         self._futures[job_id] = future
         self._tasks[job_id] = asyncio.create_task(self._watch(job_id, future, sample_ids, opts))

@@ -36,6 +36,7 @@ from calib.html_report.tables import (
 SECTIONS: tuple[tuple[str, str], ...] = (
     ("summary", "Summary"),
     ("accuracy", "Accuracy before and after calibration"),
+    ("drift", "Measurement drift and steps"),
     ("residuals", "Residuals per sample"),
     ("convergence", "Convergence"),
     ("parameters", "Calibrated parameters"),
@@ -129,6 +130,57 @@ def _accuracy(result: Mapping[str, Any]) -> str:
         "calibrated model. MAE is what the paper calls “STD”; STD is the standard deviation "
         "of the residuals.</p>" + table("metrics", headers, rows, numeric={1, 3, 4, 5, 6, 7})
     )
+
+
+def _drift(result: Mapping[str, Any]) -> str:
+    """What :mod:`calib.drift` found: steps (row, kind, size) and the smooth offset drift."""
+    block = get_map(result, "drift")
+    if not block:
+        return ("<p>Not modelled: identified with <code>drift none</code>, or a result from "
+                "before drift modelling.</p>")  # fmt: skip
+    when = (
+        "the samples' <code>t_s</code> [s]."
+        if block.get("time_unit") == "s"
+        else "the row order (no time column)."
+    )
+    intro = (
+        f"<p>Drift mode <code>{text(block.get('mode'))}</code>; model chosen: "
+        f"<strong>{text(block.get('model'))}</strong>. Changes of the measurement over the "
+        "campaign are modelled as nuisance terms and left out of the robot's parameters, "
+        f"compensation and TCP figures. Time: {when}</p>"
+    )
+    if block.get("note"):
+        intro += f"<p>{text(block.get('note'))}</p>"
+    steps = [s for s in get_list(block, "steps") if isinstance(s, Mapping)]
+    rows = []
+    for st in steps:
+        kind = "sensor moved" if st.get("kind") == "sensor_moved" else "indicator re-zeroed"
+        shift = st.get("p0_shift_mm")
+        shift_txt = (", ".join(num_fixed(v, 3) for v in shift) if isinstance(shift, list)
+                     else "—")  # fmt: skip
+        rows.append(
+            f'<tr><td class="num">{num_int(st.get("row"))}</td><td>{kind}</td>'
+            f'<td class="num">{num_fixed(st.get("offset_mm"), 3)}</td><td>{shift_txt}</td>'
+            f'<td class="num">{num_fixed(st.get("size_mm"), 3)}</td></tr>'
+        )
+    body = intro
+    if rows:
+        body += table("drift-steps", ["Row (0-based)", "Kind", "Offset step [mm]",
+                                      "P0 shift x, y, z [mm]", "Size [mm]"], rows,
+                      numeric={0, 2, 4})  # fmt: skip
+    smooth = get_map(block, "smooth")
+    if smooth:
+        per = "mm/h" if block.get("time_unit") == "s" else "mm per 100 samples"
+        rate = next((v for k, v in smooth.items() if k.startswith("max_rate_")), None)
+        mean = next((v for k, v in smooth.items() if k.startswith("mean_rate_")), None)
+        body += (
+            f"<p>Smooth offset drift, piecewise linear over {len(get_list(smooth, 'knots_t'))} "
+            f"knots: {num_fixed(smooth.get('peak_to_peak_mm'), 3)} mm peak to peak, steepest "
+            f"{num_fixed(rate, 3)} {per}, mean {num_fixed(mean, 3)} {per}.</p>"
+        )
+    if not rows and not smooth:
+        body += "<p>No step and no drift found: the measurement held still.</p>"
+    return body
 
 
 def _residuals(res: SampleResiduals | None) -> str:
@@ -243,6 +295,7 @@ def render_report_html(
     bodies = {
         "summary": _summary(result),
         "accuracy": _accuracy(result),
+        "drift": _drift(result),
         "residuals": _residuals(residuals),
         "convergence": _convergence(result),
         "parameters": dh_section(result),

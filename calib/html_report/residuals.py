@@ -99,6 +99,9 @@ def sample_residuals(
         rows = ids == aid
         predicted[rows] = predict_lengths_from_result(result, samples.joints_deg[rows], aid)
     after = samples.length_mm - predicted
+    per_sample = (result.get("drift") or {}).get("per_sample_mm")
+    if isinstance(per_sample, list) and len(per_sample) == len(samples):
+        after = after - np.asarray(per_sample, dtype=float)  # the drift is not the robot's
 
     model = _nominal_model(result, nominal)
     if model is None:

@@ -14,7 +14,7 @@ from pydantic import (
 )
 from typing_extensions import TypedDict
 
-from calib.options import Holdout, Method, PriorWeight, Robust, default, spec
+from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
 from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
 #: Longest campaign name, anchor id, exclusion reason and campaign notes [characters].
@@ -138,6 +138,7 @@ class IdentificationRequest(_Body):
     prior_mm: float = _option("prior_mm")
     prior_deg: float = _option("prior_deg")
     prior_weight: PriorWeight = _option("prior_weight")
+    drift: DriftMode = _option("drift")
     noise_mm: Annotated[float, Field(gt=spec("noise_mm").gt)] | None = Field(
         None, description=f"{spec('noise_mm').help}; default from the config."
     )

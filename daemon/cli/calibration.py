@@ -149,6 +149,10 @@ def _summary(result: IdentifyResult) -> None:
         f"{'on' if data['prior']['used'] else 'off'}, plausible: "
         f"{data['plausibility']['plausible']}, flagged: {len(data['flagged_samples'])}"
     )
+    if data.get("drift"):
+        from calib.drift import summary as drift_summary
+
+        console.print(drift_summary(data["drift"]))
     flagged = data["flagged_samples"]
     if flagged:
         shown = ", ".join(str(i) for i in flagged[:40]) + (" …" if len(flagged) > 40 else "")
@@ -174,6 +178,7 @@ def identify_cmd(
     prior_deg: Annotated[float, _opt("prior_deg")] = default("prior_deg"),
     prior_weight: Annotated[str, _opt("prior_weight")] = default("prior_weight"),
     noise_mm: Annotated[float, _opt("noise_mm")] = default("noise_mm"),
+    drift: Annotated[str, _opt("drift")] = default("drift"),
     noise_rank: Annotated[bool, _opt("noise_rank")] = default("noise_rank"),
     fix: Annotated[str, _opt("fix", ", comma-separated")] = "",
     free: Annotated[str, _opt("free", ", comma-separated")] = "",
@@ -195,7 +200,7 @@ def identify_cmd(
             {"method": method, "test_fraction": test_fraction, "seed": seed,
              "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
              "prior_deg": prior_deg, "prior_weight": prior_weight, "noise_mm": noise_mm,
-             "noise_rank": noise_rank, "fix": _split_names(fix),
+             "noise_rank": noise_rank, "drift": drift, "fix": _split_names(fix),
              "free": _split_names(free)}
         )  # fmt: skip
         result = _run_identify(model, samples, opts)

@@ -439,7 +439,9 @@ class CampaignStore(RobotStore):
         -------
         samples : SampleSet
             ``line`` is ``2..n+1``: the line of each sample in :meth:`export_csv`. ``group``
-            is set when any sample has a pose group (others get ``""``).
+            is set when any sample has a pose group (others get ``""``). ``t_s`` is the
+            capture time (the end of each capture, [s] since the first) when every sample was
+            captured (none imported), else None (the row order is the time).
         ids : list of int, length n
             Sample id of each row.
 
@@ -451,12 +453,18 @@ class CampaignStore(RobotStore):
         n = len(rows)
         joints = np.array([_pose_deg(r) for r in rows], dtype=float).reshape(n, N_JOINTS)
         groups = [r["pose_group"] for r in rows]
+        # Capture time for the drift model (calib.drift): only when every sample was captured
+        # here, in order (an import has one timestamp for all its rows: the row order is used).
+        timed = n > 1 and all(r["source"] == "capture" and r["t_end"] is not None for r in rows)
+        stamps = np.array([r["t_end"] if timed else 0.0 for r in rows] or [0.0], dtype=float)
+        timed = timed and bool(np.all(np.diff(stamps) >= 0))
         samples = SampleSet(
             joints_deg=joints,
             length_mm=np.array([r["length_mm"] for r in rows], dtype=float),
             anchor=tuple(str(r["anchor"]) for r in rows),
             group=tuple(g or "" for g in groups) if any(groups) else None,
             line=np.arange(2, n + 2),
+            t_s=stamps - stamps[0] if timed else None,
         )
         return samples, [int(r["id"]) for r in rows]
 

@@ -175,3 +175,20 @@ def test_exclude_and_include(store: Store, campaign: dict[str, Any]) -> None:
         store.set_excluded(999, True, "x")
     with pytest.raises(StoreNotFound, match="campaign 5"):
         store.list_samples(5)
+
+
+def test_sample_set_carries_capture_times_and_an_import_the_row_order(
+    store: Store, campaign: dict[str, Any]
+) -> None:
+    """Captured samples give the drift model their capture times (calib.drift); imported ones
+    have none, and the row order stands in."""
+    cid = campaign["id"]
+    for k in range(3):
+        q = [float(k), -20.0, 180.0, 0.0, 30.0, float(k)]
+        store.store_capture(cid, make_capture(q, 500.0 + k, t0=1000.0 + 20.0 * k))
+    samples, _ = store.sample_set(cid)
+    assert samples.t_s is not None
+    assert samples.t_s.tolist() == pytest.approx([0.0, 20.0, 40.0], abs=1.0)
+    other = store.create_campaign("cell 2", campaign["robot_id"])
+    store.import_samples(other["id"], samples)
+    assert store.sample_set(other["id"])[0].t_s is None
