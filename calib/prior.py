@@ -128,7 +128,9 @@ def noise_from_map(problem: Problem, x: np.ndarray) -> float:
     ``ν = n_w − k_eff`` are the degrees of freedom left after the fit: ``n_w`` the rows with
     non-zero weight (rejected outliers do not count), ``k_eff`` the effective number of
     parameters (:func:`effective_dof`: ``k`` for an ML fit of full rank, fewer with the prior),
-    at least 1. ``m(ν)`` is the median of χ²(ν) (:func:`calib.noise.median_dof`), so the
+    less the drift columns profiled out of the data rows (:attr:`Problem.n_drift`: their
+    projection is a hat of its own, orthogonal to the projected Jacobian's), at least 1.
+    ``m(ν)`` is the median of χ²(ν) (:func:`calib.noise.median_dof`), so the
     estimate is as often above the real noise as below it even with a few degrees of freedom
     (``Σ r² / ν`` is below it most of the time there), and ``≈ Σ r² / ν`` once ``ν`` is large.
     """
@@ -138,7 +140,7 @@ def noise_from_map(problem: Problem, x: np.ndarray) -> float:
     weighted = ev.residual[:n]  # sqrt(w) · (L_model − L)
     n_w = int(np.count_nonzero(problem.weights > 0))
     tr_h, tr_h2 = _data_hat(ev.jacobian, n)
-    dof = max(n_w - 2.0 * tr_h + tr_h2, 1.0)
+    dof = max(n_w - 2.0 * tr_h + tr_h2 - problem.n_drift, 1.0)
     estimate = float(np.sqrt(float(weighted @ weighted) / median_dof(dof)))
     return max(estimate, noise_floor_mm(problem.length_mm[problem.weights > 0]))
 
