@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any, Final
 
 from fastapi import Depends, HTTPException, Path, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.guard import UNAUTHORIZED_DETAIL, token_matches
@@ -98,6 +99,25 @@ MAX_ID: Final = 2**63 - 1
 
 def _id(name: str) -> Any:
     return Path(ge=1, le=MAX_ID, description=f"{name} id")
+
+
+def bound_path_ids(request: Request) -> None:
+    """Every route (an app-wide dependency, run before the route's own parameters): a path
+    parameter named ``*_id`` that is a whole number above :data:`MAX_ID` is a 422 naming it,
+    never a 500 from SQLite. The routes also declare their ids with the aliases below, which
+    put the same bound into the OpenAPI schema; this catches a route that forgot to."""
+    for name, value in request.path_params.items():
+        text = str(value)
+        if name.endswith("_id") and text.isascii() and text.isdigit() and int(text) > MAX_ID:
+            raise RequestValidationError(
+                [
+                    {
+                        "loc": ("path", name),
+                        "msg": f"{name}: must be at most {MAX_ID}",
+                        "type": "less_than_equal",
+                    }
+                ]
+            )
 
 
 CampaignId = Annotated[int, _id("Campaign")]

@@ -78,6 +78,7 @@ _DESCRIPTIONS = {
     404: "No such resource (names it)",
     409: "Conflict with the resource's state",
     413: "Request body over the limit",
+    415: "Request body of a Content-Type the route does not read (names the one expected)",
     422: "Validation error: the list of problems, each with its location",
     503: "A device or the sampler is not available",
 }

@@ -12,11 +12,11 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 
 from daemon import metrics
 from daemon.api import errors
-from daemon.api.deps import AppState
+from daemon.api.deps import AppState, bound_path_ids
 from daemon.api.errors import API_KINDS, not_found_detail
 from daemon.api.guard import RequestGuard
 from daemon.api.min_samples import MinSamplesCache
@@ -155,6 +155,7 @@ def create_app(
         lifespan=lifespan,
         docs_url=None,  # served by mount_web from local files
         redoc_url=None,
+        dependencies=[Depends(bound_path_ids)],  # every {..._id} bounded, whatever the route
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
     app.add_middleware(

@@ -15,6 +15,7 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import Field, TypeAdapter, ValidationError
 
 from daemon.api.deps import MAX_ID, JobId, ReadAuth, RobotId, State, WriteAuth
+from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.schemas import StrictBody
 from daemon.drift import CheckConflict, check_poses
@@ -199,9 +200,7 @@ async def compensate_targets(
         return Response(
             csv_text,
             media_type="text/csv",
-            headers={
-                "Content-Disposition": f'attachment; filename="robot-{robot_id}-compensated.csv"'
-            },
+            headers=download_headers(f"robot-{robot_id}-compensated.csv"),
         )
     return out
 
@@ -218,8 +217,7 @@ def export_response(state: State, robot_id: int, fmt: str) -> Response:
     except ValueError as exc:
         raise HTTPException(409, f"robot {robot_id}: the accepted result: {exc}") from exc
     name = f"{nominal.name}-calibrated.{fmt}"
-    return Response(text, media_type=EXPORT_MEDIA_TYPES[fmt],
-                    headers={"Content-Disposition": f'attachment; filename="{name}"'})  # fmt: skip
+    return Response(text, media_type=EXPORT_MEDIA_TYPES[fmt], headers=download_headers(name))
 
 
 class VerifyRequest(StrictBody):

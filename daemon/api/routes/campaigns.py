@@ -27,6 +27,7 @@ from daemon.api.deps import (
     WriteAuth,
     link_next,
 )
+from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
 from daemon.api.schemas import (
     AutoCapture,
@@ -41,6 +42,9 @@ from daemon.capture import CaptureRejected
 from daemon.store import CampaignRow
 
 log = logging.getLogger("cablecal.service")
+
+#: Content-Types a CSV import accepts (anything else, e.g. application/json, is a 415).
+IMPORT_MEDIA_TYPES = frozenset({"text/csv"})
 
 router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 422))
 
@@ -234,7 +238,7 @@ def list_samples(
         return Response(
             state.store.export_csv(campaign_id),
             media_type="text/csv",
-            headers={"Content-Disposition": f'attachment; filename="campaign-{campaign_id}.csv"'},
+            headers=download_headers(f"campaign-{campaign_id}.csv"),
         )
     rows = state.store.list_samples(campaign_id, after_id=page.after_id, limit=page.limit)
     link_next(request, response, rows, page.limit)
@@ -246,18 +250,27 @@ def list_samples(
     status_code=status.HTTP_201_CREATED,
     summary="Import samples from CSV",
     dependencies=[WriteAuth],
-    responses=error_responses(400, 404),
+    responses=error_responses(400, 404, 415),
     response_model=ImportResult,
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
     },
 )
 async def import_samples(state: State, campaign_id: CampaignId, request: Request) -> Response:
-    """The request body is the CSV text (``Content-Type: text/csv``, at most 20 MiB): header
-    q1..q6 [deg] and L [mm], optional ``anchor``. All or nothing: an error gives 400 naming
-    the row (file line, header = 1) and column, and nothing of the import is stored. Parsed
-    and stored in a worker thread, so the event loop (the sampler, ``/health``) keeps running."""
+    """The request body is the CSV text (``Content-Type: text/csv``, else 415; at most
+    20 MiB): header q1..q6 [deg] and L [mm], optional ``anchor``. All or nothing: an error
+    gives 400 naming the row (file line, header = 1) and column, and nothing of the import is
+    stored. Parsed and stored in a worker thread, so the event loop (the sampler,
+    ``/health``) keeps running."""
     state.store.campaign(campaign_id)  # 404 before the body is read
+    media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if media_type not in IMPORT_MEDIA_TYPES:
+        raise HTTPException(
+            415,
+            f"Content-Type: expected text/csv (the CSV text as the body), got {media_type!r}"
+            if media_type
+            else "Content-Type: expected text/csv (the CSV text as the body)",
+        )
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     body = await run_in_threadpool(_import_csv, state, campaign_id, b"".join(chunks))
     return Response(body, status_code=201, media_type="application/json")
