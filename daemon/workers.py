@@ -69,6 +69,12 @@ EXIT_PARENT_GONE = 70
 #: Environment variables that size the thread pools of BLAS and OpenMP libraries.
 THREAD_ENV = BLAS_THREAD_VARIABLES
 
+#: How long a child whose daemon died leaves the forkserver's guard to kill and reap it before
+#: it kills the forkserver and exits by itself [s].
+FORKSERVER_GRACE_S = 0.5
+#: How long the forkserver's guard waits for its killed children [s].
+REAP_TIMEOUT_S = 1.0
+
 _limits: Any = None  # keeps the threadpoolctl limiter of this process alive
 
 
@@ -84,12 +90,100 @@ def watch_parent() -> threading.Thread | None:
 
     def wait_for_parent() -> None:
         multiprocessing.connection.wait([sentinel])
-        if forkserver is not None and os.getppid() == forkserver:
-            with contextlib.suppress(OSError):
-                os.kill(forkserver, signal.SIGKILL)
+        if forkserver is not None:
+            # The forkserver's own guard (:func:`guard_forkserver`) kills and reaps this
+            # process in the meantime; only if it is not there does the child act alone.
+            time.sleep(FORKSERVER_GRACE_S)
+            if os.getppid() == forkserver:
+                with contextlib.suppress(OSError):
+                    os.kill(forkserver, signal.SIGKILL)
         os._exit(EXIT_PARENT_GONE)
 
     thread = threading.Thread(target=wait_for_parent, name="cablecal-parent-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def _children() -> list[int]:
+    """Pids of this process's children (Linux /proc; empty elsewhere)."""
+    me, found = os.getpid(), []
+    with contextlib.suppress(OSError):
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == me:
+                found.append(int(entry))
+    return found
+
+
+def _ignore_sigchld() -> bool:
+    """``SIGCHLD`` to ``SIG_IGN`` from any thread (libc ``signal``; Python's
+    :func:`signal.signal` only works in the main thread): from now on the kernel reaps this
+    process's children as they exit, whatever its threads are doing. True if set."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.signal.restype = ctypes.c_void_p
+        libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+        previous = libc.signal(int(signal.SIGCHLD), 1)  # SIG_IGN = 1
+        return bool(previous != ctypes.c_void_p(-1).value)  # SIG_ERR = -1
+    except (OSError, AttributeError):
+        return False
+
+
+def reap_children(pids: list[int], timeout_s: float = REAP_TIMEOUT_S) -> list[int]:
+    """SIGKILL ``pids`` (children of this process) so that none is left a zombie: first
+    ``SIGCHLD`` is ignored, so the kernel reaps each as it dies (a wait in this thread could
+    be stopped half-way: the forkserver's main thread starts its interpreter's teardown as
+    soon as the last child is gone, and a daemon thread then never gets the GIL back); those
+    already dead are reaped here. Returns those still present after ``timeout_s`` [s]."""
+    _ignore_sigchld()
+    for pid in pids:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(pid, os.WNOHANG)  # a zombie from before SIGCHLD was ignored
+    left, deadline = list(pids), time.monotonic() + timeout_s
+    while left and time.monotonic() < deadline:
+        left = [p for p in left if Path(f"/proc/{p}").exists()]
+        if left:
+            time.sleep(0.01)
+    return left
+
+
+def guard_forkserver() -> threading.Thread | None:
+    """In the forkserver (run by the import of :mod:`daemon.forkserver_guard`, which the job
+    manager preloads there): when the daemon dies, SIGKILL every child (pool workers, the
+    manager) and reap them, then exit. The children are reaped by their own, living parent,
+    so none stays a zombie waiting for init (a container's pid 1 may reap late); only the
+    forkserver itself is left to init, as the daemon is to its own parent. None when this
+    process's parent is already init (the daemon died before the guard started)."""
+    daemon_pid = os.getppid()
+    if daemon_pid <= 1:
+        return None
+
+    def wait_for_daemon() -> None:
+        try:
+            fd = os.pidfd_open(daemon_pid)  # Linux >= 5.3: readable once the daemon exits
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            multiprocessing.connection.wait([fd])
+        else:
+            while os.getppid() == daemon_pid:
+                time.sleep(0.1)
+        reap_children(_children())
+        os._exit(EXIT_PARENT_GONE)
+
+    # Not a daemon thread: when the children are gone the forkserver's main thread exits, and
+    # its interpreter then waits for this thread (before the slow teardown of numpy and
+    # scipy) instead of freezing it half-way.
+    thread = threading.Thread(target=wait_for_daemon, name="cablecal-forkserver-guard")
     thread.start()
     return thread
 
