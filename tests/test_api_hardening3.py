@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote
@@ -147,6 +148,42 @@ def test_calibrated_model_download_of_a_robot_with_a_hostile_name(client: TestCl
         assert r.headers["content-disposition"] == content_disposition(f"{stored}-calibrated.{fmt}")
     r = client.get(f"{API}/identifications/{job_id}/report.html", headers=AUTH)
     assert r.status_code == 200 and r.headers["content-disposition"].startswith("inline; ")
+
+
+# ------------------------------------------------------------------- 3. auto-capture race
+class SlowSwitchSampler(FakeSampler):
+    """The fake sampler with a switch that takes a moment, as a real one under load can: it
+    widens the window in which two unserialised switches interleave."""
+
+    def set_auto(
+        self, campaign_id: int | None, anchor: str = "A", known_poses_deg: Any = None
+    ) -> None:
+        time.sleep(0.002)
+        super().set_auto(campaign_id, anchor, known_poses_deg)
+
+
+def test_parallel_auto_capture_switches_leave_db_and_sampler_agreeing(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """20 parallel ``PUT auto-capture {"enabled": true}`` on 20 campaigns, twice: the one
+    campaign the database marks is the one the sampler captures into (in 2 of 4 trials they
+    differed before)."""
+    settings = _settings(tmp_path_factory.mktemp("race"))
+    app = create_app(settings, TOKEN, sampler_factory=SlowSwitchSampler)
+    with TestClient(app, raise_server_exceptions=False) as c:
+        ids = [_campaign(c) for _ in range(20)]
+
+        def switch(cid: int) -> int:
+            r = c.put(f"{API}/campaigns/{cid}/auto-capture", json={"enabled": True}, headers=AUTH)
+            return r.status_code
+
+        for _ in range(2):
+            with ThreadPoolExecutor(20) as pool:
+                assert set(pool.map(switch, ids)) == {200}
+            rows = c.get(f"{API}/campaigns", headers=AUTH).json()
+            marked = [r["id"] for r in rows if r["auto_capture"]]
+            sampler = app.state.cablecal.sampler
+            assert marked == [sampler.auto_campaign_id], (marked, sampler.auto_campaign_id)
 
 
 # -------------------------------------------------------------------------- 5. CSV import

@@ -3,6 +3,7 @@ id path parameters and the pagination of list routes."""
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +38,8 @@ class AppState:
         None until the lifespan has started it.
     drift : daemon.drift.DriftMonitor or None
         None until the lifespan has started it.
+    auto_capture_lock : asyncio.Lock
+        One auto-capture switch at a time (``PUT /campaigns/{id}/auto-capture``).
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
     """
@@ -49,6 +52,9 @@ class AppState:
     sampler: Any = None
     drift: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
+    #: Held by an auto-capture switch from the store's write to the sampler's, so that the
+    #: database and the sampler always name the same auto campaign.
+    auto_capture_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
 
 def get_state(request: Request) -> AppState:

@@ -16,6 +16,7 @@ from calib.dataset import (
     parse_samples_csv,
     validate_joint_limits,
 )
+from calib.kinematics import FloatArray
 from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import (
     AppState,
@@ -169,45 +170,59 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     dependencies=[WriteAuth],
     responses=error_responses(404, 503),
 )
-def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture) -> CampaignOut:
+async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture) -> CampaignOut:
     """On: the sampler captures once at each new settled pose, for this campaign only (it
     switches off any other campaign). The setting survives a daemon restart.
 
     Validated first (the body, the campaign, a running sampler), then stored (one
     transaction), then applied to the sampler; if the sampler refuses, the stored change is
-    rolled back and the sampler put back as it was, so the database and the sampler agree."""
+    rolled back and the sampler put back as it was, so the database and the sampler agree.
+    One switch at a time (``AppState.auto_capture_lock``, held from the store's write to the
+    sampler's): parallel switches end with the database and the sampler naming the same
+    campaign. The store's reads and writes run in a worker thread, the sampler's switch on the
+    event loop that owns the sampler."""
+    async with state.auto_capture_lock:
+        before, row, known = await run_in_threadpool(_store_auto, state, campaign_id, body)
+        try:
+            _apply_auto(state, campaign_id, body, known)
+        except Exception as exc:
+            await run_in_threadpool(state.store.restore_auto_capture, before)
+            await _restore_sampler(state, before)
+            log.exception("auto capture: the sampler refused; rolled back")
+            raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
+    return _out(state, row)
+
+
+def _store_auto(
+    state: AppState, campaign_id: int, body: AutoCapture
+) -> tuple[list[CampaignRow], CampaignRow, FloatArray | None]:
+    """The stored part of a switch (in a worker thread): the auto campaigns before, the
+    switched row, and the campaign's captured poses [deg] when switching on."""
     state.store.campaign(campaign_id)  # 404 before anything changes
     if body.enabled and state.sampler is None:
         raise HTTPException(503, "sampler: not running")
     before = state.store.auto_capture_campaigns()
     row = state.store.set_auto_capture(campaign_id, body.enabled, body.anchor)
-    try:
-        _apply_auto(state, campaign_id, body)
-    except Exception as exc:
-        state.store.restore_auto_capture(before)
-        _restore_sampler(state, before)
-        log.exception("auto capture: the sampler refused; rolled back")
-        raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
-    return _out(state, row)
+    known = state.store.poses_deg(campaign_id) if body.enabled else None
+    return before, row, known
 
 
-def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture) -> None:
-    """The stored auto-capture switch, applied to the sampler."""
+def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture, known: object) -> None:
+    """The stored auto-capture switch, applied to the sampler (on the event loop)."""
     if body.enabled:
-        known = state.store.poses_deg(campaign_id)
         state.sampler.set_auto(campaign_id, anchor=body.anchor, known_poses_deg=known)
     elif state.sampler is not None and state.sampler.auto_campaign_id == campaign_id:
         state.sampler.set_auto(None)
 
 
-def _restore_sampler(state: AppState, before: list[CampaignRow]) -> None:
+async def _restore_sampler(state: AppState, before: list[CampaignRow]) -> None:
     """The sampler as the restored rows say (best effort: logged if it fails again)."""
     if state.sampler is None:
         return
     try:
         if before:
             cid = int(before[0]["id"])
-            known = state.store.poses_deg(cid)
+            known = await run_in_threadpool(state.store.poses_deg, cid)
             state.sampler.set_auto(cid, anchor=before[0]["auto_anchor"], known_poses_deg=known)
         else:
             state.sampler.set_auto(None)
