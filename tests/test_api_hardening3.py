@@ -263,3 +263,26 @@ def test_db_export_csv_neutralises_formula_cells(tmp_path: Path) -> None:
     assert r.exit_code == 0, r.output
     assert "'=HYPERLINK()" in r.output
     assert list(parse_samples_csv(r.output).anchor) == ["=HYPERLINK()", "B"]
+
+
+# ------------------------------------------------------------------ 8. OPTIONS and Allow
+def test_options_and_405_name_every_method_of_every_path(client: TestClient) -> None:
+    """OPTIONS answers 204 with ``Allow`` on every path of the schema (405 without Allow on 6
+    paths before), without the token; a method the path lacks is a 405 whose ``Allow`` lists
+    every method of the path (Starlette's named only the first matching route's)."""
+    spec = client.get("/openapi.json").json()
+    for path, ops in spec["paths"].items():
+        url = path
+        for name in re.findall(r"{(\w+)}", path):
+            url = url.replace("{" + name + "}", "1")
+        declared = {m.upper() for m in ops}
+        r = client.options(url)
+        assert r.status_code == 204, (url, r.status_code, r.text)
+        allow = set(r.headers["allow"].split(", "))
+        assert allow - {"HEAD", "OPTIONS"} == declared, (url, allow, declared)
+        missing = [m for m in ("PUT", "PATCH", "DELETE", "POST") if m not in allow]
+        if missing:
+            r = client.request(missing[0], url, headers=AUTH)
+            assert r.status_code == 405, (missing[0], url, r.status_code)
+            assert set(r.headers["allow"].split(", ")) == allow, (url, r.headers)
+    assert client.options(f"{API}/no-such-thing").status_code == 404

@@ -19,6 +19,7 @@ from daemon.api import errors
 from daemon.api.deps import AppState, bound_path_ids
 from daemon.api.errors import API_KINDS, not_found_detail
 from daemon.api.guard import RequestGuard
+from daemon.api.methods import OptionsMiddleware
 from daemon.api.min_samples import MinSamplesCache
 from daemon.api.routes import (
     apply,
@@ -162,6 +163,7 @@ def create_app(
         RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
     )
     app.add_middleware(LatencyMiddleware)
+    app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
     for module in (system, live, campaigns, identifications, reports, robots, plans, apply):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
