@@ -99,8 +99,10 @@ ReadAuth = Depends(require_read)
 
 
 # ------------------------------------------------------------------------------ ids, pages
-#: Largest row id (SQLite INTEGER is signed 64-bit): a larger one is a 422, not a 500.
-MAX_ID: Final = 2**63 - 1
+#: Largest row id: 2**53 - 1, the largest integer a JSON number (an IEEE double) holds
+#: exactly, so the schema's bound means the same to every client (2**63 - 1, SQLite's limit,
+#: is not representable there); a larger id is a 422, never a 500.
+MAX_ID: Final = 2**53 - 1
 
 
 def _id(name: str) -> Any:

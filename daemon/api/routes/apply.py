@@ -79,6 +79,15 @@ _ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
 TARGETS_SCHEMA = {"anyOf": [TypeAdapter(_targets(m)).json_schema() for m in _TARGET_MODELS]}
 
 
+#: A decimal number as :func:`_numbers` reads it (the exponent bounded: always finite).
+_DECIMAL = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,2})?"
+
+
+def numbers_pattern(n: int) -> str:
+    """The schema's pattern of ``n`` comma-separated numbers (``tool_mm``, ``seed_deg``)."""
+    return f"^{_DECIMAL}(?:,{_DECIMAL}){{{n - 1}}}$"
+
+
 def _numbers(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
     if text is None:
         return None
@@ -174,10 +183,16 @@ async def compensate_targets(
     request: Request,
     mode: Literal["position", "pose"] = Query("position"),
     tool_mm: str | None = Query(
-        None, max_length=MAX_QUERY_CHARS, description="TCP in the flange frame: X,Y,Z [mm]."
+        None,
+        max_length=MAX_QUERY_CHARS,
+        description="TCP in the flange frame: X,Y,Z [mm].",
+        json_schema_extra={"pattern": numbers_pattern(3)},
     ),
     seed_deg: str | None = Query(
-        None, max_length=MAX_QUERY_CHARS, description="q1,…,q6 [deg]: IK branch of x,y,z rows."
+        None,
+        max_length=MAX_QUERY_CHARS,
+        description="q1,…,q6 [deg]: IK branch of x,y,z rows.",
+        json_schema_extra={"pattern": numbers_pattern(6)},
     ),
 ) -> Any:
     """Body: a CSV (``Content-Type: text/csv``, header ``q1..q6`` [deg] or ``x,y,z`` [mm]

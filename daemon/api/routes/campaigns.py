@@ -119,7 +119,8 @@ def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
         **error_responses(404),
         409: {
             "model": Error,
-            "description": "Robot moving / not settled, over-range, pose already captured",
+            "description": "Robot moving / not settled, over-range, pose already captured, "
+            "joints_deg outside the joint limits of the campaign's robot model",
         },
         503: {
             "model": Error,
@@ -152,7 +153,8 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
 
 def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     """The CSV import's checks (finite, within the model's joint limits) on one pose; the
-    error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``."""
+    error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``. Outside the limits of
+    the campaign's robot model is a 409 (a rule of the robot, not of the request's shape)."""
     try:
         pose = make_samples(np.asarray([joints_deg], dtype=float), np.zeros(1))
         validate_joint_limits(pose, state.store.robot_model(robot_id))
@@ -161,6 +163,8 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
         loc: tuple[str | int, ...] = ("body", "joints_deg") + (() if j is None else (j,))
         field = "joints_deg" if j is None else f"joints_deg[{j}]"
         message = str(exc).split(": ", 1)[-1]
+        if "outside the limits" in message:  # the campaign's robot model refuses it: 409
+            raise HTTPException(409, f"{field}: {message}") from exc
         raise unprocessable(loc, f"{field}: {message}") from exc
 
 
