@@ -22,7 +22,7 @@ crash); the read end then reports EOF and the thread ends the process with :func
 (whatever the main thread is computing: ``_exit`` stops every thread). A child forked by the
 forkserver first SIGKILLs the forkserver, its parent, which serves only the dead daemon: left
 alone it would exit by itself once the children are gone, but only after tearing down an
-interpreter with numpy and scipy loaded (1.5 s on a loaded 2-core machine). The pid is the one
+interpreter with numpy and scipy loaded (bench/design_figures.md). The pid is the one
 recorded at start and is signalled only while it is still this process's parent, so it cannot
 have been reused. Then the multiprocessing resource tracker, whose pipe they all held, sees EOF
 and exits. It works on any POSIX system, not only Linux.
@@ -30,20 +30,21 @@ and exits. It works on any POSIX system, not only Linux.
 Priority
 --------
 The sampler's poll loop runs in the daemon's event loop and must keep its rate while an
-identification runs on the same (small) machine. The children add ``nice`` to their niceness (at
-``nice`` 10 the kernel's fair scheduler weighs the daemon about nine times a child). Niceness
-alone is not enough where the kernel groups tasks by session (``sched_autogroup``, on by default
-on desktop kernels and for processes outside a cpu cgroup): it weighs only tasks within one
-group, and a busy worker in the daemon's group keeps that group always runnable, so the daemon
-loses the prompt wake-up a sleeping group gets and waits behind every other busy session (the
-poll rate fell 13 % while a job ran, with ``nice`` 10 alone). So a child with ``nice`` > 0 also
-starts a session of its own (``setsid``: its own autogroup) and gives that group the same
-``nice`` (``/proc/self/autogroup``); under systemd, where the service's cgroup replaces the
-autogroup, ``nice`` does the work. The children also limit BLAS/OpenMP to ``blas_threads``
-threads (threadpoolctl, for the libraries the forkserver preloaded; the environment variables,
-for any loaded later), so a job never occupies more cores than the pool has workers. A system
-that forbids raising the niceness (a seccomp filter without ``setpriority``, such as systemd's
-``SystemCallFilter=~@resources``) gets a warning, not a failure.
+identification runs on the same (small) machine. The children add ``nice`` to their niceness
+(at ``nice`` 10 the kernel's fair scheduler weighs the daemon about nine times a child).
+Niceness alone is not enough where the kernel groups tasks by session (``sched_autogroup``, on
+by default on desktop kernels and for processes outside a cpu cgroup): it weighs only tasks
+within one group, and a busy worker in the daemon's group keeps that group always runnable, so
+the daemon loses the prompt wake-up a sleeping group gets and waits behind every other busy
+session (the poll rate fell while a job ran, with ``nice`` 10 alone: bench/design_figures.md).
+So a child with ``nice`` > 0 also starts a session of its own (``setsid``: its own autogroup)
+and gives that group the same ``nice`` (``/proc/self/autogroup``); under systemd, where the
+service's cgroup replaces the autogroup, ``nice`` does the work. The children also limit
+BLAS/OpenMP to ``blas_threads`` threads (threadpoolctl, for the libraries the forkserver
+preloaded; the environment variables, for any loaded later), so a job never occupies more cores
+than the pool has workers. A system that forbids raising the niceness (a seccomp filter without
+``setpriority``, such as systemd's ``SystemCallFilter=~@resources``) gets a warning, not a
+failure.
 """
 
 from __future__ import annotations

@@ -137,7 +137,7 @@ def create_app(
             gc.freeze()
             # Worker threads (CSV imports, plans, compensation) share the GIL with the event
             # loop: a 1 ms switch interval (default 5 ms) hands it back to the loop sooner.
-            # Measured on a 500k-row import: /health worst 128-216 ms -> 68-104 ms.
+            # (The /health figures of a large import: bench/design_figures.md.)
             sys.setswitchinterval(SWITCH_INTERVAL_S)
             yield
         finally:

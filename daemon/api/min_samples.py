@@ -11,8 +11,8 @@ default options, and ``min_training_samples`` for another test fraction).
 Nothing here restates calib's rule: the parameter count is
 :func:`calib.options.parameters_to_solve`, the training rows it needs
 :func:`calib.options.training_rows_needed`, and :func:`min_samples` searches for the fewest
-samples whose training part reaches that. ``max_solved`` costs one Jacobian at 200 poses
-(about 5 ms), so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors):
+samples whose training part reaches that. ``max_solved`` costs one Jacobian at 200 poses,
+so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors):
 ``GET /campaigns`` is polled by the page.
 """
 

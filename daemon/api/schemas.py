@@ -15,6 +15,7 @@ from pydantic import (
 )
 from typing_extensions import TypedDict
 
+from calib.models import BUILTIN_MODELS
 from calib.options import Holdout, Method, PriorWeight, Robust, default, spec
 from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
@@ -99,7 +100,14 @@ class CampaignCreate(_Body):
     """A new calibration campaign."""
 
     name: Name = Field(description=f"1..{MAX_NAME_CHARS} characters, not blank")
-    robot_model: Annotated[str, StringConstraints(max_length=64)] | dict[str, Any] = Field(
+    robot_model: (
+        Annotated[
+            str,
+            StringConstraints(max_length=64),
+            Field(json_schema_extra={"enum": sorted(BUILTIN_MODELS)}),
+        ]
+        | dict[str, Any]
+    ) = Field(
         "hsr-jr680",
         description=(
             "A built-in model name (hsr-jr680), or an uploaded model as a mapping: "

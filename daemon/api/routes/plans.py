@@ -156,13 +156,15 @@ def _compute(
     """Run the planning (in a worker thread): the summary and the poses."""
     opts = body.options()
     anchors = body.anchors_mm
-    if anchors is None:
-        if start is None:
-            raise ValueError("anchors_mm: required unless start_from_samples is true")
-        try:
+    found = {}
+    if start is not None:
+        try:  # where the samples put the anchors (plan() needs it too)
             found = start_anchors_mm(model, start)
         except (ValueError, SampleError) as exc:  # the campaign's samples: its state, 409
             raise HTTPException(409, f"start_from_samples: {exc}") from exc
+    if anchors is None:
+        if start is None:
+            raise ValueError("anchors_mm: required unless start_from_samples is true")
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
