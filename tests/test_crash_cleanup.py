@@ -124,6 +124,18 @@ def start_long_de_job(api: httpx.Client) -> int:
     return int(r.json()["id"])
 
 
+def start_running_de_job(api: httpx.Client) -> int:
+    """:func:`start_long_de_job`, once a worker runs it."""
+    job_id = start_long_de_job(api)
+    wait_for(
+        lambda: api.get(f"/identifications/{job_id}").json()["status"] == "running",
+        60,
+        0.2,
+        "the DE job to run",
+    )
+    return job_id
+
+
 def events(api: httpx.Client, kind: str) -> list[dict[str, Any]]:
     r = api.get("/events", params={"kind": kind, "limit": 100})
     r.raise_for_status()
@@ -141,13 +153,7 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
         assert events(api, "unclean_shutdown") == []
         started = events(api, "daemon_started")
         assert [e["detail"]["pid"] for e in started] == [daemon_pid]
-        job_id = start_long_de_job(api)
-        wait_for(
-            lambda: api.get(f"/identifications/{job_id}").json()["status"] == "running",
-            60,
-            0.2,
-            "the DE job to run",
-        )
+        job_id = start_running_de_job(api)
         children = descendants(daemon_pid)
         # forkserver, pool worker, manager, resource tracker
         assert len(children) >= 4, children
@@ -284,13 +290,7 @@ def test_a_sigkilled_worker_is_reaped_and_the_next_job_runs(tmp_path: Path) -> N
     proc, url = start_daemon(tmp_path)
     try:
         api = api_client(url)
-        job_id = start_long_de_job(api)
-        wait_for(
-            lambda: api.get(f"/identifications/{job_id}").json()["status"] == "running",
-            60,
-            0.2,
-            "the DE job to run",
-        )
+        job_id = start_running_de_job(api)
         children = descendants(proc.popen.pid)
         pool = [p for p, c in children.items() if short_name(c, False) != "resource_tracker"
                 and int((proc_stat(p) or ["", "0"])[1]) != proc.popen.pid]  # fmt: skip
