@@ -19,13 +19,22 @@ So each child watches the daemon itself: a thread blocks on the daemon's sentine
 ``multiprocessing.parent_process().sentinel``, the read end of a pipe whose write end only the
 daemon holds. The kernel closes it when the daemon dies, however it dies (SIGKILL, OOM killer,
 crash); the read end then reports EOF and the thread ends the process with :func:`os._exit`
-(whatever the main thread is computing: ``_exit`` stops every thread). A child forked by the
-forkserver first SIGKILLs the forkserver, its parent, which serves only the dead daemon: left
-alone it would exit by itself once the children are gone, but only after tearing down an
-interpreter with numpy and scipy loaded (bench/design_figures.md). The pid is the one
-recorded at start and is signalled only while it is still this process's parent, so it cannot
-have been reused. Then the multiprocessing resource tracker, whose pipe they all held, sees EOF
-and exits. It works on any POSIX system, not only Linux.
+(whatever the main thread is computing: ``_exit`` stops every thread).
+
+The forkserver watches the daemon too (:func:`guard_forkserver`, started by the preloaded
+:mod:`daemon.forkserver_guard`): when the daemon dies it ignores ``SIGCHLD`` (so the kernel
+reaps each child as it exits, whatever the forkserver's threads are doing), SIGKILLs its
+children and exits. The children are reaped by their living parent and none is left a zombie
+for pid 1, which in a container may reap late; only the forkserver itself is left to pid 1, as
+the daemon is to its own parent. A child whose forkserver has no guard (a plain pool with
+:func:`init_child`) waits :data:`FORKSERVER_GRACE_S`, then SIGKILLs the forkserver, its
+parent, which serves only the dead daemon: left alone it would exit by itself once the
+children are gone, but only after tearing down an interpreter with numpy and scipy loaded
+(bench/design_figures.md). The pid is the one recorded at start and is signalled only while
+it is still this process's parent, so it cannot have been reused. Then the multiprocessing
+resource tracker, whose pipe they all held, sees EOF and exits. It works on any POSIX system
+(the child scan of the guard reads Linux's /proc; elsewhere the children exit by their own
+watch).
 
 Priority
 --------
