@@ -43,6 +43,9 @@ CHECKS = [
 # do), and the token each call adds turns its "missing Authorization" negatives into valid
 # requests.
 EXAMPLES_PER_OPERATION = 25
+#: One request's limit [s]: a valid plan request computes a plan (bounded by the route's
+#: limits), which on a loaded 2-core machine can take longer than Schemathesis' default 10 s.
+REQUEST_TIMEOUT_S = 60
 
 
 def _app_and_schema() -> Any:
@@ -86,11 +89,20 @@ def teardown_module() -> None:
               f"{n} requests, {len(bad)} failing operations")  # fmt: skip
 
 
+#: Operations whose body has rules between its fields that JSON Schema cannot state (open,
+#: issue 21): a plan's ``anchor_uncertainty_mm`` must leave an extension range within
+#: ``extension_mm``, ``candidates`` must be enough for ``n`` (a 422 naming the option).
+CROSS_FIELD_RULES = frozenset({"POST /api/v1/campaigns/{campaign_id}/plan"})
+
+
 def _file_format_body(case: Any) -> bool:
     """A body whose rules are a file format's, not the schema's: a CSV import (header, numbers,
     sensor range, joint limits: a 400 naming row and column) and an uploaded robot model (the
-    model file format of ``--robot``: a 422 naming the key). Schemathesis' valid data is not
-    valid there, so it is not held to positive_data_acceptance; every other check applies."""
+    model file format of ``--robot``: a 422 naming the key), and the :data:`CROSS_FIELD_RULES`
+    operations. Schemathesis' valid data is not valid there, so it is not held to
+    positive_data_acceptance; every other check applies."""
+    if case.operation.label in CROSS_FIELD_RULES:
+        return True
     if case.operation.label == "POST /api/v1/campaigns/{campaign_id}/samples/import":
         return True
     body = case.body if isinstance(case.body, dict) else {}
@@ -103,7 +115,9 @@ def _run(case: Any, token: bool) -> Any:
     SENT[token, case.operation.label] += 1
     checks = [c for c in CHECKS if c is not positive_data_acceptance or not _file_format_body(case)]
     try:
-        return case.call_and_validate(headers=AUTH if token else None, checks=checks)
+        return case.call_and_validate(
+            headers=AUTH if token else None, checks=checks, timeout=REQUEST_TIMEOUT_S
+        )
     except BaseException:
         FAILED[token, case.operation.label] += 1
         raise
