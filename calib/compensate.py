@@ -28,8 +28,8 @@ IK (:mod:`calib.ik`)
     Jacobian of the tool point (position mode, 3 rows) or of the tool pose (pose mode, 6 rows:
     the rotation error ``log(R_target Rᵀ)`` [rad] weighted by ``rotation_weight_mm_per_rad``);
     each step is capped to ``max_step_deg`` per joint. All targets are solved at once (numpy
-    batches over the targets still active): 1000 targets take 0.1 to 0.3 s on a shared 2-core
-    machine, 35 to 85 times less than a per-target loop (``bench/compensate_results.md``).
+    batches over the targets still active), far faster than a per-target loop
+    (``bench/compensate_results.md``).
     In position mode the three spare degrees of freedom are used minimally: DLS from the
     nominal joints gives the smallest joint correction.
 

@@ -35,8 +35,28 @@ LENGTH_COLUMNS = ("l", "length_mm")
 _BLOCK_ROWS = 10_000
 
 #: A decimal number as a CSV cell may spell it: digits, one optional point, an optional
-#: exponent. No digit separators (Python's ``float("1_0")`` is 10), no ``nan``/``inf``.
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+#: exponent. No digit separators (Python's ``float("1_0")`` is 10), no ``nan``/``inf``, ASCII
+#: digits only (``re.ASCII``: Arabic-Indic ``٧`` or fullwidth ``７`` are not numbers here).
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
+
+
+#: A text cell a spreadsheet would run as a formula (OWASP "CSV injection"): it starts, after
+#: any number of ``'``, with ``=``, ``+``, ``-``, ``@``, a tab or a CR.
+_FORMULA_LIKE = re.compile("'*[=+\\-@\t\r]")
+
+
+def neutralise_cell(text: str) -> str:
+    """A text cell (``anchor``, ``group``) as an export writes it: one ``'`` put in front of
+    a formula-like cell (``=1+2`` -> ``'=1+2``), so a spreadsheet shows it as text. Numbers
+    are written by the exporters themselves (``-12.5`` stays ``-12.5``) and never pass here.
+    :func:`restore_cell` reverses it exactly, also for a name that itself starts with ``'``."""
+    return "'" + text if _FORMULA_LIKE.match(text) else text
+
+
+def restore_cell(text: str) -> str:
+    """The inverse of :func:`neutralise_cell`, applied by :func:`parse_samples_csv` to the
+    text columns: one leading ``'`` is dropped when a formula-like cell follows it."""
+    return text[1:] if text.startswith("'") and _FORMULA_LIKE.match(text, 1) else text
 
 
 class SampleError(ValueError):
@@ -257,9 +277,9 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
             blocks.append(np.array(values, dtype=float).reshape(-1, N_JOINTS + 1))
             values = []
         anchor = row[anchor_col].strip() if anchor_col is not None and anchor_col < len(row) else ""
-        anchors.append(anchor or "A")
+        anchors.append(restore_cell(anchor) or "A")
         if group_col is not None:
-            groups.append(row[group_col].strip() if group_col < len(row) else "")
+            groups.append(restore_cell(row[group_col].strip()) if group_col < len(row) else "")
         if time_col is not None:
             if time_col >= len(row):
                 raise SampleError("missing value", row=line_no, column="t_s")
@@ -283,17 +303,19 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
 
 
 def samples_to_csv(samples: SampleSet) -> str:
-    """CSV text in the format :func:`parse_samples_csv` reads."""
+    """CSV text in the format :func:`parse_samples_csv` reads. Numbers with 6 decimals; the
+    text cells (``anchor``, ``group``) through :func:`neutralise_cell` (no formula injection
+    when the file is opened in a spreadsheet; the parser reverses it)."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     header = [*JOINT_COLUMNS, "L", "anchor"] + (["group"] if samples.group is not None else [])
     header += ["t_s"] if samples.t_s is not None else []
     writer.writerow(header)
     for i in range(len(samples)):
-        row = [f"{v:.6f}" for v in samples.joints_deg[i]] + [f"{samples.length_mm[i]:.6f}",
-                                                             samples.anchor[i]]  # fmt: skip
+        row = [f"{v:.6f}" for v in samples.joints_deg[i]]
+        row += [f"{samples.length_mm[i]:.6f}", neutralise_cell(samples.anchor[i])]
         if samples.group is not None:
-            row.append(samples.group[i])
+            row.append(neutralise_cell(samples.group[i]))
         if samples.t_s is not None:
             row.append(f"{samples.t_s[i]:.3f}")
         writer.writerow(row)

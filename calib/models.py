@@ -181,10 +181,9 @@ def parse_model_text(text: str, fmt: str) -> RobotModel:
 
 #: The paper's Table I: alpha, a and d as printed. Its theta column is the joint angle at the
 #: drawn (home) pose, not an offset to add: in eq. (1) theta_i is the joint variable itself, and
-#: the HSR-RobotCali angles (q3 about 215 deg) are those DH angles. Measured on the bundled 2017
-#: rows, nominal model with only P0, c and the hook point fitted: 0.097 mm RMS with zero offsets,
-#: 4.64 mm with Table I's theta added (the joint-5 offset alone trades with the hook point, the
-#: joint-2 and joint-3 offsets do not). So the controller offsets are 0. The joint limits are
+#: the HSR-RobotCali angles (q3 about 215 deg) are those DH angles: on the bundled rows, zero
+#: offsets fit far better than Table I's theta added (bench/design_figures.md; the joint-5
+#: offset alone trades with the hook point). So the controller offsets are 0. The joint limits are
 #: assumptions (the paper gives none) wide enough for every pose of the dataset; see
 #: examples/hsr-jr680.toml.
 HSR_JR680: dict[str, Any] = {

@@ -2,10 +2,8 @@
 
 The matrices cablecal works on are small: a Jacobian of at most a few thousand rows by about 31
 columns. On the 2-core PCs a cell runs on, OpenBLAS's worker threads (one per core by default)
-spin against the sampler, the service and each other, and a thin SVD gets slower, not faster.
-Measured on this project's 2-core machine at load average 5: the thin SVD of a 2017 × 31
-matrix took 54 ms with OpenBLAS's default threads and 3.0 ms with one; ``identify`` on all
-2017 bundled rows 3.8–6.9 s against 0.54–0.69 s.
+spin against the sampler, the service and each other, and a thin SVD gets slower, not faster
+(the figures: bench/design_figures.md).
 
 :func:`single_threaded_blas` only sets the variables that are not set already, so an operator
 can still choose (``OPENBLAS_NUM_THREADS=2 cablecal identify …``). It must run before the first

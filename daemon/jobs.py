@@ -31,6 +31,7 @@ import threading
 import time
 from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
 from typing import Any
 
@@ -48,6 +49,8 @@ log = logging.getLogger("cablecal.jobs")
 PROGRESS_INTERVAL_S = 0.2
 #: Seconds between two commits of progress to the store (the newest message of each job).
 PROGRESS_STORE_INTERVAL_S = 0.5
+#: The error of a job whose worker process died under it (killed, out of memory).
+WORKER_DIED = "the worker process died (killed or out of memory); the job can be started again"
 #: Job states after which nothing changes.
 FINISHED = ("succeeded", "failed", "cancelled")
 
@@ -162,22 +165,35 @@ class JobManager:
             log.warning("%d identification job(s) were interrupted by a restart", n)
         self._stopping.clear()
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["calib.identify", "daemon.jobs"])
+        # daemon.forkserver_guard: the forkserver kills and reaps its children if we die.
+        ctx.set_forkserver_preload(["calib.identify", "daemon.jobs", "daemon.forkserver_guard"])
         child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)
         manager = SyncManager(ctx=ctx)
         manager.start(initializer=init_child, initargs=child_args)
         self._manager = manager
         self._progress = manager.Queue()
         self._cancel = manager.dict()
-        self._pool = ProcessPoolExecutor(
-            max_workers=self.settings.workers,
-            mp_context=ctx,
-            initializer=init_child,
-            initargs=child_args,
-        )
+        self._pool = self._new_pool()
         # Warm the workers up now rather than in the first job.
         await asyncio.wrap_future(self._pool.submit(_noop))
         self._pump = asyncio.create_task(self._pump_progress(), name="job-progress")
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=self.settings.workers,
+            mp_context=multiprocessing.get_context("forkserver"),
+            initializer=init_child,
+            initargs=(self.settings.worker_nice, self.settings.worker_blas_threads),
+        )
+
+    def _renew_broken_pool(self) -> None:
+        """A worker that died (SIGKILL, OOM killer) breaks the whole pool: every job in it
+        fails (its watcher records why) and the next job gets a new pool. The dead worker is
+        reaped by its parent, the forkserver, at once."""
+        if self._pool is not None and getattr(self._pool, "_broken", False):
+            log.warning("identification pool: a worker died; starting a new pool")
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = self._new_pool()
 
     async def stop(self) -> None:
         """Cancel running jobs, stop the pool and the manager."""
@@ -230,6 +246,7 @@ class JobManager:
         job_id = int(job["id"])
         if self._pool is None:
             raise RuntimeError("job manager not started")
+        self._renew_broken_pool()
         future = self._pool.submit(
             run_identification,
             job_id,
@@ -287,6 +304,9 @@ class JobManager:
             if self._cancel is not None:
                 self._cancel[job_id] = True
             self._finish(job_id, status, error=f"timed out after {self.settings.timeout_s} s")
+        except BrokenProcessPool:
+            self._finish(job_id, status, error=WORKER_DIED)
+            self._renew_broken_pool()
         except Exception as exc:
             from calib.solvers.common import Cancelled
 

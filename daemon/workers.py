@@ -19,31 +19,41 @@ So each child watches the daemon itself: a thread blocks on the daemon's sentine
 ``multiprocessing.parent_process().sentinel``, the read end of a pipe whose write end only the
 daemon holds. The kernel closes it when the daemon dies, however it dies (SIGKILL, OOM killer,
 crash); the read end then reports EOF and the thread ends the process with :func:`os._exit`
-(whatever the main thread is computing: ``_exit`` stops every thread). A child forked by the
-forkserver first SIGKILLs the forkserver, its parent, which serves only the dead daemon: left
-alone it would exit by itself once the children are gone, but only after tearing down an
-interpreter with numpy and scipy loaded (1.5 s on a loaded 2-core machine). The pid is the one
-recorded at start and is signalled only while it is still this process's parent, so it cannot
-have been reused. Then the multiprocessing resource tracker, whose pipe they all held, sees EOF
-and exits. It works on any POSIX system, not only Linux.
+(whatever the main thread is computing: ``_exit`` stops every thread).
+
+The forkserver watches the daemon too (:func:`guard_forkserver`, started by the preloaded
+:mod:`daemon.forkserver_guard`): when the daemon dies it ignores ``SIGCHLD`` (so the kernel
+reaps each child as it exits, whatever the forkserver's threads are doing), SIGKILLs its
+children and exits. The children are reaped by their living parent and none is left a zombie
+for pid 1, which in a container may reap late; only the forkserver itself is left to pid 1, as
+the daemon is to its own parent. A child whose forkserver has no guard (a plain pool with
+:func:`init_child`) waits :data:`FORKSERVER_GRACE_S`, then SIGKILLs the forkserver, its
+parent, which serves only the dead daemon: left alone it would exit by itself once the
+children are gone, but only after tearing down an interpreter with numpy and scipy loaded
+(bench/design_figures.md). The pid is the one recorded at start and is signalled only while
+it is still this process's parent, so it cannot have been reused. Then the multiprocessing
+resource tracker, whose pipe they all held, sees EOF and exits. It works on any POSIX system
+(the child scan of the guard reads Linux's /proc; elsewhere the children exit by their own
+watch).
 
 Priority
 --------
 The sampler's poll loop runs in the daemon's event loop and must keep its rate while an
-identification runs on the same (small) machine. The children add ``nice`` to their niceness (at
-``nice`` 10 the kernel's fair scheduler weighs the daemon about nine times a child). Niceness
-alone is not enough where the kernel groups tasks by session (``sched_autogroup``, on by default
-on desktop kernels and for processes outside a cpu cgroup): it weighs only tasks within one
-group, and a busy worker in the daemon's group keeps that group always runnable, so the daemon
-loses the prompt wake-up a sleeping group gets and waits behind every other busy session (the
-poll rate fell 13 % while a job ran, with ``nice`` 10 alone). So a child with ``nice`` > 0 also
-starts a session of its own (``setsid``: its own autogroup) and gives that group the same
-``nice`` (``/proc/self/autogroup``); under systemd, where the service's cgroup replaces the
-autogroup, ``nice`` does the work. The children also limit BLAS/OpenMP to ``blas_threads``
-threads (threadpoolctl, for the libraries the forkserver preloaded; the environment variables,
-for any loaded later), so a job never occupies more cores than the pool has workers. A system
-that forbids raising the niceness (a seccomp filter without ``setpriority``, such as systemd's
-``SystemCallFilter=~@resources``) gets a warning, not a failure.
+identification runs on the same (small) machine. The children add ``nice`` to their niceness
+(at ``nice`` 10 the kernel's fair scheduler weighs the daemon about nine times a child).
+Niceness alone is not enough where the kernel groups tasks by session (``sched_autogroup``, on
+by default on desktop kernels and for processes outside a cpu cgroup): it weighs only tasks
+within one group, and a busy worker in the daemon's group keeps that group always runnable, so
+the daemon loses the prompt wake-up a sleeping group gets and waits behind every other busy
+session (the poll rate fell while a job ran, with ``nice`` 10 alone: bench/design_figures.md).
+So a child with ``nice`` > 0 also starts a session of its own (``setsid``: its own autogroup)
+and gives that group the same ``nice`` (``/proc/self/autogroup``); under systemd, where the
+service's cgroup replaces the autogroup, ``nice`` does the work. The children also limit
+BLAS/OpenMP to ``blas_threads`` threads (threadpoolctl, for the libraries the forkserver
+preloaded; the environment variables, for any loaded later), so a job never occupies more cores
+than the pool has workers. A system that forbids raising the niceness (a seccomp filter without
+``setpriority``, such as systemd's ``SystemCallFilter=~@resources``) gets a warning, not a
+failure.
 """
 
 from __future__ import annotations
@@ -69,6 +79,12 @@ EXIT_PARENT_GONE = 70
 #: Environment variables that size the thread pools of BLAS and OpenMP libraries.
 THREAD_ENV = BLAS_THREAD_VARIABLES
 
+#: How long a child whose daemon died leaves the forkserver's guard to kill and reap it before
+#: it kills the forkserver and exits by itself [s].
+FORKSERVER_GRACE_S = 0.5
+#: How long the forkserver's guard waits for its killed children [s].
+REAP_TIMEOUT_S = 1.0
+
 _limits: Any = None  # keeps the threadpoolctl limiter of this process alive
 
 
@@ -84,12 +100,100 @@ def watch_parent() -> threading.Thread | None:
 
     def wait_for_parent() -> None:
         multiprocessing.connection.wait([sentinel])
-        if forkserver is not None and os.getppid() == forkserver:
-            with contextlib.suppress(OSError):
-                os.kill(forkserver, signal.SIGKILL)
+        if forkserver is not None:
+            # The forkserver's own guard (:func:`guard_forkserver`) kills and reaps this
+            # process in the meantime; only if it is not there does the child act alone.
+            time.sleep(FORKSERVER_GRACE_S)
+            if os.getppid() == forkserver:
+                with contextlib.suppress(OSError):
+                    os.kill(forkserver, signal.SIGKILL)
         os._exit(EXIT_PARENT_GONE)
 
     thread = threading.Thread(target=wait_for_parent, name="cablecal-parent-watch", daemon=True)
+    thread.start()
+    return thread
+
+
+def _children() -> list[int]:
+    """Pids of this process's children (Linux /proc; empty elsewhere)."""
+    me, found = os.getpid(), []
+    with contextlib.suppress(OSError):
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == me:
+                found.append(int(entry))
+    return found
+
+
+def _ignore_sigchld() -> bool:
+    """``SIGCHLD`` to ``SIG_IGN`` from any thread (libc ``signal``; Python's
+    :func:`signal.signal` only works in the main thread): from now on the kernel reaps this
+    process's children as they exit, whatever its threads are doing. True if set."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.signal.restype = ctypes.c_void_p
+        libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+        previous = libc.signal(int(signal.SIGCHLD), 1)  # SIG_IGN = 1
+        return bool(previous != ctypes.c_void_p(-1).value)  # SIG_ERR = -1
+    except (OSError, AttributeError):
+        return False
+
+
+def reap_children(pids: list[int], timeout_s: float = REAP_TIMEOUT_S) -> list[int]:
+    """SIGKILL ``pids`` (children of this process) so that none is left a zombie: first
+    ``SIGCHLD`` is ignored, so the kernel reaps each as it dies (a wait in this thread could
+    be stopped half-way: the forkserver's main thread starts its interpreter's teardown as
+    soon as the last child is gone, and a daemon thread then never gets the GIL back); those
+    already dead are reaped here. Returns those still present after ``timeout_s`` [s]."""
+    _ignore_sigchld()
+    for pid in pids:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(pid, os.WNOHANG)  # a zombie from before SIGCHLD was ignored
+    left, deadline = list(pids), time.monotonic() + timeout_s
+    while left and time.monotonic() < deadline:
+        left = [p for p in left if Path(f"/proc/{p}").exists()]
+        if left:
+            time.sleep(0.01)
+    return left
+
+
+def guard_forkserver() -> threading.Thread | None:
+    """In the forkserver (run by the import of :mod:`daemon.forkserver_guard`, which the job
+    manager preloads there): when the daemon dies, SIGKILL every child (pool workers, the
+    manager) and reap them, then exit. The children are reaped by their own, living parent,
+    so none stays a zombie waiting for init (a container's pid 1 may reap late); only the
+    forkserver itself is left to init, as the daemon is to its own parent. None when this
+    process's parent is already init (the daemon died before the guard started)."""
+    daemon_pid = os.getppid()
+    if daemon_pid <= 1:
+        return None
+
+    def wait_for_daemon() -> None:
+        try:
+            fd = os.pidfd_open(daemon_pid)  # Linux >= 5.3: readable once the daemon exits
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            multiprocessing.connection.wait([fd])
+        else:
+            while os.getppid() == daemon_pid:
+                time.sleep(0.1)
+        reap_children(_children())
+        os._exit(EXIT_PARENT_GONE)
+
+    # Not a daemon thread: when the children are gone the forkserver's main thread exits, and
+    # its interpreter then waits for this thread (before the slow teardown of numpy and
+    # scipy) instead of freezing it half-way.
+    thread = threading.Thread(target=wait_for_daemon, name="cablecal-forkserver-guard")
     thread.start()
     return thread
 

@@ -18,6 +18,7 @@ from fastapi.testclient import TestClient
 from pydantic import ValidationError
 from test_service import AUTH, TOKEN, FakeSampler, _campaign, _real_csv, _sampler, _settings
 
+from daemon.api.deps import MAX_ID
 from daemon.api.main import create_app
 from daemon.config import Settings
 
@@ -69,7 +70,8 @@ def test_ids_beyond_sqlite_integer_are_422_on_every_id_route(client: TestClient)
     r = client.post(f"/api/v1/campaigns/{BIG}/samples/import", content="q1\n", headers=CSV)
     assert r.status_code == 422, r.text
     # The largest id is valid: a plain 404.
-    assert client.get(f"/api/v1/campaigns/{BIG - 1}", headers=AUTH).status_code == 404
+    assert client.get(f"/api/v1/campaigns/{MAX_ID}", headers=AUTH).status_code == 404
+    assert client.get(f"/api/v1/campaigns/{MAX_ID + 1}", headers=AUTH).status_code == 422
 
 
 @pytest.mark.parametrize("name", ["", " ", "\n\t", "\ud800", "a\udfffb"])

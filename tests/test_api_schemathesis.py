@@ -1,6 +1,8 @@
 """The REST API against its own OpenAPI schema, with Schemathesis (property-based, in-process
-over ASGI): no server error and every response as the schema declares it (status code,
-content type, body), with the token and without it.
+over ASGI): no server error, every response as the schema declares it (status code,
+content type, body), and no request the schema allows refused as invalid (400/413/415/422:
+``positive_data_acceptance``, but for the two file-format bodies of :func:`_file_format_body`),
+with the token and without it.
 
 Bounded and reproducible: 25 examples per operation, hypothesis ``derandomize`` (a fixed
 seed derived from each test), no deadline. The app runs on the EMULATED-free FakeSampler of
@@ -21,6 +23,7 @@ from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 from schemathesis.specs.openapi.checks import (
     content_type_conformance,
+    positive_data_acceptance,
     response_schema_conformance,
     status_code_conformance,
 )
@@ -34,8 +37,15 @@ CHECKS = [
     status_code_conformance,
     content_type_conformance,
     response_schema_conformance,
+    positive_data_acceptance,  # a request the schema allows is not refused (400/413/415/422)
 ]
+# Not negative_data_rejection: unknown query parameters are ignored (as HTTP APIs commonly
+# do), and the token each call adds turns its "missing Authorization" negatives into valid
+# requests.
 EXAMPLES_PER_OPERATION = 25
+#: One request's limit [s]: a valid plan request computes a plan (bounded by the route's
+#: limits), which on a loaded 2-core machine can take longer than Schemathesis' default 10 s.
+REQUEST_TIMEOUT_S = 60
 
 
 def _app_and_schema() -> Any:
@@ -79,10 +89,35 @@ def teardown_module() -> None:
               f"{n} requests, {len(bad)} failing operations")  # fmt: skip
 
 
+#: Operations whose body has rules between its fields that JSON Schema cannot state (open,
+#: issue 21): a plan's ``anchor_uncertainty_mm`` must leave an extension range within
+#: ``extension_mm``, ``candidates`` must be enough for ``n`` (a 422 naming the option).
+CROSS_FIELD_RULES = frozenset({"POST /api/v1/campaigns/{campaign_id}/plan"})
+
+
+def _file_format_body(case: Any) -> bool:
+    """A body whose rules are a file format's, not the schema's: a CSV import (header, numbers,
+    sensor range, joint limits: a 400 naming row and column) and an uploaded robot model (the
+    model file format of ``--robot``: a 422 naming the key), and the :data:`CROSS_FIELD_RULES`
+    operations. Schemathesis' valid data is not valid there, so it is not held to
+    positive_data_acceptance; every other check applies."""
+    if case.operation.label in CROSS_FIELD_RULES:
+        return True
+    if case.operation.label == "POST /api/v1/campaigns/{campaign_id}/samples/import":
+        return True
+    body = case.body if isinstance(case.body, dict) else {}
+    return case.operation.label == "POST /api/v1/campaigns" and isinstance(
+        body.get("robot_model"), dict
+    )
+
+
 def _run(case: Any, token: bool) -> Any:
     SENT[token, case.operation.label] += 1
+    checks = [c for c in CHECKS if c is not positive_data_acceptance or not _file_format_body(case)]
     try:
-        return case.call_and_validate(headers=AUTH if token else None, checks=CHECKS)
+        return case.call_and_validate(
+            headers=AUTH if token else None, checks=checks, timeout=REQUEST_TIMEOUT_S
+        )
     except BaseException:
         FAILED[token, case.operation.label] += 1
         raise
@@ -98,7 +133,12 @@ def test_api_with_token(case: Any) -> None:
 @_BOUNDED
 def test_api_without_token(case: Any) -> None:
     response = _run(case, token=False)
-    if case.path.startswith("/api/v1") and case.path != "/api/v1/health":
+    # OPTIONS is public (it tells no more than this schema): 204 with Allow, token or not.
+    if (
+        case.path.startswith("/api/v1")
+        and case.path != "/api/v1/health"
+        and case.method.upper() != "OPTIONS"
+    ):
         assert response.status_code == 401, (case.method, case.path, response.status_code)
         assert response.json() == {"detail": UNAUTHORIZED_DETAIL}
 

@@ -124,6 +124,18 @@ def start_long_de_job(api: httpx.Client) -> int:
     return int(r.json()["id"])
 
 
+def start_running_de_job(api: httpx.Client) -> int:
+    """:func:`start_long_de_job`, once a worker runs it."""
+    job_id = start_long_de_job(api)
+    wait_for(
+        lambda: api.get(f"/identifications/{job_id}").json()["status"] == "running",
+        60,
+        0.2,
+        "the DE job to run",
+    )
+    return job_id
+
+
 def events(api: httpx.Client, kind: str) -> list[dict[str, Any]]:
     r = api.get("/events", params={"kind": kind, "limit": 100})
     r.raise_for_status()
@@ -141,13 +153,7 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
         assert events(api, "unclean_shutdown") == []
         started = events(api, "daemon_started")
         assert [e["detail"]["pid"] for e in started] == [daemon_pid]
-        job_id = start_long_de_job(api)
-        wait_for(
-            lambda: api.get(f"/identifications/{job_id}").json()["status"] == "running",
-            60,
-            0.2,
-            "the DE job to run",
-        )
+        job_id = start_running_de_job(api)
         children = descendants(daemon_pid)
         # forkserver, pool worker, manager, resource tracker
         assert len(children) >= 4, children
@@ -180,6 +186,12 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
             )
         assert not left, f"still alive {gone_after_s:.1f} s after SIGKILL: {left}"
         assert gone_after_s < CLEANUP_LIMIT_S
+        # Issue 21: the forkserver's children (pool workers, manager) are reaped by the
+        # forkserver itself, not left defunct for init: gone from /proc, not zombies.
+        pool_children = [p for p in children if names[p] == "child"]
+        assert pool_children, names
+        defunct = [p for p in pool_children if proc_stat(p) is not None]
+        assert not defunct, {p: proc_stat(p) for p in defunct}
     finally:
         proc.stop()
         kill_all(children)
@@ -268,3 +280,48 @@ if __name__ == "__main__":
             popen.kill()
             popen.wait(5)
         kill_all(children)
+
+
+def test_a_sigkilled_worker_is_reaped_and_the_next_job_runs(tmp_path: Path) -> None:
+    """Issue 21: SIGKILL the pool worker running a job. It is reaped at once (not defunct),
+    the job is marked failed saying why, and the next job gets a new pool and runs."""
+    from daemon.jobs import WORKER_DIED
+
+    proc, url = start_daemon(tmp_path)
+    try:
+        api = api_client(url)
+        job_id = start_running_de_job(api)
+        children = descendants(proc.popen.pid)
+        pool = [p for p, c in children.items() if short_name(c, False) != "resource_tracker"
+                and int((proc_stat(p) or ["", "0"])[1]) != proc.popen.pid]  # fmt: skip
+        cpu = {p: sum(map(int, (proc_stat(p) or ["0"] * 14)[11:13])) for p in pool}
+        time.sleep(1.0)
+        busy = [p for p in pool if sum(map(int, (proc_stat(p) or ["0"] * 14)[11:13])) > cpu[p]]
+        assert len(busy) == 1, (pool, cpu)
+        worker = busy[0]
+        t_kill = time.monotonic()
+        os.kill(worker, signal.SIGKILL)
+        while proc_stat(worker) is not None and time.monotonic() - t_kill < 10:
+            time.sleep(0.02)
+        gone_s = time.monotonic() - t_kill
+        assert proc_stat(worker) is None, f"worker {worker} still in /proc: {proc_stat(worker)}"
+        assert gone_s < CLEANUP_LIMIT_S, gone_s
+        wait_for(
+            lambda: api.get(f"/identifications/{job_id}").json()["status"] == "failed",
+            10,
+            0.1,
+            "the killed job to be marked failed",
+        )
+        assert api.get(f"/identifications/{job_id}").json()["error"] == WORKER_DIED
+        cid = api.get(f"/identifications/{job_id}").json()["campaign_id"]
+        r = api.post(f"/campaigns/{cid}/identifications", json={"method": "lm"})
+        assert r.status_code == 202, r.text
+        nxt = int(r.json()["id"])
+        wait_for(
+            lambda: api.get(f"/identifications/{nxt}").json()["status"] in ("running", "succeeded"),
+            60,
+            0.1,
+            "the next job to run on a new pool",
+        )
+    finally:
+        proc.stop()

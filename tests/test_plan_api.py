@@ -156,12 +156,15 @@ def test_not_found_auth_and_bounds(client: TestClient) -> None:
         ({"anchors_mm": [[9000.0, 0.0, 0.0]]}, "anchor 1 at"),
         ({"extension_mm": [900.0, 100.0]}, "extension_mm:"),
         ({"anchors_mm": None}, "anchors_mm: required"),
-        ({"anchors_mm": None, "start_from_samples": True}, "start_from_samples:"),
     ]
     for change, text in engine:
         r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
         assert r.status_code == 422, (change, r.text)
         assert any(text in e["msg"] for e in r.json()["detail"]), (change, r.text)
+    # The campaign's samples refuse (none to start from): its state, a 409 (issue 21).
+    change = {"anchors_mm": None, "start_from_samples": True}
+    r = client.post(f"/api/v1/campaigns/{cid}/plan", json={**SMALL, **change}, headers=AUTH)
+    assert r.status_code == 409 and r.json()["detail"].startswith("start_from_samples:"), r.text
     spec = client.get("/openapi.json").json()["paths"]["/api/v1/campaigns/{campaign_id}/plan"]
     assert spec["post"]["summary"] and spec["get"]["summary"]
     r = client.get(f"/api/v1/campaigns/{cid}/plan", params={"tol_deg": 0}, headers=AUTH)

@@ -162,3 +162,38 @@ async def test_auto_capture_on_the_emulated_cell_matches_its_truth() -> None:
     for role in ("indicator", "robot"):
         assert status["devices"][role]["poll_rate_hz"] > 10
     assert not any(r[1] in ("indicator_error", "robot_error") for r in sink.rejections)
+
+
+async def test_a_loop_of_manual_captures_does_not_starve_auto_capture() -> None:
+    """Issue 21: manual captures back to back into one campaign while auto capture runs on
+    another (0 auto samples in 30 s before): auto still captures each new pose."""
+    ind, rob, sink = FakeIndicator(noise_mm=0.01), FakeRobot(joints=POSES[0]), FakeSink()
+    async with running(ind, rob, sink) as s:
+        s.set_auto(9, anchor="A")
+        manual = 0
+
+        async def manual_loop() -> None:
+            nonlocal manual
+            while True:
+                await s.capture(1, anchor="M")
+                manual += 1
+
+        task = asyncio.create_task(manual_loop())
+        try:
+            await wait_until(lambda: manual >= 2)
+            for i, pose in enumerate(POSES[1:4], start=2):
+                rob.move_to(pose)
+                ind.length_mm += 10.0
+                await wait_until(
+                    lambda i=i: sum(c == 9 for c, _ in sink.captures) >= i  # type: ignore[misc]
+                )
+            n_manual = manual
+            await wait_until(lambda: manual > n_manual + 1)  # and manual keeps going
+        finally:
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+    auto = [cap for cid, cap in sink.captures if cid == 9]
+    assert [cap.mode for cap in auto] == ["auto"] * 4
+    for cap, pose in zip(auto, POSES[:4], strict=True):
+        assert np.allclose(cap.joints_deg, pose, atol=1e-9)

@@ -217,7 +217,7 @@ def test_capture_joint_angles_are_validated(client: TestClient) -> None:
     cid = _campaign(client)
     bad = [0.0, 500.0, 200.0, 0.0, 0.0, 0.0]
     r = client.post(f"/api/v1/campaigns/{cid}/captures", json={"joints_deg": bad}, headers=AUTH)
-    assert r.status_code == 422 and "joints_deg[1]" in r.text, r.text
+    assert r.status_code == 409 and "joints_deg[1]" in r.text, r.text  # the robot's limits
     r = client.post(f"/api/v1/campaigns/{cid}/captures", json={"joints_deg": [1, 2]}, headers=AUTH)
     assert r.status_code == 422 and "joints_deg" in r.text
     r = client.post(f"/api/v1/campaigns/{cid}/captures", json={"joints_deg": "abc"}, headers=AUTH)
@@ -343,22 +343,22 @@ def test_identification_bad_options(client: TestClient) -> None:
     assert r.status_code == 422 and "method" in r.text
     r = client.post(url, json={"test_fraction": 1.5}, headers=AUTH)
     assert r.status_code == 422 and "test_fraction" in r.text
-    r = client.post(url, json={}, headers=AUTH)  # no samples yet
-    assert r.status_code == 422 and "samples" in r.text
+    r = client.post(url, json={}, headers=AUTH)  # no samples yet: the campaign's state, 409
+    assert r.status_code == 409 and "samples" in r.text
     client.post(
         f"/api/v1/campaigns/{cid}/samples/import",
         content=_real_csv(60),
         headers={**AUTH, "Content-Type": "text/csv"},
     )
     r = client.post(url, json={"fixed": ["d9"]}, headers=AUTH)
-    assert r.status_code == 422 and "d9" in r.text
+    assert r.status_code == 409 and "d9" in r.text  # a name the robot model lacks
     assert (
         client.post("/api/v1/campaigns/99999/identifications", json={}, headers=AUTH).status_code
         == 404
     )
 
 
-def test_too_few_training_rows_is_422_naming_the_count(client: TestClient) -> None:
+def test_too_few_training_rows_is_409_naming_the_count(client: TestClient) -> None:
     """The job submission runs calib.options.validate with the campaign's robot: 30 real rows
     leave 24 for training at the default 20 % test set, one short of the 24 parameters + 1."""
     cid = _campaign(client)
@@ -369,7 +369,7 @@ def test_too_few_training_rows_is_422_naming_the_count(client: TestClient) -> No
     )
     url = f"/api/v1/campaigns/{cid}/identifications"
     r = client.post(url, json={}, headers=AUTH)
-    assert r.status_code == 422, r.text
+    assert r.status_code == 409, r.text
     assert "24 training samples" in r.text and "need at least 25" in r.text, r.text
     assert "solves 24 parameters" in r.text, r.text
     r = client.post(url, json={"test_fraction": 0.0}, headers=AUTH)  # 30 rows train: accepted

@@ -15,8 +15,8 @@ Entry point :func:`plan` (what ``cablecal plan`` calls). Steps:
    ``anchor_uncertainty_mm`` from it). Selection: greedy, then Fedorov exchange
    (:mod:`calib.planning.design`); then (``criterion="tcp"``, the default) exchanges that
    lower the predicted mean aligned TCP variance over the workspace sample, summed over the
-   same hypotheses (I-optimality: the figure a calibration is judged by; on emulated cells
-   it cut the planned TCP error by 7 % against the D design, bench/plan_results.md).
+   same hypotheses (I-optimality: the figure a calibration is judged by; against the D
+   design on emulated cells: bench/plan_results.md).
 4. **Order** per anchor by nearest neighbour plus 2-opt in joint-move time
    (:mod:`calib.planning.order`).
 5. **Summary**: condition number, predicted 1σ per base parameter for ``noise_mm``, predicted
@@ -32,8 +32,8 @@ parameters cost more than its other cable directions give at 30–40 poses), and
 Base set: the plan's is the rank (``rtol``) base set at the nominal model, where the hook is
 on the flange axis and ``d5``/``theta5`` are exactly redundant with the tool point; identify,
 at the fitted tool point, may keep ``d5`` instead of ``alpha5`` after its noise-level
-threshold (:mod:`calib.identifiability`). Same count and the same TCP figures (fits of the
-plan's set and of identify's differ by < 1 % on 30 emulated seeds).
+threshold (:mod:`calib.identifiability`). Same count and the same TCP figures (the
+comparison: bench/design_figures.md).
 """
 
 from __future__ import annotations
@@ -310,7 +310,8 @@ def plan(
         Start samples outside the joint limits.
     """
     # The products here are (thousands × ~22) by (22 × 22): BLAS threads gain nothing and, on
-    # a shared 2-core machine, oversubscription made a 2 s plan take 15 s. One BLAS thread.
+    # a shared 2-core machine, oversubscription made plans several times slower
+    # (bench/design_figures.md). One BLAS thread.
     with threadpool_limits(limits=1, user_api="blas"):
         return _plan(model, anchors_mm, options or PlanOptions(), start)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Protocol, TypeVar, cast
 
 import numpy as np
 
@@ -246,3 +246,52 @@ def sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressF
         return None
     outer = progress
     return lambda f, msg: outer(lo + (hi - lo) * f, msg)
+
+
+_O = TypeVar("_O")
+_O_contra = TypeVar("_O_contra", contravariant=True)
+
+
+class GaussNewtonSolve(Protocol[_O_contra]):
+    """The public ``solve`` of a Gauss–Newton solver (:func:`gauss_newton_solver`)."""
+
+    def __call__(
+        self,
+        problem: Problem,
+        x0: FloatArray | None = None,
+        options: _O_contra | None = None,
+        progress: ProgressFn | None = None,
+        method: str = ...,
+    ) -> SolverResult: ...
+
+
+def gauss_newton_solver(
+    default_options: Callable[[], _O], default_method: str
+) -> Callable[[Callable[[GaussNewton, _O, ProgressFn | None], SolverResult]], GaussNewtonSolve[_O]]:
+    """The preamble LM and VSLM share, in one place: ``solve(problem, x0=None, options=None,
+    progress=None, method=default_method)`` takes the default options, evaluates the start
+    point (``problem.x0()`` unless ``x0``, shape (k,)) in a :class:`GaussNewton`, returns its
+    failed result when the start residual is not finite, and otherwise runs the decorated
+    ``body(gn, opts, progress)`` (``gn.problem`` and ``gn.method`` are the arguments)."""
+
+    def wrap(
+        body: Callable[[GaussNewton, _O, ProgressFn | None], SolverResult],
+    ) -> GaussNewtonSolve[_O]:
+        def solve(
+            problem: Problem,
+            x0: FloatArray | None = None,
+            options: _O | None = None,
+            progress: ProgressFn | None = None,
+            method: str = default_method,
+        ) -> SolverResult:
+            opts = default_options() if options is None else options
+            gn = GaussNewton(problem, x0, method)
+            failed = gn.start_failure()
+            return failed if failed is not None else body(gn, opts, progress)
+
+        # The body's name and docstring, but the signature of the public solve (no __wrapped__).
+        for name in ("__module__", "__name__", "__qualname__", "__doc__"):
+            setattr(solve, name, getattr(body, name))
+        return solve
+
+    return wrap

@@ -111,9 +111,8 @@ class GeoLMOptions:
     ukf_start: bool = False
     #: Also descend from ``x0`` when the descent from the UKF's estimate converged (by a test,
     #: status > 0). Off: ``x0`` is the fallback when the UKF fails or its descent stops at the
-    #: iteration limit (measured with the old, wrong joint offsets: the ``x0`` descent never
-    #: ended more than 0.05 % below the UKF one on 10 random 100-row subsets, and it doubles
-    #: the time). Only used with ``ukf_start``.
+    #: iteration limit (it never ended meaningfully below the UKF one and doubles the time:
+    #: bench/design_figures.md). Only used with ``ukf_start``.
     both_starts: bool = False
     ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
     ukf_sigma_mm: float = 5.0

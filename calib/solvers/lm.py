@@ -25,9 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.kinematics import FloatArray
-from calib.problem import Problem
-from calib.solvers.common import GaussNewton, ProgressFn, SolverResult, report
+from calib.solvers.common import (
+    GaussNewton,
+    ProgressFn,
+    SolverResult,
+    gauss_newton_solver,
+    report,
+)
 
 
 @dataclass(frozen=True)
@@ -44,19 +48,12 @@ class LMOptions:
     max_rejections: int = 40
 
 
-def solve(
-    problem: Problem,
-    x0: FloatArray | None = None,
-    options: LMOptions | None = None,
-    progress: ProgressFn | None = None,
-    method: str = "lm",
-) -> SolverResult:
-    """Minimise the problem's residual with Levenberg–Marquardt from ``x0`` (shape (k,))."""
-    opts = options or LMOptions()
-    gn = GaussNewton(problem, x0, method)
-    failed = gn.start_failure()
-    if failed is not None:
-        return failed
+@gauss_newton_solver(LMOptions, "lm")
+def solve(gn: GaussNewton, opts: LMOptions, progress: ProgressFn | None) -> SolverResult:
+    """Minimise the problem's residual with Levenberg–Marquardt from ``x0`` (shape (k,)).
+    Called as ``solve(problem, x0=None, options=None, progress=None, method="lm")``
+    (:func:`calib.solvers.common.gauss_newton_solver`)."""
+    problem, method = gn.problem, gn.method
     lam: float | None = None
     nu = 2.0
     status, message = 0, "iteration limit reached"

@@ -18,11 +18,8 @@ updates, so the two differ only in how often the linearisation is refreshed. The
 per-sample refreshes at the start of each epoch, where the covariance is wide (it is reset to
 ``P_0`` every epoch) and the estimate moves most; fixed batches of 25 from the first sample
 sent the real-data MAP fit of one grouped split into a worse local minimum, the ramp does not.
-Measured: on the 100-pose synthetic benchmark the UKF stage makes 8 instead of 100 updates per
-epoch, and VSLM then needs 7 iterations either way, to the same held-out error; on the real
-data (10 grouped MAP splits, 10 paper-protocol draws) the results match per-sample updates
-(mean test RMSE 0.226 vs 0.225 mm on the paper protocol). The stand-alone ``ukf`` method keeps
-per-sample updates.
+Fewer updates per epoch, the same held-out error on synthetic and real data (the figures:
+bench/design_figures.md). The stand-alone ``ukf`` method keeps per-sample updates.
 """
 
 from __future__ import annotations

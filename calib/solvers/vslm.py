@@ -48,9 +48,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.kinematics import FloatArray
-from calib.problem import Problem
-from calib.solvers.common import GaussNewton, ProgressFn, SolverResult, report
+from calib.solvers.common import (
+    GaussNewton,
+    ProgressFn,
+    SolverResult,
+    gauss_newton_solver,
+    report,
+)
 
 
 @dataclass(frozen=True)
@@ -77,19 +81,12 @@ class VSLMOptions:
             raise ValueError(f"sigma_tol must be >= 0, got {self.sigma_tol}")
 
 
-def solve(
-    problem: Problem,
-    x0: FloatArray | None = None,
-    options: VSLMOptions | None = None,
-    progress: ProgressFn | None = None,
-    method: str = "vslm",
-) -> SolverResult:
-    """Run VSLM from ``x0`` (shape (k,)); see the module docstring for the corrections."""
-    opts = options or VSLMOptions()
-    gn = GaussNewton(problem, x0, method)
-    failed = gn.start_failure()
-    if failed is not None:
-        return failed
+@gauss_newton_solver(VSLMOptions, "vslm")
+def solve(gn: GaussNewton, opts: VSLMOptions, progress: ProgressFn | None) -> SolverResult:
+    """Run VSLM from ``x0`` (shape (k,)); see the module docstring for the corrections.
+    Called as ``solve(problem, x0=None, options=None, progress=None, method="vslm")``
+    (:func:`calib.solvers.common.gauss_newton_solver`)."""
+    problem, method = gn.problem, gn.method
     delta = opts.delta0
     lam0: float | None = None
     lam = 0.0

@@ -3,12 +3,14 @@ id path parameters and the pagination of list routes."""
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Final
 
 from fastapi import Depends, HTTPException, Path, Query, Request, Response, status
+from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.guard import UNAUTHORIZED_DETAIL, token_matches
@@ -36,6 +38,8 @@ class AppState:
         None until the lifespan has started it.
     drift : daemon.drift.DriftMonitor or None
         None until the lifespan has started it.
+    auto_capture_lock : asyncio.Lock
+        One auto-capture switch at a time (``PUT /campaigns/{id}/auto-capture``).
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
     """
@@ -49,6 +53,9 @@ class AppState:
     drift: Any = None
     watch: Any = None  # daemon.watch.SensorWatch, None until the lifespan has started it
     started_monotonic_s: float = field(default_factory=time.monotonic)
+    #: Held by an auto-capture switch from the store's write to the sampler's, so that the
+    #: database and the sampler always name the same auto campaign.
+    auto_capture_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
 
 def get_state(request: Request) -> AppState:
@@ -93,12 +100,33 @@ ReadAuth = Depends(require_read)
 
 
 # ------------------------------------------------------------------------------ ids, pages
-#: Largest row id (SQLite INTEGER is signed 64-bit): a larger one is a 422, not a 500.
-MAX_ID: Final = 2**63 - 1
+#: Largest row id: 2**53 - 1, the largest integer a JSON number (an IEEE double) holds
+#: exactly, so the schema's bound means the same to every client (2**63 - 1, SQLite's limit,
+#: is not representable there); a larger id is a 422, never a 500.
+MAX_ID: Final = 2**53 - 1
 
 
 def _id(name: str) -> Any:
     return Path(ge=1, le=MAX_ID, description=f"{name} id")
+
+
+def bound_path_ids(request: Request) -> None:
+    """Every route (an app-wide dependency, run before the route's own parameters): a path
+    parameter named ``*_id`` that is a whole number above :data:`MAX_ID` is a 422 naming it,
+    never a 500 from SQLite. The routes also declare their ids with the aliases below, which
+    put the same bound into the OpenAPI schema; this catches a route that forgot to."""
+    for name, value in request.path_params.items():
+        text = str(value)
+        if name.endswith("_id") and text.isascii() and text.isdigit() and int(text) > MAX_ID:
+            raise RequestValidationError(
+                [
+                    {
+                        "loc": ("path", name),
+                        "msg": f"{name}: must be at most {MAX_ID}",
+                        "type": "less_than_equal",
+                    }
+                ]
+            )
 
 
 CampaignId = Annotated[int, _id("Campaign")]

@@ -26,6 +26,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from daemon.api.methods import allow_header
 from daemon.store import StoreInvalid, StoreNotFound
 
 #: REST names of the store's row kinds where they differ (a job is an "identification").
@@ -78,6 +79,7 @@ _DESCRIPTIONS = {
     404: "No such resource (names it)",
     409: "Conflict with the resource's state",
     413: "Request body over the limit",
+    415: "Request body of a Content-Type the route does not read (names the one expected)",
     422: "Validation error: the list of problems, each with its location",
     503: "A device or the sampler is not available",
 }
@@ -137,6 +139,8 @@ def install(app: FastAPI) -> None:
         elif isinstance(detail, str):
             detail = _text(detail)
         headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:  # every method of the path, not only the first route's
+            headers = {**(headers or {}), "Allow": allow_header(request.app, request.scope)}
         return JSONResponse(
             {"detail": jsonable_encoder(detail)}, status_code=exc.status_code, headers=headers
         )

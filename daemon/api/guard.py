@@ -8,6 +8,9 @@ decided:
   body is read, so a client without the token can neither make the daemon buffer a large body
   nor learn anything from a validation error. (The routes keep their own auth dependencies;
   they also document the security scheme in OpenAPI.)
+- **Body time.** A body that pauses for :data:`BODY_GAP_TIMEOUT_S` or is not complete
+  within :data:`BODY_TIMEOUT_S` is a 408, and the connection closes (a client holding partial
+  bodies open cannot pile up connections; :mod:`daemon.api.server` bounds the request head).
 - **Body limits while streaming.** A ``Content-Length`` over the limit is refused at once; a
   body without one (chunked) is counted as it arrives and refused with 413 as soon as the
   count passes the limit, so at most one chunk beyond the limit is ever held.
@@ -15,6 +18,7 @@ decided:
 
 from __future__ import annotations
 
+import asyncio
 import hmac
 import json
 import re
@@ -36,6 +40,11 @@ MAX_JSON_BYTES: Final = 256 * 1024
 MAX_IMPORT_BYTES: Final = 20 * 1024 * 1024
 #: Largest compensation body [bytes], CSV or JSON: 10 000 pose rows are about 1 MB.
 MAX_COMPENSATE_BYTES: Final = 4 * 1024 * 1024
+
+#: Longest pause in a request body that has started [s]: a stalled body is a 408.
+BODY_GAP_TIMEOUT_S: Final = 10.0
+#: Longest time to receive a whole request body [s] (20 MiB at 1 MiB/s would still fit).
+BODY_TIMEOUT_S: Final = 60.0
 
 _IMPORT_PATH = re.compile(r"/api/v1/campaigns/[^/]+/samples/import/?")
 _COMPENSATE_PATH = re.compile(r"/api/v1/robots/[^/]+/compensate/?")
@@ -81,13 +90,27 @@ class RequestGuard:
         Serve GET and HEAD under ``/api/v1`` without the token.
     prefix : str
         The REST prefix the token guards.
+    body_gap_timeout_s, body_timeout_s : float
+        Longest pause within a body and longest whole body [s]; then 408.
     """
 
-    def __init__(self, app: ASGIApp, *, token: str, public_reads: bool, prefix: str) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        *,
+        token: str,
+        public_reads: bool,
+        prefix: str,
+        body_gap_timeout_s: float | None = None,
+        body_timeout_s: float | None = None,
+    ) -> None:
         self.app = app
         self.token = token
         self.public_reads = public_reads
         self.prefix = prefix
+        # The module's constants unless given (read here, so a test may shorten them).
+        self.body_gap_timeout_s = body_gap_timeout_s or BODY_GAP_TIMEOUT_S
+        self.body_timeout_s = body_timeout_s or BODY_TIMEOUT_S
 
     def _needs_token(self, method: str, path: str) -> bool:
         if not (path == self.prefix or path.startswith(self.prefix + "/")):
@@ -117,16 +140,33 @@ class RequestGuard:
                 await _reply(send, 413, str(too_large(limit).detail))
                 return
         received = 0
+        body_done = False
+        loop = asyncio.get_running_loop()
+        body_deadline = loop.time() + self.body_timeout_s
 
         async def counted() -> Message:
-            nonlocal received
-            message = await receive()
+            nonlocal received, body_done
+            if body_done:  # after the body: a wait for the client's disconnect, not bounded
+                return await receive()
+            wait_s = min(self.body_gap_timeout_s, body_deadline - loop.time())
+            try:
+                message = await asyncio.wait_for(receive(), max(wait_s, 0.0))
+            except TimeoutError:
+                raise HTTPException(
+                    408,
+                    f"body: incomplete after {received} bytes; a request body must not "
+                    f"pause for {self.body_gap_timeout_s:g} s or take over "
+                    f"{self.body_timeout_s:g} s in all",
+                ) from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
+                body_done = not message.get("more_body", False)
                 if received > limit:
                     # An HTTPException: FastAPI re-raises it from body parsing, so the
                     # exception handler answers 413 (the route never runs).
                     raise too_large(limit)
+            else:
+                body_done = True
             return message
 
         await self.app(scope, counted, send)

@@ -12,13 +12,14 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 
 from daemon import metrics
 from daemon.api import errors
-from daemon.api.deps import AppState
+from daemon.api.deps import AppState, bound_path_ids
 from daemon.api.errors import API_KINDS, not_found_detail
 from daemon.api.guard import RequestGuard
+from daemon.api.methods import OptionsMiddleware
 from daemon.api.min_samples import MinSamplesCache
 from daemon.api.routes import (
     apply,
@@ -142,7 +143,7 @@ def create_app(
             gc.freeze()
             # Worker threads (CSV imports, plans, compensation) share the GIL with the event
             # loop: a 1 ms switch interval (default 5 ms) hands it back to the loop sooner.
-            # Measured on a 500k-row import: /health worst 128-216 ms -> 68-104 ms.
+            # (The /health figures of a large import: bench/design_figures.md.)
             sys.setswitchinterval(SWITCH_INTERVAL_S)
             yield
         finally:
@@ -163,12 +164,14 @@ def create_app(
         lifespan=lifespan,
         docs_url=None,  # served by mount_web from local files
         redoc_url=None,
+        dependencies=[Depends(bound_path_ids)],  # every {..._id} bounded, whatever the route
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
     app.add_middleware(
         RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
     )
     app.add_middleware(LatencyMiddleware)
+    app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
     for module in (system, live, campaigns, identifications, reports, robots, plans, apply,
                    watch):  # fmt: skip
         app.include_router(module.router, prefix=API_PREFIX)

@@ -14,8 +14,8 @@ Nothing here restates calib's rule: the parameter count is
 :func:`calib.options.parameters_to_solve`, the training rows it needs
 :func:`calib.options.training_rows_needed` (recommended:
 :func:`calib.options.training_rows_recommended`), and the samples whose training part reaches
-that :func:`calib.options.samples_for_training_rows`. ``max_solved`` costs one Jacobian at 200 poses
-(about 5 ms), so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors):
+that :func:`calib.options.samples_for_training_rows`. ``max_solved`` costs one Jacobian at 200
+poses, so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors):
 ``GET /campaigns`` is polled by the page.
 """
 

@@ -10,10 +10,12 @@ from pydantic import (
     ConfigDict,
     Field,
     StringConstraints,
+    ValidationInfo,
     field_validator,
 )
 from typing_extensions import TypedDict
 
+from calib.models import BUILTIN_MODELS
 from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
 from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
@@ -48,8 +50,21 @@ def _not_blank(value: str) -> str:
 
 
 _Stripped = StringConstraints(strip_whitespace=True)
-Name = Annotated[str, _Stripped, Field(max_length=MAX_NAME_CHARS), AfterValidator(_not_blank)]
-Anchor = Annotated[str, _Stripped, Field(max_length=MAX_ANCHOR_CHARS), AfterValidator(_not_blank)]
+#: The "not blank" rule as the schema states it (at least one non-space character); the
+#: server's check is :func:`_not_blank` after stripping, with its own message.
+NOT_BLANK_SCHEMA: dict[str, Any] = {"minLength": 1, "pattern": r"\S"}
+Name = Annotated[
+    str,
+    _Stripped,
+    Field(max_length=MAX_NAME_CHARS, json_schema_extra=NOT_BLANK_SCHEMA),
+    AfterValidator(_not_blank),
+]
+Anchor = Annotated[
+    str,
+    _Stripped,
+    Field(max_length=MAX_ANCHOR_CHARS, json_schema_extra=NOT_BLANK_SCHEMA),
+    AfterValidator(_not_blank),
+]
 Notes = Annotated[str, _Stripped, Field(max_length=MAX_NOTES_CHARS)]
 Reason = Annotated[str, _Stripped, Field(max_length=MAX_REASON_CHARS)]
 
@@ -62,8 +77,18 @@ class _Body(BaseModel):
 
     @field_validator("*", mode="before")
     @classmethod
-    def _unicode(cls, value: Any) -> Any:
+    def _unicode(cls, value: Any, info: ValidationInfo) -> Any:
         _no_surrogates(value, "text")
+        # JSON Schema's "integer" includes 2.0: a whole float is taken for an int field
+        # (strict mode refuses it otherwise; 2.5 and "2" stay errors).
+        field = cls.model_fields.get(info.field_name or "")
+        if (
+            isinstance(value, float)
+            and value.is_integer()
+            and field is not None
+            and field.annotation in (int, int | None)
+        ):
+            return int(value)
         return value
 
 
@@ -75,7 +100,14 @@ class CampaignCreate(_Body):
     """A new calibration campaign."""
 
     name: Name = Field(description=f"1..{MAX_NAME_CHARS} characters, not blank")
-    robot_model: Annotated[str, StringConstraints(max_length=64)] | dict[str, Any] = Field(
+    robot_model: (
+        Annotated[
+            str,
+            StringConstraints(max_length=64),
+            Field(json_schema_extra={"enum": sorted(BUILTIN_MODELS)}),
+        ]
+        | dict[str, Any]
+    ) = Field(
         "hsr-jr680",
         description=(
             "A built-in model name (hsr-jr680), or an uploaded model as a mapping: "

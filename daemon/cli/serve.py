@@ -104,6 +104,7 @@ async def serve(settings: Settings, token: str, generated: bool) -> int:
     import uvicorn
 
     from daemon.api.main import create_app
+    from daemon.api.server import uvicorn_options
     from daemon.notify import Notifier, watchdog_loop
 
     app = create_app(settings, token)
@@ -115,6 +116,7 @@ async def serve(settings: Settings, token: str, generated: bool) -> int:
         access_log=False,
         lifespan="on",
         timeout_graceful_shutdown=5,
+        **uvicorn_options(),  # bounds on slow and many clients (daemon/api/server.py)
     )
     notifier = Notifier.from_env()
     server = _notifying_server(config, notifier)

@@ -100,6 +100,8 @@ class Sampler:
         self._task: asyncio.Task[None] | None = None
         self._tick = asyncio.Event()
         self._capture_lock = asyncio.Lock()
+        #: The campaign of the manual capture holding the lock, or None.
+        self._manual_campaign_id: int | None = None
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -224,7 +226,13 @@ class Sampler:
             staleness = staleness_s(t_done, t_ind, t_rob, self.manual_robot)
             self._append(PairedReading(t_poll, t_ind, w_ind, joints, length, over, staleness))
         self._verdict = self._evaluate(t_done, -math.inf)
-        if self._auto is not None and not self._capture_lock.locked():
+        # Auto capture steps every cycle, also while a manual capture into another campaign
+        # waits (a loop of manual captures would starve it otherwise); the window it takes is
+        # marked used, so the manual capture takes the next one. While a manual capture into
+        # the auto campaign itself waits, auto steps aside (no pose captured twice there).
+        if self._auto is not None and not (
+            self._capture_lock.locked() and self._manual_campaign_id == self._auto.campaign_id
+        ):
             self._auto_step(t_done)
         return errored
 
@@ -305,6 +313,7 @@ class Sampler:
                 raise ValueError(f"joints_deg: expected 6 finite angles [deg], got {values}")
             joints = as_joints(values)
         async with self._capture_lock:
+            self._manual_campaign_id = campaign_id
             t_request = time.monotonic()
             if joints is not None:
                 assert isinstance(self.robot, ManualRobot)
@@ -314,6 +323,8 @@ class Sampler:
             except CaptureRejected as exc:
                 self._rejected(campaign_id, exc, mode)
                 raise
+            finally:
+                self._manual_campaign_id = None
             return self._store(campaign_id, anchor, window, mode)
 
     async def _wait_settled(self, t_request: float) -> tuple[PairedReading, ...]:

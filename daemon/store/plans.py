@@ -21,22 +21,20 @@ from calib.dataset import JOINT_COLUMNS
 from calib.kinematics import FloatArray, IndexArray
 from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
 from daemon.store.errors import StoreInvalid, StoreNotFound
+from daemon.store.rows import JointsDeg
 
 #: Default tolerance per joint for a sample to count as a planned pose [deg].
 MATCH_TOL_DEG = 0.5
 
 
-class PlannedPoseRow(TypedDict):
-    """A planned pose as :meth:`calib.planning.PlanResult.csv_rows` gives it: joints [deg],
-    anchor id, predicted cable extension and the anchor guess [mm]."""
-
+class _PoseNumber(TypedDict):
     pose: int
-    q1: float
-    q2: float
-    q3: float
-    q4: float
-    q5: float
-    q6: float
+
+
+class PlannedPoseRow(_PoseNumber, JointsDeg):
+    """A planned pose as :meth:`calib.planning.PlanResult.csv_rows` gives it: ``pose``,
+    joints ``q1..q6`` [deg], anchor id, predicted cable extension and the anchor guess [mm]."""
+
     anchor: str
     extension_mm: float
     anchor_x_mm: float

@@ -20,6 +20,8 @@ from typing import Any, Literal, NotRequired
 
 from typing_extensions import TypedDict
 
+from calib.dataset import JOINT_COLUMNS
+
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 
@@ -55,27 +57,59 @@ class CampaignRow(TypedDict):
     anchors: list[str]
 
 
-class SampleRow(TypedDict):
-    """A sample: the mean pose [deg] and cable length [mm] of a capture, or an imported row
-    (imported rows have no std, count, timestamps or mode: None)."""
+class JointsDeg(TypedDict):
+    """The joint angles of a pose [deg]: the one place the ``q1..q6`` keys of a row are
+    written (every row with a pose derives from it; they equal
+    :data:`calib.dataset.JOINT_COLUMNS`, checked below)."""
 
-    id: int
-    campaign_id: int
     q1: float
     q2: float
     q3: float
     q4: float
     q5: float
     q6: float
-    length_mm: float
-    anchor: str
+
+
+class JointsStdDeg(TypedDict):
+    """Standard deviations of the joint angles over a capture window [deg], ``q1_std..q6_std``
+    (None for imported rows)."""
+
     q1_std: float | None
     q2_std: float | None
     q3_std: float | None
     q4_std: float | None
     q5_std: float | None
     q6_std: float | None
+
+
+if tuple(JointsDeg.__annotations__) != JOINT_COLUMNS or tuple(
+    JointsStdDeg.__annotations__
+) != tuple(f"{q}_std" for q in JOINT_COLUMNS):  # pragma: no cover - a definition error
+    raise ImportError("daemon.store.rows: the joint keys differ from calib.dataset.JOINT_COLUMNS")
+
+
+# SampleRow's keys, in their REST order, from the bases above (a TypedDict lists the keys of
+# its bases first, in order, then its own).
+class _SampleIds(TypedDict):
+    id: int
+    campaign_id: int
+
+
+class _SampleMean(_SampleIds, JointsDeg):
+    length_mm: float
+    anchor: str
+
+
+class _SampleStd(_SampleMean, JointsStdDeg):
     length_std_mm: float | None
+
+
+class SampleRow(_SampleStd):
+    """A sample: the mean pose [deg] and cable length [mm] of a capture, or an imported row
+    (imported rows have no std, count, timestamps or mode: None). Keys in order: ``id``,
+    ``campaign_id``, ``q1..q6``, ``length_mm``, ``anchor``, ``q1_std..q6_std``,
+    ``length_std_mm``, then those below."""
+
     count: int | None
     t_start: float | None
     t_end: float | None
@@ -87,16 +121,13 @@ class SampleRow(TypedDict):
     pose_group: str | None
 
 
-class RawReading(TypedDict):
-    """One reading of a capture's settled window."""
-
+class _ReadingTime(TypedDict):
     t_wall: float
-    q1: float
-    q2: float
-    q3: float
-    q4: float
-    q5: float
-    q6: float
+
+
+class RawReading(_ReadingTime, JointsDeg):
+    """One reading of a capture's settled window: ``t_wall``, ``q1..q6``, ``length_mm``."""
+
     length_mm: float
 
 

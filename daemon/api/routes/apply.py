@@ -16,6 +16,7 @@ from pydantic import Field, TypeAdapter, ValidationError
 
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import MAX_ID, JobId, ReadAuth, RobotId, State, WriteAuth
+from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import StrictBody
@@ -78,6 +79,15 @@ _ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
 )
 #: The JSON request body as documented: one of the three target lists.
 TARGETS_SCHEMA = {"anyOf": [TypeAdapter(_targets(m)).json_schema() for m in _TARGET_MODELS]}
+
+
+#: A decimal number as :func:`_numbers` reads it (the exponent bounded: always finite).
+_DECIMAL = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]{1,2})?"
+
+
+def numbers_pattern(n: int) -> str:
+    """The schema's pattern of ``n`` comma-separated numbers (``tool_mm``, ``seed_deg``)."""
+    return f"^{_DECIMAL}(?:,{_DECIMAL}){{{n - 1}}}$"
 
 
 def _numbers(text: str | None, n: int, name: str) -> tuple[float, ...] | None:
@@ -175,10 +185,16 @@ async def compensate_targets(
     request: Request,
     mode: Literal["position", "pose"] = Query("position"),
     tool_mm: str | None = Query(
-        None, max_length=MAX_QUERY_CHARS, description="TCP in the flange frame: X,Y,Z [mm]."
+        None,
+        max_length=MAX_QUERY_CHARS,
+        description="TCP in the flange frame: X,Y,Z [mm].",
+        json_schema_extra={"pattern": numbers_pattern(3)},
     ),
     seed_deg: str | None = Query(
-        None, max_length=MAX_QUERY_CHARS, description="q1,…,q6 [deg]: IK branch of x,y,z rows."
+        None,
+        max_length=MAX_QUERY_CHARS,
+        description="q1,…,q6 [deg]: IK branch of x,y,z rows.",
+        json_schema_extra={"pattern": numbers_pattern(6)},
     ),
     format: DownloadFormat | None = Query(None, description=FORMAT_HELP),
     speed_pct: SpeedPct = DEFAULT_SPEED_PCT,
@@ -217,9 +233,7 @@ async def compensate_targets(
         return Response(
             csv_text,
             media_type="text/csv",
-            headers={
-                "Content-Disposition": f'attachment; filename="robot-{robot_id}-compensated.csv"'
-            },
+            headers=download_headers(f"robot-{robot_id}-compensated.csv"),
         )
     return out
 
@@ -236,8 +250,7 @@ def export_response(state: State, robot_id: int, fmt: str) -> Response:
     except ValueError as exc:
         raise HTTPException(409, f"robot {robot_id}: the accepted result: {exc}") from exc
     name = f"{nominal.name}-calibrated.{fmt}"
-    return Response(text, media_type=EXPORT_MEDIA_TYPES[fmt],
-                    headers={"Content-Disposition": f'attachment; filename="{name}"'})  # fmt: skip
+    return Response(text, media_type=EXPORT_MEDIA_TYPES[fmt], headers=download_headers(name))
 
 
 class VerifyRequest(StrictBody):

@@ -16,6 +16,7 @@ from calib.dataset import (
     parse_samples_csv,
     validate_joint_limits,
 )
+from calib.kinematics import FloatArray
 from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import (
     AppState,
@@ -27,6 +28,7 @@ from daemon.api.deps import (
     WriteAuth,
     link_next,
 )
+from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
 from daemon.api.schemas import (
     AutoCapture,
@@ -41,6 +43,9 @@ from daemon.capture import CaptureRejected
 from daemon.store import CampaignRow
 
 log = logging.getLogger("cablecal.service")
+
+#: Content-Types a CSV import accepts (anything else, e.g. application/json, is a 415).
+IMPORT_MEDIA_TYPES = frozenset({"text/csv"})
 
 router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 422))
 
@@ -117,7 +122,8 @@ def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
         **error_responses(404),
         409: {
             "model": Error,
-            "description": "Robot moving / not settled, over-range, pose already captured",
+            "description": "Robot moving / not settled, over-range, pose already captured, "
+            "joints_deg outside the joint limits of the campaign's robot model",
         },
         503: {
             "model": Error,
@@ -150,7 +156,8 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
 
 def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     """The CSV import's checks (finite, within the model's joint limits) on one pose; the
-    error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``."""
+    error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``. Outside the limits of
+    the campaign's robot model is a 409 (a rule of the robot, not of the request's shape)."""
     try:
         pose = make_samples(np.asarray([joints_deg], dtype=float), np.zeros(1))
         validate_joint_limits(pose, state.store.robot_model(robot_id))
@@ -159,6 +166,8 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
         loc: tuple[str | int, ...] = ("body", "joints_deg") + (() if j is None else (j,))
         field = "joints_deg" if j is None else f"joints_deg[{j}]"
         message = str(exc).split(": ", 1)[-1]
+        if "outside the limits" in message:  # the campaign's robot model refuses it: 409
+            raise HTTPException(409, f"{field}: {message}") from exc
         raise unprocessable(loc, f"{field}: {message}") from exc
 
 
@@ -168,45 +177,59 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     dependencies=[WriteAuth],
     responses=error_responses(404, 503),
 )
-def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture) -> CampaignOut:
+async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture) -> CampaignOut:
     """On: the sampler captures once at each new settled pose, for this campaign only (it
     switches off any other campaign). The setting survives a daemon restart.
 
     Validated first (the body, the campaign, a running sampler), then stored (one
     transaction), then applied to the sampler; if the sampler refuses, the stored change is
-    rolled back and the sampler put back as it was, so the database and the sampler agree."""
+    rolled back and the sampler put back as it was, so the database and the sampler agree.
+    One switch at a time (``AppState.auto_capture_lock``, held from the store's write to the
+    sampler's): parallel switches end with the database and the sampler naming the same
+    campaign. The store's reads and writes run in a worker thread, the sampler's switch on the
+    event loop that owns the sampler."""
+    async with state.auto_capture_lock:
+        before, row, known = await run_in_threadpool(_store_auto, state, campaign_id, body)
+        try:
+            _apply_auto(state, campaign_id, body, known)
+        except Exception as exc:
+            await run_in_threadpool(state.store.restore_auto_capture, before)
+            await _restore_sampler(state, before)
+            log.exception("auto capture: the sampler refused; rolled back")
+            raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
+    return _out(state, row)
+
+
+def _store_auto(
+    state: AppState, campaign_id: int, body: AutoCapture
+) -> tuple[list[CampaignRow], CampaignRow, FloatArray | None]:
+    """The stored part of a switch (in a worker thread): the auto campaigns before, the
+    switched row, and the campaign's captured poses [deg] when switching on."""
     state.store.campaign(campaign_id)  # 404 before anything changes
     if body.enabled and state.sampler is None:
         raise HTTPException(503, "sampler: not running")
     before = state.store.auto_capture_campaigns()
     row = state.store.set_auto_capture(campaign_id, body.enabled, body.anchor)
-    try:
-        _apply_auto(state, campaign_id, body)
-    except Exception as exc:
-        state.store.restore_auto_capture(before)
-        _restore_sampler(state, before)
-        log.exception("auto capture: the sampler refused; rolled back")
-        raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
-    return _out(state, row)
+    known = state.store.poses_deg(campaign_id) if body.enabled else None
+    return before, row, known
 
 
-def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture) -> None:
-    """The stored auto-capture switch, applied to the sampler."""
+def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture, known: object) -> None:
+    """The stored auto-capture switch, applied to the sampler (on the event loop)."""
     if body.enabled:
-        known = state.store.poses_deg(campaign_id)
         state.sampler.set_auto(campaign_id, anchor=body.anchor, known_poses_deg=known)
     elif state.sampler is not None and state.sampler.auto_campaign_id == campaign_id:
         state.sampler.set_auto(None)
 
 
-def _restore_sampler(state: AppState, before: list[CampaignRow]) -> None:
+async def _restore_sampler(state: AppState, before: list[CampaignRow]) -> None:
     """The sampler as the restored rows say (best effort: logged if it fails again)."""
     if state.sampler is None:
         return
     try:
         if before:
             cid = int(before[0]["id"])
-            known = state.store.poses_deg(cid)
+            known = await run_in_threadpool(state.store.poses_deg, cid)
             state.sampler.set_auto(cid, anchor=before[0]["auto_anchor"], known_poses_deg=known)
         else:
             state.sampler.set_auto(None)
@@ -237,7 +260,7 @@ def list_samples(
         return Response(
             state.store.export_csv(campaign_id),
             media_type="text/csv",
-            headers={"Content-Disposition": f'attachment; filename="campaign-{campaign_id}.csv"'},
+            headers=download_headers(f"campaign-{campaign_id}.csv"),
         )
     rows = state.store.list_samples(campaign_id, after_id=page.after_id, limit=page.limit)
     link_next(request, response, rows, page.limit)
@@ -249,18 +272,27 @@ def list_samples(
     status_code=status.HTTP_201_CREATED,
     summary="Import samples from CSV",
     dependencies=[WriteAuth],
-    responses=error_responses(400, 404),
+    responses=error_responses(400, 404, 415),
     response_model=ImportResult,
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
     },
 )
 async def import_samples(state: State, campaign_id: CampaignId, request: Request) -> Response:
-    """The request body is the CSV text (``Content-Type: text/csv``, at most 20 MiB): header
-    q1..q6 [deg] and L [mm], optional ``anchor``. All or nothing: an error gives 400 naming
-    the row (file line, header = 1) and column, and nothing of the import is stored. Parsed
-    and stored in a worker thread, so the event loop (the sampler, ``/health``) keeps running."""
+    """The request body is the CSV text (``Content-Type: text/csv``, else 415; at most
+    20 MiB): header q1..q6 [deg] and L [mm], optional ``anchor``. All or nothing: an error
+    gives 400 naming the row (file line, header = 1) and column, and nothing of the import is
+    stored. Parsed and stored in a worker thread, so the event loop (the sampler,
+    ``/health``) keeps running."""
     state.store.campaign(campaign_id)  # 404 before the body is read
+    media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if media_type not in IMPORT_MEDIA_TYPES:
+        raise HTTPException(
+            415,
+            f"Content-Type: expected text/csv (the CSV text as the body), got {media_type!r}"
+            if media_type
+            else "Content-Type: expected text/csv (the CSV text as the body)",
+        )
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     body = await run_in_threadpool(_import_csv, state, campaign_id, b"".join(chunks))
     return Response(body, status_code=201, media_type="application/json")

@@ -8,7 +8,7 @@ from typing import Any, cast
 from fastapi import APIRouter, HTTPException, Request, Response, status
 
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
-from daemon.api.errors import error_responses, unprocessable
+from daemon.api.errors import error_responses
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
 
@@ -32,17 +32,19 @@ def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
     status_code=status.HTTP_202_ACCEPTED,
     summary="Start an identification job",
     dependencies=[WriteAuth],
+    responses=error_responses(409),
 )
 async def start(state: State, campaign_id: CampaignId, body: IdentificationRequest) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
-    (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``. 422 for a bad
-    option, or when the samples left for training (after ``test_fraction``) are not more than
-    the parameters the identification would solve for this robot and these anchors (25 training
-    rows for the built-in model with one anchor; the message names the count)."""
+    (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``. 422 for a body
+    the schema refuses; 409, naming the option or the count, for what the campaign's robot
+    and samples refuse: a parameter name the model lacks in ``fixed``/``free``, or too few
+    samples left for training (after ``test_fraction``) for the parameters this robot and
+    these anchors solve for (25 training rows for the built-in model with one anchor)."""
     try:
         job = state.jobs.submit(campaign_id, body.to_options())
-    except JobError as exc:
-        raise unprocessable(("body",), str(exc)) from exc
+    except JobError as exc:  # the request is well formed; the campaign's state refuses it
+        raise HTTPException(409, str(exc)) from exc
     return _job_view(state, job)
 
 

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, status
-from pydantic import Field
+from pydantic import ConfigDict, Field
 from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS, SampleError, SampleSet
@@ -45,6 +45,12 @@ class PlanRequest(StrictBody):
     """Options of a plan (see ``cablecal plan --help``; units in the names). The robot is the
     campaign's. Strict: no unknown keys, ``"1"`` is not a number, ``"yes"`` not a boolean;
     pairs and triples are JSON lists of that length."""
+
+    # The schema states the one rule between fields: anchors_mm, unless start_from_samples.
+    model_config = ConfigDict(json_schema_extra={"anyOf": [
+        {"required": ["anchors_mm"], "properties": {"anchors_mm": {"type": "array"}}},
+        {"required": ["start_from_samples"], "properties": {"start_from_samples": {"const": True}}},
+    ]})  # fmt: skip
 
     anchors_mm: Annotated[
         list[Annotated[list[Coordinate], Field(min_length=3, max_length=3)]],
@@ -154,10 +160,15 @@ def _compute(
     """Run the planning (in a worker thread): the summary and the poses."""
     opts = body.options()
     anchors = body.anchors_mm
+    found = {}
+    if start is not None:
+        try:  # where the samples put the anchors (plan() needs it too)
+            found = start_anchors_mm(model, start)
+        except (ValueError, SampleError) as exc:  # the campaign's samples: its state, 409
+            raise HTTPException(409, f"start_from_samples: {exc}") from exc
     if anchors is None:
         if start is None:
             raise ValueError("anchors_mm: required unless start_from_samples is true")
-        found = start_anchors_mm(model, start)
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
@@ -193,10 +204,7 @@ async def make_plan(
     model = state.store.robot_model(int(campaign["robot_id"]))
     start = state.store.sample_set(campaign_id)[0] if body.start_from_samples else None
     if start is not None and len(start) == 0:
-        raise unprocessable(
-            ("body", "start_from_samples"),
-            "start_from_samples: the campaign has no included samples",
-        )
+        raise HTTPException(409, "start_from_samples: the campaign has no included samples")
     if getattr(request.app.state, "planning_campaign", None) is not None:
         raise HTTPException(409, "plan: another plan is being computed; try again later")
     request.app.state.planning_campaign = campaign_id

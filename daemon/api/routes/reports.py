@@ -9,7 +9,8 @@ from fastapi import APIRouter, HTTPException
 from fastapi.responses import HTMLResponse
 from typing_extensions import TypedDict
 
-from daemon.api.deps import ReadAuth, State
+from daemon.api.deps import JobId, ReadAuth, State
+from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses
 
 router = APIRouter(tags=["identifications"], responses=error_responses(401, 404, 409, 413, 422))
@@ -54,7 +55,7 @@ def _result_and_residuals(state: State, job_id: int) -> tuple[dict[str, Any], An
     summary="Residuals per sample, before and after",
     dependencies=[ReadAuth],
 )
-def residuals(state: State, job_id: int) -> Residuals:
+def residuals(state: State, job_id: JobId) -> Residuals:
     """Before (nominal model, P0 and offset fitted) and after (calibrated model) residuals of
     every included sample of the job's campaign [mm]."""
     result, res, ids = _result_and_residuals(state, job_id)
@@ -77,7 +78,7 @@ def residuals(state: State, job_id: int) -> Residuals:
     dependencies=[ReadAuth],
     responses={200: {"content": {"text/html": {}}, "description": "The report"}},
 )
-def report_html(state: State, job_id: int) -> HTMLResponse:
+def report_html(state: State, job_id: JobId) -> HTMLResponse:
     """One self-contained HTML document (inline CSS and SVG, no script): the result with its
     residuals per sample; opens offline and prints on A4 (``cablecal report`` writes the
     same page from a result.json file)."""
@@ -87,5 +88,5 @@ def report_html(state: State, job_id: int) -> HTMLResponse:
     html = render_report_html(result, res, source=f"identification {job_id}")
     return HTMLResponse(
         html,
-        headers={"Content-Disposition": f'inline; filename="identification-{job_id}-report.html"'},
+        headers=download_headers(f"identification-{job_id}-report.html", "inline"),
     )

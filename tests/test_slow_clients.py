@@ -1,0 +1,101 @@
+"""Issue 21: clients that hold connections open with a partial request (300 such connections
+stayed open with no end before) are dropped within the bounds of daemon/api/server.py and the
+request guard, and /health answers all the while. A real uvicorn server on loopback runs the
+app with the bounds shortened to 1-2 s, as ``cablecal serve`` configures it."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+import uvicorn
+from test_service import AUTH, TOKEN, FakeSampler, _settings
+
+from daemon.api import guard
+from daemon.api.main import create_app
+from daemon.api.server import BoundedH11Protocol, uvicorn_options
+
+HELD = 150  # connections of each kind held open
+
+
+class QuickHeadTimeout(BoundedH11Protocol):
+    head_timeout_s = 1.0
+
+
+@pytest.fixture
+def server(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
+    monkeypatch.setattr(guard, "BODY_GAP_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(guard, "BODY_TIMEOUT_S", 2.0)
+    app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
+    options = {**uvicorn_options(), "http": QuickHeadTimeout}
+    config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, **options)
+    srv = uvicorn.Server(config)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not srv.started:
+        assert time.monotonic() < deadline and thread.is_alive()
+        time.sleep(0.02)
+    port = srv.servers[0].sockets[0].getsockname()[1]
+    yield f"127.0.0.1:{port}"
+    srv.should_exit = True
+    thread.join(15)
+
+
+def _open(addr: str, data: bytes) -> socket.socket:
+    host, port = addr.split(":")
+    s = socket.create_connection((host, int(port)), timeout=5)
+    s.sendall(data)
+    return s
+
+
+def _closed_by_server(s: socket.socket, timeout_s: float) -> bytes | None:
+    """What the server sent before closing, or None if it kept the connection open."""
+    s.settimeout(timeout_s)
+    got = b""
+    try:
+        while chunk := s.recv(4096):
+            got += chunk
+    except TimeoutError:
+        return None
+    except ConnectionResetError:
+        pass
+    return got
+
+
+@pytest.mark.slow
+def test_partial_heads_and_bodies_are_dropped_and_health_answers(server: str) -> None:
+    auth = AUTH["Authorization"].encode()
+    heads = [
+        _open(server, b"GET /api/v1/health HTTP/1.1\r\nHost: x\r\nX-Slow: ") for _ in range(HELD)
+    ]
+    body = b'{"name": "slow", '
+    head = b"POST /api/v1/campaigns HTTP/1.1\r\nHost: x\r\nAuthorization: " + auth
+    post = head + b"\r\nContent-Type: application/json\r\nContent-Length: 1000\r\n\r\n" + body
+    bodies = [_open(server, post) for _ in range(HELD)]
+    try:
+        worst_s = 0.0
+        with httpx.Client(base_url=f"http://{server}", timeout=5) as client:
+            t_end = time.monotonic() + 1.5
+            while time.monotonic() < t_end:  # while all 2 x HELD connections are held
+                t0 = time.monotonic()
+                assert client.get("/api/v1/health").status_code == 200
+                worst_s = max(worst_s, time.monotonic() - t0)
+                time.sleep(0.05)
+        assert worst_s < 1.0, worst_s
+        for s in heads:
+            assert _closed_by_server(s, 5.0) == b""  # closed without a word: no request yet
+        for s in bodies:
+            answer = _closed_by_server(s, 5.0)
+            assert answer is not None and answer.startswith(b"HTTP/1.1 408 "), answer
+            assert b"body: incomplete after" in answer
+    finally:
+        for s in heads + bodies:
+            s.close()
+    with httpx.Client(base_url=f"http://{server}", headers=AUTH, timeout=5) as client:
+        assert client.get("/api/v1/campaigns").json() == []  # the stalled creates stored nothing
