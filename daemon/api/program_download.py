@@ -25,6 +25,7 @@ from calib.programs.formats import (
 )
 from calib.programs.registry import name_rule, program_from_csv
 from calib.tcp import joint_limits_deg
+from daemon.api.downloads import download_headers
 from daemon.api.errors import unprocessable
 
 #: ``format``: the REST enum, from the one list of formats.
@@ -107,5 +108,5 @@ def download(
     return Response(
         body,
         media_type=MEDIA_TYPE[fmt],
-        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+        headers=download_headers(filename),
     )
