@@ -73,7 +73,12 @@ def solve(
         generation[0] += 1
         x_best = np.asarray(getattr(intermediate_result, "x", start))
         history.append(problem.data_rms_mm(x_best))
-        report(progress, generation[0] / opts.max_generations, f"{method} generation")
+        report(
+            progress,
+            generation[0] / opts.max_generations,
+            f"{method} generation {generation[0]}, rms {history[-1]:.4f} mm",
+            history[-1],
+        )
 
     res = differential_evolution(
         cost,

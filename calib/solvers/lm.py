@@ -102,6 +102,7 @@ def solve(
             progress,
             it / opts.max_iterations,
             f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
+            gn.history[-1],
         )
         if status:
             break
