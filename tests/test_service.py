@@ -362,7 +362,20 @@ def test_one_current_calibration_until_accept_and_numeric_progress(client: TestC
 
     first = run("ukf-vslm")
     client.post(f"/api/v1/identifications/{first['id']}/accept", headers=AUTH)
-    second = run("de", robust="none")  # one DE fit (robust rounds would take 5x as long)
+    # de: numeric progress while it runs, then the operator cancels it.
+    r = client.post(url, json={"method": "de", "robust": "none"}, headers=AUTH)
+    de_id = r.json()["id"]
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        de = client.get(f"/api/v1/identifications/{de_id}", headers=AUTH).json()
+        if de["progress"]["cost_rms_mm"] is not None or de["status"] in JOB_FINISHED:
+            break
+        time.sleep(0.2)
+    assert isinstance(de["progress"]["cost_rms_mm"], float), de
+    assert isinstance(de["progress"]["iteration"], int), de
+    client.delete(f"/api/v1/identifications/{de_id}", headers=AUTH)
+    assert _wait_job(client, de_id)["status"] in ("cancelled", "succeeded")
+    second = run("lm")
     assert second["current"] is False and "waiting for Accept" in second["message"]
     listed = client.get(url, headers=AUTH).json()
     assert [j["id"] for j in listed if j["current"]] == [first["id"]]

@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import differential_evolution
 
 from calib.kinematics import FloatArray
 from calib.problem import Problem
@@ -79,6 +78,9 @@ def solve(
             f"{method} generation {generation[0]}, rms {history[-1]:.4f} mm",
             history[-1],
         )
+
+    # Imported here: scipy.optimize costs ~0.4 s, which no other method needs.
+    from scipy.optimize import differential_evolution
 
     res = differential_evolution(
         cost,
