@@ -88,13 +88,23 @@ def min_samples(
     opts = options if options is not None else IdentifyOptions()
     n_params = parameters_to_solve(model, anchor_ids(n_anchors), opts)
     need = training_rows_needed(n_params)
-    tf = opts.test_fraction
     return MinSamples(
         n_params=n_params,
         training_samples=need,
-        samples=_smallest(lambda n: n - round(tf * n) >= need, "samples"),
-        test_fraction=tf,
+        samples=samples_needed(need, opts.test_fraction),
+        test_fraction=opts.test_fraction,
     )
+
+
+def held_out(n: int, test_fraction: float) -> int:
+    """Rows of ``n`` held out to test: ``round(test_fraction * n)`` (Python's rounding), as
+    :func:`calib.options.validate` and :func:`calib.split.split_rows` count them."""
+    return round(test_fraction * n)
+
+
+def samples_needed(training_samples: int, test_fraction: float) -> int:
+    """The fewest samples whose training part at ``test_fraction`` has ``training_samples``."""
+    return _smallest(lambda n: n - held_out(n, test_fraction) >= training_samples, "samples")
 
 
 class MinSamplesCache:

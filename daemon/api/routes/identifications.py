@@ -4,13 +4,16 @@ and the option spec the page builds its form from."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, cast
+from typing import Annotated, Any, cast
 
-from fastapi import APIRouter, HTTPException, Request, Response, status
+from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from typing_extensions import TypedDict
 
+from calib.options import default, spec
 from daemon.api.compare import Comparison, compare_results
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.min_samples import held_out, samples_needed
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
@@ -38,6 +41,45 @@ def options(state: State) -> IdentifyOptionsSpec:
     :mod:`calib.options` (the one home of an option); and the job states, ``finished`` the
     ones after which nothing changes. The operator page builds its form from this."""
     return identify_options_spec(state.settings.jobs.noise_mm)
+
+
+class Readiness(TypedDict):
+    """Whether the campaign has enough samples at ``test_fraction``: ``n_included`` samples
+    split into ``n_train`` / ``n_test``; ``min_training_samples`` for this robot and these
+    anchors, ``min_samples`` the fewest included samples at this test fraction."""
+
+    test_fraction: float
+    n_included: int
+    n_train: int
+    n_test: int
+    min_training_samples: int
+    min_samples: int
+    ready: bool
+
+
+@router.get(
+    "/campaigns/{campaign_id}/identification-readiness",
+    summary="Enough samples to identify at a test fraction?",
+    dependencies=[ReadAuth],
+)
+def readiness(
+    state: State,
+    campaign_id: CampaignId,
+    test_fraction: Annotated[
+        float, Query(ge=spec("test_fraction").ge, lt=spec("test_fraction").lt, allow_inf_nan=False)
+    ] = default("test_fraction"),
+) -> Readiness:
+    """The minimum-samples rule applied for the page (which keeps no copy of it): the split
+    of the campaign's included samples at ``test_fraction`` and the counts identify needs."""
+    row = state.store.campaign(campaign_id)
+    need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
+    n = int(row["n_included"])
+    n_test = held_out(n, test_fraction)
+    return {
+        "test_fraction": test_fraction, "n_included": n, "n_train": n - n_test,
+        "n_test": n_test, "min_training_samples": need,
+        "min_samples": samples_needed(need, test_fraction), "ready": n - n_test >= need,
+    }  # fmt: skip
 
 
 @router.post(
