@@ -21,6 +21,8 @@ import pytest
 from browser import offline_page, require_chromium
 
 from calib.dataset import make_samples, samples_to_csv
+from calib.ik import tool_pose
+from calib.models import builtin_model
 from calib.options import default
 from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 from daemon.datafiles import read_samples
@@ -130,7 +132,8 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         )
         assert choices == spec["fields"][0]["choices"]
         page.fill("#identify-form input[name=test_fraction]", "abc")
-        page.click("#identify-start")
+        page.wait_for_selector("#identify-form-error:not([hidden])")
+        assert page.is_disabled("#identify-start")
         error = page.inner_text("#identify-form-error")
         assert "Test fraction" in error and "not a number" in error, error
         assert api.get(f"/campaigns/{cid}/identifications").json() == []
@@ -198,9 +201,29 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         assert result["prior"]["used"] == default("prior")  # the page's defaults are identify's
         _shot(page, tmp_path, "5-accepted")
 
-        # compensate (when the daemon has the route)
+        # compensate (when the daemon has the route). Item 4: the example is inside the
+        # robot's joint limits (from the API); x,y,z targets work with the default seed.
         page.click("#tabs button[data-view=apply]")
+        robot = api.get(f"/robots/{api.get(f'/campaigns/{cid}').json()['robot_id']}").json()
+        limits = [j["limits_deg"] for j in robot["model"]["joints"]]
+        page.wait_for_function(
+            "document.querySelector('#compensate-form input[name=seed]').value !== ''"
+        )
+        example = page.get_attribute("#compensate-form textarea", "placeholder") or ""
+        q_example = [float(v) for v in example.splitlines()[1].split(",")]
+        assert all(lo <= q <= hi for q, (lo, hi) in zip(q_example, limits, strict=True))
         if _has(routes, "POST", "/compensate"):
+            seed = [
+                float(v) for v in page.input_value("#compensate-form input[name=seed]").split(",")
+            ]
+            xyz = tool_pose(builtin_model("hsr-jr680"), np.array([seed]), np.zeros(3))[0][0]
+            page.fill("#compensate-form textarea", "x,y,z\n" + ",".join(f"{v:.3f}" for v in xyz))
+            page.click("#compensate-form button[type=submit]")
+            page.wait_for_function(
+                "document.querySelectorAll('#compensate-result tbody tr').length === 1",
+                timeout=30000,
+            )
+            assert "seed" not in page.inner_text("#compensate-state")
             poses = [s for s in api.get(f"/campaigns/{cid}/samples").json()][:5]
             csv = "q1,q2,q3,q4,q5,q6\n" + "\n".join(
                 ",".join(f"{s[f'q{j}']:.3f}" for j in range(1, 7)) for s in poses
@@ -214,6 +237,25 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         else:
             missing.append("compensate")
         _shot(page, tmp_path, "6-apply")
+
+        # item 3: the drift check lists its poses and counts them while it runs; the page
+        # stays on the operator's campaign, and a fresh tab opens it too
+        n_poses = len(api.get(f"/robots/{robot['id']}/check-poses").json()["poses_deg"])
+        page.click("#drift-start")
+        page.wait_for_function(
+            "document.getElementById('drift-poses-note').textContent.includes('poses captured')",
+            timeout=20000,
+        )
+        assert page.locator("#drift-poses tbody tr").count() == n_poses
+        assert f"campaign #{cid} " in page.inner_text("#top-campaign")
+        _shot(page, tmp_path, "7-drift-check")
+        fresh = page.context.new_page()
+        fresh.goto(f"{url}/#token={TOKEN}")
+        fresh.wait_for_function(
+            "document.getElementById('top-campaign').textContent.startsWith('campaign #')"
+        )
+        assert f"campaign #{cid} " in fresh.inner_text("#top-campaign")
+        fresh.close()
 
         assert log.page_errors == []
         assert log.console_errors == [], failed

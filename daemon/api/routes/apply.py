@@ -127,7 +127,13 @@ def _compensate(
 ) -> dict[str, Any]:
     """Decode, validate, parse and compensate (in a worker thread); the JSON mapping with the
     corrected CSV under ``csv``."""
-    from calib.compensate import CompensateOptions, JointTargets, compensate, parse_targets_csv
+    from calib.compensate import (
+        CompensateOptions,
+        JointTargets,
+        compensate,
+        default_seed_deg,
+        parse_targets_csv,
+    )
     from calib.export import model_from_result
 
     if is_csv:
@@ -140,7 +146,8 @@ def _compensate(
     result = state.store.accepted_result(robot_id)["result"]
     nominal = state.store.robot_model(robot_id)
     try:
-        targets = parse_targets_csv(text, seed)
+        # x,y,z targets without a seed: the middle of the joint limits picks the IK branch.
+        targets = parse_targets_csv(text, seed if seed is not None else default_seed_deg(nominal))
         rows = targets.joints_deg if isinstance(targets, JointTargets) else targets.position_mm
         n = rows.shape[0]
         if n > MAX_TARGETS:
@@ -176,7 +183,10 @@ async def compensate_targets(
         None, max_length=MAX_QUERY_CHARS, description="TCP in the flange frame: X,Y,Z [mm]."
     ),
     seed_deg: str | None = Query(
-        None, max_length=MAX_QUERY_CHARS, description="q1,…,q6 [deg]: IK branch of x,y,z rows."
+        None,
+        max_length=MAX_QUERY_CHARS,
+        description="q1,…,q6 [deg]: IK branch of x,y,z rows (default: the middle of each "
+        "joint's limits).",
     ),
 ) -> Any:
     """Body: a CSV (``Content-Type: text/csv``, header ``q1..q6`` [deg] or ``x,y,z`` [mm]

@@ -291,7 +291,10 @@ async function createCampaign(ev) {
 export async function restoreCampaign() {
   const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
   const items = await loadCampaigns();
-  const c = items.find((x) => x.id === id) || (items.length ? items[items.length - 1] : null);
+  // A fresh tab opens the newest operator campaign, not a drift check's own campaign
+  // (daemon.drift notes those "drift check (…)").
+  const own = items.filter((x) => !String(x.notes || "").startsWith("drift check"));
+  const c = items.find((x) => x.id === id) || own[own.length - 1] || items[items.length - 1] || null;
   if (c) await select(c);
 }
 
