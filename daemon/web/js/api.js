@@ -39,8 +39,8 @@ export function askToken(why) {
       const value = input.value.trim();
       if (value) sessionStorage.setItem(TOKEN_KEY, value);
       asking = null;
-      // A new token: polling resumes; the 401 banner goes once an answer is accepted.
-      if (value) { state.authRefused = false; changed("auth"); }
+      // A new token: polling resumes and the 401 banner goes (a new 401 brings it back).
+      if (value) { state.authRefused = false; dismiss("token"); changed("auth"); }
       resolve(value);
     };
   });
@@ -110,7 +110,6 @@ export async function api(method, path, opts = {}) {
     }
     throw err;
   }
-  if (used === getToken()) dismiss("token");
   if (!response.ok) {
     const text = await response.text();
     let parsed = text;

@@ -282,9 +282,12 @@ function renderCost(r) {
   cp.setData([xs, ys]);
   plots.push(cp);
   const fits = starts.length + 1;
+  const rises = cost.some((y, i) => i > 0 && !starts.includes(i) && y > cost[i - 1] * 1.001);
   setText("cost-note", `${r.iterations ?? "–"} iterations` + (fits > 1
     ? ` in ${fits} fits: after the first fit the robust step ${r.robust === "huber" || r.robust === "soft_l1" ? "reweighted" : "set aside"} the flagged rows and fitted again from the start, so each segment starts high again.`
-    : "."));
+    : ".") + (rises && r.prior?.used
+    ? " Where the curve rises within a fit, the solver traded fit to the samples for the prior toward the nominal model: the plotted data RMS is one part of the cost it lowers."
+    : ""));
 }
 
 /** Old and new side by side: test RMSE on the same held-out rows, TCP σ, the parameters
