@@ -41,6 +41,7 @@ demo: $(STAMP)
 # against idle (bench/sampler_priority.*).
 bench: $(STAMP)
 	$(BIN)/python -m bench.solver_real
+	$(BIN)/python -m bench.min_n
 	$(BIN)/python -m bench.run
 	$(BIN)/python -m bench.api_bench
 	$(BIN)/python -m bench.sampler_priority

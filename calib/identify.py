@@ -14,8 +14,9 @@ The public entry point is :func:`identify`. It
 5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
    maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
    the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
-   the leverage-studentised residuals against a MAD scale and a threshold growing with ``n``,
-   and only on gross outliers rejects them and refits from the start; IRLS with Huber or
+   the leverage-studentised residuals (prior included) against a MAD scale and a threshold
+   growing with ``n`` and with the scale's uncertainty, when the redundancy allows screening,
+   and only on outliers (or gross errors) rejects them and refits from the start; IRLS with Huber or
    soft-L1 weights, or rejection at 3.5σ, on request (:mod:`calib.robust`);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
    metrics before and after on train and test, the plausibility of every parameter
@@ -33,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from calib import methods, metrics, prior, robust
+from calib import methods, metrics, noise, prior, robust
 from calib.cable import (
     N_DH,
     N_KIN,
@@ -54,7 +55,14 @@ from calib.identifiability import (
 )
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
-from calib.options import METHODS, IdentifyOptions, check_training_rows, validate
+from calib.options import (
+    METHODS,
+    SCREEN_MIN_DOF,
+    IdentifyOptions,
+    check_training_rows,
+    samples_for_training_rows,
+    validate,
+)
 from calib.prior import prior_block
 from calib.problem import Problem
 from calib.report import (
@@ -237,7 +245,12 @@ def _weighed_solve(
     if opts.prior_weight == "estimated":
         return used, detail, solved
     report(progress, 0.1, "cross-validating the prior scale over pose groups")
-    scale, scores = prior.cv_scale(d.model, samples, opts, d.train_rows, used.noise_mm)
+
+    def held_out_rmse(o: IdentifyOptions, tr: np.ndarray, te: np.ndarray) -> float:
+        res = identify(d.model, samples, o, train_rows=tr, test_rows=te)
+        return float(res.metrics["after"]["test"]["rmse_mm"])
+
+    scale, scores = prior.cv_scale(held_out_rmse, samples, opts, d.train_rows, used.noise_mm)
     detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
     used = prior.scaled_options(opts, used.noise_mm, scale)
     return used, detail, _solve(_problem(d, theta_start, free, used), used, progress)
@@ -268,8 +281,8 @@ REJECT_ROUNDS = 5
 class _Solved:
     """What step 5 found: the last solver result (iterations summed over rounds), the problem
     with the final weights, the standardised residuals of the training rows (shape (n_train,)),
-    the flag threshold [robust σ], the rows flagged (indices into the training rows) and the
-    number of fits run."""
+    the flag threshold [robust σ], the rows flagged (indices into the training rows), the
+    number of fits run and the last screening (None without a robust mode)."""
 
     result: SolverResult
     problem: Problem
@@ -277,14 +290,22 @@ class _Solved:
     threshold: float
     flagged: np.ndarray
     fits: int
+    screening: robust.Screening | None = None
 
 
-def _standardised_u(problem: Problem, x: FloatArray, w: FloatArray) -> FloatArray:
-    """Standardised, leverage-studentised residuals of every training row at ``x``, (n,)."""
-    pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
-                                     problem.anchor_index)  # fmt: skip
-    t = robust.studentised(pred - problem.length_mm, jac_full[:, problem.free], w)
-    return robust.standardised(t)
+def _screen(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOptions,
+            floor_mm: float, first: robust.Screening | None) -> robust.Screening:  # fmt: skip
+    """The outlier screening of every training row at ``x`` under weights ``w`` (n,), the
+    prior's rows counted in the leverage (:func:`calib.robust.screen`); whether ``auto``
+    screens is decided on the ``first`` (plain) fit. ``problem`` has unit weights, so its
+    Jacobian's data rows are the unweighted ones."""
+    ev = problem.evaluate(x)
+    assert ev.jacobian is not None
+    n = problem.n_samples
+    prior_jac = ev.jacobian[n:] if problem.has_prior else None
+    return robust.screen(opts.robust, ev.residual[:n], ev.jacobian[:n], w, prior_jac,
+                         opts.flag_threshold, floor_mm,
+                         None if first is None else first.screening)  # fmt: skip
 
 
 def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) -> _Solved:
@@ -292,9 +313,12 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
     rounds (reject, auto; each refit starts from the common start, not from the contaminated
     solution, so an outlier's pull does not carry over)."""
     n = problem.length_mm.size
-    thr = robust.threshold(opts.robust, n, opts.flag_threshold)
+    thr = opts.flag_threshold
+    floor_mm = noise.noise_floor_mm(problem.length_mm)
     rejecting = opts.robust in robust.REJECTING
     weights = np.ones(n)
+    scr: robust.Screening | None = None
+    first: robust.Screening | None = None
     rounds = 1 if opts.robust == "none" else REJECT_ROUNDS if rejecting else 8
     seen: list[FloatArray] = []
     result: SolverResult | None = None
@@ -315,8 +339,13 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
         x = result.x
         if opts.robust == "none":
             break
-        u = _standardised_u(problem, x, weights)
-        new_w = robust.WEIGHTS[opts.robust](u, thr if rejecting else opts.robust_k)
+        scr = _screen(problem, x, weights, opts, floor_mm, first)
+        first = first or scr
+        u, thr = scr.u, scr.threshold
+        if rejecting:
+            new_w = (~scr.rejected(weights)).astype(float)
+        else:
+            new_w = robust.WEIGHTS[opts.robust](u, opts.robust_k)
         if np.max(np.abs(new_w - weights)) < 1e-3 or r == rounds - 1:
             break  # converged, or out of rounds: keep the weights the last fit used
         if rejecting and any(np.array_equal(new_w, w) for w in seen):
@@ -327,10 +356,21 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
     result.iterations = total_iter
     result.cost_history_rms_mm, result.fit_starts = history, starts
     flagged = np.flatnonzero(weights == 0) if rejecting else np.flatnonzero(u > thr)
-    return _Solved(result, problem.with_weights(weights), u, thr, flagged, fits)
+    return _Solved(result, problem.with_weights(weights), u, thr, flagged, fits, scr)
 
 
-def _robust_note(opts: IdentifyOptions, s: _Solved) -> str:
+def _robust_note(opts: IdentifyOptions, s: _Solved, d: _Data) -> str:
+    scr = s.screening
+    if opts.robust == "auto" and scr is not None and not scr.screening:
+        train = d.train_rows.size + scr.rows_short()
+        more = max(samples_for_training_rows(train, opts.test_fraction) - len(d.samples),
+                   scr.rows_short())  # fmt: skip
+        gross = (f"{s.flagged.size} gross error(s) beyond {robust.GROSS_ERROR_MM:g} mm rejected "
+                 "and refit from the start; " if s.flagged.size else "")  # fmt: skip
+        return (f"robust auto: {gross}too few samples to screen outliers: {more} more would "
+                f"allow it (redundancy {scr.redundancy:.1f}, screening needs "
+                f"{SCREEN_MIN_DOF}); only a residual beyond "
+                f"{robust.GROSS_ERROR_MM:g} mm is rejected")  # fmt: skip
     if opts.robust == "auto" and s.flagged.size == 0:
         return (f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
                 f"robust σ, threshold {s.threshold:.2f}): the plain fit")  # fmt: skip
@@ -338,6 +378,15 @@ def _robust_note(opts: IdentifyOptions, s: _Solved) -> str:
            "huber": "down-weighted", "soft_l1": "down-weighted"}[opts.robust]  # fmt: skip
     return (f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
             f"({how}; {s.fits} fit(s))")  # fmt: skip
+
+
+def _robust_detail(opts: IdentifyOptions, s: _Solved) -> dict[str, Any]:
+    """``result.json``'s ``robust_detail``: the threshold [robust σ] (null when not screening),
+    the fits, and whether the residuals were screened at what redundancy."""
+    scr = s.screening
+    return {"mode": opts.robust, "threshold": s.threshold if np.isfinite(s.threshold) else None,
+            "fits": s.fits, "screened": None if scr is None else scr.screening,
+            "redundancy": None if scr is None else scr.redundancy}  # fmt: skip
 
 
 def _figures(
@@ -403,7 +452,7 @@ def identify(
         )
     result, final = solved.result, solved.problem
     if opts.robust != "none":
-        notes.append(_robust_note(opts, solved))
+        notes.append(_robust_note(opts, solved, d))
     report(progress, 0.96, "covariance and metrics")
 
     x = result.x
@@ -429,6 +478,5 @@ def identify(
         train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
         notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
         tcp_uncertainty_mm=tcp, prior=prior_block(opts, used, prior_detail),
-        robust_detail={"mode": opts.robust, "threshold": solved.threshold,
-                       "fits": solved.fits},
+        robust_detail=_robust_detail(opts, solved),
     )  # fmt: skip

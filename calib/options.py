@@ -39,6 +39,13 @@ PAPER_N_TEST = 20
 #: 25 rows; each further anchor adds 4).
 MIN_TRAINING_SAMPLES = 24
 
+#: Least redundancy (training rows less the fit's effective parameters, prior included) at
+#: which ``robust auto`` screens for outliers (:mod:`calib.robust`): with fewer, the residuals'
+#: scale rests on too few degrees of freedom to tell an outlier from a good sample (the
+#: family-wise Student-t threshold at 30–100 rows is more than 1.5 times the known-σ one).
+#: The recommended count (:func:`training_rows_recommended`) adds it to the parameters.
+SCREEN_MIN_DOF = 10
+
 #: Largest seed: numpy's legacy seeding (and so scipy's DE) takes 0..2**32-1.
 MAX_SEED = 2**32 - 1
 
@@ -273,6 +280,22 @@ def training_rows_needed(n_params: int) -> int:
     """The fewest training rows :func:`check_training_rows` accepts for ``n_params`` solved
     parameters: one more than the parameters, and at least :data:`MIN_TRAINING_SAMPLES`."""
     return max(n_params + 1, MIN_TRAINING_SAMPLES)
+
+
+def training_rows_recommended(n_params: int) -> int:
+    """The training rows at which ``robust auto`` can screen outliers for ``n_params`` solved
+    parameters: the parameters plus :data:`SCREEN_MIN_DOF` (the prior lowers the effective
+    parameters, so a fit may screen a little earlier; this count does not rely on it)."""
+    return max(n_params + SCREEN_MIN_DOF, training_rows_needed(n_params))
+
+
+def samples_for_training_rows(training_rows: int, test_fraction: float) -> int:
+    """The fewest samples whose training part ``n - round(test_fraction * n)`` (the random
+    hold-out of :func:`validate`) is at least ``training_rows`` (``test_fraction`` < 1)."""
+    n = max(training_rows, 1)
+    while n - round(test_fraction * n) < training_rows:
+        n += 1
+    return n
 
 
 def check_training_rows(n_train: int, n_included: int, n_params: int) -> None:

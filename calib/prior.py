@@ -31,6 +31,7 @@ A prior cannot make data excite parameters they do not excite: measured on the b
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -39,12 +40,17 @@ import numpy as np
 from calib.cable import N_DH, N_KIN
 from calib.dataset import SampleSet
 from calib.methods import internal_sigma
-from calib.models import RobotModel
+from calib.noise import median_dof, noise_floor_mm
 from calib.problem import Problem
 from calib.split import pose_groups
 
 if TYPE_CHECKING:
     from calib.options import IdentifyOptions
+
+#: ``(options, train_rows, test_rows) -> held-out RMSE [mm]`` of one identification on the
+#: samples :func:`cv_scale` scores (:func:`calib.identify.identify`, passed in by it, so that
+#: this module does not import it back).
+HeldOutRmse = Callable[["IdentifyOptions", np.ndarray, np.ndarray], float]
 
 #: Most MAP fits of the ``estimated`` fixed point.
 NOISE_ROUNDS = 4
@@ -98,27 +104,43 @@ def effective_dof(problem: Problem, x: np.ndarray) -> float:
 
 def _data_hat_trace(jac: np.ndarray, n: int) -> float:
     """:func:`effective_dof` from the stacked Jacobian (shape (n[+k], k)), ``n`` data rows."""
+    return _data_hat(jac, n)[0]
+
+
+def _data_hat(jac: np.ndarray, n: int) -> tuple[float, float]:
+    """``tr H`` and ``tr H²`` of the data rows' block ``H`` (n, n) of the stacked Jacobian's
+    (shape (n[+k], k)) hat matrix."""
     norms = np.linalg.norm(jac, axis=0)
     norms[norms == 0.0] = 1.0
     u, s, _ = np.linalg.svd(jac / norms, full_matrices=False)
     if s.size == 0 or not s[0] > 0.0:
-        return 0.0
+        return 0.0, 0.0
     keep = s > s[0] * 1e-12 * max(jac.shape)
-    return float(np.sum(u[:n, keep] ** 2))
+    un = u[:n, keep]
+    gram = un.T @ un  # H = un unᵀ: tr H² = ‖unᵀ un‖²
+    return float(np.trace(gram)), float(np.sum(gram * gram))
 
 
 def noise_from_map(problem: Problem, x: np.ndarray) -> float:
-    """``σ̂ = sqrt(Σ w r² / (n_w − k_eff))`` [mm] of the data residuals at free values ``x``
-    (shape (k,)), ``n_w`` the rows with non-zero weight (rejected outliers do not count) and
-    ``k_eff`` the effective number of parameters (:func:`effective_dof`; ``k`` for an ML fit
-    of full rank), so that it holds for the MAP fit too."""
+    """``σ̂ = sqrt(Σ w r² / m(ν))`` [mm] of the data residuals at free values ``x`` (shape
+    (k,)), at least the lengths' own resolution (:func:`calib.noise.noise_floor_mm`).
+
+    ``ν = n_w − k_eff`` are the degrees of freedom left after the fit: ``n_w`` the rows with
+    non-zero weight (rejected outliers do not count), ``k_eff`` the effective number of
+    parameters (:func:`effective_dof`: ``k`` for an ML fit of full rank, fewer with the prior),
+    at least 1. ``m(ν)`` is the median of χ²(ν) (:func:`calib.noise.median_dof`), so the
+    estimate is as often above the real noise as below it even with a few degrees of freedom
+    (``Σ r² / ν`` is below it most of the time there), and ``≈ Σ r² / ν`` once ``ν`` is large.
+    """
     ev = problem.evaluate(x)  # one model pass: the weighted residual and the Jacobian
     assert ev.jacobian is not None
     n = problem.n_samples
     weighted = ev.residual[:n]  # sqrt(w) · (L_model − L)
     n_w = int(np.count_nonzero(problem.weights > 0))
-    dof = max(n_w - _data_hat_trace(ev.jacobian, n), 1.0)
-    return float(np.sqrt(float(weighted @ weighted) / dof))
+    tr_h, tr_h2 = _data_hat(ev.jacobian, n)
+    dof = max(n_w - 2.0 * tr_h + tr_h2, 1.0)
+    estimate = float(np.sqrt(float(weighted @ weighted) / median_dof(dof)))
+    return max(estimate, noise_floor_mm(problem.length_mm[problem.weights > 0]))
 
 
 def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> IdentifyOptions:
@@ -132,17 +154,16 @@ def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> I
 
 
 def cv_scale(
-    model: RobotModel, samples: SampleSet, options: IdentifyOptions, train_rows: np.ndarray,
-    noise_mm: float,
+    held_out_rmse: HeldOutRmse, samples: SampleSet, options: IdentifyOptions,
+    train_rows: np.ndarray, noise_mm: float,
 ) -> tuple[float, dict[str, float]]:  # fmt: skip
     """The prior-width scale with the lowest mean grouped-fold held-out RMSE on ``train_rows``.
 
-    Returns the scale (``inf`` = no prior) and the mean held-out RMSE [mm] per scale, keyed by
-    the scale as text. Pose groups are those of the grouped hold-out (:func:`pose_groups`);
-    each fold holds out every :data:`CV_FOLDS`-th group present in the training rows.
+    ``held_out_rmse`` fits one fold (:data:`HeldOutRmse`). Returns the scale (``inf`` = no
+    prior) and the mean held-out RMSE [mm] per scale, keyed by the scale as text. Pose groups
+    are those of the grouped hold-out (:func:`pose_groups`); each fold holds out every
+    :data:`CV_FOLDS`-th group present in the training rows.
     """
-    from calib.identify import identify  # calib.identify imports this module
-
     labels = pose_groups(samples, options.n_groups)[train_rows]
     present = np.unique(labels)
     if present.size < 2:
@@ -158,9 +179,7 @@ def cv_scale(
             tr, te = train_rows[folds != f], train_rows[folds == f]
             if tr.size < CV_MIN_TRAIN or te.size == 0:
                 continue
-            res = identify(model, samples, scaled_options(base, noise_mm, scale),
-                           train_rows=tr, test_rows=te)  # fmt: skip
-            errs.append(res.metrics["after"]["test"]["rmse_mm"])
+            errs.append(held_out_rmse(scaled_options(base, noise_mm, scale), tr, te))
         if errs:
             scores[str(scale)] = float(np.mean(errs))
     if not scores:

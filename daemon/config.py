@@ -11,11 +11,13 @@ lists them all with their defaults. Unknown keys in the file are errors that nam
 
 from __future__ import annotations
 
+import functools
 import ipaddress
+import operator
 import os
 import secrets
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag, field_validator
 from pydantic_settings import (
@@ -26,13 +28,7 @@ from pydantic_settings import (
 )
 
 from daemon.sampler import SamplerConfig
-from drivers import (
-    AsciiIndicatorConfig,
-    HuashuConfig,
-    IndicatorConfig,
-    ManualRobotConfig,
-    ModbusRobotConfig,
-)
+from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
 #: Shortest accepted ``api_token`` [characters].
 MIN_TOKEN_CHARS = 16
@@ -56,12 +52,19 @@ IndicatorSettings = Annotated[
     Annotated[IndicatorConfig, Tag("modbus")] | Annotated[AsciiIndicatorConfig, Tag("ascii")],
     Discriminator(_indicator_tag),
 ]
-RobotSettings = Annotated[
-    Annotated[HuashuConfig, Tag("huashu-socketcmd")]
-    | Annotated[ModbusRobotConfig, Tag("modbus-tcp")]
-    | Annotated[ManualRobotConfig, Tag("manual")],
-    Discriminator(_robot_tag),
-]
+
+
+def _robot_settings() -> Any:
+    """``[robot]``: the union of the config models of :data:`drivers.ROBOT_KINDS`, chosen by
+    ``kind`` (default manual)."""
+    members = [Annotated[entry.config, Tag(kind)] for kind, entry in ROBOT_KINDS.items()]
+    return Annotated[functools.reduce(operator.or_, members), Discriminator(_robot_tag)]
+
+
+if TYPE_CHECKING:
+    RobotSettings = BaseModel
+else:
+    RobotSettings = _robot_settings()
 
 
 class JobSettings(BaseModel):
@@ -153,7 +156,8 @@ class Settings(BaseSettings):
     )
     """The cable-length indicator; ``kind`` modbus-rtu (default), modbus-tcp or ascii."""
     robot: RobotSettings = Field(default_factory=ManualRobotConfig)
-    """The joint-angle source; ``kind`` manual (default), huashu-socketcmd or modbus-tcp."""
+    """The joint-angle source; ``kind`` manual (default) or a key of :data:`drivers.ROBOT_KINDS`
+    (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
     drift: DriftSettings = DriftSettings()
     debug_routes: bool = False
@@ -244,22 +248,37 @@ class Settings(BaseSettings):
         return secrets.token_urlsafe(24), True
 
 
-def simulated_cell_overrides(ready: dict[str, Any], settings: Settings) -> dict[str, Any]:
+#: ``--robot-kind`` of the two endpoints the cell had before the controller faces.
+_LEGACY_READY_KEYS = {"huashu-socketcmd": "robot_socketcmd", "modbus-tcp": "robot_modbus"}
+
+
+def ready_key(kind: str) -> str:
+    """The READY key of the emulated face serving robot ``kind``: ``robot_socketcmd``,
+    ``robot_modbus``, else ``robot_`` + the kind with ``_`` for ``-`` (``robot_ur_rtde``)."""
+    return _LEGACY_READY_KEYS.get(kind) or "robot_" + kind.replace("-", "_")
+
+
+def simulated_cell_overrides(
+    ready: dict[str, Any], settings: Settings, robot_kind: str | None = None
+) -> dict[str, Any]:
     """Indicator and robot settings pointing at a running emulated cell.
 
     Parameters
     ----------
     ready : dict
         The JSON of the ``READY`` line of ``cablecal simulate``: ``indicator_port`` (pty) or
-        ``indicator_tcp`` (``host:port``, RTU over TCP), ``robot_socketcmd`` or
-        ``robot_modbus`` (``host:port``).
+        ``indicator_tcp`` (``host:port``, RTU over TCP), and the robot faces
+        (``robot_socketcmd``, ``robot_modbus``, ``robot_ur_rtde``, …: ``host:port``).
     settings : Settings
         The loaded settings; serial options (baud, register map, …) are kept.
+    robot_kind : str, optional
+        The face the robot driver connects to: a key of :data:`drivers.ROBOT_KINDS` (not
+        ``manual``). Default: ``huashu-socketcmd``, else ``modbus-tcp``.
 
     Raises
     ------
     ConfigError
-        The mapping has no usable indicator or robot endpoint.
+        The mapping has no usable indicator, or no endpoint for the robot kind.
     """
     ind = settings.indicator
     ind_base = ind.model_dump() if isinstance(ind, IndicatorConfig) else {}
@@ -269,12 +288,24 @@ def simulated_cell_overrides(ready: dict[str, Any], settings: Settings) -> dict[
         indicator = {**ind_base, "kind": "modbus-rtu", "port": f"socket://{ready['indicator_tcp']}"}
     else:
         raise ConfigError("simulated cell: READY has neither indicator_port nor indicator_tcp")
-    if ready.get("robot_socketcmd"):
-        host, port = str(ready["robot_socketcmd"]).rsplit(":", 1)
-        robot: dict[str, Any] = {"kind": "huashu-socketcmd", "host": host, "port": int(port)}
-    elif ready.get("robot_modbus"):
-        host, port = str(ready["robot_modbus"]).rsplit(":", 1)
-        robot = {"kind": "modbus-tcp", "host": host, "port": int(port), "preset": "ur"}
-    else:
-        raise ConfigError("simulated cell: READY has neither robot_socketcmd nor robot_modbus")
+    if robot_kind is None:
+        robot_kind = "huashu-socketcmd" if ready.get("robot_socketcmd") else "modbus-tcp"
+        if not ready.get("robot_modbus") and not ready.get("robot_socketcmd"):
+            raise ConfigError("simulated cell: READY has neither robot_socketcmd nor robot_modbus")
+    kinds = [kind for kind in ROBOT_KINDS if kind != "manual"]
+    if robot_kind not in kinds:
+        raise ConfigError(f"--robot-kind: unknown kind {robot_kind!r}; use {', '.join(kinds)}")
+    key = ready_key(robot_kind)
+    if not ready.get(key):
+        raise ConfigError(
+            f"--robot-kind {robot_kind}: the emulated cell has no {key} endpoint "
+            f"(the face is disabled in its config, or not emulated)"
+        )
+    host, port = str(ready[key]).rsplit(":", 1)
+    robot: dict[str, Any] = {"kind": robot_kind, "host": host, "port": int(port)}
+    if robot_kind == "modbus-tcp":
+        robot["preset"] = "ur"
+    hook = getattr(ROBOT_KINDS[robot_kind].config, "emulated_cell_settings", None)
+    if hook is not None:
+        robot.update(hook(settings.state_dir))
     return {"indicator": indicator, "robot": robot}

@@ -6,8 +6,10 @@ mappings with :func:`make_indicator` and :func:`make_robot`.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple, Protocol, runtime_checkable
+
+from pydantic import BaseModel
 
 from drivers.ascii_indicator import AsciiIndicator, AsciiIndicatorConfig
 from drivers.errors import (
@@ -69,30 +71,41 @@ def make_indicator(
     return ModbusIndicator(IndicatorConfig.model_validate(dict(config)))
 
 
-def make_robot(
-    config: Mapping[str, Any] | HuashuConfig | ModbusRobotConfig | ManualRobotConfig,
-) -> HuashuSocketCmdRobot | ModbusTcpRobot | ManualRobot:
-    """Robot driver from a mapping; ``kind`` is ``huashu-socketcmd``, ``modbus-tcp`` or
-    ``manual``. Raises ``ValueError`` for another kind."""
-    if isinstance(config, HuashuConfig):
-        return HuashuSocketCmdRobot(config)
-    if isinstance(config, ModbusRobotConfig):
-        return ModbusTcpRobot(config)
-    if isinstance(config, ManualRobotConfig):
-        return ManualRobot(config)
+class RobotKind(NamedTuple):
+    """One entry of :data:`ROBOT_KINDS`: the pydantic config model (its ``kind`` field is a
+    ``Literal`` of the key) and the driver class built from it."""
+
+    config: type[BaseModel]
+    driver: Callable[[Any], RobotDriver]
+
+
+#: Robot driver by ``[robot] kind``: adding a kind is one entry here. ``make_robot``, the
+#: daemon's ``[robot]`` settings and ``cablecal serve --robot-kind`` read this table.
+ROBOT_KINDS: dict[str, RobotKind] = {
+    "manual": RobotKind(ManualRobotConfig, ManualRobot),
+    "huashu-socketcmd": RobotKind(HuashuConfig, HuashuSocketCmdRobot),
+    "modbus-tcp": RobotKind(ModbusRobotConfig, ModbusTcpRobot),
+}
+
+
+def make_robot(config: Mapping[str, Any] | BaseModel) -> RobotDriver:
+    """Robot driver from a config model or a mapping with ``kind`` (a key of
+    :data:`ROBOT_KINDS`). Raises ``ValueError`` for another kind and
+    ``pydantic.ValidationError`` for bad settings."""
+    if isinstance(config, BaseModel):
+        for entry in ROBOT_KINDS.values():
+            if type(config) is entry.config:
+                return entry.driver(config)
+        raise ValueError(f"robot: no driver for config {type(config).__name__}")
     kind = config.get("kind")
-    if kind == "huashu-socketcmd":
-        return HuashuSocketCmdRobot(HuashuConfig.model_validate(dict(config)))
-    if kind == "modbus-tcp":
-        return ModbusTcpRobot(ModbusRobotConfig.model_validate(dict(config)))
-    if kind == "manual":
-        return ManualRobot(ManualRobotConfig.model_validate(dict(config)))
-    raise ValueError(
-        f"kind: unknown robot driver {kind!r}; use huashu-socketcmd, modbus-tcp, manual"
-    )
+    found = ROBOT_KINDS.get(str(kind))
+    if found is None:
+        raise ValueError(f"kind: unknown robot driver {kind!r}; use {', '.join(ROBOT_KINDS)}")
+    return found.driver(found.config.model_validate(dict(config)))
 
 
 __all__ = [
+    "ROBOT_KINDS",
     "AsciiIndicator",
     "AsciiIndicatorConfig",
     "DeviceError",
@@ -121,6 +134,7 @@ __all__ = [
     "RegisterMap",
     "RobotDriver",
     "RobotError",
+    "RobotKind",
     "RobotLinkDown",
     "RobotNoData",
     "RobotProtocolError",

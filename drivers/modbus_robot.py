@@ -20,18 +20,15 @@ from __future__ import annotations
 
 import asyncio
 import math
-import time
-from typing import Annotated, Any, Literal, NoReturn
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 from pymodbus.framer import FramerType
 
-from drivers.backoff import ReconnectBackoff, SilentAttempts
-from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
-from drivers.frames import FrameLog
-from drivers.robot import JointReading, StaleGuard, joint_reading
+from drivers.robot import JointReading, joint_reading
+from drivers.robot_link import LinkConfig, LinkedRobot, LinkLost
 
 
 class JointRegisterMap(BaseModel):
@@ -73,81 +70,38 @@ def decode_joints_deg(
     return out
 
 
-class ModbusRobotConfig(BaseModel):
-    """Configuration of :class:`ModbusTcpRobot`; ``preset = "ur"`` uses :data:`UR_PRESET`.
-
-    ``timeout_s`` bounds the TCP connect and the last attempt's wait for a reply [s];
-    ``fast_reply_timeout_s`` the wait of every earlier attempt (capped at ``timeout_s``) [s];
-    ``retries`` immediate re-sends on the same connection after a silent attempt [count];
-    ``reconnect_after_timeouts`` silent attempts in a row (across reads) after which the
-    connection is closed and re-opened [count]. See :class:`drivers.backoff.SilentAttempts`.
-    """
-
-    model_config = ConfigDict(extra="forbid")
+class ModbusRobotConfig(LinkConfig):
+    """Configuration of :class:`ModbusTcpRobot`; ``preset = "ur"`` uses :data:`UR_PRESET`. The
+    link settings (timeouts, retries, back-off, ``max_unchanged_s``) are
+    :class:`drivers.robot_link.LinkConfig`'s."""
 
     kind: Literal["modbus-tcp"] = "modbus-tcp"
-    name: str = "robot"
-    host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 502
     device_id: Annotated[int, Field(ge=0, le=255)] = 1
     preset: Literal["ur", "custom"] = "ur"
     registers: JointRegisterMap = UR_PRESET
-    timeout_s: Annotated[float, Field(gt=0)] = 1.0
-    fast_reply_timeout_s: Annotated[float, Field(gt=0)] = 0.2
-    retries: Annotated[int, Field(ge=0)] = 2
-    reconnect_after_timeouts: Annotated[int, Field(ge=1)] = 3
-    reconnect_min_s: Annotated[float, Field(gt=0)] = 0.1
-    reconnect_max_s: Annotated[float, Field(gt=0)] = 1.0
-    max_unchanged_s: Annotated[float | None, Field(gt=0)] = None
-    frame_log_size: Annotated[int, Field(ge=1)] = 16
 
     def register_map(self) -> JointRegisterMap:
         return UR_PRESET if self.preset == "ur" else self.registers
 
 
-class ModbusTcpRobot:
+class ModbusTcpRobot(LinkedRobot):
     """Asyncio driver reading joint angles over Modbus TCP (pymodbus)."""
 
     def __init__(self, config: ModbusRobotConfig) -> None:
+        super().__init__(config)
         self.config = config
-        self.name = config.name
-        self.frames = FrameLog(config.frame_log_size)
         self._client: AsyncModbusTcpClient | None = None
-        self._backoff = ReconnectBackoff(config.reconnect_min_s, config.reconnect_max_s)
-        self._stale = StaleGuard(config.name, config.max_unchanged_s)
-        #: Successful TCP connects since creation [count] (the first one included).
-        self.connects = 0
-        #: Retry policy and its counters (silent attempts, reads saved by a retry).
-        self.attempts = SilentAttempts(
-            config.retries,
-            config.reconnect_after_timeouts,
-            min(config.fast_reply_timeout_s, config.timeout_s),
-            config.timeout_s,
-        )
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
         self.frames.add("tx" if sending else "rx", data)
         return data
 
-    @property
-    def connected(self) -> bool:
+    def _is_open(self) -> bool:
         return self._client is not None and self._client.connected
 
-    async def connect(self) -> None:
-        """Open the connection now. Raises :class:`RobotLinkDown`."""
-        await self._ensure_connected(force=True)
-
-    async def _ensure_connected(self, force: bool = False) -> None:
-        if self.connected:
-            return
+    async def _open(self) -> None:
         cfg = self.config
-        wait_s = self._backoff.remaining_s(time.monotonic())
-        if not force and wait_s > 0:
-            raise RobotLinkDown(
-                self.name,
-                f"{cfg.host}:{cfg.port} down; next reconnect in {wait_s:.2f} s",
-                self.frames.snapshot(),
-            )
         if self._client is not None:
             self._client.close()
         self._client = AsyncModbusTcpClient(
@@ -161,67 +115,29 @@ class ModbusTcpRobot:
             reconnect_delay=0,
             trace_packet=self._trace,
         )
-        try:
-            opened = await asyncio.wait_for(self._client.connect(), cfg.timeout_s)
-        except TimeoutError:
-            opened = False
-        if not opened or not self._client.connected:
-            self._client.close()
-            self._client = None
-            self._backoff.failed()
-            self.frames.note(f"connect {cfg.host}:{cfg.port} failed")
-            raise RobotLinkDown(
-                self.name, f"cannot connect to {cfg.host}:{cfg.port}", self.frames.snapshot()
-            )
-        self._backoff.succeeded()
-        self.connects += 1
-        self.attempts.reset()
-        self.frames.note(f"connected {cfg.host}:{cfg.port}")
+        if not await self._client.connect() or not self._client.connected:
+            raise LinkLost("connection refused or closed")
 
-    async def close(self) -> None:
-        """Close the connection."""
+    async def _close(self) -> None:
         if self._client is not None:
             self._client.close()
             self._client = None
 
-    async def _read(self, address: int, count: int) -> list[int]:
-        """``count`` registers from ``address``; a silent attempt is retried at once with a
-        new transaction id (see the module docstring).
-
-        Raises
-        ------
-        RobotLinkDown, RobotTimeout, RobotProtocolError
-        """
-        await self._ensure_connected()
-        response: Any = None
-        for attempt, timeout_s in enumerate(self.attempts.timeouts_s()):
-            try:
-                response = await asyncio.wait_for(self._request(address, count), timeout_s)
-            except (TimeoutError, ModbusException) as exc:
-                if isinstance(exc, ModbusException) and not self.connected:
-                    self._lost(exc)
-                self.frames.note(f"no reply within {timeout_s} s (attempt {attempt + 1})")
-                action = self.attempts.silent(attempt)
-                if action == "retry":
-                    continue
-                if action == "reopen":
-                    self._close_silent()
-                text = self.attempts.failure_text(attempt)
-                raise RobotTimeout(self.name, text, self.frames.snapshot()) from exc
-            self.attempts.replied(attempt)
-            break
+    async def _read(self, address: int, count: int, timeout_s: float) -> list[int]:
+        """One attempt: ``count`` registers from ``address`` (a new pymodbus request, so a
+        new transaction id; see the module docstring)."""
+        try:
+            response: Any = await asyncio.wait_for(self._request(address, count), timeout_s)
+        except ModbusException as exc:
+            if not self._is_open():
+                raise LinkLost(str(exc)) from exc
+            raise TimeoutError from exc
         if response.isError():
-            raise RobotProtocolError(
-                self.name,
-                f"Modbus exception code {getattr(response, 'exception_code', '?')}",
-                self.frames.snapshot(),
-                code=getattr(response, "exception_code", None),
-            )
+            code = getattr(response, "exception_code", None)
+            raise self.protocol_error(f"Modbus exception code {code or '?'}", code)
         regs = list(response.registers)
         if len(regs) != count:
-            raise RobotProtocolError(
-                self.name, f"{len(regs)} registers, expected {count}", self.frames.snapshot()
-            )
+            raise self.protocol_error(f"{len(regs)} registers, expected {count}")
         return regs
 
     async def _request(self, address: int, count: int) -> Any:
@@ -234,23 +150,19 @@ class ModbusTcpRobot:
             )
         return await self._client.read_holding_registers(address, count=count, device_id=device_id)
 
-    def _lost(self, exc: Exception) -> NoReturn:
-        """The connection went away during a request: close, back off, raise."""
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        self._backoff.defer(self.config.reconnect_min_s)
-        raise RobotLinkDown(self.name, f"link lost: {exc}", self.frames.snapshot()) from exc
-
-    def _close_silent(self) -> None:
-        """``reconnect_after_timeouts`` silent attempts in a row: close, so the next read
-        opens a fresh connection (no back-off delay: the timeouts already paced the
-        attempts; failed connects back off)."""
-        self.frames.note(f"{self.attempts.in_row} silent attempts in a row; connection closed")
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-        self.attempts.reset()
+    async def _request_joints(self, timeout_s: float) -> list[float]:
+        """The angles and revolution counters in one request when they fit (one consistent
+        snapshot); else three requests (see the module docstring)."""
+        regmap = self.config.register_map()
+        a, r = regmap.angle_address, regmap.revolution_address
+        if r is None:
+            return decode_joints_deg(await self._read(a, 6, timeout_s), None, regmap)
+        if max(a, r) + 6 - min(a, r) <= 125:
+            start = min(a, r)
+            block = await self._read(start, max(a, r) + 6 - start, timeout_s)
+            angles, revs = block[a - start : a - start + 6], block[r - start : r - start + 6]
+            return decode_joints_deg(angles, revs, regmap)
+        raise AssertionError("split reads are done by read_joints")
 
     async def read_joints(self) -> JointReading:
         """Current joint angles.
@@ -261,21 +173,14 @@ class ModbusTcpRobot:
         """
         regmap = self.config.register_map()
         a, r = regmap.angle_address, regmap.revolution_address
-        if r is None:
-            angles, revs = await self._read(a, 6), None
-        elif max(a, r) + 6 - min(a, r) <= 125:
-            start = min(a, r)
-            block = await self._read(start, max(a, r) + 6 - start)
-            angles, revs = block[a - start : a - start + 6], block[r - start : r - start + 6]
-        else:
-            for _ in range(3):
-                revs = await self._read(r, 6)
-                angles = await self._read(a, 6)
-                if await self._read(r, 6) == revs:
-                    break
-            else:
-                raise RobotProtocolError(
-                    self.name, "revolution counters kept changing", self.frames.snapshot()
-                )
-        values = decode_joints_deg(angles, revs, regmap)
-        return self._stale.check(joint_reading(values, self.name))
+        if r is None or max(a, r) + 6 - min(a, r) <= 125:
+            return await super().read_joints()
+        # Counters before and after the angles, each read under the link policy; repeated
+        # when a counter changed in between (a wrap), so no value is off by a turn.
+        for _ in range(3):
+            revs = await self.call(lambda t: self._read(r, 6, t), "revolutions")
+            angles = await self.call(lambda t: self._read(a, 6, t), "angles")
+            if await self.call(lambda t: self._read(r, 6, t), "revolutions") == revs:
+                values = decode_joints_deg(angles, revs, regmap)
+                return self._stale.check(joint_reading(values, self.name))
+        raise self.protocol_error("revolution counters kept changing")

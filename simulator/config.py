@@ -70,6 +70,16 @@ class ServerSection(_Strict):
     port: Annotated[int, Field(ge=0, le=65535)] = 0
 
 
+class UrRtdeSection(ServerSection):
+    """The emulated UR RTDE face. UR clients always connect to port 30004, so the face keeps
+    30004 and takes its own loopback address. ``host = "auto"`` (the default): the first of
+    127.0.0.2 … 127.0.0.254 whose port is free (another emulated cell on this machine may
+    hold 127.0.0.2:30004); the READY mapping gives the address taken."""
+
+    host: str = "auto"
+    port: Annotated[int, Field(ge=0, le=65535)] = 30004
+
+
 class FaultSection(_Strict):
     """Faults active from the start; all can be changed while running (control port)."""
 
@@ -95,13 +105,25 @@ class SimConfig(_Strict):
     indicator: IndicatorSection = IndicatorSection()
     robot_socketcmd: ServerSection = ServerSection()  # real controllers: 23333
     robot_modbus: ServerSection = ServerSection()  # real UR: 502
+    robot_abb_rws: ServerSection = ServerSection()  # real IRC5: 80 (RWS 1.0)
+    robot_ur_rtde: UrRtdeSection = UrRtdeSection()  # real UR: 30004
+    robot_kuka_varproxy: ServerSection = ServerSection()  # real KukaVarProxy: 7000
+    robot_fanuc_rmi: ServerSection = ServerSection()  # real RMI: 16001
     control: ServerSection = ServerSection()
     faults: FaultSection = FaultSection()
     base_dir: str = "."  # relative paths (model, poses) are resolved against this
 
 
 #: The TCP servers whose ports :func:`with_ports` sets.
-SERVER_SECTIONS = ("robot_socketcmd", "robot_modbus", "control")
+SERVER_SECTIONS = (
+    "robot_socketcmd",
+    "robot_modbus",
+    "robot_abb_rws",
+    "robot_ur_rtde",
+    "robot_kuka_varproxy",
+    "robot_fanuc_rmi",
+    "control",
+)
 
 
 def load_config(path: str | Path | None) -> SimConfig:

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from simulator.cell import EmulatedCell
-from simulator.config import SimConfig
+from simulator.config import ServerSection, SimConfig
+from simulator.faces import FACE_READY_KEYS, FACES, FaceServer
 from simulator.servers import (
     HuashuSocketCmdServer,
     PtyIndicator,
@@ -34,7 +35,14 @@ from simulator.servers import (
     UrModbusServer,
 )
 
-READY_KEYS = ("indicator_port", "indicator_tcp", "robot_socketcmd", "robot_modbus", "control")
+READY_KEYS = (
+    "indicator_port",
+    "indicator_tcp",
+    "robot_socketcmd",
+    "robot_modbus",
+    *FACE_READY_KEYS,
+    "control",
+)
 
 
 class CellRunner:
@@ -51,6 +59,8 @@ class CellRunner:
         self.indicator_tcp: TcpIndicator | None = None
         self.socketcmd: HuashuSocketCmdServer | None = None
         self.modbus: UrModbusServer | None = None
+        #: The running controller faces by READY key (:data:`simulator.faces.FACES`).
+        self.faces: dict[str, FaceServer] = {}
         self._control_server: asyncio.Server | None = None
         self._control_port = 0
         self._tasks: set[asyncio.Task[None]] = set()
@@ -74,6 +84,13 @@ class CellRunner:
             s = cfg.robot_modbus
             self.modbus = UrModbusServer(self.cell, s.host, s.port)
             await self.modbus.start()
+        for face in FACES.values():
+            section = getattr(cfg, face.table)
+            assert isinstance(section, ServerSection)
+            if section.enabled:
+                server = face.server(self.cell, section)
+                await server.start()
+                self.faces[face.ready_key] = server
         if cfg.control.enabled:
             self._control_server = await asyncio.start_server(
                 self._control_client, cfg.control.host, cfg.control.port, reuse_address=True
@@ -83,12 +100,18 @@ class CellRunner:
 
     def ready(self) -> dict[str, str | None]:
         """Endpoints: ``indicator_port`` (pty symlink path), ``indicator_tcp``,
-        ``robot_socketcmd``, ``robot_modbus`` and ``control`` (``host:port``, or None)."""
+        ``robot_socketcmd``, ``robot_modbus``, the controller faces ``robot_abb_rws``,
+        ``robot_ur_rtde``, ``robot_kuka_varproxy``, ``robot_fanuc_rmi`` and ``control``
+        (``host:port``, or None when disabled or not emulated)."""
+        faces = {
+            key: self.faces[key].endpoint if key in self.faces else None for key in FACE_READY_KEYS
+        }
         return {
             "indicator_port": str(self.pty.link_path) if self.pty else None,
             "indicator_tcp": self.indicator_tcp.endpoint if self.indicator_tcp else None,
             "robot_socketcmd": self.socketcmd.endpoint if self.socketcmd else None,
             "robot_modbus": self.modbus.endpoint if self.modbus else None,
+            **faces,
             "control": (
                 f"{self.config.control.host}:{self._control_port}" if self._control_server else None
             ),
@@ -117,6 +140,7 @@ class CellRunner:
             self._control_server.close()
             self._control_server = None
         servers: list[TcpServer | None] = [self.indicator_tcp, self.socketcmd, self.modbus]
+        servers += self.faces.values()
         for server in servers:
             if server is not None:
                 await server.stop()
@@ -190,7 +214,8 @@ class CellRunner:
             ``robot_frozen``); ``clear: true`` resets all first.
         ``link_down``
             ``target`` (``indicator``, ``indicator_tcp``, ``robot_socketcmd``,
-            ``robot_modbus`` or ``all``), ``duration_s``: the endpoint goes away and comes
+            ``robot_modbus``, a face's READY key such as ``robot_ur_rtde``, or ``all``),
+            ``duration_s``: the endpoint goes away and comes
             back at the same address. Returns at once.
         ``alarm``
             ``code``, ``text``: unsolicited ``i:-1`` frame to SocketCmd clients.
@@ -237,6 +262,7 @@ class CellRunner:
                 "indicator_tcp": self.indicator_tcp,
                 "robot_socketcmd": self.socketcmd,
                 "robot_modbus": self.modbus,
+                **{key: self.faces.get(key) for key in FACE_READY_KEYS},
             }
             names = list(targets) if target == "all" else [target]
             for name in names:

@@ -98,6 +98,7 @@ def test_the_campaign_says_how_many_samples_identify_needs(client: TestClient) -
     cid = made["id"]
     assert made["anchors"] == [] and made["min_samples_to_identify"] == one.samples
     assert made["min_training_samples"] == one.training_samples
+    assert made["recommended_samples"] == one.recommended_samples > one.samples  # issue 22
     # Two anchors, one sample short of what they need: the campaign says so, and the
     # submission is refused by the same rule.
     _import(client, cid, _anchored(two.samples - 1, "AB"))
@@ -105,6 +106,7 @@ def test_the_campaign_says_how_many_samples_identify_needs(client: TestClient) -
     assert got["anchors"] == ["A", "B"] and got["n_included"] == two.samples - 1
     assert got["min_samples_to_identify"] == two.samples
     assert got["min_training_samples"] == two.training_samples
+    assert got["recommended_samples"] == two.recommended_samples
     listed = {c["id"]: c for c in client.get(f"{API}/campaigns", headers=AUTH).json()}
     assert listed[cid] == got
     r = client.post(f"{API}/campaigns/{cid}/identifications", json={}, headers=AUTH)

@@ -20,13 +20,7 @@ from pydantic import BaseModel
 
 from daemon.config import DriftSettings, JobSettings, Settings
 from daemon.sampler import SamplerConfig
-from drivers import (
-    AsciiIndicatorConfig,
-    HuashuConfig,
-    IndicatorConfig,
-    ManualRobotConfig,
-    ModbusRobotConfig,
-)
+from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig
 from drivers.indicator import RegisterMap
 from drivers.modbus_robot import JointRegisterMap
 
@@ -421,11 +415,8 @@ def block_models(block: Block, defaults: Settings) -> dict[str, BaseModel]:
         }[kind or "modbus-rtu"]
         return {"": main, "registers": RegisterMap()}
     if block.section == "robot":
-        main = {
-            "manual": defaults.robot,
-            "huashu-socketcmd": HuashuConfig(),
-            "modbus-tcp": ModbusRobotConfig(),
-        }[kind or "manual"]
+        kind = kind or "manual"
+        main = defaults.robot if kind == "manual" else ROBOT_KINDS[kind].config()
         return {"": main, "registers": JointRegisterMap()}
     raise AssertionError(f"unexpected table [{block.section}] in the example")
 
@@ -480,7 +471,7 @@ def test_example_mentions_every_setting() -> None:
         ("drift", ""): keys(DriftSettings),
         ("indicator", ""): (keys(IndicatorConfig) | keys(AsciiIndicatorConfig)) - {"registers"},
         ("indicator", "registers"): keys(RegisterMap),
-        ("robot", ""): (keys(HuashuConfig) | keys(ModbusRobotConfig) | keys(ManualRobotConfig))
+        ("robot", ""): set().union(*(keys(entry.config) for entry in ROBOT_KINDS.values()))
         - {"registers"},
         ("robot", "registers"): keys(JointRegisterMap),
     }
@@ -488,7 +479,7 @@ def test_example_mentions_every_setting() -> None:
         missing = names - seen.get(table, set())
         assert not missing, f"{table}: the example does not mention {sorted(missing)}"
     assert seen[("indicator", "kinds")] >= {"modbus-rtu", "modbus-tcp", "ascii"}
-    assert seen[("robot", "kinds")] >= {"manual", "huashu-socketcmd", "modbus-tcp"}
+    assert seen[("robot", "kinds")] >= set(ROBOT_KINDS)
 
 
 @pytest.mark.usefixtures("clean_env")

@@ -345,6 +345,9 @@ def test_identify_is_offered_from_the_count_the_api_gives(cell: Cell) -> None:
             "document.getElementById('campaign-need').textContent"
             f".startsWith('{need - 1} of {need} samples needed')"
         )
+        recommended = api.get(f"/campaigns/{cid}").json()["recommended_samples"]  # issue 22
+        text = page.text_content("#campaign-need") or ""
+        assert f"{need} minimum, {recommended} recommended for this robot and 2 anchors" in text
         page.click("#tabs button[data-view=identify]")
         page.wait_for_function(
             f"document.getElementById('identify-need').textContent.startsWith('{need - 1} of')"

@@ -6,12 +6,15 @@ The rule is calib's, applied on ``POST /campaigns/{id}/identifications``
 :func:`calib.identifiability.max_solved`. That count depends on the robot model and the
 number of anchors (each further anchor adds its P0 and offset, 4 parameters), so the page
 cannot hard-code it: the campaign JSON carries it (``min_samples_to_identify`` at the
-default options, and ``min_training_samples`` for another test fraction).
+default options, and ``min_training_samples`` for another test fraction), and the count
+recommended (``recommended_samples``): the one at which ``robust auto`` can screen outliers
+(:func:`calib.options.training_rows_recommended`).
 
 Nothing here restates calib's rule: the parameter count is
 :func:`calib.options.parameters_to_solve`, the training rows it needs
-:func:`calib.options.training_rows_needed`, and :func:`min_samples` searches for the fewest
-samples whose training part reaches that. ``max_solved`` costs one Jacobian at 200 poses
+:func:`calib.options.training_rows_needed` (recommended:
+:func:`calib.options.training_rows_recommended`), and the samples whose training part reaches
+that :func:`calib.options.samples_for_training_rows`. ``max_solved`` costs one Jacobian at 200 poses
 (about 5 ms), so :class:`MinSamplesCache` keeps each answer per (robot id, number of anchors):
 ``GET /campaigns`` is polled by the page.
 """
@@ -20,15 +23,17 @@ from __future__ import annotations
 
 import string
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from calib.models import RobotModel
-from calib.options import IdentifyOptions, parameters_to_solve, training_rows_needed
+from calib.options import (
+    IdentifyOptions,
+    parameters_to_solve,
+    samples_for_training_rows,
+    training_rows_needed,
+    training_rows_recommended,
+)
 from daemon.store import Store
-
-#: Upper bound of the searches (a test fraction below 1 always ends far below it).
-_MAX_SAMPLES = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -46,20 +51,19 @@ class MinSamples:
         The fewest included samples whose training part (``n - round(test_fraction * n)``,
         the random hold-out of :func:`calib.options.validate`) is enough.
     test_fraction : float
+    recommended_training_samples : int
+        The training rows at which ``robust auto`` screens outliers
+        (:func:`calib.options.training_rows_recommended`).
+    recommended_samples : int
+        The included samples whose training part reaches that.
     """
 
     n_params: int
     training_samples: int
     samples: int
     test_fraction: float
-
-
-def _smallest(ok: Callable[[int], bool], what: str) -> int:
-    """The smallest ``n >= 1`` with ``ok(n)`` true."""
-    for n in range(1, _MAX_SAMPLES):
-        if ok(n):
-            return n
-    raise ValueError(f"{what}: no count up to {_MAX_SAMPLES} is enough")
+    recommended_training_samples: int = 0
+    recommended_samples: int = 0
 
 
 def anchor_ids(n_anchors: int) -> tuple[str, ...]:
@@ -88,11 +92,15 @@ def min_samples(
     opts = options if options is not None else IdentifyOptions()
     n_params = parameters_to_solve(model, anchor_ids(n_anchors), opts)
     need = training_rows_needed(n_params)
+    recommended = training_rows_recommended(n_params)
+    tf = opts.test_fraction
     return MinSamples(
         n_params=n_params,
         training_samples=need,
-        samples=samples_needed(need, opts.test_fraction),
-        test_fraction=opts.test_fraction,
+        samples=samples_for_training_rows(need, tf),
+        test_fraction=tf,
+        recommended_training_samples=recommended,
+        recommended_samples=samples_for_training_rows(recommended, tf),
     )
 
 
@@ -100,11 +108,6 @@ def held_out(n: int, test_fraction: float) -> int:
     """Rows of ``n`` held out to test: ``round(test_fraction * n)`` (Python's rounding), as
     :func:`calib.options.validate` and :func:`calib.split.split_rows` count them."""
     return round(test_fraction * n)
-
-
-def samples_needed(training_samples: int, test_fraction: float) -> int:
-    """The fewest samples whose training part at ``test_fraction`` has ``training_samples``."""
-    return _smallest(lambda n: n - held_out(n, test_fraction) >= training_samples, "samples")
 
 
 class MinSamplesCache:

@@ -174,10 +174,15 @@ class CampaignOut(CampaignRow):
     ``POST /campaigns/{id}/identifications`` accepts (default ``test_fraction`` 0.2), and
     ``min_training_samples``, the fewest training rows (for another test fraction: the
     smallest ``n`` with ``n - round(test_fraction * n)`` at least that). Both follow the robot
-    model and the number of ``anchors`` (each further anchor adds 4 parameters)."""
+    model and the number of ``anchors`` (each further anchor adds 4 parameters).
+    ``recommended_samples`` (``recommended_training_samples`` training rows) is the count at
+    which the default ``robust auto`` can also screen outliers
+    (:func:`calib.options.training_rows_recommended`)."""
 
     min_training_samples: int
     min_samples_to_identify: int
+    recommended_training_samples: int
+    recommended_samples: int
 
 
 class JobView(JobRow):

@@ -40,6 +40,7 @@ def load_settings(
     simulated_cell: Path | None,
     host: str | None,
     port: int | None,
+    robot_kind: str | None = None,
 ) -> Settings:
     """Settings from the file, the environment and the command-line overrides."""
     from daemon.config import ConfigError, Settings, simulated_cell_overrides
@@ -50,6 +51,10 @@ def load_settings(
     if port is not None:
         overrides["port"] = port
     settings = Settings.load(config, **overrides)
+    if robot_kind is not None and simulated_cell is None:
+        raise ConfigError(
+            "--robot-kind: only with --simulated-cell (for a real controller set [robot] kind)"
+        )
     if simulated_cell is not None:
         try:
             ready = json.loads(simulated_cell.read_text(encoding="utf-8"))
@@ -57,7 +62,7 @@ def load_settings(
             raise ConfigError(f"--simulated-cell: cannot read {simulated_cell}: {exc}") from exc
         if not isinstance(ready, dict):
             raise ConfigError("--simulated-cell: expected the JSON object of the READY line")
-        overrides.update(simulated_cell_overrides(ready, settings))
+        overrides.update(simulated_cell_overrides(ready, settings, robot_kind))
         settings = Settings.load(config, **overrides)
     return settings
 
@@ -156,6 +161,12 @@ def register(app: typer.Typer) -> None:
         ),
         host: str | None = typer.Option(None, help="Bind address (default 127.0.0.1)."),
         port: int | None = typer.Option(None, help="TCP port (default 8080, 0 = any free)."),
+        robot_kind: str | None = typer.Option(
+            None,
+            "--robot-kind",
+            help="With --simulated-cell: the emulated controller face the robot driver reads, "
+            "a [robot] kind other than manual (default huashu-socketcmd).",
+        ),
     ) -> None:
         """Run the daemon: sampler, SQLite store, identification jobs and the REST API."""
         import asyncio
@@ -170,7 +181,7 @@ def register(app: typer.Typer) -> None:
         faulthandler.enable()
 
         try:
-            settings = load_settings(config, simulated_cell, host, port)
+            settings = load_settings(config, simulated_cell, host, port, robot_kind)
             token, generated = settings.resolve_token()
         except ValidationError as exc:
             raise _fail(f"configuration: {exc}") from exc

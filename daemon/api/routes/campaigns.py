@@ -78,6 +78,8 @@ def _out(state: AppState, row: CampaignRow) -> CampaignOut:
     out = cast(CampaignOut, dict(row))
     out["min_training_samples"] = need.training_samples
     out["min_samples_to_identify"] = need.samples
+    out["recommended_training_samples"] = need.recommended_training_samples
+    out["recommended_samples"] = need.recommended_samples
     return out
 
 
@@ -100,8 +102,9 @@ def list_campaigns(
 )
 def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
     """With ``anchors`` (of the included samples), ``min_samples_to_identify`` (the fewest
-    included samples an identification with the default options accepts) and
-    ``min_training_samples``."""
+    included samples an identification with the default options accepts),
+    ``min_training_samples`` and ``recommended_samples`` (the count at which outlier
+    screening works)."""
     return _out(state, state.store.campaign(campaign_id))
 
 

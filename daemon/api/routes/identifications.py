@@ -9,11 +9,11 @@ from typing import Annotated, Any, cast
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from typing_extensions import TypedDict
 
-from calib.options import default, spec
+from calib.options import default, samples_for_training_rows, spec
 from daemon.api.compare import Comparison, compare_results
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
 from daemon.api.errors import error_responses, unprocessable
-from daemon.api.min_samples import held_out, samples_needed
+from daemon.api.min_samples import held_out
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
@@ -78,7 +78,7 @@ def readiness(
     return {
         "test_fraction": test_fraction, "n_included": n, "n_train": n - n_test,
         "n_test": n_test, "min_training_samples": need,
-        "min_samples": samples_needed(need, test_fraction), "ready": n - n_test >= need,
+        "min_samples": samples_for_training_rows(need, test_fraction), "ready": n - n_test >= need,
     }  # fmt: skip
 
 

@@ -88,9 +88,10 @@ function renderCounts() {
   bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
   bar.className = included >= need ? "done" : "";
   const anchors = c.anchors.length > 1 ? `, ${c.anchors.length} anchors` : "";
+  const counts = `${need} minimum, ${c.recommended_samples} recommended for this robot and ${c.anchors.length > 1 ? `${c.anchors.length} anchors` : "anchor"}: from ${c.recommended_samples} the fit can also screen outliers`;
   setText("campaign-need", included >= need
-    ? `${included} of ${need} samples: enough to identify (with a 20 % test set${anchors}). More poses, spread over the workspace, give a more accurate result.`
-    : `${included} of ${need} samples needed before Identify (${c.min_training_samples} to train on with a 20 % test set${anchors}).`);
+    ? `${included} of ${need} samples: enough to identify (with a 20 % test set${anchors}; ${counts}). More poses, spread over the workspace, give a more accurate result.`
+    : `${included} of ${need} samples needed before Identify (${c.min_training_samples} to train on with a 20 % test set${anchors}; ${counts}).`);
 }
 
 function renderSamples() {
