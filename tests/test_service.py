@@ -390,6 +390,7 @@ def test_one_current_calibration_until_accept_and_numeric_progress(client: TestC
     assert cmp["changed"] and all(abs(c["change"]) > 1e-3 for c in cmp["changed"])
     r = client.post(f"/api/v1/identifications/{second['id']}/accept", headers=AUTH)
     assert r.status_code == 200 and r.json()["current"] is True
+    assert r.json()["message"] == f"accepted: the current calibration (replaces job {first['id']})"
     listed = client.get(url, headers=AUTH).json()
     assert [j["id"] for j in listed if j["current"]] == [second["id"]]
     spec = client.get("/api/v1/options/identify", headers=AUTH).json()

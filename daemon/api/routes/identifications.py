@@ -149,7 +149,11 @@ def accept(state: State, job_id: JobId) -> JobView:
     result = state.store.get_result_for_job(job_id)
     if result is None:
         raise HTTPException(409, f"identification {job_id}: has no result")
+    previous = state.store.current_job_id(int(job["robot_id"]))
     state.store.set_result_accepted(int(result["id"]), True)
+    if previous != job_id:
+        replaced = f" (replaces job {previous})" if previous is not None else ""
+        state.store.update_job(job_id, message=f"accepted: the current calibration{replaced}")
     return _job_view(state, state.store.job(job_id))
 
 

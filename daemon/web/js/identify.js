@@ -184,7 +184,8 @@ function renderLive() {
   const rises = live.y.some((y, i) => i > 0 && y > live.y[i - 1] * 1.001);
   setText("cost-live-note", live.x.length
     ? `Iteration ${live.x[live.x.length - 1]}: ${fix(live.y[live.y.length - 1], 4)} mm RMS.` +
-      (rises ? " The curve rises where a new fit starts (the noise estimate, or a robust refit without the flagged rows)." : "")
+      " Counted over every fit of the run (the noise estimate's fits first, then the final fit the result's convergence chart shows)." +
+      (rises ? " The curve rises where a new fit starts." : "")
     : "");
 }
 
