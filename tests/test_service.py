@@ -399,6 +399,26 @@ def test_one_current_calibration_until_accept_and_numeric_progress(client: TestC
     assert "de" in spec["fields"][0]["choices"] and "succeeded" in spec["finished_states"]
 
 
+def test_identification_readiness_applies_the_rule_for_the_page(client: TestClient) -> None:
+    cid = _campaign(client, "ready")
+    client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=_real_csv(40),
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
+    url = f"/api/v1/campaigns/{cid}/identification-readiness"
+    r = client.get(url, headers=AUTH).json()
+    camp = client.get(f"/api/v1/campaigns/{cid}", headers=AUTH).json()
+    assert (r["n_train"], r["n_test"], r["ready"]) == (32, 8, True)
+    assert r["min_samples"] == camp["min_samples_to_identify"]
+    r = client.get(url, params={"test_fraction": 0.5}, headers=AUTH).json()
+    assert (r["n_train"], r["ready"]) == (20, False) and r["min_samples"] > 40
+    r = client.get(url, params={"test_fraction": 0.9999999}, headers=AUTH).json()
+    assert r["min_samples"] is None and r["ready"] is False  # answered at once, not searched
+    assert client.get(url, params={"test_fraction": "abc"}, headers=AUTH).status_code == 422
+    assert client.get(url, params={"test_fraction": 1.0}, headers=AUTH).status_code == 422
+
+
 def test_identification_bad_options(client: TestClient) -> None:
     cid = _campaign(client)
     url = f"/api/v1/campaigns/{cid}/identifications"

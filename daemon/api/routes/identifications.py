@@ -19,6 +19,10 @@ from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
 from daemon.store import JobState
 
+#: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
+#: many samples: the answer is then null, not a long search).
+MAX_READINESS_SAMPLES = 10_000_000
+
 router = APIRouter(tags=["identifications"], responses=error_responses(400, 401, 404, 413, 422))
 
 
@@ -53,7 +57,7 @@ class Readiness(TypedDict):
     n_train: int
     n_test: int
     min_training_samples: int
-    min_samples: int
+    min_samples: int | None
     ready: bool
 
 
@@ -70,7 +74,8 @@ def readiness(
     ] = default("test_fraction"),
 ) -> Readiness:
     """The minimum-samples rule applied for the page (which keeps no copy of it): the split
-    of the campaign's included samples at ``test_fraction`` and the counts identify needs."""
+    of the campaign's included samples at ``test_fraction`` and the counts identify needs
+    (``min_samples`` null when it would exceed :data:`MAX_READINESS_SAMPLES`)."""
     row = state.store.campaign(campaign_id)
     need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
     n = int(row["n_included"])
@@ -78,7 +83,9 @@ def readiness(
     return {
         "test_fraction": test_fraction, "n_included": n, "n_train": n - n_test,
         "n_test": n_test, "min_training_samples": need,
-        "min_samples": samples_for_training_rows(need, test_fraction), "ready": n - n_test >= need,
+        "min_samples": samples_for_training_rows(need, test_fraction)
+        if need / (1.0 - test_fraction) <= MAX_READINESS_SAMPLES else None,
+        "ready": n - n_test >= need,
     }  # fmt: skip
 
 

@@ -135,7 +135,9 @@ function updateNeed() {
   const r = readiness;
   const anchors = Math.max(1, c.anchors.length);
   $("identify-start").disabled = !r.ready || busy;
-  setText("identify-need", !r.ready
+  setText("identify-need", !r.ready && r.min_samples == null
+    ? `A test fraction of ${r.test_fraction} leaves too few samples to train on; lower it.`
+    : !r.ready
     ? `${r.n_included} of ${r.min_samples} samples: Identify needs at least ${r.min_samples} included samples with this test fraction (${r.min_training_samples} to train on, for this robot and ${anchors} anchor${anchors > 1 ? "s" : ""}). Capture more in tab 2.`
     : `${r.n_included} included samples: ${r.n_train} for training, ${r.n_test} held out to test.` + (busy ? " Wait for the running identification (or cancel it)." : ""));
 }
