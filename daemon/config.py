@@ -28,6 +28,7 @@ from pydantic_settings import (
 )
 
 from daemon.sampler import SamplerConfig
+from daemon.stepwatch import StepSettings
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
 #: Shortest accepted ``api_token`` [characters].
@@ -113,6 +114,28 @@ class DriftSettings(BaseModel):
     """A check whose poses are not all captured after this long [s] fails."""
 
 
+class WatchSettings(BaseModel):
+    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`daemon.stepwatch`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = True
+    """Test each new sample against the campaign's running fit for a moved sensor."""
+    min_step_mm: Annotated[float, Field(gt=0, le=100)] = StepSettings.min_step_mm
+    """Smallest length change called a move [mm] (the band is at least half of it)."""
+    k_sigma: Annotated[float, Field(gt=0, le=100)] = StepSettings.k_sigma
+    """Band half-width in robust sigmas of the recent residuals."""
+    sigma_floor_mm: Annotated[float, Field(gt=0, le=10)] = StepSettings.sigma_floor_mm
+    """Floor of the residual scale [mm]."""
+    min_run: Annotated[int, Field(ge=2, le=50)] = StepSettings.min_run
+    """Samples beyond the band needed for an alarm: fewer are outliers."""
+
+    def step_settings(self) -> StepSettings:
+        """The pure detector's settings."""
+        return StepSettings(min_step_mm=self.min_step_mm, sigma_floor_mm=self.sigma_floor_mm,
+                            k_sigma=self.k_sigma, min_run=self.min_run)  # fmt: skip
+
+
 def default_state_dir() -> Path:
     """``$STATE_DIRECTORY`` (set by systemd's ``StateDirectory=``), else
     ``$XDG_STATE_HOME/cablecal``, else ``~/.local/state/cablecal``."""
@@ -160,6 +183,7 @@ class Settings(BaseSettings):
     (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
     drift: DriftSettings = DriftSettings()
+    watch: WatchSettings = WatchSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
 

@@ -20,8 +20,12 @@ The flow
     4. :func:`judge`: ``drift`` when the RMS exceeds the threshold
        (:func:`threshold_mm`: ``drift.threshold_mm``, else ``drift.threshold_factor`` (3) ×
        the calibration's own residual RMSE, never below ``drift.min_threshold_mm``).
-       The check row, a ``drift`` (or ``drift_check``) event, the gauge
-       ``cablecal_drift_rms_mm`` and the ``drift`` block of ``GET /status`` show it.
+       The check row, a ``drift`` (or ``drift_check``) event, the gauges
+       ``cablecal_drift_rms_mm`` and ``cablecal_drift_threshold_mm`` and the ``drift`` block
+       of ``GET /status`` show it. A drift event names its likely cause: a moved sensor (a
+       point shift of P0 changes lengths by ``−u·δ``, ``u`` the cable direction) or a robot
+       change (a joint's zero offset), whichever fits the residuals better
+       (:func:`daemon.stepwatch.explain_change`; ``unclear`` when the poses cannot tell).
 
 numpy and ``calib`` are imported inside the functions that use them.
 """
@@ -145,17 +149,77 @@ class Evaluation:
     detail: dict[str, Any]
 
 
+def change_jacobians(
+    result: dict[str, Any], joints_deg: FloatArray, anchors: tuple[str, ...]
+) -> tuple[FloatArray, FloatArray]:
+    """At the check poses ``joints_deg`` (n, 6) [deg] with their anchor ids: the length's
+    derivatives by the anchor's P0 and offset, ``(−u, 1)`` (n, 4) [mm/mm], and by each
+    joint's zero offset (n, 6) [mm/deg] (central differences of the result's predictions)."""
+    import copy
+
+    import numpy as np
+
+    from calib.kinematics import forward_position
+    from calib.predict import calibrated_dh_internal, predict_lengths_from_result
+
+    q = np.asarray(joints_deg, dtype=float)
+    pos = forward_position(calibrated_dh_internal(result), np.deg2rad(q),
+                           np.asarray(result["tool_mm"], dtype=float),
+                           result.get("convention", "dh"))  # fmt: skip
+    first = str(result.get("anchor_id", "A"))
+    others = result.get("anchors") or {}
+    p0 = np.array([result["anchor_mm"] if a == first else others[a]["anchor_mm"]
+                   for a in anchors], dtype=float)  # fmt: skip
+    diff = pos - p0
+    unit = diff / np.linalg.norm(diff, axis=1)[:, None]
+    anchor_jac = np.hstack([-unit, np.ones((q.shape[0], 1))])
+    step_deg = 1e-3
+    joint_jac = np.zeros((q.shape[0], 6))
+    for j in range(6):
+        lengths = []
+        for sign in (1.0, -1.0):
+            shifted = copy.deepcopy(result)
+            shifted["dh"][j]["theta_deg"] = float(shifted["dh"][j]["theta_deg"]) + sign * step_deg
+            lengths.append(np.concatenate([
+                predict_lengths_from_result(shifted, q[i : i + 1], anchors[i])
+                for i in range(q.shape[0])
+            ]))  # fmt: skip
+        joint_jac[:, j] = (lengths[0] - lengths[1]) / (2 * step_deg)
+    return anchor_jac, joint_jac
+
+
+def explanation_text(explained: dict[str, Any]) -> str:
+    """One phrase naming the explanation of :func:`daemon.stepwatch.explain_change`."""
+    if explained["kind"] == "sensor":
+        shift = ", ".join(f"{v:+.2f}" for v in explained["anchor_shift_mm"])
+        return (f"the sensor moved (P0 shift [{shift}] mm, offset "
+                f"{explained['offset_change_mm']:+.2f} mm)")  # fmt: skip
+    if explained["kind"] == "robot":
+        return (f"the robot changed (joint {explained['joint']} zero offset "
+                f"{explained['joint_offset_deg']:+.4f} deg)")  # fmt: skip
+    return "robot or sensor: the check poses cannot tell"
+
+
 def evaluate(
     result: dict[str, Any], samples: Any, limit_mm: float, refit_anchor: bool
 ) -> Evaluation:
     """Compare a check campaign's samples (a :class:`calib.dataset.SampleSet`) with a
-    ``result.json`` mapping's predictions (:func:`calib.verify.verify`) and judge them."""
+    ``result.json`` mapping's predictions (:func:`calib.verify.verify`) and judge them.
+
+    Without ``refit_anchor``, ``detail["explanation"]`` says whether a moved sensor (a P0
+    shift and an offset change) or a robot change (one joint's zero offset) explains the
+    residuals better (:func:`daemon.stepwatch.explain_change`)."""
     from calib.verify import VerifyOptions, verify
+    from daemon.stepwatch import explain_change
 
     out = verify(result, samples, VerifyOptions(refit_anchor=refit_anchor, max_rmse_mm=limit_mm))
     figures = {k: float(v) for k, v in out.metrics.items()}
-    detail = {"reference_rmse_mm": out.reference_rmse_mm, "anchors": out.anchors,
-              "residual_mm": [float(v) for v in out.residual_mm]}  # fmt: skip
+    detail: dict[str, Any] = {"reference_rmse_mm": out.reference_rmse_mm, "anchors": out.anchors,
+                              "residual_mm": [float(v) for v in out.residual_mm]}  # fmt: skip
+    if not refit_anchor:
+        anchor_jac, joint_jac = change_jacobians(result, out.joints_deg, out.anchor)
+        noise = out.reference_rmse_mm or 0.05
+        detail["explanation"] = explain_change(out.residual_mm, anchor_jac, joint_jac, noise)
     return Evaluation(judge(figures["rmse_mm"], limit_mm), figures, limit_mm, detail)
 
 
@@ -195,6 +259,7 @@ class DriftMonitor:
         for check in checks:
             if check["status"] in ("ok", "drift") and check["rms_mm"] is not None:
                 metrics.DRIFT_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
+                metrics.DRIFT_THRESHOLD.labels(str(check["robot_id"])).set(check["threshold_mm"])
         self._remember_last(checks)
         if self.settings.check_interval_h:
             self._schedule = asyncio.create_task(self._scheduled(), name="drift-schedule")
@@ -303,12 +368,17 @@ class DriftMonitor:
             message = f"check {row['id']} of robot {robot} failed: {error}"
         else:
             metrics.DRIFT_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
+            metrics.DRIFT_THRESHOLD.labels(str(robot)).set(float(row["threshold_mm"]))
             message = (f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
                        f"threshold {row['threshold_mm']:.4f} mm: {status}")  # fmt: skip
+            explained = (detail or {}).get("explanation")
+            if status == "drift" and explained is not None:
+                message += f"; {explanation_text(explained)}"
         kind = "drift" if status == "drift" else "drift_check"
         self.store.record_event(kind, None, message,
                                 {"check_id": row["id"], "robot_id": robot, "status": status,
-                                 "rms_mm": row["rms_mm"], "threshold_mm": row["threshold_mm"]},
+                                 "rms_mm": row["rms_mm"], "threshold_mm": row["threshold_mm"],
+                                 "explanation": (detail or {}).get("explanation")},
                                 campaign_id=check["campaign_id"])  # fmt: skip
         (log.warning if status != "ok" else log.info)(message)
 

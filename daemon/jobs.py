@@ -310,9 +310,11 @@ class JobManager:
             result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
             split = result.get("split") or {}
             split["test_sample_ids"] = [sample_ids[i] for i in split.get("test_rows", [])]
-            await asyncio.to_thread(self._succeeded, job_id, result)
+            await asyncio.to_thread(self._succeeded, job_id, result, sample_ids)
         finally:
             metrics.JOBS.labels(method, status.value).inc()
+            if status is JobState.FAILED:
+                metrics.IDENTIFICATIONS_FAILED.inc()
             metrics.JOB_DURATION.labels(method, status.value).observe(time.monotonic() - t0)
             self._futures.pop(job_id, None)
             self._tasks.pop(job_id, None)
@@ -320,13 +322,26 @@ class JobManager:
                 with contextlib.suppress(Exception):
                     self._cancel.pop(job_id, None)
 
-    def _succeeded(self, job_id: int, result: dict[str, Any]) -> None:
+    def _succeeded(
+        self, job_id: int, result: dict[str, Any], sample_ids: list[int] | None = None
+    ) -> None:
         """Store a succeeded job's result; it becomes the robot's current calibration only
-        when it is plausible and the robot has none yet (runs in a thread)."""
+        when it is plausible and the robot has none yet (runs in a thread). With
+        ``sample_ids`` (the samples identified), the result says whether they followed the
+        campaign's plan (:mod:`daemon.plan_check`)."""
         iteration, cost = result.pop(_FINAL_PROGRESS, None) or (None, None)
         if iteration is not None and cost is not None:
             with self._row_lock:
                 self.store.update_job(job_id, iteration=int(iteration), cost_rms_mm=float(cost))
+        if sample_ids is not None:
+            from daemon.plan_check import add_plan_check
+
+            job = self.store.get_job(job_id)
+            if job is not None:
+                try:
+                    add_plan_check(self.store, int(job["campaign_id"]), sample_ids, result)
+                except Exception:  # the check must never lose a result
+                    log.exception("plan check of job %d failed", job_id)
         plausible = bool(result.get("plausibility", {}).get("plausible", False))
         robot_id = int(self.store.job(job_id)["robot_id"])
         current = self.store.current_job_id(robot_id)

@@ -16,6 +16,8 @@ import logging
 import os
 from typing import TYPE_CHECKING, Any
 
+from daemon import metrics
+
 if TYPE_CHECKING:
     from daemon.store import Store
 
@@ -74,4 +76,6 @@ def record_start(events: Store) -> dict[str, Any] | None:
         log.warning(message)
         events.record_event(UNCLEAN, None, message, detail)
     events.record_event(STARTED, None, "cablecal serve started", {"pid": os.getpid()})
+    # The count of unclean stops the store knows: a counter that carries over restarts.
+    metrics.UNCLEAN_SHUTDOWNS.inc(len(events.list_events(kind=UNCLEAN, limit=10_000)))
     return detail

@@ -67,3 +67,26 @@ DRIFT_RMS = Gauge(
     ["robot"],  # robot id
     registry=REGISTRY,
 )
+DRIFT_THRESHOLD = Gauge(
+    "cablecal_drift_threshold_mm",
+    "Threshold of the robot's last drift check: above it the check is drift [mm].",
+    ["robot"],  # robot id
+    registry=REGISTRY,
+)
+SENSOR_MOVED = Counter(
+    "cablecal_sensor_moved",
+    "Moves of the drawstring sensor found by the live watch (daemon.watch), per robot.",
+    ["robot"],  # robot id
+    registry=REGISTRY,
+)
+IDENTIFICATIONS_FAILED = Counter(
+    "cablecal_identifications_failed",
+    "Identification jobs that failed (an error or a timeout; cancelled ones are not).",
+    registry=REGISTRY,
+)
+UNCLEAN_SHUTDOWNS = Counter(
+    "cablecal_unclean_shutdowns",
+    "Runs of the daemon that ended without their shutdown, as recorded in the store (the "
+    "count carries over restarts, so increase() sees a new one).",
+    registry=REGISTRY,
+)

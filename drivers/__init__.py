@@ -11,6 +11,7 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 from pydantic import BaseModel
 
+from drivers.abb_rws import AbbRwsConfig, AbbRwsRobot
 from drivers.ascii_indicator import AsciiIndicator, AsciiIndicatorConfig
 from drivers.errors import (
     DeviceError,
@@ -31,10 +32,13 @@ from drivers.errors import (
     RobotStale,
     RobotTimeout,
 )
+from drivers.fanuc_rmi import FanucRmiConfig, FanucRmiRobot
 from drivers.huashu import HuashuConfig, HuashuSocketCmdRobot
 from drivers.indicator import IndicatorConfig, IndicatorReading, ModbusIndicator, RegisterMap
+from drivers.kuka_varproxy import KukaVarProxyConfig, KukaVarProxyRobot
 from drivers.modbus_robot import JointRegisterMap, ModbusRobotConfig, ModbusTcpRobot
 from drivers.robot import JointReading, ManualRobot, ManualRobotConfig, RobotDriver
+from drivers.ur_rtde import UrRtdeConfig, UrRtdeRobot
 
 
 @runtime_checkable
@@ -85,6 +89,10 @@ ROBOT_KINDS: dict[str, RobotKind] = {
     "manual": RobotKind(ManualRobotConfig, ManualRobot),
     "huashu-socketcmd": RobotKind(HuashuConfig, HuashuSocketCmdRobot),
     "modbus-tcp": RobotKind(ModbusRobotConfig, ModbusTcpRobot),
+    "ur-rtde": RobotKind(UrRtdeConfig, UrRtdeRobot),
+    "abb-rws": RobotKind(AbbRwsConfig, AbbRwsRobot),
+    "kuka-varproxy": RobotKind(KukaVarProxyConfig, KukaVarProxyRobot),
+    "fanuc-rmi": RobotKind(FanucRmiConfig, FanucRmiRobot),
 }
 
 
@@ -106,6 +114,8 @@ def make_robot(config: Mapping[str, Any] | BaseModel) -> RobotDriver:
 
 __all__ = [
     "ROBOT_KINDS",
+    "AbbRwsConfig",
+    "AbbRwsRobot",
     "AsciiIndicator",
     "AsciiIndicatorConfig",
     "DeviceError",
@@ -140,6 +150,8 @@ __all__ = [
     "RobotProtocolError",
     "RobotStale",
     "RobotTimeout",
+    "UrRtdeConfig",
+    "UrRtdeRobot",
     "make_indicator",
     "make_robot",
 ]

@@ -19,8 +19,13 @@ from calib.kinematics import FloatArray, forward_frames
 from calib.models import RobotModel, builtin_model, parse_model_text
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell
 from calib.tcp import joint_limits_deg
-from simulator.config import SimConfig
-from simulator.poses import parse_poses_csv, spread_poses_deg
+from simulator.config import (
+    MAX_ANCHOR_MOVE_MM,
+    MAX_DRIFT_RATE_MM_PER_H,
+    MAX_DRIFT_TAU_S,
+    SimConfig,
+)
+from simulator.poses import parse_poses_file, spread_poses_deg
 
 #: Display limits of the 6-digit indicator (counts).
 DISPLAY_MIN, DISPLAY_MAX = -199999, 999999
@@ -30,6 +35,38 @@ MM_PER_PULSE = 0.004
 STATUS_OVER, STATUS_UNDER, STATUS_MOVING = 0, 1, 2
 #: Column of the joint offset (theta error, rad internally) in a joint's 4 DH errors.
 DH_THETA_COLUMN = 3
+
+
+def _finite_number(value: Any, name: str, bound: float, low: float | None = None) -> float:
+    """``value`` as a float, or ``ValueError`` naming ``name``: not a number, not finite, or
+    outside ``[low, bound]`` (``low`` default ``-bound``)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
+    v = float(value)
+    lo = -bound if low is None else low
+    if not math.isfinite(v) or not lo <= v <= bound:
+        raise ValueError(f"{name}: {value!r} is not finite or outside [{lo:g}, {bound:g}]")
+    return v
+
+
+@dataclass(frozen=True)
+class OffsetDrift:
+    """An emulated drift of the indicator offset c, started at monotonic ``t0`` [s].
+
+    Linear at ``rate_mm_per_h`` when ``tau_s`` is 0, else a first-order approach to
+    ``rate_mm_per_h * tau_s / 3600`` mm with time constant ``tau_s`` (same initial slope)."""
+
+    rate_mm_per_h: float = 0.0
+    tau_s: float = 0.0
+    t0: float = 0.0
+
+    def mm(self, now: float) -> float:
+        """The drift at monotonic ``now`` [mm]."""
+        dt = max(0.0, now - self.t0)
+        rate_mm_per_s = self.rate_mm_per_h / 3600.0
+        if self.tau_s > 0:
+            return rate_mm_per_s * self.tau_s * -math.expm1(-dt / self.tau_s)
+        return rate_mm_per_s * dt
 
 
 @dataclass
@@ -122,6 +159,8 @@ class EmulatedCell:
         self.preset_counts = 0
         self.slave_address = cfg.indicator.device_id
         self.baud_code = 0
+        self._drift_base_mm = 0.0  # drift of earlier drift_offset segments, folded in
+        self.drift = OffsetDrift(cfg.cell.drift_rate_mm_per_h, cfg.cell.drift_tau_s, self._t0)
 
     # ------------------------------------------------------------------ motion
     def _virtual_time(self, now: float) -> float:
@@ -165,15 +204,16 @@ class EmulatedCell:
         return q, i, True
 
     def read_poses_csv(self, path: str) -> FloatArray:
-        """Joint angles [deg], shape (n, 6), of a plan CSV (``q1..q6`` columns, see
-        :mod:`simulator.poses`), checked against the model's joint limits. A relative path is
-        resolved against the config's ``base_dir``."""
+        """Joint angles [deg], shape (n, 6), of a plan CSV (``q1..q6`` columns) or a robot
+        program (RAPID, URScript, KRL, Fanuc LS: its joint moves; see :mod:`simulator.poses`),
+        checked against the model's joint limits. A relative path is resolved against the
+        config's ``base_dir``."""
         full = Path(self.config.base_dir) / path
         try:
             text = full.read_text(encoding="utf-8")
         except OSError as exc:
             raise ValueError(f"robot.poses: cannot read {full}: {exc.strerror}") from None
-        return parse_poses_csv(text, str(full), joint_limits_deg(self.truth.model))
+        return parse_poses_file(text, str(full), joint_limits_deg(self.truth.model))
 
     def load_poses(
         self, poses_deg: FloatArray, loop: bool | None = None, now: float | None = None
@@ -239,10 +279,50 @@ class EmulatedCell:
         theta[self.truth.layout.anchor_slice(0).start + 3] = offset_mm
         self.truth = TrueCell(self.truth.model, theta, self.truth.layout)
 
+    def drift_mm(self, now: float | None = None) -> float:
+        """The emulated offset drift at ``now`` [mm]: added to every reading on top of the
+        offset c of the truth."""
+        now = time.monotonic() if now is None else now
+        return self._drift_base_mm + self.drift.mm(now)
+
+    def true_lengths_mm(self, q_deg: FloatArray, now: float | None = None) -> FloatArray:
+        """Noise-free cable readings, shape (n,) [mm], of poses ``(n, 6)`` [deg] at ``now``
+        (with the offset drift)."""
+        return self.truth.lengths_mm(q_deg) + self.drift_mm(now)
+
     def true_length_mm(self, now: float | None = None) -> float:
         """Noise-free cable reading of the current pose [mm]."""
+        now = time.monotonic() if now is None else now
         q, _, _ = self.motion(now)
-        return float(self.truth.lengths_mm(q[None, :])[0])
+        return float(self.true_lengths_mm(q[None, :], now)[0])
+
+    def move_anchor(self, delta_mm: Any) -> FloatArray:
+        """Disturbance emulation: the sensor stand is bumped, the TRUE P0 moves by
+        ``delta_mm`` (3 numbers [mm], each within ±:data:`MAX_ANCHOR_MOVE_MM`). Returns the
+        new P0 [mm], shape (3,). ``ValueError`` naming ``delta_mm`` on bad input (nothing
+        changes)."""
+        if not isinstance(delta_mm, list | tuple) or len(delta_mm) != 3:
+            raise ValueError(f"delta_mm: expected a list of 3 numbers [mm], got {delta_mm!r}")
+        delta = [_finite_number(v, f"delta_mm[{i}]", MAX_ANCHOR_MOVE_MM)
+                 for i, v in enumerate(delta_mm)]  # fmt: skip
+        theta = self.truth.theta.copy()
+        start = self.truth.layout.anchor_slice(0).start
+        theta[start : start + 3] += delta
+        self.truth = TrueCell(self.truth.model, theta, self.truth.layout)
+        self._tick = -1  # resample
+        return self.anchor_mm
+
+    def drift_offset(self, rate_mm_per_h: Any, tau_s: Any = 0.0, now: float | None = None) -> None:
+        """Disturbance emulation: from ``now`` the offset drifts at ``rate_mm_per_h``
+        (linear), or with ``tau_s`` > 0 approaches ``rate_mm_per_h * tau_s / 3600`` mm
+        (first order). The drift so far is kept; a rate of 0 stops it. ``ValueError`` naming
+        the field on bad input (nothing changes)."""
+        rate = _finite_number(rate_mm_per_h, "rate_mm_per_h", MAX_DRIFT_RATE_MM_PER_H)
+        tau = _finite_number(0.0 if tau_s is None else tau_s, "tau_s", MAX_DRIFT_TAU_S, 0.0)
+        now = time.monotonic() if now is None else now
+        self._drift_base_mm = self.drift_mm(now)
+        self.drift = OffsetDrift(rate, tau, now)
+        self._tick = -1
 
     def indicator_state(self, now: float | None = None) -> tuple[int, int, float]:
         """``(counts, status, noisy_length_mm)``: the display value, sampled and held at
@@ -310,7 +390,13 @@ class EmulatedCell:
                 math.degrees(float(v)) for v in self.truth.theta[DH_THETA_COLUMN : 4 * 6 : 4]
             ],
             "anchor_p0_mm": [float(v) for v in self.anchor_mm],
-            "offset_mm": self.offset_mm,
+            "offset_mm": self.offset_mm + self.drift_mm(),
+            "drift": {
+                "rate_mm_per_h": self.drift.rate_mm_per_h,
+                "tau_s": self.drift.tau_s,
+                "drift_mm": self.drift_mm(),
+                "offset_base_mm": self.offset_mm,
+            },
             "noise_mm": self.config.indicator.noise_mm,
             "decimals": self.decimals,
             "range_mm": list(self.config.indicator.range_mm),

@@ -24,7 +24,8 @@ class RobotSection(_Strict):
     model: str = "hsr-jr680"  # built-in name, or path to a .toml/.json model file
     dh_errors: Literal["table-xii-d1", "none"] = "table-xii-d1"
     tool_error_mm: tuple[float, float, float] = (0.8, -0.5, 1.2)
-    # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns
+    # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns, or a
+    # robot program (RAPID .mod, URScript, KRL .src, Fanuc .LS) whose joint moves it runs
     poses: str = "random"
     n_poses: Annotated[int, Field(ge=1)] = 60
     min_z_mm: float = 0.0  # the floor: random poses keep flange and hook point above it
@@ -33,11 +34,26 @@ class RobotSection(_Strict):
     loop: bool = True
 
 
+#: Bounds of the emulated disturbances: a sensor-stand bump per axis [mm], an offset drift
+#: rate [mm/h] (fast enough for a test) and a thermal time constant [s].
+MAX_ANCHOR_MOVE_MM = 500.0
+MAX_DRIFT_RATE_MM_PER_H = 36000.0
+MAX_DRIFT_TAU_S = 1e6
+
+
 class CellSection(_Strict):
     """The drawstring sensor's true mounting."""
 
     anchor_mm: tuple[float, float, float] = (1400.0, 300.0, 200.0)
     offset_mm: float = -350.0
+    # Emulated drift of the offset c from the start (the control port's drift_offset):
+    # linear at drift_rate_mm_per_h, or with drift_tau_s > 0 a first-order approach to
+    # drift_rate_mm_per_h * drift_tau_s / 3600 (a thermal time constant).
+    drift_rate_mm_per_h: Annotated[
+        float,
+        Field(ge=-MAX_DRIFT_RATE_MM_PER_H, le=MAX_DRIFT_RATE_MM_PER_H, allow_inf_nan=False),
+    ] = 0.0
+    drift_tau_s: Annotated[float, Field(ge=0, le=MAX_DRIFT_TAU_S, allow_inf_nan=False)] = 0.0
 
 
 class IndicatorSection(_Strict):
@@ -80,6 +96,20 @@ class UrRtdeSection(ServerSection):
     port: Annotated[int, Field(ge=0, le=65535)] = 30004
 
 
+class AbbRwsSection(ServerSection):
+    """The emulated ABB Robot Web Services face (``simulator.faces.abb_rws``). ``rws``:
+    ``"1.0"`` an IRC5 (HTTP, digest authentication), ``"2.0"`` an OmniCore (HTTPS, basic
+    authentication; ``cert_file``/``key_file`` PEM, or a self-signed certificate generated at
+    start with the ``openssl`` command). ``username``/``password``: the accepted login (ABB's
+    factory default, as on a new controller; an emulator's, not a secret)."""
+
+    rws: Literal["1.0", "2.0"] = "1.0"
+    username: str = "Default User"
+    password: str = "robotics"
+    cert_file: str | None = None
+    key_file: str | None = None
+
+
 class FaultSection(_Strict):
     """Faults active from the start; all can be changed while running (control port)."""
 
@@ -105,7 +135,7 @@ class SimConfig(_Strict):
     indicator: IndicatorSection = IndicatorSection()
     robot_socketcmd: ServerSection = ServerSection()  # real controllers: 23333
     robot_modbus: ServerSection = ServerSection()  # real UR: 502
-    robot_abb_rws: ServerSection = ServerSection()  # real IRC5: 80 (RWS 1.0)
+    robot_abb_rws: AbbRwsSection = AbbRwsSection()  # real IRC5: 80, OmniCore: 443
     robot_ur_rtde: UrRtdeSection = UrRtdeSection()  # real UR: 30004
     robot_kuka_varproxy: ServerSection = ServerSection()  # real KukaVarProxy: 7000
     robot_fanuc_rmi: ServerSection = ServerSection()  # real RMI: 16001

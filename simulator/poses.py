@@ -1,4 +1,10 @@
-"""Pose lists of the emulated robot: a plan read from CSV, or a seeded spread of poses.
+"""Pose lists of the emulated robot: a plan read from CSV or from a robot program, or a seeded
+spread of poses.
+
+A robot program (RAPID, URScript, KRL or Fanuc LS, as ``cablecal program`` writes them; the
+format is recognised by its first statement, :func:`calib.programs.registry.detect_format`) is
+read with :mod:`calib.programs`: its joint moves, in order, are the poses. The emulated robot
+keeps its own timing (``move_time_s``, ``dwell_s``), not the program's speed and waits.
 
 A plan CSV is what ``cablecal identify`` reads and ``cablecal plan`` writes: a header with
 ``q1..q6`` (any case, any column order) in degrees; other columns (``pose``, ``L``,
@@ -22,6 +28,8 @@ import numpy as np
 
 from calib.dataset import JOINT_COLUMNS, SampleError
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
+from calib.programs.common import ProgramError
+from calib.programs.registry import detect_format, parse_program
 from calib.synthetic import TrueCell, random_poses_deg
 from calib.tcp import joint_limits_deg
 
@@ -108,6 +116,37 @@ def parse_poses_csv(
     if not out:
         raise PoseCsvError(f"{source}: no poses after the header")
     return np.array(out, dtype=float)
+
+
+def parse_poses_file(
+    text: str, source: str = "poses", limits_deg: FloatArray | None = None
+) -> FloatArray:
+    """Joint angles [deg], shape (n, 6), of a plan CSV (:func:`parse_poses_csv`) or of a robot
+    program in any format of :mod:`calib.programs` (its joint moves in program order).
+
+    Raises
+    ------
+    PoseCsvError
+        A bad CSV or program (the message names the line), or a target outside the limits
+        (naming the target, 1-based, and the joint).
+    """
+    fmt = detect_format(text)
+    if fmt == "csv":
+        return parse_poses_csv(text, source, limits_deg)
+    try:
+        program = parse_program(fmt, text)
+    except ProgramError as exc:
+        raise PoseCsvError(f"{source} ({fmt}): {exc}") from None
+    q = np.array(program.joints_deg, dtype=float)
+    if limits_deg is not None:
+        bad = (q < limits_deg[:, 0]) | (q > limits_deg[:, 1])
+        if bad.any():
+            i, j = (int(v) for v in np.argwhere(bad)[0])
+            raise PoseCsvError(
+                f"{source} ({fmt}): target {i + 1}, q{j + 1}: {q[i, j]} deg is outside the joint "
+                f"limits [{limits_deg[j, 0]}, {limits_deg[j, 1]}] deg"
+            )
+    return q
 
 
 def flange_and_hook_z_mm(truth: TrueCell, q_deg: FloatArray) -> tuple[FloatArray, FloatArray]:

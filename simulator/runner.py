@@ -196,8 +196,10 @@ class CellRunner:
         ``poses``
             The pose list (``poses_deg``) and ``loop``.
         ``load_poses``
-            Follow a new pose list: ``poses_deg`` (list of 6-lists [deg]) or ``csv`` (path of a
-            plan CSV with ``q1..q6`` columns, relative to the config's directory); optional
+            Follow a new pose list: ``poses_deg`` (list of 6-lists [deg]), ``csv`` (path of a
+            plan CSV with ``q1..q6`` columns, relative to the config's directory) or
+            ``program`` (path of a robot program in any format of ``cablecal program``: the
+            robot runs its joint moves; a CSV is read as with ``csv``); optional
             ``loop``. The robot moves from where it is to the new pose 0, then dwells and
             moves as usual. Replies like ``poses``.
         ``shift_joint_offset``
@@ -205,6 +207,13 @@ class CellRunner:
             ``delta_deg`` (the controller reports the same angles; the lengths change).
             Replies ``joint``, ``joint_offset_deg`` (the new true offset) and the ``truth``
             reply under ``truth``.
+        ``move_anchor``
+            Disturbance emulation: ``delta_mm`` ([x, y, z] mm): the sensor stand is bumped,
+            the TRUE P0 moves. Replies ``anchor_p0_mm`` and the ``truth`` reply.
+        ``drift_offset``
+            Disturbance emulation: ``rate_mm_per_h``, optional ``tau_s``: the offset c
+            drifts linearly, or approaches ``rate * tau`` (first order). Replies the
+            ``truth`` reply (its ``drift`` block).
         ``hold``
             ``on``: true stops the motion schedule where it is (false resumes).
         ``fault``
@@ -232,7 +241,7 @@ class CellRunner:
             return cell.truth_report()
         if cmd == "true_lengths":
             q = np.asarray(request["joints_deg"], dtype=float).reshape(-1, 6)
-            return {"lengths_mm": [float(v) for v in cell.truth.lengths_mm(q)]}
+            return {"lengths_mm": [float(v) for v in cell.true_lengths_mm(q)]}
         if cmd == "state":
             return cell.state_report()
         if cmd == "poses":
@@ -245,6 +254,14 @@ class CellRunner:
                 raise ValueError(f"joint: expected an integer 1..6, got {joint!r}")
             new_deg = cell.shift_joint_offset(joint, float(request["delta_deg"]))
             return {"joint": joint, "joint_offset_deg": new_deg, "truth": cell.truth_report()}
+        if cmd == "move_anchor":
+            p0 = cell.move_anchor(request.get("delta_mm"))
+            return {"anchor_p0_mm": [float(v) for v in p0], "truth": cell.truth_report()}
+        if cmd == "drift_offset":
+            if "rate_mm_per_h" not in request:
+                raise ValueError("rate_mm_per_h: required (mm/h; 0 stops the drift)")
+            cell.drift_offset(request["rate_mm_per_h"], request.get("tau_s", 0.0))
+            return {"truth": cell.truth_report()}
         if cmd == "hold":
             cell.hold(bool(request.get("on", True)))
             return cell.state_report()
@@ -285,11 +302,13 @@ class CellRunner:
     def _load_poses(self, request: dict[str, Any]) -> dict[str, Any]:
         """The ``load_poses`` command."""
         cell = self.cell
-        has_csv, has_list = "csv" in request, "poses_deg" in request
-        if has_csv == has_list:
-            raise ValueError("load_poses: give exactly one of 'csv' (a path) or 'poses_deg'")
-        if has_csv:
-            poses = cell.read_poses_csv(str(request["csv"]))
+        given = [k for k in ("csv", "program", "poses_deg") if k in request]
+        if len(given) != 1:
+            raise ValueError(
+                "load_poses: give exactly one of 'csv' (a path), 'program' (a path) or 'poses_deg'"
+            )
+        if given[0] != "poses_deg":
+            poses = cell.read_poses_csv(str(request[given[0]]))
         else:
             poses = np.asarray(request["poses_deg"], dtype=float)
         loop = request.get("loop")

@@ -47,3 +47,23 @@ def host_port(endpoint: str | None) -> tuple[str, int]:
     assert endpoint is not None
     host, port = endpoint.rsplit(":", 1)
     return host, int(port)
+
+
+def deviation_from_truth_deg(
+    sim: SimulatorThread, joints_deg: Any, t_from_s: float, t_to_s: float
+) -> float:
+    """``min_t max_j |q_j(t) - reading_j|`` [deg] over t in [t_from_s, t_to_s] (monotonic
+    seconds): how far a reading is from the cell's reported joints at any instant of that
+    span (0.2 ms grid, then 2 µs around its best instant; joints move at up to a few hundred
+    deg/s, so the grid resolves about 0.002 deg)."""
+    import numpy as np
+
+    reading = np.asarray(joints_deg, dtype=float)
+
+    def best(times_s: Any) -> tuple[float, float]:
+        devs = [float(np.abs(sim.cell.reported_joints(t) - reading).max()) for t in times_s]
+        k = int(np.argmin(devs))
+        return float(times_s[k]), devs[k]
+
+    t_best, _ = best(np.arange(t_from_s, t_to_s + 0.0002, 0.0002))
+    return best(np.arange(t_best - 0.0002, t_best + 0.0002, 0.000002))[1]

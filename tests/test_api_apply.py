@@ -446,3 +446,33 @@ def test_scheduled_check_starts_by_itself(tmp_path: Path, cell: TrueCell) -> Non
             time.sleep(0.2)
         assert checks[0]["trigger"] == "schedule"
         assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["check_interval_h"] > 0
+
+
+def test_compensated_targets_as_robot_programs(
+    client: TestClient, cell: TrueCell, calibrated: dict[str, int]
+) -> None:
+    from calib.programs import DOWNLOAD_FORMATS
+    from calib.programs.registry import parse_program
+
+    rid = calibrated["robot_id"]
+    q = random_poses_deg(cell, 6, np.random.default_rng(4))
+    body = [{f"q{j + 1}": float(v) for j, v in enumerate(row)} for row in q]
+    url = f"{API}/robots/{rid}/compensate"
+    corrected = np.array(
+        [
+            [row[f"q{j}"] for j in range(1, 7)]
+            for row in client.post(url, json=body, headers=AUTH).json()["rows"]
+        ]
+    )
+    for fmt in DOWNLOAD_FORMATS:
+        r = client.post(url, json=body, headers=AUTH, params={"format": fmt, "dwell_s": 1.5})
+        assert r.status_code == 200, r.text
+        assert "attachment" in r.headers["content-disposition"]
+        if fmt == "csv":
+            assert r.text.startswith("index,q1_nominal")
+            continue
+        back = parse_program(fmt, r.text)
+        np.testing.assert_allclose(np.array(back.joints_deg), corrected, atol=0.0005 + 1e-9)
+        assert back.dwell_s == 1.5
+    r = client.post(url, json=body, headers=AUTH, params={"format": "gcode"})
+    assert r.status_code == 422 and "format" in _text(r)

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 from pydantic import BaseModel
 
-from daemon.config import DriftSettings, JobSettings, Settings
+from daemon.config import DriftSettings, JobSettings, Settings, WatchSettings
 from daemon.sampler import SamplerConfig
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig
 from drivers.indicator import RegisterMap
@@ -405,7 +405,7 @@ def block_models(block: Block, defaults: Settings) -> dict[str, BaseModel]:
     kind = block.kind
     if block.section == "":
         return {"": defaults}
-    if block.section in ("sampler", "jobs", "drift"):
+    if block.section in ("sampler", "jobs", "drift", "watch"):
         return {"": getattr(defaults, block.section)}
     if block.section == "indicator":
         main: BaseModel = {
@@ -463,12 +463,13 @@ def test_example_mentions_every_setting() -> None:
     def keys(model: type[BaseModel]) -> set[str]:
         return set(model.model_fields)
 
-    tables = {"sampler", "jobs", "drift", "indicator", "robot"}
+    tables = {"sampler", "jobs", "drift", "watch", "indicator", "robot"}
     expected = {
         ("", ""): keys(Settings) - tables,
         ("sampler", ""): keys(SamplerConfig),
         ("jobs", ""): keys(JobSettings),
         ("drift", ""): keys(DriftSettings),
+        ("watch", ""): keys(WatchSettings),
         ("indicator", ""): (keys(IndicatorConfig) | keys(AsciiIndicatorConfig)) - {"registers"},
         ("indicator", "registers"): keys(RegisterMap),
         ("robot", ""): set().union(*(keys(entry.config) for entry in ROBOT_KINDS.values()))

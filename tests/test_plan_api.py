@@ -233,3 +233,36 @@ def test_openapi_declares_the_plan_routes_statuses(client: TestClient) -> None:
     spec = client.get("/openapi.json").json()["paths"]["/api/v1/campaigns/{campaign_id}/plan"]
     assert {"400", "401", "404", "409", "413", "422"} <= set(spec["post"]["responses"])
     assert {"401", "404", "413", "422"} <= set(spec["get"]["responses"])
+
+
+def test_plan_downloads_as_csv_and_robot_programs(client: TestClient) -> None:
+    from calib.programs import DOWNLOAD_FORMATS, dwell_s_for_settle
+    from calib.programs.registry import parse_program
+
+    cid = _campaign(client)
+    r = client.post(f"/api/v1/campaigns/{cid}/plan", json=SMALL, headers=AUTH)
+    assert r.status_code == 201, r.text
+    planned = [_q(p) for p in r.json()["poses"]]
+    url = f"/api/v1/campaigns/{cid}/plan"
+    for fmt in DOWNLOAD_FORMATS:
+        r = client.get(url, headers=AUTH, params={"format": fmt})
+        assert r.status_code == 200, r.text
+        assert 'filename="campaign' in r.headers["content-disposition"].lower()
+        if fmt == "csv":
+            lines = r.text.splitlines()
+            assert lines[0].startswith("pose,q1,q2") and len(lines) == 1 + len(planned)
+            continue
+        back = parse_program(fmt, r.text)
+        assert len(back.joints_deg) == len(planned)
+        for got, want in zip(back.joints_deg, planned, strict=True):
+            assert max(abs(a - b) for a, b in zip(got, want, strict=True)) <= 0.0005 + 1e-9
+        # The default dwell follows the daemon's settle window.
+        settle_s = client.app.state.cablecal.settings.sampler.settle_s  # type: ignore[attr-defined]
+        assert back.dwell_s == dwell_s_for_settle(settle_s) > 2 * settle_s
+    for bad in ({"format": "gcode"}, {"format": "krl", "speed_pct": 0}):
+        r = client.get(url, headers=AUTH, params=bad)
+        assert r.status_code == 422, r.text
+    r = client.get(url, headers=AUTH, params={"format": "krl", "anchor": "Z"})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "anchor"], r.text
+    r = client.get(url, headers=AUTH, params={"format": "krl", "anchor": "A"})
+    assert r.status_code == 200 and "plan_A.src" in r.headers["content-disposition"]

@@ -18,7 +18,8 @@ from simulator.faces.base import free_loopback_host
 from simulator.runner import READY_KEYS
 
 
-def test_make_robot_dispatches_through_the_table() -> None:
+def test_make_robot_dispatches_through_the_table(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CABLECAL_ROBOT_PASSWORD", "for-the-kinds-with-a-login")
     for kind, entry in ROBOT_KINDS.items():
         config = entry.config.model_validate({"kind": kind})
         assert make_robot({"kind": kind}).__class__ is entry.driver
@@ -87,3 +88,19 @@ def test_auto_host_skips_a_taken_loopback_address() -> None:
         assert free_loopback_host(port, ("127.0.0.1", "127.0.0.3")) == "127.0.0.3"
     with pytest.raises(ValueError, match="not a loopback"):
         free_loopback_host(port, ("10.0.0.1",))
+
+
+def test_serve_refuses_a_password_file_others_can_read(tmp_path: Path) -> None:
+    """``cablecal serve`` checks the controller password's source before anything starts;
+    the error names the setting, the file and the fix, never the password."""
+    from daemon.cli.serve import load_settings
+
+    secret = write_secret(tmp_path / "rws-password", "hunter2-not-shown")
+    secret.chmod(0o644)
+    config = tmp_path / "cablecal.toml"
+    config.write_text(f'[robot]\nkind = "abb-rws"\npassword_file = "{secret}"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"robot\.password_file: .* mode 0644") as info:
+        load_settings(config, None, None, None)
+    assert "hunter2" not in str(info.value)
+    secret.chmod(0o600)
+    assert load_settings(config, None, None, None).robot.model_dump()["kind"] == "abb-rws"

@@ -14,6 +14,7 @@ from calib.tcp import joint_limits_deg
 from drivers import HuashuConfig, HuashuSocketCmdRobot, ModbusRobotConfig, ModbusTcpRobot
 from simulator.cell import EmulatedCell
 from simulator.config import SimConfig, load_config, with_ports
+from simulator.faces import FACES
 from simulator.poses import flange_and_hook_z_mm
 from simulator.runner import SimulatorThread
 
@@ -75,11 +76,16 @@ async def test_free_ports_by_default_and_two_cells_at_once() -> None:
         two = SimulatorThread(SimConfig(seed=2, indicator={"pty": False})).start()
         try:
             ports = [one.ports, two.ports]
+            faces = {face.ready_key for face in FACES.values()}
             for sim, p in zip((one, two), ports, strict=True):
-                assert set(p) == {"robot_socketcmd", "robot_modbus", "control"}
+                assert set(p) == {"robot_socketcmd", "robot_modbus", "control", *faces}
                 assert all(v > 0 for v in p.values())
                 assert p["robot_socketcmd"] == _hp(sim.ready["robot_socketcmd"])[1]
-            assert not set(ports[0].values()) & set(ports[1].values())
+            # No endpoint shared (the UR faces share port 30004 on distinct loopback hosts).
+            endpoints = [
+                {v for k, v in sim.ready.items() if k != "indicator_port"} for sim in (one, two)
+            ]
+            assert not (endpoints[0] & endpoints[1]) - {None}
             for sim in (one, two):  # each driver reads its own cell
                 sim.control("hold", on=True)
                 state = sim.control("state")

@@ -4,6 +4,8 @@ shifted truth model predicts."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,72 @@ def test_shift_joint_offset_rejects_bad_input(fields: dict[str, object], match: 
         with pytest.raises(RuntimeError, match=match):
             sim.control("shift_joint_offset", **fields)
         assert sim.control("truth")["values"] == before
+
+
+def test_move_anchor_and_drift_offset_follow_the_truth() -> None:
+    """``move_anchor`` moves the true P0 (lengths follow |p - P0'| + c); ``drift_offset``
+    adds a linear or first-order drift to every reading; ``truth`` reports both."""
+    cfg = SimConfig(indicator={"pty": False, "noise_mm": 0.0})
+    with SimulatorThread(cfg) as sim:
+        poses = np.array(sim.control("poses")["poses_deg"][:5])
+        before = np.array(sim.control("true_lengths", joints_deg=poses.tolist())["lengths_mm"])
+        reply = sim.control("move_anchor", delta_mm=[4, 0, -2])
+        assert reply["anchor_p0_mm"] == pytest.approx([1404.0, 300.0, 198.0])
+        assert reply["truth"]["anchor_p0_mm"] == pytest.approx([1404.0, 300.0, 198.0])
+        moved = np.array(sim.control("true_lengths", joints_deg=poses.tolist())["lengths_mm"])
+        # Independent prediction: calib's true cell with the moved anchor.
+        expected = make_true_cell(
+            builtin_model("hsr-jr680"), anchors_mm=np.array([[1404.0, 300.0, 198.0]])
+        ).lengths_mm(poses)
+        np.testing.assert_allclose(moved, expected, atol=1e-9)
+        assert np.abs(moved - before).max() > 1.0  # the bump is visible
+
+        sim.control("drift_offset", rate_mm_per_h=3600.0)  # 1 mm/s: measurable in a test
+        t0 = sim.control("truth")["drift"]["drift_mm"]
+        sim.control("hold", on=True)
+        time.sleep(0.3)
+        truth = sim.control("truth")
+        assert truth["drift"]["rate_mm_per_h"] == 3600.0
+        assert 0.25 < truth["drift"]["drift_mm"] - t0 < 1.0
+        assert truth["offset_mm"] == pytest.approx(-350.0 + truth["drift"]["drift_mm"], abs=0.05)
+        # A first-order drift saturates at rate * tau: 1 mm/s * 0.05 s = 0.05 mm more.
+        kept = sim.control("drift_offset", rate_mm_per_h=3600.0, tau_s=0.05)["truth"]
+        time.sleep(0.4)
+        settled = sim.control("truth")["drift"]["drift_mm"]
+        assert settled - kept["drift"]["drift_mm"] == pytest.approx(0.05, abs=0.002)
+
+
+def test_cell_drift_from_the_config_is_linear_in_time() -> None:
+    from simulator.cell import OffsetDrift
+
+    cfg = SimConfig(cell={"drift_rate_mm_per_h": 2.0})
+    cell = EmulatedCell(cfg)
+    assert cell.drift == OffsetDrift(2.0, 0.0, cell.drift.t0)
+    assert cell.drift_mm(cell.drift.t0 + 1800.0) == pytest.approx(1.0)
+    q = cell.poses_deg[:1]
+    base = cell.truth.lengths_mm(q)[0]
+    assert cell.true_lengths_mm(q, cell.drift.t0 + 3600.0)[0] == pytest.approx(base + 2.0)
+    with pytest.raises(ValueError, match="drift_rate_mm_per_h"):
+        SimConfig(cell={"drift_rate_mm_per_h": float("nan")})
+
+
+@pytest.mark.parametrize(
+    ("cmd", "fields", "match"),
+    [
+        ("move_anchor", {"delta_mm": [4, 0]}, "delta_mm: expected a list of 3"),
+        ("move_anchor", {}, "delta_mm: expected a list of 3"),
+        ("move_anchor", {"delta_mm": [4, "x", 0]}, r"delta_mm\[1\]: expected a number"),
+        ("move_anchor", {"delta_mm": [4, 0, 1e9]}, r"delta_mm\[2\]: .* outside"),
+        ("drift_offset", {}, "rate_mm_per_h: required"),
+        ("drift_offset", {"rate_mm_per_h": True}, "rate_mm_per_h: expected a number"),
+        ("drift_offset", {"rate_mm_per_h": 1.0, "tau_s": -1}, "tau_s: .* outside"),
+        ("drift_offset", {"rate_mm_per_h": 1e6}, "rate_mm_per_h: .* outside"),
+    ],
+)
+def test_disturbances_reject_bad_input(cmd: str, fields: dict[str, object], match: str) -> None:
+    with SimulatorThread(SimConfig(indicator={"pty": False})) as sim:
+        before = sim.control("truth")
+        with pytest.raises(RuntimeError, match=match):
+            sim.control(cmd, **fields)
+        after = sim.control("truth")
+        assert after["values"] == before["values"] and after["drift"] == before["drift"]

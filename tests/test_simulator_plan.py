@@ -170,3 +170,44 @@ async def test_load_poses_command_and_csv_over_the_control_port(tmp_path: Path) 
         with pytest.raises(RuntimeError, match="exactly one of"):
             sim.control("load_poses")
         assert sim.control("state")["n_poses"] == 4  # a failed load changes nothing
+
+
+@pytest.mark.parametrize("fmt", ["rapid", "urscript", "krl", "fanuc-ls"])
+def test_the_emulated_robot_runs_a_robot_program(tmp_path: Path, fmt: str) -> None:
+    from calib.programs.common import JointProgram, round_joints
+    from calib.programs.registry import write_program
+
+    program = JointProgram("CAL", round_joints(PLAN_DEG.tolist()), speed_pct=20, dwell_s=1)
+    path = tmp_path / f"CAL.{fmt}"
+    path.write_text(write_program(fmt, program))
+    cell = EmulatedCell(SimConfig(robot={"poses": str(path), "loop": False}))
+    np.testing.assert_allclose(cell.poses_deg, PLAN_DEG, atol=1e-9)  # its joint moves, in order
+    bad = JointProgram("CAL", ((0.0, 0.0, 20.0, 0.0, 0.0, 0.0),), speed_pct=20, dwell_s=1)
+    path.write_text(write_program(fmt, bad))
+    with pytest.raises(PoseCsvError, match=rf"\({fmt}\): target 1, q3: 20.0 deg is outside"):
+        cell.read_poses_csv(str(path))
+    path.write_text(write_program(fmt, program).replace("0.000", "0.0.0", 1))
+    with pytest.raises(PoseCsvError, match=rf"\({fmt}\): line \d+"):
+        cell.read_poses_csv(str(path))
+
+
+def test_cablecal_emulated_robot_run_loads_a_program(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from calib.programs.common import JointProgram, round_joints
+    from calib.programs.registry import write_program
+    from daemon.cli import app
+
+    path = tmp_path / "CAL_PLAN.LS"
+    program = JointProgram("CAL_PLAN", round_joints(PLAN_DEG.tolist()), speed_pct=20, dwell_s=1)
+    path.write_text(write_program("fanuc-ls", program))
+    with SimulatorThread(SimConfig(indicator={"pty": False})) as sim:
+        control = str(sim.ready["control"])
+        res = CliRunner().invoke(app, ["emulated-robot-run", str(path), "--control", control])
+        assert res.exit_code == 0, res.output
+        assert "the EMULATED robot runs CAL_PLAN.LS: 4 targets" in res.output
+        np.testing.assert_allclose(sim.control("poses")["poses_deg"], PLAN_DEG, atol=1e-9)
+        path.write_text("/PROG X\n/MN\n 1:J P[1] 50% CNT100 ;\n/POS\n/END\n")
+        res = CliRunner().invoke(app, ["emulated-robot-run", str(path), "--control", control])
+        assert res.exit_code == 2 and "CNT100 blends" in res.output
+        assert sim.control("state")["n_poses"] == 4  # a bad program changes nothing

@@ -47,6 +47,7 @@ class AppState:
     min_samples: MinSamplesCache
     sampler: Any = None
     drift: Any = None
+    watch: Any = None  # daemon.watch.SensorWatch, None until the lifespan has started it
     started_monotonic_s: float = field(default_factory=time.monotonic)
 
 

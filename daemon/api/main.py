@@ -29,6 +29,7 @@ from daemon.api.routes import (
     reports,
     robots,
     system,
+    watch,
 )
 from daemon.api.web import mount_web
 from daemon.config import Settings
@@ -36,6 +37,7 @@ from daemon.drift import DriftMonitor
 from daemon.jobs import JobManager
 from daemon.lifecycle import record_start
 from daemon.store import Store
+from daemon.watch import SensorWatch
 
 log = logging.getLogger("cablecal.service")
 
@@ -120,6 +122,10 @@ def create_app(
         try:
             state.sampler = (sampler_factory or _default_sampler)(state)
             await state.sampler.start()
+            state.watch = SensorWatch(state.store, settings.watch.step_settings(),
+                                      state.sampler, enabled=settings.watch.enabled)  # fmt: skip
+            if hasattr(state.sampler, "sink"):  # test doubles may store nothing
+                state.sampler.sink = state.watch.wrap(state.sampler.sink)
             for campaign in state.store.auto_capture_campaigns():
                 cid = int(campaign["id"])
                 state.sampler.set_auto(
@@ -142,6 +148,8 @@ def create_app(
         finally:
             if state.drift is not None:
                 await state.drift.stop()
+            if state.watch is not None:
+                await state.watch.stop()
             if state.sampler is not None:
                 await state.sampler.stop()
             await state.jobs.stop()
@@ -161,7 +169,8 @@ def create_app(
         RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
     )
     app.add_middleware(LatencyMiddleware)
-    for module in (system, live, campaigns, identifications, reports, robots, plans, apply):
+    for module in (system, live, campaigns, identifications, reports, robots, plans, apply,
+                   watch):  # fmt: skip
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
     errors.install(app)

@@ -216,4 +216,5 @@ class ServiceStatus(TypedDict):
     sampler: dict[str, Any] | None
     jobs: dict[str, Any]
     drift: dict[str, Any] | None
+    watch: dict[str, Any] | None
     uptime_s: float

@@ -17,11 +17,12 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import apply, calibration, db, plan, report, serve, simulate
+    from daemon.cli import apply, calibration, db, plan, program, report, serve, simulate
 
     calibration.register(app)
     plan.register(app)
     apply.register(app)
+    program.register(app)
     report.register(app)
     serve.register(app)
     db.register(app)

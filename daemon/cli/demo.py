@@ -78,6 +78,13 @@ def serve_cmd(
     console.print(f"  token          {token}")
     console.print(f"  database       {state_dir / 'cablecal.sqlite3'}")
     console.print(f"  logs           {state_dir / 'daemon.log'}, {state_dir / 'simulator.log'}")
+    if sim.ready.get("control"):
+        console.print(
+            f"  robot program  cablecal emulated-robot-run PLAN_FILE --control "
+            f"{sim.ready['control']}  (a plan downloaded from the page: the EMULATED robot "
+            "runs it)",
+            highlight=False,
+        )
     console.print(
         f"  try: curl -H 'Authorization: Bearer {token}' {daemon.url}/api/v1/status\n"
         "Ctrl-C stops both."

@@ -64,6 +64,12 @@ def load_settings(
             raise ConfigError("--simulated-cell: expected the JSON object of the READY line")
         overrides.update(simulated_cell_overrides(ready, settings, robot_kind))
         settings = Settings.load(config, **overrides)
+    check = getattr(settings.robot, "check", None)
+    if check is not None:
+        try:
+            check()  # e.g. the controller password's source, before anything starts
+        except ValueError as exc:
+            raise ConfigError(f"robot.{exc}") from exc
     return settings
 
 
@@ -165,7 +171,7 @@ def register(app: typer.Typer) -> None:
             None,
             "--robot-kind",
             help="With --simulated-cell: the emulated controller face the robot driver reads, "
-            "a [robot] kind other than manual (default huashu-socketcmd).",
+            "any robot kind but manual (default huashu-socketcmd).",
         ),
     ) -> None:
         """Run the daemon: sampler, SQLite store, identification jobs and the REST API."""

@@ -403,6 +403,17 @@ class Sampler:
             campaign_id, anchor, known_poses_deg, self._auto, now=time.monotonic()
         )
 
+    @property
+    def auto_anchor(self) -> str | None:
+        """The anchor auto mode captures with, or None."""
+        return None if self._auto is None else self._auto.anchor
+
+    def set_auto_anchor(self, anchor: str) -> None:
+        """Go on capturing in auto mode with another anchor id (the sensor moved); the poses
+        known stay known. No-op without auto mode."""
+        if self._auto is not None:
+            self._auto.anchor = anchor
+
     def _auto_step(self, now: float) -> None:
         """Take auto mode's decision for this cycle (:meth:`AutoState.decide`)."""
         auto = self._auto

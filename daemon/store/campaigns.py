@@ -399,6 +399,39 @@ class CampaignStore(RobotStore):
             )
             return self.sample(sample_id)
 
+    def move_samples_to_anchor(
+        self, campaign_id: int, sample_ids: Sequence[int], anchor: str
+    ) -> int:
+        """Put samples of a campaign in another anchor session (the sensor moved, or the
+        operator undoes that); one transaction. Returns the number of rows changed.
+
+        Raises
+        ------
+        StoreNotFound
+            No such campaign.
+        StoreInvalid
+            A blank anchor, or a sample id not of this campaign (nothing is changed).
+        """
+        anchor = _anchor(anchor)
+        ids = [int(i) for i in sample_ids]
+        with self._write():
+            self._require("campaigns", "campaign", campaign_id)
+            for start in range(0, len(ids), 500):
+                chunk = ids[start : start + 500]
+                marks = ", ".join("?" * len(chunk))
+                found = self.conn.execute(
+                    f"SELECT count(*) FROM samples WHERE campaign_id = ? AND id IN ({marks})",
+                    (campaign_id, *chunk),
+                ).fetchone()[0]
+                if found != len(set(chunk)):
+                    raise StoreInvalid(f"sample_ids: not all of {chunk} belong to campaign "
+                                       f"{campaign_id}")  # fmt: skip
+                self.conn.execute(
+                    f"UPDATE samples SET anchor = ? WHERE campaign_id = ? AND id IN ({marks})",
+                    (anchor, campaign_id, *chunk),
+                )
+        return len(set(ids))
+
     def sample_set(self, campaign_id: int) -> tuple[SampleSet, list[int]]:
         """The included samples as a :class:`SampleSet`, ordered by id.
 

@@ -59,3 +59,37 @@ def test_match_poses_tolerance_anchor_and_closest() -> None:
     assert match_poses(planned, ["A"] * 3, np.zeros((0, 6)), [], 0.5).tolist() == [-1, -1, -1]
     with pytest.raises(StoreInvalid, match="tol_deg"):
         match_poses(planned, ["A"] * 3, samples, ["A"] * 4, tol_deg=0.0)
+
+
+def test_a_result_off_the_plan_says_so_and_what_it_cost(
+    store: Store, campaign: dict[str, Any]
+) -> None:
+    """The issue's case: 40 planned poses, 31 samples at poses of the robot's own, TCP σ 0.84
+    mm against 0.063 planned: the result says 0 of 40 measured and the x13 cost."""
+    from calib.dataset import make_samples
+    from daemon.plan_check import add_plan_check
+
+    cid = campaign["id"]
+    base = np.array([0.0, -30.0, 150.0, 0.0, 20.0, 0.0])
+    step = np.array([2.0, 1.0, 1.0, 1.0, 0.5, -1.0])
+    plan_q = np.array([base + i * step for i in range(1, 41)])
+    poses = [{"pose": i + 1, **{f"q{j + 1}": float(v) for j, v in enumerate(q)}, "anchor": "A"}
+             for i, q in enumerate(plan_q)]  # fmt: skip
+    summary = {"tcp_sigma_mm": {"plan": {"rms": 0.063, "max": 0.1}}, "noise_mm": 0.05}
+    store.save_plan(cid, {}, summary, poses)
+    own = plan_q[:31] + 3.0  # the robot's own poses, 3 deg off the plan
+    ids = store.import_samples(cid, make_samples(own, np.full(31, 900.0), ["A"] * 31))
+    result: dict[str, Any] = {"tcp_uncertainty_mm": {"rms": 0.84, "max": 1.2}, "notes": []}
+    add_plan_check(store, cid, ids, result)
+    check = result["plan_check"]
+    assert (check["n_planned"], check["n_measured"], check["n_off_plan"]) == (40, 0, 31)
+    assert not check["on_plan"] and check["sigma_ratio"] == pytest.approx(0.84 / 0.063)
+    assert "0 of 40 planned poses measured, 31 samples off the plan" in result["notes"][0]
+    assert "0.840 mm against 0.063 mm planned (x13.33)" in result["notes"][0]
+    # On the plan (within the tolerance): no note, the check says so.
+    on = plan_q + 0.01
+    ids = store.import_samples(cid, make_samples(on, np.full(40, 900.0), ["A"] * 40))
+    result = {"tcp_uncertainty_mm": {"rms": 0.07, "max": 0.1}, "notes": []}
+    add_plan_check(store, cid, ids, result)
+    assert result["plan_check"]["on_plan"] and result["plan_check"]["n_off_plan"] == 0
+    assert result["notes"] == []

@@ -14,8 +14,10 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import Field, TypeAdapter, ValidationError
 
+from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import MAX_ID, JobId, ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import StrictBody
 from daemon.drift import CheckConflict, check_poses
 from daemon.store import CheckPoses, CheckRow
@@ -163,7 +165,7 @@ def _compensate(
     "/robots/{robot_id}/compensate",
     summary="Correct a program with the robot's accepted calibration",
     dependencies=[WriteAuth],
-    responses={200: {"content": {"text/csv": {}}}, **error_responses(400)},
+    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(400)},
     openapi_extra={
         "requestBody": {
             "required": True,
@@ -188,14 +190,19 @@ async def compensate_targets(
         description="q1,…,q6 [deg]: IK branch of x,y,z rows (default: the middle of each "
         "joint's limits).",
     ),
+    format: DownloadFormat | None = Query(None, description=FORMAT_HELP),
+    speed_pct: SpeedPct = DEFAULT_SPEED_PCT,
+    dwell_s: DwellS = None,
 ) -> Any:
     """Body: a CSV (``Content-Type: text/csv``, header ``q1..q6`` [deg] or ``x,y,z`` [mm]
     [+ ``rx,ry,rz`` deg]) or a JSON list of objects with the same keys (strict: numbers only,
     no other keys); at most :data:`MAX_TARGETS` targets and 4 MiB. Returns ``mode, kind,
     tool_mm, note, summary, rows`` (each row: corrected ``q1..q6``, ``residual_mm``,
     ``residual_deg``, ``iterations``, ``flags``), or the corrected CSV when the request
-    accepts ``text/csv``. 404 without an accepted calibration. Decoding, validation and the
-    IK run in a worker thread."""
+    accepts ``text/csv``. With ``format``, the corrected joint targets as a download: ``csv``,
+    or a robot program (``rapid``, ``urscript``, ``krl``, ``fanuc-ls``: each target a joint move
+    to a fine stop, then ``dwell_s``; a flagged target is a 422 naming its row). 404 without
+    an accepted calibration. Decoding, validation and the IK run in a worker thread."""
     tool = _numbers(tool_mm, 3, "tool_mm")
     seed = _numbers(seed_deg, 6, "seed_deg")
     state.store.accepted_result(robot_id)  # 404 before the body is read
@@ -205,6 +212,17 @@ async def compensate_targets(
         _compensate, state, robot_id, b"".join(chunks), is_csv, mode, tool, seed
     )
     csv_text = out.pop("csv")
+    if format is not None:
+        return download(
+            csv_text,
+            str(format.value),
+            stem=f"robot-{robot_id}-compensated",
+            model=state.store.robot_model(robot_id),
+            what=f"compensated targets of robot {robot_id}",
+            speed_pct=speed_pct,
+            dwell_s=dwell_s,
+            settle_s=state.settings.sampler.settle_s,
+        )
     if "text/csv" in request.headers.get("accept", ""):
         return Response(
             csv_text,

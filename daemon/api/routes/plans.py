@@ -8,6 +8,8 @@ come from :class:`calib.planning.PlanOptions` (one definition), and the plan's s
 from __future__ import annotations
 
 import asyncio
+import csv
+import io
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -17,10 +19,12 @@ from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS, SampleError, SampleSet
 from calib.models import RobotModel
-from calib.planning import PlanOptions, plan, start_anchors_mm
+from calib.planning import CSV_COLUMNS, PlanOptions, plan, start_anchors_mm
+from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
-from daemon.api.schemas import Anchor, StrictBody
+from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
+from daemon.api.schemas import MAX_ANCHOR_CHARS, Anchor, StrictBody
 from daemon.store import MATCH_TOL_DEG, match_poses
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
@@ -207,10 +211,21 @@ async def make_plan(
     return _view(state, stored, MATCH_TOL_DEG)
 
 
+def _plan_csv(stored: PlanRow) -> str:
+    """The stored plan's poses as ``cablecal plan`` writes them (columns ``CSV_COLUMNS``)."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows([{k: p.get(k) for k in CSV_COLUMNS} for p in stored["poses"]])
+    return buf.getvalue()
+
+
 @router.get(
     "/campaigns/{campaign_id}/plan",
     summary="The campaign's plan and its progress",
     dependencies=[ReadAuth],
+    response_model=PlanView,
+    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}},
 )
 def get_plan(
     state: State,
@@ -222,11 +237,38 @@ def get_plan(
         allow_inf_nan=False,
         description="Largest joint difference [deg] for a sample to count as a planned pose",
     ),
-) -> PlanView:
+    format: DownloadFormat | None = Query(None, description=FORMAT_HELP),
+    speed_pct: SpeedPct = DEFAULT_SPEED_PCT,
+    dwell_s: DwellS = None,
+    anchor: str | None = Query(
+        None,
+        min_length=1,
+        max_length=MAX_ANCHOR_CHARS,
+        description="Program formats, a plan for several anchors: this anchor's poses.",
+    ),
+) -> Any:
     """The newest plan: its options, summary (condition number, 1σ per base parameter,
     predicted TCP σ plan vs random, times) and poses in visiting order, each ``done`` (with
     the ``sample_id`` that measured it) or ``pending``. A pose is done when an included
     sample of the campaign at the same anchor has every joint within ``tol_deg`` of it, so
     manual, automatic and imported captures all count, and excluding a sample makes its pose
-    pending again. 404 when the campaign has no plan."""
-    return _view(state, state.store.latest_plan(campaign_id), tol_deg)
+    pending again. 404 when the campaign has no plan.
+
+    With ``format``, the poses as a download instead: ``csv`` (``cablecal plan``'s CSV) or a
+    robot program (each pose a joint move to a fine stop, then a dwell of ``dwell_s``, default
+    from the sampler's ``settle_s``; ``cablecal program`` writes the same)."""
+    stored = state.store.latest_plan(campaign_id)
+    if format is None:
+        return _view(state, stored, tol_deg)
+    model = state.store.robot_model(int(stored["robot_id"]))
+    return download(
+        _plan_csv(stored),
+        str(format.value),
+        stem=f"campaign-{campaign_id}-plan",
+        model=model,
+        what=f"plan {stored['id']} of campaign {campaign_id}",
+        speed_pct=speed_pct,
+        dwell_s=dwell_s,
+        settle_s=state.settings.sampler.settle_s,
+        anchor=anchor,
+    )

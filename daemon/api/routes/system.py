@@ -35,13 +35,15 @@ async def get_status(state: State) -> ServiceStatus:
     """Each device's connection state, last reading and its age, last error (with the last
     frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs; the
     last drift check (``drift``: ``state`` ok/drift/failed/none, ``last_check_at``, ``rms_mm``,
-    ``threshold_mm``, ``running``)."""
+    ``threshold_mm``, ``running``); the live sensor watch (``watch``: ``moves`` not undone,
+    per campaign the running fit and the last residual; :meth:`daemon.watch.SensorWatch.status`)."""
     st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
     return {
         "devices": st.get("devices", {}),
         "sampler": st.get("sampler"),
         "jobs": {"active": state.jobs.active},
         "drift": state.drift.status() if state.drift is not None else None,
+        "watch": state.watch.status() if state.watch is not None else None,
         "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
     }
 

@@ -1,6 +1,6 @@
 // View 2, Campaign: create and pick a campaign, plan poses, capture (manual with a joint form
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
-import { api, download } from "./api.js";
+import { api, download, saveBlob } from "./api.js";
 import { isManualRobot } from "./cell.js";
 import { $, changed, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, state } from "./ui.js";
 
@@ -206,6 +206,33 @@ async function setAuto(enabled) {
 }
 
 // ------------------------------------------------------------------ plan
+/** Download buttons of the plan, one per format of the REST enum (CSV and the robot programs
+ * the pendant runs); the file name is the one the daemon gives (a KRL or Fanuc program must
+ * keep it). */
+function renderPlanDownloads() {
+  const box = $("plan-downloads");
+  box.hidden = !plan || !state.downloadFormats.length;
+  const key = box.hidden ? "" : `${state.campaign.id}:${plan.id}`;
+  if (box.dataset.key === key) return; // drawn already: keep the buttons (and focus)
+  box.dataset.key = key;
+  if (box.hidden) return;
+  const fetchOne = async (fmt, anchor) => {
+    const q = anchor == null ? "" : `&anchor=${encodeURIComponent(anchor)}`;
+    const r = await api("GET", `/campaigns/${state.campaign.id}/plan?format=${fmt}${q}`, { raw: true });
+    const m = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
+    saveBlob(await r.blob(), m ? m[1] : `campaign-${state.campaign.id}-plan.${fmt}`);
+  };
+  // The sensor is moved by hand between anchors: one program per anchor (the CSV has all).
+  const anchors = [...new Set(plan.poses.map((p) => p.anchor))];
+  const choices = state.downloadFormats.flatMap((fmt) => (fmt === "csv" || anchors.length < 2
+    ? [[fmt, null]] : anchors.map((a) => [fmt, a])));
+  box.replaceChildren("Download the plan for the robot: ", ...choices.map(([fmt, anchor]) => {
+    const b = el("button", { type: "button", "data-format": fmt, "data-anchor": anchor }, anchor == null ? fmt : `${fmt} (sensor at ${anchor})`);
+    b.addEventListener("click", () => fetchOne(fmt, anchor).catch(() => {}));
+    return b;
+  }));
+}
+
 async function refreshPlan() {
   if (!hasRoute("GET", "/campaigns/{}/plan")) {
     $("plan-form").querySelector("button").disabled = true;
@@ -226,6 +253,7 @@ async function refreshPlan() {
 }
 
 function renderPlan() {
+  renderPlanDownloads();
   if (!plan) {
     setText("plan-summary", "No plan yet. A plan picks the poses that make the calibration most accurate; give the sensor position roughly (or plan on top of samples already taken).");
     fillTable($("plan-poses"), [], [], "none");

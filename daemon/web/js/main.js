@@ -4,6 +4,7 @@ import { initApply } from "./apply.js";
 import { initCampaign, restoreCampaign } from "./campaign.js";
 import { initCell } from "./cell.js";
 import { initIdentify } from "./identify.js";
+import { initWatch } from "./watch.js";
 import { $, changed, loadRoutes, onChange, setText, showMessage, state } from "./ui.js";
 
 const VIEWS = ["cell", "campaign", "identify", "apply"];
@@ -41,6 +42,7 @@ async function boot() {
   initCampaign();
   initIdentify();
   initApply();
+  initWatch();
   changed("campaign");
   await api("GET", "/health");
   await restoreCampaign();

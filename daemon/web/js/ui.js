@@ -116,6 +116,7 @@ export const state = {
   view: "cell",
   routes: new Set(), // "METHOD /path/{}" of every route in /openapi.json
   authRefused: false, // the daemon refused the token (401): polling pauses until a new one
+  downloadFormats: [], // the plan's download formats (csv, robot programs): the REST enum
 };
 
 const norm = (path) => path.replace(/\{[^}]*\}/g, "{}");
@@ -128,6 +129,7 @@ export async function loadRoutes() {
   for (const [path, ops] of Object.entries(spec.paths || {})) {
     for (const method of Object.keys(ops)) state.routes.add(`${method.toUpperCase()} ${norm(path)}`);
   }
+  state.downloadFormats = spec.components?.schemas?.DownloadFormat?.enum || [];
 }
 
 /** True when the daemon has route ``method path`` (path under /api/v1, ids as {name}). */

@@ -1,0 +1,106 @@
+"""Write and read programs by format name, and build one from a joint-target CSV."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Sequence
+from types import ModuleType
+
+from calib.programs import fanuc_ls, krl, rapid, urscript
+from calib.programs.common import (
+    JointProgram,
+    NameRule,
+    ProgramError,
+    check_limits,
+    read_targets_csv,
+    round_joints,
+)
+from calib.programs.formats import PROGRAM_FORMATS
+
+_MODULES: dict[str, ModuleType] = {
+    "rapid": rapid,
+    "urscript": urscript,
+    "krl": krl,
+    "fanuc-ls": fanuc_ls,
+}
+assert tuple(_MODULES) == PROGRAM_FORMATS
+
+
+def _module(fmt: str) -> ModuleType:
+    if fmt not in _MODULES:
+        raise ProgramError(f"format: {fmt!r} is not one of {', '.join(PROGRAM_FORMATS)}")
+    return _MODULES[fmt]
+
+
+def name_rule(fmt: str) -> NameRule:
+    """The controller's program-name rule of ``fmt``."""
+    rule: NameRule = _module(fmt).NAME_RULE
+    return rule
+
+
+def write_program(fmt: str, program: JointProgram) -> str:
+    """The text of ``program`` in format ``fmt`` (one of :data:`PROGRAM_FORMATS`)."""
+    writer: Callable[[JointProgram], str] = _module(fmt).write
+    return writer(program)
+
+
+def parse_program(fmt: str, text: str) -> JointProgram:
+    """Read a program of format ``fmt`` back; :class:`ProgramError` naming the line."""
+    parser: Callable[[str], JointProgram] = _module(fmt).parse
+    return parser(text)
+
+
+def detect_format(text: str) -> str:
+    """The format of a program text, or ``"csv"``, by its first statement: ``MODULE``
+    (RAPID), ``def name():`` (URScript), ``&``/``DEF`` (KRL), ``/PROG`` (Fanuc)."""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line or line.startswith(("!", ";", "#")):
+            continue
+        if re.match(r"MODULE\s", line, re.IGNORECASE):
+            return "rapid"
+        if re.match(r"def\s+\w+\s*\(", line):
+            return "urscript"
+        if line.startswith("&") or re.match(r"(GLOBAL\s+)?DEF\s", line, re.IGNORECASE):
+            return "krl"
+        if line.startswith("/PROG"):
+            return "fanuc-ls"
+        return "csv"
+    return "csv"
+
+
+def program_from_csv(
+    text: str,
+    *,
+    fmt: str,
+    name: str,
+    limits_deg: Sequence[Sequence[float]],
+    speed_pct: float,
+    dwell_s: float,
+    comments: Sequence[str] = (),
+    source: str = "targets",
+    created_utc: str = "",
+    anchor: str | None = None,
+) -> tuple[JointProgram, str]:
+    """A program of the joint targets in CSV ``text`` (a plan or compensated targets) and its
+    text in ``fmt``. Everything is checked before anything is returned: the CSV (row and
+    column; ``anchor`` picks one anchor's poses of a plan), the joints against
+    ``limits_deg`` (shape (6, 2) [deg]; row and joint), the name against the controller's
+    rule, the speed and the dwell.
+
+    Raises
+    ------
+    ProgramError
+    """
+    rule = name_rule(fmt)
+    targets = read_targets_csv(text, source, anchor)
+    check_limits(targets.joints_deg, limits_deg, targets.rows)
+    program = JointProgram(
+        name=rule.check(name),
+        joints_deg=round_joints(targets.joints_deg),
+        speed_pct=speed_pct,
+        dwell_s=dwell_s,
+        comments=tuple(comments),
+        created_utc=created_utc,
+    )
+    return program, write_program(fmt, program)

@@ -1,0 +1,111 @@
+"""Joint targets as a download: CSV, or a robot program (:mod:`calib.programs`).
+
+Used by ``GET /campaigns/{id}/plan?format=`` (the plan) and ``POST
+/robots/{id}/compensate?format=`` (the corrected targets). The format names, the speed
+default and the dwell rule come from :mod:`calib.programs.formats`; the dwell default from the
+running daemon's ``sampler.settle_s``.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from enum import Enum
+from typing import Annotated
+
+from fastapi import Query, Response
+
+from calib.models import RobotModel
+from calib.programs.common import SPEED_PCT_RANGE, ProgramError
+from calib.programs.formats import (
+    DEFAULT_SPEED_PCT,
+    DOWNLOAD_FORMATS,
+    SUFFIX,
+    TITLE,
+    dwell_s_for_settle,
+)
+from calib.programs.registry import name_rule, program_from_csv
+from calib.tcp import joint_limits_deg
+from daemon.api.errors import unprocessable
+
+#: ``format``: the REST enum, from the one list of formats.
+DownloadFormat = Enum(  # type: ignore[misc]
+    "DownloadFormat", {f.replace("-", "_"): f for f in DOWNLOAD_FORMATS}, type=str
+)
+
+FORMAT_HELP = "Download as: " + ", ".join(f"{f} ({TITLE[f]})" for f in DOWNLOAD_FORMATS)
+
+SpeedPct = Annotated[
+    float,
+    Query(
+        ge=SPEED_PCT_RANGE[0],
+        le=SPEED_PCT_RANGE[1],
+        allow_inf_nan=False,
+        description="Program formats: joint speed [% of the robot's maximum].",
+    ),
+]
+DwellS = Annotated[
+    float | None,
+    Query(
+        ge=0,
+        le=600,
+        allow_inf_nan=False,
+        description="Program formats: wait at each target [s]; default from the sampler's "
+        "settle_s.",
+    ),
+]
+
+#: Media type per format (programs are plain text).
+MEDIA_TYPE = {f: "text/csv" if f == "csv" else "text/plain" for f in DOWNLOAD_FORMATS}
+
+
+def download(
+    csv_text: str,
+    fmt: str,
+    *,
+    stem: str,
+    model: RobotModel,
+    what: str,
+    speed_pct: float = DEFAULT_SPEED_PCT,
+    dwell_s: float | None,
+    settle_s: float,
+    anchor: str | None = None,
+) -> Response:
+    """``csv_text`` (joint targets with ``q1..q6``) as an attachment in format ``fmt``. The
+    program is named from ``stem`` by the controller's rules, and so is the file (KRL and
+    Fanuc find a program by its file name). A target outside ``model``'s limits or flagged
+    is a 422 naming the row and joint."""
+    if fmt == "csv":  # every anchor's poses, as the plan has them
+        body, filename = csv_text, f"{stem}.csv"
+    else:
+        name = name_rule(fmt).from_text(stem if anchor is None else f"{stem}-{anchor}")
+        now = dt.datetime.now(dt.UTC).replace(microsecond=0)
+        dwell = dwell_s if dwell_s is not None else dwell_s_for_settle(settle_s)
+        try:
+            _, body = program_from_csv(
+                csv_text,
+                fmt=fmt,
+                name=name,
+                limits_deg=joint_limits_deg(model).tolist(),
+                speed_pct=speed_pct,
+                dwell_s=dwell,
+                comments=(
+                    f"cablecal {what}",
+                    f"robot {model.name}",
+                    f"made {now:%Y-%m-%d %H:%M} UTC",
+                    f"speed {speed_pct:g} %, dwell {dwell:g} s",
+                ),
+                source=what,
+                created_utc=f"{now:%Y-%m-%d %H:%M:%S}",
+                anchor=anchor,
+            )
+        except ProgramError as exc:
+            message = str(exc)
+            if message.startswith("anchor:"):
+                raise unprocessable(("query", "anchor"), message) from exc
+            raise unprocessable(("query", "format"), f"format: {exc}") from exc
+        filename = name + SUFFIX[fmt]
+    return Response(
+        body,
+        media_type=MEDIA_TYPE[fmt],
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
