@@ -47,6 +47,7 @@ bench: $(STAMP)
 	$(BIN)/python -m bench.api_bench
 	$(BIN)/python -m bench.sampler_priority
 	$(BIN)/python -m bench.web_bench
+	$(BIN)/python -m bench.cli_speed
 	$(BIN)/python -m bench.drift_watch
 
 # The README's screenshots of the operator page (docs/img/web-*.png), on a fresh emulated cell.

@@ -34,7 +34,8 @@ IK (:mod:`calib.ik`)
     nominal joints gives the smallest joint correction.
 
 Flags per row: ``ik_failed`` (residual above tolerance after ``max_iterations``),
-``outside_limits`` (corrected joints outside the model's limits), ``branch_jump`` (a joint
+``outside_limits:J<j>=<value><<limit>`` (a corrected joint outside the model's limits, one
+flag per joint), ``branch_jump`` (a joint
 moved by more than ``branch_threshold_deg`` from the seed, or the wrist flipped: the sign of
 ``(z4 × z6) · z5`` changed, ``z_k`` the axis of joint ``k``); for Cartesian targets also
 ``nominal_ik_failed`` and ``nominal_wrist_flip`` (the nominal solution's wrist differs from
@@ -160,12 +161,37 @@ class CartesianTargets:
 Targets = JointTargets | CartesianTargets
 
 
-def _outside_limits(model: RobotModel, joints_deg: FloatArray) -> np.ndarray:
+def _limit_flags(model: RobotModel, joints_deg: FloatArray) -> list[list[str]]:
+    """Per row, one ``outside_limits`` flag per joint beyond the model's limits, naming the
+    joint, its value and the limit crossed, e.g. ``outside_limits:J3=-80.000<-75.000``."""
     limits = model.joint_limits_deg
+    out: list[list[str]] = [[] for _ in range(joints_deg.shape[0])]
     if limits is None:
-        return np.zeros(joints_deg.shape[0], dtype=bool)
-    out: np.ndarray = np.any((joints_deg < limits[:, 0]) | (joints_deg > limits[:, 1]), axis=1)
+        return out
+    for i, j in zip(*np.nonzero(joints_deg < limits[:, 0]), strict=True):
+        out[i].append(f"outside_limits:J{j + 1}={joints_deg[i, j]:.3f}<{limits[j, 0]:.3f}")
+    for i, j in zip(*np.nonzero(joints_deg > limits[:, 1]), strict=True):
+        out[i].append(f"outside_limits:J{j + 1}={joints_deg[i, j]:.3f}>{limits[j, 1]:.3f}")
     return out
+
+
+def default_seed_deg(model: RobotModel) -> FloatArray:
+    """The IK seed of Cartesian targets when none is given, shape (6,) [deg]: the middle of
+    each joint's limits (zero without limits), inside the limits by construction."""
+    if model.joint_limits_deg is None:
+        return np.zeros(6)
+    out: FloatArray = np.round(model.joint_limits_deg.mean(axis=1), 3)
+    return out
+
+
+#: Decimals of the floats in :meth:`CompensateResult.to_csv` (0.001 deg / 0.001 mm).
+CSV_DECIMALS = 3
+
+
+def _csv_cell(value: Any) -> Any:
+    if isinstance(value, float):
+        return "" if not math.isfinite(value) else f"{value:.{CSV_DECIMALS}f}"
+    return value
 
 
 @dataclass
@@ -247,8 +273,10 @@ class CompensateResult:
         return rows
 
     def to_csv(self) -> str:
-        """CSV text of :meth:`csv_rows` (``q1..q6`` are the corrected joints)."""
-        rows = self.csv_rows()
+        """CSV text of :meth:`csv_rows` (``q1..q6`` are the corrected joints): angles and
+        lengths to :data:`CSV_DECIMALS` decimals (0.001 deg / 0.001 mm, finer than any
+        controller takes), a value that is not a number (no solution) left empty."""
+        rows = [{k: _csv_cell(v) for k, v in r.items()} for r in self.csv_rows()]
         out = io.StringIO()
         if rows:
             writer = csv.DictWriter(out, fieldnames=list(rows[0]), lineterminator="\n")
@@ -345,11 +373,13 @@ def compensate(
     q_cal = sol.joints_deg
     jump = np.max(np.abs(q_cal - q_nom), axis=1) > opts.branch_threshold_deg
     jump |= wrist_flipped(calibrated, q_nom, q_cal, opts.wrist_flip_min_deg)
-    for name, mask in (("ik_failed", ~sol.converged),
-                       ("outside_limits", _outside_limits(nominal, q_cal)),
-                       ("branch_jump", jump)):  # fmt: skip
-        for i in np.flatnonzero(mask):
-            flags[i].append(name)
+    limit_flags = _limit_flags(nominal, q_cal)
+    for i in np.flatnonzero(~sol.converged):
+        flags[i].append("ik_failed")
+    for row, named in zip(flags, limit_flags, strict=True):
+        row.extend(named)
+    for i in np.flatnonzero(jump):
+        flags[i].append("branch_jump")
     uncomp = np.linalg.norm(tool_pose(calibrated, q_nom, tool)[0] - target_pos, axis=1)
     corr_pos, corr_rot = tool_pose(nominal, q_cal, tool)
     result = CompensateResult(
@@ -376,7 +406,8 @@ def _summary(res: CompensateResult) -> dict[str, Any]:
     counts: dict[str, int] = {}
     for row in res.flags:
         for f in row:
-            counts[f] = counts.get(f, 0) + 1
+            kind = f.split(":")[0]  # outside_limits:J3=… counts as outside_limits
+            counts[kind] = counts.get(kind, 0) + 1
     return {
         "n": len(res.flags),
         "n_flagged": int(np.count_nonzero(~res.ok)),

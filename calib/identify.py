@@ -77,7 +77,7 @@ from calib.report import (
     uncertainty,
 )
 from calib.solvers import lm
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report
+from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sub_progress
 from calib.split import pose_groups, split_rows
 from calib.tcp import tcp_uncertainty_for_problem
 
@@ -276,11 +276,21 @@ def _weighed_solve(
     return used, detail, _solve(_problem(d, theta_start, free, used), used, progress)
 
 
-def _sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
+def _counting(progress: ProgressFn | None) -> ProgressFn | None:
+    """``progress`` with ``iteration``: the solvers' whole iterations (the calls that carry a
+    ``cost_rms_mm``) numbered 1, 2, … over the whole fit, every stage and round."""
     if progress is None:
         return None
-    outer = progress
-    return lambda f, msg: outer(lo + (hi - lo) * f, msg)
+    outer, count = progress, [0]
+
+    def counted(
+        f: float, msg: str, /, *, cost_rms_mm: float | None = None, iteration: int | None = None
+    ) -> None:
+        if cost_rms_mm is not None:
+            count[0] += 1
+        outer(f, msg, cost_rms_mm=cost_rms_mm, iteration=count[0] if count[0] else None)
+
+    return counted
 
 
 #: Most fits of the rejecting modes (the first, plain fit included).
@@ -333,15 +343,19 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
     seen: list[FloatArray] = []
     result: SolverResult | None = None
     total_iter, fits = 0, 0
+    history: list[float] = []
+    starts: list[int] = []
     x = problem.x0()
     u = np.zeros(n)
     for r in range(rounds):
         prob_r = problem.with_weights(weights)
         lo = 0.05 + 0.9 * r / rounds
         start = problem.x0() if rejecting else x
-        result = methods.run(prob_r, start, opts, _sub_progress(progress, lo, lo + 0.9 / rounds))
+        result = methods.run(prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds))
         total_iter += result.iterations
         fits += 1
+        starts.append(len(history))
+        history.extend(result.cost_history_rms_mm)
         x = result.x
         if opts.robust == "none":
             break
@@ -360,6 +374,7 @@ def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None)
         weights = new_w
     assert result is not None
     result.iterations = total_iter
+    result.cost_history_rms_mm, result.fit_starts = history, starts
     flagged = np.flatnonzero(weights == 0) if rejecting else np.flatnonzero(u > thr)
     return _Solved(result, problem.with_weights(weights), u, thr, flagged, fits, scr)
 
@@ -475,6 +490,7 @@ def identify(
         A bad option, or unknown parameter names in ``fix``/``free`` (a ``ValueError``).
     """
     opts = options or IdentifyOptions()
+    progress = _counting(progress)
     timer = Timer()
     d = _prepare(model, samples, opts, train_rows, test_rows)
     layout = d.layout

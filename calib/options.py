@@ -303,7 +303,9 @@ def training_rows_recommended(n_params: int) -> int:
 def samples_for_training_rows(training_rows: int, test_fraction: float) -> int:
     """The fewest samples whose training part ``n - round(test_fraction * n)`` (the random
     hold-out of :func:`validate`) is at least ``training_rows`` (``test_fraction`` < 1)."""
-    n = max(training_rows, 1)
+    # Below (training_rows - 0.5) / (1 - test_fraction) no n has enough training rows
+    # (n - round(f n) <= n (1 - f) + 0.5): start there, so the search takes a few steps.
+    n = max(training_rows, 1, int((training_rows - 0.5) / (1.0 - test_fraction)) - 1)
     while n - round(test_fraction * n) < training_rows:
         n += 1
     return n

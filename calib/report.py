@@ -139,6 +139,7 @@ class IdentifyResult:
             "success": bool(self.solver.success),
             "message": self.solver.message,
             "cost_history_rms_mm": [float(v) for v in self.solver.cost_history_rms_mm],
+            "cost_history_fit_starts": [int(i) for i in self.solver.fit_starts],
             "prior": self.prior
             or {
                 "used": self.options.prior,
@@ -156,6 +157,7 @@ class IdentifyResult:
                 "seed": self.options.seed,
                 "n_train": int(self.train_rows.size),
                 "n_test": int(self.test_rows.size),
+                "test_rows": [int(i) for i in self.test_rows],
             },
             "plausibility": self.plausibility,
             "notes": list(self.notes),

@@ -28,7 +28,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calib.cable import N_KIN, ParamLayout, kinematic_parts
 from calib.kinematics import N_JOINTS, FloatArray, forward_position, position_jacobian
@@ -203,6 +202,9 @@ def aligned_position_error_mm(points_mm: FloatArray, reference_mm: FloatArray) -
     if pa.ndim != 2 or pa.shape[1] != 3 or pa.shape != pb.shape or pa.shape[0] < 3:
         raise ValueError(f"points_mm, reference_mm: need equal shapes (m>=3, 3), got "
                          f"{pa.shape} and {pb.shape}")  # fmt: skip
+    # Imported here: identify (which needs the rest of this module) never aligns points.
+    from scipy.spatial.transform import Rotation
+
     ca, cb = pa.mean(axis=0), pb.mean(axis=0)
     rot, _ = Rotation.align_vectors(pb - cb, pa - ca)
     moved = rot.apply(pa - ca) + cb

@@ -77,8 +77,9 @@ class JobSettings(BaseModel):
     """Worker processes of the identification pool."""
     timeout_s: Annotated[float, Field(gt=0)] = 900.0
     """A job still running after this long [s] is cancelled and marked failed."""
-    noise_mm: Annotated[float, Field(gt=0)] = 0.05
-    """Assumed 1-sigma cable-length noise [mm] (weights the prior and the filters' R)."""
+    noise_mm: Annotated[float, Field(gt=0)] | None = None
+    """Assumed 1-sigma cable-length noise [mm] (weights the prior and the filters' R); unset:
+    calib's ``noise_mm`` default (:mod:`calib.options`), the same as ``cablecal identify``."""
     worker_nice: Annotated[int, Field(ge=0, le=19)] = 10
     """Niceness added to the worker processes, so the sampler keeps its poll rate during a job."""
     worker_blas_threads: Annotated[int, Field(ge=1, le=64)] = 1

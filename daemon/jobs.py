@@ -10,11 +10,16 @@ Design
   ``worker_blas_threads`` BLAS threads, so the sampler keeps its poll rate during a job.
 * A job gets a snapshot of the campaign's included samples at submission time, as plain lists
   (no precision lost), the nominal model as a mapping, and the options as a mapping.
-* Progress comes back through a manager queue; a thread takes it and commits the newest of each
+* Progress comes back through a manager queue as numbers (fraction, the fit's whole
+  ``iteration`` and its data RMS ``cost_rms_mm`` [mm]: see
+  :class:`~calib.solvers.common.ProgressFn`); a thread takes it and commits the newest of each
   job at most every ``PROGRESS_STORE_INTERVAL_S``, and a succeeded job's result is committed in
   a thread too: the event loop, which also runs the sampler, never waits for those fsyncs.
   Cancellation goes out through a manager dict the worker's progress callback polls, raising
   :class:`calib.solvers.common.Cancelled`. A queued job is cancelled by cancelling its future.
+* A robot has one current calibration (``robots.current_identification_id``). A robot's first
+  plausible result becomes current automatically (``auto_accept``); a later one waits for
+  ``POST /identifications/{id}/accept``, so the operator compares old and new first.
 * The store holds every state change, so a restart finds each job queued, running or finished;
   :meth:`daemon.store.Store.mark_interrupted` turns the unfinished ones into ``failed``.
 """
@@ -40,7 +45,7 @@ import numpy as np
 from calib.options import default as default_option
 from daemon import metrics
 from daemon.config import JobSettings
-from daemon.store import StoreNotFound
+from daemon.store import JOB_FINISHED, JobState, StoreNotFound
 from daemon.workers import init_child
 
 log = logging.getLogger("cablecal.jobs")
@@ -51,12 +56,8 @@ PROGRESS_INTERVAL_S = 0.2
 PROGRESS_STORE_INTERVAL_S = 0.5
 #: The error of a job whose worker process died under it (killed, out of memory).
 WORKER_DIED = "the worker process died (killed or out of memory); the job can be started again"
-#: Job states after which nothing changes.
-FINISHED = ("succeeded", "failed", "cancelled")
-
-
-#: Identification option name → its name in the REST request body, where they differ.
-_REST_NAMES = {"fix": "fixed"}
+#: Key of the worker's result that carries its final ``[iteration, cost_rms_mm]``.
+_FINAL_PROGRESS = "_final_progress"
 
 
 class JobError(ValueError):
@@ -94,8 +95,9 @@ def run_identification(
     options : dict
         Keyword arguments of :class:`calib.options.IdentifyOptions`.
     progress_queue, cancel_flags
-        Manager proxies: ``(job_id, fraction, message)`` tuples go out; ``cancel_flags[job_id]``
-        set true asks the job to stop.
+        Manager proxies: ``(job_id, fraction, message, iteration, cost_rms_mm)`` tuples go
+        out (the last two None until the solver finishes its first iteration);
+        ``cancel_flags[job_id]`` set true asks the job to stop.
     t_s : list of n floats, optional
         Capture time of each sample [s] (:meth:`daemon.store.Store.sample_set`), for the
         drift model; None: the row order.
@@ -116,18 +118,32 @@ def run_identification(
     if t_s is not None:  # capture times for the drift model
         samples = dataclasses.replace(samples, t_s=np.asarray(t_s, dtype=float))
     opts = options_from_mapping(options)
-    progress_queue.put((job_id, 0.0, "started"))
+    progress_queue.put((job_id, 0.0, "started", None, None))
     last = [time.monotonic()]
+    newest: list[Any] = [None, None]  # the newest (iteration, cost_rms_mm), kept between sends
 
-    def progress(fraction: float, message: str) -> None:
+    def progress(
+        fraction: float,
+        message: str,
+        /,
+        *,
+        cost_rms_mm: float | None = None,
+        iteration: int | None = None,
+    ) -> None:
         if cancel_flags.get(job_id):
             raise Cancelled(f"job {job_id} cancelled")
+        if cost_rms_mm is not None and iteration is not None:
+            newest[:] = [int(iteration), float(cost_rms_mm)]
         now = time.monotonic()
         if now - last[0] >= PROGRESS_INTERVAL_S or fraction >= 1.0:
             last[0] = now
-            progress_queue.put((job_id, float(fraction), message))
+            progress_queue.put((job_id, float(fraction), message, *newest))
 
-    return identify(model, samples, opts, progress=progress).to_json()
+    out = identify(model, samples, opts, progress=progress).to_json()
+    # The newest iteration and cost, for the job row (the last queued message may arrive
+    # after the job is marked finished and is then dropped).
+    out[_FINAL_PROGRESS] = list(newest)
+    return out
 
 
 class JobManager:
@@ -229,15 +245,16 @@ class JobManager:
         campaign = self.store.get_campaign(campaign_id)
         if campaign is None:
             raise StoreNotFound("campaign", campaign_id)
-        opts = {"noise_mm": self.settings.noise_mm, **dict(options)}
+        opts = dict(options)
+        if self.settings.noise_mm is not None:
+            opts.setdefault("noise_mm", self.settings.noise_mm)
         samples, sample_ids = self.store.sample_set(campaign_id)
         robot_id = int(campaign["robot_id"])
         model = self.store.robot_model(robot_id)
         try:
             validate(samples, options_from_mapping(opts), model=model)
         except OptionError as exc:
-            # The REST body spells ``fix`` as ``fixed``.
-            raise JobError(f"{_REST_NAMES.get(exc.field, exc.field)}: {exc.reason}") from exc
+            raise JobError(str(exc)) from exc
         except (TypeError, ValueError) as exc:
             raise JobError(f"campaign {campaign_id}: {exc}") from exc
         job = self.store.create_job(
@@ -268,7 +285,7 @@ class JobManager:
         job = self.store.get_job(job_id)
         if job is None:
             raise StoreNotFound("identification", job_id)
-        if job["status"] in FINISHED:
+        if job["status"] in JOB_FINISHED:
             return dict(job)
         future = self._futures.get(job_id)
         if future is not None and future.cancel():
@@ -289,14 +306,14 @@ class JobManager:
     ) -> None:
         method = str(opts.get("method", default_option("method")))
         t0 = time.monotonic()
-        status = "failed"
+        status = JobState.FAILED
         try:
             # Marked running once a worker picks it up (first progress) or here on start.
             result = await asyncio.wait_for(
                 asyncio.wrap_future(future), timeout=self.settings.timeout_s
             )
         except asyncio.CancelledError:
-            status = "cancelled"
+            status = JobState.CANCELLED
             self._finish(job_id, status, error="cancelled before it started")
             if not future.cancelled():
                 raise
@@ -311,20 +328,22 @@ class JobManager:
             from calib.solvers.common import Cancelled
 
             if isinstance(exc, Cancelled):
-                status = "cancelled"
+                status = JobState.CANCELLED
                 self._finish(job_id, status, error="cancelled while running")
             else:
                 log.exception("identification job %d failed", job_id, extra={"job_id": job_id})
                 self._finish(job_id, status, error=f"{type(exc).__name__}: {exc}")
         else:
-            status = "succeeded"
+            status = JobState.SUCCEEDED
             result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
+            split = result.get("split") or {}
+            split["test_sample_ids"] = [sample_ids[i] for i in split.get("test_rows", [])]
             await asyncio.to_thread(self._succeeded, job_id, result, sample_ids)
         finally:
-            metrics.JOBS.labels(method, status).inc()
-            if status == "failed":
+            metrics.JOBS.labels(method, status.value).inc()
+            if status is JobState.FAILED:
                 metrics.IDENTIFICATIONS_FAILED.inc()
-            metrics.JOB_DURATION.labels(method, status).observe(time.monotonic() - t0)
+            metrics.JOB_DURATION.labels(method, status.value).observe(time.monotonic() - t0)
             self._futures.pop(job_id, None)
             self._tasks.pop(job_id, None)
             if self._cancel is not None:
@@ -334,9 +353,14 @@ class JobManager:
     def _succeeded(
         self, job_id: int, result: dict[str, Any], sample_ids: list[int] | None = None
     ) -> None:
-        """Store a succeeded job's result (and accept it if plausible); runs in a thread.
-        With ``sample_ids`` (the samples identified), the result says whether they followed
-        the campaign's plan (:mod:`daemon.plan_check`)."""
+        """Store a succeeded job's result; it becomes the robot's current calibration only
+        when it is plausible and the robot has none yet (runs in a thread). With
+        ``sample_ids`` (the samples identified), the result says whether they followed the
+        campaign's plan (:mod:`daemon.plan_check`)."""
+        iteration, cost = result.pop(_FINAL_PROGRESS, None) or (None, None)
+        if iteration is not None and cost is not None:
+            with self._row_lock:
+                self.store.update_job(job_id, iteration=int(iteration), cost_rms_mm=float(cost))
         if sample_ids is not None:
             from daemon.plan_check import add_plan_check
 
@@ -347,21 +371,25 @@ class JobManager:
                 except Exception:  # the check must never lose a result
                     log.exception("plan check of job %d failed", job_id)
         plausible = bool(result.get("plausibility", {}).get("plausible", False))
-        accepted = self.settings.auto_accept and plausible
+        robot_id = int(self.store.job(job_id)["robot_id"])
+        current = self.store.current_job_id(robot_id)
+        accepted = self.settings.auto_accept and plausible and current is None
         self.store.save_result(job_id, result, accepted=accepted)
         if accepted:
-            message = "accepted"
+            message = "accepted: the robot's first calibration"
         elif not plausible:
             message = "not accepted: parameters implausible"
+        elif current is not None:
+            message = f"waiting for Accept: compare with the current calibration (job {current})"
         else:
             message = "not accepted automatically"
-        self._finish(job_id, "succeeded", message=message)
+        self._finish(job_id, JobState.SUCCEEDED, message=message)
 
     def _finish(
-        self, job_id: int, status: str, message: str = "", error: str | None = None
+        self, job_id: int, status: JobState, message: str = "", error: str | None = None
     ) -> None:
-        fields: dict[str, Any] = {"status": status, "finished_at": time.time()}
-        if status == "succeeded":
+        fields: dict[str, Any] = {"status": status.value, "finished_at": time.time()}
+        if status is JobState.SUCCEEDED:
             fields["progress"] = 1.0
         if message:
             fields["message"] = message
@@ -391,18 +419,27 @@ class JobManager:
             while True:
                 message = self._progress.get_nowait()
                 newest[message[0]] = message
-        for job_id, fraction, text in newest.values():
-            self._store_progress(int(job_id), float(fraction), str(text))
+        for job_id, fraction, text, iteration, cost in newest.values():
+            self._store_progress(int(job_id), float(fraction), str(text), iteration, cost)
         self._stopping.wait(PROGRESS_STORE_INTERVAL_S)
 
-    def _store_progress(self, job_id: int, fraction: float, message: str) -> None:
+    def _store_progress(
+        self,
+        job_id: int,
+        fraction: float,
+        message: str,
+        iteration: int | None,
+        cost_rms_mm: float | None,
+    ) -> None:
         with self._row_lock:
             if self._stopping.is_set():
                 return
             job = self.store.get_job(job_id)
-            if job is None or job["status"] in FINISHED:
+            if job is None or job["status"] in JOB_FINISHED:
                 return
             fields: dict[str, Any] = {"progress": min(max(fraction, 0.0), 0.99), "message": message}
-            if job["status"] == "queued":
-                fields.update(status="running", started_at=time.time())
+            if iteration is not None and cost_rms_mm is not None:
+                fields.update(iteration=int(iteration), cost_rms_mm=float(cost_rms_mm))
+            if job["status"] == JobState.QUEUED:
+                fields.update(status=JobState.RUNNING.value, started_at=time.time())
             self.store.update_job(job_id, **fields)

@@ -24,7 +24,7 @@ from daemon.api.main import create_app
 from daemon.capture import Capture, CaptureRejected
 from daemon.config import Settings
 from daemon.datafiles import read_samples
-from daemon.store import Store
+from daemon.store import JOB_FINISHED, Store
 
 TOKEN = "test-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -117,7 +117,7 @@ def _wait_job(client: TestClient, job_id: int, timeout_s: float = 90) -> dict[st
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         job = client.get(f"/api/v1/identifications/{job_id}", headers=AUTH).json()
-        if job["status"] in ("succeeded", "failed", "cancelled"):
+        if job["status"] in JOB_FINISHED:
             return dict(job)
         time.sleep(0.2)
     raise AssertionError(f"job {job_id} did not finish: {job}")
@@ -316,7 +316,7 @@ def test_identification_job_result_and_calibrated_model(client: TestClient) -> N
     assert r.status_code == 202, r.text
     job = _wait_job(client, r.json()["id"])
     assert job["status"] == "succeeded", job
-    assert job["progress"] == 1.0
+    assert job["progress"]["fraction"] == 1.0
     result = job["result"]
     for key in ("robot", "method", "dh", "dh_error", "tool_mm", "anchor_mm", "metrics"):
         assert key in result
@@ -334,6 +334,89 @@ def test_identification_job_result_and_calibrated_model(client: TestClient) -> N
         assert r.status_code == 200 and r.json()["accepted"] is True
     model = client.get(f"/api/v1/robots/{robot_id}/calibrated-model", headers=AUTH).json()
     assert model["job_id"] == job["id"] and len(model["dh"]) == 6
+
+
+@pytest.mark.slow
+def test_one_current_calibration_until_accept_and_numeric_progress(client: TestClient) -> None:
+    """Operator facts: a robot has exactly one current calibration; a second result waits for
+    Accept (compared on the same held-out rows); de and ukf-vslm report numeric progress."""
+    cid = _campaign(client, "current")
+    client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=_real_csv(100),
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
+    robot_id = client.get(f"/api/v1/campaigns/{cid}", headers=AUTH).json()["robot_id"]
+    url = f"/api/v1/campaigns/{cid}/identifications"
+
+    def run(method: str, robust: str = "auto") -> dict[str, Any]:
+        body = {"method": method, "seed": 2, "robust": robust}
+        r = client.post(url, json=body, headers=AUTH)
+        assert r.status_code == 202, r.text
+        job = _wait_job(client, r.json()["id"])
+        assert job["status"] == "succeeded", job
+        progress = job["progress"]
+        assert isinstance(progress["cost_rms_mm"], float) and progress["cost_rms_mm"] > 0
+        assert isinstance(progress["iteration"], int) and progress["iteration"] >= 1
+        return job
+
+    first = run("ukf-vslm")
+    client.post(f"/api/v1/identifications/{first['id']}/accept", headers=AUTH)
+    # de: numeric progress while it runs, then the operator cancels it.
+    r = client.post(url, json={"method": "de", "robust": "none"}, headers=AUTH)
+    de_id = r.json()["id"]
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        de = client.get(f"/api/v1/identifications/{de_id}", headers=AUTH).json()
+        if de["progress"]["cost_rms_mm"] is not None or de["status"] in JOB_FINISHED:
+            break
+        time.sleep(0.2)
+    assert isinstance(de["progress"]["cost_rms_mm"], float), de
+    assert isinstance(de["progress"]["iteration"], int), de
+    client.delete(f"/api/v1/identifications/{de_id}", headers=AUTH)
+    assert _wait_job(client, de_id)["status"] in ("cancelled", "succeeded")
+    second = run("lm")
+    assert second["current"] is False and "waiting for Accept" in second["message"]
+    listed = client.get(url, headers=AUTH).json()
+    assert [j["id"] for j in listed if j["current"]] == [first["id"]]
+    robot = client.get(f"/api/v1/robots/{robot_id}", headers=AUTH).json()
+    assert robot["current_identification_id"] == first["id"]
+    cmp = client.get(f"/api/v1/identifications/{second['id']}/compare", headers=AUTH).json()
+    assert cmp["n_rows"] == second["result"]["split"]["n_test"] == 20
+    assert cmp["current"]["job_id"] == first["id"] and cmp["new"]["job_id"] == second["id"]
+    assert cmp["new"]["test_rmse_mm"] == pytest.approx(
+        second["result"]["metrics"]["after"]["test"]["rmse_mm"], rel=1e-6
+    )
+    assert cmp["changed"] and all(abs(c["change"]) > 1e-3 for c in cmp["changed"])
+    r = client.post(f"/api/v1/identifications/{second['id']}/accept", headers=AUTH)
+    assert r.status_code == 200 and r.json()["current"] is True
+    assert r.json()["message"] == f"accepted: the current calibration (replaces job {first['id']})"
+    listed = client.get(url, headers=AUTH).json()
+    assert [j["id"] for j in listed if j["current"]] == [second["id"]]
+    spec = client.get("/api/v1/options/identify", headers=AUTH).json()
+    names = [f["name"] for f in spec["fields"]]
+    assert names[:2] == ["method", "test_fraction"] and "fix" in names and "fixed" not in names
+    assert "de" in spec["fields"][0]["choices"] and "succeeded" in spec["finished_states"]
+
+
+def test_identification_readiness_applies_the_rule_for_the_page(client: TestClient) -> None:
+    cid = _campaign(client, "ready")
+    client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=_real_csv(40),
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
+    url = f"/api/v1/campaigns/{cid}/identification-readiness"
+    r = client.get(url, headers=AUTH).json()
+    camp = client.get(f"/api/v1/campaigns/{cid}", headers=AUTH).json()
+    assert (r["n_train"], r["n_test"], r["ready"]) == (32, 8, True)
+    assert r["min_samples"] == camp["min_samples_to_identify"]
+    r = client.get(url, params={"test_fraction": 0.5}, headers=AUTH).json()
+    assert (r["n_train"], r["ready"]) == (20, False) and r["min_samples"] > 40
+    r = client.get(url, params={"test_fraction": 0.9999999}, headers=AUTH).json()
+    assert r["min_samples"] is None and r["ready"] is False  # answered at once, not searched
+    assert client.get(url, params={"test_fraction": "abc"}, headers=AUTH).status_code == 422
+    assert client.get(url, params={"test_fraction": 1.0}, headers=AUTH).status_code == 422
 
 
 def test_identification_bad_options(client: TestClient) -> None:

@@ -239,16 +239,31 @@ def _convergence(result: Mapping[str, Any]) -> str:
     if finite.size < 2:
         return "<p>No cost history in this result (the method records none).</p>"
     log_y = bool(finite.max() / finite.min() > 20.0)
+    # One series per fit (robust rounds restart, so the cost may rise between them); the x
+    # axis counts whole iterations over the fits, each fit's start sharing its predecessor's
+    # last iteration number.
+    starts = sorted({int(i) for i in get_list(result, "cost_history_fit_starts")
+                     if isinstance(i, int) and 0 <= i < history.size} | {0})  # fmt: skip
+    bounds = [*starts, history.size]
+    series, x0 = [], 0
+    for k in range(len(starts)):
+        part = history[bounds[k] : bounds[k + 1]]
+        label = "RMS residual" if k == 0 else f"fit {k + 1} (after robust reweighting)"
+        series.append(Series(label, x0 + np.arange(part.size, dtype=float), part,
+                             "series-cost", markers=history.size <= 60))  # fmt: skip
+        x0 += max(part.size - 1, 0)
     chart = line_chart(
-        "chart-convergence", "RMS training residual at each iteration",
-        [Series("RMS residual", np.arange(history.size, dtype=float), history, "series-cost",
-                markers=history.size <= 60)],
+        "chart-convergence", "RMS training residual at each iteration", series,
         "iteration", "RMS residual [mm]" + (" (log scale)" if log_y else ""), log_y=log_y,
     )  # fmt: skip
+    fits = len(starts)
+    how = ""
+    if fits > 1:
+        how = (f" in {fits} fits: the robust step reweighted the rows and refit, and each "
+               "fit's curve starts again from its own start, so it may rise there")  # fmt: skip
     return (
         f"<p>RMS residual of the training set from the start ({num_fixed(history[0], 3)} mm) "
-        f"to the end ({num_fixed(history[-1], 3)} mm) over {history.size - 1} recorded "
-        "iterations.</p>"
+        f"to the end ({num_fixed(history[-1], 3)} mm) over {x0} iterations{how}.</p>"
         f"<figure>{chart}<figcaption>Figure 3. Convergence of the identification "
         "(<code>cost_history_rms_mm</code>).</figcaption></figure>"
     )

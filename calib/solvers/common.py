@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, TypeVar, cast
 
@@ -14,8 +13,26 @@ from calib.kinematics import FloatArray, IndexArray
 if TYPE_CHECKING:
     from calib.problem import Evaluation, Problem
 
-#: ``progress(fraction_done, message)``; may raise :class:`Cancelled` to stop the solver.
-ProgressFn = Callable[[float, str], None]
+
+class ProgressFn(Protocol):
+    """``progress(fraction_done, message, cost_rms_mm=…, iteration=…)``; may raise
+    :class:`Cancelled` to stop the solver.
+
+    A solver passes ``cost_rms_mm`` (the data RMS residual [mm], a number) once per whole
+    iteration (epoch, generation) it finishes, and only then; :func:`calib.identify.identify`
+    numbers those calls 1, 2, … over the whole fit (every stage and robust round) as
+    ``iteration``.
+    """
+
+    def __call__(
+        self,
+        fraction: float,
+        message: str,
+        /,
+        *,
+        cost_rms_mm: float | None = None,
+        iteration: int | None = None,
+    ) -> None: ...
 
 
 class Cancelled(Exception):
@@ -40,6 +57,9 @@ class SolverResult:
     cost_history_rms_mm : list of float
         Data RMS residual [mm] after each iteration (index 0 = start).
     elapsed_s : float
+    fit_starts : list of int
+        Index into ``cost_history_rms_mm`` where each fit begins (robust rounds of
+        :func:`calib.identify.identify` concatenate theirs; a new fit's cost may rise).
     """
 
     method: str
@@ -50,6 +70,7 @@ class SolverResult:
     iterations: int
     cost_history_rms_mm: list[float] = field(default_factory=list)
     elapsed_s: float = 0.0
+    fit_starts: list[int] = field(default_factory=lambda: [0])
 
 
 class Timer:
@@ -235,9 +256,14 @@ def sample_batches(
     return out
 
 
-def report(progress: ProgressFn | None, fraction: float, message: str) -> None:
+def report(
+    progress: ProgressFn | None, fraction: float, message: str, cost_rms_mm: float | None = None
+) -> None:
+    """Call ``progress`` (if any) with the fraction clipped to 0–1; ``cost_rms_mm`` [mm] only
+    at the end of a whole iteration (see :class:`ProgressFn`)."""
     if progress is not None:
-        progress(min(max(fraction, 0.0), 1.0), message)
+        cost = None if cost_rms_mm is None else float(cost_rms_mm)
+        progress(min(max(fraction, 0.0), 1.0), message, cost_rms_mm=cost)
 
 
 def sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressFn | None:
@@ -245,7 +271,13 @@ def sub_progress(progress: ProgressFn | None, lo: float, hi: float) -> ProgressF
     if progress is None:
         return None
     outer = progress
-    return lambda f, msg: outer(lo + (hi - lo) * f, msg)
+
+    def stage(
+        f: float, msg: str, /, *, cost_rms_mm: float | None = None, iteration: int | None = None
+    ) -> None:
+        outer(lo + (hi - lo) * f, msg, cost_rms_mm=cost_rms_mm, iteration=iteration)
+
+    return stage
 
 
 _O = TypeVar("_O")

@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import differential_evolution
 
 from calib.kinematics import FloatArray
 from calib.problem import Problem
@@ -73,7 +72,15 @@ def solve(
         generation[0] += 1
         x_best = np.asarray(getattr(intermediate_result, "x", start))
         history.append(problem.data_rms_mm(x_best))
-        report(progress, generation[0] / opts.max_generations, f"{method} generation")
+        report(
+            progress,
+            generation[0] / opts.max_generations,
+            f"{method} generation {generation[0]}, rms {history[-1]:.4f} mm",
+            history[-1],
+        )
+
+    # Imported here: scipy.optimize costs ~0.4 s, which no other method needs.
+    from scipy.optimize import differential_evolution
 
     res = differential_evolution(
         cost,

@@ -78,7 +78,12 @@ def solve(
             ikh = np.eye(k) - gain @ h
             p = ikh @ p @ ikh.T + gain @ np.diag(noise_var / weights) @ gain.T  # Joseph form
         history.append(problem.data_rms_mm(x))
-        report(progress, (epoch + 1) / opts.epochs, f"{method} epoch {epoch + 1} done")
+        report(
+            progress,
+            (epoch + 1) / opts.epochs,
+            f"{method} epoch {epoch + 1} done, rms {history[-1]:.4f} mm",
+            history[-1],
+        )
     return SolverResult(
         method=method,
         x=x,

@@ -238,9 +238,15 @@ def descend(
                 break
             lam *= nu
             nu *= 2.0
-        report(progress, it / opts.max_iterations, f"{method} iteration {it}")
         if not accepted:
             gn.history.append(gn.history[-1])
+        report(
+            progress,
+            it / opts.max_iterations,
+            f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
+            gn.history[-1],
+        )
+        if not accepted:
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
         costs.append(gn.cost)

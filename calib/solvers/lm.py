@@ -99,6 +99,7 @@ def solve(gn: GaussNewton, opts: LMOptions, progress: ProgressFn | None) -> Solv
             progress,
             it / opts.max_iterations,
             f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
+            gn.history[-1],
         )
         if status:
             break

@@ -153,6 +153,7 @@ def solve(
             progress,
             (epoch + 1) / opts.epochs,
             f"{method} epoch {epoch + 1} done, rms {history[-1]:.4f} mm",
+            history[-1],
         )
     return SolverResult(
         method=method,

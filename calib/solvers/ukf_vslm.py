@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from calib.kinematics import FloatArray
 from calib.problem import Problem
 from calib.solvers import ukf, vslm
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report
+from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sub_progress
 
 
 @dataclass(frozen=True)
@@ -52,17 +52,15 @@ def solve(
     opts = options or UKFVSLMOptions()
     timer = Timer()
 
-    def stage(lo: float, hi: float) -> ProgressFn | None:
-        if progress is None:
-            return None
-        outer = progress
-        return lambda f, msg: outer(lo + (hi - lo) * f, msg)
-
-    first = ukf.solve(problem, x0, p0, opts.ukf, stage(0.0, 0.5), method=f"{method}/ukf")
+    first = ukf.solve(
+        problem, x0, p0, opts.ukf, sub_progress(progress, 0.0, 0.5), method=f"{method}/ukf"
+    )
     if first.status < 0:
         first.method = method
         return first
-    second = vslm.solve(problem, first.x, opts.vslm, stage(0.5, 1.0), method=f"{method}/vslm")
+    second = vslm.solve(
+        problem, first.x, opts.vslm, sub_progress(progress, 0.5, 1.0), method=f"{method}/vslm"
+    )
     report(progress, 1.0, f"{method} done")
     return SolverResult(
         method=method,

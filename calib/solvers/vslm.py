@@ -116,13 +116,15 @@ def solve(gn: GaussNewton, opts: VSLMOptions, progress: ProgressFn | None) -> So
                 accepted = True
                 break
             lam *= 10.0
+        if not accepted:
+            gn.history.append(gn.history[-1])
         report(
             progress,
             it / opts.max_iterations,
             f"{method} iteration {it}, step {delta:.3f}, rms {gn.history[-1]:.4f} mm",
+            gn.history[-1],
         )
         if not accepted:
-            gn.history.append(gn.history[-1])
             status, message = 3, "no decrease possible at any damping (converged to precision)"
             break
         delta *= opts.mu

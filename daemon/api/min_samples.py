@@ -104,6 +104,12 @@ def min_samples(
     )
 
 
+def held_out(n: int, test_fraction: float) -> int:
+    """Rows of ``n`` held out to test: ``round(test_fraction * n)`` (Python's rounding), as
+    :func:`calib.options.validate` and :func:`calib.split.split_rows` count them."""
+    return round(test_fraction * n)
+
+
 class MinSamplesCache:
     """:func:`min_samples` at the default options per (robot id, number of anchors) of one
     store. A robot row never changes once written, so an answer never goes stale.

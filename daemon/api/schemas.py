@@ -6,6 +6,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
+    AliasChoices,
     BaseModel,
     ConfigDict,
     Field,
@@ -153,15 +154,18 @@ _ParamName = Annotated[str, StringConstraints(max_length=64)]
 
 class IdentificationRequest(_Body):
     """Options of an identification job (see ``cablecal identify --help``); a subset of
-    :class:`calib.options.IdentifyOptions`, with ``fix`` spelled ``fixed``."""
+    :class:`calib.options.IdentifyOptions` under the same names (``fixed`` is still read as
+    the old spelling of ``fix``). ``GET /options/identify`` serves each field's spec."""
 
     method: Method = _option("method")
     test_fraction: float = _option("test_fraction")
     seed: int = _option("seed")
     holdout: Holdout = _option("holdout")
     robust: Robust = _option("robust")
-    fixed: Annotated[list[_ParamName], Field(max_length=200)] = Field(
-        default_factory=list, description=spec("fix").help
+    fix: Annotated[list[_ParamName], Field(max_length=200)] = Field(
+        default_factory=list,
+        description=spec("fix").help,
+        validation_alias=AliasChoices("fix", "fixed"),
     )
     free: Annotated[list[_ParamName], Field(max_length=200)] = Field(
         default_factory=list, description=spec("free").help
@@ -177,8 +181,8 @@ class IdentificationRequest(_Body):
 
     def to_options(self) -> dict[str, Any]:
         """Keyword arguments of :class:`calib.options.IdentifyOptions`."""
-        out = self.model_dump(exclude={"fixed", "free", "noise_mm"})
-        out["fix"] = tuple(self.fixed)
+        out = self.model_dump(exclude={"fix", "free", "noise_mm"})
+        out["fix"] = tuple(self.fix)
         out["free"] = tuple(self.free)
         if self.noise_mm is not None:
             out["noise_mm"] = self.noise_mm

@@ -92,7 +92,7 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
     with _progress() as bar:
         task = bar.add_task(opts.method, total=1.0)
 
-        def cb(fraction: float, message: str) -> None:
+        def cb(fraction: float, message: str, /, **_: Any) -> None:
             bar.update(task, completed=fraction, description=message[:40])
 
         return identify(model, samples, opts, progress=cb, **kw)

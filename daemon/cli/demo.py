@@ -33,6 +33,7 @@ from daemon.cli.emulated import (
     fast_cell_toml,
     wait_for,
 )
+from daemon.store.rows import JOB_FINISHED, JobState
 
 #: ``--help``: one paragraph, one string (typer's rich help would keep the docstring's line
 #: breaks and re-wrap its lines, breaking them mid-sentence at 80 columns).
@@ -134,15 +135,14 @@ def campaign_cmd(
             job_id = job.json()["id"]
             done = wait_for(
                 lambda: (
-                    (j := api.get(f"/identifications/{job_id}").json())["status"]
-                    in ("succeeded", "failed", "cancelled")
+                    (j := api.get(f"/identifications/{job_id}").json())["status"] in JOB_FINISHED
                     and j
                 ),
                 timeout_s=300,
                 interval_s=0.5,
                 what="identification",
             )
-            if done["status"] != "succeeded":
+            if done["status"] != JobState.SUCCEEDED:
                 console.print(f"[red]identification {done['status']}[/]: {done.get('error')}")
                 raise typer.Exit(1)
             result = done["result"]

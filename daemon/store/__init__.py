@@ -49,12 +49,15 @@ from daemon.store.jobs import (
 )
 from daemon.store.plans import MATCH_TOL_DEG, PlanRow, PlanStore, match_poses
 from daemon.store.rows import (
+    JOB_FINISHED,
     CalibratedModel,
     CampaignExport,
     CampaignRow,
     EventRow,
     ExportedSample,
+    JobProgress,
     JobRow,
+    JobState,
     JobStatus,
     RawReading,
     ResultRow,
@@ -90,6 +93,7 @@ __all__ = [
     "EXPORT_FORMAT",
     "EXPORT_FORMAT_VERSION",
     "INTERRUPTED_ERROR",
+    "JOB_FINISHED",
     "JOB_STATUSES",
     "JOB_TERMINAL",
     "MATCH_TOL_DEG",
@@ -103,7 +107,9 @@ __all__ = [
     "CheckRow",
     "EventRow",
     "ExportedSample",
+    "JobProgress",
     "JobRow",
+    "JobState",
     "JobStatus",
     "Migration",
     "PlanRow",

@@ -2,8 +2,9 @@
 
 A job's state lives here so that a restart finds it; :meth:`JobStore.mark_interrupted` fails
 the jobs a stopped daemon left queued or running. A result stores the ``result.json`` mapping
-as strict JSON (NaN and ±inf as null); the newest accepted result of a robot is its
-calibrated model.
+as strict JSON (NaN and ±inf as null). A robot has exactly one current calibration,
+``robots.current_identification_id``: accepting a result makes it current (and replaces the
+previous one); un-accepting the current one falls back to the newest other accepted result.
 """
 
 from __future__ import annotations
@@ -12,18 +13,36 @@ from typing import Any, Final, cast
 
 from daemon.store.db import Row, StoreDB, decode_row, finite, last_id, now, or_none, to_json
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
-from daemon.store.rows import CalibratedModel, JobRow, ResultRow
+from daemon.store.rows import JOB_FINISHED, CalibratedModel, JobRow, JobState, ResultRow
 
-JOB_STATUSES: Final = ("queued", "running", "succeeded", "failed", "cancelled")
-JOB_TERMINAL: Final = ("succeeded", "failed", "cancelled")
+JOB_STATUSES: Final = tuple(s.value for s in JobState)
+JOB_TERMINAL: Final = tuple(s.value for s in JobState if s in JOB_FINISHED)
 INTERRUPTED_ERROR: Final = "interrupted by daemon restart"
 #: The reason of :class:`StoreNotFound` when a robot has no accepted result yet.
 NO_CALIBRATION: Final = "no accepted calibration yet"
 
 _JOB_FIELDS = frozenset(
     {"status", "progress", "message", "error", "started_at", "finished_at", "interrupted",
-     "options"}
+     "options", "iteration", "cost_rms_mm"}
 )  # fmt: skip
+#: The job row with ``current``: whether its result is its robot's current calibration.
+_JOB_SELECT = (
+    "SELECT jobs.*, coalesce(robots.current_identification_id = jobs.id, 0) AS current "
+    "FROM jobs JOIN robots ON robots.id = jobs.robot_id"
+)
+
+
+def _job_row(row: Row) -> JobRow:
+    """A decoded job row: the progress columns as one ``progress`` object."""
+    out = decode_row(row)
+    cost = out.pop("cost_rms_mm", None)
+    out["progress"] = {
+        "fraction": float(out["progress"]),
+        "iteration": out.pop("iteration", None),
+        "cost_rms_mm": None if cost is None else float(cost),
+    }
+    out["current"] = bool(out["current"])
+    return cast(JobRow, out)
 
 
 def _job_updates(fields: dict[str, Any]) -> Row:
@@ -39,6 +58,14 @@ def _job_updates(fields: dict[str, Any]) -> Row:
             value = finite(value, "progress")
             if not 0.0 <= value <= 1.0:
                 raise StoreInvalid(f"progress: must be within 0..1, got {value}")
+        if (
+            key == "iteration"
+            and value is not None
+            and (isinstance(value, bool) or not isinstance(value, int) or value < 0)
+        ):
+            raise StoreInvalid(f"iteration: must be a whole number >= 0, got {value!r}")
+        if key == "cost_rms_mm" and value is not None:
+            value = finite(value, "cost_rms_mm")
         if key == "interrupted":
             value = bool(value)
         if key == "options":
@@ -85,7 +112,8 @@ class JobStore(StoreDB):
         ------
         StoreNotFound
         """
-        return cast(JobRow, decode_row(self._require("jobs", "job", job_id)))
+        self._require("jobs", "job", job_id)
+        return _job_row(self._query(f"{_JOB_SELECT} WHERE jobs.id = ?", [job_id])[0])
 
     def update_job(self, job_id: int, **fields: Any) -> JobRow:
         """Update a job; returns the new row.
@@ -94,8 +122,9 @@ class JobStore(StoreDB):
         ----------
         job_id : int
         **fields
-            Any of ``status``, ``progress`` (0–1), ``message``, ``error``, ``started_at``,
-            ``finished_at`` [s epoch], ``interrupted``, ``options`` (dict). Setting
+            Any of ``status``, ``progress`` (0–1), ``iteration`` (int >= 0), ``cost_rms_mm``
+            [mm], ``message``, ``error``, ``started_at``, ``finished_at`` [s epoch],
+            ``interrupted``, ``options`` (dict). Setting
             ``status="running"`` stamps ``started_at`` if it is unset; a terminal status
             (succeeded, failed, cancelled) stamps ``finished_at`` unless given.
 
@@ -133,10 +162,10 @@ class JobStore(StoreDB):
             ``limit`` outside 1..10000.
         """
         rows = self._page(
-            "SELECT * FROM jobs", [("id > ?", after_id), ("campaign_id = ?", campaign_id)],
-            limit=limit,
+            _JOB_SELECT, [("jobs.id > ?", after_id), ("jobs.campaign_id = ?", campaign_id)],
+            limit=limit, id_column="jobs.id",
         )  # fmt: skip
-        return [cast(JobRow, decode_row(r)) for r in rows]
+        return [_job_row(r) for r in rows]
 
     def mark_interrupted(self) -> int:
         """Fail every queued or running job (``interrupted``, error
@@ -174,26 +203,61 @@ class JobStore(StoreDB):
                  "robot_id": job["robot_id"], "result_json": text, "accepted": bool(accepted),
                  "created_at": now()}
             )  # fmt: skip
+            if accepted:
+                self._set_current(int(job["robot_id"]), job_id)
             return self._result(last_id(table))
 
+    def _set_current(self, robot_id: int, job_id: int | None) -> None:
+        self.conn.execute(
+            "UPDATE robots SET current_identification_id = ? WHERE id = ?", (job_id, robot_id)
+        )
+
     def _result(self, result_id: int) -> ResultRow:
-        return cast(ResultRow, decode_row(self._require("results", "result", result_id)))
+        row = decode_row(self._require("results", "result", result_id))
+        current = self._one(
+            "SELECT id FROM robots WHERE id = ? AND current_identification_id = ?",
+            [row["robot_id"], row["job_id"]],
+        )
+        return cast(ResultRow, {**row, "current": current is not None})
+
+    def current_job_id(self, robot_id: int) -> int | None:
+        """The job id of the robot's current calibration, or None.
+
+        Raises
+        ------
+        StoreNotFound
+        """
+        robot = self._require("robots", "robot", robot_id)
+        value = robot.get("current_identification_id")
+        return None if value is None else int(value)
 
     def get_result_for_job(self, job_id: int) -> ResultRow | None:
         """The job's result (``result`` decoded, ``accepted`` bool), or None."""
-        row = self._one("SELECT * FROM results WHERE job_id = ?", [job_id])
-        return None if row is None else cast(ResultRow, decode_row(row))
+        row = self._one("SELECT id FROM results WHERE job_id = ?", [job_id])
+        return None if row is None else self._result(int(row["id"]))
 
     def set_result_accepted(self, result_id: int, accepted: bool) -> ResultRow:
-        """Accept or reject a result as its robot's calibrated model.
+        """Accept a result as its robot's current calibration (replacing the previous one),
+        or withdraw it (a withdrawn current one hands over to the newest other accepted
+        result, or to none).
 
         Raises
         ------
         StoreNotFound
         """
         with self._write():
-            self._require("results", "result", result_id)
+            row = self._require("results", "result", result_id)
+            robot_id, job_id = int(row["robot_id"]), int(row["job_id"])
             self._table("results").update(result_id, {"accepted": bool(accepted)})
+            if accepted:
+                self._set_current(robot_id, job_id)
+            elif self.current_job_id(robot_id) == job_id:
+                other = self._one(
+                    "SELECT job_id FROM results WHERE robot_id = ? AND accepted = 1 "
+                    "ORDER BY id DESC LIMIT 1",
+                    [robot_id],
+                )
+                self._set_current(robot_id, None if other is None else int(other["job_id"]))
             return self._result(result_id)
 
     def calibrated_model(self, robot_id: int) -> CalibratedModel:
@@ -230,7 +294,7 @@ class JobStore(StoreDB):
         }
 
     def accepted_result(self, robot_id: int) -> ResultRow:
-        """The newest accepted result of a robot (``result`` decoded: the ``result.json``
+        """The robot's current calibration's result (``result`` decoded: the ``result.json``
         mapping the calibrated model, compensation and drift checks use).
 
         Raises
@@ -239,15 +303,11 @@ class JobStore(StoreDB):
             No such robot, or (reason :data:`NO_CALIBRATION`) no accepted result for it.
         """
         with self._lock:
-            self._require("robots", "robot", robot_id)
-            row = self._one(
-                "SELECT * FROM results WHERE robot_id = ? AND accepted = 1 ORDER BY id DESC "
-                "LIMIT 1",
-                [robot_id],
-            )
+            job_id = self.current_job_id(robot_id)
+            row = None if job_id is None else self.get_result_for_job(job_id)
         if row is None:
             raise StoreNotFound("robot", robot_id, NO_CALIBRATION)
-        return cast(ResultRow, decode_row(row))
+        return row
 
     def latest_calibrated_model(self, robot_id: int) -> CalibratedModel | None:
         """The newest accepted result's calibrated model (see :meth:`calibrated_model`), or

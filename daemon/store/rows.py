@@ -16,13 +16,34 @@ latter only on Python >= 3.12.
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Any, Literal, NotRequired
 
 from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
 
-JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+class JobState(StrEnum):
+    """The one home of an identification job's states: the store's CHECK constraint, the
+    job manager, the REST schema and the page (``GET /options``) read them from here."""
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+    @property
+    def finished(self) -> bool:
+        """True for the states after which nothing changes."""
+        return self in JOB_FINISHED
+
+
+#: The job states after which nothing changes.
+JOB_FINISHED: frozenset[JobState] = frozenset(
+    {JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED}
+)
+JobStatus = JobState
 
 
 class RobotRow(TypedDict):
@@ -34,6 +55,8 @@ class RobotRow(TypedDict):
     model: dict[str, Any]
     source: Literal["builtin", "uploaded"]
     created_at: float
+    #: The job id of the robot's current calibration (None: not calibrated yet).
+    current_identification_id: int | None
 
 
 class CampaignRow(TypedDict):
@@ -149,6 +172,16 @@ class CampaignExport(TypedDict):
     samples: list[ExportedSample]
 
 
+class JobProgress(TypedDict):
+    """How far a job is: ``fraction`` 0–1, and the solver's newest ``iteration`` (whole
+    iterations of the whole fit, counted across stages and robust rounds) with its data RMS
+    ``cost_rms_mm`` [mm] (None until the solver reports one)."""
+
+    fraction: float
+    iteration: int | None
+    cost_rms_mm: float | None
+
+
 class JobRow(TypedDict):
     """An identification job; ``options`` are :class:`calib.identify.IdentifyOptions`'s."""
 
@@ -158,13 +191,15 @@ class JobRow(TypedDict):
     method: str
     options: dict[str, Any]
     status: JobStatus
-    progress: float
+    progress: JobProgress
     message: str
     error: str | None
     created_at: float
     started_at: float | None
     finished_at: float | None
     interrupted: bool
+    #: True for the job whose result is its robot's current calibration.
+    current: bool
 
 
 class ResultRow(TypedDict):
@@ -176,6 +211,7 @@ class ResultRow(TypedDict):
     robot_id: int
     result: dict[str, Any]
     accepted: bool
+    current: bool
     created_at: float
 
 

@@ -193,6 +193,22 @@ def _migration_5(conn: sqlite3.Connection) -> None:
     conn.execute("CREATE INDEX samples_campaign_anchor ON samples(campaign_id, excluded, anchor)")
 
 
+def _migration_6(conn: sqlite3.Connection) -> None:
+    # One current calibration per robot (daemon.store.jobs): the job whose result it is,
+    # backfilled with the newest accepted result (what "the calibrated model" meant before);
+    # a job's numeric progress: the solver's newest iteration and its data RMS [mm].
+    statements = [
+        "ALTER TABLE robots ADD COLUMN current_identification_id INTEGER REFERENCES jobs(id)",
+        """UPDATE robots SET current_identification_id = (
+            SELECT job_id FROM results WHERE results.robot_id = robots.id AND accepted = 1
+            ORDER BY results.id DESC LIMIT 1)""",
+        "ALTER TABLE jobs ADD COLUMN iteration INTEGER CHECK (iteration IS NULL OR iteration >= 0)",
+        "ALTER TABLE jobs ADD COLUMN cost_rms_mm REAL",
+    ]
+    for sql in statements:
+        conn.execute(sql)
+
+
 #: The schema history, oldest first; ``version`` is the position (1-based).
 MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
@@ -200,6 +216,7 @@ MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(3, "plans", _migration_3),
     Migration(4, "drift checks: check_poses, checks", _migration_4),
     Migration(5, "samples index (campaign_id, excluded, anchor)", _migration_5),
+    Migration(6, "robots.current_identification_id; jobs progress numbers", _migration_6),
 )
 SCHEMA_VERSION: Final = MIGRATIONS[-1].version
 

@@ -22,12 +22,12 @@ def test_jobs_lifecycle_and_mark_interrupted(tmp_path: Path) -> None:
         rid = s.ensure_builtin_robot(ROBOT)["id"]
         cid = s.create_campaign("c", rid)["id"]
         queued = s.create_job(cid, rid, "ukf-vslm", {"seed": 1, "fix": ["a1"]})
-        assert queued["status"] == "queued" and queued["progress"] == 0.0
+        assert queued["status"] == "queued" and queued["progress"]["fraction"] == 0.0
         assert queued["interrupted"] is False
         assert queued["options"] == {"seed": 1, "fix": ["a1"]}
         running = s.update_job(s.create_job(cid, rid, "lm", {})["id"], status="running",
                                progress=0.4, message="epoch 1")  # fmt: skip
-        assert running["started_at"] is not None and running["progress"] == 0.4
+        assert running["started_at"] is not None and running["progress"]["fraction"] == 0.4
         done = s.create_job(cid, rid, "lm", {})["id"]
         s.update_job(done, status="running")
         finished = s.update_job(done, status="succeeded", progress=1.0)
@@ -36,6 +36,12 @@ def test_jobs_lifecycle_and_mark_interrupted(tmp_path: Path) -> None:
             s.update_job(done, progress=1.5)
         with pytest.raises(StoreInvalid, match="status"):
             s.update_job(done, status="exploded")
+        stepped = s.update_job(done, iteration=3, cost_rms_mm=0.25)
+        assert stepped["progress"] == {"fraction": 1.0, "iteration": 3, "cost_rms_mm": 0.25}
+        with pytest.raises(StoreInvalid, match="iteration"):
+            s.update_job(done, iteration=-1)
+        with pytest.raises(StoreInvalid, match="cost_rms_mm"):
+            s.update_job(done, cost_rms_mm=float("nan"))
         with pytest.raises(StoreInvalid, match="colour: unknown job field"):
             s.update_job(done, colour="red")
         with pytest.raises(StoreNotFound, match="job 99 not found"):
@@ -85,11 +91,22 @@ def test_results_and_latest_calibrated_model(store: Store, campaign: dict[str, A
     assert latest["robot"] == ROBOT and latest["convention"] == "dh"
     assert latest["dh"][0]["a_mm"] == 102.0 and latest["tool_mm"] == [0.0, 0.0, 52.0]
     assert latest["metrics"]["test"]["rmse_mm"] == pytest.approx(2.1)
+    # Exactly one current calibration per robot: the robot row and the job rows agree.
+    assert store.robot(rid)["current_identification_id"] == jobs[1]
+    assert [j["current"] for j in store.list_jobs(cid)] == [False, True, False]
+    assert store.get_result_for_job(jobs[2])["current"] is False  # type: ignore[index]
     store.set_result_accepted(second["id"], False)
     latest = store.latest_calibrated_model(rid)
     assert latest is not None and latest["job_id"] == jobs[0]
+    assert [j["current"] for j in store.list_jobs(cid)] == [True, False, False]
+    third = store.get_result_for_job(jobs[2])
+    assert third is not None
+    assert store.set_result_accepted(third["id"], True)["current"] is True
+    assert store.robot(rid)["current_identification_id"] == jobs[2]
+    assert [j["current"] for j in store.list_jobs(cid)] == [False, False, True]
+    store.set_result_accepted(third["id"], False)
     got = store.get_result_for_job(jobs[2])
-    assert got is not None and got["accepted"] is False
+    assert got is not None and got["accepted"] is False and got["current"] is False
     assert store.get_result_for_job(12345) is None
 
 

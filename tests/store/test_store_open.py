@@ -234,3 +234,38 @@ def test_concurrent_writers_lose_nothing(store: Store, campaign: dict[str, Any])
     assert n_raw == 4 * n_threads * per_thread
     assert len(store.list_events(kind="device_error", limit=1000)) == per_thread
     assert store.integrity_check() == "ok"
+
+
+def test_migration_6_makes_the_newest_accepted_result_current(tmp_path: Path) -> None:
+    """A file from before the current calibration (schema 5): each robot's newest accepted
+    result becomes its current one; a robot without one stays uncalibrated."""
+    path = tmp_path / "v5.sqlite3"
+    conn = sqlite3.connect(path)
+    apply_migrations(conn, upto=5)
+    t = 1.0e9
+    conn.execute(
+        "INSERT INTO robots (id, name, convention, model_json, source, created_at) "
+        "VALUES (1, 'r', 'dh', '{}', 'uploaded', ?), (2, 'q', 'dh', '{}', 'uploaded', ?)",
+        (t, t),
+    )
+    conn.execute(
+        "INSERT INTO campaigns (id, name, robot_id, created_at) VALUES (1, 'c', 1, ?)", (t,)
+    )
+    for job_id, accepted in ((1, 1), (2, 1), (3, 0)):
+        conn.execute(
+            "INSERT INTO jobs (id, campaign_id, robot_id, method, status, created_at) "
+            "VALUES (?, 1, 1, 'lm', 'succeeded', ?)",
+            (job_id, t),
+        )
+        conn.execute(
+            "INSERT INTO results (job_id, campaign_id, robot_id, result_json, accepted, "
+            "created_at) VALUES (?, 1, 1, '{}', ?, ?)",
+            (job_id, accepted, t),
+        )
+    conn.commit()
+    conn.close()
+    with Store(path) as s:
+        assert s.robot(1)["current_identification_id"] == 2
+        assert s.robot(2)["current_identification_id"] is None
+        assert [j["current"] for j in s.list_jobs(1)] == [False, True, False]
+        assert s.job(1)["progress"] == {"fraction": 0.0, "iteration": None, "cost_rms_mm": None}

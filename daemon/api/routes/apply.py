@@ -139,7 +139,13 @@ def _compensate(
 ) -> dict[str, Any]:
     """Decode, validate, parse and compensate (in a worker thread); the JSON mapping with the
     corrected CSV under ``csv``."""
-    from calib.compensate import CompensateOptions, JointTargets, compensate, parse_targets_csv
+    from calib.compensate import (
+        CompensateOptions,
+        JointTargets,
+        compensate,
+        default_seed_deg,
+        parse_targets_csv,
+    )
     from calib.export import model_from_result
 
     if is_csv:
@@ -152,7 +158,8 @@ def _compensate(
     result = state.store.accepted_result(robot_id)["result"]
     nominal = state.store.robot_model(robot_id)
     try:
-        targets = parse_targets_csv(text, seed)
+        # x,y,z targets without a seed: the middle of the joint limits picks the IK branch.
+        targets = parse_targets_csv(text, seed if seed is not None else default_seed_deg(nominal))
         rows = targets.joints_deg if isinstance(targets, JointTargets) else targets.position_mm
         n = rows.shape[0]
         if n > MAX_TARGETS:
@@ -193,7 +200,8 @@ async def compensate_targets(
     seed_deg: str | None = Query(
         None,
         max_length=MAX_QUERY_CHARS,
-        description="q1,…,q6 [deg]: IK branch of x,y,z rows.",
+        description="q1,…,q6 [deg]: IK branch of x,y,z rows (default: the middle of each "
+        "joint's limits).",
         json_schema_extra={"pattern": numbers_pattern(6)},
     ),
     format: DownloadFormat | None = Query(None, description=FORMAT_HELP),

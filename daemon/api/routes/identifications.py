@@ -1,16 +1,27 @@
-"""Identification jobs: submit, follow, cancel, accept."""
+"""Identification jobs: submit, follow, cancel, compare with the current calibration, accept;
+and the option spec the page builds its form from."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, cast
+from typing import Annotated, Any, cast
 
-from fastapi import APIRouter, HTTPException, Request, Response, status
+from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from typing_extensions import TypedDict
 
+from calib.options import default, samples_for_training_rows, spec
+from daemon.api.compare import Comparison, compare_results
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
-from daemon.api.errors import error_responses
+from daemon.api.errors import error_responses, unprocessable
+from daemon.api.min_samples import held_out
+from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError
+from daemon.store import JobState
+
+#: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
+#: many samples: the answer is then null, not a long search).
+MAX_READINESS_SAMPLES = 10_000_000
 
 router = APIRouter(tags=["identifications"], responses=error_responses(400, 401, 404, 413, 422))
 
@@ -25,6 +36,57 @@ def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
         "accepted": bool(result["accepted"]) if result else False,
     }
     return cast(JobView, view)
+
+
+@router.get("/options/identify", summary="Identification options", dependencies=[ReadAuth])
+def options(state: State) -> IdentifyOptionsSpec:
+    """Each field of the ``POST /campaigns/{id}/identifications`` body: its ``type``,
+    ``default``, bounds (``gt``/``ge``/``lt``/``le``), ``choices`` and ``help``, from
+    :mod:`calib.options` (the one home of an option); and the job states, ``finished`` the
+    ones after which nothing changes. The operator page builds its form from this."""
+    return identify_options_spec(state.settings.jobs.noise_mm)
+
+
+class Readiness(TypedDict):
+    """Whether the campaign has enough samples at ``test_fraction``: ``n_included`` samples
+    split into ``n_train`` / ``n_test``; ``min_training_samples`` for this robot and these
+    anchors, ``min_samples`` the fewest included samples at this test fraction."""
+
+    test_fraction: float
+    n_included: int
+    n_train: int
+    n_test: int
+    min_training_samples: int
+    min_samples: int | None
+    ready: bool
+
+
+@router.get(
+    "/campaigns/{campaign_id}/identification-readiness",
+    summary="Enough samples to identify at a test fraction?",
+    dependencies=[ReadAuth],
+)
+def readiness(
+    state: State,
+    campaign_id: CampaignId,
+    test_fraction: Annotated[
+        float, Query(ge=spec("test_fraction").ge, lt=spec("test_fraction").lt, allow_inf_nan=False)
+    ] = default("test_fraction"),
+) -> Readiness:
+    """The minimum-samples rule applied for the page (which keeps no copy of it): the split
+    of the campaign's included samples at ``test_fraction`` and the counts identify needs
+    (``min_samples`` null when it would exceed :data:`MAX_READINESS_SAMPLES`)."""
+    row = state.store.campaign(campaign_id)
+    need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
+    n = int(row["n_included"])
+    n_test = held_out(n, test_fraction)
+    return {
+        "test_fraction": test_fraction, "n_included": n, "n_train": n - n_test,
+        "n_test": n_test, "min_training_samples": need,
+        "min_samples": samples_for_training_rows(need, test_fraction)
+        if need / (1.0 - test_fraction) <= MAX_READINESS_SAMPLES else None,
+        "ready": n - n_test >= need,
+    }  # fmt: skip
 
 
 @router.post(
@@ -66,8 +128,11 @@ def list_for_campaign(
 
 @router.get("/identifications/{job_id}", summary="Job status and result", dependencies=[ReadAuth])
 def get_job(state: State, job_id: JobId) -> JobView:
-    """``status`` is one of queued, running, succeeded, failed, cancelled; ``progress`` 0–1;
-    ``result`` is the ``result.json`` contract of ``cablecal identify`` once succeeded."""
+    """``status`` is a job state (``GET /options/identify``); ``progress`` has ``fraction``
+    0–1 and, once the solver finished an iteration, ``iteration`` (whole iterations over the
+    fit) and ``cost_rms_mm`` (its data RMS [mm]); ``result`` is the ``result.json`` contract
+    of ``cablecal identify`` once succeeded; ``current`` whether it is the robot's current
+    calibration."""
     return _job_view(state, state.store.job(job_id))
 
 
@@ -84,12 +149,41 @@ def cancel(state: State, job_id: JobId) -> JobView:
     responses=error_responses(409),
 )
 def accept(state: State, job_id: JobId) -> JobView:
-    """For results not accepted automatically (e.g. flagged implausible) after review."""
+    """Makes the result the robot's current calibration, replacing the previous one (a
+    robot's first plausible result is accepted automatically; a later one, or an implausible
+    one, waits for this after review: see ``GET /identifications/{id}/compare``)."""
     job = state.store.job(job_id)
-    if job["status"] != "succeeded":
+    if job["status"] != JobState.SUCCEEDED:
         raise HTTPException(409, f"identification {job_id}: status is {job['status']}")
     result = state.store.get_result_for_job(job_id)
     if result is None:
         raise HTTPException(409, f"identification {job_id}: has no result")
+    previous = state.store.current_job_id(int(job["robot_id"]))
     state.store.set_result_accepted(int(result["id"]), True)
-    return _job_view(state, job)
+    if previous != job_id:
+        replaced = f" (replaces job {previous})" if previous is not None else ""
+        state.store.update_job(job_id, message=f"accepted: the current calibration{replaced}")
+    return _job_view(state, state.store.job(job_id))
+
+
+@router.get(
+    "/identifications/{job_id}/compare",
+    summary="A result next to the robot's current calibration",
+    dependencies=[ReadAuth],
+    responses=error_responses(409),
+)
+def compare(state: State, job_id: JobId) -> Comparison:
+    """Old (the robot's current calibration) and new (this job's result) side by side:
+    length RMSE [mm] of both models on this job's held-out rows (the same rows), the
+    predicted TCP 1σ [mm] of each, and the parameters that changed by more than 0.001 mm
+    or deg. ``current`` is null when the robot has no calibration yet. 409 when the job has
+    no result."""
+    job = state.store.job(job_id)
+    new = state.store.get_result_for_job(job_id)
+    if new is None:
+        raise HTTPException(409, f"identification {job_id}: has no result")
+    current_id = state.store.current_job_id(int(job["robot_id"]))
+    old = None if current_id is None else state.store.get_result_for_job(current_id)
+    samples, sample_ids = state.store.sample_set(int(job["campaign_id"]))
+    return compare_results(job_id, new["result"], current_id, old and old["result"],
+                           samples, sample_ids)  # fmt: skip

@@ -1,7 +1,7 @@
 // REST client of the operator page: the token (asked once per browser tab, kept in
 // sessionStorage), fetch with the bearer header, errors into the message area, downloads that
 // carry the token (fetch + blob + object URL: a plain link would get 401).
-import { showMessage } from "./ui.js";
+import { changed, dismiss, showMessage, state } from "./ui.js";
 
 export const API = "/api/v1";
 const TOKEN_KEY = "cablecal-token";
@@ -39,6 +39,8 @@ export function askToken(why) {
       const value = input.value.trim();
       if (value) sessionStorage.setItem(TOKEN_KEY, value);
       asking = null;
+      // A new token: polling resumes and the 401 banner goes (a new 401 brings it back).
+      if (value) { state.authRefused = false; dismiss("token"); changed("auth"); }
       resolve(value);
     };
   });
@@ -73,8 +75,12 @@ export function detailText(body) {
  * ``quiet`` (no message on error; the caller handles it), ``raw`` (return the Response).
  * Throws ApiError on a non-2xx answer (after putting it in the message area unless quiet).
  */
+/** One banner per source: the method and the path with its ids as {id}. */
+export const sourceKey = (method, path) => `${method} ${path.split("?")[0].replace(/\/\d+/g, "/{id}")}`;
+
 export async function api(method, path, opts = {}) {
   const used = getToken();
+  const source = sourceKey(method, path);
   const headers = { Authorization: `Bearer ${used}` };
   if (opts.accept) headers.Accept = opts.accept;
   let body;
@@ -93,11 +99,15 @@ export async function api(method, path, opts = {}) {
     if (!opts.quiet) showMessage("error", err.message, "offline");
     throw err;
   }
+  dismiss("offline");
   if (response.status === 401) {
     const err = new ApiError(401, "401: the daemon refused the token. Enter the access token again.");
-    showMessage("error", err.message, "token");
-    // Only for the token in use: answers to requests sent with an older token do not re-ask.
-    if (used === getToken()) askToken("The token was refused (401). Enter the token printed by make run / cablecal serve.");
+    // Only for the token in use: answers to requests sent with an older token change nothing.
+    if (used === getToken()) {
+      showMessage("error", "The daemon refused the access token (401): updates are paused until the right token is entered (button “token” at the top).", "token");
+      if (!state.authRefused) { state.authRefused = true; changed("auth"); }
+      askToken("The token was refused (401). Enter the token printed by make run / cablecal serve.");
+    }
     throw err;
   }
   if (!response.ok) {
@@ -105,9 +115,10 @@ export async function api(method, path, opts = {}) {
     let parsed = text;
     try { parsed = JSON.parse(text); } catch { /* plain text */ }
     const err = new ApiError(response.status, `${response.status}: ${detailText(parsed) || response.statusText}`, parsed);
-    if (!opts.quiet) showMessage("error", `${method} ${path} — ${err.message}`);
+    if (!opts.quiet) showMessage("error", `${method} ${path} — ${err.message}`, source);
     throw err;
   }
+  dismiss(source); // the same action succeeded: its old error is no longer true
   if (opts.raw) return response;
   if (response.status === 204) return null;
   const type = response.headers.get("Content-Type") || "";

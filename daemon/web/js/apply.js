@@ -1,7 +1,7 @@
 // View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
 // the drift-check state and history (the ``drift`` block of /status).
 import { api, saveBlob } from "./api.js";
-import { $, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 let lastCsv = null;
 
@@ -11,6 +11,22 @@ function cell(v) {
   if (v == null) return "–";
   if (Array.isArray(v)) return v.map((x) => (typeof x === "number" ? fix(x, 3) : String(x))).join(", ");
   return typeof v === "object" ? JSON.stringify(v) : String(v);
+}
+
+/** The example and the IK seed from the robot's joint limits (GET /robots/{id}): the middle
+ * of each joint's range, so the example is inside the limits whatever the robot. */
+let exampleFor = null;
+async function loadExample() {
+  const c = state.campaign;
+  if (!c || exampleFor === c.robot_id) return;
+  const robot = await api("GET", `/robots/${c.robot_id}`);
+  const mids = (robot.model?.joints || []).map((j) => (j.limits_deg ? (j.limits_deg[0] + j.limits_deg[1]) / 2 : 0));
+  if (mids.length !== 6) return;
+  const text = mids.map((v) => fix(v, 1)).join(",");
+  const f = $("compensate-form").elements;
+  f.csv.placeholder = `q1,q2,q3,q4,q5,q6\n${text}\n\nor x,y,z [mm] (+ rx,ry,rz [deg]) with the IK seed below`;
+  if (!f.seed.value) f.seed.value = text;
+  exampleFor = c.robot_id;
 }
 
 async function compensate(ev) {
@@ -25,25 +41,32 @@ async function compensate(ev) {
   const file = f.file.files[0];
   const text = file ? await file.text() : f.csv.value;
   if (!text.trim()) { showMessage("error", "Compensate: paste targets (CSV with q1..q6 in deg) or choose a file."); return; }
+  const seed = f.seed.value.trim().split(/[\s,]+/).filter(Boolean);
+  if (seed.length && (seed.length !== 6 || seed.some((v) => !Number.isFinite(Number(v))))) {
+    setText("compensate-state", `IK seed: type six joint angles q1..q6 in deg, comma-separated (got “${f.seed.value}”).`);
+    return;
+  }
+  const query = seed.length ? `?seed_deg=${encodeURIComponent(seed.join(","))}` : "";
   setText("compensate-state", "Compensating …");
   let out;
   try {
-    out = await api("POST", `/robots/${c.robot_id}/compensate`, { body: text, type: "text/csv", quiet: true });
+    out = await api("POST", `/robots/${c.robot_id}/compensate${query}`, { body: text, type: "text/csv", quiet: true });
   } catch (exc) {
     const why = exc.status === 404 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
     setText("compensate-state", `Compensation failed: ${why}`);
     showMessage("error", `Compensate: ${why}`, "compensate");
     return;
   }
+  dismiss("compensate");
   const rows = out.rows || [];
   const show = [["q1", "J1 [deg]", 4], ["q2", "J2 [deg]", 4], ["q3", "J3 [deg]", 4], ["q4", "J4 [deg]", 4],
     ["q5", "J5 [deg]", 4], ["q6", "J6 [deg]", 4], ["max_correction_deg", "largest correction [deg]", 3],
     ["uncompensated_error_mm", "error removed [mm]", 3], ["residual_mm", "IK residual [mm]", null], ["flags", "flags", null]];
   fillTable($("compensate-result"), [{ label: "#", num: true }, ...show.map(([, label, d]) => ({ label, num: d !== null || label.includes("[") }))],
-    rows.map((r, i) => [String(i + 1), ...show.map(([k, , d]) => (k === "flags" ? el("span", { class: r[k] ? "bad" : "" }, r[k] || "ok")
+    rows.map((r, i) => [String(i + 1), ...show.map(([k, , d]) => (k === "flags" ? el("span", { class: r[k] ? "bad" : "" }, flagWords(r[k]))
       : d == null ? sig(r[k], 2) : fix(r[k], d)))]));
   // The server's own CSV (every column, nominal joints too), for the controller program.
-  lastCsv = await api("POST", `/robots/${c.robot_id}/compensate`, { body: text, type: "text/csv", accept: "text/csv" });
+  lastCsv = await api("POST", `/robots/${c.robot_id}/compensate${query}`, { body: text, type: "text/csv", accept: "text/csv" });
   $("compensate-download").hidden = false;
   const m = out.summary || {};
   setText("compensate-state", `${m.n ?? rows.length} ${out.kind === "joints" ? "joint-space" : out.kind || ""} targets compensated (${out.mode || "position"} mode) with the accepted calibration of ${c.robot_name}: ` +
@@ -51,6 +74,15 @@ async function compensate(ev) {
     `largest IK residual ${sig(m.max_residual_mm, 2)} mm, ${m.n_flagged ?? 0} flagged.`);
   setText("compensate-note", out.note || "");
   $("compensate-download").onclick = () => saveBlob(new Blob([lastCsv], { type: "text/csv" }), `robot-${c.robot_id}-compensated.csv`);
+}
+
+/** ``outside_limits:J3=-80.000<-75.000`` → "J3 -80.000 deg below its limit -75.000 deg". */
+function flagWords(flags) {
+  if (!flags) return "ok";
+  return flags.split(";").map((f) => {
+    const m = /^outside_limits:J(\d)=([-0-9.]+)([<>])([-0-9.]+)$/.exec(f);
+    return m ? `J${m[1]} ${m[2]} deg ${m[3] === "<" ? "below" : "above"} its limit ${m[4]} deg` : f.replaceAll("_", " ");
+  }).join("; ");
 }
 
 const DRIFT_WORDS = {
@@ -78,11 +110,27 @@ async function renderDrift() {
   const list = await api("GET", `/robots/${c.robot_id}/checks`);
   const items = (Array.isArray(list) ? list : list.items || []).slice().reverse();
   fillTable($("drift-history"), [{ label: "#", num: true }, { label: "started" }, { label: "trigger" }, { label: "status" },
-    { label: "RMS [mm]", num: true }, { label: "max [mm]", num: true }, { label: "threshold [mm]", num: true }, { label: "poses", num: true }],
+    { label: "RMS [mm]", num: true }, { label: "max [mm]", num: true }, { label: "threshold [mm]", num: true },
+    { label: "poses", num: true }, { label: "samples used", num: true }],
   items.map((k) => [String(k.id), clock(k.started_at), k.trigger,
     el("span", { class: k.status === "ok" ? "ok" : k.status === "running" ? "" : "bad", title: k.error || "" }, k.status),
-    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), k.n == null ? "–" : String(k.n)]),
+    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), String((k.poses_deg || []).length), k.n == null ? "–" : String(k.n)]),
   JSON.stringify(items.map((k) => [k.id, k.status])));
+  await renderCheckPoses(c, items.find((k) => k.status === "running"));
+}
+
+/** The check poses (of the running check, else the robot's), and while a check runs how many
+ * of them are captured so far (samples in the check's own campaign). */
+async function renderCheckPoses(c, running) {
+  const poses = running ? running.poses_deg : (await api("GET", `/robots/${c.robot_id}/check-poses`)).poses_deg;
+  let done = null;
+  if (running) done = (await api("GET", `/campaigns/${running.campaign_id}`)).n_included;
+  fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "" }],
+    poses.map((q, i) => [String(i + 1), ...q.map((v) => fix(v, 1)), done == null ? "" : i < done ? "captured" : i === done ? "next" : ""]),
+    JSON.stringify([poses, done]));
+  setText("drift-poses-note", running
+    ? `Check #${running.id}: ${Math.min(done, poses.length)} of ${poses.length} poses captured. Move the robot through the poses below; auto capture records each one.`
+    : `${poses.length} check poses: a drift check moves through these.`);
 }
 
 async function startDrift() {
@@ -96,5 +144,10 @@ export function initApply() {
   $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch((e) => showMessage("error", `compensate: ${e.message}`)));
   $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
   every(3000, renderDrift, () => state.view === "apply");
-  onChange((kind) => { if (kind === "view" && state.view === "apply") renderDrift().catch(() => {}); });
+  onChange((kind) => {
+    if (kind === "view" && state.view === "apply") {
+      renderDrift().catch(() => {});
+      loadExample().catch(() => {});
+    }
+  });
 }

@@ -2,7 +2,7 @@
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
 import { api, download, saveBlob } from "./api.js";
 import { isManualRobot } from "./cell.js";
-import { $, changed, clock, el, every, fillTable, fix, hasRoute, heldOut, onChange, setText, showMessage, state } from "./ui.js";
+import { $, changed, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, state } from "./ui.js";
 
 const CAMPAIGN_KEY = "cablecal-campaign";
 const JOINTS = ["q1", "q2", "q3", "q4", "q5", "q6"];
@@ -11,16 +11,10 @@ let robot = null; // GET /robots/{id} of the selected campaign
 let plan = null; // GET /campaigns/{id}/plan, or null
 
 /** Included samples needed before Identify is offered: the API's count for the campaign's robot
- * and anchors (``min_samples_to_identify`` at the default test fraction 0.2; for another, the
- * fewest ``n`` whose training part reaches ``min_training_samples``). Null before a campaign. */
-export function samplesNeeded(testFraction = 0.2) {
-  const c = state.campaign;
-  if (!c) return null;
-  if (testFraction === 0.2) return c.min_samples_to_identify;
-  const train = c.min_training_samples;
-  let n = train;
-  while (n - heldOut(testFraction, n) < train) n++;
-  return n;
+ * and anchors at the default options (``min_samples_to_identify``; tab 3 asks the API for
+ * another test fraction). Null before a campaign. */
+export function samplesNeeded() {
+  return state.campaign ? state.campaign.min_samples_to_identify : null;
 }
 
 /** Reload the selected campaign's row (its counts, anchors and the samples identify needs). */
@@ -326,7 +320,10 @@ async function createCampaign(ev) {
 export async function restoreCampaign() {
   const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
   const items = await loadCampaigns();
-  const c = items.find((x) => x.id === id) || (items.length ? items[items.length - 1] : null);
+  // A fresh tab opens the newest operator campaign, not a drift check's own campaign
+  // (daemon.drift notes those "drift check (…)").
+  const own = items.filter((x) => !String(x.notes || "").startsWith("drift check"));
+  const c = items.find((x) => x.id === id) || own[own.length - 1] || items[items.length - 1] || null;
   if (c) await select(c);
 }
 

@@ -2,7 +2,7 @@
 // devices and the sampler in words, device errors kept until dismissed.
 import { api } from "./api.js";
 import { traceChart } from "./charts.js";
-import { $, age, changed, clock, el, every, fillTable, fix, setText, state } from "./ui.js";
+import { $, age, changed, clock, el, every, fillTable, fix, onChange, setText, state } from "./ui.js";
 
 const WINDOW_S = 60;
 const TRACE_MS = 150; // about 6.7 Hz nominal: at least 5 Hz on a busy cell PC
@@ -71,6 +71,31 @@ function samplerWords(s) {
   return [`${mode} ${settle}`, s.settled ? "" : s.settle_detail || ""];
 }
 
+// What each counted error class means on the floor, and what to do about it.
+const ERROR_WORDS = {
+  IndicatorOverRange: "over range: the indicator reads beyond the sensor's range (cable pulled past its end, or hanging slack below zero). Move the robot back inside the cable's reach and check the hook; readings during over-range are discarded, never stored",
+  IndicatorNoReply: "no reply: the indicator did not answer. Check its power, the RS-485 wiring and the Modbus address",
+  IndicatorTimeout: "timeout: an incomplete answer. Check the RS-485 wiring and termination, and the baud rate",
+  IndicatorCRCError: "CRC errors: a garbled answer, discarded. Check the cable shield and termination; a few per hour are harmless",
+  IndicatorProtocolError: "protocol errors: an answer the driver cannot decode. Check the indicator's mode and register map",
+  IndicatorLinkDown: "link down: the serial port is gone. Check the USB-RS485 adapter",
+  RobotLinkDown: "link down: the controller connection was lost. Check the network cable and the controller",
+  RobotTimeout: "timeout: the controller answered late",
+  RobotProtocolError: "protocol errors: the controller answered with an error code",
+};
+
+function errorsExplained(devices) {
+  const parts = [];
+  for (const d of Object.values(devices)) {
+    for (const [cls, n] of Object.entries(d.errors_by_class || {})) {
+      if (n) parts.push(`${d.name}: ${n} × ${ERROR_WORDS[cls] || cls}.`);
+    }
+  }
+  return parts.length
+    ? `The errors column counts failed polls since the daemon started, by kind — ${parts.join(" ")}`
+    : "The errors column counts failed polls since the daemon started (none so far).";
+}
+
 function renderDevices(devices) {
   const rows = Object.values(devices).map((d) => {
     const reading = d.last_reading;
@@ -83,13 +108,15 @@ function renderDevices(devices) {
     }
     const stateCell = el("span", { class: d.state === "ok" ? "ok" : "bad" }, d.state === "ok" ? "connected" : d.state);
     return [d.name, d.role, d.driver, stateCell, value, reading ? age(reading.age_s) : "–",
-      fix(d.poll_rate_hz, 1), String(d.polls), String(d.errors)];
+      fix(d.poll_rate_hz, 1), String(d.polls),
+      el("span", { title: Object.entries(d.errors_by_class || {}).map(([c, n]) => `${c}: ${n}`).join(", ") }, String(d.errors))];
   });
   fillTable($("cell-devices"), [
     { label: "device" }, { label: "role" }, { label: "driver" }, { label: "state" },
     { label: "last reading" }, { label: "age", num: true }, { label: "poll rate [Hz]", num: true },
     { label: "polls", num: true }, { label: "errors", num: true },
   ], rows);
+  setText("cell-errors-note", errorsExplained(devices));
 }
 
 function renderJoints(robot) {
@@ -155,6 +182,14 @@ async function pollStatus() {
 }
 
 export function initCell() {
+  onChange((kind) => {
+    if (kind !== "auth") return;
+    const pill = $("top-devices");
+    if (state.authRefused) {
+      pill.className = "pill muted";
+      setText(pill, "device state unknown: token refused");
+    }
+  });
   $("device-errors-clear").addEventListener("click", () => {
     for (const [key, e] of deviceErrors) dismissedAt.set(key, e.t_wall);
     deviceErrors.clear();

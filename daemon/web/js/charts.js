@@ -44,9 +44,10 @@ export function costChart(node, height = 220) {
     height,
     legend: { show: false },
     cursor: { show: false },
-    scales: { x: { time: false }, y: { distr: 3 } },
+    // Whole iterations on x: integer ticks only, the range widened to whole numbers.
+    scales: { x: { time: false, range: (u, lo, hi) => [Math.floor(lo ?? 0), Math.max(Math.ceil(hi ?? 1), Math.floor(lo ?? 0) + 1)] }, y: { distr: 3 } },
     axes: [
-      { ...AXIS, label: "iteration" },
+      { ...AXIS, label: "iteration", incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000], values: (u, t) => t.map((v) => (Number.isInteger(v) ? String(v) : "")) },
       { ...AXIS, label: height < 200 ? "RMS [mm]" : "RMS residual [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) },
     ],
     series: [{}, { label: "RMS [mm]", stroke: COLORS.cost, width: 2, points: { show: true, size: 4 } }],

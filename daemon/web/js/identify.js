@@ -2,17 +2,90 @@
 // and after, histogram, convergence, DH errors ±1σ (implausible ones in red), identifiability,
 // TCP uncertainty, Accept, and downloads sent with the token.
 import { api, download, saveBlob } from "./api.js";
-import { campaignSamples, refreshCampaign, refreshDetail, samplesNeeded } from "./campaign.js";
+import { refreshCampaign, refreshDetail } from "./campaign.js";
 import { costChart, histogramChart, residualChart } from "./charts.js";
-import { $, clock, el, every, fillTable, fix, hasRoute, heldOut, onChange, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, dismiss, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
 
-const FINISHED = ["succeeded", "failed", "cancelled"];
 const DH = [["alpha", "α", "deg"], ["a", "a", "mm"], ["d", "d", "mm"], ["theta", "θ", "deg"]];
+//: The fields shown first; the others go under "More options". Everything else about an
+//: option (type, default, limits, choices, help) comes from GET /options/identify.
+const MAIN_FIELDS = ["method", "test_fraction", "holdout", "robust", "seed", "prior"];
+let spec = null; // GET /options/identify
 let job = null; // the job followed (GET /identifications/{id})
 let live = { x: [], y: [], plot: null };
 let shownResult = null; // job id whose result is rendered
+let shownJob = null; // that job
+let readiness = null; // GET /campaigns/{id}/identification-readiness
 const plots = [];
 
+const finished = (status) => !!spec && spec.finished_states.includes(status);
+const label = (name) => name.replaceAll("_", " ").replace(/^./, (c) => c.toUpperCase());
+
+// ------------------------------------------------------------------ the form, from the API
+function fieldNode(f) {
+  const title = f.help;
+  if (f.type === "choice") {
+    return el("label", { title }, `${label(f.name)} `, el("select", { name: f.name },
+      f.choices.map((c) => el("option", { value: c, selected: c === f.default }, c === f.default ? `${c} (default)` : c))));
+  }
+  if (f.type === "bool") {
+    return el("label", { class: "check", title }, el("input", { name: f.name, type: "checkbox", checked: !!f.default }), ` ${label(f.name)}: ${f.help}`);
+  }
+  const value = f.type === "names" ? (f.default || []).join(", ") : String(f.default ?? "");
+  return el("label", { title }, `${label(f.name)} `,
+    el("input", { name: f.name, type: "text", inputmode: f.type === "names" ? "text" : "decimal", value, autocomplete: "off" }),
+    el("small", { class: "hint" }, ` ${rangeWords(f)}`));
+}
+
+/** The field's range in words, from the API's bounds. */
+function rangeWords(f) {
+  if (f.type === "names") return "(names, comma-separated)";
+  const lo = f.ge != null ? `from ${f.ge}` : f.gt != null ? `above ${f.gt}` : "";
+  const hi = f.le != null ? `to ${f.le}` : f.lt != null ? `to below ${f.lt}` : "";
+  return lo || hi ? `(${[f.type === "int" ? "a whole number" : "a number", lo, hi].filter(Boolean).join(" ")})` : "";
+}
+
+async function buildForm() {
+  spec = await api("GET", "/options/identify");
+  const main = [], more = [];
+  for (const f of spec.fields) (MAIN_FIELDS.includes(f.name) ? main : more).push(fieldNode(f));
+  $("identify-fields").replaceChildren(...main);
+  $("identify-more-fields").replaceChildren(...more);
+}
+
+const NUMBER = /^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$/;
+
+/** The request body from the form, checked against the API's spec; throws an Error in the
+ * operator's words naming the field. */
+function readForm() {
+  const els = $("identify-form").elements;
+  const body = {};
+  for (const f of spec.fields) {
+    const input = els[f.name];
+    if (!input) continue;
+    if (f.type === "bool") { body[f.name] = input.checked; continue; }
+    const text = input.value.trim();
+    if (f.type === "choice") { body[f.name] = text; continue; }
+    if (f.type === "names") { body[f.name] = text ? text.split(/[\s,]+/).filter(Boolean) : []; continue; }
+    if (text === "" && f.name === "noise_mm") continue; // empty: the daemon's default
+    const what = `${label(f.name)}: “${text}”`;
+    if (!NUMBER.test(text)) throw new Error(`${what} is not a number; type ${rangeWords(f).slice(1, -1)}.`);
+    const x = Number(text);
+    if (f.type === "int" && !Number.isInteger(x)) throw new Error(`${what} must be a whole number.`);
+    const out = (f.ge != null && x < f.ge) || (f.gt != null && x <= f.gt) || (f.le != null && x > f.le) || (f.lt != null && x >= f.lt);
+    if (out) throw new Error(`${what} is out of range; type ${rangeWords(f).slice(1, -1)}.`);
+    body[f.name] = x;
+  }
+  return body;
+}
+
+function formError(message) {
+  const node = $("identify-form-error");
+  node.hidden = !message;
+  setText(node, message || "");
+}
+
+// ------------------------------------------------------------------ jobs
 async function loadJobs() {
   if (!state.campaign) return;
   const list = await api("GET", `/campaigns/${state.campaign.id}/identifications`);
@@ -21,35 +94,59 @@ async function loadJobs() {
     items.slice().reverse().map((j) => ({
       class: job?.id === j.id ? "selected" : "",
       onclick: () => follow(j.id),
-      cells: [String(j.id), j.method, j.status, clock(j.created_at), j.error || j.message || ""],
-    })), JSON.stringify([job?.id, items.map((j) => [j.id, j.status, j.message])]));
-  if (!job && items.length) await follow(items[items.length - 1].id);
+      cells: [String(j.id), j.method, j.current ? el("b", { class: "ok", title: "the robot's current calibration" }, `${j.status} · current`) : j.status,
+        clock(j.created_at), j.error || j.message || ""],
+    })), JSON.stringify([job?.id, items.map((j) => [j.id, j.status, j.message, j.current])]));
+  if (!job && items.length) {
+    const current = items.filter((j) => j.current).pop();
+    await follow((current || items[items.length - 1]).id);
+  }
+}
+
+/** The test fraction typed, or null when it is not a valid one (the form says why). */
+function testFraction() {
+  try {
+    const body = readForm();
+    formError("");
+    return body.test_fraction;
+  } catch (exc) {
+    formError(exc.message);
+    return null;
+  }
+}
+
+async function updateReadiness() {
+  if (!state.campaign || !spec) return;
+  const tf = testFraction();
+  if (tf == null) { readiness = null; updateNeed(); return; }
+  readiness = await api("GET", `/campaigns/${state.campaign.id}/identification-readiness?test_fraction=${tf}`);
+  updateNeed();
 }
 
 function updateNeed() {
-  const n = campaignSamples().filter((s) => !s.excluded).length;
-  const tf = Number($("identify-form").elements.test_fraction.value) || 0;
-  const need = samplesNeeded(tf);
-  if (need == null) {
+  const c = state.campaign;
+  const busy = !!job && !finished(job.status);
+  if (!c || !spec) {
     $("identify-start").disabled = true;
     setText("identify-need", "Pick or create a campaign in tab 2.");
     return;
   }
-  const c = state.campaign;
+  if (!readiness) { $("identify-start").disabled = true; setText("identify-need", ""); return; }
+  const r = readiness;
   const anchors = Math.max(1, c.anchors.length);
-  $("identify-start").disabled = n < need || (job && !FINISHED.includes(job.status));
-  setText("identify-need", n < need
-    ? `${n} of ${need} samples: Identify needs at least ${need} included samples with this test fraction (${c.min_training_samples} to train on, for this robot and ${anchors} anchor${anchors > 1 ? "s" : ""}). Capture more in tab 2.`
-    : `${n} included samples: ${n - heldOut(tf, n)} for training, ${heldOut(tf, n)} held out to test.`);
+  $("identify-start").disabled = !r.ready || busy;
+  setText("identify-need", !r.ready && r.min_samples == null
+    ? `A test fraction of ${r.test_fraction} leaves too few samples to train on; lower it.`
+    : !r.ready
+    ? `${r.n_included} of ${r.min_samples} samples: Identify needs at least ${r.min_samples} included samples with this test fraction (${r.min_training_samples} to train on, for this robot and ${anchors} anchor${anchors > 1 ? "s" : ""}). Capture more in tab 2.`
+    : `${r.n_included} included samples: ${r.n_train} for training, ${r.n_test} held out to test.` + (busy ? " Wait for the running identification (or cancel it)." : ""));
 }
 
 async function start(ev) {
   ev.preventDefault();
-  const f = ev.target.elements;
-  const body = {
-    method: f.method.value, test_fraction: Number(f.test_fraction.value), seed: Number(f.seed.value),
-    holdout: f.holdout.value, robust: f.robust.value, prior: f.prior.checked,
-  };
+  let body;
+  try { body = readForm(); } catch (exc) { formError(exc.message); return; }
+  formError("");
   try {
     const j = await api("POST", `/campaigns/${state.campaign.id}/identifications`, { json: body });
     live = { x: [], y: [], plot: live.plot };
@@ -59,46 +156,67 @@ async function start(ev) {
 
 async function follow(id) {
   job = await api("GET", `/identifications/${id}`);
-  if (shownResult !== id) { live.x = []; live.y = []; }
+  if (job.id !== shownResult) { live.x = []; live.y = []; }
   renderJob();
   $("job-list").dataset.key = "";
 }
 
 async function poll() {
-  if (job && !FINISHED.includes(job.status)) {
+  if (job && !finished(job.status)) {
     job = await api("GET", `/identifications/${job.id}`);
     renderJob();
   }
 }
 
+async function cancelJob() {
+  if (!job || finished(job.status)) return;
+  job = await api("DELETE", `/identifications/${job.id}`);
+  renderJob();
+}
+
+/** The live cost curve: one point per whole iteration the job reports (numbers, not text). */
+function renderLive() {
+  const p = job.progress || {};
+  if (typeof p.iteration === "number" && typeof p.cost_rms_mm === "number" && live.x[live.x.length - 1] !== p.iteration) {
+    live.x.push(p.iteration);
+    live.y.push(p.cost_rms_mm);
+  }
+  live.plot ||= costChart($("cost-live"), 150);
+  live.plot.setData([live.x, live.y]);
+  const rises = live.y.some((y, i) => i > 0 && y > live.y[i - 1] * 1.001);
+  setText("cost-live-note", live.x.length
+    ? `Iteration ${live.x[live.x.length - 1]}: ${fix(live.y[live.y.length - 1], 4)} mm RMS.` +
+      " Counted over every fit of the run (the noise estimate's fits first, then the final fit the result's convergence chart shows)." +
+      (rises ? " The curve rises where a new fit starts." : "")
+    : "");
+}
+
 function renderJob() {
   const bar = $("job-bar");
-  bar.style.width = `${100 * (job.progress || 0)}%`;
+  const fraction = job.progress?.fraction ?? 0;
+  bar.style.width = `${100 * fraction}%`;
   bar.className = job.status === "succeeded" ? "done" : "";
   const words = {
     queued: "Queued: waiting for a worker.",
-    running: `Running: ${Math.round(100 * job.progress)} % — ${job.message || ""}`,
+    running: `Running: ${Math.round(100 * fraction)} % — ${job.message || ""}`,
     succeeded: `Finished in ${fix(job.result?.elapsed_s, 1)} s: ${job.message || ""}.`,
     failed: `Failed: ${job.error || job.message}`,
     cancelled: `Cancelled: ${job.error || ""}`,
   };
   setText("job-state", `Identification #${job.id} (${job.method}). ${words[job.status] || job.status}`);
-  const m = /rms ([0-9.eE+-]+) mm/.exec(job.message || "");
-  if (m && job.status === "running") {
-    live.x.push(live.x.length + 1);
-    live.y.push(Number(m[1]));
-  }
-  if (job.result?.cost_history_rms_mm) {
-    live.y = job.result.cost_history_rms_mm.slice();
-    live.x = live.y.map((_, i) => i);
-  }
-  live.plot ||= costChart($("cost-live"), 150);
-  live.plot.setData([live.x, live.y]);
-  if (FINISHED.includes(job.status)) $("job-list").dataset.key = "";
-  if (job.status === "failed") showMessage("error", `Identification #${job.id} failed: ${job.error}`, `job-${job.id}`);
+  $("job-cancel").hidden = finished(job.status);
+  renderLive();
+  if (finished(job.status)) $("job-list").dataset.key = "";
+  if (job.status === "failed") showMessage("error", `Identification #${job.id} failed: ${job.error}`, "identify-job");
+  else dismiss("identify-job");
   updateNeed();
-  if (job.status === "succeeded" && shownResult !== job.id) renderResult().catch((e) => showMessage("error", `result: ${e.message}`));
-  if (job.status !== "succeeded") $("result").hidden = true;
+  if (job.status === "succeeded" && (shownResult !== job.id || shownJob?.current !== job.current)) {
+    renderResult(job).catch((e) => showMessage("error", `result: ${e.message}`, "identify-result"));
+  }
+  // While another job runs, the result shown (the previous one) stays, and says so.
+  const note = $("result-shown-note");
+  note.hidden = !(shownJob && shownJob.id !== job.id);
+  if (!note.hidden) setText(note, `Showing identification #${shownJob.id}${shownJob.current ? " (the current calibration)" : ""} while #${job.id} is ${job.status}.`);
 }
 
 // ------------------------------------------------------------------ result
@@ -107,16 +225,20 @@ function tile(label, value, unit, cls = "") {
     el("div", { class: "value" }, value, unit ? el("small", {}, ` ${unit}`) : null));
 }
 
-async function renderResult() {
-  const r = job.result;
-  shownResult = job.id;
+async function renderResult(j) {
+  const r = j.result;
+  shownResult = j.id;
+  shownJob = j;
   $("result").hidden = false;
   const plaus = r.plausibility || {};
-  setText("result-title", `Result of identification #${job.id} — ${r.method} on ${r.robot}`);
+  setText("result-title", `Result of identification #${j.id} — ${r.method} on ${r.robot}`);
   const verdict = $("result-verdict");
-  verdict.className = `pill ${job.accepted ? "ok" : plaus.plausible ? "warn" : "bad"}`;
-  setText(verdict, job.accepted ? "accepted: this is the robot's calibration" : plaus.plausible ? "plausible, not accepted yet" : "implausible parameters — review before accepting");
-  $("accept").hidden = !!job.accepted;
+  verdict.className = `pill ${j.current ? "ok" : plaus.plausible ? "warn" : "bad"}`;
+  setText(verdict, j.current ? "current: this is the robot's calibration"
+    : j.accepted ? "accepted earlier, replaced by a newer calibration"
+      : plaus.plausible ? "plausible, waiting for Accept" : "implausible parameters — review before accepting");
+  $("accept").hidden = !!j.current;
+  await renderCompare(j);
   const mb = r.metrics?.before || {};
   const ma = r.metrics?.after || {};
   const tcp = r.tcp_uncertainty_mm;
@@ -133,12 +255,9 @@ async function renderResult() {
   $("result-notes").replaceChildren(...(r.notes || []).map((n) => el("li", {}, n)));
   $("result-notes-card").hidden = !(r.notes || []).length;
   for (const p of plots.splice(0)) p.cleanup();
-  const cost = r.cost_history_rms_mm || [];
-  const cp = costChart($("chart-cost"));
-  cp.setData([cost.map((_, i) => i), cost]);
-  plots.push(cp);
+  renderCost(r);
   try {
-    const res = await api("GET", `/identifications/${job.id}/residuals`, { quiet: true });
+    const res = await api("GET", `/identifications/${j.id}/residuals`, { quiet: true });
     const idx = res.after_mm.map((_, i) => i + 1);
     plots.push(residualChart($("chart-residuals"), idx, res.before_mm, res.after_mm));
     plots.push(histogramChart($("chart-histogram"), res.before_mm, res.after_mm));
@@ -147,6 +266,50 @@ async function renderResult() {
   } catch (exc) {
     setText("residuals-note", `Residuals per sample not available: ${exc.message}`);
   }
+}
+
+/** The convergence chart: whole iterations on x; each fit (robust rounds restart from the
+ * start) its own segment, broken where the next one begins. */
+function renderCost(r) {
+  const cost = r.cost_history_rms_mm || [];
+  const starts = (r.cost_history_fit_starts || [0]).filter((i) => i > 0 && i < cost.length);
+  const xs = [], ys = [];
+  let x = 0;
+  cost.forEach((y, i) => {
+    if (starts.includes(i)) { xs.push(x); ys.push(null); } // a gap: the next fit starts over
+    xs.push(x);
+    ys.push(y);
+    if (!starts.includes(i + 1)) x += 1;
+  });
+  const cp = costChart($("chart-cost"));
+  cp.setData([xs, ys]);
+  plots.push(cp);
+  const fits = starts.length + 1;
+  const rises = cost.some((y, i) => i > 0 && !starts.includes(i) && y > cost[i - 1] * 1.001);
+  setText("cost-note", `${r.iterations ?? "–"} iterations` + (fits > 1
+    ? ` in ${fits} fits: after the first fit the robust step ${r.robust === "huber" || r.robust === "soft_l1" ? "reweighted" : "set aside"} the flagged rows and fitted again from the start, so each segment starts high again.`
+    : ".") + (rises && r.prior?.used
+    ? " Where the curve rises within a fit, the solver traded fit to the samples for the prior toward the nominal model: the plotted data RMS is one part of the cost it lowers."
+    : ""));
+}
+
+/** Old and new side by side: test RMSE on the same held-out rows, TCP σ, the parameters
+ * that changed (GET /identifications/{id}/compare). */
+async function renderCompare(j) {
+  const box = $("compare");
+  if (j.current) { box.hidden = true; return; }
+  const c = await api("GET", `/identifications/${j.id}/compare`, { quiet: true });
+  if (!c.current) { box.hidden = true; return; }
+  box.hidden = false;
+  setText("compare-title", `#${j.id} next to the current calibration #${c.current.job_id}`);
+  fillTable($("compare-table"), [{ label: "" }, { label: `current #${c.current.job_id} (${c.current.method})`, num: true }, { label: `new #${j.id} (${c.new.method})`, num: true }], [
+    [`test RMSE on the same ${c.n_rows} held-out rows [mm]`, fix(c.current.test_rmse_mm, 3), fix(c.new.test_rmse_mm, 3)],
+    ["TCP uncertainty 1σ RMS [mm]", fix(c.current.tcp_sigma_mm, 3), fix(c.new.tcp_sigma_mm, 3)],
+  ]);
+  fillTable($("compare-changed"), [{ label: "parameter" }, { label: "current", num: true }, { label: "new", num: true }, { label: "change", num: true }],
+    c.changed.length ? c.changed.map((p) => [p.name, `${fix(p.current, 3)} ${p.unit}`, `${fix(p.new, 3)} ${p.unit}`, `${p.change > 0 ? "+" : ""}${fix(p.change, 3)} ${p.unit}`])
+      : [["no parameter changed by more than 0.001", "", "", ""]]);
+  $("accept").textContent = `Accept: replace calibration #${c.current.job_id} by #${j.id}`;
 }
 
 function renderDh(r) {
@@ -185,25 +348,30 @@ function renderIdent(r) {
 }
 
 async function accept() {
-  const plaus = job.result?.plausibility || {};
+  const j = shownJob;
+  const plaus = j.result?.plausibility || {};
   if (!plaus.plausible && !confirm(`These parameters are outside the plausible bounds (${(plaus.outside_bounds || []).join(", ")}).\nAccept them as the robot's calibration anyway?`)) return;
-  job = await api("POST", `/identifications/${job.id}/accept`);
+  job = await api("POST", `/identifications/${j.id}/accept`);
   shownResult = null;
+  $("accept").textContent = "Accept as the robot's calibration";
   renderJob();
-  showMessage("info", `Identification #${job.id} accepted: it is now the calibrated model of robot ${state.campaign.robot_name}.`, "accepted");
+  $("job-list").dataset.key = "";
+  await loadJobs();
+  showMessage("info", `Identification #${job.id} accepted: it is now the current calibration of robot ${state.campaign.robot_name}.`, "accepted");
 }
 
 async function downloadKind(kind) {
-  const id = job.id;
-  const robotId = job.robot_id;
+  const shown = shownJob || job;
+  const id = shown.id;
+  const robotId = shown.robot_id;
   if (kind === "result") {
-    saveBlob(new Blob([JSON.stringify(job.result, null, 2)], { type: "application/json" }), `identification-${id}-result.json`);
+    saveBlob(new Blob([JSON.stringify(shown.result, null, 2)], { type: "application/json" }), `identification-${id}-result.json`);
   } else if (kind === "report") {
     await download(`/identifications/${id}/report.html`, `identification-${id}-report.html`);
   } else if (kind === "samples") {
-    await download(`/campaigns/${job.campaign_id}/samples?format=csv`, `campaign-${job.campaign_id}-samples.csv`);
-  } else if (!job.accepted) {
-    showMessage("warn", "The calibrated model is the robot's ACCEPTED result: accept this one first (or download another accepted one).", "model-dl");
+    await download(`/campaigns/${shown.campaign_id}/samples?format=csv`, `campaign-${shown.campaign_id}-samples.csv`);
+  } else if (!shown.current) {
+    showMessage("warn", "The calibrated model is the robot's ACCEPTED result: accept this one first (or download the current one).", "model-dl");
   } else {
     const response = await api("GET", `/robots/${robotId}/calibrated-model?format=${kind}`, { raw: true });
     const type = response.headers.get("Content-Type") || "";
@@ -216,19 +384,21 @@ async function downloadKind(kind) {
 
 export function initIdentify() {
   $("identify-form").addEventListener("submit", start);
-  $("identify-form").addEventListener("input", updateNeed);
+  $("identify-form").addEventListener("input", () => updateReadiness().catch(() => {}));
   $("accept").addEventListener("click", () => accept().catch(() => {}));
+  $("job-cancel").addEventListener("click", () => cancelJob().catch(() => {}));
+  buildForm().then(() => updateReadiness()).catch(() => {});
   for (const b of document.querySelectorAll("[data-download]")) {
     b.addEventListener("click", () => downloadKind(b.dataset.download).catch(() => {}));
   }
   onChange((kind) => {
-    if (kind === "campaign") { job = null; shownResult = null; $("result").hidden = true; }
+    if (kind === "campaign") { job = null; shownResult = null; shownJob = null; readiness = null; $("result").hidden = true; updateReadiness().catch(() => {}); }
     const has = !!state.campaign;
     $("identify-empty").hidden = has;
     $("identify-body").hidden = !has;
   });
   every(700, poll, () => state.view === "identify");
-  every(3000, async () => { await refreshCampaign(); await refreshDetail(); await loadJobs(); updateNeed(); }, () => state.view === "identify");
+  every(3000, async () => { await refreshCampaign(); await refreshDetail(); await loadJobs(); await updateReadiness(); }, () => state.view === "identify");
 }
 
 export const currentJob = () => job;

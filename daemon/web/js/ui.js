@@ -107,14 +107,6 @@ export function dismiss(key) {
   }
 }
 
-/** The samples of ``n`` held out to test at ``testFraction``: ``round(testFraction * n)`` with
- * Python's rounding (halves to even), as calib.options.validate and calib.split count them. */
-export function heldOut(testFraction, n) {
-  const x = testFraction * n;
-  const f = Math.floor(x);
-  return x - f > 0.5 || (x - f === 0.5 && f % 2 !== 0) ? f + 1 : f;
-}
-
 // ------------------------------------------------------------------ shared state
 /** What the views share: the selected campaign, its robot, the latest /status. */
 export const state = {
@@ -123,6 +115,7 @@ export const state = {
   listeners: [],
   view: "cell",
   routes: new Set(), // "METHOD /path/{}" of every route in /openapi.json
+  authRefused: false, // the daemon refused the token (401): polling pauses until a new one
   downloadFormats: [], // the plan's download formats (csv, robot programs): the REST enum
 };
 
@@ -159,7 +152,7 @@ export function changed(kind) {
 export function every(ms, fn, active = () => true) {
   const tick = async () => {
     const t0 = performance.now();
-    if (active() && !document.hidden) {
+    if (active() && !document.hidden && !state.authRefused) {
       try { await fn(); } catch (exc) { if (!exc.status && exc.status !== 0) showMessage("error", `page: ${exc.message}`); }
     }
     setTimeout(tick, Math.max(0, ms - (performance.now() - t0)));

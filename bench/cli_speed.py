@@ -1,0 +1,217 @@
+"""The speed an operator feels at the command line: ``cablecal identify`` against its floor.
+
+Measured in one run, interleaved so that the load of a shared machine falls on every figure
+alike (each round runs each command once, in turn):
+
+* ``floor``: ``python -c "import numpy, scipy.linalg"``, the import floor of any identify;
+* ``identify_100``: ``cablecal identify`` on the first 100 rows of the bundled real data
+  (calib/data/hsr-robotcali.csv, the paper's D1), the whole command (start, imports, fit,
+  table, result.json), wall time;
+* ``elapsed_100`` / ``elapsed_2017``: identify's own ``elapsed_s`` from ``result.json`` of the
+  100-row run and of a run on all 2017 rows.
+
+On a shared machine wall time follows the load, so CPU time is measured as well: of each
+child process (``getrusage`` of the children, user + system) and, for identify's own part,
+``time.process_time`` around :func:`calib.identify.identify` in this process with one BLAS
+thread (the CLI's setting), on the same rows.
+
+Targets (issue 20): ``identify_100 / floor`` at most 1.5; ``elapsed_100`` at most 0.05 s;
+``elapsed_2017`` at most 0.1 s. Medians over ``--runs`` rounds, with the minimum (the figure
+least disturbed by other processes) next to it. The top-level imports of one
+``python -X importtime`` run of the 100-row command list what the command still loads beyond
+the floor.
+
+Writes ``bench/cli_speed.json`` and ``bench/cli_speed.md``. Run
+``python -m bench.cli_speed [--runs 7]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE.parent / "calib" / "data" / "hsr-robotcali.csv"
+TARGETS = {"ratio_100": 1.5, "elapsed_100_s": 0.05, "elapsed_2017_s": 0.1}
+#: Import-time entries listed in the report: cumulative at least this long [us].
+IMPORT_LIST_US = 20_000
+
+
+def _cli(csv: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "daemon.cli", "identify", str(csv), "--out", str(out)]
+
+
+def _wall(cmd: list[str]) -> tuple[float, float]:
+    """Wall and CPU (user + system) time [s] of one run of ``cmd``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu
+
+
+def _identify_cpu(rows: int) -> float:
+    """``time.process_time`` [s] of one default identify on the first ``rows`` rows."""
+    import numpy as np
+
+    from calib.identify import identify
+    from calib.models import builtin_model
+    from daemon.datafiles import read_samples
+
+    samples = read_samples(None)
+    part = samples.subset(np.arange(min(rows, len(samples.length_mm))))
+    t0 = time.process_time()
+    identify(builtin_model("hsr-jr680"), part)
+    return time.process_time() - t0
+
+
+def _elapsed(result_json: Path) -> float:
+    return float(json.loads(result_json.read_text(encoding="utf-8"))["elapsed_s"])
+
+
+def _top_imports(cmd: list[str]) -> list[tuple[str, float]]:
+    """Top-level modules (and their direct children) of one ``-X importtime`` run, with
+    their cumulative time [ms], longest first."""
+    proc = subprocess.run([cmd[0], "-X", "importtime", *cmd[1:]], capture_output=True,
+                          text=True, check=True)  # fmt: skip
+    out: list[tuple[str, float]] = []
+    for line in proc.stderr.splitlines():
+        if not line.startswith("import time:") or "cumulative" in line:
+            continue
+        _, cumulative, name = line.split("|")
+        depth = (len(name) - len(name.lstrip(" "))) // 2
+        if depth <= 1 and int(cumulative) >= IMPORT_LIST_US:
+            out.append((name.strip(), int(cumulative) / 1000.0))
+    return sorted(out, key=lambda kv: -kv[1])
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=7)
+    args = ap.parse_args(argv)
+    rows = DATA.read_text(encoding="utf-8").splitlines()
+    floor_cmd = [sys.executable, "-c", "import numpy, scipy.linalg"]
+    from daemon.blas import single_threaded_blas
+
+    single_threaded_blas()
+    walls: dict[str, list[float]] = {"floor": [], "identify_100": []}
+    cpus: dict[str, list[float]] = {"floor": [], "identify_100": []}
+    elapsed: dict[str, list[float]] = {"elapsed_100_s": [], "elapsed_2017_s": [],
+                                       "cpu_100_s": [], "cpu_2017_s": []}  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        small = tmp / "first-100.csv"
+        small.write_text("\n".join(rows[:101]) + "\n", encoding="utf-8")
+        out_small, out_all = tmp / "r100.json", tmp / "r2017.json"
+        _identify_cpu(100)  # imports and caches, as the CLI pays them in the wall figure
+        for _ in range(args.runs):
+            for key, cmd in (("floor", floor_cmd), ("identify_100", _cli(small, out_small))):
+                wall, cpu = _wall(cmd)
+                walls[key].append(wall)
+                cpus[key].append(cpu)
+            elapsed["elapsed_100_s"].append(_elapsed(out_small))
+            _wall(_cli(DATA, out_all))
+            elapsed["elapsed_2017_s"].append(_elapsed(out_all))
+            elapsed["cpu_100_s"].append(_identify_cpu(100))
+            elapsed["cpu_2017_s"].append(_identify_cpu(len(rows) - 1))
+        imports = _top_imports(_cli(small, out_small))
+    med = {k: statistics.median(v) for k, v in {**walls, **elapsed}.items()}
+    low = {k: min(v) for k, v in {**walls, **elapsed}.items()}
+    cpu_med = {k: statistics.median(v) for k, v in cpus.items()}
+    figures = {
+        "ratio_100": med["identify_100"] / med["floor"],
+        "elapsed_100_s": med["elapsed_100_s"],
+        "elapsed_2017_s": med["elapsed_2017_s"],
+    }
+    cpu_figures = {
+        "ratio_100": cpu_med["identify_100"] / cpu_med["floor"],
+        "elapsed_100_s": med["cpu_100_s"],
+        "elapsed_2017_s": med["cpu_2017_s"],
+    }
+    best = {
+        "ratio_100": low["identify_100"] / low["floor"],
+        "elapsed_100_s": low["elapsed_100_s"],
+        "elapsed_2017_s": low["elapsed_2017_s"],
+    }
+    report: dict[str, Any] = {
+        "runs": args.runs,
+        "machine": f"{platform.machine()}, {os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f}",
+        "python": platform.python_version(),
+        "median_s": med,
+        "min_s": low,
+        "figures": figures,
+        "figures_at_min": best,
+        "cpu_median_s": cpu_med,
+        "figures_cpu": cpu_figures,
+        "targets": TARGETS,
+        "met": {k: figures[k] <= TARGETS[k] for k in TARGETS},
+        "met_cpu": {k: cpu_figures[k] <= TARGETS[k] for k in TARGETS},
+        "top_imports_ms": imports,
+    }
+    (HERE / "cli_speed.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    (HERE / "cli_speed.md").write_text(_markdown(report), encoding="utf-8")
+    print(_markdown(report))
+    return report
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    med, low, fig, best = r["median_s"], r["min_s"], r["figures"], r["figures_at_min"]
+    cpu, cfig = r["cpu_median_s"], r["figures_cpu"]
+    lines = [
+        "# CLI speed: `cablecal identify` against the import floor",
+        "",
+        f"Written by `python -m bench.cli_speed` ({r['runs']} interleaved rounds; "
+        f"{r['machine']}, Python {r['python']}). Data: the bundled real data (D1).",
+        "",
+        "| figure | median | min | target | met (median) |",
+        "|---|---|---|---|---|",
+        f"| floor `import numpy, scipy.linalg` [s] | {med['floor']:.3f} | {low['floor']:.3f} | | |",
+        f"| `cablecal identify`, 100 rows, wall [s] | {med['identify_100']:.3f} | "
+        f"{low['identify_100']:.3f} | | |",
+        f"| ratio identify / floor | {fig['ratio_100']:.2f} | {best['ratio_100']:.2f} | "
+        f"<= {TARGETS['ratio_100']} | {'yes' if r['met']['ratio_100'] else 'no'} |",
+        f"| identify's own elapsed, 100 rows [s] | {fig['elapsed_100_s']:.3f} | "
+        f"{best['elapsed_100_s']:.3f} | <= {TARGETS['elapsed_100_s']} | "
+        f"{'yes' if r['met']['elapsed_100_s'] else 'no'} |",
+        f"| identify's own elapsed, 2017 rows [s] | {fig['elapsed_2017_s']:.3f} | "
+        f"{best['elapsed_2017_s']:.3f} | <= {TARGETS['elapsed_2017_s']} | "
+        f"{'yes' if r['met']['elapsed_2017_s'] else 'no'} |",
+        "",
+        "CPU time (user + system; what the figures would be on an idle machine):",
+        "",
+        "| figure | median | target | met |",
+        "|---|---|---|---|",
+        f"| floor [s CPU] | {cpu['floor']:.3f} | | |",
+        f"| `cablecal identify`, 100 rows [s CPU] | {cpu['identify_100']:.3f} | | |",
+        f"| ratio identify / floor | {cfig['ratio_100']:.2f} | <= {TARGETS['ratio_100']} | "
+        f"{'yes' if r['met_cpu']['ratio_100'] else 'no'} |",
+        f"| identify, 100 rows, in process [s CPU] | {cfig['elapsed_100_s']:.3f} | "
+        f"<= {TARGETS['elapsed_100_s']} | {'yes' if r['met_cpu']['elapsed_100_s'] else 'no'} |",
+        f"| identify, 2017 rows, in process [s CPU] | {cfig['elapsed_2017_s']:.3f} | "
+        f"<= {TARGETS['elapsed_2017_s']} | {'yes' if r['met_cpu']['elapsed_2017_s'] else 'no'} |",
+        "",
+        "Top-level imports of the 100-row command (cumulative, at least "
+        f"{IMPORT_LIST_US // 1000} ms; one `-X importtime` run):",
+        "",
+        "| module | ms |",
+        "|---|---|",
+        *(f"| `{name}` | {ms:.0f} |" for name, ms in r["top_imports_ms"]),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
