@@ -23,6 +23,7 @@ from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
 
+
 class JobState(StrEnum):
     """The one home of an identification job's states: the store's CHECK constraint, the
     job manager, the REST schema and the page (``GET /options``) read them from here."""

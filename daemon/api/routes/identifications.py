@@ -12,7 +12,7 @@ from typing_extensions import TypedDict
 from calib.options import default, samples_for_training_rows, spec
 from daemon.api.compare import Comparison, compare_results
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
-from daemon.api.errors import error_responses, unprocessable
+from daemon.api.errors import error_responses
 from daemon.api.min_samples import held_out
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
