@@ -524,6 +524,8 @@ def identify(
         drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
         if opts.method not in DRIFT_METHODS:
             drift_block["note"] = f"not modelled: method {opts.method} does not support it"
+        # The one wording of what was found: the CLI, the HTML report and the page read it.
+        drift_block["summary"] = drift.summary(drift_block)
     cov, _ = covariance(final, x)
     sigma, corr = uncertainty(final, x, cov)
     # The covariance propagated to the tool point over a workspace sample within the joint

@@ -152,6 +152,10 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             assert page.locator(f"{chart} canvas").count() == 1, chart
         assert page.locator("#dh-table tbody tr").count() == 7  # six joints and the tool
         assert "±" in page.inner_text("#dh-table")
+        # issue 19: the measurement's drift, in calib's own words (result.drift.summary)
+        first = api.get(f"/campaigns/{cid}/identifications").json()[-1]
+        summary = api.get(f"/identifications/{first['id']}").json()["result"]["drift"]["summary"]
+        assert page.inner_text("#result-drift") == summary and summary.startswith("drift auto")
         _shot(page, tmp_path, "4-identify-result")
 
         # accept: the robot's first result (accepted automatically when plausible)

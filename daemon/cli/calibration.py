@@ -150,9 +150,7 @@ def _summary(result: IdentifyResult) -> None:
         f"{data['plausibility']['plausible']}, flagged: {len(data['flagged_samples'])}"
     )
     if data.get("drift"):
-        from calib.drift import summary as drift_summary
-
-        console.print(drift_summary(data["drift"]))
+        console.print(data["drift"]["summary"])
     flagged = data["flagged_samples"]
     if flagged:
         shown = ", ".join(str(i) for i in flagged[:40]) + (" …" if len(flagged) > 40 else "")

@@ -74,6 +74,19 @@ export function residualChart(node, sampleNo, beforeMm, afterMm) {
   }, data);
 }
 
+/** The measurement's drift term [mm] per sample (calib.drift), in sample order. */
+export function driftChart(node, sampleNo, driftMm) {
+  return make(node, {
+    height: 200,
+    legend: { show: false },
+    cursor: { show: false },
+    scales: { x: { time: false } },
+    axes: [{ ...AXIS, label: "sample (in id order)" },
+      { ...AXIS, label: "drift [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) }],
+    series: [{}, { label: "drift [mm]", stroke: COLORS.cost, width: 2, points: { show: false } }],
+  }, [sampleNo, driftMm]);
+}
+
 /** Histogram of before and after residuals on shared bins (bars side by side). */
 export function histogramChart(node, beforeMm, afterMm) {
   const all = [...(beforeMm || []), ...afterMm].filter(Number.isFinite);

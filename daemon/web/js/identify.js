@@ -3,7 +3,7 @@
 // TCP uncertainty, Accept, and downloads sent with the token.
 import { api, download, saveBlob } from "./api.js";
 import { refreshCampaign, refreshDetail } from "./campaign.js";
-import { costChart, histogramChart, residualChart } from "./charts.js";
+import { costChart, driftChart, histogramChart, residualChart } from "./charts.js";
 import { $, clock, dismiss, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 const DH = [["alpha", "α", "deg"], ["a", "a", "mm"], ["d", "d", "mm"], ["theta", "θ", "deg"]];
@@ -256,6 +256,7 @@ async function renderResult(j) {
   $("result-notes-card").hidden = !(r.notes || []).length;
   for (const p of plots.splice(0)) p.cleanup();
   renderCost(r);
+  renderDrift(r);
   try {
     const res = await api("GET", `/identifications/${j.id}/residuals`, { quiet: true });
     const idx = res.after_mm.map((_, i) => i + 1);
@@ -270,6 +271,18 @@ async function renderResult(j) {
 
 /** The convergence chart: whole iterations on x; each fit (robust rounds restart from the
  * start) its own segment, broken where the next one begins. */
+/** What calib.drift found, in its own words (result.drift.summary), with the drift per sample. */
+function renderDrift(r) {
+  const d = r.drift;
+  $("result-drift-card").hidden = !d;
+  if (!d) return;
+  setText("result-drift", d.summary || "");
+  const per = d.per_sample_mm || [];
+  const found = d.model !== "none" && per.length;
+  $("chart-drift").hidden = !found;
+  if (found) plots.push(driftChart($("chart-drift"), per.map((_, i) => i + 1), per));
+}
+
 function renderCost(r) {
   const cost = r.cost_history_rms_mm || [];
   const starts = (r.cost_history_fit_starts || [0]).filter((i) => i > 0 && i < cost.length);
