@@ -17,8 +17,13 @@ from daemon.cli.emulated import (
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
-#: Kinds whose face this branch serves (the others add theirs to the same test).
-KINDS = ("ur-rtde", "abb-rws")
+#: Each controller kind of issue 18 and the driver class the daemon must pick for it.
+DRIVERS = {
+    "ur-rtde": "UrRtdeRobot",
+    "abb-rws": "AbbRwsRobot",
+    "kuka-varproxy": "KukaVarProxyRobot",
+    "fanuc-rmi": "FanucRmiRobot",
+}
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +37,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> EmulatedCellProcess:
     sim.stop()
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", DRIVERS)
 def test_serve_captures_through_the_face_of_each_kind(
     cell: EmulatedCellProcess, tmp_path: Path, kind: str
 ) -> None:
@@ -47,7 +52,7 @@ def test_serve_captures_through_the_face_of_each_kind(
         api = daemon.client()
         status = api.get("/status").json()
         robot = next(d for d in status["devices"].values() if d.get("role") == "robot")
-        assert robot["driver"] == {"ur-rtde": "UrRtdeRobot", "abb-rws": "AbbRwsRobot"}[kind]
+        assert robot["driver"] == DRIVERS[kind]
         cid = api.post("/campaigns", json={"name": kind, "robot_model": "hsr-jr680"}).json()["id"]
         r = api.post(f"/campaigns/{cid}/captures", json={})
         assert r.status_code == 201, r.text
