@@ -275,7 +275,8 @@ def _sampler_noise(sampler: Any, cfg: Any) -> NoiseEstimate | None:
     return NoiseEstimate(
         se, "sampler",
         f"the live indicator: {len(windows)} still windows of {cfg.settle_s} s, "
-        f"{float(np.mean(count)):.0f} readings each (a lower bound: one pose)",
+        f"{float(np.mean(count)):.0f} readings each (a lower bound: what varies between "
+        "captures is not in it)",
     )  # fmt: skip
 
 

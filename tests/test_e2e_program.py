@@ -144,7 +144,7 @@ def test_the_robot_runs_the_plan_and_the_result_keeps_its_promise(
             f"({check['n_samples']} samples); TCP σ RMS achieved {achieved_rms:.4f} mm, "
             f"planned {planned_rms:.4f} mm (x{achieved_rms / planned_rms:.2f}, limit x1.5); "
             f"noise planned {check['plan_noise_mm']:.4f} mm ({summary['noise_source']}), "
-            f"fit {check['fit_noise_mm']:.4f} mm; "
+            f"fit {check['fit_noise_mm']:.4f} mm; {summary['noise_detail']}; "
             f"at the fit's noise x{check['sigma_ratio_at_fit_noise']:.2f}"
         )
     assert check["on_plan"] and check["n_measured"] == N_POSES and check["n_off_plan"] == 0
