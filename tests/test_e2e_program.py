@@ -149,6 +149,7 @@ def test_the_robot_runs_the_plan_and_the_result_keeps_its_promise(
         )
     assert check["on_plan"] and check["n_measured"] == N_POSES and check["n_off_plan"] == 0
     assert check["sigma_ratio"] == pytest.approx(achieved_rms / planned_rms)
+    assert check["plan_noise_source"] == "sampler"
     # The plan's promise holds both ways: neither too rosy nor too gloomy.
     assert 1 / 1.5 <= achieved_rms / planned_rms <= 1.5
     # At the noise the fit found, the plan's design alone predicts the result.
