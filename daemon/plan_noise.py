@@ -9,7 +9,8 @@ best figure the cell has, in this order (``noise_source``; a ``noise_mm`` the re
 
 1. ``result``: the noise the robot's newest accepted identification ran with
    (``result.prior.noise_mm``, the σ̂ of its own residuals): what the next fit will see,
-   including what the model does not explain.
+   including what the model does not explain. A fit with ``weight`` ``fixed`` ran with the
+   noise it was given, so its ``noise_estimated_mm`` counts, if any.
 2. ``samples``: the campaign's included captures. With repeat poses (two or more samples at
    the same pose and anchor, :func:`daemon.store.match_poses`'s tolerance), the spread of
    their lengths (robot repeatability and drift included). Without, the standard error of
@@ -219,7 +220,9 @@ def _result_noise(store: Any, robot_id: int) -> float | None:
         result = store.accepted_result(robot_id)["result"]
     except StoreNotFound:
         return None
-    noise = (result.get("prior") or {}).get("noise_mm")
+    prior = result.get("prior") or {}
+    # weight "fixed": noise_mm is the option the fit was given, not what its data said.
+    noise = prior.get("noise_estimated_mm" if prior.get("weight") == "fixed" else "noise_mm")
     return None if noise is None else float(noise)
 
 

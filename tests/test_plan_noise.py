@@ -141,6 +141,9 @@ def test_cell_noise_sources_in_order(tmp_path: Path) -> None:
     job = store.create_job(cid, robot_id, "geolm", {})
     store.save_result(int(job["id"]), {"prior": {"noise_mm": 0.0123}}, accepted=False)
     assert cell_noise(store, live, CFG, cid, robot_id).source == "samples"  # not accepted
+    job = store.create_job(cid, robot_id, "geolm", {})  # given its noise, measured none
+    store.save_result(int(job["id"]), {"prior": {"noise_mm": 0.05, "weight": "fixed"}})
+    assert cell_noise(store, live, CFG, cid, robot_id).source == "samples"
     job = store.create_job(cid, robot_id, "geolm", {})
     store.save_result(int(job["id"]), {"prior": {"noise_mm": 0.0123}}, accepted=True)
     est = cell_noise(store, live, CFG, cid, robot_id)
