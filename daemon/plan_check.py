@@ -34,9 +34,11 @@ def plan_check(
         ``n_samples``, ``n_off_plan`` (samples at no planned pose), ``on_plan`` (every planned
         pose measured), ``tol_deg``, ``planned_tcp_sigma_mm`` and ``achieved_tcp_sigma_mm``
         (``{"rms", "max"}`` [mm]), ``sigma_ratio`` (achieved / planned RMS), ``plan_noise_mm``
-        (the noise the plan assumed), ``fit_noise_mm`` (the noise the fit ran with),
-        ``planned_rms_at_fit_noise_mm`` (the plan's RMS scaled to that noise: σ is linear in
-        the noise) and ``sigma_ratio_at_fit_noise`` (achieved over it), ``note``.
+        (the noise the plan assumed) and ``plan_noise_source`` (where it came from, see
+        :mod:`daemon.plan_noise`; None for plans made before), ``fit_noise_mm`` (the noise
+        the fit ran with), ``planned_rms_at_fit_noise_mm`` (the plan's RMS scaled to that
+        noise: σ is linear in the noise) and ``sigma_ratio_at_fit_noise`` (achieved over it),
+        ``note``.
     """
     try:
         plan = store.latest_plan(campaign_id)
@@ -78,8 +80,9 @@ def plan_check(
             note += f" {n_off} further samples are off the plan."
         if ratio is not None and ratio > SIGMA_RATIO_NOTE:
             note += (
-                f" The plan assumed {summary.get('noise_mm')} mm length noise; a higher σ "
-                "means noisier lengths than that (check the cable and the settle window)."
+                f" The plan assumed {summary.get('noise_mm')} mm length noise (from "
+                f"{summary.get('noise_source') or 'the request'}); a higher σ means noisier "
+                "lengths than that (check the cable and the settle window)."
             )
     else:
         note = (
@@ -100,6 +103,7 @@ def plan_check(
         "achieved_tcp_sigma_mm": achieved,
         "sigma_ratio": ratio,
         "plan_noise_mm": plan_noise,
+        "plan_noise_source": summary.get("noise_source"),
         "fit_noise_mm": fit_noise,
         "planned_rms_at_fit_noise_mm": same_noise,
         "sigma_ratio_at_fit_noise": (

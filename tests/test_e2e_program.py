@@ -2,7 +2,8 @@
 auto capture → every plan pose captured → identify, with real processes on loopback
 (``cablecal simulate`` + ``cablecal serve``), driven over HTTP as the page would.
 
-The identification's predicted tool-point σ must come within 1.5x of what the plan promised,
+The identification's predicted tool-point σ must come within 1.5x of what the plan promised
+(both ways), the plan taking its noise from the cell (no ``noise_mm`` in the request),
 and the result must say it followed the plan. Short moves and dwells keep it to about half a
 minute; the emulated robot takes its timing from its config, not from the program.
 
@@ -73,11 +74,24 @@ def test_the_robot_runs_the_plan_and_the_result_keeps_its_promise(
         api = cell.daemon.client()
         r = api.post("/campaigns", json={"name": "plan-e2e", "robot_model": "hsr-jr680"})
         cid = int(r.json()["id"])
+        # No noise_mm: the daemon takes it from the cell (here, a new robot and campaign:
+        # the live indicator's still windows, as a capture averages them). A cell PC has
+        # watched its indicator long before anyone plans; this one just started.
+        wait_for(
+            lambda: api.get("/status").json()["sampler"]["readings_in_buffer"] >= 250,
+            30,
+            0.2,
+            "the sampler's first readings",
+        )
         body = {"anchors_mm": [ANCHOR_MM], "n": N_POSES, "candidates": 1500, "seed": 1,
-                "noise_mm": FAST_CELL_NOISE_MM, "extension_mm": [400.0, 1900.0]}  # fmt: skip
+                "extension_mm": [400.0, 1900.0]}  # fmt: skip
         r = api.post(f"/campaigns/{cid}/plan", json=body, timeout=120)
         assert r.status_code == 201, r.text
-        planned_rms = r.json()["summary"]["tcp_sigma_mm"]["plan"]["rms"]
+        summary = r.json()["summary"]
+        planned_rms = summary["tcp_sigma_mm"]["plan"]["rms"]
+        assert summary["noise_source"] == "sampler", summary
+        # A window mean is far quieter than one reading (FAST_CELL_NOISE_MM).
+        assert 0 < summary["noise_mm"] < FAST_CELL_NOISE_MM / 2
         # The plan as a KUKA program, as the page's download gives it; the robot runs it.
         r = api.get(f"/campaigns/{cid}/plan", params={"format": "krl"})
         assert r.status_code == 200, r.text
@@ -129,12 +143,14 @@ def test_the_robot_runs_the_plan_and_the_result_keeps_its_promise(
             f"\ne2e plan→program→robot: {check['n_measured']}/{N_POSES} plan poses captured "
             f"({check['n_samples']} samples); TCP σ RMS achieved {achieved_rms:.4f} mm, "
             f"planned {planned_rms:.4f} mm (x{achieved_rms / planned_rms:.2f}, limit x1.5); "
-            f"noise planned {check['plan_noise_mm']} mm, fit {check['fit_noise_mm']:.4f} mm; "
+            f"noise planned {check['plan_noise_mm']:.4f} mm ({summary['noise_source']}), "
+            f"fit {check['fit_noise_mm']:.4f} mm; {summary['noise_detail']}; "
             f"at the fit's noise x{check['sigma_ratio_at_fit_noise']:.2f}"
         )
     assert check["on_plan"] and check["n_measured"] == N_POSES and check["n_off_plan"] == 0
     assert check["sigma_ratio"] == pytest.approx(achieved_rms / planned_rms)
-    assert achieved_rms <= 1.5 * planned_rms
-    # Stronger: at the noise the fit found (captures are window means, quieter than the
-    # per-reading noise the plan assumed), the plan's design still predicts the result.
-    assert check["sigma_ratio_at_fit_noise"] <= 1.5
+    assert check["plan_noise_source"] == "sampler"
+    # The plan's promise holds both ways: neither too rosy nor too gloomy.
+    assert 1 / 1.5 <= achieved_rms / planned_rms <= 1.5
+    # At the noise the fit found, the plan's design alone predicts the result.
+    assert 1 / 1.5 <= check["sigma_ratio_at_fit_noise"] <= 1.5

@@ -25,6 +25,7 @@ from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import MAX_ANCHOR_CHARS, Anchor, StrictBody
+from daemon.plan_noise import NoiseEstimate, cell_noise
 from daemon.store import MATCH_TOL_DEG, match_poses
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
@@ -80,9 +81,12 @@ class PlanRequest(StrictBody):
         _D.anchor_uncertainty_mm, ge=0, le=1000, allow_inf_nan=False,
         description="How far the guess may be off.",
     )  # fmt: skip
-    noise_mm: float = Field(
-        _D.noise_mm, gt=0, le=10, allow_inf_nan=False, description="1σ length noise."
-    )
+    noise_mm: float | None = Field(
+        None, gt=0, le=10, allow_inf_nan=False,
+        description="1σ noise of one captured length [mm]; default (null): from the cell "
+        "(the robot's accepted result, the campaign's captures, the live indicator, else "
+        f"{_D.noise_mm}); the summary names it (noise_source).",
+    )  # fmt: skip
     joint_speed_deg_s: Annotated[
         list[Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]],
         Field(min_length=6, max_length=6),
@@ -95,13 +99,16 @@ class PlanRequest(StrictBody):
         False, description="Plan more poses on top of the campaign's included samples."
     )
 
-    def options(self) -> PlanOptions:
-        """The engine's options (anchor ids set by the caller when taken from samples)."""
+    def options(self, noise_mm: float | None = None) -> PlanOptions:
+        """The engine's options (anchor ids set by the caller when taken from samples), with
+        ``noise_mm`` when the request gives none (else the engine's default)."""
+        noise = self.noise_mm if self.noise_mm is not None else noise_mm
         return PlanOptions(
             n=self.n, candidates=self.candidates, seed=self.seed, min_z_mm=self.min_z_mm,
             extension_mm=(self.extension_mm[0], self.extension_mm[1]),
             anchor_uncertainty_mm=self.anchor_uncertainty_mm,
-            noise_mm=self.noise_mm, joint_speed_deg_s=tuple(self.joint_speed_deg_s),
+            noise_mm=_D.noise_mm if noise is None else noise,
+            joint_speed_deg_s=tuple(self.joint_speed_deg_s),
             dwell_s=self.dwell_s,
             anchor_ids=None if self.anchor_ids is None else tuple(self.anchor_ids),
         )  # fmt: skip
@@ -155,10 +162,11 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
 
 
 def _compute(
-    model: RobotModel, body: PlanRequest, start: SampleSet | None
+    model: RobotModel, body: PlanRequest, start: SampleSet | None, noise: NoiseEstimate
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """Run the planning (in a worker thread): the summary and the poses."""
-    opts = body.options()
+    """Run the planning (in a worker thread): the summary (with ``noise_source`` and
+    ``noise_detail``: where its ``noise_mm`` came from) and the poses."""
+    opts = body.options(noise.noise_mm)
     anchors = body.anchors_mm
     found = {}
     if start is not None:
@@ -173,7 +181,9 @@ def _compute(
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
     res = plan(model, np.asarray(anchors, dtype=float), opts, start=start)
-    return res.to_json(), res.csv_rows()
+    summary = res.to_json()
+    summary.update(noise_source=noise.source, noise_detail=noise.detail)
+    return summary, res.csv_rows()
 
 
 def _loc(message: str) -> tuple[str, ...]:
@@ -209,7 +219,15 @@ async def make_plan(
         raise HTTPException(409, "plan: another plan is being computed; try again later")
     request.app.state.planning_campaign = campaign_id
     try:
-        summary, poses = await asyncio.to_thread(_compute, model, body, start)
+        noise = (
+            NoiseEstimate(body.noise_mm, "request", "given in the plan request")
+            if body.noise_mm is not None
+            else await asyncio.to_thread(
+                cell_noise, state.store, state.sampler, state.settings.sampler, campaign_id,
+                int(campaign["robot_id"]),
+            )
+        )  # fmt: skip
+        summary, poses = await asyncio.to_thread(_compute, model, body, start, noise)
     except (ValueError, SampleError, np.linalg.LinAlgError) as exc:
         raise unprocessable(_loc(str(exc)), str(exc)) from exc
     finally:
