@@ -33,7 +33,7 @@ from daemon.cli.emulated import (
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
-N_POSES = 30
+N_POSES = 40
 TOKEN = "e2e-program-token-0123"
 #: The emulated cell's true anchor (simulator.config.CellSection's default) [mm].
 ANCHOR_MM = [1400.0, 300.0, 200.0]
