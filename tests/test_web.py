@@ -101,7 +101,11 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             page.wait_for_function(
                 "document.querySelectorAll('#plan-poses tbody tr').length >= 30", timeout=120000
             )
-            assert "Predicted tool-point accuracy" in page.inner_text("#plan-summary")
+            summary = page.inner_text("#plan-summary")
+            assert "Predicted tool-point accuracy" in summary
+            # the noise the prediction assumes, and where it came from (not asked of the user)
+            noise = api.get(f"/campaigns/{cid}/plan").json()["summary"]
+            assert noise["noise_source"] != "request" and noise["noise_detail"] in summary
         else:
             missing.append("plan")
         _shot(page, tmp_path, "2-campaign-plan")

@@ -263,7 +263,9 @@ function renderPlan() {
   const pr = plan.progress || {};
   setText("plan-summary", `${pr.n_planned} planned poses: ${pr.n_done} captured, ${pr.n_pending} to go` +
     (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") + "." +
-    (tcp ? ` Predicted tool-point accuracy after calibration: ${fix(tcp.plan?.rms, 3)} mm RMS (1σ; max ${fix(tcp.plan?.max, 3)} mm), against ${fix(tcp.random?.rms, 3)} mm with as many random poses.` : ""));
+    (tcp ? ` Predicted tool-point accuracy after calibration: ${fix(tcp.plan?.rms, 3)} mm RMS (1σ; max ${fix(tcp.plan?.max, 3)} mm), against ${fix(tcp.random?.rms, 3)} mm with as many random poses.` : "") +
+    (plan.summary?.noise_mm ? ` It assumes ${fix(plan.summary.noise_mm, 4)} mm length noise per capture` +
+      (plan.summary.noise_detail ? ` (${plan.summary.noise_detail}).` : ".") : ""));
   fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
     { label: "anchor" }, { label: "status" }],
   plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
