@@ -210,34 +210,51 @@ class _Linear:
         out[: self.n] = b
         return out
 
+    def _added(self, b: FloatArray) -> FloatArray:
+        """Orthonormal basis of the columns ``b`` (n, m) of the data rows, made orthogonal
+        to the Jacobian's span."""
+        bp = self.pad(b)
+        bp = bp - self.q @ (self.q.T @ bp)
+        return orthonormal(bp)
+
+    def _rss_with(self, qb: FloatArray) -> float:
+        proj = qb.T @ self.r
+        return max(self.rss0 - float(proj @ proj), 1e-300)
+
     def rss(self, b: FloatArray) -> float:
         """RSS after adding the columns ``b`` (n, m) of the data rows."""
         if b.shape[1] == 0:
             return self.rss0
-        bp = self.pad(b)
-        bp = bp - self.q @ (self.q.T @ bp)
-        qb = orthonormal(bp)
-        proj = qb.T @ self.r
-        return max(self.rss0 - float(proj @ proj), 1e-300)
+        return self._rss_with(self._added(b))
 
     def press(self, b: FloatArray) -> float:
         """Leave-one-out prediction error sum of squares [mm²] of the data rows with the
         columns ``b`` (n, m) added (``Σ (r_i / (1 − h_ii))²``, ``h`` the hat matrix of the
         stacked Jacobian and ``b``): held-out cross-validation within the training rows."""
-        lin = self.with_columns(b) if b.shape[1] else self
-        h = np.sum(lin.q[: self.n] ** 2, axis=1)
-        r = lin.r[: self.n] / np.maximum(1.0 - h, 1e-6)
+        return (self.with_columns(b) if b.shape[1] else self)._press()
+
+    def rss_press(self, b: FloatArray) -> tuple[float, float]:
+        """:meth:`rss` and :meth:`press` of the columns ``b`` (n, m), orthonormalised once."""
+        if b.shape[1] == 0:
+            return self.rss0, self._press()
+        qb = self._added(b)
+        return self._rss_with(qb), self._extended(qb)._press()
+
+    def _press(self) -> float:
+        h = np.sum(self.q[: self.n] ** 2, axis=1)
+        r = self.r[: self.n] / np.maximum(1.0 - h, 1e-6)
         return float(r @ r)
 
     def with_columns(self, b: FloatArray) -> _Linear:
         """The same problem with the columns ``b`` (n, m) added to the Jacobian."""
         if b.shape[1] == 0:
             return self
+        return self._extended(self._added(b))
+
+    def _extended(self, qb: FloatArray) -> _Linear:
+        """The problem with the orthonormal columns ``qb`` (from :meth:`_added`) added."""
         out = _Linear.__new__(_Linear)
         out.n = self.n
-        bp = self.pad(b)
-        bp = bp - self.q @ (self.q.T @ bp)
-        qb = orthonormal(bp)
         out.q = np.hstack([self.q, qb])
         out.r = self.r - qb @ (qb.T @ self.r)
         out.rss0 = float(out.r @ out.r)
@@ -352,39 +369,41 @@ def select(
     """
     n = t.shape[0]
     if n < MIN_ROWS:
-        return _select_once("none", residual, jacobian, t, rows, unit, time_unit)
+        return _select_once("none", _Linear(residual, jacobian, n), t, rows, unit, time_unit)
     # Gross outliers of the plain fit first (beyond GROSS_SIGMA robust σ of its residual: a
     # drift widens that spread, so its rows stay in).
-    plain = np.abs(_Linear(residual, jacobian, n).r[:n])
+    lin = _Linear(residual, jacobian, n)  # reused below while the rows stay the same
+    plain = np.abs(lin.r[:n])
     gross0 = plain > GROSS_SIGMA * 1.4826 * float(np.median(plain))
     if gross0.any():
         keep0 = np.concatenate([~gross0, np.ones(residual.shape[0] - n, dtype=bool)])
         residual, jacobian = residual * keep0, jacobian * keep0[:, None]
-    sel = _select_once(mode, residual, jacobian, t, rows, unit, time_unit)
+        lin = _Linear(residual, jacobian, n)
+    sel = _select_once(mode, lin, t, rows, unit, time_unit)
     sel.excluded_rows = [int(v) for v in rows[gross0]]
     if sel.model.is_none:
         return sel
     # Gross outliers (beyond GROSS_SIGMA robust σ of the residual the chosen model leaves)
     # would pass for steps: choose again without them (the robust step screens them later).
-    lin = _Linear(residual, jacobian, n).with_columns(sel.model.basis(t, unit))
+    lin = lin.with_columns(sel.model.basis(t, unit))
     r = lin.r[:n]
     scale = 1.4826 * float(np.median(np.abs(r)))
     gross = np.abs(r) > GROSS_SIGMA * scale
     if not gross.any() or scale <= 0:
         return sel
     keep = np.concatenate([~gross, np.ones(residual.shape[0] - n, dtype=bool)])
-    again = _select_once(mode, residual * keep, jacobian * keep[:, None], t, rows, unit, time_unit)
+    again = _select_once(mode, _Linear(residual * keep, jacobian * keep[:, None], n), t, rows,
+                         unit, time_unit)  # fmt: skip
     again.excluded_rows = sorted({*sel.excluded_rows, *(int(v) for v in rows[gross])})
     return again
 
 
 def _select_once(
-    mode: DriftMode, residual: FloatArray, jacobian: FloatArray, t: FloatArray,
-    rows: np.ndarray, unit: FloatArray, time_unit: str,
+    mode: DriftMode, lin: _Linear, t: FloatArray, rows: np.ndarray, unit: FloatArray,
+    time_unit: str,
 ) -> Selection:  # fmt: skip
-    """One pass of :func:`select` over every row given."""
+    """One pass of :func:`select` over the rows of ``lin`` (the linearised plain fit)."""
     n = t.shape[0]
-    lin = _Linear(residual, jacobian, n)
     sel = Selection(DriftModel(time_unit=time_unit))
     sel.bic["none"] = _bic(lin.rss0, n, 0)
     sel.rss_mm2["none"] = lin.rss0
@@ -428,8 +447,7 @@ def _select_once(
         if name == "none":
             continue
         b = model.basis(t, unit)
-        sel.rss_mm2[name] = lin.rss(b)
-        sel.press_mm2[name] = lin.press(b)
+        sel.rss_mm2[name], sel.press_mm2[name] = lin.rss_press(b)
         if mode == "auto" and (sel.rss_mm2[name] > (1.0 - MIN_GAIN) * lin.rss0
                                or sel.press_mm2[name] > (1.0 - MIN_GAIN) * press0):  # fmt: skip
             cands.pop(name)

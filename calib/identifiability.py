@@ -43,6 +43,7 @@ leave a trace in the data above one noise σ. The anchors and the tool point are
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import cast
@@ -396,7 +397,39 @@ def max_solved(
         Parameter names solved even if unidentifiable.
     rtol : float
         As :func:`analyse`.
+
+    The answer depends on these arguments only, so it is kept (the last
+    :data:`MAX_SOLVED_CACHE` of them): :func:`calib.options.validate` asks before every
+    identification.
     """
+    free = tuple(free)
+    limits = model.joint_limits_deg
+    key = (model.convention, np.asarray(model.dh_table, dtype=float).tobytes(),
+           None if limits is None else np.asarray(limits, dtype=float).tobytes(),
+           np.asarray(model.tool_mm, dtype=float).tobytes(), layout.anchors,
+           np.asarray(candidates, dtype=bool).tobytes(), free, rtol)  # fmt: skip
+    with _max_solved_lock:
+        known = _max_solved_cache.get(key)
+    if known is not None:
+        return known
+    count = _max_solved(model, layout, candidates, free, rtol)
+    with _max_solved_lock:
+        if len(_max_solved_cache) >= MAX_SOLVED_CACHE:
+            _max_solved_cache.pop(next(iter(_max_solved_cache)))  # the oldest
+        _max_solved_cache[key] = count
+    return count
+
+
+#: Answers of :func:`max_solved` kept (the oldest goes first).
+MAX_SOLVED_CACHE = 64
+_max_solved_cache: dict[tuple[object, ...], int] = {}
+_max_solved_lock = threading.Lock()
+
+
+def _max_solved(
+    model: RobotModel, layout: ParamLayout, candidates: np.ndarray, free: Iterable[str],
+    rtol: float,
+) -> int:  # fmt: skip
     theta = np.zeros(layout.size)
     if candidates[N_DH:N_KIN].any():
         theta[N_DH:N_KIN] = GENERIC_TOOL_ERROR_MM

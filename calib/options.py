@@ -246,7 +246,8 @@ def validate(
     what ``test_fraction`` leaves) are more than the parameters identify will solve
     (:func:`calib.identifiability.max_solved`: the base set of this robot and these anchors
     at well-spread poses, less ``fix``, plus ``free``), and at least
-    :data:`MIN_TRAINING_SAMPLES`. Costs one Jacobian at 200 poses (milliseconds).
+    :data:`MIN_TRAINING_SAMPLES`. Costs one Jacobian at 200 poses (milliseconds) the first time
+    for a model, anchors and options (the answer is kept).
 
     Raises
     ------
@@ -275,8 +276,8 @@ def parameters_to_solve(
 ) -> int:
     """The most parameters identify solves for ``model`` with these anchors and options
     (:func:`calib.identifiability.max_solved`: the base set at well-spread poses, less ``fix``,
-    plus ``free``). Costs one Jacobian at 200 poses. ``fix``/``free`` must name parameters of
-    the anchors' layout (:func:`validate` checks that first)."""
+    plus ``free``). Costs one Jacobian at 200 poses, once (the answer is kept). ``fix``/``free``
+    must name parameters of the anchors' layout (:func:`validate` checks that first)."""
     from calib.cable import ParamLayout
     from calib.identifiability import candidate_mask, max_solved, with_tool
 
