@@ -269,3 +269,16 @@ def test_plan_downloads_as_csv_and_robot_programs(client: TestClient) -> None:
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "anchor"], r.text
     r = client.get(url, headers=AUTH, params={"format": "krl", "anchor": "A"})
     assert r.status_code == 200 and "plan_A.src" in r.headers["content-disposition"]
+
+
+def test_a_plan_that_identifies_no_robot_parameter_is_a_clear_422_not_a_500(
+    client: TestClient,
+) -> None:
+    """Regression (schemathesis, after the plan-noise merge): one candidate pose gave a
+    ZeroDivisionError (500) in the design's per-parameter log det."""
+    cid = _campaign(client)
+    body = {"anchors_mm": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], "anchor_uncertainty_mm": 0.0,
+            "candidates": 1, "dwell_s": 0.0, "n": 1}  # fmt: skip
+    r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
+    assert r.status_code == 422, r.text
+    assert "candidates" in r.text and "identify none" in r.text

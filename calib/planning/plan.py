@@ -122,6 +122,11 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
     ident = analyse(np.vstack([jac0, start_full]), layout.names, np.ones(layout.size, bool),
                     rtol=opts.rtol)  # fmt: skip
     free = np.array([nm in ident.base for nm in layout.names])
+    if not free[:N_KIN].any():  # e.g. one candidate: its one row pins an anchor, no joint
+        raise ValueError(
+            f"candidates: {len(q_c)} candidate poses identify none of the robot's parameters "
+            f"with these anchors; draw more (at least {layout.size}, the parameters solved)"
+        )
     scale = np.linalg.norm(jac0[:, free], axis=0) / np.sqrt(jac0.shape[0])
     scale = np.where(scale > 0, scale, 1.0)
     jacs = [jac0]
