@@ -18,6 +18,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
@@ -31,6 +32,10 @@ from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api.guard import UNAUTHORIZED_DETAIL
 from daemon.api.main import create_app
+
+#: One operation's 25 examples [s]: the plan operation computes up to 25 plans (72 s on an idle
+#: 2-core machine), over the suite's 120 s default when another process shares the cores.
+pytestmark = pytest.mark.timeout(360)
 
 CHECKS = [
     not_a_server_error,

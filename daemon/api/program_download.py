@@ -12,7 +12,7 @@ import datetime as dt
 from enum import Enum
 from typing import Annotated
 
-from fastapi import Query, Response
+from fastapi import HTTPException, Query, Response
 
 from calib.models import RobotModel
 from calib.programs.common import SPEED_PCT_RANGE, ProgramError
@@ -101,8 +101,10 @@ def download(
             )
         except ProgramError as exc:
             message = str(exc)
+            # The plan's anchors are the campaign's state, not the request's form: an anchor
+            # the plan lacks is a 404, a plan that needs one picked a 409 (both name it).
             if message.startswith("anchor:"):
-                raise unprocessable(("query", "anchor"), message) from exc
+                raise HTTPException(404 if " is not in " in message else 409, message) from exc
             raise unprocessable(("query", "format"), f"format: {exc}") from exc
         filename = name + SUFFIX[fmt]
     return Response(

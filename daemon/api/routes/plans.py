@@ -251,7 +251,7 @@ def _plan_csv(stored: PlanRow) -> str:
     summary="The campaign's plan and its progress",
     dependencies=[ReadAuth],
     response_model=PlanView,
-    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}},
+    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(409)},
 )
 def get_plan(
     state: State,
