@@ -294,7 +294,11 @@ def test_wrong_token_says_401_and_asks_again(cell: Cell, tmp_path: Path) -> None
         page.click("#token-form button")
         page.wait_for_function("window.__cablecal.trace.updates > 3", timeout=15000)
         page.wait_for_function("document.querySelectorAll('.message.error').length === 0")
-        assert "ok" in (page.get_attribute("#top-devices", "class") or "").split()
+        # The pill turns green from the next status answer (asked at once when the token is
+        # accepted), not from the trace: wait for it rather than race the 1 s status tick.
+        page.wait_for_function(
+            "document.getElementById('top-devices').classList.contains('ok')", timeout=5000
+        )
         assert log.page_errors == []
         assert log.blocked_requests == []
 

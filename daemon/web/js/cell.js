@@ -188,6 +188,9 @@ export function initCell() {
     if (state.authRefused) {
       pill.className = "pill muted";
       setText(pill, "device state unknown: token refused");
+    } else {
+      // A token accepted: the pill is brought up to date now, not at the next status tick.
+      pollStatus().catch(() => {});
     }
   });
   $("device-errors-clear").addEventListener("click", () => {
