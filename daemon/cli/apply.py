@@ -30,7 +30,9 @@ MAX_PRINTED_ROWS = 20
 
 
 def _fail(message: str) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False)
+    # Escaped (a path may hold "[...]") and soft-wrapped: the terminal folds a long line, so a
+    # path is never split by an inserted newline and can be copied whole.
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     return typer.Exit(EXIT_BAD_INPUT)
 
 

@@ -57,7 +57,7 @@ IDENTIFY_HELP = (
 
 
 def _fail(message: str) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {message}")
+    err_console.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)  # as db._fail
     return typer.Exit(EXIT_BAD_INPUT)
 
 
