@@ -6,13 +6,20 @@ STAMP := $(VENV)/.installed-stamp
 # make run PORT=9000 (0: any free port)
 PORT ?= 8080
 
-.PHONY: test lint typecheck unit run demo bench screenshots clean
+.PHONY: test lint typecheck unit run demo bench screenshots clean bytecode
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
+
+# The project's own modules byte-compiled, as pip does for an installed wheel (deploy/install.sh):
+# the editable install leaves them as source, and where PYTHONDONTWRITEBYTECODE is set every
+# command would compile them again (about 40 ms of each `cablecal` start). Only changed files
+# are rewritten.
+bytecode: $(STAMP)
+	$(BIN)/python -m compileall -q calib daemon drivers simulator
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
@@ -21,17 +28,17 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-unit: $(STAMP)
+unit: $(STAMP) bytecode
 	$(BIN)/pytest
 
 test: lint typecheck unit
 
 # The daemon on the EMULATED cell (examples/sim.toml), store under .state/; Ctrl-C stops it.
-run: $(STAMP)
+run: $(STAMP) bytecode
 	$(BIN)/python -m daemon.cli.demo serve --port $(PORT)
 
 # A whole campaign over the REST API against a fresh emulated cell (about 3 minutes).
-demo: $(STAMP)
+demo: $(STAMP) bytecode
 	$(BIN)/python -m daemon.cli.demo campaign --poses 100
 
 # Solvers on the bundled real data (bench/solver_real.*, its long reference runs cached in
@@ -39,7 +46,7 @@ demo: $(STAMP)
 # identification speed and the indicator poll rate (bench/results.*), API latency under load
 # while the sampler runs (bench/api_results.*), and the poll rate while identification jobs run
 # against idle (bench/sampler_priority.*).
-bench: $(STAMP)
+bench: $(STAMP) bytecode
 	$(BIN)/python -m bench.solver_real
 	$(BIN)/python -m bench.min_n
 	$(BIN)/python -m bench.drift_bench

@@ -65,6 +65,7 @@ import numpy as np
 
 from calib.kinematics import FloatArray
 from calib.options import DriftMode
+from calib.robust import median
 
 StepKind = Literal["rezero", "sensor_moved"]
 
@@ -374,7 +375,7 @@ def select(
     # drift widens that spread, so its rows stay in).
     lin = _Linear(residual, jacobian, n)  # reused below while the rows stay the same
     plain = np.abs(lin.r[:n])
-    gross0 = plain > GROSS_SIGMA * 1.4826 * float(np.median(plain))
+    gross0 = plain > GROSS_SIGMA * 1.4826 * median(plain)
     if gross0.any():
         keep0 = np.concatenate([~gross0, np.ones(residual.shape[0] - n, dtype=bool)])
         residual, jacobian = residual * keep0, jacobian * keep0[:, None]
@@ -387,7 +388,7 @@ def select(
     # would pass for steps: choose again without them (the robust step screens them later).
     lin = lin.with_columns(sel.model.basis(t, unit))
     r = lin.r[:n]
-    scale = 1.4826 * float(np.median(np.abs(r)))
+    scale = 1.4826 * median(np.abs(r))
     gross = np.abs(r) > GROSS_SIGMA * scale
     if not gross.any() or scale <= 0:
         return sel

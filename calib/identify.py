@@ -76,7 +76,7 @@ from calib.report import (
     plausibility,
     uncertainty,
 )
-from calib.solvers import lm
+from calib.solvers import geolm
 from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sub_progress
 from calib.split import pose_groups, split_rows
 from calib.tcp import tcp_uncertainty_for_problem
@@ -93,8 +93,15 @@ __all__ = [
 
 
 def _fit(problem: Problem, x0: FloatArray | None = None) -> FloatArray:
-    res = lm.solve(problem, x0, lm.LMOptions(max_iterations=100))
+    """The full vector at the least-squares optimum of ``problem`` from ``x0`` (k,), by
+    geodesic LM: LM's stopping tests in a few iterations where LM takes ~16 (see
+    :func:`_select_drift`)."""
+    res = geolm.descend(problem, problem.x0() if x0 is None else x0, _PLAIN_FIT)
     return problem.full(res.x)
+
+
+#: The internal plain fits' solver options (:func:`_fit`, :func:`_select_drift`).
+_PLAIN_FIT = geolm.GeoLMOptions(max_iterations=100)
 
 
 def fit_anchors(
@@ -421,7 +428,8 @@ def _select_drift(
     if opts.drift == "none" or opts.method not in DRIFT_METHODS:
         return None
     base = _problem(d, theta_start, free, opts)
-    x = lm.solve(base, None, lm.LMOptions(max_iterations=100)).x
+    # The plain fit by geodesic LM, as _fit.
+    x = geolm.descend(base, base.x0(), _PLAIN_FIT).x
     ev = base.evaluate(x)
     assert ev.jacobian is not None
     t_all, unit = d.times

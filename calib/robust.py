@@ -142,9 +142,27 @@ def _projection(jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None) ->
     return np.asarray(((jac / norms) @ vt[keep].T) / sv[keep])
 
 
+def median(values: FloatArray) -> float:
+    """The median of ``values`` (any shape, taken flat), as ``np.median``: NaN when any value is
+    NaN or there is none.
+
+    Written here because ``np.median``'s first call imports ``numpy.ma`` (for a masked-array
+    check), a cost every ``cablecal identify`` paid at its start; ``np.partition`` does not.
+    """
+    a = np.asarray(values, dtype=float).ravel()
+    n = a.size
+    if n == 0 or bool(np.isnan(a).any()):
+        return math.nan
+    k = n // 2
+    if n % 2:
+        return float(np.partition(a, k)[k])
+    part = np.partition(a, (k - 1, k))
+    return 0.5 * (float(part[k - 1]) + float(part[k]))
+
+
 def _mad_scale(res: FloatArray, floor_mm: float) -> float:
-    med = np.median(res)
-    return max(1.4826 * float(np.median(np.abs(res - med))), floor_mm, 1e-6)
+    med = median(res)
+    return max(1.4826 * median(np.abs(res - med)), floor_mm, 1e-6)
 
 
 @dataclass(frozen=True)

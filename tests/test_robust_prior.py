@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from calib import robust
 from calib.cable import N_DH, N_KIN, predict_lengths
 from calib.dataset import make_samples, samples_to_csv
 from calib.identify import IdentifyOptions, identify
@@ -216,3 +219,22 @@ def test_advice_names_parameters_and_is_never_circular(cases: dict[str, Path]) -
     assert on["prior"]["used"] and "cablecal plan --start" in text
     assert "--prior" not in text  # on already: never advised
     assert "weakest direction" in text
+
+
+def test_median_agrees_with_numpy_without_loading_numpy_ma() -> None:
+    """calib.robust.median is np.median (odd, even, NaN, empty, 2-D) and, unlike it, never
+    imports numpy.ma (a cost of every identify's first call)."""
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 10, 11, 257):
+        x = rng.normal(size=n)
+        assert robust.median(x) == float(np.median(x))
+    x2 = rng.normal(size=(4, 5))
+    assert robust.median(x2) == float(np.median(x2))
+    assert np.isnan(robust.median(np.array([1.0, np.nan, 2.0])))
+    assert np.isnan(robust.median(np.zeros(0)))
+    code = (
+        "import sys, numpy as np; from calib.robust import median; "
+        "median(np.arange(5.0)); print('numpy.ma' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

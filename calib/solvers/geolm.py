@@ -132,19 +132,24 @@ class GeoLMOptions:
 
 
 def _geodesic_step(
-    problem: Problem, gn: GaussNewton, js: FloatArray, lam: float,
-    svd: tuple[FloatArray, FloatArray, FloatArray], opts: GeoLMOptions,
+    problem: Problem, gn: GaussNewton, js: FloatArray, lam: float, lin: LinearModel,
+    opts: GeoLMOptions,
 ) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
-    """Velocity ``v`` and total step ``v + a/2`` (scaled, shape (k,)); False if too curved."""
-    u, s, vt = svd
-    coeff = s / (s * s + lam)
-    v = -(vt.T @ (coeff * (u.T @ gn.res)))
+    """Velocity ``v`` and total step ``v + a/2`` (scaled, shape (k,)); False if too curved.
+
+    ``lin`` holds ``s`` and ``V`` of the scaled Jacobian ``js`` (m, k) without its tall ``U``
+    (:class:`calib.solvers.common.LinearModel`, from the QR's triangular factor). The
+    acceleration needs ``Uᵀ r_vv``; ``diag(s) Uᵀ = Vᵀ jsᵀ`` gives the damped solve
+    ``coeff · Uᵀ r_vv = Vᵀ jsᵀ r_vv / (s² + λ)`` with no ``U`` (and nothing along a null
+    direction, as with it).
+    """
+    v = lin.step(lam)
     h = opts.fd_step
     r_h = problem.residuals(gn.x + h * v / gn.scale)
     if not np.all(np.isfinite(r_h)):
         return v, v, False
     r_vv = (2.0 / h) * ((r_h - gn.res) / h - js @ v)
-    acc = -(vt.T @ (coeff * (u.T @ r_vv)))
+    acc = -(lin.vt.T @ ((lin.vt @ (js.T @ r_vv)) / (lin.s * lin.s + lam)))
     ok = float(np.linalg.norm(acc)) <= opts.alpha * float(np.linalg.norm(v))
     return v, v + 0.5 * acc, ok
 
@@ -217,9 +222,8 @@ def descend(
             status, message, it = 1, "gradient below gtol", it - 1
             break
         js, grad = scaled
-        svd = np.linalg.svd(js, full_matrices=False)  # U is needed to project r_vv
-        s_max2 = float(svd[1][0] ** 2)
-        lin = LinearModel(s=svd[1], vt=svd[2], g=svd[0].T @ gn.res)
+        lin = LinearModel.from_jacobian(js, gn.res)
+        s_max2 = float(lin.s[0] ** 2)
         stop = gn.within_sigma(lin, opts.sigma_damping * s_max2, opts.sigma_tol)
         if stop is not None:
             status, message, it = 2, stop, it - 1
@@ -227,7 +231,7 @@ def descend(
         lam = opts.tau * s_max2 if lam is None else lam
         accepted = False
         for _ in range(opts.max_rejections):
-            v, step, ok = _geodesic_step(problem, gn, js, lam, svd, opts)
+            v, step, ok = _geodesic_step(problem, gn, js, lam, lin, opts)
             trial = problem.evaluate(gn.x + step / gn.scale) if ok else None
             if trial is not None and np.isfinite(trial.cost) and trial.cost < gn.cost:
                 predicted = 0.5 * float(v @ (lam * v - grad))
