@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from daemon.blas import single_threaded_blas
+from daemon.blas import single_threaded_blas, steady_heap
 
 single_threaded_blas()  # before anything imports numpy (daemon.blas says why)
+steady_heap()
 
 import typer  # noqa: E402
 
