@@ -11,6 +11,7 @@ other step passed.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -171,6 +172,8 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         )
         job_id = int(api.get(f"/campaigns/{cid}/identifications").json()[-1]["id"])
         assert api.get(f"/identifications/{job_id}").json()["current"] is True
+        # a fit of a few hundredths of a second reads in ms, never "0.0 s"
+        assert re.search(r"Finished in (\d+ ms|\d+\.\d s):", page.inner_text("#job-state"))
 
         # item 1 + 2: a second identification (ukf-vslm): the live chart draws from numbers,
         # the old result stays current and is compared with the new one until Accept

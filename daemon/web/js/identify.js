@@ -4,7 +4,7 @@
 import { api, download, saveBlob } from "./api.js";
 import { refreshCampaign, refreshDetail } from "./campaign.js";
 import { costChart, driftChart, histogramChart, residualChart } from "./charts.js";
-import { $, clock, dismiss, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
+import { $, clock, dismiss, duration, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 const DH = [["alpha", "α", "deg"], ["a", "a", "mm"], ["d", "d", "mm"], ["theta", "θ", "deg"]];
 //: The fields shown first; the others go under "More options". Everything else about an
@@ -199,7 +199,7 @@ function renderJob() {
   const words = {
     queued: "Queued: waiting for a worker.",
     running: `Running: ${Math.round(100 * fraction)} % — ${job.message || ""}`,
-    succeeded: `Finished in ${fix(job.result?.elapsed_s, 1)} s: ${job.message || ""}.`,
+    succeeded: `Finished in ${duration(job.result?.elapsed_s)}: ${job.message || ""}.`,
     failed: `Failed: ${job.error || job.message}`,
     cancelled: `Cancelled: ${job.error || ""}`,
   };

@@ -30,6 +30,13 @@ export function fix(x, digits) {
   return typeof x === "number" && Number.isFinite(x) ? x.toFixed(digits) : "–";
 }
 
+/** A duration ``x`` [s] as a person reads it: "35 ms" below a second, else "2.4 s"; "–" when
+ * not finite. */
+export function duration(x) {
+  if (typeof x !== "number" || !Number.isFinite(x)) return "–";
+  return x < 1 ? `${Math.max(1, Math.round(1000 * x))} ms` : `${x.toFixed(1)} s`;
+}
+
 /** ``x`` to ``n`` significant digits (no 18-digit floats), "–" when not finite. */
 export function sig(x, n = 3) {
   if (typeof x !== "number" || !Number.isFinite(x)) return "–";
