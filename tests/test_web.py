@@ -91,7 +91,11 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         page.click("#campaign-form button[type=submit]")
         page.wait_for_selector("#campaign-detail:not([hidden])")
         cid = int(api.get("/campaigns").json()[-1]["id"])
-        assert f"Campaign #{cid}" in page.inner_text("#campaign-title")
+        # the detail shows before its title is filled from the API: wait for the words
+        page.wait_for_function(
+            f"document.getElementById('campaign-title').textContent.includes('Campaign #{cid}')",
+            timeout=10000,
+        )
 
         # plan (when the daemon has the route)
         if _has(routes, "POST", "/plan"):
@@ -174,6 +178,9 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         assert api.get(f"/identifications/{job_id}").json()["current"] is True
         # a fit of a few hundredths of a second reads in ms, never "0.0 s"
         assert re.search(r"Finished in (\d+ ms|\d+\.\d s):", page.inner_text("#job-state"))
+        # the live chart's note names the last iteration (and, when the run ended within one
+        # poll, why one point is all it draws)
+        assert page.inner_text("#cost-live-note").startswith("Iteration")
 
         # item 1 + 2: a second identification (ukf-vslm): the live chart draws from numbers,
         # the old result stays current and is compared with the new one until Accept

@@ -187,7 +187,10 @@ function renderLive() {
   setText("cost-live-note", live.x.length
     ? `Iteration ${live.x[live.x.length - 1]}: ${fix(live.y[live.y.length - 1], 4)} mm RMS.` +
       " Counted over every fit of the run (the noise estimate's fits first, then the final fit the result's convergence chart shows)." +
-      (rises ? " The curve rises where a new fit starts." : "")
+      (rises ? " The curve rises where a new fit starts." : "") +
+      (live.x.length === 1 && finished(job.status)
+        ? " The run ended before the page's next poll, so only its last iteration is drawn; the convergence chart below shows every iteration of the final fit."
+        : "")
     : "");
 }
 
