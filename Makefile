@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 
 # The project's own modules byte-compiled, as pip does for an installed wheel (deploy/install.sh):
 # the editable install leaves them as source, and where PYTHONDONTWRITEBYTECODE is set every
-# command would compile them again (about 40 ms of each `cablecal` start). Only changed files
+# command would compile them again at its start (bench/cli_speed.md). Only changed files
 # are rewritten.
 bytecode: $(STAMP)
 	$(BIN)/python -m compileall -q calib daemon drivers simulator

@@ -94,8 +94,8 @@ __all__ = [
 
 def _fit(problem: Problem, x0: FloatArray | None = None) -> FloatArray:
     """The full vector at the least-squares optimum of ``problem`` from ``x0`` (k,), by
-    geodesic LM: LM's stopping tests in a few iterations where LM takes ~16 (see
-    :func:`_select_drift`)."""
+    geodesic LM: its tiny initial damping and the acceleration meet LM's stopping tests in
+    fewer iterations than LM (bench/cli_speed.md times the whole identify)."""
     res = geolm.descend(problem, problem.x0() if x0 is None else x0, _PLAIN_FIT)
     return problem.full(res.x)
 

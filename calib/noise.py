@@ -58,6 +58,6 @@ def noise_floor_mm(length_mm: FloatArray) -> float:
 def median_dof(dof: float) -> float:
     """The median of χ² with ``dof`` (>= 1, not necessarily whole) degrees of freedom, by the
     Wilson–Hilferty approximation ``dof · (1 − 2/(9 dof))³``: 3.4 % above the exact median at
-    1 degree of freedom, 1.3 % at 2, under 0.1 % from 10 (numpy only: scipy.special costs
-    50 ms of import on every identify)."""
+    1 degree of freedom, 1.3 % at 2, under 0.1 % from 10 (numpy only: importing scipy.special
+    would be a cost of every identify's start, bench/cli_speed.md)."""
     return float(dof * (1.0 - 2.0 / (9.0 * dof)) ** 3)
