@@ -212,7 +212,7 @@ def choose(
     for est in (samples, sampler):
         if est is not None and usable(est.noise_mm):
             return est
-    return NoiseEstimate(float(default_mm), "default", "the planning default (no cell data)")
+    return NoiseEstimate(float(default_mm), "default", "the planning default: no cell data yet")
 
 
 def _result_noise(store: Any, robot_id: int) -> float | None:

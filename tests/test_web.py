@@ -377,6 +377,12 @@ def test_identify_is_offered_from_the_count_the_api_gives(cell: Cell) -> None:
         assert page.is_disabled("#identify-start")
         add(range(need - 1, need))
         page.wait_for_selector("#identify-start:not([disabled])", timeout=10000)
+        page.click("#tabs button[data-view=campaign]")  # past the minimum: no "N of M" left
+        page.wait_for_function(
+            "document.getElementById('campaign-need').textContent"
+            f".startsWith('{need} samples: enough to identify')",
+            timeout=10000,
+        )
         assert log.console_errors == [] and log.page_errors == []
 
 

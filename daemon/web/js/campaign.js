@@ -90,7 +90,7 @@ function renderCounts() {
   const anchors = c.anchors.length > 1 ? `, ${c.anchors.length} anchors` : "";
   const counts = `${need} minimum, ${c.recommended_samples} recommended for this robot and ${c.anchors.length > 1 ? `${c.anchors.length} anchors` : "anchor"}: from ${c.recommended_samples} the fit can also screen outliers`;
   setText("campaign-need", included >= need
-    ? `${included} of ${need} samples: enough to identify (with a 20 % test set${anchors}; ${counts}). More poses, spread over the workspace, give a more accurate result.`
+    ? `${included} samples: enough to identify (with a 20 % test set${anchors}; ${counts}). More poses, spread over the workspace, give a more accurate result.`
     : `${included} of ${need} samples needed before Identify (${c.min_training_samples} to train on with a 20 % test set${anchors}; ${counts}).`);
 }
 
