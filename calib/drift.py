@@ -293,7 +293,12 @@ def _scan(
     gram = raw - np.einsum("kap,kbp->kab", c, c)
     rhs = rev(r[:, None] * v)  # (n, cols); Qᵀ r = 0
     ks = np.arange(least, n - least + 1)
-    sol = np.einsum("kab,kb->ka", np.linalg.pinv(gram[ks], rcond=1e-8, hermitian=True), rhs[ks])
+    if n_cols == 1:  # 1×1 Gram matrices: the pseudo-inverse is 1/g (0 where g is 0)
+        g = gram[ks, 0, 0]
+        sol = np.divide(rhs[ks], g[:, None], out=np.zeros_like(rhs[ks]), where=g[:, None] > 0)
+    else:
+        pinv = np.linalg.pinv(gram[ks], rcond=1e-8, hermitian=True)
+        sol = np.einsum("kab,kb->ka", pinv, rhs[ks])
     drop = np.einsum("ka,ka->k", rhs[ks], sol)
     for p in taken:  # a segment between two steps is at least as long as one at the ends
         drop[np.abs(ks - p) < least] = -np.inf

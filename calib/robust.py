@@ -314,13 +314,14 @@ def _unmasked(
     deleted: list[int] = []
     u0 = np.abs(t) / scale
     u = u0
+    h0 = np.sum(a * a, axis=1)  # the leverages in the fit, the same for every trial
     path: list[tuple[list[int], FloatArray, float]] = []
     for _ in range(min(MAX_DELETIONS, int(np.count_nonzero(inside)) // 5)):
         cand_u = u.copy()
         cand_u[~inside] = -1.0
         cand_u[deleted] = -1.0
         trial = [*deleted, int(np.argmax(cand_u))]
-        new_u, new_scale, redundancy = _deleted(a, res, t, inside, trial, floor_mm)
+        new_u, new_scale, redundancy = _deleted(a, h0, res, t, inside, trial, floor_mm)
         if redundancy < SCREEN_MIN_DOF:
             break
         deleted, u = trial, new_u
@@ -337,17 +338,17 @@ def _unmasked(
 
 
 def _deleted(
-    a: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray, deleted: list[int],
-    floor_mm: float,
+    a: FloatArray, h0: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray,
+    deleted: list[int], floor_mm: float,
 ) -> tuple[FloatArray, float, float]:  # fmt: skip
     """:func:`_unmasked`'s standardised residuals (n,), scale [mm] and redundancy with
-    ``deleted`` rows out of the linearised fit."""
+    ``deleted`` rows out of the linearised fit; ``h0`` (n,) the leverages ``Σ a²`` per row."""
     a_s = a[deleted]  # (s, r)
     m = np.linalg.pinv(np.eye(len(deleted)) - a_s @ a_s.T)  # (I − H_SS)⁻¹
     cross = a @ a_s.T  # H_{·S}, (n, s)
     e_s = m @ res[deleted]
     r_new = res + cross @ e_s
-    h_new = np.sum(a * a, axis=1) + np.sum((cross @ m) * cross, axis=1)
+    h_new = h0 + np.sum((cross @ m) * cross, axis=1)
     rest = inside.copy()
     rest[deleted] = False
     t_new = np.where(rest, r_new / np.sqrt(np.clip(1.0 - h_new, 1e-6, None)), t)
