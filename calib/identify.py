@@ -92,16 +92,16 @@ __all__ = [
 ]
 
 
+#: The internal plain fits' solver options (:func:`_fit`, :func:`_select_drift`).
+_PLAIN_FIT = geolm.GeoLMOptions(max_iterations=100)
+
+
 def _fit(problem: Problem, x0: FloatArray | None = None) -> FloatArray:
     """The full vector at the least-squares optimum of ``problem`` from ``x0`` (k,), by
     geodesic LM: its tiny initial damping and the acceleration meet LM's stopping tests in
     fewer iterations than LM (bench/cli_speed.md times the whole identify)."""
     res = geolm.descend(problem, problem.x0() if x0 is None else x0, _PLAIN_FIT)
     return problem.full(res.x)
-
-
-#: The internal plain fits' solver options (:func:`_fit`, :func:`_select_drift`).
-_PLAIN_FIT = geolm.GeoLMOptions(max_iterations=100)
 
 
 def fit_anchors(

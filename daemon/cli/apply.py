@@ -16,6 +16,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from daemon.cli.errors import fail as _fail
+
 if TYPE_CHECKING:
     from calib.compensate import CompensateResult
     from calib.models import RobotModel
@@ -24,16 +26,8 @@ if TYPE_CHECKING:
 console = Console()
 err_console = Console(stderr=True)
 
-EXIT_BAD_INPUT = 2
 #: Per-pose rows ``verify`` prints before it shows only the largest residuals.
 MAX_PRINTED_ROWS = 20
-
-
-def _fail(message: str) -> typer.Exit:
-    # Escaped (a path may hold "[...]") and soft-wrapped: the terminal folds a long line, so a
-    # path is never split by an inserted newline and can be copied whole.
-    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    return typer.Exit(EXIT_BAD_INPUT)
 
 
 def read_result(path: Path) -> dict[str, Any]:

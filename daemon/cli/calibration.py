@@ -25,6 +25,8 @@ from calib.options import (
     options_from_mapping,
     spec,
 )
+from daemon.cli.errors import EXIT_BAD_INPUT
+from daemon.cli.errors import fail as _fail
 
 if TYPE_CHECKING:
     from rich.progress import Progress
@@ -39,7 +41,6 @@ err_console = Console(stderr=True)
 
 #: Exit codes of ``cablecal identify`` (documented in README's CLI section and ``--help``).
 EXIT_NOT_CONVERGED = 1
-EXIT_BAD_INPUT = 2
 EXIT_IMPLAUSIBLE = 3
 
 #: ``cablecal identify --help``. typer's rich help keeps a single line break inside a paragraph
@@ -54,11 +55,6 @@ IDENTIFY_HELP = (
     f"{EXIT_IMPLAUSIBLE} with --strict: physically implausible result "
     "(result.json is still written)"
 )
-
-
-def _fail(message: str) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)  # as db._fail
-    return typer.Exit(EXIT_BAD_INPUT)
 
 
 def _split_names(text: str) -> tuple[str, ...]:

@@ -24,6 +24,8 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from daemon.cli.errors import fail as _fail
+
 err_console = Console(stderr=True)
 
 EXIT_NOT_FOUND = 2  # no such campaign, or a bad argument
@@ -45,11 +47,6 @@ class ExportFormat(enum.StrEnum):
 
     csv = "csv"
     json = "json"
-
-
-def _fail(message: str, code: int) -> typer.Exit:
-    err_console.print(f"[bold red]error:[/] {escape(message)}", soft_wrap=True)
-    return typer.Exit(code)
 
 
 def _database_path(db: Path | None, config: Path | None) -> Path:

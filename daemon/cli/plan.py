@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
-from daemon.cli.calibration import _fail
+from daemon.cli.errors import fail as _fail
 
 
 def parse_floats(text: str, option: str, count: int, what: str) -> tuple[float, ...]:

@@ -18,7 +18,7 @@ import typer
 from rich.console import Console
 
 from calib.programs.formats import DEFAULT_SPEED_PCT, PROGRAM_FORMATS, SUFFIX, TITLE
-from daemon.cli.calibration import _fail
+from daemon.cli.errors import fail as _fail
 
 #: ``--format``'s choice, built from the one list of formats.
 ProgramFormat = Enum("ProgramFormat", {f.replace("-", "_"): f for f in PROGRAM_FORMATS}, type=str)  # type: ignore[misc]

@@ -12,7 +12,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
-from daemon.cli.calibration import _fail
+from daemon.cli.errors import fail as _fail
 
 console = Console()
 
