@@ -320,3 +320,32 @@ def samples_to_csv(samples: SampleSet) -> str:
             row.append(f"{samples.t_s[i]:.3f}")
         writer.writerow(row)
     return out.getvalue()
+
+
+def capture_times_s(t_end_s: list[float | None], captured: list[bool]) -> FloatArray | None:
+    """The capture times of samples in storage order, for the drift model of
+    :mod:`calib.drift`, or None when they do not count (then the row order is the time).
+
+    They count only when there are at least two samples, every one was captured (an import
+    has one timestamp for all its rows), each has its time, and the times never go back.
+
+    Parameters
+    ----------
+    t_end_s : list of float or None, length n
+        The end of each capture [s epoch]; None: not known.
+    captured : list of bool, length n
+        Whether each sample was captured live (False: imported).
+
+    Returns
+    -------
+    ndarray, shape (n,), or None
+        [s] since the first sample.
+    """
+    n = len(t_end_s)
+    if n < 2 or not all(captured) or any(t is None for t in t_end_s):
+        return None
+    stamps: FloatArray = np.array(t_end_s, dtype=float)
+    if not bool(np.all(np.diff(stamps) >= 0)):
+        return None
+    out: FloatArray = stamps - stamps[0]
+    return out

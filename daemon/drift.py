@@ -231,15 +231,15 @@ class DriftMonitor:
     ----------
     store : Store
     settings : DriftSettings
-    sampler : object or None
-        The daemon's sampler (``set_auto``, ``auto_campaign_id``); None: captures come
-        from ``POST /campaigns/{id}/captures`` only.
+    auto : daemon.autocapture.AutoCapture or None
+        Auto capture's owner (a check captures its campaign in auto mode); None: captures
+        come from ``POST /campaigns/{id}/captures`` only.
     """
 
-    def __init__(self, store: Store, settings: DriftSettings, sampler: Any = None) -> None:
+    def __init__(self, store: Store, settings: DriftSettings, auto: Any = None) -> None:
         self.store = store
         self.settings = settings
-        self.sampler = sampler
+        self.auto = auto
         self._task: asyncio.Task[None] | None = None
         self._running: CheckRow | None = None
         self._schedule: asyncio.Task[None] | None = None
@@ -291,7 +291,7 @@ class DriftMonitor:
         """
         if self._running is not None:
             raise CheckConflict(f"check {self._running['id']} is running")
-        busy = getattr(self.sampler, "auto_campaign_id", None)
+        busy = None if self.auto is None else self.auto.campaign_id
         if busy is not None:
             raise CheckConflict(f"auto capture is on for campaign {busy}; switch it off first")
         result_row = self.store.accepted_result(robot_id)
@@ -310,8 +310,8 @@ class DriftMonitor:
             robot_id, cid, int(result_row["id"]), trigger=trigger, threshold_mm=limit,
             refit_anchor=self.settings.refit_anchor, poses_deg=poses,
         )  # fmt: skip
-        if self.sampler is not None and not getattr(self.sampler, "manual_robot", False):
-            self.sampler.set_auto(cid, anchor=str(result.get("anchor_id") or "A"))
+        if self.auto is not None:
+            self.auto.start_check(cid, anchor=str(result.get("anchor_id") or "A"))
         self._running = check
         self._task = asyncio.create_task(self._follow(check, result), name="drift-check")
         log.info("drift check started", extra={"campaign_id": cid, "check_id": check["id"]})
@@ -346,8 +346,8 @@ class DriftMonitor:
             self._finish(check, "failed", error=f"{type(exc).__name__}: {exc}")
 
     def _release(self, campaign_id: int) -> None:
-        if self.sampler is not None and self.sampler.auto_campaign_id == campaign_id:
-            self.sampler.set_auto(None)
+        if self.auto is not None:
+            self.auto.release(campaign_id)
 
     def _finish(
         self,

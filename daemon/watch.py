@@ -365,17 +365,17 @@ class SensorWatch:
     ----------
     store : Store
     settings : StepSettings
-    sampler : object or None
-        The daemon's sampler (``auto_campaign_id``, ``set_auto_anchor``).
+    auto : daemon.autocapture.AutoCapture or None
+        Auto capture's owner: a move takes auto capture to the new anchor.
     enabled : bool
     """
 
     def __init__(
-        self, store: Store, settings: StepSettings, sampler: Any = None, enabled: bool = True
+        self, store: Store, settings: StepSettings, auto: Any = None, enabled: bool = True
     ) -> None:
         self.store = store
         self.settings = settings
-        self.sampler = sampler
+        self.auto = auto
         self.enabled = enabled
         self._campaigns: dict[int, CampaignWatch] = {}
         #: Newest unacknowledged move per campaign (the page's banner): the event detail.
@@ -467,10 +467,7 @@ class SensorWatch:
         new = next_anchor(previous, campaign["anchors"])
         moved = [int(k) for k in alarm.keys]
         self.store.move_samples_to_anchor(cid, moved, new)
-        auto = self.sampler is not None and self.sampler.auto_campaign_id == cid
-        if auto:
-            self.store.set_auto_capture(cid, True, new)
-            self.sampler.set_auto_anchor(new)
+        auto = self.auto is not None and self.auto.move_anchor(cid, new)
         row = ids.index(moved[0]) + 1 if moved[0] in ids else None
         fit = cw.tester.fit
         detail = {
@@ -516,10 +513,8 @@ class SensorWatch:
         new, previous = str(detail["new_anchor"]), str(detail["previous_anchor"])
         ids = [int(r["id"]) for r in self.store.list_samples(campaign_id) if r["anchor"] == new]
         self.store.move_samples_to_anchor(campaign_id, ids, previous)
-        auto = self.sampler is not None and self.sampler.auto_campaign_id == campaign_id
-        if auto and self.sampler.auto_anchor == new:
-            self.store.set_auto_capture(campaign_id, True, previous)
-            self.sampler.set_auto_anchor(previous)
+        if self.auto is not None:
+            self.auto.move_anchor(campaign_id, previous, from_anchor=new)
         out = {"event_id": event["id"], "anchor": previous, "from_anchor": new,
                "sample_ids": ids}  # fmt: skip
         self.store.record_event(

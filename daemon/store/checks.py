@@ -23,13 +23,10 @@ from typing_extensions import TypedDict
 
 from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
 from daemon.store.errors import StoreInvalid
+from daemon.store.rows import CHECK_STATUSES, CHECK_TRIGGERS, CheckStatus
 
-CHECK_STATUSES: Final = ("running", "ok", "drift", "failed")
-CHECK_TRIGGERS: Final = ("manual", "schedule")
 #: Largest number of check poses a robot may have.
 MAX_CHECK_POSES: Final = 100
-
-CheckStatus = Literal["running", "ok", "drift", "failed"]
 
 
 class CheckRow(TypedDict):
