@@ -18,14 +18,17 @@ from daemon.api.guard import RequestGuard
 from daemon.api.lifespan import make_lifespan
 from daemon.api.methods import OptionsMiddleware
 from daemon.api.routes import (
-    apply,
     campaigns,
+    check_poses,
+    checks,
+    compensate,
     identifications,
     live,
     plans,
     reports,
     robots,
     system,
+    verify,
     watch,
 )
 from daemon.api.web import mount_web
@@ -103,8 +106,8 @@ def create_app(
     )
     app.add_middleware(LatencyMiddleware)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
-    for module in (system, live, campaigns, identifications, reports, robots, plans, apply,
-                   watch):  # fmt: skip
+    for module in (system, live, campaigns, identifications, reports, robots, plans,
+                   compensate, verify, check_poses, checks, watch):  # fmt: skip
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
     errors.install(app)

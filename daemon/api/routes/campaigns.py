@@ -183,8 +183,12 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
 
     Validated first (the body, the campaign, a running sampler), then stored (one
     transaction), then applied to the sampler; if the sampler refuses, the stored change is
-    rolled back and the sampler put back as it was, so the database and the sampler agree
-    (:class:`daemon.autocapture.AutoCapture`, auto capture's one owner)."""
+    rolled back and the sampler put back as it was, so the database and the sampler agree.
+    One switch at a time (a lock held from the store's write to the sampler's): parallel
+    switches end with the database and the sampler naming the same campaign. The store's
+    reads and writes run in a worker thread, the sampler's switch on the event loop that owns
+    the sampler."""
+    # Auto capture's one owner: daemon.autocapture.AutoCapture.
     if state.auto is None:
         state.store.campaign(campaign_id)  # 404 first
         raise HTTPException(503, "sampler: not running")
