@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from drivers.indicator import RegisterMap
 
 
@@ -21,7 +22,7 @@ class _Strict(BaseModel):
 class RobotSection(_Strict):
     """The emulated robot: model, true errors and motion."""
 
-    model: str = "hsr-jr680"  # built-in name, or path to a .toml/.json model file
+    model: str = DEFAULT_ROBOT_MODEL  # built-in name, or path to a .toml/.json model file
     dh_errors: Literal["table-xii-d1", "none"] = "table-xii-d1"
     tool_error_mm: tuple[float, float, float] = (0.8, -0.5, 1.2)
     # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns, or a

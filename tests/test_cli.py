@@ -24,7 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 HEAVY = ("fastapi", "uvicorn", "scipy", "pymodbus", "sqlite_utils", "numpy", "calib", "simulator")
 # calib.options is standard library only: the CLI builds its identification options from it;
 # calib.programs.formats (the program formats' names) likewise.
-ALLOWED = {"calib", "calib.options", "calib.programs", "calib.programs.formats"}
+ALLOWED = {"calib", "calib.options", "calib.programs", "calib.programs.formats",
+           "calib.default_robot"}  # fmt: skip
 
 
 def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:

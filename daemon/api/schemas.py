@@ -20,6 +20,7 @@ from pydantic import (
 )
 from typing_extensions import TypedDict
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
 from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
 from calib.planning import PlanOptions
@@ -115,9 +116,9 @@ class CampaignCreate(_Body):
         ]
         | dict[str, Any]
     ) = Field(
-        "hsr-jr680",
+        DEFAULT_ROBOT_MODEL,
         description=(
-            "A built-in model name (hsr-jr680), or an uploaded model as a mapping: "
+            f"A built-in model name ({DEFAULT_ROBOT_MODEL}), or an uploaded model as a mapping: "
             "name, convention (dh|mdh), tool_mm, joints: [{alpha_deg, a_mm, d_mm, theta_deg, "
             "limits_deg}] (the TOML/JSON model file format of `cablecal identify --robot`)."
         ),
@@ -161,7 +162,11 @@ _ParamName = Annotated[str, StringConstraints(max_length=64)]
 class IdentificationRequest(_Body):
     """Options of an identification job (see ``cablecal identify --help``); a subset of
     :class:`calib.options.IdentifyOptions` under the same names (``fixed`` is still read as
-    the old spelling of ``fix``). ``GET /options/identify`` serves each field's spec."""
+    the old spelling of ``fix``). ``GET /options/identify`` serves each field's spec.
+
+    Its fields are the one list of the identification options a user sets: the API's body,
+    the page's form (through ``GET /options/identify``) and ``cablecal identify``'s options
+    (tests/test_options.py holds the CLI to it)."""
 
     method: Method = _option("method")
     test_fraction: float = _option("test_fraction")
@@ -184,6 +189,7 @@ class IdentificationRequest(_Body):
     noise_mm: Annotated[float, Field(gt=spec("noise_mm").gt)] | None = Field(
         None, description=f"{spec('noise_mm').help}; default from the config."
     )
+    noise_rank: bool = _option("noise_rank")
 
     def to_options(self) -> dict[str, Any]:
         """Keyword arguments of :class:`calib.options.IdentifyOptions`."""

@@ -16,6 +16,7 @@ from rich.markup import escape
 from rich.table import Table
 
 # calib.options is standard library only: importing it costs nothing at ``--help`` time.
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.options import (
     METHODS,
     PAPER_N_TEST,
@@ -159,9 +160,9 @@ def identify_cmd(
     data: Annotated[
         Path, typer.Argument(help=escape("CSV with q1..q6 [deg], L [mm], optional anchor"))
     ],
-    robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
-        "hsr-jr680"
-    ),
+    robot: Annotated[
+        str, typer.Option(help="Built-in model name or model .toml/.json")
+    ] = DEFAULT_ROBOT_MODEL,
     method: Annotated[str, _opt("method")] = default("method"),
     test_fraction: Annotated[float, _opt("test_fraction")] = default("test_fraction"),
     seed: Annotated[int, _opt("seed")] = default("seed"),
@@ -225,7 +226,9 @@ def compare_cmd(
     data: Annotated[
         Path | None, typer.Argument(help="CSV (default: the bundled HSR-RobotCali data)")
     ] = None,
-    robot: Annotated[str, typer.Option(help="Built-in model name or model file")] = ("hsr-jr680"),
+    robot: Annotated[
+        str, typer.Option(help="Built-in model name or model file")
+    ] = DEFAULT_ROBOT_MODEL,
     train: Annotated[int, typer.Option(help="Training samples per run")] = PAPER_N_TRAIN,
     test: Annotated[int, typer.Option(help="Test samples per run")] = PAPER_N_TEST,
     seed: Annotated[int, typer.Option(help="First seed")] = 0,

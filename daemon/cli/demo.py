@@ -24,6 +24,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.predict import predict_lengths_from_result
 from daemon.cli.emulated import (
     FAST_DAEMON_ENV,
@@ -113,7 +114,7 @@ def campaign_cmd(
             assert cell.daemon is not None and cell.sim is not None
             api = cell.daemon.client()
             console.print(f"daemon {cell.daemon.url} on the EMULATED cell; campaign of {poses}")
-            cid = api.post("/campaigns", json={"name": "demo", "robot_model": "hsr-jr680"})
+            cid = api.post("/campaigns", json={"name": "demo", "robot_model": DEFAULT_ROBOT_MODEL})
             cid.raise_for_status()
             campaign_id = int(cid.json()["id"])
             api.put(f"/campaigns/{campaign_id}/auto-capture", json={"enabled": True})

@@ -16,6 +16,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.programs.formats import DEFAULT_SPEED_PCT, PROGRAM_FORMATS, SUFFIX, TITLE
 from daemon.cli.errors import fail as _fail
 
@@ -45,7 +46,7 @@ def program_cmd(
     ] = None,
     robot: Annotated[
         str, typer.Option(help="Built-in model name or model .toml/.json (joint limits)")
-    ] = "hsr-jr680",
+    ] = DEFAULT_ROBOT_MODEL,
     name: Annotated[
         str | None, typer.Option(help="Program name (default: from the --out file name)")
     ] = None,
