@@ -329,7 +329,20 @@ def simulated_cell_overrides(
     robot: dict[str, Any] = {"kind": robot_kind, "host": host, "port": int(port)}
     if robot_kind == "modbus-tcp":
         robot["preset"] = "ur"
-    hook = getattr(ROBOT_KINDS[robot_kind].config, "emulated_cell_settings", None)
-    if hook is not None:
-        robot.update(hook(settings.state_dir))
+    if robot_kind == "abb-rws":
+        robot.update(emulated_abb_login(settings.state_dir))
     return {"indicator": indicator, "robot": robot}
+
+
+def emulated_abb_login(state_dir: Path) -> dict[str, Any]:
+    """The ``[robot]`` login settings of ``serve --simulated-cell --robot-kind abb-rws``: the
+    EMULATED face accepts ABB's factory-default login; its password goes to a mode-0600 file
+    ``STATE_DIR/emulated-abb-rws-password`` (unless ``CABLECAL_ROBOT_PASSWORD`` is set: then
+    that one is used)."""
+    from drivers.abb_rws import ABB_FACTORY_PASSWORD, ABB_FACTORY_USER
+    from drivers.credentials import write_secret
+
+    if os.environ.get("CABLECAL_ROBOT_PASSWORD"):
+        return {"username": ABB_FACTORY_USER}
+    path = write_secret(state_dir / "emulated-abb-rws-password", ABB_FACTORY_PASSWORD)
+    return {"username": ABB_FACTORY_USER, "password_file": str(path)}

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -57,11 +57,18 @@ class CellSection(_Strict):
     drift_tau_s: Annotated[float, Field(ge=0, le=MAX_DRIFT_TAU_S, allow_inf_nan=False)] = 0.0
 
 
+#: 1σ noise of one EMULATED indicator reading [mm]: two counts of the display's last digit
+#: (``decimals`` 2: 0.01 mm), so rounding does not hide it. Not a measured figure of a real
+#: indicator; identify's assumed noise (``calib.options``, 0.1 mm) and the planner's
+#: (``calib.planning.PlanOptions``, 0.05 mm) are their own defaults.
+EMULATED_NOISE_MM: Final = 0.02
+
+
 class IndicatorSection(_Strict):
     """The emulated HY9648 indicator."""
 
     mode: Literal["modbus", "ascii"] = "modbus"
-    noise_mm: Annotated[float, Field(ge=0)] = 0.02
+    noise_mm: Annotated[float, Field(ge=0)] = EMULATED_NOISE_MM
     decimals: Annotated[int, Field(ge=0, le=3)] = 2
     range_mm: tuple[float, float] = (0.0, 2000.0)
     update_hz: Annotated[float, Field(gt=0)] = 50.0
@@ -102,7 +109,9 @@ class AbbRwsSection(ServerSection):
     ``"1.0"`` an IRC5 (HTTP, digest authentication), ``"2.0"`` an OmniCore (HTTPS, basic
     authentication; ``cert_file``/``key_file`` PEM, or a self-signed certificate generated at
     start with the ``openssl`` command). ``username``/``password``: the accepted login (ABB's
-    factory default, as on a new controller; an emulator's, not a secret)."""
+    factory default, as on a new controller; an emulator's, not a secret). Kept apart from
+    ``drivers.abb_rws.ABB_FACTORY_USER`` on purpose: the simulator is written independently
+    of the drivers, so a driver's wrong default fails against it."""
 
     rws: Literal["1.0", "2.0"] = "1.0"
     username: str = "Default User"
@@ -134,6 +143,10 @@ class SimConfig(_Strict):
     robot: RobotSection = RobotSection()
     cell: CellSection = CellSection()
     indicator: IndicatorSection = IndicatorSection()
+    # The real controllers' ports (the comments) are the drivers' defaults; the emulated faces
+    # take any free port instead (a test machine runs several cells), and state their own
+    # facts apart from the drivers on purpose (written independently of their protocol code,
+    # docs/architecture.md): a driver's wrong default then fails against its face.
     robot_socketcmd: ServerSection = ServerSection()  # real controllers: 23333
     robot_modbus: ServerSection = ServerSection()  # real UR: 502
     robot_abb_rws: AbbRwsSection = AbbRwsSection()  # real IRC5: 80, OmniCore: 443

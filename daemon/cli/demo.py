@@ -27,6 +27,7 @@ from rich.table import Table
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.predict import predict_lengths_from_result
 from daemon.cli.emulated import (
+    FAST_CELL_NOISE_MM,
     FAST_DAEMON_ENV,
     Cell,
     DaemonProcess,
@@ -161,7 +162,7 @@ def campaign_cmd(
                 console.print(
                     f"against the cell's truth at {len(new)} poses never captured: "
                     f"RMSE {np.sqrt(np.mean(err**2)):.4f} mm, MAX {np.abs(err).max():.4f} mm "
-                    "(noise 0.02 mm)"
+                    f"(noise {FAST_CELL_NOISE_MM:g} mm)"
                 )
 
 
