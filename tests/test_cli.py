@@ -147,6 +147,23 @@ def test_only_daemon_cli_imports_the_simulator() -> None:
     assert offenders == []
 
 
+def test_the_simulator_imports_no_daemon() -> None:
+    """The simulator owns its entry (``python -m simulator``); the CLI calls it, never the
+    other way round."""
+    offenders = []
+    for path in sorted((REPO / "simulator").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            offenders += [f"{path.relative_to(REPO)}:{node.lineno}" for n in names
+                          if n.split(".")[0] == "daemon"]  # fmt: skip
+    assert offenders == []
+
+
 @pytest.mark.parametrize(("preset", "expected"), [(None, "1"), ("3", "3")])
 def test_the_command_runs_numpy_with_one_blas_thread_unless_told(
     preset: str | None, expected: str
