@@ -28,15 +28,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from daemon.capture import Capture, Joints, RawReading, RejectionReason
+from daemon.capture import Capture, CaptureMode, Joints, RawReading, RejectionReason
 
 FloatArray = NDArray[np.float64]
-Mode = Literal["manual", "auto"]
+Mode = CaptureMode  # the one home: daemon.capture
 
 
 class SettleConfig(Protocol):
