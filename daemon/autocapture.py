@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from calib.kinematics import FloatArray
-from daemon.store import CampaignRow, Store
+if TYPE_CHECKING:
+    from calib.kinematics import FloatArray
+    from daemon.store import CampaignRow, Store
 
 log = logging.getLogger("cablecal.service")
 
