@@ -159,14 +159,13 @@ def _option(name: str) -> Any:
 _ParamName = Annotated[str, StringConstraints(max_length=64)]
 
 
+# The fields of IdentificationRequest are the one list of the identification options a user
+# sets: the API's body, the page's form (through GET /options/identify) and `cablecal
+# identify`'s options (tests/test_options.py holds the CLI to it).
 class IdentificationRequest(_Body):
     """Options of an identification job (see ``cablecal identify --help``); a subset of
     :class:`calib.options.IdentifyOptions` under the same names (``fixed`` is still read as
-    the old spelling of ``fix``). ``GET /options/identify`` serves each field's spec.
-
-    Its fields are the one list of the identification options a user sets: the API's body,
-    the page's form (through ``GET /options/identify``) and ``cablecal identify``'s options
-    (tests/test_options.py holds the CLI to it)."""
+    the old spelling of ``fix``). ``GET /options/identify`` serves each field's spec."""
 
     method: Method = _option("method")
     test_fraction: float = _option("test_fraction")
