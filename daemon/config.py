@@ -27,8 +27,8 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from calib.monitor.stepwatch import StepSettings
 from daemon.sampler import SamplerConfig
-from daemon.stepwatch import StepSettings
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
 #: Shortest accepted ``api_token`` [characters].
@@ -90,7 +90,7 @@ class JobSettings(BaseModel):
 
 
 class DriftSettings(BaseModel):
-    """Drift checks of a calibrated robot (:mod:`daemon.drift`)."""
+    """Drift checks of a calibrated robot (:mod:`daemon.holdcheck`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -115,7 +115,7 @@ class DriftSettings(BaseModel):
 
 
 class WatchSettings(BaseModel):
-    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`daemon.stepwatch`)."""
+    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`calib.monitor.stepwatch`)."""
 
     model_config = ConfigDict(extra="forbid")
 

@@ -36,7 +36,7 @@ class AppState:
         The samples identify needs, per robot and anchor count.
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
-    drift : daemon.drift.DriftMonitor or None
+    drift : daemon.holdcheck.HoldCheckMonitor or None
         None until the lifespan has started it.
     auto_capture_lock : asyncio.Lock
         One auto-capture switch at a time (``PUT /campaigns/{id}/auto-capture``).

@@ -34,7 +34,7 @@ from daemon.api.routes import (
 )
 from daemon.api.web import mount_web
 from daemon.config import Settings
-from daemon.drift import DriftMonitor
+from daemon.holdcheck import HoldCheckMonitor as DriftMonitor
 from daemon.jobs import JobManager
 from daemon.lifecycle import record_start
 from daemon.store import Store

@@ -20,7 +20,7 @@ from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import StrictBody
-from daemon.drift import CheckConflict, check_poses
+from daemon.holdcheck import CheckConflict, check_poses
 from daemon.store import CheckPoses, CheckRow
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))
