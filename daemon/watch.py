@@ -165,7 +165,8 @@ class SensorWatch:
         clean = tester.clean_rows(ids, sample_id)
         if tester.needs_refit(len(clean)):
             await asyncio.to_thread(tester.refit_rows, samples, ids, clean)
-        q = [float(current[f"q{j}"]) for j in range(1, 7)]  # [deg]
+        q = (current["q1"], current["q2"], current["q3"], current["q4"], current["q5"],
+             current["q6"])  # fmt: skip
         residual, alarm = tester.test(sample_id, q, current["length_mm"], str(current["anchor"]))
         if residual is not None:
             cw.tested += 1

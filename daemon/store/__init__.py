@@ -47,7 +47,7 @@ from daemon.store.jobs import (
     NO_CALIBRATION,
     JobStore,
 )
-from daemon.store.plans import MATCH_TOL_DEG, PlanRow, PlanStore, match_poses
+from daemon.store.plans import PlanRow, PlanStore
 from daemon.store.rows import (
     JOB_FINISHED,
     CalibratedModel,
@@ -96,7 +96,6 @@ __all__ = [
     "JOB_FINISHED",
     "JOB_STATUSES",
     "JOB_TERMINAL",
-    "MATCH_TOL_DEG",
     "MIGRATIONS",
     "NO_CALIBRATION",
     "SCHEMA_VERSION",
@@ -124,6 +123,5 @@ __all__ = [
     "StoreInvalid",
     "StoreNotFound",
     "apply_migrations",
-    "match_poses",
     "schema_version_of",
 ]
