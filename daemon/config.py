@@ -89,8 +89,8 @@ class JobSettings(BaseModel):
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
 
 
-class DriftSettings(BaseModel):
-    """Drift checks of a calibrated robot (:mod:`daemon.holdcheck`)."""
+class HoldCheckSettings(BaseModel):
+    """Hold checks of a calibrated robot, the ``[drift]`` section (:mod:`daemon.holdcheck`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -182,7 +182,7 @@ class Settings(BaseSettings):
     """The joint-angle source; ``kind`` manual (default) or a key of :data:`drivers.ROBOT_KINDS`
     (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
-    drift: DriftSettings = DriftSettings()
+    drift: HoldCheckSettings = HoldCheckSettings()
     watch: WatchSettings = WatchSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""

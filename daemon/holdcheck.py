@@ -51,7 +51,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from daemon import metrics
 
 if TYPE_CHECKING:
-    from daemon.config import DriftSettings
+    from daemon.config import HoldCheckSettings
     from daemon.store import CheckPoses, CheckRow, Store
 
 log = logging.getLogger("cablecal.drift")
@@ -95,13 +95,13 @@ class HoldCheckMonitor:
     Parameters
     ----------
     store : Store
-    settings : DriftSettings
+    settings : HoldCheckSettings
     sampler : object or None
         The daemon's sampler (``set_auto``, ``auto_campaign_id``); None: captures come
         from ``POST /campaigns/{id}/captures`` only.
     """
 
-    def __init__(self, store: Store, settings: DriftSettings, sampler: Any = None) -> None:
+    def __init__(self, store: Store, settings: HoldCheckSettings, sampler: Any = None) -> None:
         self.store = store
         self.settings = settings
         self.sampler = sampler
