@@ -27,8 +27,8 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from calib.monitor.stepwatch import StepSettings
 from daemon.sampler import SamplerConfig
-from daemon.stepwatch import StepSettings
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
 #: Shortest accepted ``api_token`` [characters].
@@ -89,8 +89,8 @@ class JobSettings(BaseModel):
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
 
 
-class DriftSettings(BaseModel):
-    """Drift checks of a calibrated robot (:mod:`daemon.drift`)."""
+class HoldCheckSettings(BaseModel):
+    """Hold checks of a calibrated robot, the ``[drift]`` section (:mod:`daemon.holdcheck`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -115,7 +115,7 @@ class DriftSettings(BaseModel):
 
 
 class WatchSettings(BaseModel):
-    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`daemon.stepwatch`)."""
+    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`calib.monitor.stepwatch`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -182,7 +182,7 @@ class Settings(BaseSettings):
     """The joint-angle source; ``kind`` manual (default) or a key of :data:`drivers.ROBOT_KINDS`
     (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
-    drift: DriftSettings = DriftSettings()
+    drift: HoldCheckSettings = HoldCheckSettings()
     watch: WatchSettings = WatchSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""

@@ -39,6 +39,7 @@ comparison: bench/design_figures.md).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -290,7 +291,7 @@ def _anchors_used(s: _Setup, picked: IndexArray, gain: dict[str, Any] | None) ->
 
 def plan(
     model: RobotModel,
-    anchors_mm: FloatArray,
+    anchors_mm: FloatArray | Sequence[Sequence[float]],
     options: PlanOptions | None = None,
     start: SampleSet | None = None,
 ) -> PlanResult:
@@ -322,7 +323,10 @@ def plan(
 
 
 def _plan(
-    model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions, start: SampleSet | None
+    model: RobotModel,
+    anchors_mm: FloatArray | Sequence[Sequence[float]],
+    opts: PlanOptions,
+    start: SampleSet | None,
 ) -> PlanResult:
     t0 = time.perf_counter()
     anchors = np.atleast_2d(np.asarray(anchors_mm, dtype=float))

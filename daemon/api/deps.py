@@ -35,7 +35,7 @@ class AppState:
         The samples identify needs, per robot and anchor count.
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
-    drift : daemon.drift.DriftMonitor or None
+    drift : daemon.holdcheck.HoldCheckMonitor or None
         None until the lifespan has started it.
     auto : daemon.autocapture.AutoCapture or None
         Auto capture's one owner (the store and the sampler kept in step); None until the

@@ -19,7 +19,7 @@ from daemon.api.deps import AppState
 from daemon.api.min_samples import MinSamplesCache
 from daemon.autocapture import AutoCapture
 from daemon.config import Settings
-from daemon.drift import DriftMonitor
+from daemon.holdcheck import HoldCheckMonitor
 from daemon.jobs import JobManager
 from daemon.lifecycle import record_start
 from daemon.store import Store
@@ -82,7 +82,7 @@ def make_lifespan(
                                       enabled=settings.watch.enabled)  # fmt: skip
             watch_captures(state.sampler, state.watch)
             state.auto.resume()
-            state.drift = DriftMonitor(state.store, settings.drift, state.auto)
+            state.drift = HoldCheckMonitor(state.store, settings.drift, state.auto)
             await state.drift.start()
             # Everything built so far (modules, schemas, models) lives as long as the process:
             # out of the collector's sight, a full collection during a large import takes

@@ -366,10 +366,10 @@ JobOut = JobRow
 
 class CampaignOut(CampaignRow):
     """A campaign with what identify needs of it at the default options
-    (:mod:`daemon.api.min_samples`): ``min_samples_to_identify``, the fewest included samples
+    (:mod:`calib.min_samples`): ``min_samples_to_identify``, the fewest included samples
     ``POST /campaigns/{id}/identifications`` accepts (default ``test_fraction`` 0.2), and
     ``min_training_samples``, the fewest training rows (for another test fraction: the
-    smallest ``n`` with ``n - round(test_fraction * n)`` at least that). Both follow the robot
+    smallest ``n`` with ``n - held_out(n, test_fraction)`` at least that). Both follow the robot
     model and the number of ``anchors`` (each further anchor adds 4 parameters).
     ``recommended_samples`` (``recommended_training_samples`` training rows) is the count at
     which the default ``robust auto`` can also screen outliers

@@ -1,12 +1,13 @@
 """``cablecal identify`` and ``cablecal compare``.
 
-numpy, scipy and ``calib`` are imported inside the commands, so ``cablecal --help`` and the
+``calib`` (numpy, scipy) is imported inside the commands, so ``cablecal --help`` and the
 other commands do not pay for them.
 """
 
 from __future__ import annotations
 
 import json
+import statistics
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -96,8 +97,6 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
 
 
 def _summary(result: IdentifyResult) -> None:
-    import numpy as np
-
     data = result.to_json()
     table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
     table.add_column("figure [mm]")
@@ -126,8 +125,8 @@ def _summary(result: IdentifyResult) -> None:
     console.print(dh)
     ident = data["identifiability"]
     console.print(
-        f"tool_mm = {np.round(data['tool_mm'], 3).tolist()}, anchor_mm = "
-        f"{np.round(data['anchor_mm'], 2).tolist()}, length_offset_mm = "
+        f"tool_mm = {[round(float(v), 3) for v in data['tool_mm']]}, anchor_mm = "
+        f"{[round(float(v), 2) for v in data['anchor_mm']]}, length_offset_mm = "
         f"{data['length_offset_mm']:.3f}"
     )
     tcp = data.get("tcp_uncertainty_mm")
@@ -285,8 +284,6 @@ def compare(
 ) -> list[dict[str, Any]]:
     """Mean test figures per method over ``seeds`` draws of the paper's protocol
     (:mod:`calib.protocol`), from seed ``seed`` on."""
-    import numpy as np
-
     from calib.protocol import run_protocol
 
     acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
@@ -310,7 +307,7 @@ def compare(
         runs_m = acc[m]
         row: dict[str, Any] = {"method": m}
         for key in runs_m[0]:
-            row[key] = float(np.mean([r[key] for r in runs_m]))
+            row[key] = statistics.fmean(r[key] for r in runs_m)
         row["plausible"] = int(sum(r["plausible"] for r in runs_m))
         rows.append(row)
     return rows

@@ -222,7 +222,7 @@ def plan_cmd(
             kw["anchor_ids"] = tuple(ids)
         opts = PlanOptions(**kw)
         with console.status("planning…"):
-            res = plan(model, anchors, opts, start=samples)  # type: ignore[arg-type]
+            res = plan(model, anchors, opts, start=samples)
     except SampleError as exc:
         raise _fail(f"--start {start}: {exc}") from None
     except ModelError as exc:

@@ -49,7 +49,7 @@ from daemon.store.jobs import (
     NO_CALIBRATION,
     JobStore,
 )
-from daemon.store.plans import MATCH_TOL_DEG, PlanRow, PlanStore, match_poses
+from daemon.store.plans import PlanRow, PlanStore
 from daemon.store.rows import (
     JOB_FINISHED,
     CalibratedModel,
@@ -100,7 +100,6 @@ __all__ = [
     "JOB_FINISHED",
     "JOB_STATUSES",
     "JOB_TERMINAL",
-    "MATCH_TOL_DEG",
     "MIGRATIONS",
     "NO_CALIBRATION",
     "SCHEMA_VERSION",
@@ -128,6 +127,5 @@ __all__ = [
     "StoreInvalid",
     "StoreNotFound",
     "apply_migrations",
-    "match_poses",
     "schema_version_of",
 ]

@@ -160,7 +160,7 @@ def _migration_3(conn: sqlite3.Connection) -> None:
 
 
 def _migration_4(conn: sqlite3.Connection) -> None:
-    # Drift checks (daemon.store.checks, daemon.drift): the check poses of each robot and the
+    # Drift checks (daemon.store.checks, daemon.holdcheck): the check poses of each robot and the
     # history of checks.
     statements = [
         """CREATE TABLE check_poses (

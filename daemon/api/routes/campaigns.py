@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 from typing import cast
 
-import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
@@ -159,7 +158,7 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``. Outside the limits of
     the campaign's robot model is a 409 (a rule of the robot, not of the request's shape)."""
     try:
-        pose = make_samples(np.asarray([joints_deg], dtype=float), np.zeros(1))
+        pose = make_samples([joints_deg], [0.0])
         validate_joint_limits(pose, state.store.robot_model(robot_id))
     except SampleError as exc:
         j = JOINT_COLUMNS.index(exc.column) if exc.column in JOINT_COLUMNS else None

@@ -7,7 +7,7 @@ from fastapi import APIRouter
 from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses
 from daemon.api.schemas import CheckPosesBody
-from daemon.drift import check_poses
+from daemon.holdcheck import check_poses
 from daemon.store import CheckPoses
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))

@@ -12,20 +12,19 @@ import csv
 import io
 from typing import Any, Literal
 
-import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, status
 from typing_extensions import TypedDict
 
-from calib.dataset import JOINT_COLUMNS, SampleError, SampleSet
+from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan, start_anchors_mm
+from calib.planning.progress import MATCH_TOL_DEG, match_plan
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import MAX_ANCHOR_CHARS, PlanRequest
 from daemon.plan_noise import NoiseEstimate, cell_noise
-from daemon.store import MATCH_TOL_DEG, match_poses
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
 router = APIRouter(tags=["plans"], responses=error_responses(401, 404, 413, 422))
@@ -60,15 +59,13 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
     """The plan with each pose done or pending against the campaign's included samples."""
     samples, sample_ids = state.store.sample_set(stored["campaign_id"])  # included ones
     poses = stored["poses"]
-    planned = np.array([[p[c] for c in JOINT_COLUMNS] for p in poses], dtype=np.float64)  # type: ignore[literal-required]
-    match = match_poses(planned, [p["anchor"] for p in poses], samples.joints_deg,
-                        [str(a) for a in samples.anchor], tol_deg)  # fmt: skip
+    match = match_plan(poses, samples.joints_deg, [str(a) for a in samples.anchor], tol_deg)
     out: list[PlannedPose] = []
     for pose, k in zip(poses, match, strict=True):
-        done = bool(k >= 0)
+        done = k >= 0
         out.append({**pose, "status": "done" if done else "pending",
-                    "sample_id": sample_ids[int(k)] if done else None})  # fmt: skip
-    n_done = int(np.count_nonzero(match >= 0))
+                    "sample_id": sample_ids[k] if done else None})  # fmt: skip
+    n_done = sum(1 for k in match if k >= 0)
     pending = [p["pose"] for p in out if p["status"] == "pending"]
     progress: PlanProgress = {
         "n_planned": len(out), "n_done": n_done, "n_pending": len(out) - n_done,
@@ -97,7 +94,7 @@ def _compute(
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
-    res = plan(model, np.asarray(anchors, dtype=float), opts, start=start)
+    res = plan(model, anchors, opts, start=start)
     summary = res.to_json()
     summary.update(noise_source=noise.source, noise_detail=noise.detail)
     return summary, res.csv_rows()
@@ -145,7 +142,7 @@ async def make_plan(
             )
         )  # fmt: skip
         summary, poses = await asyncio.to_thread(_compute, model, body, start, noise)
-    except (ValueError, SampleError, np.linalg.LinAlgError) as exc:
+    except (ValueError, SampleError) as exc:  # numpy's LinAlgError is a ValueError
         raise unprocessable(_loc(str(exc)), str(exc)) from exc
     finally:
         request.app.state.planning_campaign = None
