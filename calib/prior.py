@@ -39,9 +39,12 @@ import numpy as np
 
 from calib.cable import N_DH, N_KIN
 from calib.dataset import SampleSet
+from calib.kinematics import FloatArray
 from calib.methods import internal_sigma
 from calib.noise import median_dof, noise_floor_mm
 from calib.problem import Problem
+from calib.robust import Solved, solve
+from calib.solvers.common import ProgressFn, report
 from calib.split import pose_groups
 
 if TYPE_CHECKING:
@@ -205,3 +208,42 @@ def prior_block(
         "applied": used.prior,
         **detail,
     }
+
+
+def weighed_solve(
+    make_problem: Callable[[IdentifyOptions], Problem], theta_start: FloatArray,
+    opts: IdentifyOptions, held_out_rmse: HeldOutRmse, samples: SampleSet,
+    train_rows: np.ndarray, progress: ProgressFn | None,
+) -> tuple[IdentifyOptions, dict[str, Any], Solved]:  # fmt: skip
+    """The fit (:func:`calib.robust.solve`), its prior weighed as ``prior_weight`` says.
+
+    ``make_problem(options)`` builds the problem (ML, or MAP with the options' widths and
+    noise) from the common start ``theta_start`` (p,). ``fixed`` (or no prior): one solve.
+    ``estimated``: the noise fixed point, each round a MAP solve with the noise the last one
+    estimated (from the option's ``noise_mm``), until ``σ̂`` agrees with the noise used within
+    :data:`NOISE_RTOL`; the last round is the fit. ``cv``: that noise, then the prior-width
+    scale chosen by grouped-fold cross-validation on ``train_rows`` (:func:`cv_scale`, with
+    ``held_out_rmse``), and a final solve. Returns the options the fit ran with, the detail
+    for ``result.json`` and the solve.
+    """
+    if not opts.prior or opts.prior_weight == "fixed":
+        return opts, {}, solve(make_problem(opts), opts, progress)
+    used = opts
+    noise = opts.noise_mm
+    warm = theta_start  # each round starts where the last ended (the prior mean stays)
+    for rounds in range(1, NOISE_ROUNDS + 1):
+        report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
+        solved = solve(make_problem(used).with_theta0(warm), used, progress)
+        noise = noise_from_map(solved.problem, solved.result.x)
+        if abs(noise / used.noise_mm - 1.0) < NOISE_RTOL:
+            break
+        used = scaled_options(opts, noise, 1.0)
+        warm = solved.problem.full(solved.result.x)
+    detail: dict[str, Any] = {"noise_estimated_mm": noise, "noise_rounds": rounds}
+    if opts.prior_weight == "estimated":
+        return used, detail, solved
+    report(progress, 0.1, "cross-validating the prior scale over pose groups")
+    scale, scores = cv_scale(held_out_rmse, samples, opts, train_rows, used.noise_mm)
+    detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
+    used = scaled_options(opts, used.noise_mm, scale)
+    return used, detail, solve(make_problem(used), used, progress)
