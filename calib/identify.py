@@ -67,9 +67,10 @@ from calib.report import (
     robust_note,
     uncertainty,
 )
-from calib.solvers.common import ProgressFn, Timer, report
+from calib.solvers.common import ProgressFn, report
 from calib.split import pose_groups, split_rows
 from calib.tcp import tcp_uncertainty_for_problem
+from calib.timing import Clock, Timer
 
 __all__ = [
     "METHODS",
@@ -196,7 +197,7 @@ def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: Identify
 
 def _weighed_solve(
     d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
-    opts: IdentifyOptions, progress: ProgressFn | None,
+    opts: IdentifyOptions, progress: ProgressFn | None, clock: Clock | None,
 ) -> tuple[IdentifyOptions, dict[str, Any], robust.Solved]:  # fmt: skip
     """Step 5: the fit, its prior weighed as ``prior_weight`` says
     (:func:`calib.prior.weighed_solve`; ``cv`` scores each fold by an identification)."""
@@ -206,7 +207,7 @@ def _weighed_solve(
         return float(res.metrics["after"]["test"]["rmse_mm"])
 
     return prior.weighed_solve(lambda o: _problem(d, theta_start, free, o), theta_start, opts,
-                               held_out_rmse, samples, d.train_rows, progress)  # fmt: skip
+                               held_out_rmse, samples, d.train_rows, progress, clock)  # fmt: skip
 
 
 def _counting(progress: ProgressFn | None) -> ProgressFn | None:
@@ -273,6 +274,7 @@ def identify(
     train_rows: np.ndarray | None = None,
     test_rows: np.ndarray | None = None,
     progress: ProgressFn | None = None,
+    clock: Clock | None = None,
 ) -> IdentifyResult:
     """Identify the calibrated model from samples (the six steps of the module docstring).
 
@@ -287,6 +289,9 @@ def identify(
         Explicit split; overrides ``options.test_fraction``.
     progress : callable(fraction, message), optional
         May raise :class:`calib.solvers.common.Cancelled` to stop.
+    clock : callable() -> float [s], optional
+        Times the run for ``elapsed_s`` (and the solver's); the caller injects it (e.g.
+        ``time.perf_counter``), calib reads no clock. None: not timed, 0.
 
     Raises
     ------
@@ -298,7 +303,7 @@ def identify(
     """
     opts = options or IdentifyOptions()
     progress = _counting(progress)
-    timer = Timer()
+    timer = Timer(clock)
     d = _prepare(model, samples, opts, train_rows, test_rows)
     layout = d.layout
     report(progress, 0.0, "fitting the anchor with the nominal model")
@@ -308,7 +313,9 @@ def identify(
     ident, free = _free_set(d, theta_start, candidates, opts)
     report(progress, 0.06, "testing for drift and steps of the measurement")
     selection = _select_drift(d, theta_start, free, opts)
-    used, prior_detail, solved = _weighed_solve(d, samples, theta_start, free, opts, progress)
+    used, prior_detail, solved = _weighed_solve(
+        d, samples, theta_start, free, opts, progress, clock
+    )
     notes: list[str] = []
     if used.prior:
         notes.append(

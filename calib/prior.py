@@ -46,6 +46,7 @@ from calib.problem import Problem
 from calib.robust import Solved, solve
 from calib.solvers.common import ProgressFn, report
 from calib.split import pose_groups
+from calib.timing import Clock
 
 if TYPE_CHECKING:
     from calib.options import IdentifyOptions
@@ -213,7 +214,7 @@ def prior_block(
 def weighed_solve(
     make_problem: Callable[[IdentifyOptions], Problem], theta_start: FloatArray,
     opts: IdentifyOptions, held_out_rmse: HeldOutRmse, samples: SampleSet,
-    train_rows: np.ndarray, progress: ProgressFn | None,
+    train_rows: np.ndarray, progress: ProgressFn | None, clock: Clock | None = None,
 ) -> tuple[IdentifyOptions, dict[str, Any], Solved]:  # fmt: skip
     """The fit (:func:`calib.robust.solve`), its prior weighed as ``prior_weight`` says.
 
@@ -223,17 +224,17 @@ def weighed_solve(
     estimated (from the option's ``noise_mm``), until ``σ̂`` agrees with the noise used within
     :data:`NOISE_RTOL`; the last round is the fit. ``cv``: that noise, then the prior-width
     scale chosen by grouped-fold cross-validation on ``train_rows`` (:func:`cv_scale`, with
-    ``held_out_rmse``), and a final solve. Returns the options the fit ran with, the detail
-    for ``result.json`` and the solve.
+    ``held_out_rmse``), and a final solve. ``clock`` times the fits. Returns the options the
+    fit ran with, the detail for ``result.json`` and the solve.
     """
     if not opts.prior or opts.prior_weight == "fixed":
-        return opts, {}, solve(make_problem(opts), opts, progress)
+        return opts, {}, solve(make_problem(opts), opts, progress, clock)
     used = opts
     noise = opts.noise_mm
     warm = theta_start  # each round starts where the last ended (the prior mean stays)
     for rounds in range(1, NOISE_ROUNDS + 1):
         report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
-        solved = solve(make_problem(used).with_theta0(warm), used, progress)
+        solved = solve(make_problem(used).with_theta0(warm), used, progress, clock)
         noise = noise_from_map(solved.problem, solved.result.x)
         if abs(noise / used.noise_mm - 1.0) < NOISE_RTOL:
             break
@@ -246,4 +247,4 @@ def weighed_solve(
     scale, scores = cv_scale(held_out_rmse, samples, opts, train_rows, used.noise_mm)
     detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
     used = scaled_options(opts, used.noise_mm, scale)
-    return used, detail, solve(make_problem(used), used, progress)
+    return used, detail, solve(make_problem(used), used, progress, clock)

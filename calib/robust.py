@@ -46,6 +46,7 @@ from calib.kinematics import FloatArray
 from calib.options import SCREEN_MIN_DOF, IdentifyOptions, training_rows_recommended
 from calib.problem import Problem
 from calib.solvers.common import ProgressFn, SolverResult, sub_progress
+from calib.timing import Clock
 
 #: Family-wise false-flag probability of ``auto`` on clean Gaussian data (all ``n`` rows).
 AUTO_FALSE_FLAG_PROBABILITY = 0.01
@@ -396,10 +397,13 @@ def _screen_fit(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOp
                   None if first is None else first.screening)  # fmt: skip
 
 
-def solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) -> Solved:
+def solve(
+    problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None, clock: Clock | None = None
+) -> Solved:
     """Run the method; robustly, as IRLS rounds (huber, soft_l1) or as rejection rounds
     (reject, auto; each refit starts from the common start, not from the contaminated
-    solution, so an outlier's pull does not carry over)."""
+    solution, so an outlier's pull does not carry over). ``clock`` times each fit
+    (:func:`calib.methods.run`)."""
     n = problem.length_mm.size
     thr = opts.flag_threshold
     floor_mm = noise.noise_floor_mm(problem.length_mm)
@@ -419,7 +423,8 @@ def solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) 
         prob_r = problem.with_weights(weights)
         lo = 0.05 + 0.9 * r / rounds
         start = problem.x0() if rejecting else x
-        result = methods.run(prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds))
+        result = methods.run(prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds),
+                             clock)  # fmt: skip
         total_iter += result.iterations
         fits += 1
         starts.append(len(history))

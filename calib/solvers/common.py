@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, TypeVar, cast
@@ -72,16 +71,6 @@ class SolverResult:
     cost_history_rms_mm: list[float] = field(default_factory=list)
     elapsed_s: float = 0.0
     fit_starts: list[int] = field(default_factory=lambda: [0])
-
-
-class Timer:
-    """Wall-clock timer for ``elapsed_s``."""
-
-    def __init__(self) -> None:
-        self.start = time.perf_counter()
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.start
 
 
 def column_scale(jac: FloatArray, previous: FloatArray | None = None) -> FloatArray:
@@ -177,7 +166,6 @@ class GaussNewton:
     def __init__(self, problem: Problem, x0: FloatArray | None, method: str) -> None:
         self.problem = problem
         self.method = method
-        self.timer = Timer()
         self.x = problem.x0() if x0 is None else np.array(x0, dtype=float)
         ev = problem.evaluate(self.x)
         assert ev.jacobian is not None
@@ -235,7 +223,6 @@ class GaussNewton:
             message=message,
             iterations=iterations,
             cost_history_rms_mm=self.history,
-            elapsed_s=self.timer.elapsed(),
         )
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from calib.cable import length_jacobian
 from calib.kinematics import FloatArray
 from calib.problem import Problem
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sample_batches
+from calib.solvers.common import ProgressFn, SolverResult, report, sample_batches
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,6 @@ def solve(
     if p0 is None:
         raise ValueError("p0: the EKF needs an initial covariance")
     opts = options or EKFOptions()
-    timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
     k = x.shape[0]
     noise_var = problem.noise_mm**2
@@ -72,7 +71,7 @@ def solve(
             if not np.all(np.isfinite(x_new)):
                 return SolverResult(
                     method, x, False, -1, f"non-finite update in epoch {epoch + 1}",
-                    epoch, history, timer.elapsed(),
+                    epoch, history,
                 )  # fmt: skip
             x = x_new
             ikh = np.eye(k) - gain @ h
@@ -92,5 +91,4 @@ def solve(
         message=f"{opts.epochs} epochs done",
         iterations=opts.epochs,
         cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
     )

@@ -73,7 +73,6 @@ from calib.solvers.common import (
     LinearModel,
     ProgressFn,
     SolverResult,
-    Timer,
     report,
     sub_progress,
 )
@@ -170,12 +169,9 @@ def solve(
     ``ukf_sigma_mm`` / ``ukf_sigma_deg`` (identify passes its filters' ``P0``).
     """
     opts = options or GeoLMOptions()
-    timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
     if not opts.ukf_start:
-        out = descend(problem, x, opts, progress, method)
-        out.elapsed_s = timer.elapsed()
-        return out
+        return descend(problem, x, opts, progress, method)
     if p0 is None:
         spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg),
                           opts.ukf_sigma_mm)  # fmt: skip
@@ -188,7 +184,6 @@ def solve(
         first.iterations += seed.iterations
         first.message = f"from the UKF estimate: {first.message}"
         if first.success and not opts.both_starts:
-            first.elapsed_s = timer.elapsed()
             return first
     out = descend(problem, x, opts, sub_progress(progress, 0.55, 1.0), method)
     out.message = f"from x0: {out.message}"
@@ -196,7 +191,6 @@ def solve(
         iterations = first.iterations + out.iterations
         out = first if problem.cost(first.x) <= problem.cost(out.x) else out
         out.iterations = iterations
-    out.elapsed_s = timer.elapsed()
     return out
 
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from calib.kinematics import FloatArray
 from calib.problem import Problem
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sample_batches
+from calib.solvers.common import ProgressFn, SolverResult, report, sample_batches
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,6 @@ def solve(
     if p0 is None:
         raise ValueError("p0: the UKF needs an initial covariance")
     opts = options or UKFOptions()
-    timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
     k = x.shape[0]
     gamma, wm, wc = sigma_weights(k, opts)
@@ -143,7 +142,7 @@ def solve(
             if not np.all(np.isfinite(x_new)):
                 return SolverResult(
                     method, x, False, -1, f"non-finite update in epoch {epoch + 1}",
-                    epoch, history, timer.elapsed(),
+                    epoch, history,
                 )  # fmt: skip
             x, p = x_new, 0.5 * (p_new + p_new.T)
             if done % 50 == 0:
@@ -163,5 +162,4 @@ def solve(
         message=message,
         iterations=opts.epochs,
         cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
     )
