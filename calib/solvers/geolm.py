@@ -73,7 +73,8 @@ from calib.solvers.common import (
     LinearModel,
     ProgressFn,
     SolverResult,
-    report,
+    Stop,
+    damped_descent,
     sub_progress,
 )
 
@@ -206,24 +207,30 @@ def descend(
     failed = gn.start_failure()
     if failed is not None:
         return failed
-    lam: float | None = None
-    nu = 2.0
-    costs: deque[float] = deque([gn.cost], maxlen=opts.stall_window + 1)
-    status, message, it = 0, "iteration limit reached", 0
-    for it in range(1, opts.max_iterations + 1):
-        scaled = gn.scaled(opts.gtol)
-        if scaled is None:
-            status, message, it = 1, "gradient below gtol", it - 1
-            break
-        js, grad = scaled
-        lin = LinearModel.from_jacobian(js, gn.res)
-        s_max2 = float(lin.s[0] ** 2)
-        stop = gn.within_sigma(lin, opts.sigma_damping * s_max2, opts.sigma_tol)
-        if stop is not None:
-            status, message, it = 2, stop, it - 1
-            break
-        lam = opts.tau * s_max2 if lam is None else lam
-        accepted = False
+    return damped_descent(gn, _Rule(opts, gn.cost), opts.max_iterations, opts.gtol,
+                          opts.sigma_tol, progress)  # fmt: skip
+
+
+class _Rule:
+    """Geodesic LM's steps (:func:`_geodesic_step`) and damping (Nielsen, as LM's: ``λ`` from
+    ``tau · s_max²``, × ``max(1/3, 1 − (2ρ − 1)³)`` accepted, × ``ν`` refused), and the
+    likelihood-stall stop (4c) over the costs of the last ``stall_window`` iterations."""
+
+    def __init__(self, opts: GeoLMOptions, cost: float) -> None:
+        self.opts = opts
+        self.lam: float | None = None
+        self.nu = 2.0
+        self.costs: deque[float] = deque([cost], maxlen=opts.stall_window + 1)
+
+    def reference_damping(self, lin: LinearModel) -> float:
+        return self.opts.sigma_damping * float(lin.s[0] ** 2)
+
+    def attempt(
+        self, gn: GaussNewton, lin: LinearModel, grad: FloatArray
+    ) -> tuple[bool, Stop | None]:
+        opts, problem = self.opts, gn.problem
+        js = gn.jac / gn.scale  # the scaled Jacobian lin was built from
+        lam = opts.tau * float(lin.s[0] ** 2) if self.lam is None else self.lam
         for _ in range(opts.max_rejections):
             v, step, ok = _geodesic_step(problem, gn, js, lam, lin, opts)
             trial = problem.evaluate(gn.x + step / gn.scale) if ok else None
@@ -231,28 +238,21 @@ def descend(
                 predicted = 0.5 * float(v @ (lam * v - grad))
                 rho = min((gn.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
                 gn.accept(gn.x + step / gn.scale, trial)
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu, accepted = 2.0, True
-                break
-            lam *= nu
-            nu *= 2.0
-        if not accepted:
-            gn.history.append(gn.history[-1])
-        report(
-            progress,
-            it / opts.max_iterations,
-            f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
-            gn.history[-1],
-        )
-        if not accepted:
-            status, message = 3, "no decrease possible at any damping (converged to precision)"
-            break
-        costs.append(gn.cost)
-        stalled = _stalled(costs, gn.cost, gn.dof, opts)
-        if stalled is not None:
-            status, message = 2, stalled
-            break
-    return gn.result(status, message, it)
+                self.lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                self.nu = 2.0
+                return True, None
+            lam *= self.nu
+            self.nu *= 2.0
+        self.lam = lam
+        return False, None
+
+    def note(self) -> str:
+        return ""
+
+    def accepted(self, gn: GaussNewton) -> Stop | None:
+        self.costs.append(gn.cost)
+        stalled = _stalled(self.costs, gn.cost, gn.dof, self.opts)
+        return None if stalled is None else (2, stalled)
 
 
 def _stalled(costs: deque[float], cost: float, dof: int, opts: GeoLMOptions) -> str | None:
