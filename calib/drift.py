@@ -83,15 +83,15 @@ MAX_STEPS = 6
 #: Fewest training rows on either side of a change point.
 MIN_SEGMENT_ROWS = 8
 #: Fewest training rows on either side of a sensor move: locating a new P0 (4 unknowns) from
-#: fewer poses is an extrapolation (on 120 rows of the HSR data, 11 rows "found" a 5.8 mm
-#: move whose offset and P0 cancel, and the held-out error grew by half).
+#: fewer poses is an extrapolation (a short segment of the HSR data "found" a move of
+#: millimetres whose offset and P0 cancel, and the held-out error grew).
 MIN_MOVE_ROWS = 30
 #: Least share of the plain fit's residual sum of squares a model (and each of its steps, of
 #: the residual left before it) must explain to be chosen over none by ``auto``: BIC assumes
 #: independent errors, but unmodelled robot error (compliance, the robot's own warm-up) is
 #: correlated along a pose sequence and passes BIC by a little. Below 10 % (the RMS 5 %
-#: lower) a change is not worth a model; above it, on the campaigns of issue 19, it is 40 %
-#: to 99 %.
+#: lower) a change is not worth a model; the real changes of bench/drift.md's campaigns
+#: explain far more.
 MIN_GAIN = 0.1
 #: Rows beyond this many robust σ of the residual a chosen model leaves are gross outliers:
 #: the choice is made again without them.

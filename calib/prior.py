@@ -2,8 +2,8 @@
 
 The MAP problem (:mod:`calib.problem`) adds rows ``noise_mm · (x_j − μ_j)/σ_j`` to the data
 residuals ``L_model − L``. Its minimiser is the posterior mode only if ``noise_mm`` is the real
-1σ of the length residuals. A fixed 0.1 mm against residuals of about 1 mm (the bundled data)
-weighs the prior ``(0.1/1)² = 1/100`` of what it should. ``prior_weight`` chooses it:
+1σ of the length residuals. A fixed ``noise_mm`` ten times below the residuals' real 1σ weighs
+the prior ``(1/10)² = 1/100`` of what it should. ``prior_weight`` chooses it:
 
 ``estimated`` (default)
     ``noise_mm`` = ``σ̂ = sqrt(Σ w r² / (n_w − k_eff))`` of the MAP fit's own residuals, with
@@ -13,8 +13,8 @@ weighs the prior ``(0.1/1)² = 1/100`` of what it should. ``prior_weight`` choos
     :data:`NOISE_RTOL` (at most :data:`NOISE_ROUNDS` fits; :func:`noise_from_map`). This is the
     empirical-Bayes choice: the prior widths keep their meaning as plausible DH errors, and the
     noise is the data's own. It used to be the σ̂ of a maximum-likelihood fit first; on local
-    data (the bundled set) that fit slides metres along an unexcited valley and takes 10–30 s
-    for a noise figure the MAP fit gives in two cheap fits.
+    data (the bundled set) that fit slides metres along an unexcited valley and takes many
+    iterations for a noise figure the MAP fit gives in two cheap fits.
 ``fixed``
     ``noise_mm`` as given (the option; 0.1 mm by default).
 ``cv``

@@ -282,9 +282,9 @@ def screen(
 PEEL = 0.1
 #: The backward search (:func:`_unmasked`) sets rows aside only when that cuts the robust
 #: scale of the rest to this share of the scale before, or less: outliers of millimetres that
-#: mask each other inflate it tens of times (virtual cells, 0.02 mm noise: 46-59×), while
-#: deleting up to ten of the largest good rows shrinks it up to 4.5× (their residuals are
-#: the tails, and each deletion takes a degree of freedom).
+#: mask each other inflate it tens of times on low-noise cells, while deleting up to ten of
+#: the largest good rows shrinks it only a few times (their residuals are the tails, and each
+#: deletion takes a degree of freedom).
 SCALE_DROP = 0.1
 #: The backward search keeps the first deleted set whose scale is within this factor of the
 #: least along its path (the elbow).

@@ -78,7 +78,7 @@ def solve(
             history[-1],
         )
 
-    # Imported here: scipy.optimize costs ~0.4 s, which no other method needs.
+    # Imported here: scipy.optimize's import cost, which no other method needs.
     from scipy.optimize import differential_evolution
 
     res = differential_evolution(

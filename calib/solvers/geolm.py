@@ -36,20 +36,20 @@ Machta, J. P. Sethna, "Geometry of nonlinear least squares with applications to 
 and optimization", Phys. Rev. E 83, 036701 (2011); K. Madsen, H. B. Nielsen, O. Tingleff,
 "Methods for non-linear least squares problems", IMM DTU (2004).
 
-**Where the paper is vague or ill-posed (measured on the bundled HSR data).**
+**Where the paper is vague or ill-posed (on the bundled HSR data).**
 The paper treats the identification as a well-posed minimisation and reports a fixed iteration
 count. On the bundled data (q1 only 1.4–10.6°, q6 constant) the maximum-likelihood cost is
 not well posed: with the corrected ``hsr-jr680`` model (joint offsets 0, see
-:data:`calib.models.HSR_JR680`) the nominal geometry fits the 2017 rows to 0.097 mm RMS, and
-the ML fit lowers that to about 0.07 mm by sliding metres along unexcited directions (``d5``
-and the hook point: ``d5`` ≈ 8.6 m on all rows). "The optimum" is an infimum approached along
-a flat, curved valley, and the parameters there mean nothing physically. identify therefore
-solves the MAP problem by default (:mod:`calib.prior`), whose minimiser is unique and near the
-nominal model: 2–3 iterations here (bench/solver_real.md). For the ML problem this solver
-keeps the paper's objective and defines "converged" statistically: it stops when further
-progress along the valley changes the likelihood by less than a ``stall_chi2`` fraction of one
-unit of χ² per ``stall_window`` iterations (4c). The benchmark ``bench/solver_real.py``
-reports how far that is from a long reference run.
+:data:`calib.models.HSR_JR680`) the nominal geometry already fits the rows closely, and the ML
+fit lowers the residual a little further by sliding metres along unexcited directions (``d5``
+and the hook point; the figures: bench/design_figures.md and bench/solver_real.md). "The
+optimum" is an infimum approached along a flat, curved valley, and the parameters there mean
+nothing physically. identify therefore solves the MAP problem by default (:mod:`calib.prior`),
+whose minimiser is unique and near the nominal model: a few iterations (bench/solver_real.md).
+For the ML problem this solver keeps the paper's objective and defines "converged"
+statistically: it stops when further progress along the valley changes the likelihood by less
+than a ``stall_chi2`` fraction of one unit of χ² per ``stall_window`` iterations (4c). The
+benchmark ``bench/solver_real.py`` reports how far that is from a long reference run.
 Earlier, with Table I's theta column wrongly added as joint offsets, the ML cost also had
 several basins and a descent from the UKF's estimate (the paper's own M9 seed) found lower
 ones; ``ukf_start`` keeps that option. With the corrected model the descents from identify's
@@ -83,17 +83,14 @@ from calib.solvers.common import (
 class GeoLMOptions:
     """Options of :func:`solve`. Tolerances are relative and unit-free."""
 
-    #: Per descent. The ML problem on the bench's 100-row subsets of the bundled data stops by
-    #: a test after 151 iterations on average, on all 2017 rows after 219
-    #: (bench/solver_real.md); the MAP problem after 2–3.
+    #: Per descent. The ML problem on the bundled data stops by a test well within it, the MAP
+    #: problem after a few iterations (the counts: bench/solver_real.md).
     max_iterations: int = 1000
     #: Initial λ relative to the largest squared singular value. Madsen–Nielsen–Tingleff advise
     #: 1e-6 when the start is believed good, 1e-3 or more otherwise; identify's start (nominal
-    #: model, anchor and hook point fitted) is good to the size of the DH errors. Measured: on
-    #: the 10 paper-protocol draws of the bundled data the MAP fit ends at the same cost with
-    #: 1e-9 in 2 iterations against 12 with 1e-3; on virtual cells (5 seeds, 100 poses, ML and
-    #: MAP) the same TCP error in 1–4 iterations against 7–11. A bad step is refused and λ
-    #: grows, so a far start costs a few rejections, not the answer.
+    #: model, anchor and hook point fitted) is good to the size of the DH errors: from it, the
+    #: fits end at the same cost in fewer iterations than with 1e-3. A bad step is refused and
+    #: λ grows, so a far start costs a few rejections, not the answer.
     tau: float = 1e-9
     alpha: float = 0.75  # largest accepted ratio 2‖a‖/‖v‖ (Transtrum & Sethna)
     fd_step: float = 0.1  # finite-difference step h of r_vv, in scaled units of v
@@ -107,12 +104,12 @@ class GeoLMOptions:
     #: ``ukf_sigma_mm`` / ``ukf_sigma_deg`` per DH error, 4× the millimetres for the tool and
     #: the anchors, the same ``P0`` as identify gives ukf-vslm) and keep the lower cost: for a
     #: cost with several basins. Off: with the corrected model the bundled data show one
-    #: (see the module docstring), and the UKF costs a third of the time.
+    #: (see the module docstring), and the UKF adds its own time.
     ukf_start: bool = False
     #: Also descend from ``x0`` when the descent from the UKF's estimate converged (by a test,
     #: status > 0). Off: ``x0`` is the fallback when the UKF fails or its descent stops at the
-    #: iteration limit (it never ended meaningfully below the UKF one and doubles the time:
-    #: bench/design_figures.md). Only used with ``ukf_start``.
+    #: iteration limit (it never ended meaningfully below the UKF one, at more time: the
+    #: figures in bench/design_figures.md). Only used with ``ukf_start``.
     both_starts: bool = False
     ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
     ukf_sigma_mm: float = 5.0

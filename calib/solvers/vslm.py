@@ -16,9 +16,9 @@ The paper's update is ::
    column-scaled problem (``J D⁻¹``, ``D`` = running column norms), so ``λ`` is unit-free; it
    starts at ``lam · s_max²`` with ``lam = 1e-10``. A larger λ is not harmless: a direction
    with singular value ``s`` converges at the rate ``1 − δ s²/(s² + λ)`` per iteration, and
-   the synthetic benchmark's scaled Jacobian has two directions at ``s² ≈ 6e-7 s_max²``, so
-   ``lam = 1e-6`` took 35 iterations where ``1e-10`` takes 8. Ill-conditioned data are
-   protected by the step acceptance (3), which raises λ when a step fails.
+   a scaled Jacobian with directions at ``s²`` far below ``s_max²`` (the synthetic
+   benchmark's has some) converges there only slowly with a larger ``lam``. Ill-conditioned
+   data are protected by the step acceptance (3), which raises λ when a step fails.
 3. *No step acceptance.* A fixed-λ step can increase the cost on ill-conditioned problems. A
    step that does not decrease the cost is rejected and λ is multiplied by 10; after an
    accepted step λ relaxes back toward its initial value (never below it), as in LM.
