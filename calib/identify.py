@@ -5,23 +5,24 @@ The public entry point is :func:`identify`. It
 1. checks the options against the samples (:func:`calib.options.validate`) and splits them
    into training and test rows (random, grouped, or given; :mod:`calib.split`);
 2. fits the *before* model: nominal kinematics with only ``P0`` and ``c`` per anchor, started
-   by linear multilateration (:func:`calib.cable.multilaterate`) and refined by LM;
+   by linear multilateration (:func:`calib.cable.multilaterate`) and refined by LM
+   (:func:`calib.anchors.fit_anchors`);
 3. starts the full identification from the nominal DH table with the tool point, ``P0`` and
    ``c`` fitted (so that every method starts from the same, data-driven point, and no manual
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
-   then (``drift``, :mod:`calib.drift`) tests the plain fit for steps and a smooth drift of
-   the measurement over the campaign; a chosen model's terms are profiled out of the problem
-   (:class:`calib.problem.Problem`'s drift basis) for every later fit, and the test rows'
-   figures add them at each row's time;
-5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
-   maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
+   then (``drift``, :func:`calib.drift.select_at_plain_fit`) tests the plain fit for steps
+   and a smooth drift of the measurement over the campaign; a chosen model's terms are
+   profiled out of the problem (:class:`calib.problem.Problem`'s drift basis) for every later
+   fit, and the test rows' figures add them at each row's time;
+5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise its own MAP
+   fits estimate, or by grouped-fold cross-validation (:func:`calib.prior.weighed_solve`), and runs
    the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
    the leverage-studentised residuals (prior included) against a MAD scale and a threshold
    growing with ``n`` and with the scale's uncertainty, when the redundancy allows screening,
    and only on outliers (or gross errors) rejects them and refits from the start; IRLS with Huber or
-   soft-L1 weights, or rejection at 3.5σ, on request (:mod:`calib.robust`);
+   soft-L1 weights, or rejection at 3.5σ, on request (:func:`calib.robust.solve`);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
    metrics before and after on train and test, the plausibility of every parameter
    (:mod:`calib.report`) and the predicted tool-point σ after best rigid alignment
@@ -76,7 +77,7 @@ __all__ = [
     "METHODS",
     "IdentifyOptions",
     "IdentifyResult",
-    "fit_anchors",
+    "fit_anchors",  # its home is calib.anchors; kept importable from here for older callers
     "identify",
     "pose_groups",
     "split_rows",
