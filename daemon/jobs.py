@@ -134,7 +134,7 @@ def run_identification(
             last[0] = now
             progress_queue.put((job_id, float(fraction), message, *newest))
 
-    out = identify(model, samples, opts, progress=progress).to_json()
+    out = identify(model, samples, opts, progress=progress, clock=time.perf_counter).to_json()
     # The newest iteration and cost, for the job row (the last queued message may arrive
     # after the job is marked finished and is then dropped).
     out[_FINAL_PROGRESS] = list(newest)

@@ -106,10 +106,11 @@ def fit_campaign(
     """The running fit of ``samples`` (see the module docstring); None when no anchor has
     :data:`calib.cable.MIN_ANCHOR_SAMPLES` samples. Pure computation (the daemon runs it in a
     worker thread)."""
+    from calib.anchors import fit_anchors
     from calib.cable import ParamLayout, predict_lengths
     from calib.dataset import SampleError
     from calib.export import model_from_result
-    from calib.identify import IdentifyOptions, fit_anchors, identify
+    from calib.identify import IdentifyOptions, identify
 
     counts = {a: samples.anchor.count(a) for a in samples.anchor_ids}
     keep = np.array([counts[a] >= MIN_ANCHOR_SAMPLES for a in samples.anchor])
@@ -147,8 +148,8 @@ def map_fit(model: RobotModel, samples: SampleSet) -> tuple[ParamLayout, FloatAr
     parameters. Returns the layout and the full parameter vector."""
     from scipy.optimize import least_squares
 
+    from calib.anchors import fit_anchors
     from calib.cable import ParamLayout
-    from calib.identify import fit_anchors
     from calib.options import IdentifyOptions
     from calib.prior import with_prior
     from calib.problem import Problem

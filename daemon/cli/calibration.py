@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -93,7 +94,7 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
         def cb(fraction: float, message: str, /, **_: Any) -> None:
             bar.update(task, completed=fraction, description=message[:40])
 
-        return identify(model, samples, opts, progress=cb, **kw)
+        return identify(model, samples, opts, progress=cb, clock=time.perf_counter, **kw)
 
 
 def _summary(result: IdentifyResult) -> None:
@@ -290,7 +291,7 @@ def compare(
     with _progress() as bar:
         task = bar.add_task("compare", total=len(methods) * seeds)
         runs = run_protocol(model, samples, methods, range(seed, seed + seeds), n_train, n_test,
-                            prior)  # fmt: skip
+                            prior, clock=time.perf_counter)  # fmt: skip
         for run in runs:
             res = run.result
             fig = res.metrics["after"]["test"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import io
+import time
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request, status
@@ -94,7 +95,7 @@ def _compute(
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
-    res = plan(model, anchors, opts, start=start)
+    res = plan(model, anchors, opts, start=start, clock=time.perf_counter)
     summary = res.to_json()
     summary.update(noise_source=noise.source, noise_detail=noise.detail)
     return summary, res.csv_rows()
