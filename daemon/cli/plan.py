@@ -5,8 +5,6 @@ them. Engine options left unset take :class:`calib.planning.PlanOptions`' defaul
 texts quote them; tests/test_plan_cli.py keeps the two in step).
 """
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
 from typing import Annotated, Any
