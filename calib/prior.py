@@ -16,7 +16,7 @@ the prior ``(1/10)² = 1/100`` of what it should. ``prior_weight`` chooses it:
     data (the bundled set) that fit slides metres along an unexcited valley and takes many
     iterations for a noise figure the MAP fit gives in two cheap fits.
 ``fixed``
-    ``noise_mm`` as given (the option; 0.1 mm by default).
+    ``noise_mm`` as given (the option; :data:`calib.options.IDENTIFY_NOISE_MM` by default).
 ``cv``
     ``σ̂`` as above, then the prior widths scaled by each of :data:`CV_SCALES` (and no prior at
     all) are scored by grouped-fold cross-validation on the training rows

@@ -6,6 +6,15 @@ from dataclasses import dataclass
 
 from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S
 
+#: The 1σ noise of one captured length a plan assumes when it is given none [mm]. A capture
+#: is the mean of a settled window of readings, so its noise is below one reading's; the
+#: figure is a chosen round value, not a measurement. It scales the predicted σ only: the
+#: information matrix is divided by its square, so which poses are chosen does not depend on
+#: it. The daemon replaces it by the cell's own figure when it has one
+#: (:mod:`daemon.plan_noise`); the hold check's step test also falls back to it
+#: (:func:`calib.monitor.holdcheck.evaluate`).
+PLAN_NOISE_MM = 0.05
+
 
 @dataclass(frozen=True)
 class PlanOptions:
@@ -30,7 +39,7 @@ class PlanOptions:
         How far the anchor guess may be off [mm]: the stroke is shrunk by it and the
         criterion is summed over ``anchor_draws`` anchors this far from the guess.
     noise_mm : float
-        1σ length noise for the predicted parameter and TCP σ [mm].
+        1σ length noise for the predicted parameter and TCP σ [mm] (:data:`PLAN_NOISE_MM`).
     joint_speed_deg_s : 6 floats
         Joint speeds for the campaign's moves [deg/s].
     dwell_s : float
@@ -67,7 +76,7 @@ class PlanOptions:
     extension_mm: tuple[float, float] = (50.0, 1950.0)
     anchor_uncertainty_mm: float = 30.0
     anchor_draws: int = 2
-    noise_mm: float = 0.05
+    noise_mm: float = PLAN_NOISE_MM
     joint_speed_deg_s: tuple[float, ...] = DEFAULT_JOINT_SPEED_DEG_S
     dwell_s: float = 3.0
     max_exchanges: int = 200
