@@ -46,6 +46,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
+
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent / "calib" / "data" / "hsr-robotcali.csv"
 TARGETS = {"ratio_100": 1.5, "elapsed_100_s": 0.05, "elapsed_2017_s": 0.1}
@@ -94,7 +96,7 @@ def _identify_cpu(rows: int) -> float:
     samples = read_samples(None)
     part = samples.subset(np.arange(min(rows, len(samples.length_mm))))
     t0 = time.process_time()
-    identify(builtin_model("hsr-jr680"), part)
+    identify(builtin_model(DEFAULT_ROBOT_MODEL), part)
     return time.process_time() - t0
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from calib.cable import N_DH, N_KIN
 from calib.dataset import make_samples
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import IdentifyOptions, identify
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel, builtin_model
@@ -42,7 +43,7 @@ from calib.synthetic import TrueCell, make_true_cell, noisy_lengths, random_pose
 from calib.tcp import aligned_position_error_mm, workspace_sample_deg
 
 OUT = Path(__file__).parent
-MODEL = builtin_model("hsr-jr680")
+MODEL = builtin_model(DEFAULT_ROBOT_MODEL)
 #: Cells per row count.
 N_CELLS = 8
 #: The cells' length noise, 1σ [mm] (the emulated cell's default).

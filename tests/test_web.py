@@ -22,6 +22,7 @@ import pytest
 from browser import offline_page, require_chromium
 
 from calib.dataset import make_samples, samples_to_csv
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.ik import tool_pose
 from calib.models import builtin_model
 from calib.options import default
@@ -90,7 +91,10 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         page.fill("#campaign-form input[name=name]", "browser test")
         page.click("#campaign-form button[type=submit]")
         page.wait_for_selector("#campaign-detail:not([hidden])")
-        cid = int(api.get("/campaigns").json()[-1]["id"])
+        created = api.get("/campaigns").json()[-1]
+        cid = int(created["id"])
+        # the built-in option leaves robot_model to the API's default (the page has no copy)
+        assert created["robot_name"] == DEFAULT_ROBOT_MODEL
         # the detail shows before its title is filled from the API: wait for the words
         page.wait_for_function(
             f"document.getElementById('campaign-title').textContent.includes('Campaign #{cid}')",

@@ -312,7 +312,11 @@ async function createCampaign(ev) {
       return;
     }
   }
-  const c = await api("POST", "/campaigns", { json: { name: f.name.value.trim(), robot_model: model, notes: f.notes.value } });
+  // The built-in option's value is empty: the body then leaves robot_model out and the API
+  // takes its default (calib.default_robot.DEFAULT_ROBOT_MODEL), so the page keeps no copy.
+  const body = { name: f.name.value.trim(), notes: f.notes.value };
+  if (model !== "") body.robot_model = model;
+  const c = await api("POST", "/campaigns", { json: body });
   ev.target.reset();
   await loadCampaigns();
   await select(c);
