@@ -2,8 +2,8 @@
 
 The command modules registered here do not use ``from __future__ import annotations``: typer
 reads every command's signature when it builds the command line (also for ``--help``), and
-string annotations would have to be compiled and evaluated one by one, the largest cost of
-``--help`` above typer's own imports. Names imported only for type checking are quoted.
+string annotations would have to be compiled and evaluated one by one at every start. Names
+imported only for type checking are quoted.
 """
 
 from __future__ import annotations
