@@ -33,17 +33,17 @@ async function compensate(ev) {
   ev.preventDefault();
   const c = state.campaign;
   if (!hasRoute("POST", "/robots/{}/compensate")) {
-    showMessage("error", "Compensate: this daemon has no compensation route (POST /robots/{id}/compensate).");
+    showMessage("error", "The program was not compensated: this daemon cannot compensate (it has no compensation route).", "compensate", "no route POST /robots/{id}/compensate in /openapi.json");
     return;
   }
-  if (!c) { showMessage("error", "Compensate: select the campaign of the robot first (tab 2)."); return; }
+  if (!c) { showMessage("error", "The program was not compensated: select the campaign of the robot first (tab 2).", "compensate"); return; }
   const f = ev.target.elements;
   const file = f.file.files[0];
   const text = file ? await file.text() : f.csv.value;
-  if (!text.trim()) { showMessage("error", "Compensate: paste targets (CSV with q1..q6 in deg) or choose a file."); return; }
+  if (!text.trim()) { showMessage("error", "The program was not compensated: paste targets (CSV with q1..q6 in deg) or choose a file.", "compensate"); return; }
   const seed = f.seed.value.trim().split(/[\s,]+/).filter(Boolean);
   if (seed.length && (seed.length !== 6 || seed.some((v) => !Number.isFinite(Number(v))))) {
-    setText("compensate-state", `IK seed: type six joint angles q1..q6 in deg, comma-separated (got “${f.seed.value}”).`);
+    setText("compensate-state", `The program was not compensated: the IK seed needs six joint angles q1..q6 in deg, comma-separated (got “${f.seed.value}”).`);
     return;
   }
   const query = seed.length ? `?seed_deg=${encodeURIComponent(seed.join(","))}` : "";
@@ -52,9 +52,9 @@ async function compensate(ev) {
   try {
     out = await api("POST", `/robots/${c.robot_id}/compensate${query}`, { body: text, type: "text/csv", quiet: true });
   } catch (exc) {
-    const why = exc.status === 404 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
-    setText("compensate-state", `Compensation failed: ${why}`);
-    showMessage("error", `Compensate: ${why}`, "compensate");
+    const text = exc.status === 404 ? `The program was not compensated: robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3).` : exc.message;
+    setText("compensate-state", text);
+    showMessage("error", text, "compensate", exc.detail);
     return;
   }
   dismiss("compensate");
@@ -125,7 +125,7 @@ async function renderCheckPoses(c, running) {
   const poses = running ? running.poses_deg : (await api("GET", `/robots/${c.robot_id}/check-poses`)).poses_deg;
   let done = null;
   if (running) done = (await api("GET", `/campaigns/${running.campaign_id}`)).n_included;
-  fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "" }],
+  fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "state" }],
     poses.map((q, i) => [String(i + 1), ...q.map((v) => fix(v, 1)), done == null ? "" : i < done ? "captured" : i === done ? "next" : ""]),
     JSON.stringify([poses, done]));
   setText("drift-poses-note", running
@@ -135,13 +135,13 @@ async function renderCheckPoses(c, running) {
 
 async function startDrift() {
   const c = state.campaign;
-  if (!c) { showMessage("error", "Drift check: select the campaign of the robot first (tab 2)."); return; }
+  if (!c) { showMessage("error", "The drift check did not start: select the campaign of the robot first (tab 2).", "drift"); return; }
   const k = await api("POST", `/robots/${c.robot_id}/checks`);
   showMessage("info", `Drift check #${k.id} started: auto capture now records the check poses.`, "drift");
 }
 
 export function initApply() {
-  $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch((e) => showMessage("error", `compensate: ${e.message}`)));
+  $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch(() => {}));
   $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
   every(3000, renderDrift, () => state.view === "apply");
   onChange((kind) => {
