@@ -122,7 +122,16 @@ async function renderDrift() {
 /** The check poses (of the running check, else the robot's), and while a check runs how many
  * of them are captured so far (samples in the check's own campaign). */
 async function renderCheckPoses(c, running) {
-  const poses = running ? running.poses_deg : (await api("GET", `/robots/${c.robot_id}/check-poses`)).poses_deg;
+  let poses;
+  try {
+    poses = running ? running.poses_deg : (await api("GET", `/robots/${c.robot_id}/check-poses`, { quiet: true })).poses_deg;
+  } catch (exc) {
+    if (exc.status !== 404) throw exc;
+    // No accepted calibration yet: there is nothing to check against, so no check poses.
+    fillTable($("drift-poses"), [], [], "none");
+    setText("drift-poses-note", `Robot ${c.robot_name} has no accepted calibration yet: a drift check compares against one (accept a result in tab 3).`);
+    return;
+  }
   let done = null;
   if (running) done = (await api("GET", `/campaigns/${running.campaign_id}`)).n_included;
   fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "state" }],
