@@ -105,7 +105,9 @@ def test_plan_form_errors_and_small_screen(cell: Cell, tmp_path: Path) -> None:
         )
         n = page.locator("#plan-form input[name=n]")
         # before: the count starts at the recommended one, the minimum is enforced, both said
-        page.wait_for_function(f"document.querySelector('#plan-form input[name=n]').min === '{need}'")
+        page.wait_for_function(
+            f"document.querySelector('#plan-form input[name=n]').min === '{need}'"
+        )
         assert n.input_value() == str(recommended)
         note = page.inner_text("#plan-count-note")
         assert f"At least {need} poses" in note and f"{recommended} recommended" in note, note
@@ -170,6 +172,18 @@ def test_plan_form_errors_and_small_screen(cell: Cell, tmp_path: Path) -> None:
             assert _axe_serious(page) == [], view
             page.screenshot(path=str(tmp_path / f"phone-{view}.png"), full_page=True)
         assert page.get_attribute("#tabs", "role") == "tablist"
+        # the cable chart's y-axis: no label twice, on a steady cable (a few hundredths of a
+        # mm over the minute) as on a moving one
+        labels = page.evaluate(
+            "import('/static/js/charts.js')"
+            ".then(m => m.linearTicks(null, [1034.02, 1034.03, 1034.04]))"
+        )
+        assert labels == ["1034.02", "1034.03", "1034.04"], labels
+        page.click("#tab-cell")
+        page.wait_for_function("window.__cablecal.trace.updates > 5")
+        y_labels = page.evaluate("window.__cablecal.trace.plot.axes[1]._values")
+        shown = [v for v in y_labels if v]
+        assert len(shown) >= 2 and len(set(shown)) == len(shown), y_labels
         # the arrow keys move between the tabs
         page.focus("#tab-apply")
         page.keyboard.press("ArrowLeft")
@@ -197,7 +211,7 @@ def test_result_downloads_comparison_and_drift_wording(cell: Cell, tmp_path: Pat
     with offline_page(TABLET, allowed_origin=url) as (page, log):
         page.on("dialog", lambda d: d.accept())
         _open(page, url, "campaign")
-        page.click(f"#campaign-list tr:has-text('result walk')")
+        page.click("#campaign-list tr:has-text('result walk')")
         page.click("#tab-identify")
         page.wait_for_selector("#identify-start:not([disabled])", timeout=20000)
         page.select_option("#identify-form select[name=method]", "ukf-vslm")
@@ -235,7 +249,7 @@ def test_result_downloads_comparison_and_drift_wording(cell: Cell, tmp_path: Pat
             assert r.is_success
         page.reload()
         page.click("#tab-identify")
-        page.click(f"#job-list tr:has-text('ukf-vslm')")
+        page.click("#job-list tr:has-text('ukf-vslm')")
         page.wait_for_selector("#compare-stale:not([hidden])", timeout=20000)
         row = page.locator("#compare-table tbody tr").first.inner_text()
         assert row.split("\t")[-1].strip() == own and own in page.inner_text("#result-tiles")
@@ -278,7 +292,7 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
     sim.control("load_poses", poses_deg=q[N_IMPORTED:].tolist(), loop=False)
     with offline_page(TABLET, allowed_origin=url) as (page, log):
         _open(page, url, "campaign")
-        page.click(f"#campaign-list tr:has-text('bump walk')")
+        page.click("#campaign-list tr:has-text('bump walk')")
         page.wait_for_function(
             f"document.getElementById('campaign-title').textContent.startsWith('Campaign #{cid}:')"
         )
@@ -293,10 +307,12 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
         sim.control("move_anchor", delta_mm=[4, 0, 0])
         banner = page.locator("#watch-banner")
         banner.wait_for(timeout=60000)
+        page.screenshot(path=str(tmp_path / "banner-first.png"), full_page=True)
         move = api.get("/status").json()["watch"]["moves"][0]
         need = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
         page.wait_for_function(
-            f"document.getElementById('watch-banner')?.textContent.includes('needs {need} included')",
+            "document.getElementById('watch-banner')?.textContent"
+            f".includes('needs {need} included')",
             timeout=15000,
         )
         text = banner.inner_text()

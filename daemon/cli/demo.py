@@ -79,7 +79,10 @@ def serve_cmd(
     console.print(f"  REST API docs  {daemon.url}/docs", soft_wrap=True)
     console.print(f"  token          {token}", soft_wrap=True)
     console.print(f"  database       {state_dir / 'cablecal.sqlite3'}", soft_wrap=True)
-    console.print(f"  logs           {state_dir / 'daemon.log'}, {state_dir / 'simulator.log'}", soft_wrap=True)
+    console.print(
+        f"  logs           {state_dir / 'daemon.log'}, {state_dir / 'simulator.log'}",
+        soft_wrap=True,
+    )
     if sim.ready.get("control"):
         console.print(
             f"  robot program  cablecal emulated-robot-run PLAN_FILE --control "

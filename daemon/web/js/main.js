@@ -34,7 +34,8 @@ async function boot() {
   $("tabs").addEventListener("keydown", (ev) => {
     const step = { ArrowRight: 1, ArrowLeft: -1 }[ev.key];
     if (!step) return;
-    const next = VIEWS[(VIEWS.indexOf(state.view) + step + VIEWS.length) % VIEWS.length];
+    const from = ev.target.closest("[role=tab]")?.dataset.view || state.view;
+    const next = VIEWS[(VIEWS.indexOf(from) + step + VIEWS.length) % VIEWS.length];
     show(next);
     $(`tab-${next}`).focus();
     ev.preventDefault();

@@ -11,19 +11,18 @@ let reading = false;
 
 /** The moved campaigns' rows (their sample counts), re-read every few seconds. */
 async function readCampaigns(moves) {
-  if (reading) return;
+  const due = moves.filter((m) => !campaigns.has(m.campaign_id) || performance.now() - campaigns.get(m.campaign_id).at >= CAMPAIGN_MS);
+  if (reading || !due.length) return;
   reading = true;
   try {
-    for (const m of moves) {
-      const known = campaigns.get(m.campaign_id);
-      if (known && performance.now() - known.at < CAMPAIGN_MS) continue;
+    for (const m of due) {
       const row = await api("GET", `/campaigns/${m.campaign_id}`, { quiet: true });
       campaigns.set(m.campaign_id, { row, at: performance.now() });
     }
   } finally {
     reading = false;
   }
-  render();
+  render(); // with the counts read (a row only re-read after CAMPAIGN_MS: no loop)
 }
 
 function needWords(m) {
