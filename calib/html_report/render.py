@@ -12,7 +12,6 @@ from typing import Any
 
 import numpy as np
 
-from calib.drift import summary as drift_summary
 from calib.html_report.fmt import (
     get_list,
     get_map,
@@ -32,6 +31,7 @@ from calib.html_report.tables import (
     plausibility_section,
     tcp_section,
 )
+from calib.report import drift_summary
 
 #: Section ids in page order, with their headings (the browser test checks each one).
 SECTIONS: tuple[tuple[str, str], ...] = (
