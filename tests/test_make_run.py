@@ -18,6 +18,21 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _children_of(state_root: Path) -> list[int]:
+    """Processes whose command line names a path under ``state_root`` (the cell, the daemon)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if str(state_root) in cmd:
+            pids.append(int(entry.name))
+    return pids
+
+
 def test_make_run_prints_whole_lines_to_a_pipe(tmp_path: Path) -> None:
     env = {**os.environ, "COLUMNS": "80", "CABLECAL_API_TOKEN": "pipe-test-token-" + "x" * 40}
     proc = subprocess.Popen(
@@ -37,12 +52,17 @@ def test_make_run_prints_whole_lines_to_a_pipe(tmp_path: Path) -> None:
             if line.startswith("Ctrl-C stops both"):
                 break
     finally:
+        time.sleep(1.0)  # inside its wait loop, where Ctrl-C stops the cell and the daemon
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+        left = _children_of(tmp_path)
+        for pid in left:  # never leave the cell or the daemon running
+            os.kill(pid, signal.SIGKILL)
+    assert left == [], "make run left its cell or daemon running"
     text = "\n".join(lines)
     tries = [x for x in lines if x.lstrip().startswith("try:")]
     assert len(tries) == 1, text

@@ -347,3 +347,60 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
     deadline = time.monotonic() + 10
     while api.get("/status").json()["sampler"]["mode"] == "auto" and time.monotonic() < deadline:
         time.sleep(0.2)
+
+
+def test_check_poses_reach_the_robot_and_a_check_asks_before_pausing_auto_capture(
+    cell: Cell,
+) -> None:
+    """Item 3 (rest) and item 4: the check poses as a robot program from the page (each pose
+    back from the RAPID module); starting a check while auto capture runs asks first: "no"
+    leaves auto capture on and says why in words, nothing started; "yes" switches it off and
+    starts the check. Runs last: the check it starts stays running."""
+    from calib.programs import DOWNLOAD_FORMATS
+    from calib.programs.registry import parse_program
+
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    campaigns = api.get("/campaigns").json()
+    walk = next(c for c in campaigns if c["name"] == "result walk")  # its robot is calibrated
+    rid = walk["robot_id"]
+    poses = api.get(f"/robots/{rid}/check-poses").json()["poses_deg"]
+    with offline_page(TABLET, allowed_origin=url) as (page, log):
+        _open(page, url, "campaign")
+        page.click("#campaign-list tr:has-text('result walk')")
+        page.click("#tab-apply")
+        page.wait_for_selector("#drift-downloads:not([hidden]) button[data-format=rapid]")
+        shown = page.eval_on_selector_all(
+            "#drift-downloads button", "bs => bs.map(b => b.dataset.format)"
+        )
+        assert shown == list(DOWNLOAD_FORMATS)
+        with page.expect_download() as info:
+            page.click("#drift-downloads button[data-format=rapid]")
+        assert "check" in info.value.suggested_filename.lower()
+        back = parse_program("rapid", Path(info.value.path()).read_text(encoding="utf-8"))
+        assert len(back.joints_deg) == len(poses)
+
+        # auto capture on for a campaign: a check needs it, so the page asks first
+        assert api.put(f"/campaigns/{walk['id']}/auto-capture", json={"enabled": True}).is_success
+        page.wait_for_timeout(1500)  # the page's next /status (every second) shows it on
+        n_checks = len(api.get(f"/robots/{rid}/checks").json())
+        page.once("dialog", lambda d: d.dismiss())
+        page.click("#drift-start")
+        warn = page.locator("#messages .message.warn")
+        warn.wait_for(timeout=5000)
+        assert "auto capture is still on" in warn.inner_text()
+        assert "409" not in warn.inner_text() and "POST" not in warn.inner_text()
+        assert len(api.get(f"/robots/{rid}/checks").json()) == n_checks
+        assert api.get("/status").json()["sampler"]["mode"] == "auto"
+        # "yes": auto capture off, the check starts, the warning goes (its cause is gone)
+        page.once("dialog", lambda d: d.accept())
+        page.click("#drift-start")
+        page.wait_for_function(
+            "document.getElementById('drift-poses-note').textContent.includes('poses captured')",
+            timeout=20000,
+        )
+        checks = api.get(f"/robots/{rid}/checks").json()
+        assert len(checks) == n_checks + 1 and checks[-1]["status"] == "running"
+        warn.wait_for(state="detached", timeout=5000)
+        assert page.locator("#messages .message.error").count() == 0
+        assert log.page_errors == [] and log.blocked_requests == []
