@@ -349,6 +349,66 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
         time.sleep(0.2)
 
 
+def _still_joints(api: httpx.Client) -> list[float]:
+    """The robot's joints once it has stood still for 2 s (the EMULATED cell has run through
+    its poses and stays at the last one)."""
+    last: list[float] = []
+    since = time.monotonic()
+    deadline = since + 90
+    while time.monotonic() < deadline:
+        q = api.get("/status").json()["devices"]["robot"]["last_reading"]["value"]
+        if not last or max(abs(a - b) for a, b in zip(q, last, strict=True)) > 1e-6:
+            last, since = q, time.monotonic()
+        elif time.monotonic() - since > 2.0:
+            return last
+        time.sleep(0.2)
+    raise AssertionError("the robot did not stand still")
+
+
+def test_a_repeat_manual_capture_asks_first(cell: Cell) -> None:
+    """Item 8: Capture now at a pose the campaign has already: the page asks; "no" stores
+    nothing and says why, "yes" stores it (the same rule as auto capture)."""
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    cid = api.post("/campaigns", json={"name": "repeat walk", "robot_model": "hsr-jr680"}).json()[
+        "id"
+    ]
+    _still_joints(api)
+    count = lambda: len(api.get(f"/campaigns/{cid}/samples").json())  # noqa: E731
+    dialogs: list[str] = []
+    with offline_page(TABLET, allowed_origin=url) as (page, log):
+        _open(page, url, "campaign")
+        page.click("#campaign-list tr:has-text('repeat walk')")
+        page.wait_for_function(
+            f"document.getElementById('campaign-title').textContent.startsWith('Campaign #{cid}:')"
+        )
+        # before: a new pose is stored without a question
+        answer = {"yes": False}
+
+        def on_dialog(d: Any) -> None:
+            dialogs.append(d.message)
+            d.accept() if answer["yes"] else d.dismiss()
+
+        page.on("dialog", on_dialog)
+        page.click("#capture-now")
+        wait_for(lambda: count() == 1, 30, 0.2, "the first capture")
+        assert dialogs == []
+        # action: Capture now again at the same pose -> asked; "no": nothing stored, words
+        page.wait_for_selector("#capture-now:not([disabled])")
+        page.click("#capture-now")
+        page.wait_for_selector("#messages .message:has-text('Not captured')", timeout=30000)
+        assert len(dialogs) == 1 and "captured already" in dialogs[0], dialogs
+        assert "not_new_pose" not in dialogs[0]
+        assert count() == 1
+        # "yes": stored as a second sample at the same pose
+        answer["yes"] = True
+        page.click("#capture-now")
+        wait_for(lambda: count() == 2, 30, 0.2, "the confirmed repeat")
+        assert len(dialogs) == 2
+        assert page.locator("#messages .message.error").count() == 0
+        assert log.page_errors == [] and log.blocked_requests == []
+
+
 def test_check_poses_reach_the_robot_and_a_check_asks_before_pausing_auto_capture(
     cell: Cell,
 ) -> None:

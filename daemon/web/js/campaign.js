@@ -208,11 +208,27 @@ async function captureNow() {
   const button = $("capture-now");
   button.disabled = true;
   setText(button, "Capturing … (waiting for the robot to settle)");
+  const url = `/campaigns/${state.campaign.id}/captures`;
   try {
-    const s = await api("POST", `/campaigns/${state.campaign.id}/captures`, { json: body });
+    let s;
+    try {
+      s = await api("POST", url, { json: body, quiet: true });
+    } catch (exc) {
+      // A pose the campaign has already (auto capture's rule): ask before storing it again.
+      if (exc.status !== 409 || exc.body?.detail?.reason !== "not_new_pose") throw exc;
+      dismiss("capture-repeat");
+      if (!confirm(`This pose was captured already: ${exc.body.detail.detail.replace(/; move it.*$/, "")}.\n\nStore another sample at the same pose?`)) {
+        showMessage("info", "Not captured: the robot stands at a pose the campaign has already. Move it to a new pose (or confirm the repeat).", "capture-repeat");
+        return;
+      }
+      s = await api("POST", url, { json: { ...body, repeat: true } });
+    }
+    dismiss("POST /campaigns/{id}/captures");
     showMessage("info", `Sample #${s.id} captured: length ${fix(s.length_mm, 3)} mm (std ${fix(s.length_std_mm, 4)} mm over ${s.count} readings).`, "capture");
     if (isManualRobot()) $("manual-joints").reset();
-  } catch { /* shown in the message area */ } finally {
+  } catch (exc) {
+    if (exc.status !== 401) showMessage("error", exc.message, "POST /campaigns/{id}/captures", exc.detail);
+  } finally {
     button.disabled = false;
     setText(button, "Capture now");
   }
