@@ -392,6 +392,8 @@ def test_a_repeat_manual_capture_asks_first(cell: Cell) -> None:
         page.on("dialog", on_dialog)
         page.click("#capture-now")
         wait_for(lambda: count() == 1, 30, 0.2, "the first capture")
+        first_id = api.get(f"/campaigns/{cid}/samples").json()[0]["id"]
+        page.wait_for_selector(f"#messages .message:has-text('Sample #{first_id} ')")
         assert dialogs == []
         # action: Capture now again at the same pose -> asked; "no": nothing stored, words
         page.wait_for_selector("#capture-now:not([disabled])")
@@ -402,8 +404,16 @@ def test_a_repeat_manual_capture_asks_first(cell: Cell) -> None:
         assert count() == 1
         # "yes": stored as a second sample at the same pose
         answer["yes"] = True
+        page.wait_for_selector("#capture-now:not([disabled])")
         page.click("#capture-now")
-        wait_for(lambda: count() == 2, 30, 0.2, "the confirmed repeat")
+        # (Playwright answers the dialog while it runs a page call: wait in the page)
+        page.wait_for_selector("#messages .message:has-text('Sample #')", timeout=30000)
+        page.wait_for_function(
+            "document.getElementById('messages').textContent.includes('Sample #')"
+            f" && !document.getElementById('messages').textContent.includes('Sample #{first_id} ')",
+            timeout=30000,
+        )
+        wait_for(lambda: count() == 2, 10, 0.2, "the confirmed repeat")
         assert len(dialogs) == 2
         assert page.locator("#messages .message.error").count() == 0
         assert log.page_errors == [] and log.blocked_requests == []
