@@ -281,6 +281,9 @@ function renderDrift(r) {
   $("result-drift-card").hidden = !d;
   if (!d) return;
   setText("result-drift", d.summary || "");
+  // A method that does not model drift (the result's note): the line says so; the card's
+  // explanation of what is modelled does not apply.
+  $("result-drift-hint").hidden = !!d.note;
   const per = d.per_sample_mm || [];
   const found = d.model !== "none" && per.length;
   $("chart-drift").hidden = !found;
