@@ -33,7 +33,8 @@ def test_known_pose_index_is_every_joint_within_the_tolerance() -> None:
 
 @pytest.fixture(scope="module")
 def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
-    app = create_app(_settings(tmp_path_factory.mktemp("repeat")), TOKEN, sampler_factory=FakeSampler)
+    settings = _settings(tmp_path_factory.mktemp("repeat"))
+    app = create_app(settings, TOKEN, sampler_factory=FakeSampler)
     with TestClient(app) as c:
         yield c
 
