@@ -330,6 +330,7 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
             timeout=10000,
         )
         page.screenshot(path=str(tmp_path / "banner.png"), full_page=True)
+        assert _axe_serious(page) == []  # the campaign view with samples and the banner
         assert move["new_anchor"] == "A2"
         # action: Undo; after: one session again, everywhere
         undo.click()
@@ -459,6 +460,7 @@ def test_check_poses_reach_the_robot_and_a_check_asks_before_pausing_auto_captur
         warn = page.locator("#messages .message.warn")
         warn.wait_for(timeout=5000)
         assert "auto capture is still on" in warn.inner_text()
+        assert _axe_serious(page) == []  # the apply view with its downloads and a warning
         assert "409" not in warn.inner_text() and "POST" not in warn.inner_text()
         assert len(api.get(f"/robots/{rid}/checks").json()) == n_checks
         assert api.get("/status").json()["sampler"]["mode"] == "auto"
