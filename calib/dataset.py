@@ -354,3 +354,26 @@ def capture_times_s(t_end_s: list[float | None], captured: list[bool]) -> FloatA
         return None
     out: FloatArray = stamps - stamps[0]
     return out
+
+
+def known_pose_index(
+    known_deg: FloatArray | Sequence[Sequence[float]],
+    q_deg: FloatArray | Sequence[float],
+    tol_deg: float,
+) -> int | None:
+    """The rule for a repeated capture: the first pose of ``known_deg`` that ``q_deg`` is
+    closer than ``tol_deg`` to in every joint, or None when ``q_deg`` is a new pose. Auto
+    capture skips such a pose; a manual capture there is refused unless the operator confirms
+    it (``POST /campaigns/{id}/captures`` with ``repeat``).
+
+    Parameters
+    ----------
+    known_deg : ndarray, shape (n, 6) [deg]
+        The campaign's captured poses.
+    q_deg : ndarray, shape (6,) [deg]
+    tol_deg : float
+        Largest difference per joint that still counts as the same pose [deg].
+    """
+    known = np.asarray(known_deg, dtype=float).reshape(-1, N_JOINTS)
+    near = np.flatnonzero(np.all(np.abs(known - np.asarray(q_deg, dtype=float)) < tol_deg, axis=1))
+    return int(near[0]) if near.size else None

@@ -7,7 +7,7 @@ millimetres.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -407,8 +407,14 @@ def drift_report(
     return out
 
 
-def drift_summary(block: dict[str, Any]) -> str:
-    """One line for the notes and the CLI: what :func:`drift_report`'s ``block`` found."""
+def drift_summary(block: Mapping[str, Any]) -> str:
+    """The one wording of what :func:`drift_report`'s ``block`` found: the result carries it
+    (``drift.summary``) and the CLI, the operator page and the HTML report read it. A block
+    with a ``note`` (a method that does not model drift) says it was not looked for, never
+    that the measurement held still."""
+    if block.get("note"):
+        return (f"drift {block['mode']}: {block['note']}, so steps and drift of the "
+                "measurement were not looked for")  # fmt: skip
     if block["model"] == "none":
         return f"drift {block['mode']}: none found (the measurement held still)"
     per = "mm/h" if block["time_unit"] == "s" else "mm/100 samples"

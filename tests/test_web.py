@@ -103,12 +103,15 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
 
         # plan (when the daemon has the route)
         if _has(routes, "POST", "/plan"):
-            page.fill("#plan-form input[name=n]", "30")
+            # the fewest poses the form takes: the API's count (issue 27 item 3)
+            n_plan = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
+            page.fill("#plan-form input[name=n]", str(n_plan))
             for axis, value in zip("xyz", (1400, 300, 200), strict=True):  # the cell's sensor
                 page.fill(f"#plan-form input[name=a{axis}]", str(value))
             page.click("#plan-form button")
             page.wait_for_function(
-                "document.querySelectorAll('#plan-poses tbody tr').length >= 30", timeout=120000
+                f"document.querySelectorAll('#plan-poses tbody tr').length >= {n_plan}",
+                timeout=120000,
             )
             summary = page.inner_text("#plan-summary")
             assert "Predicted tool-point accuracy" in summary
@@ -304,7 +307,7 @@ def test_wrong_token_says_401_and_asks_again(cell: Cell, tmp_path: Path) -> None
         page.on("response", lambda r: refused.append(r.url) if r.status == 401 else None)
         page.goto(url + "/#token=wrong")
         page.wait_for_selector("#token-dialog[open]", timeout=10000)
-        assert "401" in page.inner_text("#messages")
+        assert "refused the access token" in page.inner_text("#messages")
         assert "#token" not in page.url  # dropped from the address bar
         page.wait_for_timeout(3000)
         assert len(refused) <= 6, refused  # the first wave only; polling is paused

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from calib.dataset import known_pose_index
 from daemon.capture import CaptureRejected, Joints
 from daemon.devices import Device
 from daemon.sampler.config import SamplerConfig
@@ -127,11 +128,10 @@ class AutoState:
         if self.need_motion or now < self.retry_after:
             return NOTHING
         q = np.array([r.joints_deg for r in verdict.window]).mean(axis=0)
-        near = np.flatnonzero(np.all(np.abs(self.known - q) < cfg.auto_new_pose_deg, axis=1))
-        if not near.size:
+        index = known_pose_index(self.known, q, cfg.auto_new_pose_deg)  # the one repeat rule
+        if index is None:
             return AutoAction(store=True)
         self.stay(q)
-        index = int(near[0])
         if index in self.reported_known:
             return NOTHING
         self.reported_known.add(index)
