@@ -336,6 +336,7 @@ def identify(
                                    selection, opts.drift)  # fmt: skip
         every = np.arange(len(samples))
         drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
+        drift_block["rows_flagged"] = [int(d.train_rows[i]) for i in solved.flagged]
         if opts.method not in drift.DRIFT_METHODS:
             drift_block["note"] = f"not modelled: method {opts.method} does not support it"
         # The one wording of what was found: the CLI, the HTML report and the page read it.
