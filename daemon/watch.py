@@ -26,7 +26,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -76,6 +76,22 @@ class WatchedSink:
         self._watch.saw_sample(campaign_id, dict(row))
         return row
 
+    def record_rejection(
+        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+    ) -> None:
+        """The refusal with the pose it happened at (the robot's latest joints, from
+        :attr:`SensorWatch.joints_now`), so that a plan's progress can tell a pose that
+        cannot be captured (:mod:`calib.planning.progress`)."""
+        joints = None
+        if self._watch.joints_now is not None:
+            with contextlib.suppress(Exception):
+                joints = self._watch.joints_now()
+        if joints is None:
+            self._inner.record_rejection(campaign_id, reason, detail, device)
+        else:  # the store takes the pose (daemon.store.events)
+            inner: Any = self._inner
+            inner.record_rejection(campaign_id, reason, detail, device, joints_deg=joints)
+
     def __getattr__(self, name: str) -> Any:
         return getattr(self._inner, name)
 
@@ -102,6 +118,8 @@ class SensorWatch:
         self._campaigns: dict[int, CampaignWatch] = {}
         #: Newest unacknowledged move per campaign (the page's banner): the event detail.
         self._moves: dict[int, dict[str, Any]] = {}
+        #: The robot's latest joints [deg] (6) or None; set by the lifespan from the sampler.
+        self.joints_now: Callable[[], list[float] | None] | None = None
 
     def wrap(self, sink: CaptureSink) -> WatchedSink:
         """``sink`` with this watch listening to its stored captures."""

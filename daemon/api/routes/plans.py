@@ -19,12 +19,13 @@ from typing_extensions import TypedDict
 from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan, start_anchors_mm
-from calib.planning.progress import MATCH_TOL_DEG, match_plan
+from calib.planning.progress import MATCH_TOL_DEG, match_plan, not_capturable
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import MAX_ANCHOR_CHARS, PlanRequest
+from daemon.plan_check import rejections
 from daemon.plan_noise import NoiseEstimate, cell_noise
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
@@ -32,18 +33,23 @@ router = APIRouter(tags=["plans"], responses=error_responses(401, 404, 413, 422)
 
 
 class PlannedPose(PlannedPoseRow):
-    """A planned pose with its state: ``done`` once a sample of the campaign measured it."""
+    """A planned pose with its state: ``done`` once a sample of the campaign measured it,
+    ``not_capturable`` when the sampler refused it for good (``why``: the refusal, e.g. the
+    indicator over its range there), else ``pending``."""
 
-    status: Literal["done", "pending"]
+    status: Literal["done", "pending", "not_capturable"]
     sample_id: int | None
+    why: str | None
 
 
 class PlanProgress(TypedDict):
-    """Counts, the tolerance used and the first pending pose in visiting order."""
+    """Counts (poses that cannot be captured apart from the pending ones), the tolerance used
+    and the first pending pose in visiting order."""
 
     n_planned: int
     n_done: int
     n_pending: int
+    n_not_capturable: int
     fraction_done: float
     tol_deg: float
     next_pose: int | None
@@ -61,15 +67,21 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
     samples, sample_ids = state.store.sample_set(stored["campaign_id"])  # included ones
     poses = stored["poses"]
     match = match_plan(poses, samples.joints_deg, [str(a) for a in samples.anchor], tol_deg)
+    why = not_capturable(poses, match, rejections(state.store, stored["campaign_id"]), tol_deg)
     out: list[PlannedPose] = []
-    for pose, k in zip(poses, match, strict=True):
+    for pose, k, w in zip(poses, match, why, strict=True):
         done = k >= 0
-        out.append({**pose, "status": "done" if done else "pending",
-                    "sample_id": sample_ids[k] if done else None})  # fmt: skip
+        status: Literal["done", "pending", "not_capturable"] = (
+            "done" if done else "not_capturable" if w else "pending"
+        )
+        out.append({**pose, "status": status, "sample_id": sample_ids[k] if done else None,
+                    "why": w})  # fmt: skip
     n_done = sum(1 for k in match if k >= 0)
+    n_not = sum(1 for w in why if w)
     pending = [p["pose"] for p in out if p["status"] == "pending"]
     progress: PlanProgress = {
-        "n_planned": len(out), "n_done": n_done, "n_pending": len(out) - n_done,
+        "n_planned": len(out), "n_done": n_done, "n_pending": len(pending),
+        "n_not_capturable": n_not,
         "fraction_done": n_done / len(out), "tol_deg": tol_deg,
         "next_pose": int(pending[0]) if pending else None,
     }  # fmt: skip
