@@ -298,6 +298,18 @@ class SensorWatch:
             cw.tester.moved()
         return out
 
+    def offsets_mm(self, campaign_id: int) -> dict[str, float]:
+        """The indicator's zero offset [mm] per anchor id in the campaign's running fit
+        (empty without one): a plan keeps its predicted readings in range with it."""
+        cw = self._campaigns.get(campaign_id)
+        fit = None if cw is None else cw.tester.fit
+        if fit is None:
+            return {}
+        from calib.cable import N_KIN
+
+        return {aid: float(fit.theta[N_KIN + 4 * k + 3])
+                for k, aid in enumerate(fit.layout.anchors)}  # fmt: skip
+
     def status(self) -> dict[str, Any]:
         """The ``watch`` block of ``GET /status``: ``enabled``, ``moves`` (per campaign with
         an automatic split not undone since this start: the ``sensor_moved`` detail without
