@@ -15,8 +15,8 @@ identify with its default options and the random 80/20 split:
 - the same at 31 and 45 rows on the EMULATED cells (:func:`emulated_case`).
 
 Unless ``--no-outliers``, it also measures 5 % gross outliers (5–20 mm) in the training rows
-at 45, 60 and 100 rows (:data:`OUTLIER_CELLS` cells): the aligned TCP error of the default fit against the plain fit on the
-clean lengths (the test of ``tests/test_min_n.py``).
+at 45, 60 and 100 rows (:data:`OUTLIER_CELLS` cells): the aligned TCP error of the default
+fit against the plain fit on the clean lengths (the test of ``tests/test_min_n.py``).
 
 Writes ``bench/min_n.json`` and ``bench/min_n.md`` (``--label`` names the column set, so a
 run before and after a change can be kept side by side: the table keeps every label's rows).
