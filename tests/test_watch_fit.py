@@ -130,3 +130,40 @@ def test_locate_step_finds_the_split_the_residuals_say_and_keeps_a_clean_window(
         locate_step(residual, design, 0.02, 3.0, 20)
     with pytest.raises(ValueError, match="sigma_mm"):
         locate_step(residual, design, 0.0, 3.0, 10)
+
+
+def test_the_sample_in_flight_at_a_move_follows_to_the_new_session(tmp_path: object) -> None:
+    """Issue 27 item 1: after a move, the first sample still stored in the old session (its
+    capture was under way while auto capture switched) goes to the new one and into the
+    move's list; a later sample in the old session (the operator's choice) stays."""
+    from pathlib import Path
+
+    from calib.dataset import make_samples
+    from calib.monitor.running_fit import LiveTester
+    from calib.monitor.stepwatch import StepSettings
+    from daemon.store import Store
+    from daemon.watch import CampaignWatch, SensorWatch
+
+    store = Store(Path(str(tmp_path)) / "s.sqlite3")
+    try:
+        robot = store.ensure_builtin_robot("hsr-jr680")
+        cid = int(store.create_campaign("c", robot["id"])["id"])
+        cell = EmulatedCell(SimConfig(seed=1, robot={"n_poses": 6}))
+        q = cell.poses_deg[:6]
+        ids = store.import_samples(cid, make_samples(q, cell.truth.lengths_mm(q)))
+        store.move_samples_to_anchor(cid, ids[2:4], "A2")  # the move: samples 3 and 4
+        watch = SensorWatch(store, StepSettings())
+        cw = CampaignWatch(cid, int(robot["id"]), LiveTester(cell.truth.model, None,
+                                                             StepDetector()))  # fmt: skip
+        watch._campaigns[cid] = cw
+        watch._moves[cid] = {"previous_anchor": "A", "new_anchor": "A2",
+                             "detected_at_sample_id": ids[3],
+                             "moved_sample_ids": [ids[2], ids[3]]}  # fmt: skip
+        cw.after_move = True
+        assert watch._in_flight(cw, store.sample(ids[4]))  # in flight: follows
+        assert store.sample(ids[4])["anchor"] == "A2"
+        assert watch._moves[cid]["moved_sample_ids"] == [ids[2], ids[3], ids[4]]
+        assert not watch._in_flight(cw, store.sample(ids[5]))  # only the first one
+        assert store.sample(ids[5])["anchor"] == "A"
+    finally:
+        store.close()
