@@ -81,6 +81,22 @@ class _Setup:
     nuisance: IndexArray | None  # columns of rows that are anchor parameters (Ds), or None
 
 
+def plan_anchor_ids(anchor_ids: tuple[str, ...] | None, n_anchors: int) -> tuple[str, ...]:
+    """The ids of a plan's anchors: ``anchor_ids`` as given, else ``A, B, …``."""
+    return anchor_ids or tuple(chr(ord("A") + k) for k in range(n_anchors))
+
+
+def start_offsets_mm(
+    model: RobotModel, start: SampleSet, ids: tuple[str, ...]
+) -> tuple[float | None, ...] | None:
+    """The zero offset [mm] of each of the plan's anchors ``ids`` that the start samples
+    measured (multilateration, :func:`start_anchor_fits`), None for the others; None when
+    they measured none (:attr:`PlanOptions.offsets_mm`)."""
+    fits = start_anchor_fits(model, start)
+    out = tuple(float(fits[a][1]) if a in fits else None for a in ids)
+    return out if any(c is not None for c in out) else None
+
+
 def start_anchors_mm(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
     """P0 of each start anchor by multilateration with the nominal model, each (3,) [mm]
     (the anchor guess for planning more poses at a sensor that has not moved)."""
@@ -101,7 +117,7 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
            start: SampleSet | None) -> _Setup:  # fmt: skip
     rng = np.random.default_rng(opts.seed)
     m = anchors_mm.shape[0]
-    plan_ids = opts.anchor_ids or tuple(chr(ord("A") + k) for k in range(m))
+    plan_ids = plan_anchor_ids(opts.anchor_ids, m)
     start_ids = start.anchor_ids if start is not None else ()
     ids = tuple(start_ids) + tuple(a for a in plan_ids if a not in start_ids)
     layout = ParamLayout(ids)

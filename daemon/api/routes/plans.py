@@ -19,7 +19,7 @@ from typing_extensions import TypedDict
 from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan
-from calib.planning.plan import start_anchor_fits
+from calib.planning.plan import plan_anchor_ids, start_anchor_fits
 from calib.planning.progress import MATCH_TOL_DEG, match_plan, not_capturable
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
@@ -142,7 +142,7 @@ def _compute(
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
-    ids = opts.anchor_ids or tuple(chr(ord("A") + k) for k in range(len(anchors)))
+    ids = plan_anchor_ids(opts.anchor_ids, len(anchors))
     used = [offsets.get(aid) for aid in ids]
     if any(u is not None for u in used):
         values = tuple(None if u is None else u[0] for u in used)
