@@ -24,8 +24,18 @@ import numpy as np
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 
+#: The indicator's reading range [mm]: the HY9648 shows the HY150-2000 drawstring sensor's
+#: length from 0 to 2000 mm and flags anything outside as over or under range (its status
+#: register, docs/hardware-protocols; the sampler refuses such a capture). A sample outside it
+#: is not a measurement; a plan keeps its predicted readings inside it.
 CABLE_MIN_MM = 0.0
 CABLE_MAX_MM = 2000.0
+#: How far inside the reading range a plan keeps a pose's predicted reading [mm]. The
+#: prediction uses the nominal kinematics, whose tool point an uncalibrated robot misses by
+#: a few mm (DH errors of the size of the paper's Table XII), and a fitted zero offset; 10 mm
+#: covers both. The anchor guess's own error is the plan's ``anchor_uncertainty_mm``, added
+#: to this.
+READING_MARGIN_MM = 10.0
 JOINT_COLUMNS = tuple(f"q{j + 1}" for j in range(N_JOINTS))
 LENGTH_COLUMNS = ("l", "length_mm")
 

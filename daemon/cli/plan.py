@@ -186,6 +186,7 @@ def plan_cmd(
     from calib.dataset import SampleError
     from calib.models import ModelError
     from calib.planning import PlanOptions, plan, start_anchors_mm
+    from calib.planning.plan import plan_anchor_ids, start_offsets_mm
     from daemon.datafiles import load_robot, read_samples
 
     console = Console()  # created here so COLUMNS is read at run time
@@ -218,6 +219,10 @@ def plan_cmd(
             raise ValueError(f"--anchor-id: {len(ids)} ids for {len(anchors)} anchors")
         if ids:
             kw["anchor_ids"] = tuple(ids)
+        if samples is not None:  # the start samples' zero offsets keep the readings in range
+            kw["offsets_mm"] = start_offsets_mm(
+                model, samples, plan_anchor_ids(kw.get("anchor_ids"), len(anchors))
+            )
         opts = PlanOptions(**kw)
         with console.status("planning…"):
             res = plan(model, anchors, opts, start=samples)

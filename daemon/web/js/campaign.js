@@ -356,14 +356,16 @@ function renderPlan() {
   const tcp = plan.summary?.tcp_sigma_mm;
   const pr = plan.progress || {};
   setText("plan-summary", `${pr.n_planned} planned poses: ${pr.n_done} captured, ${pr.n_pending} to go` +
-    (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") + "." +
+    (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") +
+    (pr.n_not_capturable ? `, ${pr.n_not_capturable} not capturable (the sampler refused them; plan again to replace them)` : "") + "." +
     (tcp ? ` Predicted tool-point accuracy after calibration: ${fix(tcp.plan?.rms, 3)} mm RMS (1σ; max ${fix(tcp.plan?.max, 3)} mm), against ${fix(tcp.random?.rms, 3)} mm with as many random poses.` : "") +
     (plan.summary?.noise_mm ? ` It assumes ${fix(plan.summary.noise_mm, 4)} mm length noise per capture` +
       (plan.summary.noise_detail ? ` (${plan.summary.noise_detail}).` : ".") : ""));
   fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
     { label: "anchor" }, { label: "status" }],
   plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
-    el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
+    p.status === "not_capturable" ? el("span", { class: "pill warn", title: p.why || "" }, `not capturable: ${p.why}`)
+      : el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
   JSON.stringify([plan.id, plan.poses.map((p) => p.status)]));
 }
 
