@@ -1,11 +1,14 @@
-"""Options of :func:`calib.planning.plan`."""
+"""Options of :func:`calib.planning.plan`. Standard library only, so the CLI's ``--help``
+reads the defaults from here without loading numpy."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S
+#: Default joint speeds for a campaign's moves [deg/s]: a cautious fraction of a 6-axis
+#: industrial robot's maximum axis speeds (base axes slower than wrist axes).
+DEFAULT_JOINT_SPEED_DEG_S = (30.0, 30.0, 30.0, 45.0, 45.0, 60.0)
 
 #: The 1σ noise of one captured length a plan assumes when it is given none [mm]. A capture
 #: is the mean of a settled window of readings, so its noise is below one reading's; the

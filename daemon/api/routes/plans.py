@@ -19,7 +19,7 @@ from typing_extensions import TypedDict
 from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan
-from calib.planning.plan import plan_anchor_ids, start_anchor_fits
+from calib.planning.planner import plan_anchor_ids, start_anchor_fits
 from calib.planning.progress import MATCH_TOL_DEG, match_plan, not_capturable
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
