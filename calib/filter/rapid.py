@@ -1,0 +1,585 @@
+"""ABB RAPID dialect of the filter (``.mod``, ``.modx``, ``.prg``, ``.sys``).
+
+Targets
+    ``robtarget`` and ``jointtarget`` declared ``CONST``, ``PERS`` or ``VAR`` (optionally
+    ``LOCAL`` / ``TASK``), on one line or over several, single or arrays (``{n}``,
+    ``{n,m}``: one target per element, named ``p{2}``, ``p{1,3}``), and inline literals
+    ``[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[eax…]]`` inside move instructions.
+    A robtarget's value: position [mm], quaternion ``w, x, y, z``, configuration, external
+    axes (never touched). A jointtarget: six robot axes [deg], external axes (untouched).
+    A declaration whose value is not a literal (``:= Offs(p1, …)``, a PERS without value) is
+    no target site: it has no numbers to correct.
+
+Moves
+    Every instruction whose name starts with ``Move``, ``Trigg``, ``Search``, ``Arc`` or
+    ``Cap`` (``MoveL``, ``MoveJ``, ``MoveC``, ``MoveAbsJ``, ``MoveLDO``, ``TriggL``,
+    ``SearchL``, ``ArcL``…). Its targets are the positional arguments that name a declared
+    robtarget/jointtarget (``p10``, ``p10{3}``; a variable index ``p{i}`` uses every element),
+    inline literals, and the first argument of ``Offs(…)`` / ``RelTool(…)`` (the target is
+    corrected at its own pose). Its tool is the positional argument naming a tooldata
+    (``tool0`` or declared in the given files), its work object the ``\\WObj:=`` option
+    (``wobj0``, the base frame, without it).
+
+Frames
+    tooldata ``[robhold, [[x,y,z],[q1..q4]], load]``: the TCP in the flange frame.
+    wobjdata ``[robhold, ufprog, ufmec, uframe, oframe]``: the work object is
+    ``uframe · oframe``. A stationary tool (tooldata ``robhold`` FALSE, wobjdata ``robhold``
+    TRUE) or a work object moved by a mechanical unit (``ufprog`` FALSE) is not supported:
+    its targets are skipped and named.
+    Names are looked up in the target's own file first, then in the other given files;
+    RAPID is case-insensitive.
+
+Configuration (ABB confdata ``[cf1, cf4, cf6, cfx]``)
+    ``cf1, cf4, cf6``: the quadrants of axes 1, 4, 6 (``floor(q / 90°)``); ``cfx`` 0..7:
+    wrist centre in front of / behind axis 1 (``cfx < 4`` front), above / below the lower
+    arm (``cfx`` in 0, 1, 4, 5 above), axis 5 positive / negative (even = positive). The
+    quadrants are written back from the corrected joints, ``cfx`` as it was.
+
+Precision: positions to at least 3 decimals (rounding ≤ 0.0005 mm per axis), quaternion
+components to at least 6 (≤ 1e-4°), joint angles to at least 4 (≤ 0.00005°).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calib.filter.rotations import (
+    frame,
+    matrix_to_quat_wxyz,
+    quat_wxyz_to_matrix,
+    rotation_angle_deg,
+)
+from calib.filter.sites import (
+    Configuration,
+    Correction,
+    Edit,
+    FilterInputError,
+    FrameTables,
+    Num,
+    Source,
+    Target,
+    Use,
+    edit,
+)
+from calib.kinematics import FloatArray
+
+NAME = "rapid"
+EXTENSIONS = (".mod", ".modx", ".prg", ".sys")
+POSITION_DECIMALS = 3
+QUATERNION_DECIMALS = 6
+JOINT_DECIMALS = 4
+
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+_WORD = re.compile(r"[A-Za-z_]\w*")
+_DECL = re.compile(
+    r"\b(?:(?:LOCAL|TASK)\s+)?(?:CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata)"
+    r"\s+([A-Za-z]\w*)\s*(\{[^}]*\})?\s*(:=)?",
+    re.IGNORECASE,
+)
+_MOVE = re.compile(r"(?<![\w.])((?:Move|Trigg|Search|Arc|Cap)\w*)(?=[ \t\r\n\\])", re.IGNORECASE)
+_MODULE = re.compile(r"^\s*(?:%%%[\s\S]*?%%%\s*)?MODULE\s+\w+", re.IGNORECASE)
+#: Values RAPID predefines.
+PREDEFINED_TOOLS = {"tool0"}
+PREDEFINED_WOBJS = {"wobj0"}
+
+
+def blank(text: str) -> str:
+    """``text`` with comments (``!`` to the end of the line) and strings replaced by spaces,
+    same length, so offsets into it are offsets into ``text``."""
+    out = list(text)
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c == '"':
+            j = i + 1
+            while j < n and text[j] not in '"\n':
+                j += 1
+            for k in range(i, min(j + 1, n)):
+                if out[k] not in "\r\n":
+                    out[k] = " "
+            i = j + 1
+        elif c == "!":
+            j = text.find("\n", i)
+            j = n if j < 0 else j
+            for k in range(i, j):
+                if out[k] != "\r":
+                    out[k] = " "
+            i = j
+        else:
+            i += 1
+    return "".join(out)
+
+
+@dataclass
+class Node:
+    """A parsed literal: a list of nodes, a number, or another token (TRUE, an empty string)."""
+
+    start: int
+    end: int
+    items: list[Node] | None = None
+    num: float | None = None
+    word: str = ""
+
+    def is_list(self, n: int | None = None) -> bool:
+        return self.items is not None and (n is None or len(self.items) == n)
+
+    def numbers(self) -> bool:
+        return self.items is not None and all(i.num is not None for i in self.items)
+
+
+def _skip_space(text: str, i: int) -> int:
+    while i < len(text) and text[i] in " \t\r\n":
+        i += 1
+    return i
+
+
+def parse_literal(code: str, i: int, source: Source) -> Node:
+    """The bracketed literal starting at ``code[i]`` (``[`` expected).
+
+    Raises
+    ------
+    FilterInputError
+        Naming the line of the first character that does not fit.
+    """
+    i = _skip_space(code, i)
+    if i >= len(code) or code[i] != "[":
+        raise FilterInputError(source.name, "expected '[' (a literal value)", source.line_of(i))
+    start = i
+    items: list[Node] = []
+    i += 1
+    while True:
+        i = _skip_space(code, i)
+        if i < len(code) and code[i] == "]" and not items:
+            return Node(start, i + 1, items=items)
+        if i < len(code) and code[i] == "[":
+            node = parse_literal(code, i, source)
+        else:
+            m = _NUMBER.match(code, i)
+            if m:
+                node = Node(i, m.end(), num=float(m.group()))
+            else:
+                w = _WORD.match(code, i)
+                if w:
+                    node = Node(i, w.end(), word=w.group())
+                elif i < len(code) and code[i] in ",]":  # a blanked string ""
+                    node = Node(i, i, word="")
+                else:
+                    got = code[i] if i < len(code) else "end of file"
+                    raise FilterInputError(source.name, f"unexpected {got!r} in a literal",
+                                           source.line_of(i))  # fmt: skip
+        items.append(node)
+        i = _skip_space(code, node.end)
+        if i < len(code) and code[i] == ",":
+            i += 1
+            continue
+        if i < len(code) and code[i] == "]":
+            return Node(start, i + 1, items=items)
+        got = code[i] if i < len(code) else "end of file"
+        raise FilterInputError(source.name, f"expected ',' or ']' in a literal, got {got!r}",
+                               source.line_of(i))  # fmt: skip
+
+
+def _nums(node: Node, source: Source) -> list[Num]:
+    assert node.items is not None
+    return [Num(source.name, n.start, n.end, source.text[n.start : n.end], float(n.num or 0.0))
+            for n in node.items]  # fmt: skip
+
+
+def _is_robtarget(node: Node) -> bool:
+    if not node.is_list(4):
+        return False
+    assert node.items is not None
+    return all(it.is_list(k) and it.numbers() for it, k in zip(node.items, (3, 4, 4, 6),
+                                                               strict=True))  # fmt: skip
+
+
+def _is_jointtarget(node: Node) -> bool:
+    if not node.is_list(2):
+        return False
+    assert node.items is not None
+    return all(it.is_list(6) and it.numbers() for it in node.items)
+
+
+def _is_pose(node: Node) -> bool:
+    if not node.is_list(2):
+        return False
+    assert node.items is not None
+    return node.items[0].is_list(3) and node.items[1].is_list(4) and all(
+        it.numbers() for it in node.items)  # fmt: skip
+
+
+def _pose(node: Node) -> FloatArray:
+    assert node.items is not None and node.items[0].items and node.items[1].items
+    pos = np.array([float(i.num or 0.0) for i in node.items[0].items])
+    quat = np.array([float(i.num or 0.0) for i in node.items[1].items])
+    return frame(pos, quat_wxyz_to_matrix(quat))
+
+
+@dataclass
+class RobSite:
+    """Where a robtarget's numbers are: position (3), quaternion (4), confdata (4)."""
+
+    position: list[Num]
+    quaternion: list[Num]
+    conf: list[Num]
+
+
+@dataclass
+class JointSite:
+    """Where a jointtarget's six robot axes are."""
+
+    joints: list[Num]
+
+
+def configuration(conf: Sequence[float]) -> Configuration:
+    """The branch an ABB controller takes for confdata ``[cf1, cf4, cf6, cfx]``."""
+    ranges = np.tile([-np.inf, np.inf], (6, 1))
+    for j, cf in zip((0, 3, 5), conf[:3], strict=True):
+        ranges[j] = (90.0 * cf, 90.0 * cf + 90.0)
+    cfx = int(conf[3])
+    text = "[" + ",".join(f"{int(c)}" for c in conf) + "]"
+    if not 0 <= cfx <= 7:
+        return Configuration(ranges, text=text)
+    return Configuration(ranges, shoulder=1 if cfx < 4 else -1,
+                         elbow=1 if cfx in (0, 1, 4, 5) else -1,
+                         wrist=1 if cfx % 2 == 0 else -1, text=text)  # fmt: skip
+
+
+@dataclass
+class _Decl:
+    kind: str  # robtarget, jointtarget, tooldata, wobjdata (lower case)
+    name: str
+    file: str
+    line: int
+    value: Node | None
+    dims: tuple[int, ...]
+    elements: dict[tuple[int, ...], Node] = field(default_factory=dict)
+
+
+def _dims(text: str | None) -> tuple[int, ...]:
+    if not text:
+        return ()
+    try:
+        return tuple(int(v) for v in text.strip("{} \t").split(","))
+    except ValueError:
+        return (-1,)  # a dimension given by a constant name: elements still read by shape
+
+
+def _elements(node: Node, depth: int, index: tuple[int, ...],
+              out: dict[tuple[int, ...], Node]) -> None:  # fmt: skip
+    if depth == 0:
+        out[index] = node
+        return
+    for k, item in enumerate(node.items or []):
+        _elements(item, depth - 1, (*index, k + 1), out)
+
+
+@dataclass
+class _Module:
+    source: Source
+    code: str
+    decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
+
+
+def _read_decls(mod: _Module) -> None:
+    src, code = mod.source, mod.code
+    for m in _DECL.finditer(code):
+        kind, name, dims_text, assign = m.group(1).lower(), m.group(2), m.group(3), m.group(4)
+        line = src.line_of(m.start())
+        dims = _dims(dims_text)
+        value = None
+        if assign:
+            i = _skip_space(code, m.end())
+            if i < len(code) and code[i] == "[":
+                value = parse_literal(code, i, src)
+        decl = _Decl(kind, name, src.name, line, value, dims)
+        if value is not None:
+            _elements(value, len(dims), (), decl.elements)
+            check = {"robtarget": _is_robtarget, "jointtarget": _is_jointtarget}.get(kind)
+            for index, node in decl.elements.items():
+                if check is not None and not check(node):
+                    raise FilterInputError(src.name, f"{kind} {name}"
+                                           f"{_index_text(index)}: not a {kind} literal",
+                                           src.line_of(node.start))  # fmt: skip
+        key = name.lower()
+        if key in mod.decls:
+            raise FilterInputError(src.name, f"{name} declared twice (also line "
+                                   f"{mod.decls[key].line})", line)  # fmt: skip
+        mod.decls[key] = decl
+
+
+def _index_text(index: tuple[int, ...]) -> str:
+    return "{" + ",".join(str(i) for i in index) + "}" if index else ""
+
+
+def _split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
+    """Comma-separated arguments of ``code[start:end]`` at bracket depth 0, as spans."""
+    out, depth, last = [], 0, start
+    for i in range(start, end):
+        c = code[i]
+        if c in "[({":
+            depth += 1
+        elif c in "])}":
+            depth -= 1
+        elif c == "," and depth == 0:
+            out.append((last, i))
+            last = i + 1
+    out.append((last, end))
+    return out
+
+
+def _split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], list[str]]:
+    """An argument's positional part (span) and its ``\\Option[:=value]`` texts."""
+    depth, cuts = 0, []
+    for i in range(start, end):
+        c = code[i]
+        if c in "[({":
+            depth += 1
+        elif c in "])}":
+            depth -= 1
+        elif c == "\\" and depth == 0:
+            cuts.append(i)
+    if not cuts:
+        return (start, end), []
+    opts = [code[a + 1 : b].strip() for a, b in zip(cuts, [*cuts[1:], end], strict=True)]
+    return (start, cuts[0]), opts
+
+
+def _statement_end(code: str, i: int) -> int:
+    depth = 0
+    while i < len(code):
+        c = code[i]
+        if c in "[({":
+            depth += 1
+        elif c in "])}":
+            depth -= 1
+        elif c == ";" and depth <= 0:
+            return i
+        i += 1
+    return i
+
+
+_REF = re.compile(r"([A-Za-z]\w*)\s*(?:\{([^}]*)\})?\s*$")
+_WRAP = re.compile(r"(?:Offs|RelTool)\s*\(", re.IGNORECASE)
+
+
+class RapidDialect:
+    """The RAPID dialect (see the module docstring)."""
+
+    name = NAME
+    extensions = EXTENSIONS
+
+    def claims(self, source: Source) -> bool:
+        """A RAPID extension and a ``MODULE`` statement as the first code."""
+        return bool(_MODULE.match(blank(source.text).lstrip("\ufeff")))
+
+    def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
+        del frames  # RAPID declares its frames in the program
+        modules = []
+        for src in sources:
+            mod = _Module(src, blank(src.text))
+            if not _MODULE.match(mod.code.lstrip("\ufeff")):
+                raise FilterInputError(src.name, "not a RAPID module (no MODULE statement)", 1)
+            _read_decls(mod)
+            modules.append(mod)
+        targets: dict[tuple[str, str], Target] = {}
+        order: list[Target] = []
+        for mod in modules:
+            for decl in mod.decls.values():
+                if decl.kind not in ("robtarget", "jointtarget"):
+                    continue
+                for index, node in decl.elements.items():
+                    t = self._target(mod.source, f"{decl.name}{_index_text(index)}", decl.kind,
+                                     node)  # fmt: skip
+                    targets[(mod.source.name, t.name.lower())] = t
+                    order.append(t)
+        for mod in modules:
+            order.extend(self._moves(mod, modules, targets))
+        return order
+
+    # -- targets -----------------------------------------------------------------------
+    def _target(self, src: Source, name: str, kind: str, node: Node) -> Target:
+        assert node.items is not None
+        line = src.line_of(node.start)
+        if kind == "jointtarget":
+            joints = _nums(node.items[0], src)
+            return Target(src.name, line, name, "joint",
+                          joints_deg=np.array([n.value for n in joints]),
+                          site=JointSite(joints))  # fmt: skip
+        pos, quat, conf = (_nums(node.items[k], src) for k in range(3))
+        try:
+            rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
+        except ValueError:
+            raise FilterInputError(src.name, f"{name}: quaternion of zero norm", line) from None
+        return Target(src.name, line, name, "cartesian",
+                      pose=frame(np.array([n.value for n in pos]), rot),
+                      configuration=configuration([n.value for n in conf]),
+                      site=RobSite(pos, quat, conf))  # fmt: skip
+
+    # -- moves -------------------------------------------------------------------------
+    def _lookup(self, name: str, mod: _Module, modules: list[_Module],
+                kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
+        key = name.lower()
+        d = mod.decls.get(key)
+        if d is not None and d.kind in kinds:
+            return d, ""
+        found = [m.decls[key] for m in modules if m is not mod and key in m.decls
+                 and m.decls[key].kind in kinds]  # fmt: skip
+        if len(found) == 1:
+            return found[0], ""
+        if len(found) > 1:
+            where = ", ".join(f"{d.file}:{d.line}" for d in found)
+            return None, f"{name} is declared in several files ({where})"
+        return None, ""
+
+    def _frame_of(self, name: str, kind: str, mod: _Module,
+                  modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
+        if kind == "tooldata" and name.lower() in PREDEFINED_TOOLS:
+            return np.eye(4), ""
+        if kind == "wobjdata" and name.lower() in PREDEFINED_WOBJS:
+            return np.eye(4), ""
+        decl, why = self._lookup(name, mod, modules, (kind,))
+        if decl is None:
+            return None, why or f"{kind} {name} is not declared in the given files"
+        node = decl.value
+        if node is None or decl.dims:
+            return None, f"{kind} {name} ({decl.file}:{decl.line}) has no literal value"
+        items = node.items or []
+        if kind == "tooldata":
+            if len(items) != 3 or not _is_pose(items[1]):
+                where = f"{decl.file}:{decl.line}"
+                return None, f"tooldata {name} ({where}) is not [robhold,tframe,load]"
+            if items[0].word.upper() != "TRUE":
+                return None, f"tooldata {name}: stationary tool (robhold FALSE) is not supported"
+            return _pose(items[1]), ""
+        if len(items) != 5 or not (_is_pose(items[3]) and _is_pose(items[4])):
+            return None, (f"wobjdata {name} ({decl.file}:{decl.line}) is not "
+                          "[robhold,ufprog,ufmec,uframe,oframe]")  # fmt: skip
+        if items[0].word.upper() != "FALSE":
+            return None, f"wobjdata {name}: robot-held work object (robhold TRUE): not supported"
+        if items[1].word.upper() != "TRUE":
+            return None, f"wobjdata {name}: moved by a unit (ufprog FALSE): not supported"
+        return _pose(items[3]) @ _pose(items[4]), ""
+
+    def _moves(self, mod: _Module, modules: list[_Module],
+               targets: dict[tuple[str, str], Target]) -> list[Target]:  # fmt: skip
+        """Record the uses of every move of ``mod``; returns its inline targets."""
+        src, code = mod.source, mod.code
+        inline: list[Target] = []
+        for m in _MOVE.finditer(code):
+            end = _statement_end(code, m.end())
+            line = src.line_of(m.start())
+            tool_name, work_name = "", "wobj0"
+            refs: list[tuple[str, Any]] = []  # ("name", (name, index)) or ("inline", Node)
+            for a, b in _split_args(code, m.end(), end):
+                (pa, pb), opts = _split_options(code, a, b)
+                for opt in opts:
+                    key, _, val = opt.partition(":=")
+                    if key.strip().lower() == "wobj":
+                        work_name = val.strip()
+                arg = code[pa:pb].strip()
+                if not arg:
+                    continue
+                astart = pa + (len(code[pa:pb]) - len(code[pa:pb].lstrip()))
+                wrap = _WRAP.match(arg)
+                if wrap:
+                    inner = _split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
+                    arg = code[inner[0] : inner[1]].strip()
+                    astart = inner[0] + (len(code[inner[0]:inner[1]])
+                                         - len(code[inner[0]:inner[1]].lstrip()))  # fmt: skip
+                if arg.startswith("["):
+                    refs.append(("inline", parse_literal(code, astart, src)))
+                    continue
+                r = _REF.match(arg)
+                if not r:
+                    continue
+                name, index = r.group(1), r.group(2)
+                decl, _ = self._lookup(name, mod, modules, ("tooldata",))
+                if decl is not None or name.lower() in PREDEFINED_TOOLS:
+                    tool_name = name
+                    continue
+                refs.append(("name", (name, index)))
+            if not refs:
+                continue
+            if tool_name:
+                tool, why_t = self._frame_of(tool_name, "tooldata", mod, modules)
+            else:
+                tool, why_t = None, "no tooldata argument found"
+            work, why_w = self._frame_of(work_name, "wobjdata", mod, modules)
+            problem = "; ".join(w for w in (why_t, why_w) if w)
+            use = Use(src.name, line, tool_name or "?", work_name, tool, work, problem)
+            for kind, ref in refs:
+                if kind == "inline":
+                    node = ref
+                    if _is_robtarget(node):
+                        t = self._target(src, f"inline@{src.line_of(node.start)}", "robtarget",
+                                         node)  # fmt: skip
+                    elif _is_jointtarget(node):
+                        t = self._target(src, f"inline@{src.line_of(node.start)}",
+                                         "jointtarget", node)  # fmt: skip
+                    else:
+                        raise FilterInputError(
+                            src.name,
+                            "inline value is neither a robtarget nor a jointtarget",
+                            src.line_of(node.start),
+                        )
+                    t.uses.append(use)
+                    inline.append(t)
+                    continue
+                name, index = ref
+                decl, _why = self._lookup(name, mod, modules, ("robtarget", "jointtarget"))
+                if decl is None:
+                    continue  # a speed, zone, signal, or a target declared elsewhere
+                owner = decl.file
+                if index is None or decl.dims == ():
+                    keys = (
+                        [name.lower()]
+                        if not decl.dims
+                        else [f"{decl.name}{_index_text(i)}".lower() for i in decl.elements]
+                    )
+                else:
+                    try:
+                        idx = tuple(int(v) for v in index.split(","))
+                        keys = [f"{decl.name}{_index_text(idx)}".lower()]
+                    except ValueError:  # a variable index: the move may use every element
+                        keys = [f"{decl.name}{_index_text(i)}".lower() for i in decl.elements]
+                for key in keys:
+                    found = targets.get((owner, key))
+                    if found is not None:
+                        found.uses.append(use)
+        return inline
+
+    # -- writing -----------------------------------------------------------------------
+    def render(self, target: Target, correction: Correction) -> list[Edit]:
+        edits: list[Edit | None] = []
+        if isinstance(target.site, JointSite):
+            assert correction.joints_deg is not None
+            for num, v in zip(target.site.joints, correction.joints_deg, strict=True):
+                edits.append(edit(num, float(v), JOINT_DECIMALS))
+            return [e for e in edits if e is not None]
+        site: RobSite = target.site
+        assert correction.pose is not None and correction.joints_deg is not None
+        old_q = np.array([n.value for n in site.quaternion])
+        quat = matrix_to_quat_wxyz(correction.pose[:3, :3], near=old_q)
+        old_rot = quat_wxyz_to_matrix(old_q)
+        # An orientation that did not move (to the written precision) keeps its text even
+        # where the file's quaternion was not of unit norm.
+        if float(rotation_angle_deg(old_rot, correction.pose[:3, :3])) < 1e-5:
+            quat = old_q
+        for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
+            edits.append(edit(num, float(v), POSITION_DECIMALS))
+        for num, v in zip(site.quaternion, quat, strict=True):
+            edits.append(edit(num, float(v), QUATERNION_DECIMALS))
+        for num, j in zip(site.conf[:3], (0, 3, 5), strict=True):
+            cf = math.floor(float(correction.joints_deg[j]) / 90.0)
+            edits.append(edit(num, float(cf), 0))
+        return [e for e in edits if e is not None]
+
+
+DIALECT = RapidDialect()
