@@ -210,27 +210,68 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
     # Nominal solutions: Cartesian targets on the controller's branch.
     seeds: dict[int, FloatArray] = {}
     flanges: dict[int, FloatArray] = {}
-    if cart:
-        fl = np.stack([works[i] @ targets[i].pose @ invert(tools[i]) for i in cart])  # type: ignore[operator]
-        configs: list[Configuration | None] = [targets[i].configuration for i in cart]
-        near = None
-        if any(c is not None and c.nearest_deg is not None for c in configs):
-            near = np.array([c.nearest_deg if c is not None and c.nearest_deg is not None
-                             else np.full(N_JOINTS, np.nan) for c in configs])  # fmt: skip
-        sol = nominal_solutions(nominal, fl, near)
-        idx, reasons = choose(sol, configs)
-        for r, i in enumerate(cart):
-            if idx[r] < 0:
-                if reasons[r].startswith("unreachable"):
-                    out[i] = Correction("unreachable", reasons[r].removeprefix("unreachable: "))
+    fl_of = {i: works[i] @ targets[i].pose @ invert(tools[i]) for i in cart}  # type: ignore[operator]
+    analytic = [i for i in cart if (c := targets[i].configuration) is None
+                or (c.nearest_deg is None and c.after is None)]  # fmt: skip
+    if analytic:
+        fl = np.stack([fl_of[i] for i in analytic])
+        configs: list[Configuration | None] = [targets[i].configuration for i in analytic]
+        try:
+            sol = nominal_solutions(nominal, fl)
+        except ValueError as exc:  # not a spherical wrist
+            for i in analytic:
+                out[i] = Correction("skipped", f"{exc}, or a joint reference (UR's q)")
+        else:
+            idx, reasons = choose(sol, configs)
+            for r, i in enumerate(analytic):
+                if idx[r] < 0:
+                    if reasons[r].startswith("unreachable"):
+                        out[i] = Correction("unreachable", reasons[r].removeprefix("unreachable: "))
+                    else:
+                        out[i] = Correction("skipped", reasons[r])
                 else:
-                    out[i] = Correction("skipped", reasons[r])
-            else:
-                seeds[i] = sol.joints_deg[r, idx[r]]
-                flanges[i] = fl[r]
+                    seeds[i] = sol.joints_deg[r, idx[r]]
+                    flanges[i] = fl[r]
+    # Targets whose branch is "nearest a joint reference" (UR): the nominal IK from it.
     for i in joint:
-        q = np.asarray(targets[i].joints_deg, dtype=float)
-        seeds[i] = q
+        seeds[i] = np.asarray(targets[i].joints_deg, dtype=float)
+    by_name = {(t.file, t.name): k for k, t in enumerate(targets)}
+    todo = [i for i in cart if i not in analytic]
+    while todo:
+        ready, refs = [], []
+        for i in todo:
+            c = targets[i].configuration
+            assert c is not None
+            if c.nearest_deg is not None:
+                ready.append(i)
+                refs.append(c.nearest_deg)
+                continue
+            k = by_name.get((targets[i].file, c.after or ""))
+            if k is not None and (k in seeds or targets[k].kind == "joint"):
+                ready.append(i)
+                refs.append(seeds[k] if k in seeds else targets[k].joints_deg)
+            elif k is None or out[k] is not None or k not in todo:
+                out[i] = Correction("skipped", f"the previous move's target {c.after} has no "
+                                    "nominal joints to start from")  # fmt: skip
+        todo = [i for i in todo if i not in ready and out[i] is None]
+        if not ready:
+            for i in todo:
+                out[i] = Correction("skipped", "no joint reference for the branch")
+            break
+        fl = np.stack([fl_of[i] for i in ready])
+        sol_n = solve_ik(nominal, np.array(refs), fl[:, :3, 3], fl[:, :3, :3], np.zeros(3),
+                         IK_OPTIONS)  # fmt: skip
+        limits_n = joint_limits_deg(nominal)
+        for r, i in enumerate(ready):
+            q = sol_n.joints_deg[r]
+            if not sol_n.converged[r]:
+                out[i] = Correction("unreachable", "no nominal solution near its joint reference")
+            elif np.any(q < limits_n[:, 0]) or np.any(q > limits_n[:, 1]):
+                out[i] = Correction("unreachable", "the nominal solution nearest its joint "
+                                    "reference is outside the joint limits")  # fmt: skip
+            else:
+                seeds[i] = q
+                flanges[i] = fl[r]
     rows = list(seeds)
     if rows:
         q_nom = np.array([seeds[i] for i in rows])
@@ -284,7 +325,6 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                 shift_deg=float(rotation_angle_deg(old[:3, :3], new[:3, :3])),
                 configuration_kept=True, sigma_mm=float(sigma[r]))  # fmt: skip
     # Joint targets that follow a Cartesian one (a PolyScope Waypoint_n_q).
-    by_name = {(t.file, t.name): k for k, t in enumerate(targets)}
     for i, t in enumerate(targets):
         if t.follows is None:
             continue

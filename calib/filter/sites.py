@@ -192,8 +192,10 @@ class Configuration:
         T/B``). They only break ties: the joint ranges (quadrants, signs, turns) decide
         first, and the only solution within the joint limits is taken whatever they say.
     nearest_deg : ndarray, shape (6,), or None
-        Take the solution nearest these joints (UR: the waypoint's ``q``, else the previous
-        move's joints).
+        Take the solution nearest these joints (UR: the waypoint's ``q``).
+    after : str or None
+        Take the solution nearest the nominal joints of this other target of the same file
+        (UR without a ``q``: the previous move's target).
     text : str
         The configuration as the program writes it, for messages.
     """
@@ -205,6 +207,7 @@ class Configuration:
     elbow: int | None = None
     wrist: int | None = None
     nearest_deg: FloatArray | None = None
+    after: str | None = None
     text: str = ""
 
 
