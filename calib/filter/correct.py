@@ -249,7 +249,9 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             k = by_name.get((targets[i].file, c.after or ""))
             if k is not None and (k in seeds or targets[k].kind == "joint"):
                 ready.append(i)
-                refs.append(seeds[k] if k in seeds else targets[k].joints_deg)
+                refs.append(
+                    seeds[k] if k in seeds else np.asarray(targets[k].joints_deg, dtype=float)
+                )
             elif k is None or out[k] is not None or k not in todo:
                 out[i] = Correction("skipped", f"the previous move's target {c.after} has no "
                                     "nominal joints to start from")  # fmt: skip

@@ -66,12 +66,12 @@ class FilterRun:
     dialects: dict[str, str] = field(default_factory=dict)
 
     def rows(self) -> list[dict[str, Any]]:
-        """One summary row per target (JSON-able; NaN → None)."""
+        """One summary row per target, by file and line (JSON-able; NaN → None)."""
 
         def num(v: float, nd: int) -> float | None:
             return None if not math.isfinite(v) else round(float(v), nd)
 
-        out = []
+        out: list[dict[str, Any]] = []
         for t, c in zip(self.targets, self.corrections, strict=True):
             tool = sorted({u.tool_name for u in t.uses})
             work = sorted({u.work_name for u in t.uses})
@@ -83,6 +83,8 @@ class FilterRun:
                 "sigma_at_tool_mm": num(c.sigma_mm, 4),
                 "tool": ",".join(tool), "work_object": ",".join(work),
             })  # fmt: skip
+        order = {name: k for k, name in enumerate(self.dialects)}
+        out.sort(key=lambda r: (order.get(str(r["file"]), len(order)), int(r["line"])))
         return out
 
     @property
