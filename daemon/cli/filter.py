@@ -62,7 +62,8 @@ def summary_table(run: FilterRun, con: Console) -> None:
     for col, just in (("file", "left"), ("line", "right"), ("name", "left"),
                       ("status", "left"), ("mm", "right"), ("deg", "right"),
                       ("conf", "left"), ("σ mm", "right")):  # fmt: skip
-        table.add_column(escape(col), justify=just)  # type: ignore[arg-type]
+        fold = col in ("file", "name")
+        table.add_column(escape(col), justify=just, overflow="fold" if fold else "ellipsis")  # type: ignore[arg-type]
     for r in shown:
         conf = {True: "kept", False: "changed", None: "-"}[r["configuration_kept"]]
         table.add_row(escape(r["file"]), str(r["line"]), escape(r["name"]), r["status"],
