@@ -56,6 +56,11 @@ BRANCH_JUMP_DEG = 5.0
 #: IK of the calibrated model: tight tolerances (the rounding of the written numbers, not the
 #: IK, should limit the result).
 IK_OPTIONS = IKOptions(max_iterations=60, tol_mm=1e-6, tol_deg=1e-6, stall_iterations=8)
+#: A correction smaller than this (TCP position [mm] and orientation [deg]; joints [deg]) is
+#: below anything a controller resolves: the target keeps its numbers exactly (so a
+#: calibration equal to the nominal model changes no byte, whatever the IK's last digits).
+NEGLIGIBLE_MM = 1e-4
+NEGLIGIBLE_DEG = 1e-5
 #: Workspace poses stacked with the targets for the rigid-motion removal of σ.
 SIGMA_WORKSPACE_POSES = 200
 
@@ -311,6 +316,8 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                 )
                 continue
             if t.kind == "joint":
+                if float(np.max(np.abs(qs - q_nom[r]))) < NEGLIGIBLE_DEG:
+                    qs = q_nom[r]
                 shift_deg = float(rotation_angle_deg(fk_nom[r, :3, :3], fk_star[r, :3, :3]))
                 # The TCP shift of a joint target: at the flange (its tool is irrelevant).
                 shift_mm = float(np.linalg.norm(fk_star[r, :3, 3] - fk_nom[r, :3, 3]))
@@ -321,11 +328,14 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             new = invert(works[i]) @ fk_star[r] @ tools[i]
             old = t.pose
             assert old is not None
+            shift_mm = float(np.linalg.norm(new[:3, 3] - old[:3, 3]))
+            shift_deg = float(rotation_angle_deg(old[:3, :3], new[:3, :3]))
+            if shift_mm < NEGLIGIBLE_MM and shift_deg < NEGLIGIBLE_DEG:
+                new = old
             out[i] = Correction(
                 "corrected", pose=new, joints_deg=qs, nominal_joints_deg=q_nom[r],
-                shift_mm=float(np.linalg.norm(new[:3, 3] - old[:3, 3])),
-                shift_deg=float(rotation_angle_deg(old[:3, :3], new[:3, :3])),
-                configuration_kept=True, sigma_mm=float(sigma[r]))  # fmt: skip
+                shift_mm=shift_mm, shift_deg=shift_deg, configuration_kept=True,
+                sigma_mm=float(sigma[r]))  # fmt: skip
     # Joint targets that follow a Cartesian one (a PolyScope Waypoint_n_q).
     for i, t in enumerate(targets):
         if t.follows is None:
@@ -338,7 +348,12 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             out[i] = Correction("skipped", f"follows {t.follows}, which was not corrected")
         else:
             q_old = np.asarray(t.joints_deg, dtype=float)
-            out[i] = Correction("corrected", joints_deg=lead.joints_deg,
+            # The written q and pose agree only to their written precision: move q by the
+            # correction of its pose's joints (a pose that did not move leaves q as it was).
+            assert lead.nominal_joints_deg is not None
+            delta = lead.joints_deg - lead.nominal_joints_deg
+            q_new = q_old if float(np.max(np.abs(delta))) < NEGLIGIBLE_DEG else q_old + delta
+            out[i] = Correction("corrected", joints_deg=q_new,
                                 nominal_joints_deg=q_old,
                                 shift_mm=lead.shift_mm, shift_deg=lead.shift_deg,
                                 configuration_kept=lead.configuration_kept,

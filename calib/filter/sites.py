@@ -394,10 +394,12 @@ def decimals_of(text: str) -> int:
 
 def format_number(original: Num, value: float, min_decimals: int) -> str:
     """``value`` written like ``original``: with ``max(its decimals, min_decimals)`` decimals
-    (fixed point). When ``value`` equals the original at that precision, the original text
-    is returned unchanged (so a filter that moves nothing changes no byte)."""
+    (fixed point). When ``value`` equals the original at that precision (or to floating-point
+    round-off), the original text is returned unchanged (so a filter that moves nothing changes no byte)."""
     dec = max(decimals_of(original.text), min_decimals)
-    if abs(value - original.value) < 0.5 * 10.0**-dec:
+    # Equal at the written precision, or up to floating-point round-off (a PolyScope joint
+    # written with 16 decimals, converted to degrees and back).
+    if abs(value - original.value) < max(0.5 * 10.0**-dec, 1e-12 * max(1.0, abs(value))):
         return original.text
     text = f"{value:.{dec}f}"
     if text.startswith("-") and float(text) == 0.0:
