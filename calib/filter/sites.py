@@ -395,7 +395,8 @@ def decimals_of(text: str) -> int:
 def format_number(original: Num, value: float, min_decimals: int) -> str:
     """``value`` written like ``original``: with ``max(its decimals, min_decimals)`` decimals
     (fixed point). When ``value`` equals the original at that precision (or to floating-point
-    round-off), the original text is returned unchanged (so a filter that moves nothing changes no byte)."""
+    round-off), the original text is returned unchanged (so a filter that moves nothing
+    changes no byte)."""
     dec = max(decimals_of(original.text), min_decimals)
     # Equal at the written precision, or up to floating-point round-off (a PolyScope joint
     # written with 16 decimals, converted to degrees and back).
