@@ -16,16 +16,6 @@ import math
 
 import numpy as np
 import pytest
-
-from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
-from calib.filter.correct import IK_OPTIONS, calibration_from_result
-from calib.filter.rapid import DIALECT as RAPID
-from calib.filter.rotations import invert, rotation_angle_deg
-from calib.filter.run import filter_files
-from calib.filter.sites import FrameTables, Source, Target
-from calib.filter.urscript import DIALECT as URSCRIPT
-from calib.ik import solve_ik
-from calib.kinematics import FloatArray
 from filter_cells import (
     Cell,
     make_cell,
@@ -37,6 +27,16 @@ from filter_cells import (
     urscript,
     work_frame,
 )
+
+from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
+from calib.filter.correct import IK_OPTIONS, calibration_from_result
+from calib.filter.rapid import DIALECT as RAPID
+from calib.filter.rotations import invert, rotation_angle_deg
+from calib.filter.run import filter_files
+from calib.filter.sites import FrameTables, Source, Target
+from calib.filter.urscript import DIALECT as URSCRIPT
+from calib.ik import solve_ik
+from calib.kinematics import FloatArray
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +88,8 @@ def test_rapid_program_reaches_the_floor(cell: Cell, tool_mm: float) -> None:
     # The nominal controller executes the filtered file: IK on the written configuration.
     done = _cartesian(RAPID.parse([Source.from_bytes("olp.mod", run.outputs["olp.mod"])],
                                   FrameTables()))  # fmt: skip
-    flanges = np.array([t.uses[0].work @ t.pose @ invert(t.uses[0].tool) for t in done])  # type: ignore[operator]
+    flanges = np.array([t.uses[0].work @ t.pose @ invert(t.uses[0].tool)  # type: ignore[operator, arg-type]
+                        for t in done])  # fmt: skip
     sol = nominal_solutions(nominal, flanges)
     idx, why = choose(sol, [t.configuration for t in done])
     assert np.all(idx >= 0), why
@@ -113,8 +114,8 @@ def test_polyscope_program_and_its_q_follow_the_correction(cell: Cell) -> None:
     text = urscript(nominal, q_plan, tool, polyscope=True)
     run = filter_files(calibration_from_result(cell.result, nominal), [("p.script", text.encode())])
     assert {c.status for c in run.corrections} == {"corrected"}
-    got = {t.name: t for t in URSCRIPT.parse([Source.from_bytes("p.script",
-                                              run.outputs["p.script"])], FrameTables())}  # fmt: skip
+    filtered = Source.from_bytes("p.script", run.outputs["p.script"])
+    got = {t.name: t for t in URSCRIPT.parse([filtered], FrameTables())}
     poses = np.array([got[f"Waypoint_{i + 1}_p"].pose for i in range(40)])
     qs = np.array([got[f"Waypoint_{i + 1}_q"].joints_deg for i in range(40)])
     # The UR controller: the IK solution nearest the waypoint's q.
