@@ -68,9 +68,12 @@ def _check(cell: Cell, q_plan: FloatArray, q_exec: FloatArray, q_star: FloatArra
     floor_mm, floor_deg = _floor(cell, q_star, tool)
     assert np.all(fil_mm <= 1.5 * floor_mm + 0.005), np.max(fil_mm - 1.5 * floor_mm)
     assert np.all(fil_deg <= 1.5 * floor_deg + 0.002), np.max(fil_deg - 1.5 * floor_deg)
-    rms = lambda v: float(np.sqrt(np.mean(v**2)))  # noqa: E731
     assert rms(fil_mm) <= 0.1 * rms(unf_mm), (rms(fil_mm), rms(unf_mm))
     assert rms(unf_mm) > 1.0  # the cell really is off: the check can fail
+
+
+def rms(v: FloatArray) -> float:
+    return float(np.sqrt(np.mean(v**2)))
 
 
 def _cartesian(targets: list[Target]) -> list[Target]:
