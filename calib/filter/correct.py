@@ -215,7 +215,12 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
     # Nominal solutions: Cartesian targets on the controller's branch.
     seeds: dict[int, FloatArray] = {}
     flanges: dict[int, FloatArray] = {}
-    fl_of = {i: works[i] @ targets[i].pose @ invert(tools[i]) for i in cart}  # type: ignore[operator]
+    fl_of: dict[int, FloatArray] = {}
+    if cart:
+        stacked = (np.array([works[i] for i in cart])
+                   @ np.array([targets[i].pose for i in cart])
+                   @ invert(np.array([tools[i] for i in cart])))  # fmt: skip
+        fl_of = dict(zip(cart, stacked, strict=True))
     analytic = [i for i in cart if (c := targets[i].configuration) is None
                 or (c.nearest_deg is None and c.after is None)]  # fmt: skip
     if analytic:
@@ -241,7 +246,8 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
     for i in joint:
         seeds[i] = np.asarray(targets[i].joints_deg, dtype=float)
     by_name = {(t.file, t.name): k for k, t in enumerate(targets)}
-    todo = [i for i in cart if i not in analytic]
+    analytic_set = set(analytic)
+    todo = [i for i in cart if i not in analytic_set]
     while todo:
         ready, refs = [], []
         for i in todo:
@@ -260,7 +266,8 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             elif k is None or out[k] is not None or k not in todo:
                 out[i] = Correction("skipped", f"the previous move's target {c.after} has no "
                                     "nominal joints to start from")  # fmt: skip
-        todo = [i for i in todo if i not in ready and out[i] is None]
+        ready_set = set(ready)
+        todo = [i for i in todo if i not in ready_set and out[i] is None]
         if not ready:
             for i in todo:
                 out[i] = Correction("skipped", "no joint reference for the branch")
@@ -293,6 +300,16 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
         fk_star = flange_frames(nominal, q_star)
         tool_pts = np.array([tools[i][:3, 3] if i in tools else np.zeros(3) for i in rows])
         sigma = sigma_at_tools(cal, q_star, tool_pts)
+        # Shifts, all at once: the TCP for Cartesian targets, the flange for joint targets.
+        eye = np.eye(4)
+        w_inv = invert(np.array([works.get(i, eye) for i in rows]))
+        tl = np.array([tools.get(i, eye) for i in rows])
+        new_all = w_inv @ fk_star @ tl
+        old_all = np.array([targets[i].pose if targets[i].kind == "cartesian" else fk_nom[r]
+                            for r, i in enumerate(rows)])  # fmt: skip
+        shift_mm_all = np.linalg.norm(new_all[:, :3, 3] - old_all[:, :3, 3], axis=1)
+        shift_deg_all = rotation_angle_deg(old_all[:, :3, :3], new_all[:, :3, :3])
+        jump_all = np.max(np.abs(q_star - q_nom), axis=1)
         for r, i in enumerate(rows):
             t = targets[i]
             qs = q_star[r]
@@ -307,7 +324,7 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                 out[i] = Correction("unreachable", f"outside the joint limits: J{j + 1}="
                                     f"{qs[j]:.3f} (limit {lim:g})")  # fmt: skip
                 continue
-            jump = float(np.max(np.abs(qs - q_nom[r])))
+            jump = float(jump_all[r])
             if jump > BRANCH_JUMP_DEG or np.any(s_nom[r] != s_cal[r]):
                 out[i] = Correction(
                     "skipped",
@@ -315,21 +332,17 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                     f"calibrated solution leaves the branch; {jump:.2f} deg)",
                 )
                 continue
+            shift_mm, shift_deg = float(shift_mm_all[r]), float(shift_deg_all[r])
             if t.kind == "joint":
-                if float(np.max(np.abs(qs - q_nom[r]))) < NEGLIGIBLE_DEG:
+                if jump < NEGLIGIBLE_DEG:
                     qs = q_nom[r]
-                shift_deg = float(rotation_angle_deg(fk_nom[r, :3, :3], fk_star[r, :3, :3]))
-                # The TCP shift of a joint target: at the flange (its tool is irrelevant).
-                shift_mm = float(np.linalg.norm(fk_star[r, :3, 3] - fk_nom[r, :3, 3]))
+                # The shift of a joint target: at the flange (its tool is irrelevant).
                 out[i] = Correction("corrected", joints_deg=qs, nominal_joints_deg=q_nom[r],
                                     shift_mm=shift_mm, shift_deg=shift_deg,
                                     configuration_kept=True, sigma_mm=float(sigma[r]))  # fmt: skip
                 continue
-            new = invert(works[i]) @ fk_star[r] @ tools[i]
-            old = t.pose
+            new, old = new_all[r], t.pose
             assert old is not None
-            shift_mm = float(np.linalg.norm(new[:3, 3] - old[:3, 3]))
-            shift_deg = float(rotation_angle_deg(old[:3, :3], new[:3, :3]))
             if shift_mm < NEGLIGIBLE_MM and shift_deg < NEGLIGIBLE_DEG:
                 new = old
             out[i] = Correction(

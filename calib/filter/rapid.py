@@ -89,31 +89,17 @@ PREDEFINED_TOOLS = {"tool0"}
 PREDEFINED_WOBJS = {"wobj0"}
 
 
+_HIDDEN = re.compile(r'"[^"\n]*"?|![^\n]*')
+
+
+def _spaces(m: re.Match[str]) -> str:
+    return re.sub(r"[^\r\n]", " ", m.group())
+
+
 def blank(text: str) -> str:
     """``text`` with comments (``!`` to the end of the line) and strings replaced by spaces,
     same length, so offsets into it are offsets into ``text``."""
-    out = list(text)
-    i, n = 0, len(text)
-    while i < n:
-        c = text[i]
-        if c == '"':
-            j = i + 1
-            while j < n and text[j] not in '"\n':
-                j += 1
-            for k in range(i, min(j + 1, n)):
-                if out[k] not in "\r\n":
-                    out[k] = " "
-            i = j + 1
-        elif c == "!":
-            j = text.find("\n", i)
-            j = n if j < 0 else j
-            for k in range(i, j):
-                if out[k] != "\r":
-                    out[k] = " "
-            i = j
-        else:
-            i += 1
-    return "".join(out)
+    return _HIDDEN.sub(_spaces, text)
 
 
 @dataclass
@@ -285,6 +271,7 @@ class _Module:
     source: Source
     code: str
     decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
+    frames: dict[tuple[str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
 
 
 def _read_decls(mod: _Module) -> None:
@@ -377,7 +364,8 @@ class RapidDialect:
 
     def claims(self, source: Source) -> bool:
         """A RAPID extension and a ``MODULE`` statement as the first code."""
-        return bool(_MODULE.match(blank(source.text).lstrip("\ufeff")))
+        head = source.text[:65536]  # the header: comments and %%% blocks come first
+        return bool(_MODULE.match(blank(head).lstrip("\ufeff")))
 
     def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
         del frames  # RAPID declares its frames in the program
@@ -440,6 +428,13 @@ class RapidDialect:
 
     def _frame_of(self, name: str, kind: str, mod: _Module,
                   modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
+        key = (name.lower(), kind)
+        if key not in mod.frames:
+            mod.frames[key] = self._resolve_frame(name, kind, mod, modules)
+        return mod.frames[key]
+
+    def _resolve_frame(self, name: str, kind: str, mod: _Module,
+                       modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
         if kind == "tooldata" and name.lower() in PREDEFINED_TOOLS:
             return np.eye(4), ""
         if kind == "wobjdata" and name.lower() in PREDEFINED_WOBJS:

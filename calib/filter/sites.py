@@ -31,11 +31,13 @@ base frame; a Cartesian target ``T`` (in ``work``, of ``tool``) asks the flange 
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -105,9 +107,13 @@ class Source:
         except UnicodeEncodeError as exc:
             raise FilterInputError(self.name, f"cannot encode as {self.encoding}: {exc}") from None
 
+    @cached_property
+    def _line_starts(self) -> list[int]:
+        return [m.end() for m in re.finditer("\n", self.text)]
+
     def line_of(self, offset: int) -> int:
         """1-based line number of a character offset."""
-        return self.text.count("\n", 0, offset) + 1
+        return bisect.bisect_right(self._line_starts, offset) + 1
 
 
 @dataclass(frozen=True)
