@@ -28,11 +28,12 @@ from filter_cells import (
     work_frame,
 )
 
-from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
+from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.correct import IK_OPTIONS, calibration_from_result
 from calib.filter.rapid import DIALECT as RAPID
 from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.run import filter_files
+from calib.filter.select import choose
 from calib.filter.sites import FrameTables, Source, Target
 from calib.filter.urscript import DIALECT as URSCRIPT
 from calib.ik import solve_ik

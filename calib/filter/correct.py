@@ -43,8 +43,9 @@ from typing import Any
 import numpy as np
 
 from calib.export import model_from_result
-from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
+from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.rotations import invert, rotation_angle_deg
+from calib.filter.select import choose
 from calib.filter.sites import Configuration, Correction, Target
 from calib.ik import IKOptions, solve_ik
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
