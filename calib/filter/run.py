@@ -201,5 +201,8 @@ def _filter_files(cal: Calibration, files: Sequence[tuple[str, bytes]],
                 edits[e.file].append(e)
     for src in readable:
         text = apply_edits(src.text, edits.get(src.name, []))
-        run.outputs[src.name] = src.encode(text)
+        try:
+            run.outputs[src.name] = src.encode(text)
+        except FilterInputError as exc:  # never for digits, kept for safety
+            run.errors.append(exc)
     return run
