@@ -116,7 +116,10 @@ def test_out_must_not_hold_the_inputs(setup: dict[str, Path]) -> None:
 def test_help_lists_the_exit_codes() -> None:
     r = runner.invoke(app, ["filter", "--help"], env={"COLUMNS": "80"})
     lines = [line.strip(" │") for line in r.output.splitlines()]
-    for code in (f"{EXIT_OK} every target corrected",
-                 f"{EXIT_LEFT} some targets left unchanged (named in filter-summary.json)",
-                 f"{EXIT_BAD_INPUT} bad input (a file that cannot be read is not written)"):  # fmt: skip
+    codes = (
+        f"{EXIT_OK} every target corrected",
+        f"{EXIT_LEFT} some targets left unchanged (named in filter-summary.json)",
+        f"{EXIT_BAD_INPUT} bad input (a file that cannot be read is not written)",
+    )
+    for code in codes:
         assert code in lines, r.output
