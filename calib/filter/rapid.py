@@ -67,7 +67,6 @@ from calib.filter.rotations import (
     frame,
     matrix_to_quat_wxyz,
     quat_wxyz_to_matrix,
-    rotation_angle_deg,
 )
 from calib.filter.sites import (
     Configuration,
@@ -117,9 +116,12 @@ class JointSite:
     joints: list[Num]
 
 
+_OPEN = np.tile([-np.inf, np.inf], (6, 1))
+
+
 def configuration(conf: Sequence[float]) -> Configuration:
     """The branch an ABB controller takes for confdata ``[cf1, cf4, cf6, cfx]``."""
-    ranges = np.tile([-np.inf, np.inf], (6, 1))
+    ranges = _OPEN.copy()
     for j, cf in zip((0, 3, 5), conf[:3], strict=True):
         ranges[j] = (90.0 * cf, 90.0 * cf + 90.0)
     cfx = int(conf[3])
@@ -409,10 +411,9 @@ class RapidDialect:
         assert correction.pose is not None and correction.joints_deg is not None
         old_q = np.array([n.value for n in site.quaternion])
         quat = matrix_to_quat_wxyz(correction.pose[:3, :3], near=old_q)
-        old_rot = quat_wxyz_to_matrix(old_q)
         # An orientation that did not move (to the written precision) keeps its text even
         # where the file's quaternion was not of unit norm.
-        if float(rotation_angle_deg(old_rot, correction.pose[:3, :3])) < 1e-5:
+        if correction.shift_deg < 1e-5:
             quat = old_q
         for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
             edits.append(edit(num, float(v), POSITION_DECIMALS))

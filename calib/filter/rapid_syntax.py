@@ -56,6 +56,26 @@ def skip_space(text: str, i: int) -> int:
     return i
 
 
+_N = r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*"
+_SHAPE = (3, 4, 4, 6)
+#: A robtarget literal of plain numbers, the common case, read by one regular expression.
+_ROBTARGET = re.compile(r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]"
+                                                for k in _SHAPE) + r"\s*\]")  # fmt: skip
+
+
+def _fast_robtarget(code: str, i: int) -> Node | None:
+    m = _ROBTARGET.match(code, i)
+    if m is None:
+        return None
+    leaves = [Node(m.start(g), m.end(g), num=float(m.group(g))) for g in range(1, 18)]
+    items, k = [], 0
+    for n in _SHAPE:
+        group = leaves[k : k + n]
+        items.append(Node(group[0].start, group[-1].end, items=group))
+        k += n
+    return Node(m.start(), m.end(), items=items)
+
+
 def parse_literal(code: str, i: int, source: Source) -> Node:
     """The bracketed literal starting at ``code[i]`` (``[`` expected).
 
@@ -67,6 +87,9 @@ def parse_literal(code: str, i: int, source: Source) -> Node:
     i = skip_space(code, i)
     if i >= len(code) or code[i] != "[":
         raise FilterInputError(source.name, "expected '[' (a literal value)", source.line_of(i))
+    fast = _fast_robtarget(code, i)
+    if fast is not None:
+        return fast
     start = i
     items: list[Node] = []
     i += 1

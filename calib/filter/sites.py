@@ -389,13 +389,14 @@ class Dialect(Protocol):
         ...
 
 
-_DECIMALS = re.compile(r"[-+]?\d*\.(\d*)")
-
-
 def decimals_of(text: str) -> int:
     """Decimals written in a number's text (``"12.50"`` → 2, ``"7"`` → 0, ``"1E+3"`` → 0)."""
-    m = _DECIMALS.match(text.strip())
-    return len(m.group(1)) if m else 0
+    dot = text.find(".")
+    if dot < 0:
+        return 0
+    frac = text[dot + 1 :].rstrip()
+    exp = frac.find("e") if "e" in frac else frac.find("E")
+    return len(frac) if exp < 0 else exp
 
 
 def format_number(original: Num, value: float, min_decimals: int) -> str:
