@@ -46,7 +46,7 @@ from calib.ik import solve_ik
 from calib.kinematics import FloatArray
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
-from filter_cells import (  # noqa: E402
+from filter_cells import (
     Cell,
     make_cell,
     planned_targets,
@@ -143,8 +143,8 @@ def accuracy(cell: Cell) -> dict[str, dict[str, float]]:
     q_plan = regular_poses(nominal, 100, seed=7)
     tool = tool_frame(200.0)
     run = filter_files(cal, [("p.script", urscript(nominal, q_plan, tool).encode())])
-    got = {t.name: t for t in URSCRIPT.parse([Source.from_bytes("p.script",
-                                              run.outputs["p.script"])], FrameTables())}  # fmt: skip
+    filtered = Source.from_bytes("p.script", run.outputs["p.script"])
+    got = {t.name: t for t in URSCRIPT.parse([filtered], FrameTables())}
     poses = np.array([got[f"Waypoint_{i + 1}_p"].pose for i in range(100)])
     qs = np.array([got[f"Waypoint_{i + 1}_q"].joints_deg for i in range(100)])
     fl = poses @ invert(tool)
