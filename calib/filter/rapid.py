@@ -327,10 +327,11 @@ class RapidDialect:
                     key, _, val = opt.partition(":=")
                     if key.strip().lower() == "wobj":
                         work_name = val.strip()
-                arg = code[pa:pb].strip()
+                raw = code[pa:pb]
+                arg = raw.strip()
                 if not arg:
                     continue
-                astart = pa + (len(code[pa:pb]) - len(code[pa:pb].lstrip()))
+                astart = pa + raw.find(arg[0])
                 wrap = _WRAP.match(arg)
                 if wrap:
                     inner = split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]

@@ -33,7 +33,7 @@ def blank(text: str) -> str:
     return _HIDDEN.sub(_spaces, text)
 
 
-@dataclass
+@dataclass(slots=True)
 class Node:
     """A parsed literal: a list of nodes, a number, or another token (TRUE, an empty string)."""
 

@@ -23,39 +23,39 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
     tie; still several → ambiguous (refused).
     """
     n = sol.valid.shape[0]
-    idx = np.full(n, -1)
-    reasons = [""] * n
+    blank = Configuration()
+    cfgs = [c or blank for c in configs]
     q = sol.joints_deg
-    n_valid = sol.valid.sum(axis=1)
-    one = n_valid == 1
-    idx[one] = np.argmax(sol.valid[one], axis=1)
-    for i in np.flatnonzero(n_valid == 0):
-        reasons[i] = "unreachable: no nominal solution within the joint limits"
-    for i in np.flatnonzero(n_valid > 1):
-        cfg = configs[i] or Configuration()
-        ranges = cfg.joint_ranges_deg
-        with np.errstate(invalid="ignore"):
-            m = sol.valid[i] & np.all((q[i] >= ranges[:, 0]) & (q[i] < ranges[:, 1]), axis=1)
-        if not m.any():
-            reasons[i] = f"no nominal solution in configuration {cfg.text or '(none)'}"
-            continue
-        if cfg.nearest_deg is not None:
-            d = np.where(m, np.linalg.norm(np.nan_to_num(q[i] - cfg.nearest_deg), axis=1), np.inf)
-            idx[i] = int(np.argmin(d))
-            continue
-        if m.sum() == 1:
-            idx[i] = int(np.argmax(m))
-            continue
-        m2 = m.copy()
-        for want, have in ((cfg.shoulder, sol.shoulder[i]), (cfg.elbow, sol.elbow[i]),
-                           (cfg.wrist, sol.wrist[i])):  # fmt: skip
-            if want is not None:
-                m2 &= have == want
-        if m2.sum() == 1:
-            idx[i] = int(np.argmax(m2))
-        elif m2.sum() == 0:
-            reasons[i] = f"no nominal solution in configuration {cfg.text or '(none)'}"
+    valid = sol.valid
+    ranges = np.array([c.joint_ranges_deg for c in cfgs]).reshape(n, 1, 6, 2)
+    with np.errstate(invalid="ignore"):
+        inr = valid & np.all((q >= ranges[..., 0]) & (q < ranges[..., 1]), axis=2)
+    nan6 = np.full(6, np.nan)
+    near = np.array([nan6 if c.nearest_deg is None else c.nearest_deg for c in cfgs])
+    has_near = np.isfinite(near[:, 0])
+    m2 = inr.copy()
+    for attr, have in (("shoulder", sol.shoulder), ("elbow", sol.elbow), ("wrist", sol.wrist)):
+        want = np.array([getattr(c, attr) or 0 for c in cfgs])[:, None]
+        m2 &= (want == 0) | (have == want)
+    n_valid, n_in, n_m2 = valid.sum(axis=1), inr.sum(axis=1), m2.sum(axis=1)
+    dist = np.where(inr, np.linalg.norm(np.nan_to_num(q - near[:, None, :], nan=np.inf), axis=2),
+                    np.inf)  # fmt: skip
+    idx = np.full(n, -1)
+    several = n_valid > 1
+    pick_near = several & (n_in > 0) & has_near
+    pick_in = several & (n_in == 1) & ~has_near
+    pick_m2 = several & (n_in > 1) & ~has_near & (n_m2 == 1)
+    idx[n_valid == 1] = np.argmax(valid[n_valid == 1], axis=1)
+    idx[pick_near] = np.argmin(dist[pick_near], axis=1)
+    idx[pick_in] = np.argmax(inr[pick_in], axis=1)
+    idx[pick_m2] = np.argmax(m2[pick_m2], axis=1)
+    reasons = [""] * n
+    for i in np.flatnonzero(idx < 0):
+        text = cfgs[i].text or "(none)"
+        if n_valid[i] == 0:
+            reasons[i] = "unreachable: no nominal solution within the joint limits"
+        elif n_in[i] == 0 or n_m2[i] == 0:
+            reasons[i] = f"no nominal solution in configuration {text}"
         else:
-            reasons[i] = (f"ambiguous: {int(m2.sum())} nominal solutions fit configuration "
-                          f"{cfg.text or '(none)'}")  # fmt: skip
+            reasons[i] = f"ambiguous: {int(n_m2[i])} nominal solutions fit configuration {text}"
     return idx, reasons

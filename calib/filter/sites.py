@@ -116,7 +116,7 @@ class Source:
         return bisect.bisect_right(self._line_starts, offset) + 1
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Num:
     """One number of a target as it stands in its file.
 
