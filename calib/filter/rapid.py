@@ -168,6 +168,8 @@ class _Module:
     code: str
     decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
     frames: dict[tuple[str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
+    lookups: dict[tuple[str, tuple[str, ...]], tuple[_Decl | None, str]] = field(
+        default_factory=dict)  # fmt: skip
 
 
 def _read_decls(mod: _Module) -> None:
@@ -262,6 +264,13 @@ class RapidDialect:
     # -- moves -------------------------------------------------------------------------
     def _lookup(self, name: str, mod: _Module, modules: list[_Module],
                 kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
+        memo = (name, kinds)
+        if memo not in mod.lookups:
+            mod.lookups[memo] = self._find(name, mod, modules, kinds)
+        return mod.lookups[memo]
+
+    def _find(self, name: str, mod: _Module, modules: list[_Module],
+              kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
         key = name.lower()
         d = mod.decls.get(key)
         if d is not None and d.kind in kinds:
