@@ -213,3 +213,19 @@ def test_an_inline_qnear_list_is_the_reference_and_follows(nominal: RobotModel) 
     run = filter_files(_identity(nominal), [("i.script", INLINE_QNEAR.encode())])
     assert [c.status for c in run.corrections] == ["corrected", "corrected"]
     assert run.outputs["i.script"] == INLINE_QNEAR.encode()
+
+
+def test_a_correction_beyond_the_joint_limits_is_left_and_named(nominal: RobotModel) -> None:
+    from filter_cells import rapid_module
+
+    q = np.array([[179.995, -30.0, 190.0, 10.0, 50.0, -20.0]])
+    text = rapid_module(nominal, q, np.eye(4), np.eye(4)).encode()
+    table = nominal.dh_table.copy()
+    table[0, 3] -= 0.02  # theta1: the calibrated robot needs q1 0.02 deg further
+    cal = Calibration(nominal, RobotModel("cal", "dh", table, nominal.joint_limits_deg), None,
+                      np.zeros(0, dtype=int))  # fmt: skip
+    run = filter_files(cal, [("edge.mod", text)])
+    (row,) = run.rows()
+    assert row["status"] == "unreachable" and row["reason"].startswith(
+        "outside the joint limits: J1=180.015")  # fmt: skip
+    assert run.outputs["edge.mod"] == text and run.exit_code == EXIT_LEFT
