@@ -3,8 +3,9 @@
 Setup (``tests/filter_cells.py``): hsr-jr680 with the cable hook 45, -30, 95 mm off the
 flange, the true robot of Table XII D1 without the unobservable terms (d1, theta1, the
 joint-6 row), identified (the default method, every row for training) from 200 cable
-lengths shown to 0.01 mm, noise-free (and once with ``NOISE_MM`` of noise). Programs planned offline on the nominal model (joints away from
-singularities, a tool 185–240 mm out and tilted, a work object turned 30° with an oframe).
+lengths shown to 0.01 mm, noise-free (and once with ``NOISE_MM`` of noise). Programs planned
+offline on the nominal model (joints away from singularities, a tool 185–240 mm out and
+tilted, a work object turned 30° with an oframe).
 
 Speed: :func:`calib.filter.run.filter_files` on one RAPID module of 10,000 robtargets
 (parse, nominal IK on the written configuration, calibrated IK seeded from it, σ at the
