@@ -221,8 +221,9 @@ def markdown(env: dict[str, Any], sp: dict[str, Any], acc: dict[str, dict[str, f
                      f"{f['filtered_rms_deg']:.5f} | {f['floor_rms_deg']:.5f} |")  # fmt: skip
     lines += [
         "",
-        "The identification is noise-free here (0.01 mm display only), so the floor "
-        "is small; with noisy lengths it grows and the filtered error follows it.",
+        f"The identifications are noise-free (0.01 mm display only) but for the row with "
+        f"lengths of σ = {NOISE_MM} mm: there the floor is larger, and the filtered error "
+        "follows it.",
         "",
     ]
     return "\n".join(lines)
