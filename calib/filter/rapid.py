@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from calib.filter.rapid_syntax import (
+    ROBTARGET,
     Node,
     blank,
     is_jointtarget,
@@ -142,6 +143,7 @@ class _Decl:
     value: Node | None
     dims: tuple[int, ...]
     elements: dict[tuple[int, ...], Node] = field(default_factory=dict)
+    fast: re.Match[str] | None = None  # a plain robtarget literal read by ROBTARGET
 
 
 def _dims(text: str | None) -> tuple[int, ...]:
@@ -179,11 +181,14 @@ def _read_decls(mod: _Module) -> None:
         line = src.line_of(m.start())
         dims = _dims(dims_text)
         value = None
+        fast = None
         if assign:
             i = skip_space(code, m.end())
-            if i < len(code) and code[i] == "[":
+            if kind == "robtarget" and not dims:
+                fast = ROBTARGET.match(code, i)  # the common case: no Node tree needed
+            if fast is None and i < len(code) and code[i] == "[":
                 value = parse_literal(code, i, src)
-        decl = _Decl(kind, name, src.name, line, value, dims)
+        decl = _Decl(kind, name, src.name, line, value, dims, fast=fast)
         if value is not None:
             _elements(value, len(dims), (), decl.elements)
             check = {"robtarget": is_robtarget, "jointtarget": is_jointtarget}.get(kind)
@@ -233,6 +238,10 @@ class RapidDialect:
             for decl in mod.decls.values():
                 if decl.kind not in ("robtarget", "jointtarget"):
                     continue
+                if decl.fast is not None:
+                    t = self._target_fast(mod.source, decl.name, decl.fast)
+                    targets[(mod.source.name, t.name.lower())] = t
+                    order.append(t)
                 for index, node in decl.elements.items():
                     t = self._target(mod.source, f"{decl.name}{_index_text(index)}", decl.kind,
                                      node)  # fmt: skip
@@ -243,6 +252,23 @@ class RapidDialect:
         return order
 
     # -- targets -----------------------------------------------------------------------
+    def _target_fast(self, src: Source, name: str, m: re.Match[str]) -> Target:
+        """A robtarget from :data:`ROBTARGET`'s groups (1-3 position, 4-7 quaternion, 8-11
+        configuration; the external axes are never written)."""
+        fname = src.name
+        got = [Num(fname, m.start(g), m.end(g), m.group(g), float(m.group(g)))
+               for g in range(1, 12)]  # fmt: skip
+        pos, quat, conf = got[:3], got[3:7], got[7:11]
+        line = src.line_of(m.start())
+        try:
+            rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
+        except ValueError:
+            raise FilterInputError(fname, f"{name}: quaternion of zero norm", line) from None
+        return Target(fname, line, name, "cartesian",
+                      pose=frame(np.array([n.value for n in pos]), rot),
+                      configuration=configuration([n.value for n in conf]),
+                      site=RobSite(pos, quat, conf))  # fmt: skip
+
     def _target(self, src: Source, name: str, kind: str, node: Node) -> Target:
         assert node.items is not None
         line = src.line_of(node.start)

@@ -59,12 +59,12 @@ def skip_space(text: str, i: int) -> int:
 _N = r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*"
 _SHAPE = (3, 4, 4, 6)
 #: A robtarget literal of plain numbers, the common case, read by one regular expression.
-_ROBTARGET = re.compile(r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]"
+ROBTARGET = re.compile(r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]"
                                                 for k in _SHAPE) + r"\s*\]")  # fmt: skip
 
 
 def _fast_robtarget(code: str, i: int) -> Node | None:
-    m = _ROBTARGET.match(code, i)
+    m = ROBTARGET.match(code, i)
     if m is None:
         return None
     leaves = [Node(m.start(g), m.end(g), num=float(m.group(g))) for g in range(1, 18)]
