@@ -457,7 +457,8 @@ class RapidDialect:
             edits.append(edit(num, float(v), QUATERNION_DECIMALS))
         for num, j in zip(site.conf[:3], (0, 3, 5), strict=True):
             cf = math.floor(float(correction.joints_deg[j]) / 90.0)
-            edits.append(edit(num, float(cf), 0))
+            if cf != num.value:  # a quadrant that did not change keeps its text
+                edits.append(edit(num, float(cf), 0))
         return [e for e in edits if e is not None]
 
 
