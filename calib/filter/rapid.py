@@ -210,6 +210,12 @@ def _index_text(index: tuple[int, ...]) -> str:
 
 _REF = re.compile(r"([A-Za-z]\w*)\s*(?:\{([^}]*)\})?\s*$")
 _WRAP = re.compile(r"(?:Offs|RelTool)\s*\(", re.IGNORECASE)
+#: The common move: a target name (with an index), speed, zone and tool, and \WObj.
+_SIMPLE_MOVE = re.compile(
+    r"\s+([A-Za-z]\w*(?:\{[^{}\[\]()]*\})?)\s*,\s*([A-Za-z]\w*)\s*,\s*([A-Za-z]\w*)\s*,"
+    r"\s*([A-Za-z]\w*)\s*(?:\\\s*WObj\s*:=\s*([A-Za-z]\w*)\s*)?",
+    re.IGNORECASE,
+)
 
 
 class RapidDialect:
@@ -356,17 +362,23 @@ class RapidDialect:
             line = src.line_of(m.start())
             tool_name, work_name = "", "wobj0"
             refs: list[tuple[str, Any]] = []  # ("name", (name, index)) or ("inline", Node)
-            for a, b in split_args(code, m.end(), end):
-                (pa, pb), opts = split_options(code, a, b)
-                for opt in opts:
-                    key, _, val = opt.partition(":=")
-                    if key.strip().lower() == "wobj":
-                        work_name = val.strip()
-                raw = code[pa:pb]
-                arg = raw.strip()
-                if not arg:
-                    continue
-                astart = pa + raw.find(arg[0])
+            simple = _SIMPLE_MOVE.fullmatch(code, m.end(), end)
+            args: list[tuple[str, int]] = []  # positional arguments and their offsets
+            if simple is not None:  # "p, speed, zone, tool[\WObj:=w]": no splitting needed
+                args = [(simple.group(g), simple.start(g)) for g in range(1, 5)]
+                work_name = simple.group(5) or work_name
+            else:
+                for a, b in split_args(code, m.end(), end):
+                    (pa, pb), opts = split_options(code, a, b)
+                    for opt in opts:
+                        key, _, val = opt.partition(":=")
+                        if key.strip().lower() == "wobj":
+                            work_name = val.strip()
+                    raw = code[pa:pb]
+                    arg = raw.strip()
+                    if arg:
+                        args.append((arg, pa + raw.find(arg[0])))
+            for arg, astart in args:
                 wrap = _WRAP.match(arg)
                 if wrap:
                     inner = split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
