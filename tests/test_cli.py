@@ -60,6 +60,7 @@ def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:
         ["db", "export", "--help"],
         ["plan", "--help"],
         ["program", "--help"],
+        ["filter", "--help"],
     ],
 )
 def test_help_imports_no_heavy_library(argv: list[str]) -> None:

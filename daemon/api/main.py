@@ -25,6 +25,7 @@ from daemon.api.routes import (
     identifications,
     live,
     plans,
+    program_filter,
     reports,
     robots,
     system,
@@ -107,7 +108,8 @@ def create_app(
     app.add_middleware(LatencyMiddleware)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
     for module in (system, live, campaigns, identifications, reports, robots, plans,
-                   compensate, verify, check_poses, checks, watch):  # fmt: skip
+                   compensate, program_filter, verify, check_poses, checks,
+                   watch):  # fmt: skip
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
     errors.install(app)

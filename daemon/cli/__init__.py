@@ -24,11 +24,12 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import apply, calibration, db, plan, program, report, serve, simulate
+    from daemon.cli import apply, calibration, db, filter, plan, program, report, serve, simulate
 
     calibration.register(app)
     plan.register(app)
     apply.register(app)
+    filter.register(app)
     program.register(app)
     report.register(app)
     serve.register(app)

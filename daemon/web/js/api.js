@@ -89,6 +89,7 @@ const ACTIONS = {
   "POST /robots/{id}/compensate": "The program was not compensated",
   "POST /robots/{id}/checks": "The drift check did not start",
   "POST /campaigns/{id}/sensor-moved/undo": "The sensor move was not undone",
+  "POST /robots/{id}/filter": "The programs were not filtered",
 };
 
 //: Request fields in the operator's words (the form's labels), for a 422's location.
@@ -136,11 +137,13 @@ export function operatorText(what, status, body) {
   return `${what}: ${sentence(why)}`;
 }
 
+
 /** One banner per source: the method and the path with its ids as {id}. */
 export const sourceKey = (method, path) => `${method} ${path.split("?")[0].replace(/\/\d+/g, "/{id}")}`;
 
 /**
- * Call the REST API. ``opts``: ``json`` (a body to send as JSON), ``body`` + ``type`` (raw),
+ * Call the REST API. ``opts``: ``json`` (a body to send as JSON), ``form`` (FormData, sent
+ * as multipart/form-data), ``body`` + ``type`` (raw),
  * ``quiet`` (no message on error; the caller handles it), ``raw`` (return the Response),
  * ``what`` (the start of the error sentence, when the route's own one does not fit).
  * Throws ApiError on a non-2xx answer (after putting it in the message area unless quiet):
@@ -153,7 +156,9 @@ export async function api(method, path, opts = {}) {
   const headers = { Authorization: `Bearer ${used}` };
   if (opts.accept) headers.Accept = opts.accept;
   let body;
-  if (opts.json !== undefined) {
+  if (opts.form !== undefined) {
+    body = opts.form; // FormData: the browser sets the multipart boundary
+  } else if (opts.json !== undefined) {
     headers["Content-Type"] = "application/json";
     body = JSON.stringify(opts.json);
   } else if (opts.body !== undefined) {
