@@ -1,0 +1,262 @@
+"""KRL text for the filter's KUKA dialect: comments, aggregates and ``.dat`` declarations.
+
+What :mod:`calib.filter.krl` needs of a KRL file, with every offset an offset into the file's
+own text (so the dialect can replace exactly one number):
+
+* :func:`blank`: the text with ``;`` comments and ``"…"`` strings replaced by spaces (line
+  ends kept), so nothing inside a comment or a string is ever taken for code;
+* :func:`parse_aggregate`: a structure value ``{[TYPE:] KEY value, …}`` (nested
+  aggregates allowed; values are numbers, ``'B101'``/``'H1F'`` bit literals, ``#ENUM``,
+  ``TRUE``/``FALSE``, names or blanked strings);
+* :func:`read_declarations`: the position, frame and ``FDAT`` data of a ``.dat`` (or
+  ``$config.dat``): ``[DECL] [GLOBAL] [CONST] TYPE NAME={…}`` and arrays ``TYPE NAME[n]``
+  with their element assignments ``NAME[i]={…}`` (also for arrays declared elsewhere, as
+  ``TOOL_DATA[n]``/``BASE_DATA[n]`` in ``$config.dat``), and ``TOOL_TYPE[n]``/``BASE_TYPE[n]``.
+
+KRL is case-insensitive: names are compared in upper case.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from calib.filter.sites import FilterInputError, Num, Source
+
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+_BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")
+_KEY = re.compile(r"[A-Za-z_$][\w$]*(?:\[\s*\])?")
+_TYPE_PREFIX = re.compile(r"\s*([A-Za-z_$][\w$]*)\s*:(?!=)")
+#: Position, axis and frame data types the filter reads.
+POSITION_TYPES = ("E6POS", "POS", "FRAME")
+AXIS_TYPES = ("E6AXIS", "AXIS")
+DATA_TYPES = (*POSITION_TYPES, *AXIS_TYPES, "FDAT")
+_DECL = re.compile(
+    r"^[ \t]*((?:(?:DECL|GLOBAL|CONST)[ \t]+)*)(" + "|".join(DATA_TYPES) + r")[ \t]+"
+    r"([A-Za-z_$][\w$]*)[ \t]*(\[[^\]\r\n]*\])?[ \t]*(=[ \t]*(?=\{))?",
+    re.IGNORECASE | re.MULTILINE,
+)
+_ELEMENT = re.compile(r"^[ \t]*([A-Za-z_$][\w$]*)[ \t]*\[([^\]\r\n]*)\][ \t]*=[ \t]*(?=\{)",
+                      re.MULTILINE)  # fmt: skip
+_TYPE_OF = re.compile(r"^[ \t]*(TOOL_TYPE|BASE_TYPE)[ \t]*\[[ \t]*(\d+)[ \t]*\][ \t]*=[ \t]*#(\w+)",
+                      re.IGNORECASE | re.MULTILINE)  # fmt: skip
+
+
+def blank(text: str) -> str:
+    """``text`` with ``;`` comments and ``"…"`` strings replaced by spaces, same length."""
+    out = list(text)
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c in ';"':
+            if c == ";":
+                j = text.find("\n", i)
+                j = n if j < 0 else j
+            else:
+                j = i + 1
+                while j < n and text[j] not in '"\n':
+                    j += 1
+                j = min(j + 1, n) if j < n and text[j] == '"' else j
+            for k in range(i, j):
+                if out[k] not in "\r\n":
+                    out[k] = " "
+            i = j
+        else:
+            i += 1
+    return "".join(out)
+
+
+@dataclass
+class Item:
+    """One ``KEY value`` of an aggregate: the value's span, and what it is."""
+
+    key: str  # upper case, e.g. "X", "S", "POINT2[]"
+    start: int
+    end: int
+    text: str
+    num: float | None = None  # numbers and bit literals
+    agg: Aggregate | None = None
+
+
+@dataclass
+class Aggregate:
+    """A structure value ``{[TYPE:] KEY value, …}`` at ``[start, end)``."""
+
+    start: int
+    end: int
+    type_name: str = ""  # upper case, "" when untyped
+    items: dict[str, Item] = field(default_factory=dict)
+
+    def num(self, source: Source, key: str) -> Num | None:
+        """The number under ``key`` as a :class:`Num` (None when absent or not a number)."""
+        it = self.items.get(key)
+        if it is None or it.num is None:
+            return None
+        return Num(source.name, it.start, it.end, it.text, it.num)
+
+
+def literal_value(text: str) -> float | None:
+    """A KRL number or bit literal (``'B110'``, ``'H1F'``) as a float; None otherwise."""
+    m = _NUMBER.fullmatch(text)
+    if m:
+        return float(text)
+    b = _BITS.fullmatch(text)
+    if b and b.group(2):
+        return float(int(b.group(2), 2 if b.group(1).upper() == "B" else 16))
+    return None
+
+
+def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
+    """The aggregate whose ``{`` is at ``code[i]`` (``code`` blanked).
+
+    Raises
+    ------
+    FilterInputError
+        Naming the line of the first character that does not fit.
+    """
+
+    def fail(at: int, what: str) -> FilterInputError:
+        got = repr(code[at]) if at < len(code) else "end of file"
+        return FilterInputError(source.name, f"{what}, got {got} in an aggregate",
+                                source.line_of(at))  # fmt: skip
+
+    if i >= len(code) or code[i] != "{":
+        raise fail(i, "expected '{'")
+    agg = Aggregate(i, i)
+    j = i + 1
+    m = _TYPE_PREFIX.match(code, j)
+    if m:
+        agg.type_name = m.group(1).upper()
+        j = m.end()
+    while True:
+        while j < len(code) and code[j] in " \t\r\n":
+            j += 1
+        if j < len(code) and code[j] == "}" and not agg.items:
+            agg.end = j + 1
+            return agg
+        k = _KEY.match(code, j)
+        if not k:
+            raise fail(j, "expected a component name")
+        key = re.sub(r"\s+", "", k.group()).upper()
+        j = k.end()
+        while j < len(code) and code[j] in " \t":
+            j += 1
+        if j < len(code) and code[j] == "{":
+            sub = parse_aggregate(code, j, source)
+            item = Item(key, sub.start, sub.end, code[sub.start : sub.end], agg=sub)
+            j = sub.end
+        else:
+            s = j
+            while j < len(code) and code[j] not in ",}\r\n{":
+                j += 1
+            e = j
+            while e > s and code[e - 1] in " \t":
+                e -= 1
+            text = code[s:e]
+            item = Item(key, s, e, source.text[s:e], num=literal_value(text))
+        if key in agg.items:
+            raise FilterInputError(source.name, f"component {key} given twice",
+                                   source.line_of(item.start))  # fmt: skip
+        agg.items[key] = item
+        while j < len(code) and code[j] in " \t":
+            j += 1
+        if j < len(code) and code[j] == ",":
+            j += 1
+            continue
+        if j < len(code) and code[j] == "}":
+            agg.end = j + 1
+            return agg
+        raise fail(j, "expected ',' or '}'")
+
+
+@dataclass
+class Decl:
+    """A declaration (or array) of position, axis, frame or ``FDAT`` data in a ``.dat``.
+
+    ``value`` for a single value, ``elements`` (index tuple → aggregate) for an array.
+    ``kind`` is the declared type (``E6POS`` …); for an array assigned without a
+    declaration in the given files (``TOOL_DATA`` in ``$config.dat``) it is ``""``.
+    """
+
+    kind: str
+    name: str
+    file: str
+    line: int
+    is_global: bool
+    dims: tuple[int, ...] = ()
+    value: Aggregate | None = None
+    elements: dict[tuple[int, ...], Aggregate] = field(default_factory=dict)
+    element_lines: dict[tuple[int, ...], int] = field(default_factory=dict)
+
+
+@dataclass
+class DataFile:
+    """What one ``.dat`` declares: ``decls`` by upper-case name, and the tool and base
+    types of ``$config.dat`` (``TOOL_TYPE[n]``/``BASE_TYPE[n]`` → ``#NONE``, ``#TCP`` …)."""
+
+    source: Source
+    code: str
+    decls: dict[str, Decl] = field(default_factory=dict)
+    tool_type: dict[int, str] = field(default_factory=dict)
+    base_type: dict[int, str] = field(default_factory=dict)
+
+
+def _index(text: str, source: Source, line: int) -> tuple[int, ...] | None:
+    """``"1, 2"`` → ``(1, 2)``; None for a non-literal index (a variable)."""
+    parts = [p.strip() for p in text.split(",")]
+    if not all(re.fullmatch(r"\d+", p) for p in parts):
+        return None
+    out = tuple(int(p) for p in parts)
+    if any(v < 1 for v in out):
+        raise FilterInputError(source.name, f"array index [{text}] below 1", line)
+    return out
+
+
+def read_declarations(source: Source) -> DataFile:
+    """The data of a ``.dat`` (see the module docstring).
+
+    Raises
+    ------
+    FilterInputError
+        A malformed aggregate or array index, or a name declared twice, naming the line.
+    """
+    code = blank(source.text)
+    out = DataFile(source, code)
+    for m in _DECL.finditer(code):
+        line = source.line_of(m.start())
+        kind, name = m.group(2).upper(), m.group(3)
+        dims: tuple[int, ...] = ()
+        if m.group(4):
+            dims = _index(m.group(4)[1:-1], source, line) or (-1,)
+        value = parse_aggregate(code, m.end(), source) if m.group(5) else None
+        key = name.upper()
+        if key in out.decls:
+            raise FilterInputError(source.name, f"{name} declared twice (also line "
+                                   f"{out.decls[key].line})", line)  # fmt: skip
+        out.decls[key] = Decl(kind, name, source.name, line, "GLOBAL" in m.group(1).upper(),
+                              dims, value)  # fmt: skip
+    for m in _ELEMENT.finditer(code):
+        line = source.line_of(m.start())
+        key = m.group(1).upper()
+        idx = _index(m.group(2), source, line)
+        if idx is None:
+            continue
+        decl = out.decls.get(key)
+        if decl is None:
+            decl = out.decls[key] = Decl("", m.group(1), source.name, line, True, ())
+        if not decl.dims and decl.kind:
+            raise FilterInputError(source.name, f"{m.group(1)} is not an array", line)
+        if idx in decl.elements:
+            raise FilterInputError(source.name, f"{m.group(1)}[{m.group(2)}] assigned twice "
+                                   f"(also line {decl.element_lines[idx]})", line)  # fmt: skip
+        decl.elements[idx] = parse_aggregate(code, m.end(), source)
+        decl.element_lines[idx] = line
+    for m in _TYPE_OF.finditer(code):
+        table = out.tool_type if m.group(1).upper() == "TOOL_TYPE" else out.base_type
+        table[int(m.group(2))] = m.group(3).upper()
+    return out
+
+
+def index_text(index: tuple[int, ...]) -> str:
+    """``(1, 2)`` → ``"[1,2]"``, ``()`` → ``""``."""
+    return "[" + ",".join(str(i) for i in index) + "]" if index else ""
