@@ -11,14 +11,16 @@ entries with ``GP1`` (Cartesian or joint form) and ``GP2``.
 from __future__ import annotations
 
 import numpy as np
+from filter_cells import Cell, planned_targets
 
-from calib.filter.branches import branch_signs
+from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
 from calib.filter.fanuc_ls import turn_number
 from calib.filter.krl import turn_of
-from calib.filter.rotations import matrix_to_zyx_deg
+from calib.filter.rotations import invert, matrix_to_zyx_deg, rotation_angle_deg
+from calib.filter.run import FilterRun
+from calib.filter.sites import Dialect, FrameTables, Source, Target
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
-from filter_cells import planned_targets
 
 
 def kuka_status(nominal: RobotModel, q_deg: FloatArray) -> list[int]:
@@ -67,8 +69,9 @@ def krl_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work:
     ]  # fmt: skip
     dat = ["&ACCESS RVP", "&REL 12", f"DEFDAT  {name}", ";FOLD EXTERNAL DECLARATIONS;%{PE}",
            ";ENDFOLD (EXTERNAL DECLARATIONS)", ""]  # fmt: skip
-    src = ["&ACCESS RVP", "&REL 12", "&PARAM EDITMASK = *", f"DEF {name}( )", ";FOLD INI;%{PE}",
-           "  BAS (#INITMOV,0 )", ";ENDFOLD (INI)", "; Bahn geplant (OLP), Maße in mm", ""]  # fmt: skip
+    src = ["&ACCESS RVP", "&REL 12", "&PARAM EDITMASK = *", f"DEF {name}( )",
+           ";FOLD INI;%{PE}", "  BAS (#INITMOV,0 )", ";ENDFOLD (INI)",
+           "; Bahn geplant (OLP), Maße in mm", ""]  # fmt: skip
     array = [i for i in range(n) if i >= n - 2 and i % 3]
     if array:
         dat.append(f"DECL E6POS XPATH[{len(array)}]")
@@ -95,7 +98,7 @@ def krl_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work:
         src += [f";FOLD {move} P{i} Vel=100 % PDAT{i} Tool[{tool_no}]:Brenner Base[{base_no}]:"
                 f"Tisch;%{{PE}}%R 8.3.31,%MKUKATPBASIS,%CMOVE,%V{move},%P 1:{move}",
                 "$BWDSTART=FALSE", f"PDAT_ACT=PPDAT{i}", f"FDAT_ACT=FP{i}",
-                f"BAS(#PTP_PARAMS,100)", f"{move} {ref} ", ";ENDFOLD", ""]  # fmt: skip
+                "BAS(#PTP_PARAMS,100)", f"{move} {ref} ", ";ENDFOLD", ""]  # fmt: skip
     dat.append("DECL E6AXIS XHOME={A1 0.0,A2 -60.0,A3 180.0,A4 0.0,A5 45.0,A6 0.0,E1 0.0}")
     src += ["PTP XHOME", "END", ""]
     dat += ["ENDDAT", ""]
@@ -123,7 +126,7 @@ def ls_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work: 
         if i % 2 == 0:
             pos += ["   GP2:", f"\tUF : {uf}, UT : {ut},", f"\tJ1= {250.0 * i:10.3f}  mm"]
         pos.append("};")
-    mn.append(f"J P[{n + 1}:\"HOME\"] 50% FINE ;")
+    mn.append(f'J P[{n + 1}:"HOME"] 50% FINE ;')
     pos += [f'P[{n + 1}:"HOME"]{{', "   GP1:", "\tUF : 0, UT : 3,",
             "\tJ1=     0.000 deg,\tJ2=   -60.000 deg,\tJ3=   180.000 deg,",
             "\tJ4=     0.000 deg,\tJ5=    45.000 deg,\tJ6=     0.000 deg", "};"]  # fmt: skip
@@ -147,4 +150,73 @@ def frames_toml(tool: FloatArray, work: FloatArray, uf: int = 2, ut: int = 3) ->
     return table("uframe", uf, work) + "\n" + table("utool", ut, tool)
 
 
-__all__ = ["fanuc_config", "frames_toml", "krl_program", "kuka_status", "ls_program", "np"]
+def _executed(cell: Cell, targets: list[Target]) -> tuple[FloatArray, FloatArray]:
+    """Where the true robot puts each target's tool (Cartesian: TCP in the work object;
+    joint: the flange in the base), executed as the nominal controller does: (n, 4, 4)
+    frames, and the joints it commands (n, 6) [deg] (NaN when it finds none)."""
+    q = np.full((len(targets), 6), np.nan)
+    cart = [i for i, t in enumerate(targets) if t.kind == "cartesian"]
+    for i, t in enumerate(targets):
+        if t.kind == "joint":
+            q[i] = t.joints_deg
+    if cart:
+        fl = np.stack(
+            [
+                targets[i].uses[0].work
+                @ targets[i].pose  # type: ignore[operator]
+                @ invert(targets[i].uses[0].tool)
+                for i in cart
+            ]
+        )  # type: ignore[arg-type]
+        sol = nominal_solutions(cell.nominal, fl)
+        idx, _ = choose(sol, [targets[i].configuration for i in cart])
+        for r, i in enumerate(cart):
+            if idx[r] >= 0:
+                q[i] = sol.joints_deg[r, idx[r]]
+    true_fl = cell.true_flange(np.nan_to_num(q))
+    out = true_fl.copy()
+    for i in cart:
+        use = targets[i].uses[0]
+        out[i] = invert(use.work) @ true_fl[i] @ use.tool  # type: ignore[arg-type]
+    return out, q
+
+
+def accuracy(cell: Cell, dialect: Dialect, files: dict[str, bytes], run: FilterRun,
+             frames: FrameTables) -> dict[str, FloatArray]:  # fmt: skip
+    """Per corrected target, the true robot's error against the intended pose: unfiltered,
+    filtered (the written numbers, the controller's branch) and the floor (the exact
+    calibrated joints ``q*``): ``{"<which>_mm": (n,), "<which>_deg": (n,)}``."""
+    before = dialect.parse([Source.from_bytes(k, v) for k, v in files.items()], frames)
+    after = dialect.parse([Source.from_bytes(k, v) for k, v in run.outputs.items()
+                           if k in files], frames)  # fmt: skip
+    by_key = {(t.file, t.name): c for t, c in zip(run.targets, run.corrections, strict=True)}
+    keep = [k for k, t in enumerate(before) if by_key[(t.file, t.name)].status == "corrected"]
+    before = [before[k] for k in keep]
+    after = [after[k] for k in keep]
+    intended = np.stack([t.pose if t.kind == "cartesian" else flange_frames(
+        cell.nominal, np.asarray(t.joints_deg)[None])[0] for t in before])  # fmt: skip
+    out: dict[str, FloatArray] = {}
+    floor = [t for t in before]
+    star = {id(t): by_key[(t.file, t.name)].joints_deg for t in floor}
+    for which, ts in (("unfiltered", before), ("filtered", after)):
+        got, q = _executed(cell, ts)
+        assert np.all(np.isfinite(q)), f"{which}: the controller finds no solution"
+        out[f"{which}_mm"] = np.linalg.norm(got[:, :3, 3] - intended[:, :3, 3], axis=1)
+        out[f"{which}_deg"] = rotation_angle_deg(intended[:, :3, :3], got[:, :3, :3])
+    q_star = np.array([star[id(t)] for t in floor])
+    true_fl = cell.true_flange(q_star)
+    got = true_fl.copy()
+    for i, t in enumerate(floor):
+        if t.kind == "cartesian":
+            got[i] = invert(t.uses[0].work) @ true_fl[i] @ t.uses[0].tool  # type: ignore[arg-type]
+    out["floor_mm"] = np.linalg.norm(got[:, :3, 3] - intended[:, :3, 3], axis=1)
+    out["floor_deg"] = rotation_angle_deg(intended[:, :3, :3], got[:, :3, :3])
+    return out
+
+
+def rms(v: FloatArray) -> float:
+    return float(np.sqrt(np.mean(np.square(v))))
+
+
+__all__ = ["accuracy", "fanuc_config", "frames_toml", "krl_program", "kuka_status",
+           "ls_program", "rms"]  # fmt: skip

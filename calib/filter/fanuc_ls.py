@@ -21,8 +21,8 @@ Configuration ``'F U T, t4, t5, t6'``
     turn ``k`` is the window ``[−180 + 360k, 180 + 360k)`` [deg]. The letters are written
     back as they were, the turn numbers from the corrected joints.
 
-Precision: the file's own decimals, at least 3 (the controller's display; it keeps a
-32-bit REAL).
+Precision: the file's own decimals, at least 3 for positions and ``W, P, R`` (what the
+controller shows) and 4 for joint angles (it keeps a 32-bit REAL: about 7 significant digits).
 """
 
 from __future__ import annotations
@@ -52,6 +52,9 @@ from calib.kinematics import N_JOINTS
 NAME = "fanuc-ls"
 EXTENSIONS = (".ls",)
 DECIMALS = 3
+#: Joint angles to at least 4 decimals: a third decimal alone costs up to 0.0005 deg a joint,
+#: about 0.02 mm at 2 m reach.
+JOINT_DECIMALS = 4
 #: Joints (0-based) the CONFIG's turn numbers belong to.
 TURN_JOINTS = (3, 4, 5)
 
@@ -200,8 +203,8 @@ class FanucLsDialect:
             units[key] = (f.group(3) or "").lower()
         if all(k in fields for k in _JOINTS):
             joints = [fields[k] for k in _JOINTS]
-            t = Target(src.name, line, name, "joint", joints_deg=np.array([n.value for n in joints]),
-                       site=JointSite(joints))  # fmt: skip
+            values = np.array([n.value for n in joints])
+            t = Target(src.name, line, name, "joint", joints_deg=values, site=JointSite(joints))
             linear = [k for k in _JOINTS if units[k] != "deg"]
             extra = sorted(set(fields) - set(_JOINTS))
             if linear:
@@ -264,7 +267,7 @@ class FanucLsDialect:
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
             for num, v in zip(target.site.joints, correction.joints_deg, strict=True):
-                edits.append(edit(num, float(v), DECIMALS))
+                edits.append(edit(num, float(v), JOINT_DECIMALS))
             return [e for e in edits if e is not None]
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None

@@ -20,8 +20,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from pathlib import PurePath
 
+import numpy as np
+
+from calib.filter.rotations import frame, zyx_deg_to_matrix
 from calib.filter.sites import FilterInputError, Num, Source
+from calib.kinematics import FloatArray
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")
@@ -31,6 +36,7 @@ _TYPE_PREFIX = re.compile(r"\s*([A-Za-z_$][\w$]*)\s*:(?!=)")
 POSITION_TYPES = ("E6POS", "POS", "FRAME")
 AXIS_TYPES = ("E6AXIS", "AXIS")
 DATA_TYPES = (*POSITION_TYPES, *AXIS_TYPES, "FDAT")
+CARTESIAN_KEYS = ("X", "Y", "Z", "A", "B", "C")
 _DECL = re.compile(
     r"^[ \t]*((?:(?:DECL|GLOBAL|CONST)[ \t]+)*)(" + "|".join(DATA_TYPES) + r")[ \t]+"
     r"([A-Za-z_$][\w$]*)[ \t]*(\[[^\]\r\n]*\])?[ \t]*(=[ \t]*(?=\{))?",
@@ -260,3 +266,78 @@ def read_declarations(source: Source) -> DataFile:
 def index_text(index: tuple[int, ...]) -> str:
     """``(1, 2)`` → ``"[1,2]"``, ``()`` → ``""``."""
     return "[" + ",".join(str(i) for i in index) + "]" if index else ""
+
+
+@dataclass
+class KrlFrame:
+    """The tool or base in force: its name, frame (None: unknown) and why unknown."""
+
+    name: str
+    value: FloatArray | None
+    problem: str
+
+    def same(self, other: KrlFrame) -> bool:
+        if self.value is None or other.value is None:
+            return self.value is None and other.value is None and self.problem == other.problem
+        return self.name == other.name and bool(np.allclose(self.value, other.value))
+
+
+def unknown_frame(why: str) -> KrlFrame:
+    return KrlFrame("?", None, why)
+
+
+def frame_of(agg: Aggregate, what: str, src: Source) -> tuple[FloatArray | None, str]:
+    vals = [agg.items.get(k) for k in CARTESIAN_KEYS]
+    if any(v is None or v.num is None for v in vals):
+        return (
+            None,
+            f"{what} is not a full frame {{X,Y,Z,A,B,C}} ({src.name}:{src.line_of(agg.start)})",
+        )
+    x, y, z, a, b, c = (float(v.num) for v in vals)  # type: ignore[union-attr,arg-type]
+    return frame(np.array([x, y, z]), zyx_deg_to_matrix(a, b, c)), ""
+
+
+@dataclass
+class Program:
+    """The files of one dialect run: ``.dat`` data and the ``.src`` sources."""
+
+    data: dict[str, DataFile] = field(default_factory=dict)  # by file name
+    srcs: list[Source] = field(default_factory=list)
+
+    def own_dat(self, src_name: str) -> DataFile | None:
+        stem = PurePath(src_name).with_suffix("").as_posix().lower()
+        for name, df in self.data.items():
+            if PurePath(name).with_suffix("").as_posix().lower() == stem:
+                return df
+        return None
+
+    def lookup(self, name: str, src_name: str | None) -> Decl | None:
+        """``name`` in the ``.src``'s own ``.dat`` first, then the GLOBAL (or undeclared-
+        array) data of the others; None when absent or found in several."""
+        key = name.upper()
+        own = self.own_dat(src_name) if src_name else None
+        if own is not None and key in own.decls:
+            return own.decls[key]
+        found = [df.decls[key] for df in self.data.values() if df is not own
+                 and key in df.decls and (df.decls[key].is_global or src_name is None)]  # fmt: skip
+        return found[0] if len(found) == 1 else None
+
+    def table(self, which: str, n: int) -> KrlFrame:
+        """``TOOL_DATA[n]`` or ``BASE_DATA[n]`` (0: the identity)."""
+        label = f"{which}[{n}]"
+        if n == 0:
+            return KrlFrame(label, np.eye(4), "")
+        types = [(df.tool_type if which == "TOOL_DATA" else df.base_type).get(n)
+                 for df in self.data.values()]  # fmt: skip
+        external = {"TOOL_DATA": "#BASE", "BASE_DATA": "#TCP"}[which]
+        if external in types:
+            kind = which.split("_")[0]
+            return unknown_frame(
+                f"{label}: external TCP ({kind}_TYPE[{n}]={external}) not supported"
+            )
+        decl = self.lookup(which, None)
+        agg = decl.elements.get((n,)) if decl is not None else None
+        if agg is None:
+            return unknown_frame(f"{label} is not in the given files (give $config.dat)")
+        value, why = frame_of(agg, label, self.data[decl.file].source)  # type: ignore[union-attr]
+        return KrlFrame(label, value, why)
