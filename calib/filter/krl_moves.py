@@ -188,7 +188,8 @@ class Moves:
         n_targets = 2 if kind in ("CIRC", "SCIRC") else 1
         fold_problem = self._fold_check(no)
         tool, base = self.tool, self.base
-        problem = "; ".join(p for p in (tool.problem, base.problem, fold_problem) if p)
+        problem = "; ".join(dict.fromkeys(p for p in (tool.problem, base.problem, fold_problem)
+                                          if p))  # fmt: skip
         use = Use(self.src.name, no, tool.name, base.name, tool.value, base.value, problem)
         for a, b in _top_level_spans(rest)[:n_targets]:
             part = rest[a:b]
