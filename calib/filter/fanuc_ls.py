@@ -177,13 +177,14 @@ class FanucLsDialect:
             if not semi:
                 raise FilterInputError(src.name, "expected '};' after a position",
                                        src.line_of(close))  # fmt: skip
-            target = self._entry(src, f"P[{m.group(1)}]", m.end(), close, frames)
+            target = self._entry(src, f"P[{m.group(1)}]", m.start(), m.end(), close, frames)
             if target is not None:
                 out.append(target)
             i = semi.end()
 
-    def _entry(self, src: Source, name: str, start: int, end: int,
+    def _entry(self, src: Source, name: str, at: int, start: int, end: int,
                frames: FrameTables) -> Target | None:  # fmt: skip
+        """The target of the entry ``P[n]{`` at offset ``at`` (body ``[start, end)``)."""
         text = src.text
         groups = list(_GROUP.finditer(text, start, end))
         gp1 = [g for g in groups if g.group(1) == "1"]
@@ -191,7 +192,7 @@ class FanucLsDialect:
             return None  # positions of other groups only
         g = gp1[0]
         g_end = next((h.start() for h in groups if h.start() > g.start()), end)
-        line = src.line_of(g.start())
+        line = src.line_of(at)
         body = text[g.end() : g_end]
         fields: dict[str, Num] = {}
         units: dict[str, str] = {}
