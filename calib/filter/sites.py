@@ -31,11 +31,13 @@ base frame; a Cartesian target ``T`` (in ``work``, of ``tool``) asks the flange 
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -106,8 +108,14 @@ class Source:
             raise FilterInputError(self.name, f"cannot encode as {self.encoding}: {exc}") from None
 
     def line_of(self, offset: int) -> int:
-        """1-based line number of a character offset."""
-        return self.text.count("\n", 0, offset) + 1
+        """1-based line number of a character offset (a bisection: a file of 10,000 targets
+        asks it 10,000 times)."""
+        return bisect.bisect_left(self._newlines, offset) + 1
+
+    @cached_property
+    def _newlines(self) -> list[int]:
+        """Offsets of every ``\n`` of :attr:`text`."""
+        return [m.start() for m in re.finditer("\n", self.text)]
 
 
 @dataclass(frozen=True)
