@@ -156,6 +156,13 @@ class FanucLsDialect:
                 raise FilterInputError(src.name, "/POS without /END",
                                        src.line_of(sections["POS"][0]))  # fmt: skip
             out.extend(self._positions(src, *sections["POS"], frames))
+        cart = [t for t in out if isinstance(t.site, CartSite)]
+        if cart:  # every pose at once: R = Rz(R)·Ry(P)·Rx(W)
+            xyz = np.array([[n.value for n in t.site.position] for t in cart])
+            wpr = np.array([[n.value for n in t.site.wpr] for t in cart])
+            rot = zyx_deg_to_matrix(wpr[:, 2], wpr[:, 1], wpr[:, 0])
+            for t, p, r in zip(cart, xyz, rot, strict=True):
+                t.pose = frame(p, r)
         return out
 
     def _positions(self, src: Source, start: int, end: int, frames: FrameTables) -> list[Target]:
@@ -229,8 +236,6 @@ class FanucLsDialect:
             conf = configuration(cfg.group(1), [n.value for n in turn_nums])
         except ValueError as exc:
             raise FilterInputError(src.name, f"{name}: {exc}", line) from None
-        v = [fields[k].value for k in _CARTESIAN]
-        pose = frame(np.array(v[:3]), zyx_deg_to_matrix(v[5], v[4], v[3]))
         uf, ut = int(numbers["UF"]), int(numbers["UT"])
         work, tool = frames.get("uframe", uf), frames.get("utool", ut)
         missing_frames = [f"{label} {n} is not in --frames ([{table}.{n}])"
@@ -238,9 +243,10 @@ class FanucLsDialect:
                                                          ("UT", ut, "utool", tool))
                           if value is None]  # fmt: skip
         use = Use(src.name, line, f"UT:{ut}", f"UF:{uf}", tool, work, "; ".join(missing_frames))
-        t = Target(src.name, line, name, "cartesian", pose=pose, configuration=conf, uses=[use],
-                   site=CartSite([fields[k] for k in _CARTESIAN[:3]],
-                                 [fields[k] for k in _CARTESIAN[3:]], turn_nums))  # fmt: skip
+        site = CartSite([fields[k] for k in _CARTESIAN[:3]], [fields[k] for k in _CARTESIAN[3:]],
+                        turn_nums)  # fmt: skip
+        t = Target(src.name, line, name, "cartesian", pose=np.eye(4), configuration=conf,
+                   uses=[use], site=site)  # pose: see parse  # fmt: skip
         extra = sorted(set(fields) - set(_CARTESIAN))
         if extra:
             t.problem = f"GP1 has extended axes {', '.join(extra)}: not supported"

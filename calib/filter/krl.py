@@ -81,6 +81,8 @@ EXTENSIONS = (".src", ".dat")
 POSITION_DECIMALS = 3
 ANGLE_DECIMALS = 4
 JOINT_DECIMALS = 4
+#: Characters of a file's beginning that must hold its ``&`` header and ``DEF``/``DEFDAT``.
+HEADER_CHARS = 65536
 JOINT_KEYS = tuple(f"A{j}" for j in range(1, N_JOINTS + 1))
 
 _HEADER = re.compile(r"^(?:\s*&[^\n]*\n|\s*\n)*\s*(GLOBAL\s+)?(DEF|DEFFCT|DEFDAT)\b", re.I)
@@ -122,7 +124,7 @@ class KrlDialect:
 
     def claims(self, source: Source) -> bool:
         """A ``DEF``/``DEFFCT`` (``.src``) or ``DEFDAT`` (``.dat``) after the ``&`` header."""
-        m = _HEADER.match(blank(source.text).lstrip("\ufeff"))
+        m = _HEADER.match(blank(source.text[:HEADER_CHARS]).lstrip("\ufeff"))
         if not m:
             return False
         is_dat = PurePath(source.name).suffix.lower() == ".dat"
@@ -159,6 +161,7 @@ class KrlDialect:
                             frame_decls.add(id(t))
         for src in prog.srcs:
             order.extend(Moves(self._target, prog, src, targets).run())
+        _fill_poses(order)
         # A FRAME declaration is a target only when a move uses it.
         return [t for t in order if t.uses or id(t) not in frame_decls]
 
@@ -201,8 +204,6 @@ class KrlDialect:
             t.problem = (f"{', '.join(missing)} not given: the controller takes them from the "
                          "current position")  # fmt: skip
             return t
-        vals = [n.value for n in nums if n is not None]
-        t.pose = frame(np.array(vals[:3]), zyx_deg_to_matrix(*vals[3:]))
         t.site = CartSite([n for n in nums[:3] if n], [n for n in nums[3:] if n], t_num)
         return t
 
@@ -224,6 +225,18 @@ class KrlDialect:
         if site.turn is not None:
             edits.append(_turn_edit(site.turn, correction.joints_deg))
         return [e for e in edits if e is not None]
+
+
+def _fill_poses(targets: list[Target]) -> None:
+    """Every Cartesian target's pose from its numbers, all rotations at once."""
+    cart = [t for t in targets if isinstance(t.site, CartSite)]
+    if not cart:
+        return
+    xyz = np.array([[n.value for n in t.site.position] for t in cart])
+    abc = np.array([[n.value for n in t.site.angles] for t in cart])
+    rot = zyx_deg_to_matrix(abc[:, 0], abc[:, 1], abc[:, 2])
+    for t, p, r in zip(cart, xyz, rot, strict=True):
+        t.pose = frame(p, r)
 
 
 def turn_of(joints_deg: FloatArray) -> int:

@@ -48,28 +48,13 @@ _TYPE_OF = re.compile(r"^[ \t]*(TOOL_TYPE|BASE_TYPE)[ \t]*\[[ \t]*(\d+)[ \t]*\][
                       re.IGNORECASE | re.MULTILINE)  # fmt: skip
 
 
+_COMMENT_OR_STRING = re.compile(r';[^\n]*|"[^"\n]*"?')
+
+
 def blank(text: str) -> str:
-    """``text`` with ``;`` comments and ``"…"`` strings replaced by spaces, same length."""
-    out = list(text)
-    i, n = 0, len(text)
-    while i < n:
-        c = text[i]
-        if c in ';"':
-            if c == ";":
-                j = text.find("\n", i)
-                j = n if j < 0 else j
-            else:
-                j = i + 1
-                while j < n and text[j] not in '"\n':
-                    j += 1
-                j = min(j + 1, n) if j < n and text[j] == '"' else j
-            for k in range(i, j):
-                if out[k] not in "\r\n":
-                    out[k] = " "
-            i = j
-        else:
-            i += 1
-    return "".join(out)
+    """``text`` with ``;`` comments and ``"…"`` strings replaced by spaces, same length
+    (whichever starts first wins: a ``;`` inside a string is no comment)."""
+    return _COMMENT_OR_STRING.sub(lambda m: re.sub(r"[^\r]", " ", m.group()), text)
 
 
 @dataclass
@@ -303,6 +288,7 @@ class Program:
 
     data: dict[str, DataFile] = field(default_factory=dict)  # by file name
     srcs: list[Source] = field(default_factory=list)
+    _tables: dict[tuple[str, int], KrlFrame] = field(default_factory=dict)
 
     def own_dat(self, src_name: str) -> DataFile | None:
         stem = PurePath(src_name).with_suffix("").as_posix().lower()
@@ -324,6 +310,12 @@ class Program:
 
     def table(self, which: str, n: int) -> KrlFrame:
         """``TOOL_DATA[n]`` or ``BASE_DATA[n]`` (0: the identity)."""
+        key = (which, n)
+        if key not in self._tables:
+            self._tables[key] = self._table(which, n)
+        return self._tables[key]
+
+    def _table(self, which: str, n: int) -> KrlFrame:
         label = f"{which}[{n}]"
         if n == 0:
             return KrlFrame(label, np.eye(4), "")
