@@ -19,8 +19,9 @@ from calib.filter.sites import Correction, FrameTables, Num, Source, Target
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs" / "krl"
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-CORRECTED = {"XP1", "XP2", "XP3", "XP4", "XSEAM[1]", "XSEAM[2]", "XSEAM[3]", "XGLOBAL", "XNOST",
-             "FAPP", "XHOME", "XPARK", "inline@63", "inline@101"}  # fmt: skip
+CORRECTED = {"XG1", "XG2", "XG3", "XG4", "XG5", "XG6", "XP1", "XP2", "XP3", "XP4", "XSEAM[1]",
+             "XSEAM[2]", "XSEAM[3]", "XGLOBAL", "XNOST", "FAPP", "XHOME", "XPARK", "inline@63",
+             "inline@101"}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -97,6 +98,11 @@ def test_targets_frames_and_reasons(cell: Cell) -> None:
     assert targets["FAPP"].configuration.after == "XNOST"  # type: ignore[union-attr]
     inline = targets["inline@63"]
     assert inline.file == "weld_seam.src" and inline.configuration.text.startswith("S 'B")  # type: ignore[union-attr]
+    # KSS 8.3 spline inline forms: the frames in the move's (or the SPLINE's) WITH clause.
+    for name, line in (("XG1", 12), ("XG2", 15), ("XG4", 18), ("XG5", 22)):
+        (u,) = targets[name].uses
+        assert (u.file, u.line, u.tool_name, u.work_name, u.problem) == (
+            "glue_bead.src", line, "TOOL_DATA[2]", "BASE_DATA[2]", "")  # fmt: skip
     run = filter_files(_identity(cell), _files())
     reason = {r["name"]: r["reason"] for r in run.rows()}
     assert (

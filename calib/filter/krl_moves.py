@@ -37,6 +37,10 @@ _MOVE = re.compile(r"^\s*(PTP|LIN|CIRC|SPTP|SLIN|SCIRC|SPL)[ \t]+(.*)$", re.I)
 _FDAT_ACT = re.compile(r"^\s*FDAT_ACT\s*=\s*([A-Za-z_$][\w$]*)\s*$", re.I)
 _BAS = re.compile(r"^\s*BAS\s*\(\s*#(TOOL|BASE)\s*,\s*(\d+)\s*\)", re.I)
 _DATA_REF = re.compile(r"(TOOL_DATA|BASE_DATA)\s*\[\s*(\d+)\s*\]$", re.I)
+_WITH = re.compile(r"\bWITH\b", re.I)
+_WITH_SET = re.compile(r"\s*\$(TOOL|BASE)\s*=\s*(.*)", re.I | re.S)
+_FDAT_FN = re.compile(r"(STOOL2|SBASE)\s*\(\s*([A-Za-z_$][\w$]*)\s*(?:\.\s*BASE_NO\s*)?\)", re.I)
+_SPLINE = re.compile(r"^\s*(?:PTP_)?SPLINE\b", re.I)
 _OPEN = re.compile(r"^\s*(IF|SWITCH|FOR|WHILE|LOOP|REPEAT)\b", re.I)
 _MIDDLE = re.compile(r"^\s*(ELSE|CASE|DEFAULT)\b", re.I)
 _CLOSE = re.compile(r"^\s*(ENDIF|ENDSWITCH|ENDFOR|ENDWHILE|ENDLOOP|UNTIL)\b", re.I)
@@ -121,7 +125,13 @@ class Moves:
         elif _CLOSE.match(line) and self.blocks:
             self._close()
         elif m := _MOVE.match(line):
-            self._move(m.group(1).upper(), m.group(2), offset + m.start(2), no)
+            rest, at = m.group(2), offset + m.start(2)
+            if w := _WITH.search(rest):
+                self._with(rest[w.end() :], at + w.end(), no)
+                rest = rest[: w.start()]
+            self._move(m.group(1).upper(), rest, at, no)
+        elif (m := _SPLINE.match(line)) and (w := _WITH.search(line)):
+            self._with(line[w.end() :], offset + w.end(), no)
 
     def _set(self, which: str, value: KrlFrame) -> None:
         if which == "TOOL":
@@ -144,28 +154,41 @@ class Moves:
                                        f"{blk.kind} at line {blk.line}"))  # fmt: skip
         self.tool, self.base = merged[0], merged[1]
 
-    def _fdat(self, name: str, no: int) -> None:
+    def _fdat(self, name: str, no: int, which: tuple[str, ...] = ("TOOL", "BASE")) -> None:
+        """Set the tool and/or base from the ``FDAT`` ``name`` (``FDAT_ACT=``, ``STOOL2``,
+        ``SBASE``)."""
         decl = self.prog.lookup(name, self.src.name)
+        why = ""
         if decl is None or decl.kind != "FDAT" or decl.value is None:
             why = f"FDAT {name} (line {no}) is not declared in the given .dat files"
-            self.tool, self.base = unknown_frame(why), unknown_frame(why)
-            return
-        agg = decl.value
-        ipo = agg.items.get("IPO_FRAME")
-        nums: dict[str, float | None] = {
-            k: agg.items[k].num for k in ("TOOL_NO", "BASE_NO") if k in agg.items
-        }
-        if ipo is not None and ipo.text.upper() == "#TCP":
+        elif (ipo := decl.value.items.get("IPO_FRAME")) and ipo.text.upper() == "#TCP":
             why = f"FDAT {name}: external TCP (IPO_FRAME #TCP) not supported"
+        if why:
             self.tool, self.base = unknown_frame(why), unknown_frame(why)
             return
-        for key, table, which in (("TOOL_NO", "TOOL_DATA", "TOOL"), ("BASE_NO", "BASE_DATA",
-                                                                        "BASE")):  # fmt: skip
-            v = nums.get(key)
-            if v is None:
-                self._set(which, unknown_frame(f"FDAT {name} has no numeric {key}"))
+        assert decl is not None and decl.value is not None
+        for key, table, what in (("TOOL_NO", "TOOL_DATA", "TOOL"), ("BASE_NO", "BASE_DATA",
+                                                                       "BASE")):  # fmt: skip
+            item = decl.value.items.get(key)
+            if what not in which:
+                continue
+            if item is None or item.num is None:
+                self._set(what, unknown_frame(f"FDAT {name} has no numeric {key}"))
             else:
-                self._set(which, self.prog.table(table, int(v)))
+                self._set(what, self.prog.table(table, int(item.num)))
+
+    def _with(self, text: str, at: int, no: int) -> None:
+        """The ``$TOOL``/``$BASE`` assignments of a ``WITH`` clause (spline inline forms:
+        ``$TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)``) starting at offset ``at``."""
+        for a, b in _top_level_spans(text):
+            m = _WITH_SET.match(text, a, b)
+            if not m:
+                continue
+            which, expr = m.group(1).upper(), m.group(2).strip()
+            if f := _FDAT_FN.fullmatch(expr):
+                self._fdat(f.group(2), no, (which,))
+            else:
+                self._set(which, self._frame_value(expr, at + m.start(2), no))
 
     def _frame_value(self, expr: str, at: int, no: int) -> KrlFrame:
         if m := _DATA_REF.fullmatch(expr):
