@@ -119,6 +119,15 @@ def test_targets_frames_and_reasons(cell: Cell) -> None:
     assert reason["inline@64"].startswith("X, Y, A, B, C not given")
 
 
+def test_config_dat_names_are_global() -> None:
+    cfg = (b"DEFDAT $CONFIG\r\n"
+           b"DECL E6AXIS XPARK2={A1 10.0,A2 -50.0,A3 170.0,A4 0.0,A5 40.0,A6 0.0}\r\n")  # fmt: skip
+    src = b"DEF p( )\r\nPTP XPARK2\r\nEND\r\n"
+    got = KRL.parse([Source.from_bytes("$CONFIG.DAT", cfg + b"ENDDAT\r\n"),
+                     Source.from_bytes("p.src", src)], FrameTables())  # fmt: skip
+    assert [(t.name, [u.line for u in t.uses]) for t in got] == [("XPARK2", [2])]
+
+
 def test_without_config_dat_the_frames_are_named(cell: Cell) -> None:
     files = [(n, d) for n, d in _files() if n != "$config.dat"]
     run = filter_files(_identity(cell), files)

@@ -213,6 +213,7 @@ def read_declarations(source: Source) -> DataFile:
     """
     code = blank(source.text)
     out = DataFile(source, code)
+    config = PurePath(source.name).name.lower() == "$config.dat"  # every name in it is global
     for m in _DECL.finditer(code):
         line = source.line_of(m.start())
         kind, name = m.group(2).upper(), m.group(3)
@@ -224,7 +225,8 @@ def read_declarations(source: Source) -> DataFile:
         if key in out.decls:
             raise FilterInputError(source.name, f"{name} declared twice (also line "
                                    f"{out.decls[key].line})", line)  # fmt: skip
-        out.decls[key] = Decl(kind, name, source.name, line, "GLOBAL" in m.group(1).upper(),
+        is_global = "GLOBAL" in m.group(1).upper() or config
+        out.decls[key] = Decl(kind, name, source.name, line, is_global,
                               dims, value)  # fmt: skip
     for m in _ELEMENT.finditer(code):
         line = source.line_of(m.start())
@@ -291,15 +293,16 @@ class Program:
     _tables: dict[tuple[str, int], KrlFrame] = field(default_factory=dict)
 
     def own_dat(self, src_name: str) -> DataFile | None:
+        """The ``.dat`` of the same name as the ``.src`` (case-insensitive)."""
         stem = PurePath(src_name).with_suffix("").as_posix().lower()
-        for name, df in self.data.items():
-            if PurePath(name).with_suffix("").as_posix().lower() == stem:
-                return df
-        return None
+        same = (df for name, df in self.data.items()
+                if PurePath(name).with_suffix("").as_posix().lower() == stem)  # fmt: skip
+        return next(same, None)
 
     def lookup(self, name: str, src_name: str | None) -> Decl | None:
-        """``name`` in the ``.src``'s own ``.dat`` first, then the GLOBAL (or undeclared-
-        array) data of the others; None when absent or found in several."""
+        """``name`` in the ``.src``'s own ``.dat`` first, then the GLOBAL data of the others
+        (all of ``$config.dat``'s, and arrays assigned without a declaration); None when
+        absent or found in several. Without ``src_name``: any file's."""
         key = name.upper()
         own = self.own_dat(src_name) if src_name else None
         if own is not None and key in own.decls:
