@@ -15,13 +15,15 @@ Moves
     ``PTP``, ``LIN``, ``CIRC`` (its auxiliary and end point), ``SPTP``, ``SLIN``, ``SCIRC``
     and ``SPL``; the ``_REL`` moves are relative and have no target. The target is a
     declared name (own ``.dat`` first, then the ``GLOBAL`` data of the other given ``.dat``
-    files; an index that is a variable uses every element) or an inline aggregate. A target
+    files and everything ``$config.dat`` declares; an index that is a variable uses every element) or an inline aggregate. A target
     used through the geometric operator (``XP1:F_OFS``) is not where the robot goes: it is
     left unchanged and named.
 
 Frames (per move, in program order within each ``DEF``; unknown at its start)
     ``FDAT_ACT=FP1`` (the inline forms): the ``FDAT``'s ``TOOL_NO``/``BASE_NO`` (0: the
-    flange / ``$WORLD``); ``$TOOL=TOOL_DATA[n]``, ``$BASE=BASE_DATA[n]``, ``BAS(#TOOL,n)``,
+    flange / ``$WORLD``); the same from a ``WITH $TOOL = STOOL2(FP1), $BASE =
+    SBASE(FP1.BASE_NO)`` clause (KSS 8.3 spline forms, on the move or its ``SPLINE``
+    block); ``$TOOL=TOOL_DATA[n]``, ``$BASE=BASE_DATA[n]``, ``BAS(#TOOL,n)``,
     ``BAS(#BASE,n)``; ``$TOOL``/``$BASE`` set to an inline frame, a ``FRAME`` of the given
     ``.dat`` files or ``$NULLFRAME``. ``TOOL_DATA[n]``/``BASE_DATA[n]`` (``{X,Y,Z,A,B,C}``)
     come from the given ``.dat`` files (``$config.dat``). ``BASE_DATA`` is taken in the
