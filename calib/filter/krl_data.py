@@ -31,6 +31,9 @@ from calib.kinematics import FloatArray
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")
 _KEY = re.compile(r"[A-Za-z_$][\w$]*(?:\[\s*\])?")
+_SPACE = re.compile(r"[ \t\r\n]*")
+_BLANKS = re.compile(r"[ \t]*")
+_VALUE = re.compile(r"[^,}\r\n{]*")
 _TYPE_PREFIX = re.compile(r"\s*([A-Za-z_$][\w$]*)\s*:(?!=)")
 #: Position, axis and frame data types the filter reads.
 POSITION_TYPES = ("E6POS", "POS", "FRAME")
@@ -54,7 +57,12 @@ _COMMENT_OR_STRING = re.compile(r';[^\n]*|"[^"\n]*"?')
 def blank(text: str) -> str:
     """``text`` with ``;`` comments and ``"…"`` strings replaced by spaces, same length
     (whichever starts first wins: a ``;`` inside a string is no comment)."""
-    return _COMMENT_OR_STRING.sub(lambda m: re.sub(r"[^\r]", " ", m.group()), text)
+    return _COMMENT_OR_STRING.sub(_spaces, text)
+
+
+def _spaces(m: re.Match[str]) -> str:
+    g = m.group()
+    return " " * len(g) if "\r" not in g else re.sub(r"[^\r]", " ", g)
 
 
 @dataclass
@@ -119,42 +127,38 @@ def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
     if m:
         agg.type_name = m.group(1).upper()
         j = m.end()
+    n = len(code)
     while True:
-        while j < len(code) and code[j] in " \t\r\n":
-            j += 1
-        if j < len(code) and code[j] == "}" and not agg.items:
+        j = _SPACE.match(code, j).end()  # type: ignore[union-attr]
+        if j < n and code[j] == "}" and not agg.items:
             agg.end = j + 1
             return agg
         k = _KEY.match(code, j)
         if not k:
             raise fail(j, "expected a component name")
-        key = re.sub(r"\s+", "", k.group()).upper()
-        j = k.end()
-        while j < len(code) and code[j] in " \t":
-            j += 1
-        if j < len(code) and code[j] == "{":
+        key = k.group().upper()
+        if "[" in key:
+            key = key.replace(" ", "").replace("\t", "")
+        j = _BLANKS.match(code, k.end()).end()  # type: ignore[union-attr]
+        if j < n and code[j] == "{":
             sub = parse_aggregate(code, j, source)
             item = Item(key, sub.start, sub.end, code[sub.start : sub.end], agg=sub)
             j = sub.end
         else:
-            s = j
-            while j < len(code) and code[j] not in ",}\r\n{":
-                j += 1
-            e = j
-            while e > s and code[e - 1] in " \t":
-                e -= 1
-            text = code[s:e]
-            item = Item(key, s, e, source.text[s:e], num=literal_value(text))
+            v = _VALUE.match(code, j)
+            assert v is not None
+            text = v.group().rstrip(" \t")
+            item = Item(key, j, j + len(text), text, num=literal_value(text))
+            j = v.end()
         if key in agg.items:
             raise FilterInputError(source.name, f"component {key} given twice",
                                    source.line_of(item.start))  # fmt: skip
         agg.items[key] = item
-        while j < len(code) and code[j] in " \t":
-            j += 1
-        if j < len(code) and code[j] == ",":
+        j = _BLANKS.match(code, j).end()  # type: ignore[union-attr]
+        if j < n and code[j] == ",":
             j += 1
             continue
-        if j < len(code) and code[j] == "}":
+        if j < n and code[j] == "}":
             agg.end = j + 1
             return agg
         raise fail(j, "expected ',' or '}'")
@@ -291,9 +295,15 @@ class Program:
     data: dict[str, DataFile] = field(default_factory=dict)  # by file name
     srcs: list[Source] = field(default_factory=list)
     _tables: dict[tuple[str, int], KrlFrame] = field(default_factory=dict)
+    _own: dict[str, DataFile | None] = field(default_factory=dict)
 
     def own_dat(self, src_name: str) -> DataFile | None:
         """The ``.dat`` of the same name as the ``.src`` (case-insensitive)."""
+        if src_name not in self._own:
+            self._own[src_name] = self._own_dat(src_name)
+        return self._own[src_name]
+
+    def _own_dat(self, src_name: str) -> DataFile | None:
         stem = PurePath(src_name).with_suffix("").as_posix().lower()
         same = (df for name, df in self.data.items()
                 if PurePath(name).with_suffix("").as_posix().lower() == stem)  # fmt: skip
