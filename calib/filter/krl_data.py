@@ -31,6 +31,7 @@ from calib.kinematics import FloatArray
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")
 _KEY = re.compile(r"[A-Za-z_$][\w$]*(?:\[\s*\])?")
+_FLAT_ITEM = re.compile(r"[ \t\r]*([A-Za-z_$][\w$]*(?:\[[ \t]*\])?)[ \t]*([^,}\r\n{]*?)[ \t]*[,}]")
 _SPACE = re.compile(r"[ \t\r\n]*")
 _BLANKS = re.compile(r"[ \t]*")
 _VALUE = re.compile(r"[^,}\r\n{]*")
@@ -105,6 +106,26 @@ def literal_value(text: str) -> float | None:
     return None
 
 
+def _flat(code: str, j: int, agg: Aggregate) -> bool:
+    """Fast path of :func:`parse_aggregate` for a well-formed aggregate on one line without
+    nested aggregates (a position's): True when it filled ``agg``."""
+    close = code.find("}", j)
+    if close < 0 or code.find("{", j, close) >= 0 or code.find("\n", j, close) >= 0:
+        return False
+    pos = j
+    items: dict[str, Item] = {}
+    for m in _FLAT_ITEM.finditer(code, j, close + 1):
+        key, text = m.group(1).upper(), m.group(2)
+        if m.start() != pos or key in items or "[" in key:
+            return False
+        items[key] = Item(key, m.start(2), m.start(2) + len(text), text, num=literal_value(text))
+        pos = m.end()
+    if pos != close + 1:
+        return False
+    agg.items, agg.end = items, pos
+    return True
+
+
 def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
     """The aggregate whose ``{`` is at ``code[i]`` (``code`` blanked).
 
@@ -127,6 +148,9 @@ def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
     if m:
         agg.type_name = m.group(1).upper()
         j = m.end()
+    flat = _flat(code, j, agg)
+    if flat:
+        return agg
     n = len(code)
     while True:
         j = _SPACE.match(code, j).end()  # type: ignore[union-attr]

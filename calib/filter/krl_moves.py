@@ -41,6 +41,12 @@ _WITH = re.compile(r"\bWITH\b", re.I)
 _WITH_SET = re.compile(r"\s*\$(TOOL|BASE)\s*=\s*(.*)", re.I | re.S)
 _FDAT_FN = re.compile(r"(STOOL2|SBASE)\s*\(\s*([A-Za-z_$][\w$]*)\s*(?:\.\s*BASE_NO\s*)?\)", re.I)
 _SPLINE = re.compile(r"^\s*(?:PTP_)?SPLINE\b", re.I)
+_HEAD = re.compile(r"\s*([A-Za-z_$][\w$]*)")
+#: First words of the statements :meth:`Moves._statement` reads (the others are skipped).
+_KEYWORDS = {"DEF", "DEFFCT", "GLOBAL", "END", "ENDFCT", "FDAT_ACT", "BAS", "$TOOL", "$BASE",
+             "IF", "SWITCH", "FOR", "WHILE", "LOOP", "REPEAT", "ELSE", "CASE", "DEFAULT",
+             "ENDIF", "ENDSWITCH", "ENDFOR", "ENDWHILE", "ENDLOOP", "UNTIL", "PTP", "LIN",
+             "CIRC", "SPTP", "SLIN", "SCIRC", "SPL", "SPLINE", "PTP_SPLINE"}  # fmt: skip
 _OPEN = re.compile(r"^\s*(IF|SWITCH|FOR|WHILE|LOOP|REPEAT)\b", re.I)
 _MIDDLE = re.compile(r"^\s*(ELSE|CASE|DEFAULT)\b", re.I)
 _CLOSE = re.compile(r"^\s*(ENDIF|ENDSWITCH|ENDFOR|ENDWHILE|ENDLOOP|UNTIL)\b", re.I)
@@ -78,8 +84,11 @@ class Moves:
         raw_lines = self.src.text.split("\n")
         offset = 0
         for k, line in enumerate(self.code.split("\n")):
-            self._fold(raw_lines[k], k + 1)
-            self._statement(line, offset, k + 1)
+            if raw_lines[k].lstrip().startswith(";"):
+                self._fold(raw_lines[k], k + 1)
+            head = _HEAD.match(line)
+            if head and head.group(1).upper() in _KEYWORDS:
+                self._statement(line, offset, k + 1)
             offset += len(line) + 1
         return self.inline
 
