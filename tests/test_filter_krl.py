@@ -128,6 +128,28 @@ def test_config_dat_names_are_global() -> None:
     assert [(t.name, [u.line for u in t.uses]) for t in got] == [("XPARK2", [2])]
 
 
+def test_branches_and_loops_merge_the_frames_of_their_paths() -> None:
+    pos = "{X 900.0,Y 100.0,Z 800.0,A 0.0,B 90.0,C 0.0,S 2,T 10}"
+    dat = "DEFDAT p\n" + "".join(f"DECL E6POS X{k}={pos}\n" for k in range(1, 6)) + "ENDDAT\n"
+    src = ("DEF p( )\n$BASE=BASE_DATA[1]\n"
+           "SWITCH N\nCASE 1\n$TOOL=TOOL_DATA[1]\nCASE 2\n$TOOL=TOOL_DATA[1]\n"
+           "DEFAULT\n$TOOL=TOOL_DATA[1]\nENDSWITCH\nLIN X1\n"  # every path: tool 1
+           "IF A THEN\n$TOOL=TOOL_DATA[2]\nENDIF\nLIN X2\n"  # IF without ELSE: unknown
+           "$TOOL=TOOL_DATA[2]\nWHILE B\n  LIN X3\nENDWHILE\nLIN X4\n"  # no change: known
+           "FOR I=1 TO 3\n  $BASE=BASE_DATA[I]\nENDFOR\nLIN X5\nEND\n")  # fmt: skip
+    cfg = ("DEFDAT $CONFIG\nTOOL_DATA[1]={X 0.0,Y 0.0,Z 100.0,A 0.0,B 0.0,C 0.0}\n"
+           "TOOL_DATA[2]={X 0.0,Y 0.0,Z 200.0,A 0.0,B 0.0,C 0.0}\n"
+           "BASE_DATA[1]={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\nENDDAT\n")  # fmt: skip
+    files = [Source(n, text, "utf-8") for n, text in (("p.dat", dat), ("p.src", src),
+                                                       ("$config.dat", cfg))]  # fmt: skip
+    got = {t.name: t.uses[0] for t in KRL.parse(files, FrameTables())}
+    assert (got["X1"].tool_name, got["X1"].problem) == ("TOOL_DATA[1]", "")
+    assert got["X2"].problem == "the tool differs between the paths through the IF at line 12"
+    assert (got["X3"].tool_name, got["X4"].tool_name, got["X4"].problem) == (
+        "TOOL_DATA[2]", "TOOL_DATA[2]", "")  # fmt: skip
+    assert got["X5"].problem == "the base differs between the paths through the FOR at line 21"
+
+
 def test_without_config_dat_the_frames_are_named(cell: Cell) -> None:
     files = [(n, d) for n, d in _files() if n != "$config.dat"]
     run = filter_files(_identity(cell), files)
