@@ -82,6 +82,17 @@ def regular_poses(model: RobotModel, n: int, seed: int) -> FloatArray:
     return out[:n]
 
 
+def smooth_path(model: RobotModel, n: int, seed: int, step_deg: float = 3.0) -> FloatArray:
+    """A path of n joints (n, 6) [deg] moving a few degrees per step from a regular pose (a
+    UR program moves linearly from target to target: each takes the branch of the last)."""
+    rng = np.random.default_rng(seed)
+    start = regular_poses(model, 1, seed)[0]
+    steps = rng.uniform(-step_deg, step_deg, size=(n, 6))
+    steps[0] = 0.0
+    out: FloatArray = start + np.cumsum(steps, axis=0)
+    return out
+
+
 def tool_frame(length_mm: float, tilt_deg: float = 20.0) -> FloatArray:
     """A tool: TCP ``length_mm`` out along a direction tilted ``tilt_deg`` about flange y,
     its frame tilted the same (4, 4) [mm]."""
@@ -103,6 +114,11 @@ def planned_targets(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray,
     ``q_plan``."""
     out: FloatArray = invert(work) @ flange_frames(nominal, q_plan) @ tool
     return out
+
+
+#: The object frame inside the work object (RAPID's oframe): the work object is uframe · oframe.
+OFRAME = frame(np.array([35.0, -20.0, 12.0]), np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0],
+                                                        [0.0, 0.0, 1.0]]))  # fmt: skip
 
 
 def rapid_confdata(nominal: RobotModel, q_deg: FloatArray) -> list[tuple[int, int, int, int]]:
@@ -134,7 +150,8 @@ def rapid_module(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work
         f"MODULE {name}",
         "    ! planned offline (EMULATED)",
         f"    PERS tooldata tOlp:=[TRUE,[{pose(tool)}],[3.5,[0,0,80],[1,0,0,0],0,0,0]];",
-        f'    TASK PERS wobjdata wOlp:=[FALSE,TRUE,"",[{pose(work)}],[[0,0,0],[1,0,0,0]]];',
+        f'    TASK PERS wobjdata wOlp:=[FALSE,TRUE,"",[{pose(work @ invert(OFRAME))}],'
+        f"[{pose(OFRAME)}]];",
     ]
     for i, t in enumerate(targets):
         p = ",".join(f"{v:.3f}" for v in t[:3, 3])
@@ -163,6 +180,9 @@ def urscript(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray,
     tcp_text = ", ".join(f"{v / 1000:.6f}" for v in tool[:3, 3]) + ", " + ", ".join(
         f"{v:.6f}" for v in tcp)  # fmt: skip
     lines = ["def olp_program():", f"  set_tcp(p[{tcp_text}])"]
+    if not polyscope:  # a plain script starts from a joint move (its "q" for the first movel)
+        home = ", ".join(repr(float(v)) for v in np.deg2rad(q_plan[0] + 2.0))
+        lines.append(f"  movej([{home}], a=1.0, v=0.5)")
     for i, t in enumerate(targets):
         pos = [v / 1000 for v in t[:3, 3]]
         rv = matrix_to_rotvec(t[:3, :3])

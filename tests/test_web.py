@@ -2,7 +2,8 @@
 the EMULATED cell (``cablecal simulate``) and ``cablecal serve``, as in tests/test_e2e.py.
 
 One test walks the whole operator flow: token → campaign → plan → auto capture → identify →
-result plots → accept → download the report → compensate, with no console error and no
+result plots → accept → download the report → compensate → filter programs (drop, summary,
+download), with no console error and no
 request to another host; a screenshot of each step goes to the test's tmp dir. Steps whose
 REST route this daemon does not have yet (plan, compensate) end the test as xfail after every
 other step passed.
@@ -10,8 +11,10 @@ other step passed.
 
 from __future__ import annotations
 
+import base64
 import json
 import re
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -140,6 +143,13 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             "#identify-form select[name=method] option", "os => os.map(o => o.value)"
         )
         assert choices == spec["fields"][0]["choices"]
+        # which fields come first is the API's too (main_fields); the rest under More options
+        names = "ns => ns.map(n => n.getAttribute('name'))"
+        shown = page.eval_on_selector_all("#identify-fields [name]", names)
+        more = page.eval_on_selector_all("#identify-more-fields [name]", names)
+        body = [f["name"] for f in spec["fields"]]
+        assert shown == [n for n in body if n in spec["main_fields"]], shown
+        assert more == [n for n in body if n not in spec["main_fields"]] and "noise_rank" in more
         page.fill("#identify-form input[name=test_fraction]", "abc")
         page.wait_for_selector("#identify-form-error:not([hidden])")
         assert page.is_disabled("#identify-start")
@@ -255,6 +265,41 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         else:
             missing.append("compensate")
         _shot(page, tmp_path, "6-apply")
+
+        # filter programs: drop two program files on the robot's view, read the summary
+        # table, download the zip of the filtered files
+        if _has(routes, "POST", "/filter"):
+            programs = Path(__file__).parent / "fixtures" / "programs"
+            dropped = {n: base64.b64encode((programs / n).read_bytes()).decode()
+                       for n in ("cell_a.mod", "notes_e.mod")}  # fmt: skip
+            page.evaluate(
+                """(files) => {
+                  const dt = new DataTransfer();
+                  for (const [name, b64] of Object.entries(files)) {
+                    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+                    dt.items.add(new File([bytes], name));
+                  }
+                  document.getElementById("filter-drop").dispatchEvent(
+                    new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+                }""",
+                dropped,
+            )
+            page.wait_for_function(
+                "document.querySelectorAll('#filter-result tbody tr').length === 7",
+                timeout=30000,
+            )
+            assert "7 corrected" in page.inner_text("#filter-state")
+            assert "pEdge" in page.inner_text("#filter-result")
+            with page.expect_download() as got:
+                page.click("#filter-download")
+            with zipfile.ZipFile(got.value.path()) as zf:
+                assert sorted(zf.namelist()) == ["cell_a.mod", "filter-summary.json",
+                                                 "notes_e.mod"]  # fmt: skip
+                assert zf.read("notes_e.mod") == (programs / "notes_e.mod").read_bytes()
+                assert zf.read("cell_a.mod") != (programs / "cell_a.mod").read_bytes()
+            _shot(page, tmp_path, "6b-filter")
+        else:
+            missing.append("filter")
 
         # item 3: the drift check lists its poses and counts them while it runs; the page
         # stays on the operator's campaign, and a fresh tab opens it too

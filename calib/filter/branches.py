@@ -23,8 +23,9 @@ as ``T = G_0 Rz(q_1) G_1 Rz(q_2) … Rz(q_6) G_6`` with fixed transforms ``G_k``
 3. Whole turns: a joint whose limits span more than a turn gives one candidate per value
    ``q + k·360°`` within its limits (or, with a reference, the value nearest it).
 
-Every candidate is checked by forward kinematics (position within 1e-6 mm and orientation
-within 1e-7 rad of the target, else dropped). All arrays are batched over targets.
+Every candidate is checked (else dropped): its wrist centre within :data:`ARM_TOL_MM` of the
+target's, its wrist rotation rebuilt within 10 × :data:`CHECK_TOL_RAD` of the target's. All
+arrays are batched over targets.
 """
 
 from __future__ import annotations
@@ -35,14 +36,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from calib.filter.sites import Configuration
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel
 from calib.tcp import joint_limits_deg
 
-#: Position (mm) and orientation (rad) tolerances of a nominal solution.
+#: Tolerances of a nominal solution: the wrist centre [mm], the wrist's orientation [rad].
 ARM_TOL_MM = 1e-7
-CHECK_TOL_MM = 1e-6
 CHECK_TOL_RAD = 1e-7
 ARM_ITERATIONS = 25
 
@@ -57,6 +56,18 @@ def _rz(q: FloatArray) -> FloatArray:
     out[..., 1, 1] = c
     out[..., 2, 2] = 1.0
     out[..., 3, 3] = 1.0
+    return out
+
+
+def _rz3(q: FloatArray) -> FloatArray:
+    """Rotations about z, (…, 3, 3), for angles (…) [rad]."""
+    c, s = np.cos(q), np.sin(q)
+    out = np.zeros((*np.shape(q), 3, 3))
+    out[..., 0, 0] = c
+    out[..., 0, 1] = -s
+    out[..., 1, 0] = s
+    out[..., 1, 1] = c
+    out[..., 2, 2] = 1.0
     return out
 
 
@@ -79,23 +90,18 @@ def _rx(alpha: float) -> FloatArray:
     return out
 
 
-def _rz1(theta: float) -> FloatArray:
-    out: FloatArray = _rz(np.array(theta))
-    return out
-
-
 def fixed_transforms(model: RobotModel) -> list[FloatArray]:
     """``G_0 … G_6`` (each (4, 4)) of the module docstring."""
     dh = model.dh_internal()  # alpha, a, d, theta per joint
     if model.convention == "dh":
         out = [np.eye(4)]
         for alpha, a, d, theta in dh:
-            out.append(_rz1(theta) @ _tz(d) @ _tx(a) @ _rx(alpha))
+            out.append(_rz(np.asarray(theta)) @ _tz(d) @ _tx(a) @ _rx(alpha))
         return out
 
     def big_d(k: int) -> FloatArray:  # D_k, 0-based joint k
         alpha, a, _d, theta = dh[k]
-        return _rx(alpha) @ _tx(a) @ _rz1(theta)
+        return _rx(alpha) @ _tx(a) @ _rz(np.asarray(theta))
 
     out = [big_d(0)]
     for k in range(N_JOINTS - 1):
@@ -294,10 +300,10 @@ def _wrist(geo: WristGeometry, arm: FloatArray, target: FloatArray) -> FloatArra
     (m, 2, 3) [rad] (NaN where the wrist cannot reach the orientation)."""
     g = geo.g
     m = arm.shape[0]
-    q6 = np.zeros((m, N_JOINTS))
-    q6[:, :3] = arm
-    pre = chain(g, q6, upto=3)  # … Rz(q3) G_3
-    mm = np.swapaxes(pre[:, :3, :3], 1, 2) @ target[:, :3, :3] @ g[6][:3, :3].T
+    # Rotation of G_0 Rz(q1) G_1 Rz(q2) G_2 Rz(q3) G_3 (3x3 only: translations not needed).
+    pre = g[0][:3, :3] @ _rz3(arm[:, 0]) @ g[1][:3, :3] @ _rz3(arm[:, 1]) @ g[2][:3, :3]
+    pre = pre @ _rz3(arm[:, 2]) @ g[3][:3, :3]
+    mm = np.swapaxes(pre, 1, 2) @ target[:, :3, :3] @ g[6][:3, :3].T
     a, b = g[4][:3, :3], g[5][:3, :3]
     u = a[2, :]  # Aᵀ e_z
     v = b[:, 2]  # B e_z
@@ -310,15 +316,17 @@ def _wrist(geo: WristGeometry, arm: FloatArray, target: FloatArray) -> FloatArra
     out = np.full((m, 2, 3), np.nan)
     for s, sign in enumerate((1.0, -1.0)):
         q5 = phi + sign * base
-        rz5 = _rz(q5)[:, :3, :3]
+        rz5 = _rz3(q5)
         w = a @ rz5 @ v  # (m, 3): M e_z = Rz(q4) w
         mz = mm[:, :, 2]
         q4 = np.arctan2(mz[:, 1], mz[:, 0]) - np.arctan2(w[:, 1], w[:, 0])
         singular = np.hypot(w[:, 0], w[:, 1]) < 1e-9
         q4 = np.where(singular, 0.0, q4)
-        rest = np.swapaxes(a @ rz5 @ b, 1, 2) @ np.swapaxes(_rz(q4)[:, :3, :3], 1, 2) @ mm
+        rz4 = _rz3(q4)
+        ab = a @ rz5 @ b
+        rest = np.swapaxes(ab, 1, 2) @ np.swapaxes(rz4, 1, 2) @ mm
         q6v = np.arctan2(rest[:, 1, 0], rest[:, 0, 0])
-        back = _rz(q4)[:, :3, :3] @ a @ rz5 @ b @ _rz(q6v)[:, :3, :3]
+        back = rz4 @ ab @ _rz3(q6v)
         good = reachable & (np.linalg.norm(back - mm, axis=(1, 2)) < 10 * CHECK_TOL_RAD)
         out[:, s] = np.where(good[:, None], np.stack([q4, q5, q6v], axis=1), np.nan)
     return _wrap(out)
@@ -489,51 +497,3 @@ def _turns(base: FloatArray, ok: np.ndarray, limits: FloatArray,
                          k_lo[:, :, None, :], k_hi[:, :, None, :])  # fmt: skip
         cand = np.where(has, base[:, :, None, :] + two_pi * k_near, cand)
     return cand.reshape(n, -1, N_JOINTS), valid.reshape(n, -1), combos.shape[0]
-
-
-def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndarray, list[str]]:
-    """The controller's solution per target: index into ``sol``'s candidates (-1 = none)
-    and, for -1, the reason.
-
-    Rules, in order: no candidate within the joint limits → unreachable; exactly one → that
-    one; else the candidates within the configuration's joint ranges; of those the one
-    nearest ``nearest_deg`` when given; else one left → it; else the branch signs break the
-    tie; still several → ambiguous (refused).
-    """
-    n = sol.valid.shape[0]
-    idx = np.full(n, -1)
-    reasons = [""] * n
-    q = sol.joints_deg
-    n_valid = sol.valid.sum(axis=1)
-    one = n_valid == 1
-    idx[one] = np.argmax(sol.valid[one], axis=1)
-    for i in np.flatnonzero(n_valid == 0):
-        reasons[i] = "unreachable: no nominal solution within the joint limits"
-    for i in np.flatnonzero(n_valid > 1):
-        cfg = configs[i] or Configuration()
-        ranges = cfg.joint_ranges_deg
-        with np.errstate(invalid="ignore"):
-            m = sol.valid[i] & np.all((q[i] >= ranges[:, 0]) & (q[i] < ranges[:, 1]), axis=1)
-        if not m.any():
-            reasons[i] = f"no nominal solution in configuration {cfg.text or '(none)'}"
-            continue
-        if cfg.nearest_deg is not None:
-            d = np.where(m, np.linalg.norm(np.nan_to_num(q[i] - cfg.nearest_deg), axis=1), np.inf)
-            idx[i] = int(np.argmin(d))
-            continue
-        if m.sum() == 1:
-            idx[i] = int(np.argmax(m))
-            continue
-        m2 = m.copy()
-        for want, have in ((cfg.shoulder, sol.shoulder[i]), (cfg.elbow, sol.elbow[i]),
-                           (cfg.wrist, sol.wrist[i])):  # fmt: skip
-            if want is not None:
-                m2 &= have == want
-        if m2.sum() == 1:
-            idx[i] = int(np.argmax(m2))
-        elif m2.sum() == 0:
-            reasons[i] = f"no nominal solution in configuration {cfg.text or '(none)'}"
-        else:
-            reasons[i] = (f"ambiguous: {int(m2.sum())} nominal solutions fit configuration "
-                          f"{cfg.text or '(none)'}")  # fmt: skip
-    return idx, reasons

@@ -43,8 +43,9 @@ from typing import Any
 import numpy as np
 
 from calib.export import model_from_result
-from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
+from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.rotations import invert, rotation_angle_deg
+from calib.filter.select import choose
 from calib.filter.sites import Configuration, Correction, Target
 from calib.ik import IKOptions, solve_ik
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
@@ -56,6 +57,11 @@ BRANCH_JUMP_DEG = 5.0
 #: IK of the calibrated model: tight tolerances (the rounding of the written numbers, not the
 #: IK, should limit the result).
 IK_OPTIONS = IKOptions(max_iterations=60, tol_mm=1e-6, tol_deg=1e-6, stall_iterations=8)
+#: A correction smaller than this (TCP position [mm] and orientation [deg]; joints [deg]) is
+#: below anything a controller resolves: the target keeps its numbers exactly (so a
+#: calibration equal to the nominal model changes no byte, whatever the IK's last digits).
+NEGLIGIBLE_MM = 1e-4
+NEGLIGIBLE_DEG = 1e-5
 #: Workspace poses stacked with the targets for the rigid-motion removal of σ.
 SIGMA_WORKSPACE_POSES = 200
 
@@ -210,7 +216,12 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
     # Nominal solutions: Cartesian targets on the controller's branch.
     seeds: dict[int, FloatArray] = {}
     flanges: dict[int, FloatArray] = {}
-    fl_of = {i: works[i] @ targets[i].pose @ invert(tools[i]) for i in cart}  # type: ignore[operator]
+    fl_of: dict[int, FloatArray] = {}
+    if cart:
+        stacked = (np.array([works[i] for i in cart])
+                   @ np.array([targets[i].pose for i in cart])
+                   @ invert(np.array([tools[i] for i in cart])))  # fmt: skip
+        fl_of = dict(zip(cart, stacked, strict=True))
     analytic = [i for i in cart if (c := targets[i].configuration) is None
                 or (c.nearest_deg is None and c.after is None)]  # fmt: skip
     if analytic:
@@ -236,7 +247,8 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
     for i in joint:
         seeds[i] = np.asarray(targets[i].joints_deg, dtype=float)
     by_name = {(t.file, t.name): k for k, t in enumerate(targets)}
-    todo = [i for i in cart if i not in analytic]
+    analytic_set = set(analytic)
+    todo = [i for i in cart if i not in analytic_set]
     while todo:
         ready, refs = [], []
         for i in todo:
@@ -255,7 +267,8 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             elif k is None or out[k] is not None or k not in todo:
                 out[i] = Correction("skipped", f"the previous move's target {c.after} has no "
                                     "nominal joints to start from")  # fmt: skip
-        todo = [i for i in todo if i not in ready and out[i] is None]
+        ready_set = set(ready)
+        todo = [i for i in todo if i not in ready_set and out[i] is None]
         if not ready:
             for i in todo:
                 out[i] = Correction("skipped", "no joint reference for the branch")
@@ -288,6 +301,16 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
         fk_star = flange_frames(nominal, q_star)
         tool_pts = np.array([tools[i][:3, 3] if i in tools else np.zeros(3) for i in rows])
         sigma = sigma_at_tools(cal, q_star, tool_pts)
+        # Shifts, all at once: the TCP for Cartesian targets, the flange for joint targets.
+        eye = np.eye(4)
+        w_inv = invert(np.array([works.get(i, eye) for i in rows]))
+        tl = np.array([tools.get(i, eye) for i in rows])
+        new_all = w_inv @ fk_star @ tl
+        old_all = np.array([targets[i].pose if targets[i].kind == "cartesian" else fk_nom[r]
+                            for r, i in enumerate(rows)])  # fmt: skip
+        shift_mm_all = np.linalg.norm(new_all[:, :3, 3] - old_all[:, :3, 3], axis=1)
+        shift_deg_all = rotation_angle_deg(old_all[:, :3, :3], new_all[:, :3, :3])
+        jump_all = np.max(np.abs(q_star - q_nom), axis=1)
         for r, i in enumerate(rows):
             t = targets[i]
             qs = q_star[r]
@@ -302,7 +325,7 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                 out[i] = Correction("unreachable", f"outside the joint limits: J{j + 1}="
                                     f"{qs[j]:.3f} (limit {lim:g})")  # fmt: skip
                 continue
-            jump = float(np.max(np.abs(qs - q_nom[r])))
+            jump = float(jump_all[r])
             if jump > BRANCH_JUMP_DEG or np.any(s_nom[r] != s_cal[r]):
                 out[i] = Correction(
                     "skipped",
@@ -310,22 +333,23 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                     f"calibrated solution leaves the branch; {jump:.2f} deg)",
                 )
                 continue
+            shift_mm, shift_deg = float(shift_mm_all[r]), float(shift_deg_all[r])
             if t.kind == "joint":
-                shift_deg = float(rotation_angle_deg(fk_nom[r, :3, :3], fk_star[r, :3, :3]))
-                # The TCP shift of a joint target: at the flange (its tool is irrelevant).
-                shift_mm = float(np.linalg.norm(fk_star[r, :3, 3] - fk_nom[r, :3, 3]))
+                if jump < NEGLIGIBLE_DEG:
+                    qs = q_nom[r]
+                # The shift of a joint target: at the flange (its tool is irrelevant).
                 out[i] = Correction("corrected", joints_deg=qs, nominal_joints_deg=q_nom[r],
                                     shift_mm=shift_mm, shift_deg=shift_deg,
                                     configuration_kept=True, sigma_mm=float(sigma[r]))  # fmt: skip
                 continue
-            new = invert(works[i]) @ fk_star[r] @ tools[i]
-            old = t.pose
+            new, old = new_all[r], t.pose
             assert old is not None
+            if shift_mm < NEGLIGIBLE_MM and shift_deg < NEGLIGIBLE_DEG:
+                new = old
             out[i] = Correction(
                 "corrected", pose=new, joints_deg=qs, nominal_joints_deg=q_nom[r],
-                shift_mm=float(np.linalg.norm(new[:3, 3] - old[:3, 3])),
-                shift_deg=float(rotation_angle_deg(old[:3, :3], new[:3, :3])),
-                configuration_kept=True, sigma_mm=float(sigma[r]))  # fmt: skip
+                shift_mm=shift_mm, shift_deg=shift_deg, configuration_kept=True,
+                sigma_mm=float(sigma[r]))  # fmt: skip
     # Joint targets that follow a Cartesian one (a PolyScope Waypoint_n_q).
     for i, t in enumerate(targets):
         if t.follows is None:
@@ -338,7 +362,12 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             out[i] = Correction("skipped", f"follows {t.follows}, which was not corrected")
         else:
             q_old = np.asarray(t.joints_deg, dtype=float)
-            out[i] = Correction("corrected", joints_deg=lead.joints_deg,
+            # The written q and pose agree only to their written precision: move q by the
+            # correction of its pose's joints (a pose that did not move leaves q as it was).
+            assert lead.nominal_joints_deg is not None
+            delta = lead.joints_deg - lead.nominal_joints_deg
+            q_new = q_old if float(np.max(np.abs(delta))) < NEGLIGIBLE_DEG else q_old + delta
+            out[i] = Correction("corrected", joints_deg=q_new,
                                 nominal_joints_deg=q_old,
                                 shift_mm=lead.shift_mm, shift_deg=lead.shift_deg,
                                 configuration_kept=lead.configuration_kept,

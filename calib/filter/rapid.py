@@ -49,11 +49,24 @@ from typing import Any
 
 import numpy as np
 
+from calib.filter.rapid_syntax import (
+    Node,
+    blank,
+    is_jointtarget,
+    is_pose,
+    is_robtarget,
+    nums,
+    parse_literal,
+    pose,
+    skip_space,
+    split_args,
+    split_options,
+    statement_end,
+)
 from calib.filter.rotations import (
     frame,
     matrix_to_quat_wxyz,
     quat_wxyz_to_matrix,
-    rotation_angle_deg,
 )
 from calib.filter.sites import (
     Configuration,
@@ -75,8 +88,6 @@ POSITION_DECIMALS = 3
 QUATERNION_DECIMALS = 6
 JOINT_DECIMALS = 4
 
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-_WORD = re.compile(r"[A-Za-z_]\w*")
 _DECL = re.compile(
     r"\b(?:(?:LOCAL|TASK)\s+)?(?:CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata)"
     r"\s+([A-Za-z]\w*)\s*(\{[^}]*\})?\s*(:=)?",
@@ -87,138 +98,6 @@ _MODULE = re.compile(r"^\s*(?:%%%[\s\S]*?%%%\s*)?MODULE\s+\w+", re.IGNORECASE)
 #: Values RAPID predefines.
 PREDEFINED_TOOLS = {"tool0"}
 PREDEFINED_WOBJS = {"wobj0"}
-
-
-def blank(text: str) -> str:
-    """``text`` with comments (``!`` to the end of the line) and strings replaced by spaces,
-    same length, so offsets into it are offsets into ``text``."""
-    out = list(text)
-    i, n = 0, len(text)
-    while i < n:
-        c = text[i]
-        if c == '"':
-            j = i + 1
-            while j < n and text[j] not in '"\n':
-                j += 1
-            for k in range(i, min(j + 1, n)):
-                if out[k] not in "\r\n":
-                    out[k] = " "
-            i = j + 1
-        elif c == "!":
-            j = text.find("\n", i)
-            j = n if j < 0 else j
-            for k in range(i, j):
-                if out[k] != "\r":
-                    out[k] = " "
-            i = j
-        else:
-            i += 1
-    return "".join(out)
-
-
-@dataclass
-class Node:
-    """A parsed literal: a list of nodes, a number, or another token (TRUE, an empty string)."""
-
-    start: int
-    end: int
-    items: list[Node] | None = None
-    num: float | None = None
-    word: str = ""
-
-    def is_list(self, n: int | None = None) -> bool:
-        return self.items is not None and (n is None or len(self.items) == n)
-
-    def numbers(self) -> bool:
-        return self.items is not None and all(i.num is not None for i in self.items)
-
-
-def _skip_space(text: str, i: int) -> int:
-    while i < len(text) and text[i] in " \t\r\n":
-        i += 1
-    return i
-
-
-def parse_literal(code: str, i: int, source: Source) -> Node:
-    """The bracketed literal starting at ``code[i]`` (``[`` expected).
-
-    Raises
-    ------
-    FilterInputError
-        Naming the line of the first character that does not fit.
-    """
-    i = _skip_space(code, i)
-    if i >= len(code) or code[i] != "[":
-        raise FilterInputError(source.name, "expected '[' (a literal value)", source.line_of(i))
-    start = i
-    items: list[Node] = []
-    i += 1
-    while True:
-        i = _skip_space(code, i)
-        if i < len(code) and code[i] == "]" and not items:
-            return Node(start, i + 1, items=items)
-        if i < len(code) and code[i] == "[":
-            node = parse_literal(code, i, source)
-        else:
-            m = _NUMBER.match(code, i)
-            if m:
-                node = Node(i, m.end(), num=float(m.group()))
-            else:
-                w = _WORD.match(code, i)
-                if w:
-                    node = Node(i, w.end(), word=w.group())
-                elif i < len(code) and code[i] in ",]":  # a blanked string ""
-                    node = Node(i, i, word="")
-                else:
-                    got = code[i] if i < len(code) else "end of file"
-                    raise FilterInputError(source.name, f"unexpected {got!r} in a literal",
-                                           source.line_of(i))  # fmt: skip
-        items.append(node)
-        i = _skip_space(code, node.end)
-        if i < len(code) and code[i] == ",":
-            i += 1
-            continue
-        if i < len(code) and code[i] == "]":
-            return Node(start, i + 1, items=items)
-        got = code[i] if i < len(code) else "end of file"
-        raise FilterInputError(source.name, f"expected ',' or ']' in a literal, got {got!r}",
-                               source.line_of(i))  # fmt: skip
-
-
-def _nums(node: Node, source: Source) -> list[Num]:
-    assert node.items is not None
-    return [Num(source.name, n.start, n.end, source.text[n.start : n.end], float(n.num or 0.0))
-            for n in node.items]  # fmt: skip
-
-
-def _is_robtarget(node: Node) -> bool:
-    if not node.is_list(4):
-        return False
-    assert node.items is not None
-    return all(it.is_list(k) and it.numbers() for it, k in zip(node.items, (3, 4, 4, 6),
-                                                               strict=True))  # fmt: skip
-
-
-def _is_jointtarget(node: Node) -> bool:
-    if not node.is_list(2):
-        return False
-    assert node.items is not None
-    return all(it.is_list(6) and it.numbers() for it in node.items)
-
-
-def _is_pose(node: Node) -> bool:
-    if not node.is_list(2):
-        return False
-    assert node.items is not None
-    return node.items[0].is_list(3) and node.items[1].is_list(4) and all(
-        it.numbers() for it in node.items)  # fmt: skip
-
-
-def _pose(node: Node) -> FloatArray:
-    assert node.items is not None and node.items[0].items and node.items[1].items
-    pos = np.array([float(i.num or 0.0) for i in node.items[0].items])
-    quat = np.array([float(i.num or 0.0) for i in node.items[1].items])
-    return frame(pos, quat_wxyz_to_matrix(quat))
 
 
 @dataclass
@@ -237,9 +116,12 @@ class JointSite:
     joints: list[Num]
 
 
+_OPEN = np.tile([-np.inf, np.inf], (6, 1))
+
+
 def configuration(conf: Sequence[float]) -> Configuration:
     """The branch an ABB controller takes for confdata ``[cf1, cf4, cf6, cfx]``."""
-    ranges = np.tile([-np.inf, np.inf], (6, 1))
+    ranges = _OPEN.copy()
     for j, cf in zip((0, 3, 5), conf[:3], strict=True):
         ranges[j] = (90.0 * cf, 90.0 * cf + 90.0)
     cfx = int(conf[3])
@@ -285,6 +167,7 @@ class _Module:
     source: Source
     code: str
     decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
+    frames: dict[tuple[str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
 
 
 def _read_decls(mod: _Module) -> None:
@@ -295,13 +178,13 @@ def _read_decls(mod: _Module) -> None:
         dims = _dims(dims_text)
         value = None
         if assign:
-            i = _skip_space(code, m.end())
+            i = skip_space(code, m.end())
             if i < len(code) and code[i] == "[":
                 value = parse_literal(code, i, src)
         decl = _Decl(kind, name, src.name, line, value, dims)
         if value is not None:
             _elements(value, len(dims), (), decl.elements)
-            check = {"robtarget": _is_robtarget, "jointtarget": _is_jointtarget}.get(kind)
+            check = {"robtarget": is_robtarget, "jointtarget": is_jointtarget}.get(kind)
             for index, node in decl.elements.items():
                 if check is not None and not check(node):
                     raise FilterInputError(src.name, f"{kind} {name}"
@@ -318,53 +201,6 @@ def _index_text(index: tuple[int, ...]) -> str:
     return "{" + ",".join(str(i) for i in index) + "}" if index else ""
 
 
-def _split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
-    """Comma-separated arguments of ``code[start:end]`` at bracket depth 0, as spans."""
-    out, depth, last = [], 0, start
-    for i in range(start, end):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == "," and depth == 0:
-            out.append((last, i))
-            last = i + 1
-    out.append((last, end))
-    return out
-
-
-def _split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], list[str]]:
-    """An argument's positional part (span) and its ``\\Option[:=value]`` texts."""
-    depth, cuts = 0, []
-    for i in range(start, end):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == "\\" and depth == 0:
-            cuts.append(i)
-    if not cuts:
-        return (start, end), []
-    opts = [code[a + 1 : b].strip() for a, b in zip(cuts, [*cuts[1:], end], strict=True)]
-    return (start, cuts[0]), opts
-
-
-def _statement_end(code: str, i: int) -> int:
-    depth = 0
-    while i < len(code):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == ";" and depth <= 0:
-            return i
-        i += 1
-    return i
-
-
 _REF = re.compile(r"([A-Za-z]\w*)\s*(?:\{([^}]*)\})?\s*$")
 _WRAP = re.compile(r"(?:Offs|RelTool)\s*\(", re.IGNORECASE)
 
@@ -377,7 +213,8 @@ class RapidDialect:
 
     def claims(self, source: Source) -> bool:
         """A RAPID extension and a ``MODULE`` statement as the first code."""
-        return bool(_MODULE.match(blank(source.text).lstrip("\ufeff")))
+        head = source.text[:65536]  # the header: comments and %%% blocks come first
+        return bool(_MODULE.match(blank(head).lstrip("\ufeff")))
 
     def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
         del frames  # RAPID declares its frames in the program
@@ -408,11 +245,11 @@ class RapidDialect:
         assert node.items is not None
         line = src.line_of(node.start)
         if kind == "jointtarget":
-            joints = _nums(node.items[0], src)
+            joints = nums(node.items[0], src)
             return Target(src.name, line, name, "joint",
                           joints_deg=np.array([n.value for n in joints]),
                           site=JointSite(joints))  # fmt: skip
-        pos, quat, conf = (_nums(node.items[k], src) for k in range(3))
+        pos, quat, conf = (nums(node.items[k], src) for k in range(3))
         try:
             rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
         except ValueError:
@@ -440,6 +277,13 @@ class RapidDialect:
 
     def _frame_of(self, name: str, kind: str, mod: _Module,
                   modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
+        key = (name.lower(), kind)
+        if key not in mod.frames:
+            mod.frames[key] = self._resolve_frame(name, kind, mod, modules)
+        return mod.frames[key]
+
+    def _resolve_frame(self, name: str, kind: str, mod: _Module,
+                       modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
         if kind == "tooldata" and name.lower() in PREDEFINED_TOOLS:
             return np.eye(4), ""
         if kind == "wobjdata" and name.lower() in PREDEFINED_WOBJS:
@@ -452,20 +296,20 @@ class RapidDialect:
             return None, f"{kind} {name} ({decl.file}:{decl.line}) has no literal value"
         items = node.items or []
         if kind == "tooldata":
-            if len(items) != 3 or not _is_pose(items[1]):
+            if len(items) != 3 or not is_pose(items[1]):
                 where = f"{decl.file}:{decl.line}"
                 return None, f"tooldata {name} ({where}) is not [robhold,tframe,load]"
             if items[0].word.upper() != "TRUE":
                 return None, f"tooldata {name}: stationary tool (robhold FALSE) is not supported"
-            return _pose(items[1]), ""
-        if len(items) != 5 or not (_is_pose(items[3]) and _is_pose(items[4])):
+            return pose(items[1]), ""
+        if len(items) != 5 or not (is_pose(items[3]) and is_pose(items[4])):
             return None, (f"wobjdata {name} ({decl.file}:{decl.line}) is not "
                           "[robhold,ufprog,ufmec,uframe,oframe]")  # fmt: skip
         if items[0].word.upper() != "FALSE":
             return None, f"wobjdata {name}: robot-held work object (robhold TRUE): not supported"
         if items[1].word.upper() != "TRUE":
             return None, f"wobjdata {name}: moved by a unit (ufprog FALSE): not supported"
-        return _pose(items[3]) @ _pose(items[4]), ""
+        return pose(items[3]) @ pose(items[4]), ""
 
     def _moves(self, mod: _Module, modules: list[_Module],
                targets: dict[tuple[str, str], Target]) -> list[Target]:  # fmt: skip
@@ -473,23 +317,24 @@ class RapidDialect:
         src, code = mod.source, mod.code
         inline: list[Target] = []
         for m in _MOVE.finditer(code):
-            end = _statement_end(code, m.end())
+            end = statement_end(code, m.end())
             line = src.line_of(m.start())
             tool_name, work_name = "", "wobj0"
             refs: list[tuple[str, Any]] = []  # ("name", (name, index)) or ("inline", Node)
-            for a, b in _split_args(code, m.end(), end):
-                (pa, pb), opts = _split_options(code, a, b)
+            for a, b in split_args(code, m.end(), end):
+                (pa, pb), opts = split_options(code, a, b)
                 for opt in opts:
                     key, _, val = opt.partition(":=")
                     if key.strip().lower() == "wobj":
                         work_name = val.strip()
-                arg = code[pa:pb].strip()
+                raw = code[pa:pb]
+                arg = raw.strip()
                 if not arg:
                     continue
-                astart = pa + (len(code[pa:pb]) - len(code[pa:pb].lstrip()))
+                astart = pa + raw.find(arg[0])
                 wrap = _WRAP.match(arg)
                 if wrap:
-                    inner = _split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
+                    inner = split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
                     arg = code[inner[0] : inner[1]].strip()
                     astart = inner[0] + (len(code[inner[0]:inner[1]])
                                          - len(code[inner[0]:inner[1]].lstrip()))  # fmt: skip
@@ -517,10 +362,10 @@ class RapidDialect:
             for kind, ref in refs:
                 if kind == "inline":
                     node = ref
-                    if _is_robtarget(node):
+                    if is_robtarget(node):
                         t = self._target(src, f"inline@{src.line_of(node.start)}", "robtarget",
                                          node)  # fmt: skip
-                    elif _is_jointtarget(node):
+                    elif is_jointtarget(node):
                         t = self._target(src, f"inline@{src.line_of(node.start)}",
                                          "jointtarget", node)  # fmt: skip
                     else:
@@ -567,10 +412,9 @@ class RapidDialect:
         assert correction.pose is not None and correction.joints_deg is not None
         old_q = np.array([n.value for n in site.quaternion])
         quat = matrix_to_quat_wxyz(correction.pose[:3, :3], near=old_q)
-        old_rot = quat_wxyz_to_matrix(old_q)
         # An orientation that did not move (to the written precision) keeps its text even
         # where the file's quaternion was not of unit norm.
-        if float(rotation_angle_deg(old_rot, correction.pose[:3, :3])) < 1e-5:
+        if correction.shift_deg < 1e-5:
             quat = old_q
         for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
             edits.append(edit(num, float(v), POSITION_DECIMALS))

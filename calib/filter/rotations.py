@@ -14,6 +14,8 @@ Conventions, exactly:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -58,25 +60,90 @@ def quat_wxyz_to_matrix(q: FloatArray) -> FloatArray:
         A quaternion of (near) zero norm.
     """
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,):  # one quaternion: plain floats are far cheaper than array calls
+        w, x, y, z = (float(v) for v in q)
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        if n < 1e-6:
+            raise ValueError("quaternion of zero norm")
+        w, x, y, z = w / n, x / n, y / n, z / n
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
     norm = np.linalg.norm(q, axis=-1)
     if np.any(norm < 1e-6):
         raise ValueError("quaternion of zero norm")
-    xyzw = np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
-    out: FloatArray = Rotation.from_quat(xyzw.reshape(-1, 4)).as_matrix()
-    return out.reshape(*q.shape[:-1], 3, 3)
+    w, x, y, z = np.moveaxis(q / norm[..., None], -1, 0)
+    out = np.empty((*q.shape[:-1], 3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
 
 
 def matrix_to_quat_wxyz(rot: FloatArray, near: FloatArray | None = None) -> FloatArray:
-    """Unit quaternions ``(w, x, y, z)`` (…, 4) of rotations (…, 3, 3); with ``near`` (…, 4),
-    each sign is chosen to be closest to it (``q`` and ``-q`` are the same rotation), so a
-    target keeps the sign its program had."""
-    rot = np.asarray(rot, dtype=float)
-    xyzw = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat()
-    out: FloatArray = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1).reshape(*rot.shape[:-2], 4)
+    """Unit quaternions ``(w, x, y, z)`` (…, 4) of rotations (…, 3, 3) (Shepperd's method:
+    from the largest of ``w², x², y², z²``, well conditioned everywhere); with ``near``
+    (…, 4), each sign is chosen to be closest to it (``q`` and ``-q`` are the same rotation),
+    so a target keeps the sign its program had."""
+    r = np.asarray(rot, dtype=float)
+    if r.shape == (3, 3):
+        return _quat_one(r, None if near is None else np.asarray(near, dtype=float))
+    m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    cand = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
+                     1 - m00 - m11 + m22], axis=-1)  # 4w², 4x², 4y², 4z²  # fmt: skip
+    k = np.argmax(cand, axis=-1)
+    s = 2.0 * np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300))
+    d21, d02, d10 = (
+        r[..., 2, 1] - r[..., 1, 2],
+        r[..., 0, 2] - r[..., 2, 0],
+        r[..., 1, 0] - r[..., 0, 1],
+    )
+    a01, a02, a12 = (
+        r[..., 0, 1] + r[..., 1, 0],
+        r[..., 0, 2] + r[..., 2, 0],
+        r[..., 1, 2] + r[..., 2, 1],
+    )
+    rows = [np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
+            np.stack([d21 / s, s / 4, a01 / s, a02 / s], -1),
+            np.stack([d02 / s, a01 / s, s / 4, a12 / s], -1),
+            np.stack([d10 / s, a02 / s, a12 / s, s / 4], -1)]  # fmt: skip
+    out: FloatArray = np.choose(k[..., None], rows)
+    out = out / np.linalg.norm(out, axis=-1, keepdims=True)
     if near is not None:
         flip = np.einsum("...i,...i->...", out, np.asarray(near, dtype=float)) < 0
         out = np.where(flip[..., None], -out, out)
+    elif np.ndim(out) >= 1:
+        out = np.where((out[..., :1] < 0), -out, out)  # w >= 0 by default
     return out
+
+
+def _quat_one(r: FloatArray, near: FloatArray | None) -> FloatArray:
+    """:func:`matrix_to_quat_wxyz` of one matrix, in plain floats."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = r.tolist()
+    cand = (1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22)
+    k = max(range(4), key=cand.__getitem__)
+    s = 2.0 * math.sqrt(max(cand[k], 1e-300))
+    d21, d02, d10 = m21 - m12, m02 - m20, m10 - m01
+    a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21
+    q = ((s / 4, d21 / s, d02 / s, d10 / s), (d21 / s, s / 4, a01 / s, a02 / s),
+         (d02 / s, a01 / s, s / 4, a12 / s), (d10 / s, a02 / s, a12 / s, s / 4))[k]  # fmt: skip
+    n = math.sqrt(sum(v * v for v in q))
+    sign = 1.0
+    if near is not None:
+        sign = -1.0 if sum(a * b for a, b in zip(q, near.tolist(), strict=True)) < 0 else 1.0
+    elif q[0] < 0:
+        sign = -1.0
+    return np.array([sign * v / n for v in q])
 
 
 def zyx_deg_to_matrix(
@@ -139,6 +206,11 @@ def matrix_to_rotvec(rot: FloatArray, near: FloatArray | None = None) -> FloatAr
 
 def rotation_angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:
     """Angle [deg] of ``aᵀ b`` for rotations (…, 3, 3): how far ``b`` is turned from ``a``."""
+    if np.shape(a) == (3, 3) and np.shape(b) == (3, 3):
+        rel1 = np.asarray(a).T @ np.asarray(b)
+        c = max(-1.0, min(1.0, (float(np.trace(rel1)) - 1.0) / 2.0))
+        sk = (rel1[2, 1] - rel1[1, 2], rel1[0, 2] - rel1[2, 0], rel1[1, 0] - rel1[0, 1])
+        return np.float64(math.degrees(math.atan2(0.5 * math.sqrt(sum(v * v for v in sk)), c)))  # type: ignore[return-value]
     rel = np.einsum("...ji,...jk->...ik", a, b)
     cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     # arccos loses precision near 0: use the skew part there.

@@ -107,18 +107,16 @@ class Source:
         except UnicodeEncodeError as exc:
             raise FilterInputError(self.name, f"cannot encode as {self.encoding}: {exc}") from None
 
-    def line_of(self, offset: int) -> int:
-        """1-based line number of a character offset (a bisection: a file of 10,000 targets
-        asks it 10,000 times)."""
-        return bisect.bisect_left(self._newlines, offset) + 1
-
     @cached_property
-    def _newlines(self) -> list[int]:
-        """Offsets of every ``\n`` of :attr:`text`."""
-        return [m.start() for m in re.finditer("\n", self.text)]
+    def _line_starts(self) -> list[int]:
+        return [m.end() for m in re.finditer("\n", self.text)]
+
+    def line_of(self, offset: int) -> int:
+        """1-based line number of a character offset."""
+        return bisect.bisect_right(self._line_starts, offset) + 1
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Num:
     """One number of a target as it stands in its file.
 
@@ -391,21 +389,25 @@ class Dialect(Protocol):
         ...
 
 
-_DECIMALS = re.compile(r"[-+]?\d*\.(\d*)")
-
-
 def decimals_of(text: str) -> int:
     """Decimals written in a number's text (``"12.50"`` → 2, ``"7"`` → 0, ``"1E+3"`` → 0)."""
-    m = _DECIMALS.match(text.strip())
-    return len(m.group(1)) if m else 0
+    dot = text.find(".")
+    if dot < 0:
+        return 0
+    frac = text[dot + 1 :].rstrip()
+    exp = frac.find("e") if "e" in frac else frac.find("E")
+    return len(frac) if exp < 0 else exp
 
 
 def format_number(original: Num, value: float, min_decimals: int) -> str:
     """``value`` written like ``original``: with ``max(its decimals, min_decimals)`` decimals
-    (fixed point). When ``value`` equals the original at that precision, the original text
-    is returned unchanged (so a filter that moves nothing changes no byte)."""
+    (fixed point). When ``value`` equals the original at that precision (or to floating-point
+    round-off), the original text is returned unchanged (so a filter that moves nothing
+    changes no byte)."""
     dec = max(decimals_of(original.text), min_decimals)
-    if abs(value - original.value) < 0.5 * 10.0**-dec:
+    # Equal at the written precision, or up to floating-point round-off (a PolyScope joint
+    # written with 16 decimals, converted to degrees and back).
+    if abs(value - original.value) < max(0.5 * 10.0**-dec, 1e-12 * max(1.0, abs(value))):
         return original.text
     text = f"{value:.{dec}f}"
     if text.startswith("-") and float(text) == 0.0:

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from calib.filter.run import FilterRun
 
 SUMMARY_NAME = "filter-summary.json"
+#: Exit codes: calib.filter.run's (0 all corrected, 3 some left, 2 bad input).
 #: Rows the table prints before it shows only the targets left unchanged.
 MAX_PRINTED_ROWS = 40
 
@@ -103,8 +104,13 @@ def filter_cmd(
         str | None, typer.Option("--only", help="Correct only these targets: NAME,NAME,…")
     ] = None,
 ) -> None:
-    """Correct every target of robot programs for the calibrated robot, changing nothing
-    else. Exit 0: all corrected; 3: some left unchanged (see the summary); 2: bad input."""
+    """Correct every target of robot programs for the calibrated robot, in place.
+
+    Exit codes:
+    0 every target corrected
+    3 some targets left unchanged (named in filter-summary.json)
+    2 bad input (a file that cannot be read is not written)
+    """
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import filter_files
     from calib.filter.sites import FilterInputError, parse_frames_toml

@@ -71,7 +71,8 @@ export function detailText(body) {
 }
 
 /**
- * Call the REST API. ``opts``: ``json`` (a body to send as JSON), ``body`` + ``type`` (raw),
+ * Call the REST API. ``opts``: ``json`` (a body to send as JSON), ``form`` (FormData, sent
+ * as multipart/form-data), ``body`` + ``type`` (raw),
  * ``quiet`` (no message on error; the caller handles it), ``raw`` (return the Response).
  * Throws ApiError on a non-2xx answer (after putting it in the message area unless quiet).
  */
@@ -84,7 +85,9 @@ export async function api(method, path, opts = {}) {
   const headers = { Authorization: `Bearer ${used}` };
   if (opts.accept) headers.Accept = opts.accept;
   let body;
-  if (opts.json !== undefined) {
+  if (opts.form !== undefined) {
+    body = opts.form; // FormData: the browser sets the multipart boundary
+  } else if (opts.json !== undefined) {
     headers["Content-Type"] = "application/json";
     body = JSON.stringify(opts.json);
   } else if (opts.body !== undefined) {

@@ -76,6 +76,78 @@ async function compensate(ev) {
   $("compensate-download").onclick = () => saveBlob(new Blob([lastCsv], { type: "text/csv" }), `robot-${c.robot_id}-compensated.csv`);
 }
 
+// ------------------------------------------------------------------ filter programs
+let filterFiles = [];
+
+function filterForm() {
+  const form = new FormData();
+  for (const f of filterFiles) form.append("files", f, f.name);
+  return form;
+}
+
+function filterQuery(dryRun) {
+  const q = [];
+  if (dryRun) q.push("dry_run=true");
+  if ($("filter-keep-joints").checked) q.push("keep_joint_targets=true");
+  return q.length ? `?${q.join("&")}` : "";
+}
+
+/** Filter the chosen files with a dry run: the summary table; the download then fetches the
+ * filtered files (one file, or a zip of several with filter-summary.json). */
+async function filterPrograms(files) {
+  const c = state.campaign;
+  if (!hasRoute("POST", "/robots/{}/filter")) {
+    showMessage("error", "Filter: this daemon has no filter route (POST /robots/{id}/filter).");
+    return;
+  }
+  if (!c) { showMessage("error", "Filter: select the campaign of the robot first (tab 2)."); return; }
+  filterFiles = Array.from(files);
+  if (!filterFiles.length) return;
+  $("filter-download").hidden = true;
+  setText("filter-state", `Filtering ${filterFiles.length} file(s) …`);
+  let summary;
+  try {
+    summary = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(true)}`, { form: filterForm(), quiet: true });
+  } catch (exc) {
+    const why = exc.status === 409 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
+    setText("filter-state", `Filtering failed: ${why}`);
+    showMessage("error", `Filter: ${why}`, "filter");
+    return;
+  }
+  dismiss("filter");
+  const rows = summary.targets || [];
+  fillTable($("filter-result"), [{ label: "file" }, { label: "line", num: true }, { label: "target" }, { label: "status" },
+    { label: "shift [mm]", num: true }, { label: "shift [deg]", num: true }, { label: "configuration" },
+    { label: "σ at the tool [mm]", num: true }, { label: "reason" }],
+  rows.map((r) => [r.file, String(r.line), r.name,
+    el("span", { class: r.status === "corrected" ? "ok" : "bad" }, r.status),
+    fix(r.shift_mm, 3), fix(r.shift_deg, 4), r.configuration_kept == null ? "–" : r.configuration_kept ? "kept" : "changed",
+    fix(r.sigma_at_tool_mm, 3), r.reason || ""]));
+  const n = summary.counts || {};
+  setText("filter-state", `${n.targets ?? rows.length} targets in ${filterFiles.length} file(s): ${n.corrected ?? 0} corrected, ` +
+    `${n.left ?? 0} left unchanged${n.left ? " (see the reasons below)" : ""}, with the accepted calibration of ${c.robot_name}.`);
+  $("filter-download").hidden = false;
+}
+
+async function downloadFiltered() {
+  const c = state.campaign;
+  const response = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(false)}`, { form: filterForm(), raw: true });
+  const disposition = response.headers.get("Content-Disposition") || "";
+  const m = /filename="?([^";]+)"?/.exec(disposition);
+  saveBlob(await response.blob(), m ? m[1] : `robot-${c.robot_id}-filtered.zip`);
+}
+
+function initFilter() {
+  const drop = $("filter-drop");
+  const run = (files) => filterPrograms(files).catch((e) => showMessage("error", `filter: ${e.message}`));
+  $("filter-files").addEventListener("change", (ev) => run(ev.target.files));
+  drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
+  drop.addEventListener("dragleave", () => drop.classList.remove("over"));
+  drop.addEventListener("drop", (ev) => { ev.preventDefault(); drop.classList.remove("over"); run(ev.dataTransfer.files); });
+  $("filter-keep-joints").addEventListener("change", () => { if (filterFiles.length) run(filterFiles); });
+  $("filter-download").addEventListener("click", () => downloadFiltered().catch((e) => showMessage("error", `filter: ${e.message}`)));
+}
+
 /** ``outside_limits:J3=-80.000<-75.000`` → "J3 -80.000 deg below its limit -75.000 deg". */
 function flagWords(flags) {
   if (!flags) return "ok";
@@ -141,6 +213,7 @@ async function startDrift() {
 }
 
 export function initApply() {
+  initFilter();
   $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch((e) => showMessage("error", `compensate: ${e.message}`)));
   $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
   every(3000, renderDrift, () => state.view === "apply");
