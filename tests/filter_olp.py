@@ -13,11 +13,12 @@ from __future__ import annotations
 import numpy as np
 from filter_cells import Cell, planned_targets
 
-from calib.filter.branches import branch_signs, choose, flange_frames, nominal_solutions
+from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.fanuc_ls import turn_number
 from calib.filter.krl import turn_of
 from calib.filter.rotations import invert, matrix_to_zyx_deg, rotation_angle_deg
 from calib.filter.run import FilterRun
+from calib.filter.select import choose
 from calib.filter.sites import Dialect, FrameTables, Source, Target
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
