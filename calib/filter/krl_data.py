@@ -66,7 +66,7 @@ def _spaces(m: re.Match[str]) -> str:
     return " " * len(g) if "\r" not in g else re.sub(r"[^\r]", " ", g)
 
 
-@dataclass
+@dataclass(slots=True)
 class Item:
     """One ``KEY value`` of an aggregate: the value's span, and what it is."""
 
@@ -74,8 +74,13 @@ class Item:
     start: int
     end: int
     text: str
-    num: float | None = None  # numbers and bit literals
     agg: Aggregate | None = None
+
+    @property
+    def num(self) -> float | None:
+        """The value of a number or bit literal; None for anything else (read on demand:
+        most components of a program's aggregates are never asked for)."""
+        return None if self.agg is not None else literal_value(self.text)
 
 
 @dataclass
@@ -90,9 +95,10 @@ class Aggregate:
     def num(self, source: Source, key: str) -> Num | None:
         """The number under ``key`` as a :class:`Num` (None when absent or not a number)."""
         it = self.items.get(key)
-        if it is None or it.num is None:
+        value = None if it is None else it.num
+        if it is None or value is None:
             return None
-        return Num(source.name, it.start, it.end, it.text, it.num)
+        return Num(source.name, it.start, it.end, it.text, value)
 
 
 def literal_value(text: str) -> float | None:
@@ -118,7 +124,7 @@ def _flat(code: str, j: int, agg: Aggregate) -> bool:
         key, text = m.group(1).upper(), m.group(2)
         if m.start() != pos or key in items or "[" in key:
             return False
-        items[key] = Item(key, m.start(2), m.start(2) + len(text), text, num=literal_value(text))
+        items[key] = Item(key, m.start(2), m.start(2) + len(text), text)
         pos = m.end()
     if pos != close + 1:
         return False
@@ -172,7 +178,7 @@ def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
             v = _VALUE.match(code, j)
             assert v is not None
             text = v.group().rstrip(" \t")
-            item = Item(key, j, j + len(text), text, num=literal_value(text))
+            item = Item(key, j, j + len(text), text)
             j = v.end()
         if key in agg.items:
             raise FilterInputError(source.name, f"component {key} given twice",
@@ -308,7 +314,7 @@ def frame_of(agg: Aggregate, what: str, src: Source) -> tuple[FloatArray | None,
             None,
             f"{what} is not a full frame {{X,Y,Z,A,B,C}} ({src.name}:{src.line_of(agg.start)})",
         )
-    x, y, z, a, b, c = (float(v.num) for v in vals)  # type: ignore[union-attr,arg-type]
+    x, y, z, a, b, c = (float(v.num or 0.0) for v in vals if v is not None)
     return frame(np.array([x, y, z]), zyx_deg_to_matrix(a, b, c)), ""
 
 
