@@ -150,6 +150,20 @@ def test_branches_and_loops_merge_the_frames_of_their_paths() -> None:
     assert got["X5"].problem == "the base differs between the paths through the FOR at line 21"
 
 
+def test_an_aggregate_over_several_lines_keeps_its_layout(cell: Cell) -> None:
+    dat = (b"DEFDAT p\r\nDECL E6POS XP1={X 1200.0,Y 10.0,Z 900.0,\r\n"
+           b"   A 0.0,B 90.0,C 0.0, S 2,T 2}\r\nENDDAT\r\n")  # fmt: skip
+    src = b"DEF p( )\r\n$TOOL=$NULLFRAME\r\n$BASE=$WORLD\r\nPTP XP1\r\nEND\r\n"
+    files = [("p.dat", dat), ("p.src", src)]
+    (target,) = KRL.parse([Source.from_bytes(n, d) for n, d in files], FrameTables())
+    assert (target.line, target.uses[0].tool_name, target.uses[0].problem) == (2, "$NULLFRAME", "")
+    np.testing.assert_allclose(target.pose[:3, 3], [1200, 10, 900])  # type: ignore[index]
+    run = filter_files(calibration_from_result(cell.result, cell.nominal), files)
+    assert run.corrections[0].status == "corrected"
+    out = run.outputs["p.dat"]
+    assert out != dat and _NUMBER.sub(b"#", out) == _NUMBER.sub(b"#", dat)
+
+
 def test_without_config_dat_the_frames_are_named(cell: Cell) -> None:
     files = [(n, d) for n, d in _files() if n != "$config.dat"]
     run = filter_files(_identity(cell), files)
