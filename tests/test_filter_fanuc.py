@@ -102,6 +102,15 @@ def test_frames_and_their_absence(cell: Cell, frames: FrameTables) -> None:
     assert run.rows()[3]["status"] == "corrected"  # the joint form needs no frame
 
 
+def test_an_unreachable_position_is_left_as_it_is_and_named(cell: Cell) -> None:
+    far = _prog(_GOOD.replace(b"X = 1200.000", b"X = 9000.000"))
+    run = filter_files(_identity(cell), [("FAR.LS", far)])
+    assert run.outputs == {"FAR.LS": far}
+    (row,) = run.rows()
+    assert (row["line"], row["name"], row["status"]) == (6, "P[1]", "unreachable")
+    assert run.exit_code == EXIT_LEFT
+
+
 def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
     q = regular_poses(cell.nominal, 24, seed=22)
     tool, work = tool_frame(195.0, 30.0), work_frame()

@@ -164,6 +164,17 @@ def test_an_aggregate_over_several_lines_keeps_its_layout(cell: Cell) -> None:
     assert out != dat and _NUMBER.sub(b"#", out) == _NUMBER.sub(b"#", dat)
 
 
+def test_an_unreachable_target_is_left_as_it_is_and_named(cell: Cell) -> None:
+    dat = b"DEFDAT far\r\nDECL E6POS XFAR={X 9000.0,Y 0.0,Z 500.0,A 0.0,B 90.0,C 0.0}\r\nENDDAT\r\n"
+    src = b"DEF far( )\r\nBAS(#TOOL,0)\r\nBAS(#BASE,0)\r\nPTP XFAR\r\nEND\r\n"
+    run = filter_files(_identity(cell), [("far.dat", dat), ("far.src", src)])
+    assert run.outputs == {"far.dat": dat, "far.src": src}
+    (row,) = run.rows()
+    assert (row["file"], row["line"], row["name"], row["status"]) == ("far.dat", 2, "XFAR",
+                                                                      "unreachable")  # fmt: skip
+    assert run.exit_code == EXIT_LEFT
+
+
 def test_without_config_dat_the_frames_are_named(cell: Cell) -> None:
     files = [(n, d) for n, d in _files() if n != "$config.dat"]
     run = filter_files(_identity(cell), files)
