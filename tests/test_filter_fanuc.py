@@ -111,6 +111,21 @@ def test_an_unreachable_position_is_left_as_it_is_and_named(cell: Cell) -> None:
     assert run.exit_code == EXIT_LEFT
 
 
+def test_an_incremental_or_offset_position_is_named(cell: Cell) -> None:
+    second = _GOOD.replace(b"P[1]", b"P[2]")
+    mn = (b"   1:L P[1] 100mm/sec FINE INC ;\n   2:  ! P[2] Offset in a remark only ;\n"
+          b"   3:L P[2] 100mm/sec FINE Offset,PR[1] ;\n")  # fmt: skip
+    data = _prog(_GOOD + second).replace(b"   1:J P[1] 100% FINE ;\n", mn)
+    run = filter_files(_identity(cell), [("OFS.LS", data)])
+    assert run.outputs == {"OFS.LS": data}
+    assert [(r["name"], r["status"], r["reason"]) for r in run.rows()] == [
+        ("P[1]", "skipped", "line 4: moved to with INC: the robot does not go to the position "
+         "itself"),
+        ("P[2]", "skipped", "line 6: moved to with Offset: the robot does not go to the "
+         "position itself"),
+    ]  # fmt: skip
+
+
 def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
     q = regular_poses(cell.nominal, 24, seed=22)
     tool, work = tool_frame(195.0, 30.0), work_frame()

@@ -5,8 +5,10 @@ Targets
     Cartesian (``X, Y, Z`` [mm], ``W, P, R`` [deg] with ``R = Rz(R)·Ry(P)·Rx(W)``, and
     ``CONFIG``) or joint form (``J1 … J6`` [deg]). ``GP2`` and the other groups (a
     positioner, a rail) are never touched; a ``GP1`` with extended axes ``E1 …`` (an
-    integrated rail moves the robot's base) is left unchanged and named. Position registers
-    ``PR[n]`` live on the controller, not in the program: never touched.
+    integrated rail moves the robot's base) is left unchanged and named, as is a position
+    that a ``/MN`` move reaches with ``INC`` (an increment) or an offset (``Offset``,
+    ``Tool_Offset``, ``VOFFSET``): the robot does not go to the position itself. Position
+    registers ``PR[n]`` live on the controller, not in the program: never touched.
 
 Frames
     A position carries its own user frame and tool numbers (``UF : n, UT : m``; the
@@ -62,6 +64,10 @@ _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _PROG = re.compile(r"^\ufeff?\s*/PROG\b")
 _SECTION = re.compile(r"^[ \t]*/(PROG|ATTR|APPL|APPL_DATA|MN|POS|END)\b", re.MULTILINE)
 _ENTRY = re.compile(r"P\[\s*(\d+)\s*(?::\s*\"[^\"\r\n]*\"\s*)?\]\s*\{")
+_MN_LINE = re.compile(r"^[^\r\n]*", re.MULTILINE)
+_MODIFIER = re.compile(r"\b(INC|Offset|Tool_Offset|VOFFSET)\b", re.IGNORECASE)
+_REMARK = re.compile(r"\s*\d*\s*:\s*(?:!|//)")
+_REF = re.compile(r"(?<![A-Za-z_])P\[\s*(\d+)")
 _GROUP = re.compile(r"GP(\d+)\s*:")
 _FIELD = re.compile(r"\b([A-Z]\w*)\s*=\s*(" + _NUM + r")\s*(mm|deg)?", re.IGNORECASE)
 _FRAME_NO = re.compile(r"\b(UF|UT)\s*:\s*([^,\s]+)\s*,?")
@@ -124,6 +130,21 @@ def _sections(src: Source) -> dict[str, tuple[int, int]]:
     return out
 
 
+def _modified(src: Source, start: int, end: int) -> dict[str, str]:
+    """Positions that ``/MN`` moves to other than where they are: ``INC`` (an increment) or
+    an offset (``Offset``, ``Tool_Offset``, ``VOFFSET``); name → why, the first such line."""
+    out: dict[str, str] = {}
+    for m in _MN_LINE.finditer(src.text, start, end):
+        what = _MODIFIER.search(m.group())
+        if not what or _REMARK.match(m.group()):
+            continue
+        why = (f"line {src.line_of(m.start())}: moved to with {what.group(1)}: the robot "
+               "does not go to the position itself")  # fmt: skip
+        for ref in _REF.finditer(m.group()):
+            out.setdefault(f"P[{ref.group(1)}]", why)
+    return out
+
+
 def _closing(text: str, i: int, src: Source) -> int:
     """Offset of the ``}`` closing the entry whose ``{`` precedes ``i``."""
     j = text.find("}", i)
@@ -155,7 +176,12 @@ class FanucLsDialect:
             if "END" not in sections:
                 raise FilterInputError(src.name, "/POS without /END",
                                        src.line_of(sections["POS"][0]))  # fmt: skip
-            out.extend(self._positions(src, *sections["POS"], frames))
+            positions = self._positions(src, *sections["POS"], frames)
+            used = _modified(src, *sections.get("MN", (0, 0)))
+            for t in positions:
+                if not t.problem and t.name in used:
+                    t.problem = used[t.name]
+            out.extend(positions)
         cart = [t for t in out if isinstance(t.site, CartSite)]
         if cart:  # every pose at once: R = Rz(R)·Ry(P)·Rx(W)
             xyz = np.array([[n.value for n in t.site.position] for t in cart])
