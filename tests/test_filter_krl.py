@@ -175,6 +175,19 @@ def test_an_unreachable_target_is_left_as_it_is_and_named(cell: Cell) -> None:
     assert run.exit_code == EXIT_LEFT
 
 
+def test_a_relative_move_leaves_its_offset_alone(cell: Cell) -> None:
+    dat = (b"DEFDAT r\r\nDECL E6POS XDZ={X 0.0,Y 0.0,Z 20.0,A 0.0,B 0.0,C 0.0}\r\n"
+           b"DECL E6AXIS XDA={A1 5.0,A2 0.0,A3 0.0,A4 0.0,A5 0.0,A6 0.0}\r\n"
+           b"ENDDAT\r\n")  # fmt: skip
+    src = b"DEF r( )\r\nLIN_REL XDZ C_DIS\r\nPTP_REL XDA\r\nEND\r\n"
+    run = filter_files(_identity(cell), [("r.dat", dat), ("r.src", src)])
+    assert run.outputs == {"r.dat": dat, "r.src": src}
+    assert [(r["name"], r["status"], r["reason"]) for r in run.rows()] == [
+        ("XDZ", "skipped", "line 2: LIN_REL moves by it: an offset, not a pose"),
+        ("XDA", "skipped", "line 3: PTP_REL moves by it: an offset, not a pose"),
+    ]
+
+
 def test_without_config_dat_the_frames_are_named(cell: Cell) -> None:
     files = [(n, d) for n, d in _files() if n != "$config.dat"]
     run = filter_files(_identity(cell), files)

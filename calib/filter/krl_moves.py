@@ -16,6 +16,7 @@ import numpy as np
 
 from calib.filter.krl_data import (
     Aggregate,
+    Decl,
     KrlFrame,
     Program,
     blank,
@@ -34,6 +35,7 @@ NAME_REF = re.compile(r"([A-Za-z_$][\w$]*)\s*(?:\[([^\]]*)\])?")
 _ROUTINE = re.compile(r"^\s*(?:GLOBAL\s+)?(?:DEF|DEFFCT\s+\w+)\s+(\w+)\s*\(", re.I)
 _END = re.compile(r"^\s*END(?:FCT)?\s*$", re.I)
 _MOVE = re.compile(r"^\s*(PTP|LIN|CIRC|SPTP|SLIN|SCIRC|SPL)[ \t]+(.*)$", re.I)
+_REL_MOVE = re.compile(r"^\s*((?:S?PTP|S?LIN|S?CIRC)_REL)[ \t]+(.*)$", re.I)
 _FDAT_ACT = re.compile(r"^\s*FDAT_ACT\s*=\s*([A-Za-z_$][\w$]*)\s*$", re.I)
 _BAS = re.compile(r"^\s*BAS\s*\(\s*#(TOOL|BASE)\s*,\s*(\d+)\s*\)", re.I)
 _DATA_REF = re.compile(r"(TOOL_DATA|BASE_DATA)\s*\[\s*(\d+)\s*\]$", re.I)
@@ -46,7 +48,8 @@ _HEAD = re.compile(r"\s*([A-Za-z_$][\w$]*)")
 _KEYWORDS = {"DEF", "DEFFCT", "GLOBAL", "END", "ENDFCT", "FDAT_ACT", "BAS", "$TOOL", "$BASE",
              "IF", "SWITCH", "FOR", "WHILE", "LOOP", "REPEAT", "ELSE", "CASE", "DEFAULT",
              "ENDIF", "ENDSWITCH", "ENDFOR", "ENDWHILE", "ENDLOOP", "UNTIL", "PTP", "LIN",
-             "CIRC", "SPTP", "SLIN", "SCIRC", "SPL", "SPLINE", "PTP_SPLINE"}  # fmt: skip
+             "CIRC", "SPTP", "SLIN", "SCIRC", "SPL", "SPLINE", "PTP_SPLINE", "PTP_REL",
+             "LIN_REL", "CIRC_REL", "SPTP_REL", "SLIN_REL", "SCIRC_REL"}  # fmt: skip
 _OPEN = re.compile(r"^\s*(IF|SWITCH|FOR|WHILE|LOOP|REPEAT)\b", re.I)
 _MIDDLE = re.compile(r"^\s*(ELSE|CASE|DEFAULT)\b", re.I)
 _CLOSE = re.compile(r"^\s*(ENDIF|ENDSWITCH|ENDFOR|ENDWHILE|ENDLOOP|UNTIL)\b", re.I)
@@ -139,6 +142,8 @@ class Moves:
                 self._with(rest[w.end() :], at + w.end(), no)
                 rest = rest[: w.start()]
             self._move(m.group(1).upper(), rest, at, no)
+        elif m := _REL_MOVE.match(line):
+            self._relative(m.group(1).upper(), m.group(2), no)
         elif (m := _SPLINE.match(line)) and (w := _WITH.search(line)):
             self._with(line[w.end() :], offset + w.end(), no)
 
@@ -262,7 +267,18 @@ class Moves:
         decl = self.prog.lookup(name, self.src.name)
         if decl is None:
             return
-        owner = decl.file
+        for t in self._named(decl, name, index):
+            if expression:
+                u = Use(use.file, use.line, use.tool_name, use.work_name, use.tool, use.work,
+                        f"used in the expression {part[:40]!r}: the robot does not go to the "
+                        "target itself")  # fmt: skip
+                t.uses.append(u)
+            else:
+                self._chain(t)
+                t.uses.append(use)
+
+    def _named(self, decl: Decl, name: str, index: str | None) -> list[Target]:
+        """The targets ``name[index]`` names (every element for a variable index)."""
         if index is None:
             keys = [name.upper()] if decl.value is not None else [
                 (decl.name + index_text(i)).upper() for i in decl.elements]  # fmt: skip
@@ -272,18 +288,19 @@ class Moves:
                 keys = [(decl.name + index_text(idx)).upper()]
             except ValueError:
                 keys = [(decl.name + index_text(i)).upper() for i in decl.elements]
-        for key in keys:
-            t = self.targets.get((owner, key))
-            if t is None:
+        found = (self.targets.get((decl.file, key)) for key in keys)
+        return [t for t in found if t is not None]
+
+    def _relative(self, kind: str, rest: str, no: int) -> None:
+        """A ``_REL`` move: its named targets are offsets, not poses (left unchanged)."""
+        for a, b in _top_level_spans(rest)[: 2 if "CIRC" in kind else 1]:
+            m = NAME_REF.match(rest[a:b].strip())
+            decl = self.prog.lookup(m.group(1), self.src.name) if m else None
+            if m is None or decl is None:
                 continue
-            if expression:
-                u = Use(use.file, use.line, use.tool_name, use.work_name, use.tool, use.work,
-                        f"used in the expression {part[:40]!r}: the robot does not go to the "
-                        "target itself")  # fmt: skip
-                t.uses.append(u)
-            else:
-                self._chain(t)
-                t.uses.append(use)
+            for t in self._named(decl, m.group(1), m.group(2)):
+                t.problem = t.problem or (f"line {no}: {kind} moves by it: an offset, not a "
+                                          "pose")  # fmt: skip
 
     def _chain(self, t: Target) -> None:
         """A Cartesian target without S and T takes the branch nearest the previous move's
