@@ -13,11 +13,11 @@ Targets
 
 Moves
     ``PTP``, ``LIN``, ``CIRC`` (its auxiliary and end point), ``SPTP``, ``SLIN``, ``SCIRC``
-    and ``SPL``; the ``_REL`` moves are relative and have no target. The target is a
-    declared name (own ``.dat`` first, then the ``GLOBAL`` data of the other given ``.dat``
-    files and everything ``$config.dat`` declares; an index that is a variable uses every
-    element) or an inline aggregate. A target used through the geometric operator
-    (``XP1:F_OFS``) is not where the robot goes: it is left unchanged and named.
+    and ``SPL``. The target is a declared name (own ``.dat`` first, then the ``GLOBAL``
+    data of the other given ``.dat`` files and everything ``$config.dat`` declares; an index
+    that is a variable uses every element) or an inline aggregate. What a ``_REL`` move goes
+    by is an offset, and a target used through the geometric operator (``XP1:F_OFS``) is
+    not where the robot goes: both are left unchanged and named.
 
 Frames (per move, in program order within each ``DEF``; unknown at its start)
     ``FDAT_ACT=FP1`` (the inline forms): the ``FDAT``'s ``TOOL_NO``/``BASE_NO`` (0: the
