@@ -145,11 +145,11 @@ def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
 def test_configuration_and_turn_numbers() -> None:
     assert [turn_number(v) for v in (0.0, 179.9, 180.0, -180.0, -180.1, 540.0)] == [
         0, 0, 1, 0, -1, 2]  # fmt: skip
-    cfg = configuration("F D B, 1, 0, -1", [1, 0, -1])
+    cfg = configuration("F D B, 1, 0, -1", (1, 0, -1))
     assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (-1, -1, -1)
     np.testing.assert_allclose(cfg.joint_ranges_deg[3:], [[180, 540], [-180, 180], [-540, -180]])
     assert np.all(np.isinf(cfg.joint_ranges_deg[:3]))
-    assert configuration("NUT, 0, 0, 0", [0, 0, 0]).wrist == 1
+    assert configuration("NUT, 0, 0, 0", (0, 0, 0)).wrist == 1
 
 
 _GOOD = (b"P[1]{\n   GP1:\n\tUF : 0, UT : 0,\t\tCONFIG : 'N U T, 0, 0, 0',\n"

@@ -33,6 +33,7 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -98,7 +99,8 @@ def turn_number(angle_deg: float) -> int:
     return math.floor((angle_deg + 180.0) / 360.0)
 
 
-def configuration(text: str, turns: Sequence[float]) -> Configuration:
+@lru_cache(maxsize=1024)
+def configuration(text: str, turns: tuple[float, ...]) -> Configuration:
     """The branch a Fanuc controller takes for a CONFIG string (see the module docstring).
 
     Raises
@@ -259,7 +261,7 @@ class FanucLsDialect:
             raise FilterInputError(src.name, f"{name}: UF and UT must be numbers", line)
         turn_nums = self._turns(src, g.end() + cfg.start(1), cfg.group(1))
         try:
-            conf = configuration(cfg.group(1), [n.value for n in turn_nums])
+            conf = configuration(cfg.group(1), tuple(n.value for n in turn_nums))
         except ValueError as exc:
             raise FilterInputError(src.name, f"{name}: {exc}", line) from None
         uf, ut = int(numbers["UF"]), int(numbers["UT"])

@@ -50,6 +50,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import PurePath
 
 import numpy as np
@@ -104,6 +105,7 @@ class JointSite:
     joints: list[Num]
 
 
+@lru_cache(maxsize=1024)
 def configuration(s: float | None, t: float | None, text: str) -> Configuration:
     """The branch a KUKA controller takes for status ``s`` and turn ``t`` (see the module
     docstring); either may be None."""
