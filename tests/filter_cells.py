@@ -49,7 +49,9 @@ class Cell:
         return flange_frames(true_model, joints_deg)
 
 
-def make_cell(seed: int = 3, n_poses: int = 200) -> Cell:
+def make_cell(seed: int = 3, n_poses: int = 200, noise_mm: float = 0.0) -> Cell:
+    """The EMULATED cell identified from ``n_poses`` lengths (Gaussian noise ``noise_mm``
+    [mm] 1σ, then shown to :data:`DISPLAY_MM`)."""
     base = builtin_model("hsr-jr680")
     nominal = replace(base, tool_mm=np.array(HOOK_MM))
     errors = TABLE_XII_D1.copy()
@@ -58,7 +60,8 @@ def make_cell(seed: int = 3, n_poses: int = 200) -> Cell:
     truth = make_true_cell(nominal, dh_errors_deg_mm=errors)
     rng = np.random.default_rng(seed)
     q = random_poses_deg(truth, n_poses, rng)
-    lengths = np.round(truth.lengths_mm(q) / DISPLAY_MM) * DISPLAY_MM
+    lengths = truth.lengths_mm(q) + rng.normal(0.0, noise_mm, size=n_poses)
+    lengths = np.round(lengths / DISPLAY_MM) * DISPLAY_MM
     result = identify(nominal, make_samples(q, lengths), IdentifyOptions(test_fraction=0.0))
     return Cell(nominal, truth, result.to_json())
 

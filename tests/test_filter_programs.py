@@ -195,3 +195,37 @@ def test_keep_joint_targets_and_only(nominal: RobotModel) -> None:
 )
 def test_format_number(text: str, value: float, decimals: int, expected: str) -> None:
     assert format_number(Num("f", 0, len(text), text, float(text)), value, decimals) == expected
+
+
+INLINE_QNEAR = """def p():
+  set_tcp(p[0.0,-0.01,0.195,0.0,0.261799,0.0])
+  movej(get_inverse_kin(p[1.111636171900, -.562373158417, .050303422831, -.434041488199, \
+-2.389868508054, -.523936480595], qnear=[-0.5235987755982988, -0.7853981633974483, \
+3.5779249665883754, 0.2617993877991494, 0.8726646259971648, -0.3490658503988659]), a=1.4, v=1.0)
+end
+""".replace("\\\n", "")
+
+
+def test_an_inline_qnear_list_is_the_reference_and_follows(nominal: RobotModel) -> None:
+    (p, q) = URSCRIPT.parse([Source("i.script", INLINE_QNEAR, "utf-8")], FrameTables())
+    assert (p.name, q.name, q.follows) == ("inline@3", "qnear@3", "inline@3")
+    assert p.configuration is not None and p.configuration.nearest_deg is not None
+    run = filter_files(_identity(nominal), [("i.script", INLINE_QNEAR.encode())])
+    assert [c.status for c in run.corrections] == ["corrected", "corrected"]
+    assert run.outputs["i.script"] == INLINE_QNEAR.encode()
+
+
+def test_a_correction_beyond_the_joint_limits_is_left_and_named(nominal: RobotModel) -> None:
+    from filter_cells import rapid_module
+
+    q = np.array([[179.995, -30.0, 190.0, 10.0, 50.0, -20.0]])
+    text = rapid_module(nominal, q, np.eye(4), np.eye(4)).encode()
+    table = nominal.dh_table.copy()
+    table[0, 3] -= 0.02  # theta1: the calibrated robot needs q1 0.02 deg further
+    cal = Calibration(nominal, RobotModel("cal", "dh", table, nominal.joint_limits_deg), None,
+                      np.zeros(0, dtype=int))  # fmt: skip
+    run = filter_files(cal, [("edge.mod", text)])
+    (row,) = run.rows()
+    assert row["status"] == "unreachable" and row["reason"].startswith(
+        "outside the joint limits: J1=180.015")  # fmt: skip
+    assert run.outputs["edge.mod"] == text and run.exit_code == EXIT_LEFT

@@ -311,36 +311,42 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
         shift_mm_all = np.linalg.norm(new_all[:, :3, 3] - old_all[:, :3, 3], axis=1)
         shift_deg_all = rotation_angle_deg(old_all[:, :3, :3], new_all[:, :3, :3])
         jump_all = np.max(np.abs(q_star - q_nom), axis=1)
+        outside = np.any((q_star < limits[:, 0]) | (q_star > limits[:, 1]), axis=1)
+        left_branch = (jump_all > BRANCH_JUMP_DEG) | np.any(s_nom != s_cal, axis=1)
+        converged = sol_c.converged.tolist()
+        outside_l, left_l = outside.tolist(), left_branch.tolist()
+        shifts_mm, shifts_deg = shift_mm_all.tolist(), shift_deg_all.tolist()
+        jumps, sigmas = jump_all.tolist(), sigma.tolist()
         for r, i in enumerate(rows):
             t = targets[i]
             qs = q_star[r]
-            if not sol_c.converged[r]:
+            if not converged[r]:
                 out[i] = Correction("unreachable", "no calibrated solution near the nominal one "
                                     f"(residual {sol_c.position_error_mm[r]:.3g} mm)")  # fmt: skip
                 continue
-            low, high = qs < limits[:, 0], qs > limits[:, 1]
-            if low.any() or high.any():
+            if outside_l[r]:
+                low, high = qs < limits[:, 0], qs > limits[:, 1]
                 j = int(np.argmax(low | high))
                 lim = limits[j, 0] if low[j] else limits[j, 1]
                 out[i] = Correction("unreachable", f"outside the joint limits: J{j + 1}="
                                     f"{qs[j]:.3f} (limit {lim:g})")  # fmt: skip
                 continue
-            jump = float(jump_all[r])
-            if jump > BRANCH_JUMP_DEG or np.any(s_nom[r] != s_cal[r]):
+            jump = jumps[r]
+            if left_l[r]:
                 out[i] = Correction(
                     "skipped",
                     "would need another configuration (the "
                     f"calibrated solution leaves the branch; {jump:.2f} deg)",
                 )
                 continue
-            shift_mm, shift_deg = float(shift_mm_all[r]), float(shift_deg_all[r])
+            shift_mm, shift_deg = shifts_mm[r], shifts_deg[r]
             if t.kind == "joint":
                 if jump < NEGLIGIBLE_DEG:
                     qs = q_nom[r]
                 # The shift of a joint target: at the flange (its tool is irrelevant).
                 out[i] = Correction("corrected", joints_deg=qs, nominal_joints_deg=q_nom[r],
                                     shift_mm=shift_mm, shift_deg=shift_deg,
-                                    configuration_kept=True, sigma_mm=float(sigma[r]))  # fmt: skip
+                                    configuration_kept=True, sigma_mm=sigmas[r])  # fmt: skip
                 continue
             new, old = new_all[r], t.pose
             assert old is not None
@@ -349,7 +355,7 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             out[i] = Correction(
                 "corrected", pose=new, joints_deg=qs, nominal_joints_deg=q_nom[r],
                 shift_mm=shift_mm, shift_deg=shift_deg, configuration_kept=True,
-                sigma_mm=float(sigma[r]))  # fmt: skip
+                sigma_mm=sigmas[r])  # fmt: skip
     # Joint targets that follow a Cartesian one (a PolyScope Waypoint_n_q).
     for i, t in enumerate(targets):
         if t.follows is None:

@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from calib.filter.rapid_syntax import (
+    ROBTARGET,
     Node,
     blank,
     is_jointtarget,
@@ -142,6 +143,7 @@ class _Decl:
     value: Node | None
     dims: tuple[int, ...]
     elements: dict[tuple[int, ...], Node] = field(default_factory=dict)
+    fast: re.Match[str] | None = None  # a plain robtarget literal read by ROBTARGET
 
 
 def _dims(text: str | None) -> tuple[int, ...]:
@@ -168,6 +170,8 @@ class _Module:
     code: str
     decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
     frames: dict[tuple[str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
+    lookups: dict[tuple[str, tuple[str, ...]], tuple[_Decl | None, str]] = field(
+        default_factory=dict)  # fmt: skip
 
 
 def _read_decls(mod: _Module) -> None:
@@ -177,11 +181,14 @@ def _read_decls(mod: _Module) -> None:
         line = src.line_of(m.start())
         dims = _dims(dims_text)
         value = None
+        fast = None
         if assign:
             i = skip_space(code, m.end())
-            if i < len(code) and code[i] == "[":
+            if kind == "robtarget" and not dims:
+                fast = ROBTARGET.match(code, i)  # the common case: no Node tree needed
+            if fast is None and i < len(code) and code[i] == "[":
                 value = parse_literal(code, i, src)
-        decl = _Decl(kind, name, src.name, line, value, dims)
+        decl = _Decl(kind, name, src.name, line, value, dims, fast=fast)
         if value is not None:
             _elements(value, len(dims), (), decl.elements)
             check = {"robtarget": is_robtarget, "jointtarget": is_jointtarget}.get(kind)
@@ -203,6 +210,12 @@ def _index_text(index: tuple[int, ...]) -> str:
 
 _REF = re.compile(r"([A-Za-z]\w*)\s*(?:\{([^}]*)\})?\s*$")
 _WRAP = re.compile(r"(?:Offs|RelTool)\s*\(", re.IGNORECASE)
+#: The common move: a target name (with an index), speed, zone and tool, and \WObj.
+_SIMPLE_MOVE = re.compile(
+    r"\s+([A-Za-z]\w*(?:\{[^{}\[\]()]*\})?)\s*,\s*([A-Za-z]\w*)\s*,\s*([A-Za-z]\w*)\s*,"
+    r"\s*([A-Za-z]\w*)\s*(?:\\\s*WObj\s*:=\s*([A-Za-z]\w*)\s*)?",
+    re.IGNORECASE,
+)
 
 
 class RapidDialect:
@@ -231,6 +244,10 @@ class RapidDialect:
             for decl in mod.decls.values():
                 if decl.kind not in ("robtarget", "jointtarget"):
                     continue
+                if decl.fast is not None:
+                    t = self._target_fast(mod.source, decl.name, decl.fast)
+                    targets[(mod.source.name, t.name.lower())] = t
+                    order.append(t)
                 for index, node in decl.elements.items():
                     t = self._target(mod.source, f"{decl.name}{_index_text(index)}", decl.kind,
                                      node)  # fmt: skip
@@ -241,6 +258,23 @@ class RapidDialect:
         return order
 
     # -- targets -----------------------------------------------------------------------
+    def _target_fast(self, src: Source, name: str, m: re.Match[str]) -> Target:
+        """A robtarget from :data:`ROBTARGET`'s groups (1-3 position, 4-7 quaternion, 8-11
+        configuration; the external axes are never written)."""
+        fname = src.name
+        got = [Num(fname, m.start(g), m.end(g), m.group(g), float(m.group(g)))
+               for g in range(1, 12)]  # fmt: skip
+        pos, quat, conf = got[:3], got[3:7], got[7:11]
+        line = src.line_of(m.start())
+        try:
+            rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
+        except ValueError:
+            raise FilterInputError(fname, f"{name}: quaternion of zero norm", line) from None
+        return Target(fname, line, name, "cartesian",
+                      pose=frame(np.array([n.value for n in pos]), rot),
+                      configuration=configuration([n.value for n in conf]),
+                      site=RobSite(pos, quat, conf))  # fmt: skip
+
     def _target(self, src: Source, name: str, kind: str, node: Node) -> Target:
         assert node.items is not None
         line = src.line_of(node.start)
@@ -262,6 +296,13 @@ class RapidDialect:
     # -- moves -------------------------------------------------------------------------
     def _lookup(self, name: str, mod: _Module, modules: list[_Module],
                 kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
+        memo = (name, kinds)
+        if memo not in mod.lookups:
+            mod.lookups[memo] = self._find(name, mod, modules, kinds)
+        return mod.lookups[memo]
+
+    def _find(self, name: str, mod: _Module, modules: list[_Module],
+              kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
         key = name.lower()
         d = mod.decls.get(key)
         if d is not None and d.kind in kinds:
@@ -321,17 +362,23 @@ class RapidDialect:
             line = src.line_of(m.start())
             tool_name, work_name = "", "wobj0"
             refs: list[tuple[str, Any]] = []  # ("name", (name, index)) or ("inline", Node)
-            for a, b in split_args(code, m.end(), end):
-                (pa, pb), opts = split_options(code, a, b)
-                for opt in opts:
-                    key, _, val = opt.partition(":=")
-                    if key.strip().lower() == "wobj":
-                        work_name = val.strip()
-                raw = code[pa:pb]
-                arg = raw.strip()
-                if not arg:
-                    continue
-                astart = pa + raw.find(arg[0])
+            simple = _SIMPLE_MOVE.fullmatch(code, m.end(), end)
+            args: list[tuple[str, int]] = []  # positional arguments and their offsets
+            if simple is not None:  # "p, speed, zone, tool[\WObj:=w]": no splitting needed
+                args = [(simple.group(g), simple.start(g)) for g in range(1, 5)]
+                work_name = simple.group(5) or work_name
+            else:
+                for a, b in split_args(code, m.end(), end):
+                    (pa, pb), opts = split_options(code, a, b)
+                    for opt in opts:
+                        key, _, val = opt.partition(":=")
+                        if key.strip().lower() == "wobj":
+                            work_name = val.strip()
+                    raw = code[pa:pb]
+                    arg = raw.strip()
+                    if arg:
+                        args.append((arg, pa + raw.find(arg[0])))
+            for arg, astart in args:
                 wrap = _WRAP.match(arg)
                 if wrap:
                     inner = split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
@@ -422,7 +469,8 @@ class RapidDialect:
             edits.append(edit(num, float(v), QUATERNION_DECIMALS))
         for num, j in zip(site.conf[:3], (0, 3, 5), strict=True):
             cf = math.floor(float(correction.joints_deg[j]) / 90.0)
-            edits.append(edit(num, float(cf), 0))
+            if cf != num.value:  # a quadrant that did not change keeps its text
+                edits.append(edit(num, float(cf), 0))
         return [e for e in edits if e is not None]
 
 

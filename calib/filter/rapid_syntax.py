@@ -59,12 +59,12 @@ def skip_space(text: str, i: int) -> int:
 _N = r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*"
 _SHAPE = (3, 4, 4, 6)
 #: A robtarget literal of plain numbers, the common case, read by one regular expression.
-_ROBTARGET = re.compile(r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]"
+ROBTARGET = re.compile(r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]"
                                                 for k in _SHAPE) + r"\s*\]")  # fmt: skip
 
 
 def _fast_robtarget(code: str, i: int) -> Node | None:
-    m = _ROBTARGET.match(code, i)
+    m = ROBTARGET.match(code, i)
     if m is None:
         return None
     leaves = [Node(m.start(g), m.end(g), num=float(m.group(g))) for g in range(1, 18)]
@@ -161,8 +161,19 @@ def pose(node: Node) -> FloatArray:
     return frame(pos, quat_wxyz_to_matrix(quat))
 
 
+_BRACKETS = re.compile(r"[\[({\])}]")
+
+
 def split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
     """Comma-separated arguments of ``code[start:end]`` at bracket depth 0, as spans."""
+    if not _BRACKETS.search(code, start, end):  # the common case: no nesting
+        out: list[tuple[int, int]] = []
+        last = start
+        while (i := code.find(",", last, end)) >= 0:
+            out.append((last, i))
+            last = i + 1
+        out.append((last, end))
+        return out
     out, depth, last = [], 0, start
     for i in range(start, end):
         c = code[i]
@@ -179,6 +190,8 @@ def split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
 
 def split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], list[str]]:
     """An argument's positional part (span) and its ``\\Option[:=value]`` texts."""
+    if code.find("\\", start, end) < 0:
+        return (start, end), []
     depth, cuts = 0, []
     for i in range(start, end):
         c = code[i]
@@ -195,6 +208,11 @@ def split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], lis
 
 
 def statement_end(code: str, i: int) -> int:
+    """The ``;`` ending the statement that starts at ``i`` (RAPID has no ``;`` inside a
+    bracket outside strings, which are blanked), or the end of the code."""
+    j = code.find(";", i)
+    if j >= 0 and not _BRACKETS.search(code, i, j):
+        return j
     depth = 0
     while i < len(code):
         c = code[i]

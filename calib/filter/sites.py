@@ -404,18 +404,26 @@ def format_number(original: Num, value: float, min_decimals: int) -> str:
     (fixed point). When ``value`` equals the original at that precision (or to floating-point
     round-off), the original text is returned unchanged (so a filter that moves nothing
     changes no byte)."""
-    dec = max(decimals_of(original.text), min_decimals)
+    otext = original.text
+    dec = decimals_of(otext)
+    if dec < min_decimals:
+        dec = min_decimals
     # Equal at the written precision, or up to floating-point round-off (a PolyScope joint
     # written with 16 decimals, converted to degrees and back).
-    if abs(value - original.value) < max(0.5 * 10.0**-dec, 1e-12 * max(1.0, abs(value))):
-        return original.text
+    diff = abs(value - original.value)
+    if diff < 0.5 * 10.0**-dec or diff < 1e-12 * max(1.0, abs(value)):
+        return otext
     text = f"{value:.{dec}f}"
-    if text.startswith("-") and float(text) == 0.0:
+    if text[0] == "-" and float(text) == 0.0:
         text = text[1:]
-    if original.text.startswith("+") and not text.startswith("-"):
+    first = otext[0]
+    if first == "+" and text[0] != "-":
         text = "+" + text
-    if dec and original.text.lstrip("+-").startswith(".") and text.lstrip("+-").startswith("0."):
-        text = text.replace("0.", ".", 1)  # keep a style like ".25" (URScript exports)
+    if dec and (first == "." or otext[1:2] == ".") and first in ".+-":
+        sign = "-" if text[0] == "-" else ""
+        body = text.lstrip("+-")
+        if body.startswith("0."):
+            text = ("+" if text[0] == "+" else sign) + body[1:]  # keep a style like ".25"
     return text
 
 

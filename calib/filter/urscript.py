@@ -9,7 +9,8 @@ Targets
 
 Moves
     ``movel``, ``movej``, ``movep``, ``movec`` (both poses), ``servoj``; the pose argument
-    may be a name, a literal, ``get_inverse_kin(P, qnear=Q)`` or ``pose_trans(F, P)`` (``P``
+    may be a name, a literal, ``get_inverse_kin(P, qnear=Q)`` (``Q`` a name or an inline
+    list) or ``pose_trans(F, P)`` (``P``
     in the feature ``F``, a named ``p[…]``: ``F`` is the work object; the base frame
     otherwise).
 
@@ -288,11 +289,11 @@ class URScriptDialect:
             v = f.values.get(qname)
             if v is None or v.kind != "joints":
                 continue
-            t = target_of(v, qname, qname)
+            t = target_of(v, qname, v.name)
             lead_t = targets[pkey]
             t.follows = lead_t.name
             lead_t.configuration = Configuration(nearest_deg=np.asarray(t.joints_deg),
-                                                 text=f"nearest {qname}")  # fmt: skip
+                                                 text=f"nearest {t.name}")  # fmt: skip
         return order
 
     def _move_arg(
@@ -329,6 +330,14 @@ class URScriptDialect:
                 kw = code[ia:ib].strip()
                 if kw.startswith("qnear") and "=" in kw:
                     qnear = kw.split("=", 1)[1].strip()
+                    if qnear.startswith("["):  # an inline joint list: a target of its own
+                        qoff = code.index("[", ia)
+                        qv = self._value_at(f, qoff, "")
+                        qnear = None
+                        if qv is not None and qv.kind == "joints":
+                            qv.name = f"qnear@{qv.line}"
+                            qnear = f"@q{qoff}"
+                            f.values[qnear] = qv
             pa, pb = inner[0]
             s = code[pa:pb].strip()
             off = pa + code[pa:pb].index(s) if s else pa
