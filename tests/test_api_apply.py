@@ -283,6 +283,20 @@ def test_check_poses_default_and_user(client: TestClient, calibrated: dict[str, 
     assert all(tuple(round(v, 9) for v in p) in q for p in default["poses_deg"])
     assert client.put(url, json={"poses_deg": [[0.0] * 6] * 2}, headers=AUTH).status_code == 422
     assert client.put(url, json={"poses_deg": [[0.0] * 5] * 3}, headers=AUTH).status_code == 422
+    # a pose outside the model's joint limits: a 422 naming pose and joint, nothing stored
+    bad = [list(p) for p in default["poses_deg"][:3]]
+    bad[1][1] = -2307.5
+    r = client.put(url, json={"poses_deg": bad}, headers=AUTH)
+    assert r.status_code == 422, r.text
+    assert "row 2, q2" in r.text and "joint limits" in r.text
+    assert client.get(url, headers=AUTH).json()["source"] == "default"
+    # poses stored before the check (an older daemon) cannot become a program: a 409 saying why
+    store = client.app.state.cablecal.store  # type: ignore[attr-defined]
+    store.set_check_poses(rid, bad)
+    r = client.get(url, params={"format": "rapid"}, headers=AUTH)
+    assert r.status_code == 409 and "row 2, q2" in r.text, r.text
+    assert client.put(url, json={"poses_deg": default["poses_deg"]}, headers=AUTH).is_success
+    assert client.get(url, params={"format": "rapid"}, headers=AUTH).status_code == 200
     other = _uncalibrated_robot(client)
     r = client.get(f"{API}/robots/{other}/check-poses", headers=AUTH)
     assert r.status_code == 404

@@ -7,12 +7,14 @@ import csv
 import io
 from typing import Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, HTTPException, Query, status
 
 from calib.dataset import JOINT_COLUMNS
+from calib.programs.common import ProgramError, check_limits
 from calib.programs.formats import DEFAULT_SPEED_PCT
+from calib.tcp import joint_limits_deg
 from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
-from daemon.api.errors import error_responses
+from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import CheckPosesBody
 from daemon.holdcheck import check_poses
@@ -28,8 +30,14 @@ router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422)
     responses=error_responses(400),
 )
 def put_check_poses(state: State, robot_id: RobotId, body: CheckPosesBody) -> CheckPoses:
-    """3 to 100 joint vectors of finite numbers [deg]; they replace the default (spread poses
-    of the calibration's samples)."""
+    """3 to 100 joint vectors of finite numbers [deg], each within the robot model's joint
+    limits (a 422 naming the pose and joint; nothing stored); they replace the default
+    (spread poses of the calibration's samples)."""
+    limits = joint_limits_deg(state.store.robot_model(robot_id)).tolist()
+    try:
+        check_limits(body.poses_deg, limits)
+    except ProgramError as exc:
+        raise unprocessable(["body", "poses_deg"], f"poses_deg: {exc} (row = pose)") from None
     return state.store.set_check_poses(robot_id, body.poses_deg)
 
 
@@ -47,7 +55,10 @@ def _poses_csv(poses_deg: list[list[float]]) -> str:
     summary="The drift-check poses",
     dependencies=[ReadAuth],
     response_model=CheckPoses,
-    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}},
+    responses={
+        200: {"content": {"text/csv": {}, "text/plain": {}}},
+        **error_responses(409),
+    },
 )
 def get_check_poses(
     state: State,
@@ -67,11 +78,20 @@ def get_check_poses(
     poses = check_poses(state.store, robot_id, state.settings.drift.n_poses)
     if format is None:
         return poses
+    model = state.store.robot_model(robot_id)
+    try:  # poses stored before their limits were checked cannot become a program: a conflict
+        check_limits(poses["poses_deg"], joint_limits_deg(model).tolist())
+    except ProgramError as exc:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            f"the robot's check poses cannot be written as a program: {exc} (row = pose); "
+            "set them again (PUT /robots/{robot_id}/check-poses)",
+        ) from None
     return download(
         _poses_csv(poses["poses_deg"]),
         str(format.value),
         stem=f"robot-{robot_id}-check-poses",
-        model=state.store.robot_model(robot_id),
+        model=model,
         what=f"drift-check poses of robot {robot_id} ({poses['source']})",
         speed_pct=speed_pct,
         dwell_s=dwell_s,
