@@ -37,7 +37,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from calib.filter.rotations import frame, matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.filter.rotations import frames as make_frames
+from calib.filter.rotations import matrix_to_zyx_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
     Configuration,
     Correction,
@@ -188,9 +189,9 @@ class FanucLsDialect:
         if cart:  # every pose at once: R = Rz(R)·Ry(P)·Rx(W)
             xyz = np.array([[n.value for n in t.site.position] for t in cart])
             wpr = np.array([[n.value for n in t.site.wpr] for t in cart])
-            rot = zyx_deg_to_matrix(wpr[:, 2], wpr[:, 1], wpr[:, 0])
-            for t, p, r in zip(cart, xyz, rot, strict=True):
-                t.pose = frame(p, r)
+            poses = make_frames(xyz, zyx_deg_to_matrix(wpr[:, 2], wpr[:, 1], wpr[:, 0]))
+            for t, pose in zip(cart, poses, strict=True):
+                t.pose = pose
         return out
 
     def _positions(self, src: Source, start: int, end: int, frames: FrameTables) -> list[Target]:

@@ -65,7 +65,7 @@ from calib.filter.krl_data import (
     read_declarations,
 )
 from calib.filter.krl_moves import NAME_REF, SET_FRAME, Moves
-from calib.filter.rotations import frame, matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.filter.rotations import frames, matrix_to_zyx_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
     Configuration,
     Correction,
@@ -174,8 +174,8 @@ class KrlDialect:
         """Names assigned to ``$TOOL``/``$BASE`` anywhere: frames, not targets."""
         out = {"TOOL_DATA", "BASE_DATA"}
         for src in prog.srcs:
-            for line in blank(src.text).splitlines():
-                m = SET_FRAME.match(line)
+            for line in prog.code_of(src).splitlines():
+                m = SET_FRAME.match(line) if "$" in line else None
                 if m:
                     r = NAME_REF.fullmatch(m.group(2))
                     if r:
@@ -238,9 +238,9 @@ def _fill_poses(targets: list[Target]) -> None:
         return
     xyz = np.array([[n.value for n in t.site.position] for t in cart])
     abc = np.array([[n.value for n in t.site.angles] for t in cart])
-    rot = zyx_deg_to_matrix(abc[:, 0], abc[:, 1], abc[:, 2])
-    for t, p, r in zip(cart, xyz, rot, strict=True):
-        t.pose = frame(p, r)
+    poses = frames(xyz, zyx_deg_to_matrix(abc[:, 0], abc[:, 1], abc[:, 2]))
+    for t, pose in zip(cart, poses, strict=True):
+        t.pose = pose
 
 
 def turn_of(joints_deg: FloatArray) -> int:
