@@ -133,14 +133,11 @@ def _flat(code: str, j: int, agg: Aggregate) -> bool:
         if k is None:
             return False
         key = k.group(1).upper()
-        if "[" in key:
+        e = k.end()
+        text = part[e:].rstrip(" \t")
+        if "[" in key or "\r" in text or key in items:
             return False
-        rest = part[k.end() :]
-        text = rest.rstrip(" \t")
-        if "\r" in text or key in items:
-            return False
-        start = pos + len(part) - len(rest)
-        items[key] = Item(key, start, start + len(text), text)
+        items[key] = Item(key, pos + e, pos + e + len(text), text)
         pos += len(part) + 1
     agg.items, agg.end = items, close + 1
     return True
