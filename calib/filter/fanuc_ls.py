@@ -302,17 +302,17 @@ class FanucLsDialect:
         edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.joints, correction.joints_deg, strict=True):
-                edits.append(edit(num, float(v), JOINT_DECIMALS))
+            for num, v in zip(target.site.joints, correction.joints_deg.tolist(), strict=True):
+                edits.append(edit(num, v, JOINT_DECIMALS))
             return [e for e in edits if e is not None]
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
-        old = np.array([n.value for n in site.wpr][::-1])  # R, P, W
-        rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old)
-        for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
-            edits.append(edit(num, float(v), DECIMALS))
+        old = [n.value for n in site.wpr][::-1]  # R, P, W
+        rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
+        for num, v in zip(site.position, correction.pose[:3, 3].tolist(), strict=True):
+            edits.append(edit(num, v, DECIMALS))
         for num, v in zip(site.wpr, rpw[::-1], strict=True):
-            edits.append(edit(num, float(v), DECIMALS))
+            edits.append(edit(num, v, DECIMALS))
         for num, j in zip(site.turns, TURN_JOINTS, strict=False):
             new = turn_number(float(correction.joints_deg[j]))
             if new != int(num.value):

@@ -15,6 +15,7 @@ Conventions, exactly:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -157,7 +158,9 @@ def zyx_deg_to_matrix(
     return out.reshape(*a.shape, 3, 3)
 
 
-def matrix_to_zyx_deg(rot: FloatArray, near_deg: FloatArray | None = None) -> FloatArray:
+def matrix_to_zyx_deg(
+    rot: FloatArray, near_deg: FloatArray | Sequence[float] | None = None
+) -> FloatArray:
     """``(a, b, c)`` [deg] (…, 3) with ``R = Rz(a) · Ry(b) · Rx(c)``; ``b`` in [-90, 90].
 
     With ``near_deg`` (…, 3), each angle is moved by whole turns to lie closest to it, so a
@@ -183,7 +186,9 @@ def matrix_to_zyx_deg(rot: FloatArray, near_deg: FloatArray | None = None) -> Fl
     return out
 
 
-def _zyx_deg_one(r: list[list[float]], near_deg: FloatArray | None) -> list[float]:
+def _zyx_deg_one(
+    r: list[list[float]], near_deg: FloatArray | Sequence[float] | None
+) -> list[float]:
     """:func:`matrix_to_zyx_deg` of one rotation (nested lists) with the math module: the
     same formulas, without numpy's per-call cost (a dialect renders one target a call)."""
     cb = math.hypot(r[0][0], r[1][0])
