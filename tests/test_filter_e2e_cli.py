@@ -54,12 +54,14 @@ from calib.synthetic import TABLE_XII_D1, make_true_cell, random_poses_deg
 #: Noise of the emulated lengths [mm] (1σ), before the display's 0.01 mm.
 NOISE_MM = 0.02
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-#: Files without targets, in three dialects.
+#: Files without targets, in the four dialects.
 NO_TARGETS = {
     "LOGIC.MOD": b"MODULE LOGIC\r\n  ! no targets here\r\n  PROC init()\r\n    SetDO do1, 1;\r\n"
     b"  ENDPROC\r\nENDMODULE\r\n",
     "io.script": b"def io():\n  set_digital_out(0, True)\n  sleep(0.5)\nend\n",
     "noop.src": b"&ACCESS RVP\r\nDEF noop( )\r\n  $OUT[1]=TRUE ; Greifer zu\r\nEND\r\n",
+    "GRIP.LS": b"/PROG  GRIP\r\n/ATTR\r\nOWNER\t\t= MNEDITOR;\r\n/MN\r\n   1:  RO[1]=ON ;\r\n"
+    b"/END\r\n",
 }
 
 
