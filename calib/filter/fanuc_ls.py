@@ -37,7 +37,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from calib.filter.rotations import frame, matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.filter.rotations import frames as make_frames
+from calib.filter.rotations import matrix_to_zyx_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
     Configuration,
     Correction,
@@ -188,9 +189,9 @@ class FanucLsDialect:
         if cart:  # every pose at once: R = Rz(R)·Ry(P)·Rx(W)
             xyz = np.array([[n.value for n in t.site.position] for t in cart])
             wpr = np.array([[n.value for n in t.site.wpr] for t in cart])
-            rot = zyx_deg_to_matrix(wpr[:, 2], wpr[:, 1], wpr[:, 0])
-            for t, p, r in zip(cart, xyz, rot, strict=True):
-                t.pose = frame(p, r)
+            poses = make_frames(xyz, zyx_deg_to_matrix(wpr[:, 2], wpr[:, 1], wpr[:, 0]))
+            for t, pose in zip(cart, poses, strict=True):
+                t.pose = pose
         return out
 
     def _positions(self, src: Source, start: int, end: int, frames: FrameTables) -> list[Target]:
@@ -301,17 +302,17 @@ class FanucLsDialect:
         edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.joints, correction.joints_deg, strict=True):
-                edits.append(edit(num, float(v), JOINT_DECIMALS))
+            for num, v in zip(target.site.joints, correction.joints_deg.tolist(), strict=True):
+                edits.append(edit(num, v, JOINT_DECIMALS))
             return [e for e in edits if e is not None]
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
-        old = np.array([n.value for n in site.wpr][::-1])  # R, P, W
-        rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old)
-        for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
-            edits.append(edit(num, float(v), DECIMALS))
+        old = [n.value for n in site.wpr][::-1]  # R, P, W
+        rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
+        for num, v in zip(site.position, correction.pose[:3, 3].tolist(), strict=True):
+            edits.append(edit(num, v, DECIMALS))
         for num, v in zip(site.wpr, rpw[::-1], strict=True):
-            edits.append(edit(num, float(v), DECIMALS))
+            edits.append(edit(num, v, DECIMALS))
         for num, j in zip(site.turns, TURN_JOINTS, strict=False):
             new = turn_number(float(correction.joints_deg[j]))
             if new != int(num.value):

@@ -65,7 +65,7 @@ from calib.filter.krl_data import (
     read_declarations,
 )
 from calib.filter.krl_moves import NAME_REF, SET_FRAME, Moves
-from calib.filter.rotations import frame, matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.filter.rotations import frames, matrix_to_zyx_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
     Configuration,
     Correction,
@@ -174,8 +174,8 @@ class KrlDialect:
         """Names assigned to ``$TOOL``/``$BASE`` anywhere: frames, not targets."""
         out = {"TOOL_DATA", "BASE_DATA"}
         for src in prog.srcs:
-            for line in blank(src.text).splitlines():
-                m = SET_FRAME.match(line)
+            for line in prog.code_of(src).splitlines():
+                m = SET_FRAME.match(line) if "$" in line else None
                 if m:
                     r = NAME_REF.fullmatch(m.group(2))
                     if r:
@@ -185,8 +185,8 @@ class KrlDialect:
     def _target(self, src: Source, name: str, agg: Aggregate, kind: str) -> Target | None:
         """The target of an aggregate (None when it is neither a position nor axes)."""
         line = src.line_of(agg.start)
-        keys = set(agg.items)
-        if kind in AXIS_TYPES or (not kind and "A1" in keys):
+        items = agg.items
+        if kind in AXIS_TYPES or (not kind and "A1" in items):
             nums = [agg.num(src, k) for k in JOINT_KEYS]
             if any(n is None for n in nums):
                 return Target(src.name, line, name, "joint", joints_deg=np.zeros(N_JOINTS),
@@ -195,11 +195,11 @@ class KrlDialect:
             return Target(src.name, line, name, "joint",
                           joints_deg=np.array([n.value for n in joints]),
                           site=JointSite(joints))  # fmt: skip
-        if not (kind or keys & set(CARTESIAN_KEYS)):
+        if not (kind or any(k in items for k in CARTESIAN_KEYS)):
             return None
         nums = [agg.num(src, k) for k in CARTESIAN_KEYS]
         s_num, t_num = agg.num(src, "S"), agg.num(src, "T")
-        text = " ".join(f"{k} {agg.items[k].text}" for k in ("S", "T") if k in agg.items)
+        text = " ".join(f"{k} {items[k].text}" for k in ("S", "T") if k in items)
         conf = configuration(s_num.value if s_num else None, t_num.value if t_num else None,
                              text)  # fmt: skip
         t = Target(src.name, line, name, "cartesian", pose=np.eye(4), configuration=conf)
@@ -215,17 +215,17 @@ class KrlDialect:
         edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.joints, correction.joints_deg, strict=True):
-                edits.append(edit(num, float(v), JOINT_DECIMALS))
+            for num, v in zip(target.site.joints, correction.joints_deg.tolist(), strict=True):
+                edits.append(edit(num, v, JOINT_DECIMALS))
             return [e for e in edits if e is not None]
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
-        old = np.array([n.value for n in site.angles])
-        abc = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old)
-        for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
-            edits.append(edit(num, float(v), POSITION_DECIMALS))
+        old = [n.value for n in site.angles]
+        abc = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
+        for num, v in zip(site.position, correction.pose[:3, 3].tolist(), strict=True):
+            edits.append(edit(num, v, POSITION_DECIMALS))
         for num, v in zip(site.angles, abc, strict=True):
-            edits.append(edit(num, float(v), ANGLE_DECIMALS))
+            edits.append(edit(num, v, ANGLE_DECIMALS))
         if site.turn is not None:
             edits.append(_turn_edit(site.turn, correction.joints_deg))
         return [e for e in edits if e is not None]
@@ -238,9 +238,9 @@ def _fill_poses(targets: list[Target]) -> None:
         return
     xyz = np.array([[n.value for n in t.site.position] for t in cart])
     abc = np.array([[n.value for n in t.site.angles] for t in cart])
-    rot = zyx_deg_to_matrix(abc[:, 0], abc[:, 1], abc[:, 2])
-    for t, p, r in zip(cart, xyz, rot, strict=True):
-        t.pose = frame(p, r)
+    poses = frames(xyz, zyx_deg_to_matrix(abc[:, 0], abc[:, 1], abc[:, 2]))
+    for t, pose in zip(cart, poses, strict=True):
+        t.pose = pose
 
 
 def turn_of(joints_deg: FloatArray) -> int:

@@ -31,7 +31,8 @@ from calib.kinematics import FloatArray
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")
 _KEY = re.compile(r"[A-Za-z_$][\w$]*(?:\[\s*\])?")
-_FLAT_ITEM = re.compile(r"[ \t\r]*([A-Za-z_$][\w$]*(?:\[[ \t]*\])?)[ \t]*([^,}\r\n{]*?)[ \t]*[,}]")
+#: The key of a flat aggregate's item and the blanks around it (a key with ``[`` is not flat).
+_FLAT_KEY = re.compile(r"[ \t\r]*([A-Za-z_$][\w$]*(?:\[[ \t]*\])?)[ \t]*")
 _SPACE = re.compile(r"[ \t\r\n]*")
 _BLANKS = re.compile(r"[ \t]*")
 _VALUE = re.compile(r"[^,}\r\n{]*")
@@ -63,7 +64,11 @@ def blank(text: str) -> str:
 
 def _spaces(m: re.Match[str]) -> str:
     g = m.group()
-    return " " * len(g) if "\r" not in g else re.sub(r"[^\r]", " ", g)
+    if "\r" not in g:
+        return " " * len(g)
+    if g[-1] == "\r" and g.count("\r") == 1:  # a comment up to a CRLF line end
+        return " " * (len(g) - 1) + "\r"
+    return re.sub(r"[^\r]", " ", g)
 
 
 @dataclass(slots=True)
@@ -114,21 +119,27 @@ def literal_value(text: str) -> float | None:
 
 def _flat(code: str, j: int, agg: Aggregate) -> bool:
     """Fast path of :func:`parse_aggregate` for a well-formed aggregate on one line without
-    nested aggregates (a position's): True when it filled ``agg``."""
+    nested aggregates (a position's): True when it filled ``agg``. Its items are the
+    ``,``-separated parts up to the ``}``, each ``KEY value`` (blanks and a ``\r`` before
+    the key, blanks around the value); anything else is left to the general path."""
     close = code.find("}", j)
     if close < 0 or code.find("{", j, close) >= 0 or code.find("\n", j, close) >= 0:
         return False
-    pos = j
     items: dict[str, Item] = {}
-    for m in _FLAT_ITEM.finditer(code, j, close + 1):
-        key, text = m.group(1).upper(), m.group(2)
-        if m.start() != pos or key in items or "[" in key:
+    pos = j
+    key_at = _FLAT_KEY.match
+    for part in code[j:close].split(","):
+        k = key_at(part)
+        if k is None:
             return False
-        items[key] = Item(key, m.start(2), m.start(2) + len(text), text)
-        pos = m.end()
-    if pos != close + 1:
-        return False
-    agg.items, agg.end = items, pos
+        key = k.group(1).upper()
+        e = k.end()
+        text = part[e:].rstrip(" \t")
+        if "[" in key or "\r" in text or key in items:
+            return False
+        items[key] = Item(key, pos + e, pos + e + len(text), text)
+        pos += len(part) + 1
+    agg.items, agg.end = items, close + 1
     return True
 
 
@@ -326,6 +337,13 @@ class Program:
     srcs: list[Source] = field(default_factory=list)
     _tables: dict[tuple[str, int], KrlFrame] = field(default_factory=dict)
     _own: dict[str, DataFile | None] = field(default_factory=dict)
+    _codes: dict[str, str] = field(default_factory=dict)
+
+    def code_of(self, src: Source) -> str:
+        """:func:`blank` of a ``.src``'s text (once per file)."""
+        if src.name not in self._codes:
+            self._codes[src.name] = blank(src.text)
+        return self._codes[src.name]
 
     def own_dat(self, src_name: str) -> DataFile | None:
         """The ``.dat`` of the same name as the ``.src`` (case-insensitive)."""

@@ -19,7 +19,6 @@ from calib.filter.krl_data import (
     Decl,
     KrlFrame,
     Program,
-    blank,
     frame_of,
     index_text,
     parse_aggregate,
@@ -44,12 +43,22 @@ _WITH_SET = re.compile(r"\s*\$(TOOL|BASE)\s*=\s*(.*)", re.I | re.S)
 _FDAT_FN = re.compile(r"(STOOL2|SBASE)\s*\(\s*([A-Za-z_$][\w$]*)\s*(?:\.\s*BASE_NO\s*)?\)", re.I)
 _SPLINE = re.compile(r"^\s*(?:PTP_)?SPLINE\b", re.I)
 _HEAD = re.compile(r"\s*([A-Za-z_$][\w$]*)")
-#: First words of the statements :meth:`Moves._statement` reads (the others are skipped).
-_KEYWORDS = {"DEF", "DEFFCT", "GLOBAL", "END", "ENDFCT", "FDAT_ACT", "BAS", "$TOOL", "$BASE",
-             "IF", "SWITCH", "FOR", "WHILE", "LOOP", "REPEAT", "ELSE", "CASE", "DEFAULT",
-             "ENDIF", "ENDSWITCH", "ENDFOR", "ENDWHILE", "ENDLOOP", "UNTIL", "PTP", "LIN",
-             "CIRC", "SPTP", "SLIN", "SCIRC", "SPL", "SPLINE", "PTP_SPLINE", "PTP_REL",
-             "LIN_REL", "CIRC_REL", "SPTP_REL", "SLIN_REL", "SCIRC_REL"}  # fmt: skip
+#: What :func:`_top_level_spans` looks at: brackets and commas.
+_PUNCT = re.compile(r"[{}\[\](),]")
+#: First words of the statements :meth:`Moves._statement` reads (the others are skipped), and
+#: which of its patterns each can start.
+_FAMILY = {
+    **dict.fromkeys(("DEF", "DEFFCT", "GLOBAL"), "routine"),
+    **dict.fromkeys(("END", "ENDFCT"), "end"), "FDAT_ACT": "fdat", "BAS": "bas",
+    **dict.fromkeys(("$TOOL", "$BASE"), "set"),
+    **dict.fromkeys(("IF", "SWITCH", "FOR", "WHILE", "LOOP", "REPEAT"), "open"),
+    **dict.fromkeys(("ELSE", "CASE", "DEFAULT"), "middle"),
+    **dict.fromkeys(("ENDIF", "ENDSWITCH", "ENDFOR", "ENDWHILE", "ENDLOOP", "UNTIL"), "close"),
+    **dict.fromkeys(("PTP", "LIN", "CIRC", "SPTP", "SLIN", "SCIRC", "SPL"), "move"),
+    **dict.fromkeys(("PTP_REL", "LIN_REL", "CIRC_REL", "SPTP_REL", "SLIN_REL", "SCIRC_REL"),
+                    "rel"),
+    **dict.fromkeys(("SPLINE", "PTP_SPLINE"), "spline"),
+}  # fmt: skip
 _OPEN = re.compile(r"^\s*(IF|SWITCH|FOR|WHILE|LOOP|REPEAT)\b", re.I)
 _MIDDLE = re.compile(r"^\s*(ELSE|CASE|DEFAULT)\b", re.I)
 _CLOSE = re.compile(r"^\s*(ENDIF|ENDSWITCH|ENDFOR|ENDWHILE|ENDLOOP|UNTIL)\b", re.I)
@@ -81,7 +90,7 @@ class Moves:
         self.folds: list[tuple[int | None, int | None, int]] = []
         self.inline: list[Target] = []
         self.previous: Target | None = None
-        self.code = blank(src.text)
+        self.code = prog.code_of(src)
 
     def run(self) -> list[Target]:
         raw_lines = self.src.text.split("\n")
@@ -90,8 +99,8 @@ class Moves:
             if raw_lines[k].lstrip().startswith(";"):
                 self._fold(raw_lines[k], k + 1)
             head = _HEAD.match(line)
-            if head and head.group(1).upper() in _KEYWORDS:
-                self._statement(line, offset, k + 1)
+            if head and (word := head.group(1).upper()) in _FAMILY:
+                self._statement(line, offset, k + 1, _FAMILY[word])
             offset += len(line) + 1
         return self.inline
 
@@ -112,21 +121,23 @@ class Moves:
         self.blocks = []
         self.previous = None
 
-    def _statement(self, line: str, offset: int, no: int) -> None:
-        if m := _ROUTINE.match(line):
+    def _statement(self, line: str, offset: int, no: int, family: str) -> None:
+        """One statement; ``family`` (of its first word, see :data:`_FAMILY`) says which of
+        the patterns can match it."""
+        if family == "routine" and (m := _ROUTINE.match(line)):
             self._reset(f"DEF {m.group(1)}")
-        elif _END.match(line):
+        elif family == "end" and _END.match(line):
             self._reset("its DEF")
-        elif m := _FDAT_ACT.match(line):
+        elif family == "fdat" and (m := _FDAT_ACT.match(line)):
             self._fdat(m.group(1), no)
-        elif m := _BAS.match(line):
+        elif family == "bas" and (m := _BAS.match(line)):
             table = "TOOL_DATA" if m.group(1).upper() == "TOOL" else "BASE_DATA"
             self._set(m.group(1).upper(), self.prog.table(table, int(m.group(2))))
-        elif m := SET_FRAME.match(line):
+        elif family == "set" and (m := SET_FRAME.match(line)):
             self._set(m.group(1).upper(), self._frame_value(m.group(2), offset + m.start(2), no))
-        elif m := _OPEN.match(line):
+        elif family == "open" and (m := _OPEN.match(line)):
             self.blocks.append(_Block((self.tool, self.base), no, m.group(1).upper()))
-        elif (m := _MIDDLE.match(line)) and self.blocks:
+        elif family == "middle" and (m := _MIDDLE.match(line)) and self.blocks:
             blk = self.blocks[-1]
             if blk.kind in ("IF", "SWITCH"):
                 if not (blk.kind == "SWITCH" and not blk.ends and not blk.started):
@@ -134,17 +145,17 @@ class Moves:
                 blk.started = True
                 blk.complete |= m.group(1).upper() in ("ELSE", "DEFAULT")
                 self.tool, self.base = blk.entry
-        elif _CLOSE.match(line) and self.blocks:
+        elif family == "close" and _CLOSE.match(line) and self.blocks:
             self._close()
-        elif m := _MOVE.match(line):
+        elif family == "move" and (m := _MOVE.match(line)):
             rest, at = m.group(2), offset + m.start(2)
             if w := _WITH.search(rest):
                 self._with(rest[w.end() :], at + w.end(), no)
                 rest = rest[: w.start()]
             self._move(m.group(1).upper(), rest, at, no)
-        elif m := _REL_MOVE.match(line):
+        elif family == "rel" and (m := _REL_MOVE.match(line)):
             self._relative(m.group(1).upper(), m.group(2), no)
-        elif (m := _SPLINE.match(line)) and (w := _WITH.search(line)):
+        elif family == "spline" and _SPLINE.match(line) and (w := _WITH.search(line)):
             self._with(line[w.end() :], offset + w.end(), no)
 
     def _set(self, which: str, value: KrlFrame) -> None:
@@ -316,13 +327,14 @@ class Moves:
 def _top_level_spans(text: str) -> list[tuple[int, int]]:
     """Spans of ``text`` split at commas outside braces, brackets and parentheses."""
     out, depth, last = [], 0, 0
-    for i, c in enumerate(text):
+    for m in _PUNCT.finditer(text):
+        c = m.group()
         if c in "{[(":
             depth += 1
         elif c in "}])":
             depth -= 1
-        elif c == "," and depth == 0:
-            out.append((last, i))
-            last = i + 1
+        elif depth == 0:
+            out.append((last, m.start()))
+            last = m.start() + 1
     out.append((last, len(text)))
     return out

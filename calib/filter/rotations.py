@@ -15,6 +15,7 @@ Conventions, exactly:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -157,7 +158,9 @@ def zyx_deg_to_matrix(
     return out.reshape(*a.shape, 3, 3)
 
 
-def matrix_to_zyx_deg(rot: FloatArray, near_deg: FloatArray | None = None) -> FloatArray:
+def matrix_to_zyx_deg(
+    rot: FloatArray, near_deg: FloatArray | Sequence[float] | None = None
+) -> FloatArray:
     """``(a, b, c)`` [deg] (…, 3) with ``R = Rz(a) · Ry(b) · Rx(c)``; ``b`` in [-90, 90].
 
     With ``near_deg`` (…, 3), each angle is moved by whole turns to lie closest to it, so a
@@ -167,6 +170,8 @@ def matrix_to_zyx_deg(rot: FloatArray, near_deg: FloatArray | None = None) -> Fl
     # Closed form (scipy's from_matrix costs ~0.2 ms a call; a filter renders one target a
     # call): R[1,0] = sa cb, R[0,0] = ca cb, R[2,0] = -sb, R[2,1] = cb sc, R[2,2] = cb cc.
     # At B = ±90 deg only A ∓ C is defined: A is set to 0.
+    if rot.shape == (3, 3) and (near_deg is None or np.shape(near_deg) == (3,)):
+        return np.array(_zyx_deg_one(rot.tolist(), near_deg))
     r00, r10, r20 = rot[..., 0, 0], rot[..., 1, 0], rot[..., 2, 0]
     cb = np.hypot(r00, r10)
     lock = cb < 1e-9
@@ -178,6 +183,26 @@ def matrix_to_zyx_deg(rot: FloatArray, near_deg: FloatArray | None = None) -> Fl
     if near_deg is not None:
         near = np.asarray(near_deg, dtype=float)
         out = out + 360.0 * np.round((near - out) / 360.0)
+    return out
+
+
+def _zyx_deg_one(
+    r: list[list[float]], near_deg: FloatArray | Sequence[float] | None
+) -> list[float]:
+    """:func:`matrix_to_zyx_deg` of one rotation (nested lists) with the math module: the
+    same formulas, without numpy's per-call cost (a dialect renders one target a call)."""
+    cb = math.hypot(r[0][0], r[1][0])
+    if cb < 1e-9:
+        a = 0.0
+        sign = 1.0 if r[2][0] < 0 else -1.0
+        c = math.atan2(sign * r[0][1], sign * r[0][2])
+    else:
+        a = math.atan2(r[1][0], r[0][0])
+        c = math.atan2(r[2][1], r[2][2])
+    out = [math.degrees(a), math.degrees(math.atan2(-r[2][0], cb)), math.degrees(c)]
+    if near_deg is not None:
+        near = [float(v) for v in near_deg]
+        out = [v + 360.0 * round((n - v) / 360.0) for v, n in zip(out, near, strict=True)]
     return out
 
 
