@@ -48,7 +48,9 @@ BODY_TIMEOUT_S: Final = 60.0
 
 _IMPORT_PATH = re.compile(r"/api/v1/campaigns/[^/]+/samples/import/?")
 _COMPENSATE_PATH = re.compile(r"/api/v1/robots/[^/]+/compensate/?")
-_OPEN_PATHS = frozenset({"/api/v1/health"})
+#: The liveness route: open without the token (and kept a connection by daemon.api.server).
+HEALTH_PATH: Final = "/api/v1/health"
+_OPEN_PATHS = frozenset({HEALTH_PATH})
 _READ_METHODS = frozenset({"GET", "HEAD"})
 
 UNAUTHORIZED_DETAIL: Final = (

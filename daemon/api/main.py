@@ -1,6 +1,7 @@
 """Assemble the FastAPI app: lifespan (store → jobs → sampler, stopped in reverse), routers,
 error handlers (:mod:`daemon.api.errors`), the request guard (:mod:`daemon.api.guard`: auth,
-then body limits), the latency middleware, the operator page and /docs (:mod:`daemon.api.web`)."""
+then body limits), the latency middleware (:mod:`daemon.api.latency`), the operator page and
+/docs (:mod:`daemon.api.web`)."""
 
 from __future__ import annotations
 
@@ -8,17 +9,16 @@ import contextlib
 import gc
 import logging
 import sys
-import time
-from collections.abc import AsyncIterator, Awaitable, Callable, MutableMapping
+from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 from fastapi import Depends, FastAPI
 
-from daemon import metrics
 from daemon.api import errors
 from daemon.api.deps import AppState, bound_path_ids
 from daemon.api.errors import API_KINDS, not_found_detail
 from daemon.api.guard import RequestGuard
+from daemon.api.latency import LatencyMiddleware
 from daemon.api.methods import OptionsMiddleware
 from daemon.api.min_samples import MinSamplesCache
 from daemon.api.routes import (
@@ -45,49 +45,6 @@ log = logging.getLogger("cablecal.service")
 API_PREFIX = "/api/v1"
 #: The interpreter's GIL switch interval while the service runs [s] (see the lifespan).
 SWITCH_INTERVAL_S = 0.001
-
-Scope = MutableMapping[str, Any]
-Message = MutableMapping[str, Any]
-Receive = Callable[[], Awaitable[Message]]
-Send = Callable[[Message], Awaitable[None]]
-ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
-
-
-class LatencyMiddleware:
-    """Pure ASGI middleware: request latency per route template and status into
-    :data:`daemon.metrics.HTTP_LATENCY` (no per-request task, unlike BaseHTTPMiddleware)."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        t0 = time.perf_counter()
-        code = [500]
-
-        async def send_wrapper(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                code[0] = int(message["status"])
-            await send(message)
-
-        try:
-            await self.app(scope, receive, send_wrapper)
-        finally:
-            route = scope.get("route")
-            template = getattr(route, "path", None) or "unmatched"
-            # Routes of included routers carry their path without the router's prefix.
-            if (
-                route is not None
-                and scope["path"].startswith(API_PREFIX)
-                and not template.startswith(API_PREFIX)
-            ):
-                template = API_PREFIX + template
-            metrics.HTTP_LATENCY.labels(scope["method"], template, str(code[0])).observe(
-                time.perf_counter() - t0
-            )
-
 
 __all__ = ["API_KINDS", "API_PREFIX", "create_app", "not_found_detail"]
 
@@ -170,7 +127,7 @@ def create_app(
     app.add_middleware(
         RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
     )
-    app.add_middleware(LatencyMiddleware)
+    app.add_middleware(LatencyMiddleware, prefix=API_PREFIX)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
     for module in (system, live, campaigns, identifications, reports, robots, plans, apply,
                    watch):  # fmt: skip
