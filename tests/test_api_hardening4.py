@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
@@ -65,3 +66,122 @@ def test_odd_methods_and_paths_do_not_grow_metrics(client: TestClient, tmp_path:
     for i in range(1000, 2000):
         client.request("X" * (i % 200 + 1), f"/nope/{i}")
     assert len(client.get("/metrics").text) - len(after) < 2_000
+
+
+def _campaign(client: TestClient) -> int:
+    r = client.post(f"{API}/campaigns", json={"name": "c"}, headers=AUTH)
+    assert r.status_code == 201, r.text
+    return int(r.json()["id"])
+
+
+def _post_raw(client: TestClient, path: str, text: str) -> Any:
+    return client.post(path, content=text, headers={**AUTH, "Content-Type": "application/json"})
+
+
+# ------------------------------------------------------------------ 5. finite numbers
+@pytest.mark.parametrize("spelling", ["Infinity", "-Infinity", "NaN"])
+def test_non_finite_numbers_are_refused_in_every_body_and_query(
+    client: TestClient, spelling: str
+) -> None:
+    """``prior_mm: Infinity`` was a 202 (the stored options then showed null); now NaN and
+    ±Infinity are a 422 naming the field in bodies (top level, lists, nested bodies) and in
+    query parameters, and nothing is stored."""
+    cid = _campaign(client)
+    n_jobs = len(client.get(f"{API}/campaigns/{cid}/identifications", headers=AUTH).json())
+    for field in ("prior_mm", "prior_deg", "test_fraction", "noise_mm"):
+        body = f'{{"{field}": {spelling}}}'
+        r = _post_raw(client, f"{API}/campaigns/{cid}/identifications", body)
+        assert r.status_code == 422, (field, r.status_code, r.text)
+        assert field in r.text and "finite" in r.text, r.text
+    assert len(client.get(f"{API}/campaigns/{cid}/identifications", headers=AUTH).json()) == n_jobs
+    q = f"[0, -60, 200, -170, 40, {spelling}]"
+    r = _post_raw(client, f"{API}/campaigns/{cid}/captures", f'{{"joints_deg": {q}}}')
+    assert r.status_code == 422 and "joints_deg" in r.text and "finite" in r.text, r.text
+    word = {"Infinity": "inf", "-Infinity": "-Infinity", "NaN": "nan"}[spelling]
+    r = client.get(f"{API}/readings", params={"since_wall_s": word}, headers=AUTH)
+    assert r.status_code == 422 and "since_wall_s" in r.text and "finite" in r.text, r.text
+    assert client.get(f"{API}/readings", params={"since_wall_s": "1.5"}, headers=AUTH).is_success
+
+
+def test_every_number_of_every_body_schema_is_refused_when_not_finite(
+    client: TestClient,
+) -> None:
+    """The rule is the shared body base's: every request body of the OpenAPI document whose
+    schema has a number field refuses Infinity there (a model added later is covered)."""
+    from daemon.api.schemas import StrictBody
+
+    def models(cls: type) -> Iterator[type]:
+        for sub in cls.__subclasses__():
+            yield sub
+            yield from models(sub)
+
+    checked = 0
+    for model in models(StrictBody):
+        for name, field in model.model_fields.items():
+            if field.annotation in (float, float | None):
+                with pytest.raises(ValueError, match="finite"):
+                    model.model_validate({name: float("inf")})
+                checked += 1
+    assert checked >= 5, checked
+
+
+# --------------------------------------------------------------- 8. printable text
+@pytest.mark.parametrize("char", ["\x1b", "\x07", "\r", "\n", "\x00", "\x7f", "\x85", "\x9b"])
+def test_control_characters_are_refused_in_names_anchors_and_reasons(
+    client: TestClient, char: str
+) -> None:
+    """A campaign named ``\\x1b[2J…`` was stored and cleared the terminal of ``cablecal db
+    export``; C0 and C1 controls are now a 422 naming the field and the character, in
+    names, anchors and reasons (notes: see the next test)."""
+    cid = _campaign(client)
+    bad = f"a{char}[2Jb"
+    bad_notes = f"x{char}y" if char != "\n" else "\x1b"  # notes may hold line feeds
+    cases = [
+        ("post", f"{API}/campaigns", {"name": bad}, "name"),
+        ("post", f"{API}/campaigns", {"name": "ok", "notes": bad_notes}, "notes"),
+        ("post", f"{API}/campaigns/{cid}/captures", {"anchor": bad}, "anchor"),
+        ("put", f"{API}/campaigns/{cid}/auto-capture", {"enabled": False, "anchor": bad}, "anchor"),
+    ]
+    for method, path, body, field in cases:
+        r = client.request(method, path, json=body, headers=AUTH)
+        assert r.status_code == 422, (path, body, r.text)
+        assert field in r.text and "control character" in r.text, r.text
+    names = [c["name"] for c in client.get(f"{API}/campaigns", headers=AUTH).json()]
+    assert not any(char in n for n in names)
+
+
+def test_notes_keep_line_feeds_and_tabs(client: TestClient) -> None:
+    notes = "line one\n\tline two\nline three"
+    r = client.post(f"{API}/campaigns", json={"name": "noted", "notes": notes}, headers=AUTH)
+    assert r.status_code == 201, r.text
+    assert r.json()["notes"] == notes
+    schema = client.get("/openapi.json").json()["components"]["schemas"]["CampaignCreate"]
+    assert "pattern" in schema["properties"]["notes"] and "pattern" in schema["properties"]["name"]
+
+
+def test_the_cli_escapes_control_characters_from_the_store(tmp_path: Path) -> None:
+    """Rows written before the rule (straight into the store here) still reach the terminal
+    escaped: ``\\x1b`` as text, never the byte."""
+    from typer.testing import CliRunner
+
+    from calib.dataset import make_samples
+    from daemon.cli import app as cli_app
+    from daemon.store import Store
+
+    db = tmp_path / "c.db"
+    with Store(db) as store:
+        robot = store.ensure_builtin_robot("hsr-jr680")
+        cid = int(store.create_campaign("evil\x1b[2J\x07", int(robot["id"]), "")["id"])
+        q = [[0.0, -60.0, 200.0, -170.0, 40.0, 60.0]] * 2
+        store.import_samples(cid, make_samples(q, [500.0, 501.0], ["\x1b]0;pwned\x07", "B"]))
+    out = tmp_path / "out.csv"
+    runner = CliRunner()
+    for args in (["--out", str(out)], []):
+        r = runner.invoke(cli_app, ["db", "export", str(cid), "--db", str(db), *args])
+        assert r.exit_code == 0, r.output
+        assert "\x1b" not in r.output and "\x07" not in r.output, repr(r.output)
+    assert "\\x1b]0;pwned\\x07" in r.output  # the CSV on stdout, escaped
+    r = runner.invoke(cli_app, ["db", "export", "evil\x1b[2J\x07", "--db", str(db)])
+    assert "\x1b" not in r.output
+    r = runner.invoke(cli_app, ["db", "export", "nope\x1b[2J", "--db", str(db)])
+    assert r.exit_code == 2 and "\x1b" not in r.output and "nope\\x1b[2J" in r.output, r.output

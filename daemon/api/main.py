@@ -15,9 +15,9 @@ from typing import Any
 from fastapi import Depends, FastAPI
 
 from daemon.api import errors
-from daemon.api.deps import AppState, bound_path_ids
+from daemon.api.deps import AppState, bound_path_ids, finite_queries
 from daemon.api.errors import API_KINDS, not_found_detail
-from daemon.api.guard import RequestGuard
+from daemon.api.guard import API_PREFIX, RequestGuard
 from daemon.api.latency import LatencyMiddleware
 from daemon.api.methods import OptionsMiddleware
 from daemon.api.min_samples import MinSamplesCache
@@ -42,7 +42,6 @@ from daemon.watch import SensorWatch
 
 log = logging.getLogger("cablecal.service")
 
-API_PREFIX = "/api/v1"
 #: The interpreter's GIL switch interval while the service runs [s] (see the lifespan).
 SWITCH_INTERVAL_S = 0.001
 
@@ -121,7 +120,8 @@ def create_app(
         lifespan=lifespan,
         docs_url=None,  # served by mount_web from local files
         redoc_url=None,
-        dependencies=[Depends(bound_path_ids)],  # every {..._id} bounded, whatever the route
+        # Every {..._id} bounded and every number query finite, whatever the route.
+        dependencies=[Depends(bound_path_ids), Depends(finite_queries)],
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
     app.add_middleware(
