@@ -1,7 +1,8 @@
 """False alarms and detection delay of the live sensor watch (:mod:`daemon.watch`).
 
 Offline replay of synthetic sample streams through the daemon's own per-sample test
-(:class:`daemon.watch.LiveTester`: the running fit and :class:`daemon.stepwatch.StepDetector`,
+(:class:`calib.monitor.running_fit.LiveTester`: the running fit and
+:class:`calib.monitor.stepwatch.StepDetector`,
 the code the daemon runs after each capture, minus the store and the event loop). Each stream
 is an EMULATED cell's truth (:class:`simulator.cell.EmulatedCell`: HSR JR680 with Table XII
 D1 DH errors, a seeded random pose list, anchor (1400, 300, 200) mm) at its poses, with
@@ -34,8 +35,8 @@ import numpy as np
 
 from calib.dataset import SampleSet
 from calib.identify import IdentifyOptions, identify
-from daemon.stepwatch import StepDetector, StepSettings
-from daemon.watch import LiveTester
+from calib.monitor.running_fit import LiveTester
+from calib.monitor.stepwatch import StepDetector, StepSettings
 from simulator.cell import EmulatedCell
 from simulator.config import SimConfig
 
@@ -180,9 +181,10 @@ def markdown(out: dict[str, Any]) -> str:
         "# Live sensor watch: false alarms and detection delay",
         "",
         "`python -m bench.drift_watch` (part of `make bench`). **Offline replay** of synthetic",
-        "sample streams through the daemon's own per-sample test (`daemon.watch.LiveTester`:",
-        "the running fit, then `daemon.stepwatch.StepDetector` with the default settings), not",
-        "the live daemon; `tests/test_watch_e2e.py` runs the same test in the daemon on the",
+        "sample streams through the daemon's own per-sample test",
+        "(`calib.monitor.running_fit.LiveTester`: the running fit, then",
+        "`calib.monitor.stepwatch.StepDetector` with the default settings), not the live daemon;",
+        "`tests/test_watch_e2e.py` runs the same test in the daemon on the",
         "emulated cell. Streams: the EMULATED cell's truth (HSR JR680, Table XII D1 DH",
         "errors, random spread poses, one seed per campaign), Gaussian noise, 0.01 mm",
         f"quantisation, {out['samples']} samples per campaign, no accepted calibration: the",

@@ -163,7 +163,7 @@ def run_paper_protocol(
     paper's maximum-likelihood fits, or with the MAP prior (identify's default)."""
     labels = {m: Variant(m, prior).label for m in methods}
     per_seed: dict[str, list[dict[str, Any]]] = {labels[m]: [] for m in methods}
-    for run in run_protocol(model, samples, methods, seeds, prior=prior):
+    for run in run_protocol(model, samples, methods, seeds, prior=prior, clock=time.perf_counter):
         s, m = run.seed, labels[run.method]
         rec = _run_record(run.result, run.elapsed_s)
         per_seed[m].append({"seed": s, **rec})

@@ -58,10 +58,12 @@ from scipy.optimize import least_squares
 
 from bench.real_data import ROBOT
 from calib import methods
+from calib.anchors import fit_anchors
+from calib.anchors import plain_fit as _fit
 from calib.cable import N_DH, ParamLayout, length_jacobian, predict_lengths
 from calib.dataset import SampleSet
 from calib.identifiability import analyse, generic_jacobian
-from calib.identify import IdentifyOptions, _fit, fit_anchors, identify
+from calib.identify import IdentifyOptions, identify
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
 from calib.options import default as default_option

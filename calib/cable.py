@@ -37,6 +37,9 @@ from calib.models import RobotModel
 N_DH = 4 * N_JOINTS
 N_KIN = N_DH + 3  # DH errors + tool point
 ANCHOR_FIELDS = ("p0_x", "p0_y", "p0_z", "offset")
+#: Fewest samples that locate one anchor: :func:`multilaterate` solves a linear system in five
+#: unknowns (P0, the offset c, and ``|P0|² − c²``), so it needs at least five rows.
+MIN_ANCHOR_SAMPLES = 5
 RAD_PER_DEG = np.pi / 180.0
 
 
@@ -190,8 +193,9 @@ def multilaterate(points_mm: FloatArray, length_mm: FloatArray) -> tuple[FloatAr
     p0_mm : ndarray, shape (3,)
     offset_mm : float
     """
-    if points_mm.shape[0] < 5:
-        raise ValueError(f"multilateration needs at least 5 samples, got {points_mm.shape[0]}")
+    if points_mm.shape[0] < MIN_ANCHOR_SAMPLES:
+        raise ValueError(f"multilateration needs at least {MIN_ANCHOR_SAMPLES} samples, "
+                         f"got {points_mm.shape[0]}")  # fmt: skip
     a = np.column_stack([-2.0 * points_mm, 2.0 * length_mm, np.ones(points_mm.shape[0])])
     b = length_mm**2 - np.einsum("ij,ij->i", points_mm, points_mm)
     scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)

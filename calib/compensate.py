@@ -52,7 +52,7 @@ What compensation cannot remove
     Pose mode corrects the orientation toward the calibrated model's flange orientation, which
     cable lengths observe only through the hook point's lever; with a hook near the flange
     axis it is weakly identified (on the virtual cell of ``bench/compensate_bench.py`` the
-    true orientation error grows from 0.13° to 1.0°). The note says so in pose mode.
+    true orientation error grows: bench/compensate_results.md). The note says so in pose mode.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ import csv
 import io
 import math
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import NoReturn
 
@@ -126,12 +126,14 @@ class SampleSet:
 
 
 def make_samples(
-    joints_deg: FloatArray,
-    length_mm: FloatArray,
+    joints_deg: FloatArray | Sequence[Sequence[float]],
+    length_mm: FloatArray | Sequence[float],
     anchor: list[str] | tuple[str, ...] | None = None,
     group: list[str] | tuple[str, ...] | None = None,
+    t_s: FloatArray | Sequence[float] | None = None,
 ) -> SampleSet:
-    """Build and validate a :class:`SampleSet` from arrays ((n, 6) deg and (n,) mm)."""
+    """Build and validate a :class:`SampleSet` from arrays or lists ((n, 6) deg and (n,) mm;
+    ``t_s`` (n,) capture times [s], optional)."""
     q = np.asarray(joints_deg, dtype=float)
     length = np.asarray(length_mm, dtype=float)
     if q.ndim != 2 or q.shape[1] != N_JOINTS:
@@ -140,8 +142,11 @@ def make_samples(
         raise SampleError(f"length_mm must have shape ({q.shape[0]},), got {length.shape}")
     n = q.shape[0]
     anchors = tuple(anchor) if anchor is not None else ("A",) * n
+    times = None if t_s is None else np.asarray(t_s, dtype=float)
+    if times is not None and times.shape != (n,):
+        raise SampleError(f"t_s must have shape ({n},), got {times.shape}")
     s = SampleSet(q, length, anchors, tuple(group) if group is not None else None,
-                  np.arange(2, n + 2))  # fmt: skip
+                  np.arange(2, n + 2), times)  # fmt: skip
     validate_values(s)
     return s
 
@@ -320,3 +325,32 @@ def samples_to_csv(samples: SampleSet) -> str:
             row.append(f"{samples.t_s[i]:.3f}")
         writer.writerow(row)
     return out.getvalue()
+
+
+def capture_times_s(t_end_s: list[float | None], captured: list[bool]) -> FloatArray | None:
+    """The capture times of samples in storage order, for the drift model of
+    :mod:`calib.drift`, or None when they do not count (then the row order is the time).
+
+    They count only when there are at least two samples, every one was captured (an import
+    has one timestamp for all its rows), each has its time, and the times never go back.
+
+    Parameters
+    ----------
+    t_end_s : list of float or None, length n
+        The end of each capture [s epoch]; None: not known.
+    captured : list of bool, length n
+        Whether each sample was captured live (False: imported).
+
+    Returns
+    -------
+    ndarray, shape (n,), or None
+        [s] since the first sample.
+    """
+    n = len(t_end_s)
+    if n < 2 or not all(captured) or any(t is None for t in t_end_s):
+        return None
+    stamps: FloatArray = np.array(t_end_s, dtype=float)
+    if not bool(np.all(np.diff(stamps) >= 0)):
+        return None
+    out: FloatArray = stamps - stamps[0]
+    return out

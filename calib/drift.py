@@ -23,7 +23,7 @@ its coefficients [mm]:
 The basis does not depend on ``θ``, so the problem is separable: :class:`calib.problem.Problem`
 projects the residual and Jacobian onto the complement of ``span(√w · B)`` (variable projection,
 Golub and Pereyra), every solver sees the robot's parameters only, and ``β`` follows by linear
-least squares at the end (:func:`coefficients`).
+least squares at the end (:func:`calib.linalg.coefficients`).
 
 **Choosing the model** (:func:`select`): at the plain (no-drift) fit, the linearised problem
 ``r ≈ J δx + B β`` (prior rows included, so that a change the MAP prior would not let the
@@ -58,14 +58,19 @@ steps on top of the chosen smooth drift.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
+from calib.anchors import PLAIN_FIT
 from calib.kinematics import FloatArray
+from calib.linalg import orthonormal
 from calib.options import DriftMode
+from calib.problem import Problem
 from calib.robust import median
+from calib.solvers import geolm
 
 StepKind = Literal["rezero", "sensor_moved"]
 
@@ -78,15 +83,15 @@ MAX_STEPS = 6
 #: Fewest training rows on either side of a change point.
 MIN_SEGMENT_ROWS = 8
 #: Fewest training rows on either side of a sensor move: locating a new P0 (4 unknowns) from
-#: fewer poses is an extrapolation (on 120 rows of the HSR data, 11 rows "found" a 5.8 mm
-#: move whose offset and P0 cancel, and the held-out error grew by half).
+#: fewer poses is an extrapolation (a short segment of the HSR data "found" a move of
+#: millimetres whose offset and P0 cancel, and the held-out error grew).
 MIN_MOVE_ROWS = 30
 #: Least share of the plain fit's residual sum of squares a model (and each of its steps, of
 #: the residual left before it) must explain to be chosen over none by ``auto``: BIC assumes
 #: independent errors, but unmodelled robot error (compliance, the robot's own warm-up) is
 #: correlated along a pose sequence and passes BIC by a little. Below 10 % (the RMS 5 %
-#: lower) a change is not worth a model; above it, on the campaigns of issue 19, it is 40 %
-#: to 99 %.
+#: lower) a change is not worth a model; the real changes of bench/drift.md's campaigns
+#: explain far more.
 MIN_GAIN = 0.1
 #: Rows beyond this many robust σ of the residual a chosen model leaves are gross outliers:
 #: the choice is made again without them.
@@ -163,26 +168,6 @@ def hats(knots: FloatArray, t: FloatArray) -> FloatArray:
     tt = np.clip(t, knots[0], knots[-1])
     eye = np.eye(knots.shape[0])
     return np.column_stack([np.interp(tt, knots, eye[j]) for j in range(knots.shape[0])])
-
-
-def coefficients(basis_w: FloatArray, residual_w: FloatArray) -> FloatArray:
-    """``β`` (m,) [mm] minimising ``‖residual_w − basis_w β‖`` (weighted rows, (n, m) and (n,))."""
-    if basis_w.shape[1] == 0:
-        return np.zeros(0)
-    beta, *_ = np.linalg.lstsq(basis_w, residual_w, rcond=1e-10)
-    return np.asarray(beta, dtype=float)
-
-
-def orthonormal(mat: FloatArray, rtol: float = 1e-10) -> FloatArray:
-    """Orthonormal basis (n, r) of the column span of ``mat`` (n, m) (SVD, rank cut ``rtol``)."""
-    if mat.shape[1] == 0:
-        return np.zeros((mat.shape[0], 0))
-    norms = np.linalg.norm(mat, axis=0)
-    norms[norms == 0] = 1.0
-    u, s, _ = np.linalg.svd(mat / norms, full_matrices=False)
-    if s.size == 0 or not s[0] > 0:
-        return np.zeros((mat.shape[0], 0))
-    return np.asarray(u[:, s > s[0] * rtol], dtype=float)
 
 
 @dataclass
@@ -461,67 +446,21 @@ def _select_once(
     return sel
 
 
-def report(
-    model: DriftModel, beta: FloatArray, selection: Selection | None, mode: str
-) -> dict[str, Any]:
-    """``result.json``'s ``drift`` block: the model, the steps (row, kind, sizes [mm]), the
-    smooth drift (knots, values [mm], peak-to-peak [mm], steepest rate [mm/h or mm per 100
-    samples]) and the criterion's scores (BIC, leave-one-out PRESS [mm²]), and the gross
-    outliers left out of the choice. The caller adds
-    ``per_sample_mm`` (n,): the drift term at every sample [mm], in sample order."""
-    per = "mm_per_h" if model.time_unit == "s" else "mm_per_100_samples"
-    scale = 3600.0 if model.time_unit == "s" else 100.0
-    out: dict[str, Any] = {"mode": mode, "model": model.name, "time_unit": model.time_unit,
-                           "n_columns": model.n_columns, "steps": [], "smooth": None}  # fmt: skip
-    n_smooth = max(len(model.knots) - 1, 0)
-    smooth_beta = beta[:n_smooth]
-    j = n_smooth
-    for s in model.steps:
-        entry: dict[str, Any] = {"row": s.row, "t": s.t, "kind": s.kind,
-                                 "offset_mm": float(beta[j])}  # fmt: skip
-        if s.kind == "sensor_moved":
-            delta = beta[j + 1 : j + 4]
-            entry["p0_shift_mm"] = [float(v) for v in delta]
-            entry["size_mm"] = float(np.linalg.norm(delta))
-            j += 4
-        else:
-            entry["size_mm"] = abs(float(beta[j]))
-            j += 1
-        out["steps"].append(entry)
-    if model.knots:
-        knots = np.asarray(model.knots)
-        values = np.concatenate([[0.0], smooth_beta])
-        slopes = np.diff(values) / np.maximum(np.diff(knots), 1e-12) * scale
-        out["smooth"] = {
-            "knots_t": [float(v) for v in knots],
-            "values_mm": [float(v) for v in values],
-            "peak_to_peak_mm": float(np.ptp(values)),
-            f"max_rate_{per}": float(np.max(np.abs(slopes))) if slopes.size else 0.0,
-            f"mean_rate_{per}": float(
-                (values[-1] - values[0]) / max(knots[-1] - knots[0], 1e-12) * scale
-            ),
-        }
-    if selection is not None:
-        out["bic"] = {k: round(v, 3) for k, v in selection.bic.items()}
-        out["loo_press_mm2"] = {k: round(v, 6) for k, v in selection.press_mm2.items()}
-        out["rows_left_out_of_the_choice"] = selection.excluded_rows
-    return out
+#: Methods whose solvers see the problem through ``Problem.evaluate`` (the drift's projection).
+DRIFT_METHODS = ("geolm", "lm", "vslm")
 
 
-def summary(block: dict[str, Any]) -> str:
-    """One line for the notes and the CLI: what :func:`report`'s ``block`` found."""
-    if block["model"] == "none":
-        return f"drift {block['mode']}: none found (the measurement held still)"
-    per = "mm/h" if block["time_unit"] == "s" else "mm/100 samples"
-    parts = []
-    for s in block["steps"]:
-        what = "sensor moved" if s["kind"] == "sensor_moved" else "indicator re-zeroed"
-        parts.append(f"{what} at row {s['row']} ({s['size_mm']:.2f} mm)")
-    sm = block["smooth"]
-    if sm is not None:
-        key = next(k for k in sm if k.startswith("max_rate_"))
-        parts.append(
-            f"smooth offset drift over {len(sm['knots_t'])} knots, "
-            f"{sm['peak_to_peak_mm']:.2f} mm peak to peak, up to {sm[key]:.2f} {per}"
-        )
-    return f"drift {block['mode']}: " + "; ".join(parts) + " (left out of the robot's figures)"
+def select_at_plain_fit(
+    mode: DriftMode, problem: Problem, t: FloatArray, rows: np.ndarray,
+    units: Callable[[FloatArray], FloatArray], time_unit: str,
+) -> tuple[Selection, FloatArray]:  # fmt: skip
+    """:func:`select` at the plain fit of ``problem`` (MAP or ML, no drift basis) by geodesic
+    LM (:data:`calib.anchors.PLAIN_FIT`) from its start. ``t`` (n,) and ``rows`` (n,) as for
+    :func:`select`; ``units(theta)`` gives the unit vectors (n, 3) from ``P0`` to the tool of
+    the training rows under the full vector ``theta`` (p,). Returns the selection and those
+    unit vectors at the plain fit (the chosen model's basis needs them)."""
+    x = geolm.descend(problem, problem.x0(), PLAIN_FIT).x
+    ev = problem.evaluate(x)
+    assert ev.jacobian is not None
+    unit = units(problem.full(x))
+    return select(mode, ev.residual, ev.jacobian, t, rows, unit, time_unit), unit

@@ -29,10 +29,10 @@ generic poses): :func:`calib.options.validate` needs more training rows than tha
 **Noise-level threshold** (``noise_mm`` and ``plausible``). ``rtol`` only removes what is
 redundant to rounding. A DH parameter can pass it and still be worth fixing: with the hook
 point near the flange axis, ``d5`` and ``theta5`` are nearly redundant with the tool point and
-each other, and their least-squares 1σ on 40 good poses at 0.05 mm noise is 3–14 times a
-plausible manufacturing error (``a5``/``alpha5`` go with them). Fixing a parameter at nominal
-costs a bias of the order of its true error, of which the other parameters absorb all but the
-part outside their span; solving for it costs its standard deviation
+each other, and their least-squares 1σ on a few dozen good poses at low noise is several times
+a plausible manufacturing error (docs/planning.md; ``a5``/``alpha5`` go with them). Fixing a
+parameter at nominal costs a bias of the order of its true error, of which the other
+parameters absorb all but the part outside their span; solving for it costs its standard deviation
 ``σ_i = noise · sqrt([(JᵀJ)⁻¹]_ii)``. So, given the length noise and a plausible error size
 ``δ_i`` per parameter, DH parameters are dropped one at a time, worst ``σ_i/δ_i`` first, until
 every remaining one has ``σ_i ≤ δ_i``. In terms of the scaled Jacobian ``J_i δ_i`` this is a

@@ -5,23 +5,24 @@ The public entry point is :func:`identify`. It
 1. checks the options against the samples (:func:`calib.options.validate`) and splits them
    into training and test rows (random, grouped, or given; :mod:`calib.split`);
 2. fits the *before* model: nominal kinematics with only ``P0`` and ``c`` per anchor, started
-   by linear multilateration (:func:`calib.cable.multilaterate`) and refined by LM;
+   by linear multilateration (:func:`calib.cable.multilaterate`) and refined by LM
+   (:func:`calib.anchors.fit_anchors`);
 3. starts the full identification from the nominal DH table with the tool point, ``P0`` and
    ``c`` fitted (so that every method starts from the same, data-driven point, and no manual
    guess is needed);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name;
-   then (``drift``, :mod:`calib.drift`) tests the plain fit for steps and a smooth drift of
-   the measurement over the campaign; a chosen model's terms are profiled out of the problem
-   (:class:`calib.problem.Problem`'s drift basis) for every later fit, and the test rows'
-   figures add them at each row's time;
-5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise of a
-   maximum-likelihood fit, or by grouped-fold cross-validation (:mod:`calib.prior`), and runs
+   then (``drift``, :func:`calib.drift.select_at_plain_fit`) tests the plain fit for steps
+   and a smooth drift of the measurement over the campaign; a chosen model's terms are
+   profiled out of the problem (:class:`calib.problem.Problem`'s drift basis) for every later
+   fit, and the test rows' figures add them at each row's time;
+5. weighs the optional Gaussian prior toward the nominal model (MAP) by the noise its own MAP
+   fits estimate, or by grouped-fold cross-validation (:func:`calib.prior.weighed_solve`), and runs
    the chosen method (:data:`calib.methods.REGISTRY`), robustly by default: ``auto`` fits, tests
    the leverage-studentised residuals (prior included) against a MAD scale and a threshold
    growing with ``n`` and with the scale's uncertainty, when the redundancy allows screening,
    and only on outliers (or gross errors) rejects them and refits from the start; IRLS with Huber or
-   soft-L1 weights, or rejection at 3.5σ, on request (:mod:`calib.robust`);
+   soft-L1 weights, or rejection at 3.5σ, on request (:func:`calib.robust.solve`);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
    metrics before and after on train and test, the plausibility of every parameter
    (:mod:`calib.report`) and the predicted tool-point σ after best rigid alignment
@@ -38,16 +39,9 @@ from typing import Any
 
 import numpy as np
 
-from calib import drift, methods, metrics, noise, prior, robust
-from calib.cable import (
-    N_DH,
-    N_KIN,
-    ParamLayout,
-    kinematic_parts,
-    length_jacobian,
-    multilaterate,
-    predict_lengths,
-)
+from calib import drift, methods, prior, robust
+from calib.anchors import fit_anchors, plain_fit
+from calib.cable import N_DH, N_KIN, ParamLayout, kinematic_parts, length_jacobian, predict_lengths
 from calib.dataset import SampleError, SampleSet, validate_joint_limits
 from calib.identifiability import (
     Identifiability,
@@ -59,75 +53,34 @@ from calib.identifiability import (
 )
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
-from calib.options import (
-    METHODS,
-    SCREEN_MIN_DOF,
-    IdentifyOptions,
-    check_training_rows,
-    samples_for_training_rows,
-    validate,
-)
+from calib.options import METHODS, IdentifyOptions, check_training_rows, validate
 from calib.prior import prior_block
 from calib.problem import Problem
 from calib.report import (
     IdentifyResult,
     covariance,
+    drift_report,
+    drift_summary,
     implausibility_advice,
+    length_figures,
     plausibility,
+    robust_detail,
+    robust_note,
     uncertainty,
 )
-from calib.solvers import geolm
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sub_progress
+from calib.solvers.common import ProgressFn, report
 from calib.split import pose_groups, split_rows
 from calib.tcp import tcp_uncertainty_for_problem
+from calib.timing import Clock, Timer
 
 __all__ = [
     "METHODS",
     "IdentifyOptions",
     "IdentifyResult",
-    "fit_anchors",
     "identify",
     "pose_groups",
     "split_rows",
 ]
-
-
-#: The internal plain fits' solver options (:func:`_fit`, :func:`_select_drift`).
-_PLAIN_FIT = geolm.GeoLMOptions(max_iterations=100)
-
-
-def _fit(problem: Problem, x0: FloatArray | None = None) -> FloatArray:
-    """The full vector at the least-squares optimum of ``problem`` from ``x0`` (k,), by
-    geodesic LM: its tiny initial damping and the acceleration meet LM's stopping tests in
-    fewer iterations than LM (bench/cli_speed.md times the whole identify)."""
-    res = geolm.descend(problem, problem.x0() if x0 is None else x0, _PLAIN_FIT)
-    return problem.full(res.x)
-
-
-def fit_anchors(
-    model: RobotModel, layout: ParamLayout, theta: FloatArray, q_rad: FloatArray,
-    anchor_index: np.ndarray, length_mm: FloatArray,
-) -> FloatArray:  # fmt: skip
-    """``theta`` with every anchor's P0 and c fitted (multilateration start, LM refinement)."""
-    theta = theta.copy()
-    dh, tool = kinematic_parts(model, theta)
-    pts = forward_position(dh, q_rad, tool, model.convention)
-    for k in range(len(layout.anchors)):
-        rows = anchor_index == k
-        if np.count_nonzero(rows) < 5:
-            raise SampleError(
-                f"anchor {layout.anchors[k]!r} has {np.count_nonzero(rows)} samples; at least 5 "
-                "are needed to locate it",
-                column="anchor",
-            )
-        p0, c = multilaterate(pts[rows], length_mm[rows])
-        if not (np.all(np.isfinite(p0)) and np.isfinite(c)):
-            p0, c = pts[rows].mean(axis=0) + 500.0, 0.0
-        theta[layout.anchor_slice(k)] = [*p0, c]
-    free = np.zeros(layout.size, dtype=bool)
-    free[N_KIN:] = True
-    prob = Problem(model, layout, q_rad, length_mm, anchor_index, free, theta)
-    return _fit(prob)
 
 
 @dataclass
@@ -212,7 +165,8 @@ def _start_point(
     if candidates[N_DH:N_KIN].any():
         free0 = np.zeros(layout.size, dtype=bool)
         free0[N_DH:] = candidates[N_DH:]
-        theta_start = _fit(Problem(d.model, layout, d.q, d.length_mm, d.aidx, free0, theta_before))
+        prob = Problem(d.model, layout, d.q, d.length_mm, d.aidx, free0, theta_before)
+        theta_start = plain_fit(prob)
     return theta_start, candidates
 
 
@@ -243,44 +197,17 @@ def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: Identify
 
 def _weighed_solve(
     d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
-    opts: IdentifyOptions, progress: ProgressFn | None,
-) -> tuple[IdentifyOptions, dict[str, Any], _Solved]:  # fmt: skip
-    """Step 5: the fit, its prior weighed as ``prior_weight`` says (:mod:`calib.prior`).
-
-    ``fixed`` (or no prior): one solve. ``estimated``: the noise fixed point, each round a
-    MAP solve with the noise the last one estimated (from the option's ``noise_mm``), until
-    ``σ̂`` agrees with the noise used within ``prior.NOISE_RTOL``; the last round is the fit.
-    ``cv``: that noise, then the prior-width scale chosen by grouped-fold cross-validation,
-    and a final solve. Returns the options the fit ran with, the detail for ``result.json``
-    and the solve.
-    """
-    if not opts.prior or opts.prior_weight == "fixed":
-        return opts, {}, _solve(_problem(d, theta_start, free, opts), opts, progress)
-    used = opts
-    noise = opts.noise_mm
-    warm = theta_start  # each round starts where the last ended (the prior mean stays)
-    for rounds in range(1, prior.NOISE_ROUNDS + 1):
-        report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
-        problem = _problem(d, theta_start, free, used).with_theta0(warm)
-        solved = _solve(problem, used, progress)
-        noise = prior.noise_from_map(solved.problem, solved.result.x)
-        if abs(noise / used.noise_mm - 1.0) < prior.NOISE_RTOL:
-            break
-        used = prior.scaled_options(opts, noise, 1.0)
-        warm = solved.problem.full(solved.result.x)
-    detail: dict[str, Any] = {"noise_estimated_mm": noise, "noise_rounds": rounds}
-    if opts.prior_weight == "estimated":
-        return used, detail, solved
-    report(progress, 0.1, "cross-validating the prior scale over pose groups")
+    opts: IdentifyOptions, progress: ProgressFn | None, clock: Clock | None,
+) -> tuple[IdentifyOptions, dict[str, Any], robust.Solved]:  # fmt: skip
+    """Step 5: the fit, its prior weighed as ``prior_weight`` says
+    (:func:`calib.prior.weighed_solve`; ``cv`` scores each fold by an identification)."""
 
     def held_out_rmse(o: IdentifyOptions, tr: np.ndarray, te: np.ndarray) -> float:
         res = identify(d.model, samples, o, train_rows=tr, test_rows=te)
         return float(res.metrics["after"]["test"]["rmse_mm"])
 
-    scale, scores = prior.cv_scale(held_out_rmse, samples, opts, d.train_rows, used.noise_mm)
-    detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
-    used = prior.scaled_options(opts, used.noise_mm, scale)
-    return used, detail, _solve(_problem(d, theta_start, free, used), used, progress)
+    return prior.weighed_solve(lambda o: _problem(d, theta_start, free, o), theta_start, opts,
+                               held_out_rmse, samples, d.train_rows, progress, clock)  # fmt: skip
 
 
 def _counting(progress: ProgressFn | None) -> ProgressFn | None:
@@ -300,142 +227,19 @@ def _counting(progress: ProgressFn | None) -> ProgressFn | None:
     return counted
 
 
-#: Most fits of the rejecting modes (the first, plain fit included).
-REJECT_ROUNDS = 5
-
-
-@dataclass
-class _Solved:
-    """What step 5 found: the last solver result (iterations summed over rounds), the problem
-    with the final weights, the standardised residuals of the training rows (shape (n_train,)),
-    the flag threshold [robust σ], the rows flagged (indices into the training rows), the
-    number of fits run and the last screening (None without a robust mode)."""
-
-    result: SolverResult
-    problem: Problem
-    u: FloatArray
-    threshold: float
-    flagged: np.ndarray
-    fits: int
-    screening: robust.Screening | None = None
-
-
-def _screen(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOptions,
-            floor_mm: float, first: robust.Screening | None) -> robust.Screening:  # fmt: skip
-    """The outlier screening of every training row at ``x`` under weights ``w`` (n,), the
-    prior's rows counted in the leverage (:func:`calib.robust.screen`); whether ``auto``
-    screens is decided on the ``first`` (plain) fit. ``problem`` has unit weights, so its
-    Jacobian's data rows are the unweighted ones."""
-    ev = problem.evaluate(x)
-    assert ev.jacobian is not None
-    n = problem.n_samples
-    prior_jac = ev.jacobian[n:] if problem.has_prior else None
-    return robust.screen(opts.robust, ev.residual[:n], ev.jacobian[:n], w, prior_jac,
-                         opts.flag_threshold, floor_mm,
-                         None if first is None else first.screening)  # fmt: skip
-
-
-def _solve(problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None) -> _Solved:
-    """Step 5: run the method; robustly, as IRLS rounds (huber, soft_l1) or as rejection
-    rounds (reject, auto; each refit starts from the common start, not from the contaminated
-    solution, so an outlier's pull does not carry over)."""
-    n = problem.length_mm.size
-    thr = opts.flag_threshold
-    floor_mm = noise.noise_floor_mm(problem.length_mm)
-    rejecting = opts.robust in robust.REJECTING
-    weights = np.ones(n)
-    scr: robust.Screening | None = None
-    first: robust.Screening | None = None
-    rounds = 1 if opts.robust == "none" else REJECT_ROUNDS if rejecting else 8
-    seen: list[FloatArray] = []
-    result: SolverResult | None = None
-    total_iter, fits = 0, 0
-    history: list[float] = []
-    starts: list[int] = []
-    x = problem.x0()
-    u = np.zeros(n)
-    for r in range(rounds):
-        prob_r = problem.with_weights(weights)
-        lo = 0.05 + 0.9 * r / rounds
-        start = problem.x0() if rejecting else x
-        result = methods.run(prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds))
-        total_iter += result.iterations
-        fits += 1
-        starts.append(len(history))
-        history.extend(result.cost_history_rms_mm)
-        x = result.x
-        if opts.robust == "none":
-            break
-        scr = _screen(problem, x, weights, opts, floor_mm, first)
-        first = first or scr
-        u, thr = scr.u, scr.threshold
-        if rejecting:
-            new_w = (~scr.rejected(weights)).astype(float)
-        else:
-            new_w = robust.WEIGHTS[opts.robust](u, opts.robust_k)
-        if np.max(np.abs(new_w - weights)) < 1e-3 or r == rounds - 1:
-            break  # converged, or out of rounds: keep the weights the last fit used
-        if rejecting and any(np.array_equal(new_w, w) for w in seen):
-            break  # a cycle of rejected sets (model error near the threshold): stop
-        seen.append(weights)
-        weights = new_w
-    assert result is not None
-    result.iterations = total_iter
-    result.cost_history_rms_mm, result.fit_starts = history, starts
-    flagged = np.flatnonzero(weights == 0) if rejecting else np.flatnonzero(u > thr)
-    return _Solved(result, problem.with_weights(weights), u, thr, flagged, fits, scr)
-
-
-def _robust_note(opts: IdentifyOptions, s: _Solved, d: _Data) -> str:
-    scr = s.screening
-    if opts.robust == "auto" and scr is not None and not scr.screening:
-        train = d.train_rows.size + scr.rows_short()
-        more = max(samples_for_training_rows(train, opts.test_fraction) - len(d.samples),
-                   scr.rows_short())  # fmt: skip
-        gross = (f"{s.flagged.size} gross error(s) beyond {robust.GROSS_ERROR_MM:g} mm rejected "
-                 "and refit from the start; " if s.flagged.size else "")  # fmt: skip
-        return (f"robust auto: {gross}too few samples to screen outliers: {more} more would "
-                f"allow it (redundancy {scr.redundancy:.1f}, screening needs "
-                f"{SCREEN_MIN_DOF}); only a residual beyond "
-                f"{robust.GROSS_ERROR_MM:g} mm is rejected")  # fmt: skip
-    if opts.robust == "auto" and s.flagged.size == 0:
-        return (f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
-                f"robust σ, threshold {s.threshold:.2f}): the plain fit")  # fmt: skip
-    how = {"auto": "rejected, refit from the start", "reject": "rejected, refit from the start",
-           "huber": "down-weighted", "soft_l1": "down-weighted"}[opts.robust]  # fmt: skip
-    return (f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
-            f"({how}; {s.fits} fit(s))")  # fmt: skip
-
-
-def _robust_detail(opts: IdentifyOptions, s: _Solved) -> dict[str, Any]:
-    """``result.json``'s ``robust_detail``: the threshold [robust σ] (null when not screening),
-    the fits, and whether the residuals were screened at what redundancy."""
-    scr = s.screening
-    return {"mode": opts.robust, "threshold": s.threshold if np.isfinite(s.threshold) else None,
-            "fits": s.fits, "screened": None if scr is None else scr.screening,
-            "redundancy": None if scr is None else scr.redundancy}  # fmt: skip
-
-
-#: Methods whose solvers see the problem through ``Problem.evaluate`` (the drift's projection).
-DRIFT_METHODS = ("geolm", "lm", "vslm")
-
-
 def _select_drift(
     d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions
 ) -> drift.Selection | None:
-    """Step 4b: the drift model (:func:`calib.drift.select`) at a plain MAP (or ML) fit with
-    the options' noise; sets ``d.drift_model`` and ``d.drift_basis`` unless it is none."""
-    if opts.drift == "none" or opts.method not in DRIFT_METHODS:
+    """Step 4b: the drift model (:func:`calib.drift.select_at_plain_fit`) at a plain MAP (or
+    ML) fit with the options' noise; sets ``d.drift_model`` and ``d.drift_basis`` unless it
+    is none."""
+    if opts.drift == "none" or opts.method not in drift.DRIFT_METHODS:
         return None
-    base = _problem(d, theta_start, free, opts)
-    # The plain fit by geodesic LM, as _fit.
-    x = geolm.descend(base, base.x0(), _PLAIN_FIT).x
-    ev = base.evaluate(x)
-    assert ev.jacobian is not None
     t_all, unit = d.times
-    units = d.units(base.full(x), d.train_rows)
     t = t_all[d.train_rows]
-    sel = drift.select(opts.drift, ev.residual, ev.jacobian, t, d.train_rows, units, unit)
+    sel, units = drift.select_at_plain_fit(opts.drift, _problem(d, theta_start, free, opts), t,
+                                           d.train_rows, lambda th: d.units(th, d.train_rows),
+                                           unit)  # fmt: skip
     if not sel.model.is_none:
         d.drift_model = sel.model
         d.drift_basis = sel.model.basis(t, units)
@@ -455,15 +259,11 @@ def _figures(
 ) -> dict[str, dict[str, dict[str, float]]]:
     """Length metrics before and after, on the training and the test rows; the after figures
     with the drift terms ``beta`` (m,) [mm] at each row's time (none before)."""
-    out: dict[str, dict[str, dict[str, float]]] = {}
-    for label, th in (("before", theta_before), ("after", theta)):
-        out[label] = {}
-        for part, rows in (("train", d.train_rows), ("test", d.test_rows)):
-            pred = d.lengths(th, rows)
-            if label == "after":
-                pred = pred + _drift_mm(d, th, beta, rows)
-            out[label][part] = metrics.length_metrics(d.samples.length_mm[rows], pred)
-    return out
+    return length_figures(
+        d.samples.length_mm, {"train": d.train_rows, "test": d.test_rows},
+        {"before": lambda rows: d.lengths(theta_before, rows),
+         "after": lambda rows: d.lengths(theta, rows) + _drift_mm(d, theta, beta, rows)},
+    )  # fmt: skip
 
 
 def identify(
@@ -474,6 +274,7 @@ def identify(
     train_rows: np.ndarray | None = None,
     test_rows: np.ndarray | None = None,
     progress: ProgressFn | None = None,
+    clock: Clock | None = None,
 ) -> IdentifyResult:
     """Identify the calibrated model from samples (the six steps of the module docstring).
 
@@ -488,6 +289,9 @@ def identify(
         Explicit split; overrides ``options.test_fraction``.
     progress : callable(fraction, message), optional
         May raise :class:`calib.solvers.common.Cancelled` to stop.
+    clock : callable() -> float [s], optional
+        Times the run for ``elapsed_s`` (and the solver's); the caller injects it (e.g.
+        ``time.perf_counter``), calib reads no clock. None: not timed, 0.
 
     Raises
     ------
@@ -499,7 +303,7 @@ def identify(
     """
     opts = options or IdentifyOptions()
     progress = _counting(progress)
-    timer = Timer()
+    timer = Timer(clock)
     d = _prepare(model, samples, opts, train_rows, test_rows)
     layout = d.layout
     report(progress, 0.0, "fitting the anchor with the nominal model")
@@ -509,7 +313,9 @@ def identify(
     ident, free = _free_set(d, theta_start, candidates, opts)
     report(progress, 0.06, "testing for drift and steps of the measurement")
     selection = _select_drift(d, theta_start, free, opts)
-    used, prior_detail, solved = _weighed_solve(d, samples, theta_start, free, opts, progress)
+    used, prior_detail, solved = _weighed_solve(
+        d, samples, theta_start, free, opts, progress, clock
+    )
     notes: list[str] = []
     if used.prior:
         notes.append(
@@ -518,7 +324,7 @@ def identify(
         )
     result, final = solved.result, solved.problem
     if opts.robust != "none":
-        notes.append(_robust_note(opts, solved, d))
+        notes.append(robust_note(opts, solved, d.train_rows.size, len(d.samples)))
     report(progress, 0.96, "covariance and metrics")
 
     x = result.x
@@ -526,14 +332,14 @@ def identify(
     beta = final.drift_coefficients(x)
     drift_block = None
     if opts.drift != "none":
-        drift_block = drift.report(d.drift_model or drift.DriftModel(time_unit=d.times[1]), beta,
+        drift_block = drift_report(d.drift_model or drift.DriftModel(time_unit=d.times[1]), beta,
                                    selection, opts.drift)  # fmt: skip
         every = np.arange(len(samples))
         drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
-        if opts.method not in DRIFT_METHODS:
+        if opts.method not in drift.DRIFT_METHODS:
             drift_block["note"] = f"not modelled: method {opts.method} does not support it"
         # The one wording of what was found: the CLI, the HTML report and the page read it.
-        drift_block["summary"] = drift.summary(drift_block)
+        drift_block["summary"] = drift_summary(drift_block)
     cov, _ = covariance(final, x)
     sigma, corr = uncertainty(final, x, cov)
     # The covariance propagated to the tool point over a workspace sample within the joint
@@ -555,5 +361,5 @@ def identify(
         train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
         notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
         tcp_uncertainty_mm=tcp, prior=prior_block(opts, used, prior_detail),
-        robust_detail=_robust_detail(opts, solved), drift=drift_block,
+        robust_detail=robust_detail(opts, solved), drift=drift_block,
     )  # fmt: skip

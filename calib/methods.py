@@ -19,6 +19,7 @@ from calib.options import METHODS, IdentifyOptions
 from calib.problem import Problem
 from calib.solvers import de, ekf, geolm, lm, ukf, ukf_vslm, vslm
 from calib.solvers.common import ProgressFn, SolverResult
+from calib.timing import Clock, Timer
 
 SolveFn = Callable[[Problem, FloatArray, Any, IdentifyOptions, "ProgressFn | None"], SolverResult]
 
@@ -125,8 +126,13 @@ assert tuple(REGISTRY) == METHODS, "calib.options.Method and the registry must l
 
 
 def run(
-    problem: Problem, x0: FloatArray, opts: IdentifyOptions, progress: ProgressFn | None
-) -> SolverResult:
-    """Run ``opts.method`` on ``problem`` from ``x0`` (shape (k,))."""
+    problem: Problem, x0: FloatArray, opts: IdentifyOptions, progress: ProgressFn | None,
+    clock: Clock | None = None,
+) -> SolverResult:  # fmt: skip
+    """Run ``opts.method`` on ``problem`` from ``x0`` (shape (k,)); its ``elapsed_s`` by
+    ``clock`` (:data:`calib.timing.Clock`; None: 0, not timed)."""
     entry = REGISTRY[opts.method]
-    return entry.solve(problem, x0, entry.make_options(opts), opts, progress)
+    timer = Timer(clock)
+    result = entry.solve(problem, x0, entry.make_options(opts), opts, progress)
+    result.elapsed_s = timer.elapsed()
+    return result

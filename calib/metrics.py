@@ -7,12 +7,16 @@ not a standard deviation. We report both under their proper names: ``mae_mm`` is
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from calib.kinematics import FloatArray
 
 
-def length_metrics(measured_mm: FloatArray, model_mm: FloatArray) -> dict[str, float]:
+def length_metrics(
+    measured_mm: FloatArray | Sequence[float], model_mm: FloatArray | Sequence[float]
+) -> dict[str, float]:
     """RMSE, MAE, STD and MAX of ``measured − model`` [mm], plus the sample count ``n``.
 
     Parameters

@@ -267,7 +267,7 @@ def validate(
         if bad:
             raise OptionError(key, f"unknown parameter name(s) {bad}; known: {known}")
     n = len(samples)
-    n_train = len(train_rows) if train_rows is not None else n - round(options.test_fraction * n)
+    n_train = len(train_rows) if train_rows is not None else n - held_out(n, options.test_fraction)
     check_training_rows(n_train, n, parameters_to_solve(model, anchors, options))
 
 
@@ -288,6 +288,13 @@ def parameters_to_solve(
     )
 
 
+def held_out(n: int, test_fraction: float) -> int:
+    """Rows of ``n`` held out to test: ``round(test_fraction * n)`` (Python's rounding, half to
+    even). The one count of the hold-out: :func:`validate`, :func:`samples_for_training_rows`,
+    :func:`calib.split.split_rows` and the daemon's readiness route use it."""
+    return round(test_fraction * n)
+
+
 def training_rows_needed(n_params: int) -> int:
     """The fewest training rows :func:`check_training_rows` accepts for ``n_params`` solved
     parameters: one more than the parameters, and at least :data:`MIN_TRAINING_SAMPLES`."""
@@ -302,12 +309,12 @@ def training_rows_recommended(n_params: int) -> int:
 
 
 def samples_for_training_rows(training_rows: int, test_fraction: float) -> int:
-    """The fewest samples whose training part ``n - round(test_fraction * n)`` (the random
+    """The fewest samples whose training part ``n - held_out(n, test_fraction)`` (the random
     hold-out of :func:`validate`) is at least ``training_rows`` (``test_fraction`` < 1)."""
     # Below (training_rows - 0.5) / (1 - test_fraction) no n has enough training rows
     # (n - round(f n) <= n (1 - f) + 0.5): start there, so the search takes a few steps.
     n = max(training_rows, 1, int((training_rows - 0.5) / (1.0 - test_fraction)) - 1)
-    while n - round(test_fraction * n) < training_rows:
+    while n - held_out(n, test_fraction) < training_rows:
         n += 1
     return n
 

@@ -4,7 +4,7 @@ new poses or against an emulated cell's truth."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,9 @@ def calibrated_dh_internal(result: Mapping[str, Any]) -> FloatArray:
 
 
 def predict_lengths_from_result(
-    result: Mapping[str, Any], joints_deg: FloatArray, anchor: str | None = None
+    result: Mapping[str, Any],
+    joints_deg: FloatArray | Sequence[Sequence[float]],
+    anchor: str | None = None,
 ) -> FloatArray:
     """Cable lengths the calibrated model predicts: ``L = |p_tcp(q) - P0| + c``.
 

@@ -2,8 +2,8 @@
 
 The MAP problem (:mod:`calib.problem`) adds rows ``noise_mm · (x_j − μ_j)/σ_j`` to the data
 residuals ``L_model − L``. Its minimiser is the posterior mode only if ``noise_mm`` is the real
-1σ of the length residuals. A fixed 0.1 mm against residuals of about 1 mm (the bundled data)
-weighs the prior ``(0.1/1)² = 1/100`` of what it should. ``prior_weight`` chooses it:
+1σ of the length residuals. A fixed ``noise_mm`` ten times below the residuals' real 1σ weighs
+the prior ``(1/10)² = 1/100`` of what it should. ``prior_weight`` chooses it:
 
 ``estimated`` (default)
     ``noise_mm`` = ``σ̂ = sqrt(Σ w r² / (n_w − k_eff))`` of the MAP fit's own residuals, with
@@ -13,8 +13,8 @@ weighs the prior ``(0.1/1)² = 1/100`` of what it should. ``prior_weight`` choos
     :data:`NOISE_RTOL` (at most :data:`NOISE_ROUNDS` fits; :func:`noise_from_map`). This is the
     empirical-Bayes choice: the prior widths keep their meaning as plausible DH errors, and the
     noise is the data's own. It used to be the σ̂ of a maximum-likelihood fit first; on local
-    data (the bundled set) that fit slides metres along an unexcited valley and takes 10–30 s
-    for a noise figure the MAP fit gives in two cheap fits.
+    data (the bundled set) that fit slides metres along an unexcited valley and takes many
+    iterations for a noise figure the MAP fit gives in two cheap fits.
 ``fixed``
     ``noise_mm`` as given (the option; 0.1 mm by default).
 ``cv``
@@ -39,10 +39,14 @@ import numpy as np
 
 from calib.cable import N_DH, N_KIN
 from calib.dataset import SampleSet
+from calib.kinematics import FloatArray
 from calib.methods import internal_sigma
 from calib.noise import median_dof, noise_floor_mm
 from calib.problem import Problem
+from calib.robust import Solved, solve
+from calib.solvers.common import ProgressFn, report
 from calib.split import pose_groups
+from calib.timing import Clock
 
 if TYPE_CHECKING:
     from calib.options import IdentifyOptions
@@ -205,3 +209,42 @@ def prior_block(
         "applied": used.prior,
         **detail,
     }
+
+
+def weighed_solve(
+    make_problem: Callable[[IdentifyOptions], Problem], theta_start: FloatArray,
+    opts: IdentifyOptions, held_out_rmse: HeldOutRmse, samples: SampleSet,
+    train_rows: np.ndarray, progress: ProgressFn | None, clock: Clock | None = None,
+) -> tuple[IdentifyOptions, dict[str, Any], Solved]:  # fmt: skip
+    """The fit (:func:`calib.robust.solve`), its prior weighed as ``prior_weight`` says.
+
+    ``make_problem(options)`` builds the problem (ML, or MAP with the options' widths and
+    noise) from the common start ``theta_start`` (p,). ``fixed`` (or no prior): one solve.
+    ``estimated``: the noise fixed point, each round a MAP solve with the noise the last one
+    estimated (from the option's ``noise_mm``), until ``σ̂`` agrees with the noise used within
+    :data:`NOISE_RTOL`; the last round is the fit. ``cv``: that noise, then the prior-width
+    scale chosen by grouped-fold cross-validation on ``train_rows`` (:func:`cv_scale`, with
+    ``held_out_rmse``), and a final solve. ``clock`` times the fits. Returns the options the
+    fit ran with, the detail for ``result.json`` and the solve.
+    """
+    if not opts.prior or opts.prior_weight == "fixed":
+        return opts, {}, solve(make_problem(opts), opts, progress, clock)
+    used = opts
+    noise = opts.noise_mm
+    warm = theta_start  # each round starts where the last ended (the prior mean stays)
+    for rounds in range(1, NOISE_ROUNDS + 1):
+        report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
+        solved = solve(make_problem(used).with_theta0(warm), used, progress, clock)
+        noise = noise_from_map(solved.problem, solved.result.x)
+        if abs(noise / used.noise_mm - 1.0) < NOISE_RTOL:
+            break
+        used = scaled_options(opts, noise, 1.0)
+        warm = solved.problem.full(solved.result.x)
+    detail: dict[str, Any] = {"noise_estimated_mm": noise, "noise_rounds": rounds}
+    if opts.prior_weight == "estimated":
+        return used, detail, solved
+    report(progress, 0.1, "cross-validating the prior scale over pose groups")
+    scale, scores = cv_scale(held_out_rmse, samples, opts, train_rows, used.noise_mm)
+    detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
+    used = scaled_options(opts, used.noise_mm, scale)
+    return used, detail, solve(make_problem(used), used, progress, clock)

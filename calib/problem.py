@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from calib.cable import ParamLayout, length_jacobian, predict_lengths
 from calib.kinematics import FloatArray, IndexArray, JointTrig, joint_trig
+from calib.linalg import coefficients, orthonormal
 from calib.models import RobotModel
 
 BoolArray = NDArray[np.bool_]
@@ -140,8 +141,6 @@ class Problem:
         """Orthonormal basis (n, r) of ``span(√w · B)``, or None without a drift basis."""
         if self.drift_basis is None or self.drift_basis.shape[1] == 0:
             return None
-        from calib.drift import orthonormal
-
         return orthonormal(self.sqrt_weights[:, None] * self.drift_basis)
 
     @property
@@ -162,8 +161,6 @@ class Problem:
         """``β`` (m,) [mm]: the drift terms that best explain the data at ``x`` (shape (k,))."""
         if self.drift_basis is None:
             return np.zeros(0)
-        from calib.drift import coefficients
-
         sw = self.sqrt_weights
         return coefficients(sw[:, None] * self.drift_basis, sw * (self.length_mm - self.predict(x)))
 

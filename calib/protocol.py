@@ -9,7 +9,6 @@ it from here, so their figures come from the same draws.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -25,6 +24,7 @@ from calib.options import (
     OptionError,
     options_from_mapping,
 )
+from calib.timing import Clock, Timer
 
 if TYPE_CHECKING:
     from calib.identify import IdentifyResult
@@ -70,10 +70,13 @@ def run_protocol(
     n_train: int = PAPER_N_TRAIN,
     n_test: int = PAPER_N_TEST,
     prior: bool = False,
+    clock: Clock | None = None,
 ) -> Iterator[ProtocolRun]:
     """Identify with every method on every seed's draw; yields the runs seed by seed.
 
-    Call :func:`check_protocol` first to fail before anything runs.
+    Call :func:`check_protocol` first to fail before anything runs. ``clock``
+    (:data:`calib.timing.Clock`, injected by the caller) times each run and its
+    identification's ``elapsed_s``; None: 0.
     """
     from calib.identify import identify  # the solvers and scipy: not on the CLI's --help path
 
@@ -82,6 +85,6 @@ def run_protocol(
         train, test = paper_split(len(samples), s, n_train, n_test)
         for m in methods:
             opts = options_from_mapping({"method": m, "seed": s, "prior": prior})
-            t0 = time.perf_counter()
-            res = identify(model, samples, opts, train_rows=train, test_rows=test)
-            yield ProtocolRun(s, m, res, time.perf_counter() - t0)
+            timer = Timer(clock)
+            res = identify(model, samples, opts, train_rows=train, test_rows=test, clock=clock)
+            yield ProtocolRun(s, m, res, timer.elapsed())

@@ -7,17 +7,21 @@ millimetres.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from calib import metrics
 from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
+from calib.drift import DriftModel, Selection
 from calib.identifiability import Identifiability
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
-from calib.options import IdentifyOptions
+from calib.options import SCREEN_MIN_DOF, IdentifyOptions, samples_for_training_rows
 from calib.problem import Problem
+from calib.robust import GROSS_ERROR_MM, Solved
 from calib.solvers.common import SolverResult
 
 #: Plausible magnitudes, in display units, used by the plausibility report.
@@ -60,7 +64,7 @@ class IdentifyResult:
     prior: dict[str, Any] | None = None
     #: The robust step: ``{"mode", "threshold", "fits"}`` (threshold in robust σ).
     robust_detail: dict[str, Any] | None = None
-    #: ``result.json``'s ``drift`` block (:func:`calib.drift.report`): how the measurement
+    #: ``result.json``'s ``drift`` block (:func:`drift_report`): how the measurement
     #: changed over the campaign, left out of every robot figure.
     drift: dict[str, Any] | None = None
 
@@ -307,3 +311,116 @@ def implausibility_advice(
             "hold them at this weight)"
         )
     return text + "; or constrain them toward the nominal model with --prior"
+
+
+def length_figures(
+    measured_mm: FloatArray, rows_by_part: dict[str, np.ndarray],
+    predicted: dict[str, Callable[[np.ndarray], FloatArray]],
+) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+    """Length metrics (:func:`calib.metrics.length_metrics`) per model label (``before``,
+    ``after``) and per part (``train``, ``test``): ``measured_mm`` (n,) [mm] of every sample,
+    ``rows_by_part`` the rows of each part, ``predicted[label](rows)`` the lengths (r,) [mm]
+    that model predicts at ``rows`` (the after model's with the drift terms at their times)."""
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for label, predict in predicted.items():
+        out[label] = {}
+        for part, rows in rows_by_part.items():
+            out[label][part] = metrics.length_metrics(measured_mm[rows], predict(rows))
+    return out
+
+
+def robust_note(opts: IdentifyOptions, s: Solved, n_train: int, n_samples: int) -> str:
+    """The note on what the robust step did, from ``n_train`` training rows of ``n_samples``."""
+    scr = s.screening
+    if opts.robust == "auto" and scr is not None and not scr.screening:
+        train = n_train + scr.rows_short()
+        more = max(samples_for_training_rows(train, opts.test_fraction) - n_samples,
+                   scr.rows_short())  # fmt: skip
+        gross = (f"{s.flagged.size} gross error(s) beyond {GROSS_ERROR_MM:g} mm rejected "
+                 "and refit from the start; " if s.flagged.size else "")  # fmt: skip
+        return (f"robust auto: {gross}too few samples to screen outliers: {more} more would "
+                f"allow it (redundancy {scr.redundancy:.1f}, screening needs "
+                f"{SCREEN_MIN_DOF}); only a residual beyond "
+                f"{GROSS_ERROR_MM:g} mm is rejected")  # fmt: skip
+    if opts.robust == "auto" and s.flagged.size == 0:
+        return (f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
+                f"robust σ, threshold {s.threshold:.2f}): the plain fit")  # fmt: skip
+    how = {"auto": "rejected, refit from the start", "reject": "rejected, refit from the start",
+           "huber": "down-weighted", "soft_l1": "down-weighted"}[opts.robust]  # fmt: skip
+    return (f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
+            f"({how}; {s.fits} fit(s))")  # fmt: skip
+
+
+def robust_detail(opts: IdentifyOptions, s: Solved) -> dict[str, Any]:
+    """``result.json``'s ``robust_detail``: the threshold [robust σ] (null when not screening),
+    the fits, and whether the residuals were screened at what redundancy."""
+    scr = s.screening
+    return {"mode": opts.robust, "threshold": s.threshold if np.isfinite(s.threshold) else None,
+            "fits": s.fits, "screened": None if scr is None else scr.screening,
+            "redundancy": None if scr is None else scr.redundancy}  # fmt: skip
+
+
+def drift_report(
+    model: DriftModel, beta: FloatArray, selection: Selection | None, mode: str
+) -> dict[str, Any]:
+    """``result.json``'s ``drift`` block: the model, the steps (row, kind, sizes [mm]), the
+    smooth drift (knots, values [mm], peak-to-peak [mm], steepest rate [mm/h or mm per 100
+    samples]) and the criterion's scores (BIC, leave-one-out PRESS [mm²]), and the gross
+    outliers left out of the choice. The caller adds
+    ``per_sample_mm`` (n,): the drift term at every sample [mm], in sample order."""
+    per = "mm_per_h" if model.time_unit == "s" else "mm_per_100_samples"
+    scale = 3600.0 if model.time_unit == "s" else 100.0
+    out: dict[str, Any] = {"mode": mode, "model": model.name, "time_unit": model.time_unit,
+                           "n_columns": model.n_columns, "steps": [], "smooth": None}  # fmt: skip
+    n_smooth = max(len(model.knots) - 1, 0)
+    smooth_beta = beta[:n_smooth]
+    j = n_smooth
+    for s in model.steps:
+        entry: dict[str, Any] = {"row": s.row, "t": s.t, "kind": s.kind,
+                                 "offset_mm": float(beta[j])}  # fmt: skip
+        if s.kind == "sensor_moved":
+            delta = beta[j + 1 : j + 4]
+            entry["p0_shift_mm"] = [float(v) for v in delta]
+            entry["size_mm"] = float(np.linalg.norm(delta))
+            j += 4
+        else:
+            entry["size_mm"] = abs(float(beta[j]))
+            j += 1
+        out["steps"].append(entry)
+    if model.knots:
+        knots = np.asarray(model.knots)
+        values = np.concatenate([[0.0], smooth_beta])
+        slopes = np.diff(values) / np.maximum(np.diff(knots), 1e-12) * scale
+        out["smooth"] = {
+            "knots_t": [float(v) for v in knots],
+            "values_mm": [float(v) for v in values],
+            "peak_to_peak_mm": float(np.ptp(values)),
+            f"max_rate_{per}": float(np.max(np.abs(slopes))) if slopes.size else 0.0,
+            f"mean_rate_{per}": float(
+                (values[-1] - values[0]) / max(knots[-1] - knots[0], 1e-12) * scale
+            ),
+        }
+    if selection is not None:
+        out["bic"] = {k: round(v, 3) for k, v in selection.bic.items()}
+        out["loo_press_mm2"] = {k: round(v, 6) for k, v in selection.press_mm2.items()}
+        out["rows_left_out_of_the_choice"] = selection.excluded_rows
+    return out
+
+
+def drift_summary(block: dict[str, Any]) -> str:
+    """One line for the notes and the CLI: what :func:`drift_report`'s ``block`` found."""
+    if block["model"] == "none":
+        return f"drift {block['mode']}: none found (the measurement held still)"
+    per = "mm/h" if block["time_unit"] == "s" else "mm/100 samples"
+    parts = []
+    for s in block["steps"]:
+        what = "sensor moved" if s["kind"] == "sensor_moved" else "indicator re-zeroed"
+        parts.append(f"{what} at row {s['row']} ({s['size_mm']:.2f} mm)")
+    sm = block["smooth"]
+    if sm is not None:
+        key = next(k for k in sm if k.startswith("max_rate_"))
+        parts.append(
+            f"smooth offset drift over {len(sm['knots_t'])} knots, "
+            f"{sm['peak_to_peak_mm']:.2f} mm peak to peak, up to {sm[key]:.2f} {per}"
+        )
+    return f"drift {block['mode']}: " + "; ".join(parts) + " (left out of the robot's figures)"

@@ -21,14 +21,15 @@ uncertainty of the scale. At every redundancy a row whose deletion residual (its
 error from the fit without it, ``r_i / (1 − h_i)``) exceeds :data:`GROSS_ERROR_MM` is a gross
 error and is rejected: no kinematic error leaves centimetres after an identification.
 
-``auto`` and ``reject`` share one loop in :mod:`calib.identify`: a plain fit; flagged rows get
+``auto`` and ``reject`` share one loop, :func:`solve`: a plain fit; flagged rows get
 weight 0 and the method refits *from the start* (not from the contaminated solution); repeat
 until the rejected set is stable. :data:`WEIGHTS` is the table ``robust`` option name → IRLS
 weight function ``(u, k) -> w`` of standardised residuals ``u``, shape (n,), as scipy's
 ``least_squares`` keeps its losses.
 
-Imports only numpy and the standard library (scipy.special only for a Student-t quantile
-below :data:`T_EXPANSION_MIN_DOF` degrees of freedom, which ``auto`` never asks for).
+The screening imports only numpy and the standard library (scipy.special only for a
+Student-t quantile below :data:`T_EXPANSION_MIN_DOF` degrees of freedom, which ``auto`` never
+asks for); :func:`solve` runs the methods (:mod:`calib.methods`).
 """
 
 from __future__ import annotations
@@ -40,8 +41,12 @@ from statistics import NormalDist
 
 import numpy as np
 
+from calib import methods, noise
 from calib.kinematics import FloatArray
-from calib.options import SCREEN_MIN_DOF, training_rows_recommended
+from calib.options import SCREEN_MIN_DOF, IdentifyOptions, training_rows_recommended
+from calib.problem import Problem
+from calib.solvers.common import ProgressFn, SolverResult, sub_progress
+from calib.timing import Clock
 
 #: Family-wise false-flag probability of ``auto`` on clean Gaussian data (all ``n`` rows).
 AUTO_FALSE_FLAG_PROBABILITY = 0.01
@@ -277,9 +282,9 @@ def screen(
 PEEL = 0.1
 #: The backward search (:func:`_unmasked`) sets rows aside only when that cuts the robust
 #: scale of the rest to this share of the scale before, or less: outliers of millimetres that
-#: mask each other inflate it tens of times (virtual cells, 0.02 mm noise: 46-59×), while
-#: deleting up to ten of the largest good rows shrinks it up to 4.5× (their residuals are
-#: the tails, and each deletion takes a degree of freedom).
+#: mask each other inflate it tens of times on low-noise cells, while deleting up to ten of
+#: the largest good rows shrinks it only a few times (their residuals are the tails, and each
+#: deletion takes a degree of freedom).
 SCALE_DROP = 0.1
 #: The backward search keeps the first deleted set whose scale is within this factor of the
 #: least along its path (the elbow).
@@ -355,3 +360,93 @@ def _deleted(
     t_new[deleted] = e_s / np.sqrt(np.clip(np.diag(m), 1e-6, None))
     scale = _mad_scale(t_new[rest], floor_mm)
     return np.abs(t_new) / scale, scale, float(np.sum(1.0 - h_new[rest]))
+
+
+#: Most fits of the rejecting modes (the first, plain fit included).
+REJECT_ROUNDS = 5
+
+
+@dataclass
+class Solved:
+    """What :func:`solve` found: the last solver result (iterations summed over rounds), the
+    problem with the final weights, the standardised residuals of the training rows (shape
+    (n_train,)), the flag threshold [robust σ], the rows flagged (indices into the training
+    rows), the number of fits run and the last screening (None without a robust mode)."""
+
+    result: SolverResult
+    problem: Problem
+    u: FloatArray
+    threshold: float
+    flagged: np.ndarray
+    fits: int
+    screening: Screening | None = None
+
+
+def _screen_fit(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOptions,
+                floor_mm: float, first: Screening | None) -> Screening:  # fmt: skip
+    """The outlier screening of every training row at ``x`` under weights ``w`` (n,), the
+    prior's rows counted in the leverage (:func:`screen`); whether ``auto`` screens is decided
+    on the ``first`` (plain) fit. ``problem`` has unit weights, so its Jacobian's data rows are
+    the unweighted ones."""
+    ev = problem.evaluate(x)
+    assert ev.jacobian is not None
+    n = problem.n_samples
+    prior_jac = ev.jacobian[n:] if problem.has_prior else None
+    return screen(opts.robust, ev.residual[:n], ev.jacobian[:n], w, prior_jac,
+                  opts.flag_threshold, floor_mm,
+                  None if first is None else first.screening)  # fmt: skip
+
+
+def solve(
+    problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None, clock: Clock | None = None
+) -> Solved:
+    """Run the method; robustly, as IRLS rounds (huber, soft_l1) or as rejection rounds
+    (reject, auto; each refit starts from the common start, not from the contaminated
+    solution, so an outlier's pull does not carry over). ``clock`` times each fit
+    (:func:`calib.methods.run`)."""
+    n = problem.length_mm.size
+    thr = opts.flag_threshold
+    floor_mm = noise.noise_floor_mm(problem.length_mm)
+    rejecting = opts.robust in REJECTING
+    weights = np.ones(n)
+    scr: Screening | None = None
+    first: Screening | None = None
+    rounds = 1 if opts.robust == "none" else REJECT_ROUNDS if rejecting else 8
+    seen: list[FloatArray] = []
+    result: SolverResult | None = None
+    total_iter, fits = 0, 0
+    history: list[float] = []
+    starts: list[int] = []
+    x = problem.x0()
+    u = np.zeros(n)
+    for r in range(rounds):
+        prob_r = problem.with_weights(weights)
+        lo = 0.05 + 0.9 * r / rounds
+        start = problem.x0() if rejecting else x
+        result = methods.run(prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds),
+                             clock)  # fmt: skip
+        total_iter += result.iterations
+        fits += 1
+        starts.append(len(history))
+        history.extend(result.cost_history_rms_mm)
+        x = result.x
+        if opts.robust == "none":
+            break
+        scr = _screen_fit(problem, x, weights, opts, floor_mm, first)
+        first = first or scr
+        u, thr = scr.u, scr.threshold
+        if rejecting:
+            new_w = (~scr.rejected(weights)).astype(float)
+        else:
+            new_w = WEIGHTS[opts.robust](u, opts.robust_k)
+        if np.max(np.abs(new_w - weights)) < 1e-3 or r == rounds - 1:
+            break  # converged, or out of rounds: keep the weights the last fit used
+        if rejecting and any(np.array_equal(new_w, w) for w in seen):
+            break  # a cycle of rejected sets (model error near the threshold): stop
+        seen.append(weights)
+        weights = new_w
+    assert result is not None
+    result.iterations = total_iter
+    result.cost_history_rms_mm, result.fit_starts = history, starts
+    flagged = np.flatnonzero(weights == 0) if rejecting else np.flatnonzero(u > thr)
+    return Solved(result, problem.with_weights(weights), u, thr, flagged, fits, scr)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.dataset import SampleSet
-from calib.options import Holdout
+from calib.options import Holdout, held_out
 
 
 def pose_groups(samples: SampleSet, n_groups: int) -> np.ndarray:
@@ -31,7 +31,7 @@ def split_rows(
     rng = np.random.default_rng(seed)
     if test_fraction <= 0:
         return np.arange(n), np.zeros(0, dtype=int)
-    target = round(test_fraction * n)
+    target = held_out(n, test_fraction)
     if holdout == "random":
         perm = rng.permutation(n)
         return np.sort(perm[target:]), np.sort(perm[:target])

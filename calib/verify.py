@@ -7,7 +7,7 @@ MAE, STD and MAX (:func:`calib.metrics.length_metrics`) and the per-pose residua
 
 ``refit_anchor=True`` is for a campaign taken after the sensor was moved or re-zeroed: the
 robot's calibrated kinematics stay fixed and only each anchor's ``P0`` and zero offset ``c``
-are fitted to the new data (:func:`calib.identify.fit_anchors`: multilateration, then LM).
+are fitted to the new data (:func:`calib.anchors.fit_anchors`: multilateration, then LM).
 Four parameters per anchor absorb little, so a robot that drifted still shows.
 
 :func:`aligned_rms_mm` is the RMS distance after the rigid (rotation + translation) alignment
@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
+from calib.anchors import fit_anchors
 from calib.cable import N_KIN, ParamLayout, predict_lengths
 from calib.dataset import JOINT_COLUMNS, SampleSet
 from calib.export import model_from_result
-from calib.identify import fit_anchors
 from calib.kinematics import FloatArray
 from calib.metrics import length_metrics
 from calib.predict import predict_lengths_from_result

@@ -9,9 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any, Final, Literal, Protocol, get_args
 
 Joints = tuple[float, float, float, float, float, float]
+
+#: How a capture was triggered: by the operator (``manual``) or by auto capture (``auto``).
+#: The one home of the capture modes: the store's CHECK constraint and rows read them here.
+CaptureMode = Literal["manual", "auto"]
+CAPTURE_MODES: Final[tuple[str, ...]] = get_args(CaptureMode)
 
 #: Why a capture was refused. ``http_status``: 409 (the cell is not in a state to capture)
 #: or 503 (a device is down or its data are not trustworthy).
@@ -78,7 +83,7 @@ class Capture:
     anchor: str
     t_start_wall: float
     t_end_wall: float
-    mode: Literal["manual", "auto"]
+    mode: CaptureMode
     raw: tuple[RawReading, ...] = field(default=(), repr=False)
 
 

@@ -27,8 +27,8 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
+from calib.monitor.stepwatch import StepSettings
 from daemon.sampler import SamplerConfig
-from daemon.stepwatch import StepSettings
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
 #: Shortest accepted ``api_token`` [characters].
@@ -89,8 +89,8 @@ class JobSettings(BaseModel):
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
 
 
-class DriftSettings(BaseModel):
-    """Drift checks of a calibrated robot (:mod:`daemon.drift`)."""
+class HoldCheckSettings(BaseModel):
+    """Hold checks of a calibrated robot, the ``[drift]`` section (:mod:`daemon.holdcheck`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -115,7 +115,7 @@ class DriftSettings(BaseModel):
 
 
 class WatchSettings(BaseModel):
-    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`daemon.stepwatch`)."""
+    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`calib.monitor.stepwatch`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -185,7 +185,7 @@ class Settings(BaseSettings):
     """The joint-angle source; ``kind`` manual (default) or a key of :data:`drivers.ROBOT_KINDS`
     (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
-    drift: DriftSettings = DriftSettings()
+    drift: HoldCheckSettings = HoldCheckSettings()
     watch: WatchSettings = WatchSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
@@ -332,7 +332,20 @@ def simulated_cell_overrides(
     robot: dict[str, Any] = {"kind": robot_kind, "host": host, "port": int(port)}
     if robot_kind == "modbus-tcp":
         robot["preset"] = "ur"
-    hook = getattr(ROBOT_KINDS[robot_kind].config, "emulated_cell_settings", None)
-    if hook is not None:
-        robot.update(hook(settings.state_dir))
+    if robot_kind == "abb-rws":
+        robot.update(emulated_abb_login(settings.state_dir))
     return {"indicator": indicator, "robot": robot}
+
+
+def emulated_abb_login(state_dir: Path) -> dict[str, Any]:
+    """The ``[robot]`` login settings of ``serve --simulated-cell --robot-kind abb-rws``: the
+    EMULATED face accepts ABB's factory-default login; its password goes to a mode-0600 file
+    ``STATE_DIR/emulated-abb-rws-password`` (unless ``CABLECAL_ROBOT_PASSWORD`` is set: then
+    that one is used)."""
+    from drivers.abb_rws import ABB_FACTORY_PASSWORD, ABB_FACTORY_USER
+    from drivers.credentials import write_secret
+
+    if os.environ.get("CABLECAL_ROBOT_PASSWORD"):
+        return {"username": ABB_FACTORY_USER}
+    path = write_secret(state_dir / "emulated-abb-rws-password", ABB_FACTORY_PASSWORD)
+    return {"username": ABB_FACTORY_USER, "password_file": str(path)}

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
 import multiprocessing
 import queue
@@ -39,8 +38,6 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
 from typing import Any
-
-import numpy as np
 
 from calib.options import default as default_option
 from daemon import metrics
@@ -114,9 +111,7 @@ def run_identification(
     from calib.solvers.common import Cancelled
 
     model = model_from_mapping(model_mapping)
-    samples = make_samples(np.asarray(joints_deg, dtype=float), np.asarray(length_mm), anchors)
-    if t_s is not None:  # capture times for the drift model
-        samples = dataclasses.replace(samples, t_s=np.asarray(t_s, dtype=float))
+    samples = make_samples(joints_deg, length_mm, anchors, t_s=t_s)  # t_s: for the drift model
     opts = options_from_mapping(options)
     progress_queue.put((job_id, 0.0, "started", None, None))
     last = [time.monotonic()]
@@ -139,7 +134,7 @@ def run_identification(
             last[0] = now
             progress_queue.put((job_id, float(fraction), message, *newest))
 
-    out = identify(model, samples, opts, progress=progress).to_json()
+    out = identify(model, samples, opts, progress=progress, clock=time.perf_counter).to_json()
     # The newest iteration and cost, for the job row (the last queued message may arrive
     # after the job is marked finished and is then dropped).
     out[_FINAL_PROGRESS] = list(newest)

@@ -75,13 +75,13 @@ HTTP_LATENCY = Histogram(
     buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1, 2.5),
     registry=REGISTRY,
 )
-DRIFT_RMS = Gauge(
+HOLD_CHECK_RMS = Gauge(  # a hold check (daemon.holdcheck), shown as a drift check
     "cablecal_drift_rms_mm",
     "RMS cable-length residual of the robot's last drift check against its calibration [mm].",
     ["robot"],  # robot id
     registry=REGISTRY,
 )
-DRIFT_THRESHOLD = Gauge(
+HOLD_CHECK_THRESHOLD = Gauge(
     "cablecal_drift_threshold_mm",
     "Threshold of the robot's last drift check: above it the check is drift [mm].",
     ["robot"],  # robot id

@@ -1,279 +1,42 @@
-"""Settle detection and capture building: pure functions of paired readings and time.
+"""Settle detection for the sampler, and capture building.
 
-Nothing here does I/O or touches asyncio: :func:`evaluate` takes a buffer of
-:class:`PairedReading` (oldest first), the settings and the current monotonic time, and returns
-a :class:`Verdict`; :func:`make_capture` turns a settled window into a :class:`Capture`. The
-sampler (:mod:`daemon.sampler`) owns the buffer and calls them each poll cycle, the way
-pymodbus' framer turns bytes into frames apart from its transport.
-
-Settling
---------
-The window is the last ``settle_s`` of paired readings, ending at the newest one. It is
-settled when all of these hold:
-
-* the newest reading is at most ``stale_s`` old, and no gap between consecutive readings
-  (including the one just before the window) exceeds ``stale_s``: the window is covered;
-* it holds at least ``min_readings`` readings, with at least ``min_readings`` distinct robot
-  readings among them (the robot is polled on its own: a slow robot's one reading paired with
-  many lengths says nothing about whether it stood still);
-* no reading is stale (each stamp at most ``stale_s`` old when paired, and the two devices'
-  stamps at most ``stale_s`` apart);
-* no reading is over-range;
-* every joint stays within ``settle_tol_deg`` and the length within ``settle_tol_mm`` of the
-  window mean.
-
-The checks run in that order and the first that fails gives the verdict's reason.
+The decision is calib's (:mod:`calib.monitor.settle`: :func:`evaluate` takes a buffer of
+:class:`PairedReading`, the settings and the current monotonic time, and returns a
+:class:`Verdict`); it is re-exported here for the sampler, which owns the buffer and calls it
+each poll cycle. :func:`make_capture` turns a settled window into the daemon's
+:class:`daemon.capture.Capture`, with the window's readings kept as raw readings.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Literal, Protocol
 
-import numpy as np
-from numpy.typing import NDArray
+from calib.monitor.settle import (
+    NOT_SETTLED,
+    PairedReading,
+    SettleConfig,
+    Verdict,
+    as_joints,
+    evaluate,
+    staleness_s,
+    window_stats,
+)
+from daemon.capture import Capture, CaptureMode, RawReading
 
-from daemon.capture import Capture, Joints, RawReading, RejectionReason
-
-FloatArray = NDArray[np.float64]
-Mode = Literal["manual", "auto"]
-
-
-class SettleConfig(Protocol):
-    """The settings :func:`evaluate` reads (:class:`daemon.sampler.SamplerConfig` has them)."""
-
-    @property
-    def settle_s(self) -> float:
-        """Window in which the robot must be still [s]."""
-        ...
-
-    @property
-    def settle_tol_mm(self) -> float:
-        """Largest deviation of the cable length from the window mean [mm]."""
-        ...
-
-    @property
-    def settle_tol_deg(self) -> float:
-        """Largest deviation of each joint from the window mean [deg]."""
-        ...
-
-    @property
-    def stale_s(self) -> float:
-        """Largest reading age, stamp skew and gap between readings [s]."""
-        ...
-
-    @property
-    def min_readings(self) -> int:
-        """Fewest paired readings in a settled window [count]."""
-        ...
-
-
-@dataclass(frozen=True, slots=True)
-class PairedReading:
-    """One paired poll of both devices. Monotonic times in s.
-
-    Attributes
-    ----------
-    t_poll : float
-        Monotonic time the poll started [s].
-    t_mono, t_wall : float
-        Monotonic and wall stamps of the length reading [s].
-    joints_deg : Joints
-        Joint angles [deg].
-    length_mm : float
-        Cable length [mm]; NaN when the indicator raised over-range (no value).
-    over_range : bool
-    staleness_s : float
-        Worst of: the stamps' ages at pairing, the skew between the two stamps [s].
-    t_joints : float
-        Monotonic stamp of the robot reading [s]; NaN for the manual robot (its angles are
-        typed in, one submission for every pairing).
-    """
-
-    t_poll: float
-    t_mono: float
-    t_wall: float
-    joints_deg: Joints
-    length_mm: float
-    over_range: bool
-    staleness_s: float
-    t_joints: float = math.nan
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """Outcome of a settle check: ``reason is None`` means settled (``window`` is set).
-
-    ``final``: waiting longer will not help while the robot stays (e.g. still but over-range).
-    ``joints_still``: the joints are within tolerance over a covered window (None: unknown).
-    """
-
-    reason: RejectionReason | None
-    detail: str
-    final: bool = False
-    joints_still: bool | None = None
-    window: tuple[PairedReading, ...] = ()
-
-
-#: The verdict before any paired reading.
-NOT_SETTLED = Verdict("no_data", "no paired reading yet")
-
-
-def as_joints(values: Sequence[float] | FloatArray) -> Joints:
-    """The first six values as a :data:`Joints` tuple of floats [deg]."""
-    v = [float(x) for x in values]
-    return (v[0], v[1], v[2], v[3], v[4], v[5])
-
-
-def staleness_s(t_done: float, t_length: float, t_joints: float, manual_robot: bool) -> float:
-    """Staleness of a reading paired at ``t_done`` from a length stamped ``t_length`` and joints
-    stamped ``t_joints`` (monotonic [s]): the older stamp's age and the skew between them.
-
-    A manual robot's angles keep the stamp of their submission, so only the length's age counts.
-    """
-    if manual_robot:
-        return t_done - t_length
-    return max(t_done - min(t_length, t_joints), abs(t_length - t_joints))
-
-
-def _window(
-    buffer: Sequence[PairedReading], start: float
-) -> tuple[list[PairedReading], PairedReading | None]:
-    """The readings stamped at or after ``start`` (oldest first), and the one just before."""
-    window: list[PairedReading] = []
-    before: PairedReading | None = None
-    for r in reversed(buffer):
-        if r.t_mono < start:
-            before = r
-            break
-        window.append(r)
-    window.reverse()
-    return window, before
-
-
-def _coverage(
-    window: Sequence[PairedReading], before: PairedReading | None, start: float, cfg: SettleConfig
-) -> Verdict | None:
-    """A ``stale`` verdict when the window has a gap over ``stale_s`` or too few readings."""
-    t_prev = before.t_mono if before is not None else start
-    gaps = np.diff(np.array([t_prev, *(r.t_mono for r in window)]))
-    if gaps.max() > cfg.stale_s:
-        return Verdict("stale", f"gap of {gaps.max():.2f} s between readings (stale_s)")
-    if len(window) < cfg.min_readings:
-        return Verdict(
-            "stale",
-            f"{len(window)} readings in {cfg.settle_s} s, fewer than min_readings "
-            f"{cfg.min_readings}",
-        )
-    return None
-
-
-def _spread(window: Sequence[PairedReading], cfg: SettleConfig, device: str) -> Verdict:
-    """The verdict of a covered window: stale stamps, over-range, moving joints or length,
-    else settled. ``device`` names the indicator in the over-range detail."""
-    q = np.array([r.joints_deg for r in window])  # shape (n, 6) [deg]
-    dev_deg = np.abs(q - q.mean(axis=0)).max(axis=0)  # shape (6,) [deg]
-    still = bool(dev_deg.max() <= cfg.settle_tol_deg)
-    robot = {r.t_joints for r in window if not math.isnan(r.t_joints)}
-    if robot and len(robot) < cfg.min_readings:
-        return Verdict(
-            "stale",
-            f"{len(robot)} robot readings in {cfg.settle_s} s, fewer than min_readings "
-            f"{cfg.min_readings}: the robot answers late",
-            joints_still=still if len(robot) > 1 else None,
-        )
-    worst = max(window, key=lambda r: r.staleness_s)
-    if worst.staleness_s > cfg.stale_s:
-        return Verdict(
-            "stale",
-            f"a reading's stamps are {worst.staleness_s:.2f} s old or apart (stale_s)",
-            joints_still=still,
-        )
-    if any(r.over_range for r in window):
-        return Verdict(
-            "over_range",
-            f"indicator {device} reports over/under-range",
-            final=still,
-            joints_still=still,
-        )
-    if not still:
-        j = int(np.argmax(dev_deg))
-        return Verdict(
-            "moving",
-            f"joint {j + 1} varies by {dev_deg[j]:.4f} deg (settle_tol_deg {cfg.settle_tol_deg})",
-            joints_still=False,
-        )
-    lengths = np.array([r.length_mm for r in window])  # shape (n,) [mm]
-    dev_mm = float(np.abs(lengths - lengths.mean()).max())
-    if dev_mm > cfg.settle_tol_mm:
-        return Verdict(
-            "moving",
-            f"cable length varies by {dev_mm:.3f} mm (settle_tol_mm {cfg.settle_tol_mm})",
-            joints_still=True,
-        )
-    return Verdict(None, "settled", joints_still=True, window=tuple(window))
-
-
-def evaluate(
-    buffer: Sequence[PairedReading],
-    config: SettleConfig,
-    now: float,
-    not_before: float = -math.inf,
-    device: str = "indicator",
-) -> Verdict:
-    """Settle check of the window ending at the newest reading of ``buffer``.
-
-    Parameters
-    ----------
-    buffer : sequence of PairedReading
-        Paired readings, oldest first (stamps ``t_mono`` non-decreasing).
-    config : SettleConfig
-        ``settle_s``, ``stale_s``, ``min_readings``, ``settle_tol_deg``, ``settle_tol_mm``.
-    now : float
-        Current monotonic time [s].
-    not_before : float
-        Monotonic time [s]: the newest reading must have been polled at or after it, and the
-        whole window must lie after it (a capture only uses readings polled after its request).
-    device : str
-        Name of the indicator, for the over-range detail.
-
-    Returns
-    -------
-    Verdict
-        ``reason``: None (settled, ``window`` holds its readings), ``no_data`` (no reading
-        polled since ``not_before``), ``stale``, ``moving``, or ``over_range``; ``detail``
-        says why in words.
-    """
-    if not buffer or buffer[-1].t_poll < not_before:
-        return Verdict("no_data", "no paired reading yet")
-    latest = buffer[-1]
-    age = now - latest.t_mono
-    if age > config.stale_s:
-        return Verdict("stale", f"newest paired reading is {age:.2f} s old (stale_s)")
-    start = latest.t_mono - config.settle_s
-    window, before = _window(buffer, start)
-    if start < not_before or window[0].t_poll < not_before:
-        return Verdict("moving", "collecting a settle window after the request")
-    uncovered = _coverage(window, before, start, config)
-    if uncovered is not None:
-        return uncovered
-    return _spread(window, config, device)
+Mode = CaptureMode  # the one home: daemon.capture
 
 
 def make_capture(window: Sequence[PairedReading], anchor: str, mode: Mode) -> Capture:
     """The :class:`Capture` of a settled window: means, sample standard deviations (ddof 1)
-    and count of the readings, which are kept as raw readings."""
-    q = np.array([r.joints_deg for r in window], dtype=float)  # shape (n, 6) [deg]
-    lengths = np.array([r.length_mm for r in window], dtype=float)  # shape (n,) [mm]
-    ddof = 1 if len(window) > 1 else 0
+    and count of the readings (:func:`calib.monitor.settle.window_stats`), which are kept as
+    raw readings."""
+    stats = window_stats(window)
     return Capture(
-        joints_deg=as_joints(q.mean(axis=0)),
-        joints_std_deg=as_joints(q.std(axis=0, ddof=ddof)),
-        length_mm=float(lengths.mean()),
-        length_std_mm=float(lengths.std(ddof=ddof)),
-        count=len(window),
+        joints_deg=stats.joints_deg,
+        joints_std_deg=stats.joints_std_deg,
+        length_mm=stats.length_mm,
+        length_std_mm=stats.length_std_mm,
+        count=stats.count,
         anchor=anchor,
         t_start_wall=window[0].t_wall,
         t_end_wall=window[-1].t_wall,
@@ -284,6 +47,7 @@ def make_capture(window: Sequence[PairedReading], anchor: str, mode: Mode) -> Ca
 
 __all__ = [
     "NOT_SETTLED",
+    "Mode",
     "PairedReading",
     "SettleConfig",
     "Verdict",

@@ -35,18 +35,19 @@ import asyncio
 import contextlib
 import json
 import math
-import os
 import ssl
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import httpx
 from pydantic import Field, PrivateAttr, SecretStr
 
-from drivers.credentials import read_secret, write_secret
+from drivers.credentials import read_secret
 from drivers.robot_link import LinkConfig, LinkedRobot, LinkLost
 
-#: ABB's factory-default login of a new controller (public; the emulated face accepts it).
+#: ABB's factory-default login of a new controller (public). The emulated face
+#: (``simulator.config.AbbRwsSection``) states it again on purpose: the simulator is written
+#: independently of the drivers, so a wrong default here fails against it.
 ABB_FACTORY_USER = "Default User"
 ABB_FACTORY_PASSWORD = "robotics"
 HAL_JSON = "application/hal+json;v=2.0"
@@ -83,16 +84,6 @@ class AbbRwsConfig(LinkConfig):
     def check(self) -> None:
         """Validate what cannot be checked field by field (the password source)."""
         self.password()
-
-    @classmethod
-    def emulated_cell_settings(cls, state_dir: Path) -> dict[str, Any]:
-        """Settings for ``cablecal serve --simulated-cell``: the EMULATED face accepts ABB's
-        factory-default login; its password goes to a mode-0600 file in ``state_dir``
-        (unless ``CABLECAL_ROBOT_PASSWORD`` is set: then that one is used)."""
-        if os.environ.get("CABLECAL_ROBOT_PASSWORD"):
-            return {"username": ABB_FACTORY_USER}
-        path = write_secret(state_dir / "emulated-abb-rws-password", ABB_FACTORY_PASSWORD)
-        return {"username": ABB_FACTORY_USER, "password_file": str(path)}
 
 
 class AbbRwsRobot(LinkedRobot):

@@ -23,7 +23,6 @@ the next attempt. Alarms (``i:-1``) are kept in :attr:`HuashuSocketCmdRobot.alar
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import re
 import time
 from collections import deque
@@ -32,7 +31,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from drivers.robot_link import LinkConfig, LinkedRobot, LinkLost, Unattributable
+from drivers.robot_link import LinkConfig, LinkLost, StreamLinkedRobot, Unattributable
 
 TERMINATOR = b"@hs@"
 _REPLY = re.compile(r"^i:(-?\d+),e:(-?\d+),d:(.*)$", re.S)
@@ -94,32 +93,15 @@ class HuashuConfig(LinkConfig):
     joints_command: str = "mot.getJntData(0)"
 
 
-class HuashuSocketCmdRobot(LinkedRobot):
+class HuashuSocketCmdRobot(StreamLinkedRobot):
     """Asyncio driver of a Huashu controller over SocketCmd."""
 
     def __init__(self, config: HuashuConfig) -> None:
         super().__init__(config)
         self.config = config
         self.alarms: deque[Alarm] = deque(maxlen=32)
-        self._reader: asyncio.StreamReader | None = None
-        self._writer: asyncio.StreamWriter | None = None
         self._seq = 0
         self.joints_what = config.joints_command
-
-    def _is_open(self) -> bool:
-        return self._writer is not None and not self._writer.is_closing()
-
-    async def _open(self) -> None:
-        self._reader, self._writer = await asyncio.open_connection(
-            self.config.host, self.config.port
-        )
-
-    async def _close(self) -> None:
-        writer, self._reader, self._writer = self._writer, None, None
-        if writer is not None:
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
 
     async def command(self, command: str) -> str:
         """Send one command and return its data field.

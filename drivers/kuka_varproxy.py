@@ -45,7 +45,6 @@ a value is never attributed to the wrong request (the same scheme as Huashu Sock
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import re
 import struct
 import time
@@ -54,7 +53,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from drivers.robot_link import LinkConfig, LinkedRobot, LinkLost, Unattributable
+from drivers.robot_link import LinkConfig, LinkLost, StreamLinkedRobot, Unattributable
 
 #: Functions of the OpenShowVar protocol.
 FUNCTION_READ, FUNCTION_WRITE = 0, 1
@@ -257,7 +256,7 @@ class KukaVarProxyConfig(LinkConfig):
     ] = "$AXIS_ACT"
 
 
-class KukaVarProxyRobot(LinkedRobot):
+class KukaVarProxyRobot(StreamLinkedRobot):
     """Asyncio driver of a KUKA controller through KukaVarProxy (reads ``$AXIS_ACT``); the
     link policy (retries, back-off, stale joints) is :class:`drivers.robot_link.LinkedRobot`."""
 
@@ -265,28 +264,14 @@ class KukaVarProxyRobot(LinkedRobot):
         super().__init__(config)
         self.config = config
         self.joints_what = config.variable
-        self._reader: asyncio.StreamReader | None = None
-        self._writer: asyncio.StreamWriter | None = None
         self._rx = bytearray()
         self._msg_id = 0
         #: Late replies (to an abandoned request) discarded since creation [count].
         self.late_discarded = 0
 
-    def _is_open(self) -> bool:
-        return self._writer is not None and not self._writer.is_closing()
-
     async def _open(self) -> None:
-        self._reader, self._writer = await asyncio.open_connection(
-            self.config.host, self.config.port
-        )
+        await super()._open()
         self._rx.clear()
-
-    async def _close(self) -> None:
-        writer, self._reader, self._writer = self._writer, None, None
-        if writer is not None:
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
 
     async def _request_joints(self, timeout_s: float) -> tuple[float, ...]:
         """One read of the configured variable → A1..A6 [deg].

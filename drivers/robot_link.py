@@ -14,7 +14,8 @@ A driver subclasses :class:`LinkedRobot` and writes three things:
 ``_close()``
     Close the connection; must not raise.
 
-plus ``_is_open()``. Everything else is here, the same for every brand:
+plus ``_is_open()``. A driver over one TCP stream subclasses :class:`StreamLinkedRobot`,
+which opens, tells and closes that stream. Everything else is here, the same for every brand:
 
 - **Retries** (:class:`drivers.backoff.SilentAttempts`): a silent attempt is retried at once
   on the same connection with a short wait (``fast_reply_timeout_s``); the last attempt waits
@@ -40,6 +41,7 @@ and :attr:`LinkedRobot.attempts` (silent attempts, reads saved by a retry).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Awaitable, Callable, Sequence
@@ -243,3 +245,31 @@ class LinkedRobot(ABC):
         self.frames.note(f"{self.attempts.in_row} silent attempts in a row; connection closed")
         await self._close()
         self.attempts.reset()
+
+
+class StreamLinkedRobot(LinkedRobot):
+    """A :class:`LinkedRobot` over one TCP stream (asyncio streams to ``host:port``): the
+    opening, the state and the closing of the link, the same for every such driver, so a
+    driver writes only ``_request_joints`` (and may extend ``_open``)."""
+
+    def __init__(self, config: LinkConfig) -> None:
+        super().__init__(config)
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+
+    def _is_open(self) -> bool:
+        return self._writer is not None and not self._writer.is_closing()
+
+    async def _open(self) -> None:
+        self._reader, self._writer = await asyncio.open_connection(
+            self.link_config.host, self.link_config.port
+        )
+
+    async def _close(self) -> None:
+        """Forget the streams first (a concurrent reader sees a closed link), then close the
+        socket and wait for it; never raises."""
+        writer, self._reader, self._writer = self._writer, None, None
+        if writer is not None:
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()

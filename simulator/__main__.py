@@ -1,10 +1,9 @@
-"""``python -m simulator [--config sim.toml]``: same as ``cablecal simulate``."""
+"""``python -m simulator [--config sim.toml]``: same as ``cablecal simulate``
+(:mod:`simulator.entry`)."""
 
 from __future__ import annotations
 
-import typer
-
-from daemon.cli.simulate import simulate
+from simulator.entry import main
 
 if __name__ == "__main__":
-    typer.run(simulate)
+    main()

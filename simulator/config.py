@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from drivers.indicator import RegisterMap
 
 
@@ -21,7 +22,7 @@ class _Strict(BaseModel):
 class RobotSection(_Strict):
     """The emulated robot: model, true errors and motion."""
 
-    model: str = "hsr-jr680"  # built-in name, or path to a .toml/.json model file
+    model: str = DEFAULT_ROBOT_MODEL  # built-in name, or path to a .toml/.json model file
     dh_errors: Literal["table-xii-d1", "none"] = "table-xii-d1"
     tool_error_mm: tuple[float, float, float] = (0.8, -0.5, 1.2)
     # "random": n_poses seeded, spread poses; or a plan CSV with q1..q6 [deg] columns, or a
@@ -56,11 +57,18 @@ class CellSection(_Strict):
     drift_tau_s: Annotated[float, Field(ge=0, le=MAX_DRIFT_TAU_S, allow_inf_nan=False)] = 0.0
 
 
+#: 1σ noise of one EMULATED indicator reading [mm]: two counts of the display's last digit
+#: (``decimals`` 2: 0.01 mm), so rounding does not hide it. Not a measured figure of a real
+#: indicator; identify's assumed noise (``calib.options``, 0.1 mm) and the planner's
+#: (``calib.planning.PlanOptions``, 0.05 mm) are their own defaults.
+EMULATED_NOISE_MM: Final = 0.02
+
+
 class IndicatorSection(_Strict):
     """The emulated HY9648 indicator."""
 
     mode: Literal["modbus", "ascii"] = "modbus"
-    noise_mm: Annotated[float, Field(ge=0)] = 0.02
+    noise_mm: Annotated[float, Field(ge=0)] = EMULATED_NOISE_MM
     decimals: Annotated[int, Field(ge=0, le=3)] = 2
     range_mm: tuple[float, float] = (0.0, 2000.0)
     update_hz: Annotated[float, Field(gt=0)] = 50.0
@@ -101,7 +109,9 @@ class AbbRwsSection(ServerSection):
     ``"1.0"`` an IRC5 (HTTP, digest authentication), ``"2.0"`` an OmniCore (HTTPS, basic
     authentication; ``cert_file``/``key_file`` PEM, or a self-signed certificate generated at
     start with the ``openssl`` command). ``username``/``password``: the accepted login (ABB's
-    factory default, as on a new controller; an emulator's, not a secret)."""
+    factory default, as on a new controller; an emulator's, not a secret). Kept apart from
+    ``drivers.abb_rws.ABB_FACTORY_USER`` on purpose: the simulator is written independently
+    of the drivers, so a driver's wrong default fails against it."""
 
     rws: Literal["1.0", "2.0"] = "1.0"
     username: str = "Default User"
@@ -133,6 +143,10 @@ class SimConfig(_Strict):
     robot: RobotSection = RobotSection()
     cell: CellSection = CellSection()
     indicator: IndicatorSection = IndicatorSection()
+    # The real controllers' ports (the comments) are the drivers' defaults; the emulated faces
+    # take any free port instead (a test machine runs several cells), and state their own
+    # facts apart from the drivers on purpose (written independently of their protocol code,
+    # docs/architecture.md): a driver's wrong default then fails against its face.
     robot_socketcmd: ServerSection = ServerSection()  # real controllers: 23333
     robot_modbus: ServerSection = ServerSection()  # real UR: 502
     robot_abb_rws: AbbRwsSection = AbbRwsSection()  # real IRC5: 80, OmniCore: 443

@@ -12,10 +12,11 @@ from fastapi.testclient import TestClient
 from test_service import AUTH, TOKEN, FakeSampler
 
 from calib.dataset import SampleError, SampleSet, make_samples, samples_to_csv
+from calib.min_samples import min_samples
 from calib.models import builtin_model
 from calib.options import IdentifyOptions, check_training_rows, validate
 from daemon.api.main import create_app
-from daemon.api.min_samples import MinSamplesCache, min_samples
+from daemon.api.min_samples import MinSamplesCache
 from daemon.config import Settings
 from daemon.datafiles import read_samples
 

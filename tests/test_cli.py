@@ -24,7 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 HEAVY = ("fastapi", "uvicorn", "scipy", "pymodbus", "sqlite_utils", "numpy", "calib", "simulator")
 # calib.options is standard library only: the CLI builds its identification options from it;
 # calib.programs.formats (the program formats' names) likewise.
-ALLOWED = {"calib", "calib.options", "calib.programs", "calib.programs.formats"}
+ALLOWED = {"calib", "calib.options", "calib.programs", "calib.programs.formats",
+           "calib.default_robot"}  # fmt: skip
 
 
 def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:
@@ -143,6 +144,23 @@ def test_only_daemon_cli_imports_the_simulator() -> None:
                 for n in names
                 if n.split(".")[0] == "simulator"
             ]
+    assert offenders == []
+
+
+def test_the_simulator_imports_no_daemon() -> None:
+    """The simulator owns its entry (``python -m simulator``); the CLI calls it, never the
+    other way round."""
+    offenders = []
+    for path in sorted((REPO / "simulator").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            offenders += [f"{path.relative_to(REPO)}:{node.lineno}" for n in names
+                          if n.split(".")[0] == "daemon"]  # fmt: skip
     assert offenders == []
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.dataset import SampleError, parse_samples_csv, samples_to_csv
+from calib.dataset import SampleError, capture_times_s, parse_samples_csv, samples_to_csv
 from calib.models import ModelError, builtin_model, model_from_mapping, parse_model_text
 from daemon.datafiles import bundled_dataset_text, read_samples
 
@@ -96,3 +96,14 @@ def test_bad_model_names_the_field(mutate, field: str) -> None:
 def test_toml_syntax_error_is_a_model_error() -> None:
     with pytest.raises(ModelError, match="syntax"):
         parse_model_text("name = ", "toml")
+
+
+def test_capture_times_count_only_for_live_captures_in_order() -> None:
+    """calib's rule for the drift model's time axis: seconds since the first sample when
+    every sample was captured live, has its time and the times never go back; else None."""
+    times = capture_times_s([100.0, 101.5, 101.5, 104.0], [True] * 4)
+    assert times is not None and times.tolist() == [0.0, 1.5, 1.5, 4.0]
+    assert capture_times_s([100.0, 101.0], [True, False]) is None  # one imported
+    assert capture_times_s([100.0, None], [True, True]) is None  # a time missing
+    assert capture_times_s([101.0, 100.0], [True, True]) is None  # back in time
+    assert capture_times_s([100.0], [True]) is None  # one sample has no time axis

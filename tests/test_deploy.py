@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 from pydantic import BaseModel
 
-from daemon.config import DriftSettings, JobSettings, Settings, WatchSettings
+from daemon.config import HoldCheckSettings, JobSettings, Settings, WatchSettings
 from daemon.sampler import SamplerConfig
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig
 from drivers.indicator import RegisterMap
@@ -468,7 +468,7 @@ def test_example_mentions_every_setting() -> None:
         ("", ""): keys(Settings) - tables,
         ("sampler", ""): keys(SamplerConfig),
         ("jobs", ""): keys(JobSettings),
-        ("drift", ""): keys(DriftSettings),
+        ("drift", ""): keys(HoldCheckSettings),
         ("watch", ""): keys(WatchSettings),
         ("indicator", ""): (keys(IndicatorConfig) | keys(AsciiIndicatorConfig)) - {"registers"},
         ("indicator", "registers"): keys(RegisterMap),

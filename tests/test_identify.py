@@ -239,3 +239,29 @@ def test_noise_rank_fixes_joint5_terms_the_noise_cannot_resolve() -> None:
     left_out = joint5 - set(on.identifiability.base)
     assert left_out
     assert all("below the noise" in on.identifiability.reasons[n] for n in left_out)
+
+
+def test_elapsed_is_by_the_injected_clock_and_calib_reads_none(clean_case, monkeypatch) -> None:
+    """calib reads no clock (issue 26): identify times itself and its fit only by the clock
+    its caller passes; without one the run is not timed."""
+    import time
+
+    _, q, _, noisy, train, test = clean_case
+    samples = make_samples(q, noisy)
+    opts = IdentifyOptions(robust="none", prior_weight="fixed")
+
+    def no_clock() -> float:
+        raise AssertionError("calib read the clock")
+
+    for name in ("perf_counter", "monotonic", "time", "process_time"):
+        monkeypatch.setattr(time, name, no_clock)
+    untimed = identify(MODEL, samples, opts, train_rows=train, test_rows=test)
+    assert untimed.elapsed_s == 0.0 and untimed.solver.elapsed_s == 0.0
+    ticks = iter(range(100))
+    timed = identify(MODEL, samples, opts, train_rows=train, test_rows=test,
+                     clock=lambda: float(next(ticks)))  # fmt: skip
+    # identify reads the clock at its start (0) and end (3); its one fit (robust none, a fixed
+    # prior weight) between (1, 2).
+    assert timed.solver.elapsed_s == 1.0
+    assert timed.elapsed_s == 3.0
+    assert np.array_equal(timed.theta, untimed.theta)

@@ -12,10 +12,10 @@ import pytest
 
 from calib.dataset import make_samples
 from calib.identify import IdentifyOptions, identify
+from calib.min_samples import min_samples
 from calib.noise import display_step_mm, median_dof, noise_floor_mm
 from calib.options import SCREEN_MIN_DOF, samples_for_training_rows
 from calib.robust import auto_threshold
-from daemon.api.min_samples import min_samples
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # bench/ is a top-level package of the repo, not installed

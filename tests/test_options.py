@@ -160,3 +160,20 @@ def test_paper_split_is_disjoint_and_seeded() -> None:
     assert train.size == 100 and test.size == 20 and not set(train) & set(test)
     again = paper_split(2017, 3)
     assert np.array_equal(train, again[0]) and np.array_equal(test, again[1])
+
+
+def test_the_api_the_page_and_the_cli_expose_one_list_of_identification_options() -> None:
+    """IdentificationRequest's fields are the one list: GET /options/identify serves them to
+    the page (with the main ones), and ``cablecal identify`` has an option for each."""
+    import inspect
+
+    from daemon.api.option_spec import MAIN_FIELDS, identify_options_spec
+    from daemon.cli.calibration import identify_cmd
+
+    body = list(IdentificationRequest.model_fields)
+    assert "noise_rank" in body
+    served = identify_options_spec()
+    assert [f["name"] for f in served["fields"]] == body
+    assert served["main_fields"] == list(MAIN_FIELDS) and set(MAIN_FIELDS) <= set(body)
+    cli_only = {"data", "robot", "out", "strict"}
+    assert set(inspect.signature(identify_cmd).parameters) - cli_only == set(body)

@@ -1,4 +1,5 @@
-"""The plan's noise from the cell (daemon.plan_noise): each source and their precedence."""
+"""The plan's noise from the cell (calib.planning.noise, daemon.plan_noise): each source and
+their precedence."""
 
 from __future__ import annotations
 
@@ -8,15 +9,15 @@ import numpy as np
 import pytest
 
 from calib.planning import PlanOptions
-from daemon.plan_noise import (
+from calib.planning.noise import (
     NoiseEstimate,
-    cell_noise,
     choose,
     correlation_factor,
     repeat_noise_mm,
     still_windows,
     window_mean_se_mm,
 )
+from daemon.plan_noise import cell_noise
 from daemon.sampler.config import SamplerConfig
 from daemon.settle import PairedReading, make_capture
 from daemon.store import Store

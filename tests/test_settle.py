@@ -1,5 +1,6 @@
-"""Settle detection and capture building as pure functions: synthetic buffers and times in,
-verdicts and captures out; no asyncio, no devices (each verdict the sampler can reach)."""
+"""Settle detection (:mod:`calib.monitor.settle`) and capture building as pure functions:
+synthetic buffers and times in, verdicts and captures out; no asyncio, no devices (each
+verdict the sampler can reach)."""
 
 from __future__ import annotations
 
@@ -9,15 +10,9 @@ import math
 import numpy as np
 import pytest
 
+from calib.monitor.settle import NOT_SETTLED, PairedReading, as_joints, evaluate, staleness_s
 from daemon.sampler import SamplerConfig
-from daemon.settle import (
-    NOT_SETTLED,
-    PairedReading,
-    as_joints,
-    evaluate,
-    make_capture,
-    staleness_s,
-)
+from daemon.settle import make_capture
 
 HOME = (0.0, -30.0, 60.0, 0.0, 45.0, 10.0)
 T0 = 1000.0  # monotonic start of the synthetic series [s]

@@ -135,3 +135,18 @@ def test_with_ports_overrides_and_validates() -> None:
         with_ports(SimConfig(), indicator=1)
     with pytest.raises(ValueError, match="less than or equal to 65535"):
         with_ports(SimConfig(), control=70000)
+
+
+def test_faces_and_drivers_state_the_controllers_defaults_apart_but_alike() -> None:
+    """The emulated faces keep their own copy of a real controller's facts (ABB's factory
+    login, UR's RTDE port) on purpose; here the two copies are held to each other."""
+    from drivers.abb_rws import ABB_FACTORY_PASSWORD, ABB_FACTORY_USER, AbbRwsConfig
+    from drivers.ur_rtde import UrRtdeConfig
+
+    cfg = SimConfig()
+    assert (cfg.robot_abb_rws.username, cfg.robot_abb_rws.password) == (
+        ABB_FACTORY_USER,
+        ABB_FACTORY_PASSWORD,
+    )
+    assert AbbRwsConfig.model_fields["username"].default == ABB_FACTORY_USER
+    assert cfg.robot_ur_rtde.port == UrRtdeConfig.model_fields["port"].default == 30004

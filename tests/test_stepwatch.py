@@ -1,4 +1,4 @@
-"""The live sensor watch's pure decisions (:mod:`daemon.stepwatch`): the step test on
+"""The live sensor watch's pure decisions (:mod:`calib.monitor.stepwatch`): the step test on
 prediction residuals and the robot-or-sensor explanation of a drift check."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daemon.stepwatch import StepDetector, StepSettings, explain_change, next_anchor
+from calib.monitor.stepwatch import StepDetector, StepSettings, explain_change, next_anchor
 
 
 def feed(det: StepDetector, residuals: np.ndarray, start: int = 0) -> list[tuple[int, object]]:

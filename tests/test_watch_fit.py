@@ -1,5 +1,5 @@
-"""The live watch's per-sample test (:class:`daemon.watch.LiveTester`) on known truth: the
-EMULATED cell's lengths, sample by sample, as the daemon feeds them."""
+"""The live watch's per-sample test (:class:`calib.monitor.running_fit.LiveTester`) on known
+truth: the EMULATED cell's lengths, sample by sample, as the daemon feeds them."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from calib.dataset import SampleSet
-from daemon.stepwatch import StepDetector
-from daemon.watch import LiveTester
+from calib.monitor.running_fit import LiveTester
+from calib.monitor.stepwatch import StepDetector
 from simulator.cell import EmulatedCell
 from simulator.config import SimConfig
 

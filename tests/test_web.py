@@ -140,6 +140,13 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             "#identify-form select[name=method] option", "os => os.map(o => o.value)"
         )
         assert choices == spec["fields"][0]["choices"]
+        # which fields come first is the API's too (main_fields); the rest under More options
+        names = "ns => ns.map(n => n.getAttribute('name'))"
+        shown = page.eval_on_selector_all("#identify-fields [name]", names)
+        more = page.eval_on_selector_all("#identify-more-fields [name]", names)
+        body = [f["name"] for f in spec["fields"]]
+        assert shown == [n for n in body if n in spec["main_fields"]], shown
+        assert more == [n for n in body if n not in spec["main_fields"]] and "noise_rank" in more
         page.fill("#identify-form input[name=test_fraction]", "abc")
         page.wait_for_selector("#identify-form-error:not([hidden])")
         assert page.is_disabled("#identify-start")

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from calib.anchors import fit_anchors
 from calib.cable import ParamLayout
 from calib.dataset import SampleSet
-from calib.identify import fit_anchors
 from calib.kinematics import FloatArray
 from calib.models import BUILTIN_MODELS, RobotModel, builtin_model
 from calib.predict import predict_lengths_from_result

@@ -38,7 +38,7 @@ comparison: bench/design_figures.md).
 
 from __future__ import annotations
 
-import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,6 +62,7 @@ from calib.tcp import (
     tcp_uncertainty,
     workspace_sample_deg,
 )
+from calib.timing import Clock, Timer
 
 
 @dataclass(frozen=True)
@@ -290,9 +291,10 @@ def _anchors_used(s: _Setup, picked: IndexArray, gain: dict[str, Any] | None) ->
 
 def plan(
     model: RobotModel,
-    anchors_mm: FloatArray,
+    anchors_mm: FloatArray | Sequence[Sequence[float]],
     options: PlanOptions | None = None,
     start: SampleSet | None = None,
+    clock: Clock | None = None,
 ) -> PlanResult:
     """Plan ``options.n`` calibration poses (see the module docstring).
 
@@ -306,6 +308,9 @@ def plan(
     start : SampleSet, optional
         Poses already measured: their information is part of the criterion (sequential
         design); each start anchor's P0 is multilaterated with the nominal model.
+    clock : callable() -> float [s], optional
+        Times the plan for ``elapsed_s``, injected by the caller (calib reads no clock);
+        None: 0.
 
     Raises
     ------
@@ -318,13 +323,17 @@ def plan(
     # a shared 2-core machine, oversubscription made plans several times slower
     # (bench/design_figures.md). One BLAS thread.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _plan(model, anchors_mm, options or PlanOptions(), start)
+        return _plan(model, anchors_mm, options or PlanOptions(), start, clock)
 
 
 def _plan(
-    model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions, start: SampleSet | None
+    model: RobotModel,
+    anchors_mm: FloatArray | Sequence[Sequence[float]],
+    opts: PlanOptions,
+    start: SampleSet | None,
+    clock: Clock | None,
 ) -> PlanResult:
-    t0 = time.perf_counter()
+    timer = Timer(clock)
     anchors = np.atleast_2d(np.asarray(anchors_mm, dtype=float))
     if anchors.ndim != 2 or anchors.shape[1] != 3 or not np.all(np.isfinite(anchors)):
         raise ValueError(f"anchors_mm: need finite (x, y, z) per anchor, got {anchors_mm!r}")
@@ -381,7 +390,7 @@ def _plan(
         n_candidates=int(s.cand_q_deg.shape[0]),
         noise_mm=opts.noise_mm,
         anchor_gain=gain,
-        elapsed_s=time.perf_counter() - t0,
+        elapsed_s=timer.elapsed(),
         notes=notes,
     )
 

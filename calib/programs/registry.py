@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import re
 from collections.abc import Callable, Sequence
 from types import ModuleType
@@ -104,3 +105,68 @@ def program_from_csv(
         created_utc=created_utc,
     )
     return program, write_program(fmt, program)
+
+
+def build_program(
+    text: str,
+    *,
+    fmt: str,
+    name: str,
+    robot_name: str,
+    limits_deg: Sequence[Sequence[float]],
+    speed_pct: float,
+    dwell_s: float,
+    what: str,
+    source: str,
+    anchor: str | None = None,
+    now: dt.datetime | None = None,
+) -> tuple[JointProgram, str]:
+    """A robot program of joint targets as cablecal writes it, for ``cablecal program`` and
+    the API's downloads alike: :func:`program_from_csv` with the header comments (``cablecal
+    <what>``, the robot and the anchor, when it was made, speed and dwell) and the creation
+    time stamped in.
+
+    Parameters
+    ----------
+    text : str
+        Joint-target CSV with ``q1..q6`` [deg] (a plan or compensated targets).
+    robot_name : str
+        The robot model's name, for the header.
+    limits_deg : sequence, shape (6, 2)
+        Joint limits [deg].
+    speed_pct : float
+        Joint speed [% of the robot's maximum].
+    dwell_s : float
+        Wait at each target [s].
+    what : str
+        What the targets are (``plan 3 of campaign 1``, ``program of targets.csv``).
+    source : str
+        Where the CSV came from, for error messages.
+    anchor : str or None
+        A plan's anchor to keep (None: every row).
+    now : datetime or None
+        The creation time (UTC); default: now, to the second.
+
+    Raises
+    ------
+    ProgramError
+    """
+    made = now if now is not None else dt.datetime.now(dt.UTC).replace(microsecond=0)
+    comments = (
+        f"cablecal {what}",
+        f"robot {robot_name}" + (f", sensor at anchor {anchor}" if anchor else ""),
+        f"made {made:%Y-%m-%d %H:%M} UTC",
+        f"speed {speed_pct:g} %, dwell {dwell_s:g} s",
+    )
+    return program_from_csv(
+        text,
+        fmt=fmt,
+        name=name,
+        limits_deg=limits_deg,
+        speed_pct=speed_pct,
+        dwell_s=dwell_s,
+        comments=comments,
+        source=source,
+        created_utc=f"{made:%Y-%m-%d %H:%M:%S}",
+        anchor=anchor,
+    )

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, TypeVar, cast
@@ -72,16 +71,6 @@ class SolverResult:
     cost_history_rms_mm: list[float] = field(default_factory=list)
     elapsed_s: float = 0.0
     fit_starts: list[int] = field(default_factory=lambda: [0])
-
-
-class Timer:
-    """Wall-clock timer for ``elapsed_s``."""
-
-    def __init__(self) -> None:
-        self.start = time.perf_counter()
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.start
 
 
 def column_scale(jac: FloatArray, previous: FloatArray | None = None) -> FloatArray:
@@ -177,7 +166,6 @@ class GaussNewton:
     def __init__(self, problem: Problem, x0: FloatArray | None, method: str) -> None:
         self.problem = problem
         self.method = method
-        self.timer = Timer()
         self.x = problem.x0() if x0 is None else np.array(x0, dtype=float)
         ev = problem.evaluate(self.x)
         assert ev.jacobian is not None
@@ -235,8 +223,73 @@ class GaussNewton:
             message=message,
             iterations=iterations,
             cost_history_rms_mm=self.history,
-            elapsed_s=self.timer.elapsed(),
         )
+
+
+#: A solver's stop: status (1 gradient, 2 cost change / statistical test, 3 step) and message.
+Stop = tuple[int, str]
+
+
+class DampingRule(Protocol):
+    """What one Gauss–Newton method (LM, VSLM, geodesic LM) adds to :func:`damped_descent`:
+    its damping and steps; the loop, the history and the progress are shared."""
+
+    def reference_damping(self, lin: LinearModel) -> float:
+        """The damping of the ``sigma_tol`` stopping test (:meth:`GaussNewton.within_sigma`)."""
+        ...
+
+    def attempt(
+        self, gn: GaussNewton, lin: LinearModel, grad: FloatArray
+    ) -> tuple[bool, Stop | None]:
+        """Try steps, raising the damping on refusal; accept one (:meth:`GaussNewton.accept`)
+        or give up. Returns whether a step was accepted and a stop, if the rule stops here."""
+        ...
+
+    def note(self) -> str:
+        """Extra words of the iteration's progress message (e.g. ``", step 0.800"``)."""
+        ...
+
+    def accepted(self, gn: GaussNewton) -> Stop | None:
+        """After an accepted step and its progress report: a stop, if the rule stops here."""
+        ...
+
+
+def damped_descent(
+    gn: GaussNewton, rule: DampingRule, max_iterations: int, gtol: float, sigma_tol: float,
+    progress: ProgressFn | None,
+) -> SolverResult:  # fmt: skip
+    """The iteration LM, VSLM and geodesic LM share: per iteration the scaled linear model
+    (stop 1 when the gradient is below ``gtol``), the ``sigma_tol`` test (stop 2), the rule's
+    damped steps; a refused iteration repeats the last data RMS in the history; one progress
+    call per iteration with its data RMS [mm]; stop 3 when no damping decreases the cost."""
+    status, message, it = 0, "iteration limit reached", 0
+    for it in range(1, max_iterations + 1):
+        linear = gn.linearise(gtol)
+        if linear is None:
+            status, message, it = 1, "gradient below gtol", it - 1
+            break
+        lin, grad = linear
+        stop = gn.within_sigma(lin, rule.reference_damping(lin), sigma_tol)
+        if stop is not None:
+            status, message, it = 2, stop, it - 1
+            break
+        accepted, stop_now = rule.attempt(gn, lin, grad)
+        if not accepted:
+            gn.history.append(gn.history[-1])
+        report(
+            progress,
+            it / max_iterations,
+            f"{gn.method} iteration {it}{rule.note()}, rms {gn.history[-1]:.4f} mm",
+            gn.history[-1],
+        )
+        if stop_now is None and not accepted:
+            stop_now = 3, "no decrease possible at any damping (converged to precision)"
+        if stop_now is None:
+            stop_now = rule.accepted(gn)
+        if stop_now is not None:
+            status, message = stop_now
+            break
+    return gn.result(status, message, it)
 
 
 def sample_batches(
@@ -255,6 +308,65 @@ def sample_batches(
         start += step
         step = min(2 * step, size)
     return out
+
+
+#: One filter update of :func:`run_epochs`: ``(x, p, rows, r_var) -> (x_new, p_new)`` from the
+#: estimate ``x`` (k,) and the predicted covariance ``p`` (k, k) (``Q`` added) with the samples
+#: ``rows`` (b,) of weight > 0 and their measurement variances ``r_var`` (b,) [mm²].
+FilterUpdate = Callable[
+    [FloatArray, FloatArray, IndexArray, FloatArray], tuple[FloatArray, FloatArray]
+]
+
+
+def run_epochs(
+    problem: Problem, x: FloatArray, p0: FloatArray, epochs: int, process_noise: float,
+    batches: list[IndexArray], update: FilterUpdate, progress: ProgressFn | None, method: str,
+    note_every: int | None = None,
+) -> SolverResult:  # fmt: skip
+    """The epoch loop the EKF and the UKF share: per epoch the covariance restarts at ``p0``
+    (k, k); per batch the rows of weight 0 are skipped, ``Q = process_noise · p0`` is added
+    and ``update`` moves the estimate; the data RMS after each epoch [mm] is the history and
+    the progress. Status -1 (the last good estimate) on a non-finite update, else 4 after
+    ``epochs`` epochs. ``note_every``: also a progress message every that many batches."""
+    noise_var = problem.noise_mm**2
+    q = process_noise * p0
+    history = [problem.data_rms_mm(x)]
+    total = epochs * len(batches)
+    done = 0
+    for epoch in range(epochs):
+        p = p0.copy()
+        for rows in batches:
+            weights = problem.weights[rows]
+            keep = weights > 0
+            done += 1
+            if not np.any(keep):
+                continue
+            rows, weights = rows[keep], weights[keep]
+            p = p + q
+            x_new, p_new = update(x, p, rows, noise_var / weights)
+            if not np.all(np.isfinite(x_new)):
+                return SolverResult(
+                    method, x, False, -1, f"non-finite update in epoch {epoch + 1}", epoch, history
+                )
+            x, p = x_new, p_new
+            if note_every and done % note_every == 0:
+                report(progress, done / total, f"{method} epoch {epoch + 1}")
+        history.append(problem.data_rms_mm(x))
+        report(
+            progress,
+            (epoch + 1) / epochs,
+            f"{method} epoch {epoch + 1} done, rms {history[-1]:.4f} mm",
+            history[-1],
+        )
+    return SolverResult(
+        method=method,
+        x=x,
+        success=True,
+        status=4,
+        message=f"{epochs} epochs done",
+        iterations=epochs,
+        cost_history_rms_mm=history,
+    )
 
 
 def report(

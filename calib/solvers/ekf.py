@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.cable import length_jacobian
-from calib.kinematics import FloatArray
+from calib.kinematics import FloatArray, IndexArray
 from calib.problem import Problem
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sample_batches
+from calib.solvers.common import ProgressFn, SolverResult, run_epochs, sample_batches
 
 
 @dataclass(frozen=True)
@@ -46,51 +46,22 @@ def solve(
     if p0 is None:
         raise ValueError("p0: the EKF needs an initial covariance")
     opts = options or EKFOptions()
-    timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
     k = x.shape[0]
-    noise_var = problem.noise_mm**2
-    q = opts.process_noise * p0
-    history = [problem.data_rms_mm(x)]
-    batches = sample_batches(problem.n_samples, opts.batch_size)
-    for epoch in range(opts.epochs):
-        p = p0.copy()
-        for rows in batches:
-            weights = problem.weights[rows]
-            keep = weights > 0
-            if not np.any(keep):
-                continue
-            rows, weights = rows[keep], weights[keep]
-            p = p + q
-            pred, jac_full = length_jacobian(
-                problem.model, problem.full(x), problem.q_rad[rows], problem.anchor_index[rows]
-            )
-            h = jac_full[:, problem.free]
-            s_cov = h @ p @ h.T + np.diag(noise_var / weights)
-            gain = np.linalg.solve(s_cov.T, (p @ h.T).T).T
-            x_new = x + gain @ (problem.length_mm[rows] - pred)
-            if not np.all(np.isfinite(x_new)):
-                return SolverResult(
-                    method, x, False, -1, f"non-finite update in epoch {epoch + 1}",
-                    epoch, history, timer.elapsed(),
-                )  # fmt: skip
-            x = x_new
-            ikh = np.eye(k) - gain @ h
-            p = ikh @ p @ ikh.T + gain @ np.diag(noise_var / weights) @ gain.T  # Joseph form
-        history.append(problem.data_rms_mm(x))
-        report(
-            progress,
-            (epoch + 1) / opts.epochs,
-            f"{method} epoch {epoch + 1} done, rms {history[-1]:.4f} mm",
-            history[-1],
+
+    def update(
+        x: FloatArray, p: FloatArray, rows: IndexArray, r_var: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        pred, jac_full = length_jacobian(
+            problem.model, problem.full(x), problem.q_rad[rows], problem.anchor_index[rows]
         )
-    return SolverResult(
-        method=method,
-        x=x,
-        success=True,
-        status=4,
-        message=f"{opts.epochs} epochs done",
-        iterations=opts.epochs,
-        cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
-    )
+        h = jac_full[:, problem.free]
+        s_cov = h @ p @ h.T + np.diag(r_var)
+        gain = np.linalg.solve(s_cov.T, (p @ h.T).T).T
+        x_new = x + gain @ (problem.length_mm[rows] - pred)
+        ikh = np.eye(k) - gain @ h
+        return x_new, ikh @ p @ ikh.T + gain @ np.diag(r_var) @ gain.T  # Joseph form
+
+    batches = sample_batches(problem.n_samples, opts.batch_size)
+    return run_epochs(problem, x, p0, opts.epochs, opts.process_noise, batches, update, progress,
+                      method)  # fmt: skip

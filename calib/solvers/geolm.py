@@ -36,20 +36,20 @@ Machta, J. P. Sethna, "Geometry of nonlinear least squares with applications to 
 and optimization", Phys. Rev. E 83, 036701 (2011); K. Madsen, H. B. Nielsen, O. Tingleff,
 "Methods for non-linear least squares problems", IMM DTU (2004).
 
-**Where the paper is vague or ill-posed (measured on the bundled HSR data).**
+**Where the paper is vague or ill-posed (on the bundled HSR data).**
 The paper treats the identification as a well-posed minimisation and reports a fixed iteration
 count. On the bundled data (q1 only 1.4–10.6°, q6 constant) the maximum-likelihood cost is
 not well posed: with the corrected ``hsr-jr680`` model (joint offsets 0, see
-:data:`calib.models.HSR_JR680`) the nominal geometry fits the 2017 rows to 0.097 mm RMS, and
-the ML fit lowers that to about 0.07 mm by sliding metres along unexcited directions (``d5``
-and the hook point: ``d5`` ≈ 8.6 m on all rows). "The optimum" is an infimum approached along
-a flat, curved valley, and the parameters there mean nothing physically. identify therefore
-solves the MAP problem by default (:mod:`calib.prior`), whose minimiser is unique and near the
-nominal model: 2–3 iterations here (bench/solver_real.md). For the ML problem this solver
-keeps the paper's objective and defines "converged" statistically: it stops when further
-progress along the valley changes the likelihood by less than a ``stall_chi2`` fraction of one
-unit of χ² per ``stall_window`` iterations (4c). The benchmark ``bench/solver_real.py``
-reports how far that is from a long reference run.
+:data:`calib.models.HSR_JR680`) the nominal geometry already fits the rows closely, and the ML
+fit lowers the residual a little further by sliding metres along unexcited directions (``d5``
+and the hook point; the figures: bench/design_figures.md and bench/solver_real.md). "The
+optimum" is an infimum approached along a flat, curved valley, and the parameters there mean
+nothing physically. identify therefore solves the MAP problem by default (:mod:`calib.prior`),
+whose minimiser is unique and near the nominal model: a few iterations (bench/solver_real.md).
+For the ML problem this solver keeps the paper's objective and defines "converged"
+statistically: it stops when further progress along the valley changes the likelihood by less
+than a ``stall_chi2`` fraction of one unit of χ² per ``stall_window`` iterations (4c). The
+benchmark ``bench/solver_real.py`` reports how far that is from a long reference run.
 Earlier, with Table I's theta column wrongly added as joint offsets, the ML cost also had
 several basins and a descent from the UKF's estimate (the paper's own M9 seed) found lower
 ones; ``ukf_start`` keeps that option. With the corrected model the descents from identify's
@@ -73,8 +73,8 @@ from calib.solvers.common import (
     LinearModel,
     ProgressFn,
     SolverResult,
-    Timer,
-    report,
+    Stop,
+    damped_descent,
     sub_progress,
 )
 
@@ -83,17 +83,14 @@ from calib.solvers.common import (
 class GeoLMOptions:
     """Options of :func:`solve`. Tolerances are relative and unit-free."""
 
-    #: Per descent. The ML problem on the bench's 100-row subsets of the bundled data stops by
-    #: a test after 151 iterations on average, on all 2017 rows after 219
-    #: (bench/solver_real.md); the MAP problem after 2–3.
+    #: Per descent. The ML problem on the bundled data stops by a test well within it, the MAP
+    #: problem after a few iterations (the counts: bench/solver_real.md).
     max_iterations: int = 1000
     #: Initial λ relative to the largest squared singular value. Madsen–Nielsen–Tingleff advise
     #: 1e-6 when the start is believed good, 1e-3 or more otherwise; identify's start (nominal
-    #: model, anchor and hook point fitted) is good to the size of the DH errors. Measured: on
-    #: the 10 paper-protocol draws of the bundled data the MAP fit ends at the same cost with
-    #: 1e-9 in 2 iterations against 12 with 1e-3; on virtual cells (5 seeds, 100 poses, ML and
-    #: MAP) the same TCP error in 1–4 iterations against 7–11. A bad step is refused and λ
-    #: grows, so a far start costs a few rejections, not the answer.
+    #: model, anchor and hook point fitted) is good to the size of the DH errors: from it, the
+    #: fits end at the same cost in fewer iterations than with 1e-3. A bad step is refused and
+    #: λ grows, so a far start costs a few rejections, not the answer.
     tau: float = 1e-9
     alpha: float = 0.75  # largest accepted ratio 2‖a‖/‖v‖ (Transtrum & Sethna)
     fd_step: float = 0.1  # finite-difference step h of r_vv, in scaled units of v
@@ -107,12 +104,12 @@ class GeoLMOptions:
     #: ``ukf_sigma_mm`` / ``ukf_sigma_deg`` per DH error, 4× the millimetres for the tool and
     #: the anchors, the same ``P0`` as identify gives ukf-vslm) and keep the lower cost: for a
     #: cost with several basins. Off: with the corrected model the bundled data show one
-    #: (see the module docstring), and the UKF costs a third of the time.
+    #: (see the module docstring), and the UKF adds its own time.
     ukf_start: bool = False
     #: Also descend from ``x0`` when the descent from the UKF's estimate converged (by a test,
     #: status > 0). Off: ``x0`` is the fallback when the UKF fails or its descent stops at the
-    #: iteration limit (it never ended meaningfully below the UKF one and doubles the time:
-    #: bench/design_figures.md). Only used with ``ukf_start``.
+    #: iteration limit (it never ended meaningfully below the UKF one, at more time: the
+    #: figures in bench/design_figures.md). Only used with ``ukf_start``.
     both_starts: bool = False
     ukf: ukf.UKFOptions = field(default_factory=lambda: ukf.UKFOptions(batch_size=32, ramp=True))
     ukf_sigma_mm: float = 5.0
@@ -170,12 +167,9 @@ def solve(
     ``ukf_sigma_mm`` / ``ukf_sigma_deg`` (identify passes its filters' ``P0``).
     """
     opts = options or GeoLMOptions()
-    timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
     if not opts.ukf_start:
-        out = descend(problem, x, opts, progress, method)
-        out.elapsed_s = timer.elapsed()
-        return out
+        return descend(problem, x, opts, progress, method)
     if p0 is None:
         spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg),
                           opts.ukf_sigma_mm)  # fmt: skip
@@ -188,7 +182,6 @@ def solve(
         first.iterations += seed.iterations
         first.message = f"from the UKF estimate: {first.message}"
         if first.success and not opts.both_starts:
-            first.elapsed_s = timer.elapsed()
             return first
     out = descend(problem, x, opts, sub_progress(progress, 0.55, 1.0), method)
     out.message = f"from x0: {out.message}"
@@ -196,7 +189,6 @@ def solve(
         iterations = first.iterations + out.iterations
         out = first if problem.cost(first.x) <= problem.cost(out.x) else out
         out.iterations = iterations
-    out.elapsed_s = timer.elapsed()
     return out
 
 
@@ -212,24 +204,30 @@ def descend(
     failed = gn.start_failure()
     if failed is not None:
         return failed
-    lam: float | None = None
-    nu = 2.0
-    costs: deque[float] = deque([gn.cost], maxlen=opts.stall_window + 1)
-    status, message, it = 0, "iteration limit reached", 0
-    for it in range(1, opts.max_iterations + 1):
-        scaled = gn.scaled(opts.gtol)
-        if scaled is None:
-            status, message, it = 1, "gradient below gtol", it - 1
-            break
-        js, grad = scaled
-        lin = LinearModel.from_jacobian(js, gn.res)
-        s_max2 = float(lin.s[0] ** 2)
-        stop = gn.within_sigma(lin, opts.sigma_damping * s_max2, opts.sigma_tol)
-        if stop is not None:
-            status, message, it = 2, stop, it - 1
-            break
-        lam = opts.tau * s_max2 if lam is None else lam
-        accepted = False
+    return damped_descent(gn, _Rule(opts, gn.cost), opts.max_iterations, opts.gtol,
+                          opts.sigma_tol, progress)  # fmt: skip
+
+
+class _Rule:
+    """Geodesic LM's steps (:func:`_geodesic_step`) and damping (Nielsen, as LM's: ``λ`` from
+    ``tau · s_max²``, × ``max(1/3, 1 − (2ρ − 1)³)`` accepted, × ``ν`` refused), and the
+    likelihood-stall stop (4c) over the costs of the last ``stall_window`` iterations."""
+
+    def __init__(self, opts: GeoLMOptions, cost: float) -> None:
+        self.opts = opts
+        self.lam: float | None = None
+        self.nu = 2.0
+        self.costs: deque[float] = deque([cost], maxlen=opts.stall_window + 1)
+
+    def reference_damping(self, lin: LinearModel) -> float:
+        return self.opts.sigma_damping * float(lin.s[0] ** 2)
+
+    def attempt(
+        self, gn: GaussNewton, lin: LinearModel, grad: FloatArray
+    ) -> tuple[bool, Stop | None]:
+        opts, problem = self.opts, gn.problem
+        js = gn.jac / gn.scale  # the scaled Jacobian lin was built from
+        lam = opts.tau * float(lin.s[0] ** 2) if self.lam is None else self.lam
         for _ in range(opts.max_rejections):
             v, step, ok = _geodesic_step(problem, gn, js, lam, lin, opts)
             trial = problem.evaluate(gn.x + step / gn.scale) if ok else None
@@ -237,28 +235,21 @@ def descend(
                 predicted = 0.5 * float(v @ (lam * v - grad))
                 rho = min((gn.cost - trial.cost) / predicted, 1.0) if predicted > 0 else 1.0
                 gn.accept(gn.x + step / gn.scale, trial)
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu, accepted = 2.0, True
-                break
-            lam *= nu
-            nu *= 2.0
-        if not accepted:
-            gn.history.append(gn.history[-1])
-        report(
-            progress,
-            it / opts.max_iterations,
-            f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
-            gn.history[-1],
-        )
-        if not accepted:
-            status, message = 3, "no decrease possible at any damping (converged to precision)"
-            break
-        costs.append(gn.cost)
-        stalled = _stalled(costs, gn.cost, gn.dof, opts)
-        if stalled is not None:
-            status, message = 2, stalled
-            break
-    return gn.result(status, message, it)
+                self.lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                self.nu = 2.0
+                return True, None
+            lam *= self.nu
+            self.nu *= 2.0
+        self.lam = lam
+        return False, None
+
+    def note(self) -> str:
+        return ""
+
+    def accepted(self, gn: GaussNewton) -> Stop | None:
+        self.costs.append(gn.cost)
+        stalled = _stalled(self.costs, gn.cost, gn.dof, self.opts)
+        return None if stalled is None else (2, stalled)
 
 
 def _stalled(costs: deque[float], cost: float, dof: int, opts: GeoLMOptions) -> str | None:

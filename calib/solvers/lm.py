@@ -25,12 +25,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.kinematics import FloatArray
 from calib.solvers.common import (
     GaussNewton,
+    LinearModel,
     ProgressFn,
     SolverResult,
+    Stop,
+    damped_descent,
     gauss_newton_solver,
-    report,
 )
 
 
@@ -48,62 +51,59 @@ class LMOptions:
     max_rejections: int = 40
 
 
-@gauss_newton_solver(LMOptions, "lm")
-def solve(gn: GaussNewton, opts: LMOptions, progress: ProgressFn | None) -> SolverResult:
-    """Minimise the problem's residual with Levenberg–Marquardt from ``x0`` (shape (k,)).
-    Called as ``solve(problem, x0=None, options=None, progress=None, method="lm")``
-    (:func:`calib.solvers.common.gauss_newton_solver`)."""
-    problem, method = gn.problem, gn.method
-    lam: float | None = None
-    nu = 2.0
-    status, message = 0, "iteration limit reached"
-    it = 0
-    for it in range(1, opts.max_iterations + 1):
-        linear = gn.linearise(opts.gtol)
-        if linear is None:
-            status, message, it = 1, "gradient below gtol", it - 1
-            break
-        lin, grad = linear
-        s = lin.s
-        stop = gn.within_sigma(lin, opts.sigma_damping * float(s[0] ** 2), opts.sigma_tol)
-        if stop is not None:
-            status, message, it = 2, stop, it - 1
-            break
-        if lam is None:
-            lam = opts.tau * float(s[0] ** 2)
-        accepted = False
+class _Rule:
+    """LM's damping (Nielsen): ``λ`` from ``tau · s_max²``, × ``max(1/3, 1 − (2ρ − 1)³)`` on
+    an accepted step, × ``ν`` (doubling) on a refused one; stops on ``xtol`` and ``ftol``."""
+
+    def __init__(self, opts: LMOptions) -> None:
+        self.opts = opts
+        self.lam: float | None = None
+        self.nu = 2.0
+
+    def reference_damping(self, lin: LinearModel) -> float:
+        return self.opts.sigma_damping * float(lin.s[0] ** 2)
+
+    def attempt(
+        self, gn: GaussNewton, lin: LinearModel, grad: FloatArray
+    ) -> tuple[bool, Stop | None]:
+        opts = self.opts
+        if self.lam is None:
+            self.lam = opts.tau * float(lin.s[0] ** 2)
+        lam = self.lam
         for _ in range(opts.max_rejections):
             h = lin.step(lam)
             z_norm = float(np.linalg.norm(gn.scale * gn.x))
             if np.linalg.norm(h) <= opts.xtol * (z_norm + opts.xtol):
-                status, message = 3, "step below xtol"
-                break
+                self.lam = lam
+                return False, (3, "step below xtol")
             x_new = gn.x + h / gn.scale
-            trial = problem.evaluate(x_new)
+            trial = gn.problem.evaluate(x_new)
             predicted = 0.5 * float(h @ (lam * h - grad))
             rho = (gn.cost - trial.cost) / predicted if predicted > 0 else -1.0
             if np.isfinite(trial.cost) and rho > 0:
                 rel = (gn.cost - trial.cost) / max(gn.cost, 1e-300)
                 gn.accept(x_new, trial)
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu = 2.0
-                accepted = True
+                self.lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                self.nu = 2.0
                 if rel <= opts.ftol:
-                    status, message = 2, "relative cost decrease below ftol"
-                break
-            lam *= nu
-            nu *= 2.0
-        if not accepted:
-            gn.history.append(gn.history[-1])
-        report(
-            progress,
-            it / opts.max_iterations,
-            f"{method} iteration {it}, rms {gn.history[-1]:.4f} mm",
-            gn.history[-1],
-        )
-        if status:
-            break
-        if not accepted:
-            status, message = 3, "no decrease possible at any damping (converged to precision)"
-            break
-    return gn.result(status, message, it)
+                    return True, (2, "relative cost decrease below ftol")
+                return True, None
+            lam *= self.nu
+            self.nu *= 2.0
+        self.lam = lam
+        return False, None
+
+    def note(self) -> str:
+        return ""
+
+    def accepted(self, gn: GaussNewton) -> Stop | None:
+        return None
+
+
+@gauss_newton_solver(LMOptions, "lm")
+def solve(gn: GaussNewton, opts: LMOptions, progress: ProgressFn | None) -> SolverResult:
+    """Minimise the problem's residual with Levenberg–Marquardt from ``x0`` (shape (k,)).
+    Called as ``solve(problem, x0=None, options=None, progress=None, method="lm")``
+    (:func:`calib.solvers.common.gauss_newton_solver`)."""
+    return damped_descent(gn, _Rule(opts), opts.max_iterations, opts.gtol, opts.sigma_tol,
+                          progress)  # fmt: skip

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.kinematics import FloatArray
+from calib.kinematics import FloatArray, IndexArray
 from calib.problem import Problem
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sample_batches
+from calib.solvers.common import ProgressFn, SolverResult, run_epochs, sample_batches
 
 
 @dataclass(frozen=True)
@@ -101,67 +101,33 @@ def solve(
     if p0 is None:
         raise ValueError("p0: the UKF needs an initial covariance")
     opts = options or UKFOptions()
-    timer = Timer()
     x = problem.x0() if x0 is None else np.array(x0, dtype=float)
     k = x.shape[0]
     gamma, wm, wc = sigma_weights(k, opts)
     rng = None if opts.shuffle_seed is None else np.random.default_rng(opts.shuffle_seed)
-    noise_var = problem.noise_mm**2
-    q = opts.process_noise * p0
-    history = [problem.data_rms_mm(x)]
+
+    def update(
+        x: FloatArray, p: FloatArray, rows: IndexArray, r_var: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        chol = _robust_cholesky(p)
+        sigma = np.empty((2 * k + 1, k))
+        sigma[0] = x
+        sigma[1 : k + 1] = x + gamma * chol.T
+        sigma[k + 1 :] = x - gamma * chol.T
+        y_sigma = problem.predict(sigma, rows)  # (2k+1, b), eq. (8)
+        x_mean = wm @ sigma  # eq. (9)
+        y_mean = wm @ y_sigma  # eq. (10)
+        dx = sigma - x_mean
+        dy = y_sigma - y_mean
+        p_prior = (wc[:, None] * dx).T @ dx
+        s_cov = (wc[:, None] * dy).T @ dy + np.diag(r_var)
+        p_xy = (wc[:, None] * dx).T @ dy  # eq. (11)
+        gain = np.linalg.solve(s_cov.T, p_xy.T).T  # ρ = P_xy S⁻¹
+        innovation = problem.length_mm[rows] - y_mean
+        x_new = x_mean + gain @ innovation  # eq. (12)
+        p_new = p_prior - gain @ s_cov @ gain.T
+        return x_new, 0.5 * (p_new + p_new.T)
+
     batches = sample_batches(problem.n_samples, opts.batch_size, rng, opts.ramp)
-    total = opts.epochs * len(batches)
-    done = 0
-    status, message = 4, f"{opts.epochs} epochs done"
-    for epoch in range(opts.epochs):
-        p = p0.copy()
-        for rows in batches:
-            weights = problem.weights[rows]
-            keep = weights > 0
-            done += 1
-            if not np.any(keep):
-                continue
-            rows, weights = rows[keep], weights[keep]
-            p = p + q
-            chol = _robust_cholesky(p)
-            sigma = np.empty((2 * k + 1, k))
-            sigma[0] = x
-            sigma[1 : k + 1] = x + gamma * chol.T
-            sigma[k + 1 :] = x - gamma * chol.T
-            y_sigma = problem.predict(sigma, rows)  # (2k+1, b), eq. (8)
-            x_mean = wm @ sigma  # eq. (9)
-            y_mean = wm @ y_sigma  # eq. (10)
-            dx = sigma - x_mean
-            dy = y_sigma - y_mean
-            p_prior = (wc[:, None] * dx).T @ dx
-            s_cov = (wc[:, None] * dy).T @ dy + np.diag(noise_var / weights)
-            p_xy = (wc[:, None] * dx).T @ dy  # eq. (11)
-            gain = np.linalg.solve(s_cov.T, p_xy.T).T  # ρ = P_xy S⁻¹
-            innovation = problem.length_mm[rows] - y_mean
-            x_new = x_mean + gain @ innovation  # eq. (12)
-            p_new = p_prior - gain @ s_cov @ gain.T
-            if not np.all(np.isfinite(x_new)):
-                return SolverResult(
-                    method, x, False, -1, f"non-finite update in epoch {epoch + 1}",
-                    epoch, history, timer.elapsed(),
-                )  # fmt: skip
-            x, p = x_new, 0.5 * (p_new + p_new.T)
-            if done % 50 == 0:
-                report(progress, done / total, f"{method} epoch {epoch + 1}")
-        history.append(problem.data_rms_mm(x))
-        report(
-            progress,
-            (epoch + 1) / opts.epochs,
-            f"{method} epoch {epoch + 1} done, rms {history[-1]:.4f} mm",
-            history[-1],
-        )
-    return SolverResult(
-        method=method,
-        x=x,
-        success=True,
-        status=status,
-        message=message,
-        iterations=opts.epochs,
-        cost_history_rms_mm=history,
-        elapsed_s=timer.elapsed(),
-    )
+    return run_epochs(problem, x, p0, opts.epochs, opts.process_noise, batches, update, progress,
+                      method, note_every=50)  # fmt: skip

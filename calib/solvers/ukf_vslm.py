@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from calib.kinematics import FloatArray
 from calib.problem import Problem
 from calib.solvers import ukf, vslm
-from calib.solvers.common import ProgressFn, SolverResult, Timer, report, sub_progress
+from calib.solvers.common import ProgressFn, SolverResult, report, sub_progress
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,6 @@ def solve(
 ) -> SolverResult:
     """Run the cascade; ``p0`` (shape (k, k)) is the UKF's initial covariance."""
     opts = options or UKFVSLMOptions()
-    timer = Timer()
 
     first = ukf.solve(
         problem, x0, p0, opts.ukf, sub_progress(progress, 0.0, 0.5), method=f"{method}/ukf"
@@ -70,5 +69,4 @@ def solve(
         message=f"UKF: {first.message}; VSLM: {second.message}",
         iterations=first.iterations + second.iterations,
         cost_history_rms_mm=first.cost_history_rms_mm + second.cost_history_rms_mm[1:],
-        elapsed_s=timer.elapsed(),
     )

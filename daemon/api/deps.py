@@ -3,7 +3,6 @@ id path parameters and the pagination of list routes."""
 
 from __future__ import annotations
 
-import asyncio
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -37,10 +36,11 @@ class AppState:
         The samples identify needs, per robot and anchor count.
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
-    drift : daemon.drift.DriftMonitor or None
+    drift : daemon.holdcheck.HoldCheckMonitor or None
         None until the lifespan has started it.
-    auto_capture_lock : asyncio.Lock
-        One auto-capture switch at a time (``PUT /campaigns/{id}/auto-capture``).
+    auto : daemon.autocapture.AutoCapture or None
+        Auto capture's one owner (the store and the sampler kept in step); None until the
+        lifespan has started the sampler.
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
     """
@@ -53,10 +53,8 @@ class AppState:
     sampler: Any = None
     drift: Any = None
     watch: Any = None  # daemon.watch.SensorWatch, None until the lifespan has started it
+    auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
-    #: Held by an auto-capture switch from the store's write to the sampler's, so that the
-    #: database and the sampler always name the same auto campaign.
-    auto_capture_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
 
 def get_state(request: Request) -> AppState:

@@ -1,13 +1,14 @@
 """The identification options as the page reads them (``GET /options/identify``).
 
-Every figure comes from :mod:`calib.options` (names, defaults, bounds, choices, help) and the
-job states from :class:`daemon.store.JobState`: the page builds its form and its checks from
-this answer and keeps no copy of them.
+Every figure comes from :mod:`calib.options` (names, defaults, bounds, choices, help), the
+fields from :class:`daemon.api.schemas.IdentificationRequest`, which of them come first from
+:data:`MAIN_FIELDS` and the job states from :class:`daemon.store.JobState`: the page builds
+its form and its checks from this answer and keeps no copy of them.
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 from typing_extensions import TypedDict
 
@@ -16,6 +17,10 @@ from daemon.api.schemas import IdentificationRequest
 from daemon.store import JOB_FINISHED, JobState
 
 OptionType = Literal["choice", "bool", "int", "float", "names"]
+
+#: The options the page shows first, the ones most identifications set (the method, the
+#: hold-out and its seed, the robust mode, the prior); the others go under "More options".
+MAIN_FIELDS: Final = ("method", "test_fraction", "holdout", "robust", "seed", "prior")
 
 
 class OptionField(TypedDict):
@@ -35,9 +40,11 @@ class OptionField(TypedDict):
 
 
 class IdentifyOptionsSpec(TypedDict):
-    """The body fields in form order, and the job states (``finished``: no further change)."""
+    """The body fields in form order, the ones the page shows first (``main_fields``), and
+    the job states (``finished``: no further change)."""
 
     fields: list[OptionField]
+    main_fields: list[str]
     job_states: list[str]
     finished_states: list[str]
 
@@ -70,6 +77,7 @@ def identify_options_spec(noise_mm: float | None = None) -> IdentifyOptionsSpec:
         })  # fmt: skip
     return {
         "fields": out,
+        "main_fields": list(MAIN_FIELDS),
         "job_states": [s.value for s in JobState],
         "finished_states": [s.value for s in JobState if s in JOB_FINISHED],
     }

@@ -8,7 +8,6 @@ running daemon's ``sampler.settle_s``.
 
 from __future__ import annotations
 
-import datetime as dt
 from enum import Enum
 from typing import Annotated
 
@@ -23,7 +22,7 @@ from calib.programs.formats import (
     TITLE,
     dwell_s_for_settle,
 )
-from calib.programs.registry import name_rule, program_from_csv
+from calib.programs.registry import build_program, name_rule
 from calib.tcp import joint_limits_deg
 from daemon.api.downloads import download_headers
 from daemon.api.errors import unprocessable
@@ -79,24 +78,18 @@ def download(
         body, filename = csv_text, f"{stem}.csv"
     else:
         name = name_rule(fmt).from_text(stem if anchor is None else f"{stem}-{anchor}")
-        now = dt.datetime.now(dt.UTC).replace(microsecond=0)
         dwell = dwell_s if dwell_s is not None else dwell_s_for_settle(settle_s)
         try:
-            _, body = program_from_csv(
+            _, body = build_program(
                 csv_text,
                 fmt=fmt,
                 name=name,
+                robot_name=model.name,
                 limits_deg=joint_limits_deg(model).tolist(),
                 speed_pct=speed_pct,
                 dwell_s=dwell,
-                comments=(
-                    f"cablecal {what}",
-                    f"robot {model.name}",
-                    f"made {now:%Y-%m-%d %H:%M} UTC",
-                    f"speed {speed_pct:g} %, dwell {dwell:g} s",
-                ),
+                what=what,
                 source=what,
-                created_utc=f"{now:%Y-%m-%d %H:%M:%S}",
                 anchor=anchor,
             )
         except ProgramError as exc:

@@ -1,4 +1,7 @@
-"""Request and response bodies of the REST API (pydantic; they document /docs)."""
+"""Request and response bodies of the REST API (pydantic; they document /docs).
+
+Every request body lives here and derives from the one strict body class, :class:`_Body`
+(also exported as :data:`StrictBody`); the routers import them."""
 
 from __future__ import annotations
 
@@ -13,13 +16,17 @@ from pydantic import (
     ConfigDict,
     Field,
     StringConstraints,
+    TypeAdapter,
     ValidationInfo,
     field_validator,
 )
 from typing_extensions import TypedDict
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
 from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
+from calib.planning import PlanOptions
+from daemon.api.deps import MAX_ID
 from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
 #: Longest campaign name, anchor id, exclusion reason and campaign notes [characters].
@@ -138,7 +145,7 @@ class _Body(BaseModel):
         return value
 
 
-#: The strict request body, for the bodies defined next to their routes.
+#: The strict request body (the public name of :class:`_Body`).
 StrictBody = _Body
 
 
@@ -154,9 +161,9 @@ class CampaignCreate(_Body):
         ]
         | dict[str, Any]
     ) = Field(
-        "hsr-jr680",
+        DEFAULT_ROBOT_MODEL,
         description=(
-            "A built-in model name (hsr-jr680), or an uploaded model as a mapping: "
+            f"A built-in model name ({DEFAULT_ROBOT_MODEL}), or an uploaded model as a mapping: "
             "name, convention (dh|mdh), tool_mm, joints: [{alpha_deg, a_mm, d_mm, theta_deg, "
             "limits_deg}] (the TOML/JSON model file format of `cablecal identify --robot`)."
         ),
@@ -197,6 +204,9 @@ def _option(name: str) -> Any:
 _ParamName = Annotated[str, StringConstraints(max_length=64)]
 
 
+# The fields of IdentificationRequest are the one list of the identification options a user
+# sets: the API's body, the page's form (through GET /options/identify) and `cablecal
+# identify`'s options (tests/test_options.py holds the CLI to it).
 class IdentificationRequest(_Body):
     """Options of an identification job (see ``cablecal identify --help``); a subset of
     :class:`calib.options.IdentifyOptions` under the same names (``fixed`` is still read as
@@ -223,6 +233,7 @@ class IdentificationRequest(_Body):
     noise_mm: Annotated[float, Field(gt=spec("noise_mm").gt)] | None = Field(
         None, description=f"{spec('noise_mm').help}; default from the config."
     )
+    noise_rank: bool = _option("noise_rank")
 
     def to_options(self) -> dict[str, Any]:
         """Keyword arguments of :class:`calib.options.IdentifyOptions`."""
@@ -232,6 +243,158 @@ class IdentificationRequest(_Body):
         if self.noise_mm is not None:
             out["noise_mm"] = self.noise_mm
         return out
+
+
+# ------------------------------------------------------------------ compensation targets
+#: Most targets one compensation request may carry (the body is bounded by the request
+#: guard: :data:`daemon.api.guard.MAX_COMPENSATE_BYTES`).
+MAX_TARGETS = 10_000
+
+JointDeg = Annotated[float, Field(ge=-3600.0, le=3600.0, allow_inf_nan=False)]
+LengthMm = Annotated[float, Field(ge=-100_000.0, le=100_000.0, allow_inf_nan=False)]
+
+
+class JointTarget(_Body):
+    """A target as joint angles q1..q6 [deg]."""
+
+    q1: JointDeg
+    q2: JointDeg
+    q3: JointDeg
+    q4: JointDeg
+    q5: JointDeg
+    q6: JointDeg
+
+
+class PositionTarget(_Body):
+    """A target as a TCP position x, y, z [mm] in the robot base frame."""
+
+    x: LengthMm
+    y: LengthMm
+    z: LengthMm
+
+
+class PoseTarget(PositionTarget):
+    """A target as a TCP position [mm] and orientation rx, ry, rz [deg]."""
+
+    rx: JointDeg
+    ry: JointDeg
+    rz: JointDeg
+
+
+def target_list(model: type[_Body]) -> Any:
+    return Annotated[list[model], Field(min_length=1, max_length=MAX_TARGETS)]  # type: ignore[valid-type]
+
+
+TARGET_MODELS: tuple[type[_Body], ...] = (JointTarget, PoseTarget, PositionTarget)
+TARGET_LISTS = {m: TypeAdapter(target_list(m)) for m in TARGET_MODELS}
+ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
+    Annotated[list[dict[str, Any]], Field(min_length=1, max_length=MAX_TARGETS)]
+)
+#: The JSON request body as documented: one of the three target lists.
+TARGETS_SCHEMA = {"anyOf": [TypeAdapter(target_list(m)).json_schema() for m in TARGET_MODELS]}
+
+
+# ------------------------------------------------------------------ verification
+class VerifyRequest(_Body):
+    """Verify an identification's result on another campaign."""
+
+    campaign_id: int = Field(ge=1, le=MAX_ID, description="The campaign whose samples to predict")
+    refit_anchor: bool = Field(False, description="Fit the anchor and zero offset first")
+
+
+# ------------------------------------------------------------------ drift-check poses
+class CheckPosesBody(_Body):
+    """A robot's check poses [deg]."""
+
+    poses_deg: Annotated[
+        list[Annotated[list[JointDeg], Field(min_length=6, max_length=6)]],
+        Field(min_length=3, max_length=100),
+    ]
+
+
+# ------------------------------------------------------------------ pose plans
+# The defaults come from :class:`calib.planning.PlanOptions` (one definition).
+_D = PlanOptions()
+
+#: Bounds of a plan request: what one request may ask of the 2-core cell PC.
+MAX_POSES = 200
+MAX_CANDIDATES = 10_000
+MAX_ANCHORS = 4
+
+Coordinate = Annotated[float, Field(ge=-10_000.0, le=10_000.0, allow_inf_nan=False)]
+Extension = Annotated[float, Field(ge=0, le=10_000, allow_inf_nan=False)]
+
+
+class PlanRequest(_Body):
+    """Options of a plan (see ``cablecal plan --help``; units in the names). The robot is the
+    campaign's. Strict: no unknown keys, ``"1"`` is not a number, ``"yes"`` not a boolean;
+    pairs and triples are JSON lists of that length."""
+
+    # The schema states the one rule between fields: anchors_mm, unless start_from_samples.
+    model_config = ConfigDict(json_schema_extra={"anyOf": [
+        {"required": ["anchors_mm"], "properties": {"anchors_mm": {"type": "array"}}},
+        {"required": ["start_from_samples"], "properties": {"start_from_samples": {"const": True}}},
+    ]})  # fmt: skip
+
+    anchors_mm: Annotated[
+        list[Annotated[list[Coordinate], Field(min_length=3, max_length=3)]],
+        Field(min_length=1, max_length=MAX_ANCHORS),
+    ] | None = Field(
+        None,
+        description="Anchor guesses [x, y, z] [mm] in the robot base frame, one per sensor "
+        "position; default (with start_from_samples): where the campaign's samples put them.",
+    )  # fmt: skip
+    anchor_ids: Annotated[list[Anchor], Field(min_length=1, max_length=MAX_ANCHORS)] | None = Field(
+        None, description="Id per anchor (default A, B, …); an id of the samples means the "
+        "sensor has not moved."
+    )  # fmt: skip
+    n: int = Field(_D.n, ge=1, le=MAX_POSES, description="Poses to plan, all anchors.")
+    candidates: int = Field(
+        _D.candidates, ge=1, le=MAX_CANDIDATES, description="Random feasible candidate poses."
+    )
+    seed: int = Field(_D.seed, ge=0, le=2**32 - 1)
+    min_z_mm: float = Field(
+        _D.min_z_mm, ge=-10_000, le=10_000, allow_inf_nan=False,
+        description="Flange and tool point above this z.",
+    )  # fmt: skip
+    extension_mm: Annotated[list[Extension], Field(min_length=2, max_length=2)] = Field(
+        list(_D.extension_mm), description="Allowed cable extension [min, max] [mm]."
+    )
+    anchor_uncertainty_mm: float = Field(
+        _D.anchor_uncertainty_mm, ge=0, le=1000, allow_inf_nan=False,
+        description="How far the guess may be off.",
+    )  # fmt: skip
+    noise_mm: float | None = Field(
+        None, gt=0, le=10, allow_inf_nan=False,
+        description="1σ noise of one captured length [mm]; default (null): from the cell "
+        "(the robot's accepted result, the campaign's captures, the live indicator, else "
+        f"{_D.noise_mm}); the summary names it (noise_source).",
+    )  # fmt: skip
+    joint_speed_deg_s: Annotated[
+        list[Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]],
+        Field(min_length=6, max_length=6),
+    ] = Field(list(_D.joint_speed_deg_s), description="Joint speeds for the moves [deg/s].")
+    dwell_s: float = Field(
+        _D.dwell_s, ge=0, le=600, allow_inf_nan=False,
+        description="Settle and read time per pose.",
+    )  # fmt: skip
+    start_from_samples: bool = Field(
+        False, description="Plan more poses on top of the campaign's included samples."
+    )
+
+    def options(self, noise_mm: float | None = None) -> PlanOptions:
+        """The engine's options (anchor ids set by the caller when taken from samples), with
+        ``noise_mm`` when the request gives none (else the engine's default)."""
+        noise = self.noise_mm if self.noise_mm is not None else noise_mm
+        return PlanOptions(
+            n=self.n, candidates=self.candidates, seed=self.seed, min_z_mm=self.min_z_mm,
+            extension_mm=(self.extension_mm[0], self.extension_mm[1]),
+            anchor_uncertainty_mm=self.anchor_uncertainty_mm,
+            noise_mm=_D.noise_mm if noise is None else noise,
+            joint_speed_deg_s=tuple(self.joint_speed_deg_s),
+            dwell_s=self.dwell_s,
+            anchor_ids=None if self.anchor_ids is None else tuple(self.anchor_ids),
+        )  # fmt: skip
 
 
 # ===================================================================== response models
@@ -248,10 +411,10 @@ JobOut = JobRow
 
 class CampaignOut(CampaignRow):
     """A campaign with what identify needs of it at the default options
-    (:mod:`daemon.api.min_samples`): ``min_samples_to_identify``, the fewest included samples
+    (:mod:`calib.min_samples`): ``min_samples_to_identify``, the fewest included samples
     ``POST /campaigns/{id}/identifications`` accepts (default ``test_fraction`` 0.2), and
     ``min_training_samples``, the fewest training rows (for another test fraction: the
-    smallest ``n`` with ``n - round(test_fraction * n)`` at least that). Both follow the robot
+    smallest ``n`` with ``n - held_out(n, test_fraction)`` at least that). Both follow the robot
     model and the number of ``anchors`` (each further anchor adds 4 parameters).
     ``recommended_samples`` (``recommended_training_samples`` training rows) is the count at
     which the default ``robust auto`` can also screen outliers

@@ -1,7 +1,7 @@
 """``cablecal compensate``, ``cablecal export`` and ``cablecal verify``: apply a result.
 
 They work on a ``result.json`` written by ``cablecal identify`` (or fetched from the daemon),
-without the daemon. numpy, scipy and ``calib`` are imported inside the commands, so
+without the daemon. ``calib`` (numpy, scipy) is imported inside the commands, so
 ``cablecal --help`` does not pay for them. Every table fits 80 columns.
 """
 
@@ -108,8 +108,6 @@ def compensation_summary(out: CompensateResult, con: Console) -> None:
 
 def verify_tables(out: VerifyResult, con: Console) -> None:
     """Metrics and per-pose residuals (the largest :data:`MAX_PRINTED_ROWS` when longer)."""
-    import numpy as np
-
     m = out.metrics
     title = "Verification" + (" (anchor refit)" if out.refit_anchor else "")
     table = Table(title=title)
@@ -120,16 +118,17 @@ def verify_tables(out: VerifyResult, con: Console) -> None:
                   f"{m['max_mm']:.4f}", ref)  # fmt: skip
     con.print(table)
     n = out.residual_mm.shape[0]
-    order = np.arange(n)
+    order = list(range(n))
     title = "Per-pose residuals (measured − predicted)"
     if n > MAX_PRINTED_ROWS:
-        order = np.sort(np.argsort(-np.abs(out.residual_mm))[:MAX_PRINTED_ROWS])
+        largest = sorted(range(n), key=lambda i: -abs(float(out.residual_mm[i])))
+        order = sorted(largest[:MAX_PRINTED_ROWS])
         title += f", the {MAX_PRINTED_ROWS} largest of {n} (all: --out)"
     rows = Table(title=title)
     for col in ("index", "anchor", "measured [mm]", "predicted [mm]", "residual [mm]"):
         rows.add_column(escape(col), justify="right")
     for i in order:
-        rows.add_row(str(int(i)), out.anchor[i], f"{out.measured_mm[i]:.3f}",
+        rows.add_row(str(i), out.anchor[i], f"{out.measured_mm[i]:.3f}",
                      f"{out.predicted_mm[i]:.3f}", f"{out.residual_mm[i]:+.4f}")  # fmt: skip
     con.print(rows)
     for note in out.notes:

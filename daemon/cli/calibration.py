@@ -1,12 +1,14 @@
 """``cablecal identify`` and ``cablecal compare``.
 
-numpy, scipy and ``calib`` are imported inside the commands, so ``cablecal --help`` and the
+``calib`` (numpy, scipy) is imported inside the commands, so ``cablecal --help`` and the
 other commands do not pay for them.
 """
 
 from __future__ import annotations
 
 import json
+import statistics
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -16,6 +18,7 @@ from rich.markup import escape
 from rich.table import Table
 
 # calib.options is standard library only: importing it costs nothing at ``--help`` time.
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.options import (
     METHODS,
     PAPER_N_TEST,
@@ -91,12 +94,10 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
         def cb(fraction: float, message: str, /, **_: Any) -> None:
             bar.update(task, completed=fraction, description=message[:40])
 
-        return identify(model, samples, opts, progress=cb, **kw)
+        return identify(model, samples, opts, progress=cb, clock=time.perf_counter, **kw)
 
 
 def _summary(result: IdentifyResult) -> None:
-    import numpy as np
-
     data = result.to_json()
     table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
     table.add_column("figure [mm]")
@@ -125,8 +126,8 @@ def _summary(result: IdentifyResult) -> None:
     console.print(dh)
     ident = data["identifiability"]
     console.print(
-        f"tool_mm = {np.round(data['tool_mm'], 3).tolist()}, anchor_mm = "
-        f"{np.round(data['anchor_mm'], 2).tolist()}, length_offset_mm = "
+        f"tool_mm = {[round(float(v), 3) for v in data['tool_mm']]}, anchor_mm = "
+        f"{[round(float(v), 2) for v in data['anchor_mm']]}, length_offset_mm = "
         f"{data['length_offset_mm']:.3f}"
     )
     tcp = data.get("tcp_uncertainty_mm")
@@ -159,9 +160,9 @@ def identify_cmd(
     data: Annotated[
         Path, typer.Argument(help=escape("CSV with q1..q6 [deg], L [mm], optional anchor"))
     ],
-    robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
-        "hsr-jr680"
-    ),
+    robot: Annotated[
+        str, typer.Option(help="Built-in model name or model .toml/.json")
+    ] = DEFAULT_ROBOT_MODEL,
     method: Annotated[str, _opt("method")] = default("method"),
     test_fraction: Annotated[float, _opt("test_fraction")] = default("test_fraction"),
     seed: Annotated[int, _opt("seed")] = default("seed"),
@@ -225,7 +226,9 @@ def compare_cmd(
     data: Annotated[
         Path | None, typer.Argument(help="CSV (default: the bundled HSR-RobotCali data)")
     ] = None,
-    robot: Annotated[str, typer.Option(help="Built-in model name or model file")] = ("hsr-jr680"),
+    robot: Annotated[
+        str, typer.Option(help="Built-in model name or model file")
+    ] = DEFAULT_ROBOT_MODEL,
     train: Annotated[int, typer.Option(help="Training samples per run")] = PAPER_N_TRAIN,
     test: Annotated[int, typer.Option(help="Test samples per run")] = PAPER_N_TEST,
     seed: Annotated[int, typer.Option(help="First seed")] = 0,
@@ -282,15 +285,13 @@ def compare(
 ) -> list[dict[str, Any]]:
     """Mean test figures per method over ``seeds`` draws of the paper's protocol
     (:mod:`calib.protocol`), from seed ``seed`` on."""
-    import numpy as np
-
     from calib.protocol import run_protocol
 
     acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
     with _progress() as bar:
         task = bar.add_task("compare", total=len(methods) * seeds)
         runs = run_protocol(model, samples, methods, range(seed, seed + seeds), n_train, n_test,
-                            prior)  # fmt: skip
+                            prior, clock=time.perf_counter)  # fmt: skip
         for run in runs:
             res = run.result
             fig = res.metrics["after"]["test"]
@@ -307,7 +308,7 @@ def compare(
         runs_m = acc[m]
         row: dict[str, Any] = {"method": m}
         for key in runs_m[0]:
-            row[key] = float(np.mean([r[key] for r in runs_m]))
+            row[key] = statistics.fmean(r[key] for r in runs_m)
         row["plausible"] = int(sum(r["plausible"] for r in runs_m))
         rows.append(row)
     return rows

@@ -19,13 +19,16 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
+from calib.metrics import length_metrics
+from calib.planning.progress import match_poses
 from calib.predict import predict_lengths_from_result
 from daemon.cli.emulated import (
+    FAST_CELL_NOISE_MM,
     FAST_DAEMON_ENV,
     Cell,
     DaemonProcess,
@@ -113,7 +116,7 @@ def campaign_cmd(
             assert cell.daemon is not None and cell.sim is not None
             api = cell.daemon.client()
             console.print(f"daemon {cell.daemon.url} on the EMULATED cell; campaign of {poses}")
-            cid = api.post("/campaigns", json={"name": "demo", "robot_model": "hsr-jr680"})
+            cid = api.post("/campaigns", json={"name": "demo", "robot_model": DEFAULT_ROBOT_MODEL})
             cid.raise_for_status()
             campaign_id = int(cid.json()["id"])
             api.put(f"/campaigns/{campaign_id}/auto-capture", json={"enabled": True})
@@ -148,19 +151,19 @@ def campaign_cmd(
             result = done["result"]
             _print_result(result)
             samples = api.get(f"/campaigns/{campaign_id}/samples").json()
-            q_seen = np.array([[s[f"q{j}"] for j in range(1, 7)] for s in samples])
-            all_poses = np.array(cell.sim.control("poses")["poses_deg"])
-            dist = np.abs(all_poses[:, None, :] - q_seen[None]).max(axis=2).min(axis=1)
-            new = all_poses[dist > 0.05]
-            if len(new):
-                truth = np.array(
-                    cell.sim.control("true_lengths", joints_deg=new.tolist())["lengths_mm"]
-                )
-                err = predict_lengths_from_result(result, new) - truth
+            q_seen = [[float(s[f"q{j}"]) for j in range(1, 7)] for s in samples]
+            all_poses = cell.sim.control("poses")["poses_deg"]
+            # A pose is new when no sample lies within 0.05 deg of it on every joint.
+            seen = match_poses(all_poses, ["A"] * len(all_poses), q_seen, ["A"] * len(q_seen),
+                               tol_deg=0.05)  # fmt: skip
+            new = [p for p, k in zip(all_poses, seen, strict=True) if k < 0]
+            if new:
+                truth = cell.sim.control("true_lengths", joints_deg=new)["lengths_mm"]
+                fig = length_metrics(truth, predict_lengths_from_result(result, new))
                 console.print(
                     f"against the cell's truth at {len(new)} poses never captured: "
-                    f"RMSE {np.sqrt(np.mean(err**2)):.4f} mm, MAX {np.abs(err).max():.4f} mm "
-                    "(noise 0.02 mm)"
+                    f"RMSE {fig['rmse_mm']:.4f} mm, MAX {fig['max_mm']:.4f} mm "
+                    f"(noise {FAST_CELL_NOISE_MM:g} mm)"
                 )
 
 

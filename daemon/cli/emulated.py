@@ -22,7 +22,10 @@ from typing import Any
 
 import httpx
 
-FAST_CELL_NOISE_MM = 0.02  # indicator noise (1σ) of :func:`fast_cell_toml`
+from simulator.config import EMULATED_NOISE_MM
+
+#: Indicator noise (1σ) of :func:`fast_cell_toml` [mm]: the emulated cell's default.
+FAST_CELL_NOISE_MM = EMULATED_NOISE_MM
 
 # The daemon's settings for :func:`fast_cell_toml`'s cell: its baud rate, a short settle window.
 FAST_DAEMON_ENV = {

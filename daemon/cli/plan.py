@@ -17,6 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from daemon.cli.errors import fail as _fail
 
 
@@ -130,9 +131,9 @@ PLAN_HELP = (
 
 def plan_cmd(
     out: Annotated[Path, typer.Option(help="Write the plan CSV here (q1..q6 [deg], …)")],
-    robot: Annotated[str, typer.Option(help="Built-in model name or model .toml/.json")] = (
-        "hsr-jr680"
-    ),
+    robot: Annotated[
+        str, typer.Option(help="Built-in model name or model .toml/.json")
+    ] = DEFAULT_ROBOT_MODEL,
     anchor_mm: Annotated[
         list[str] | None,
         typer.Option(
@@ -221,7 +222,7 @@ def plan_cmd(
             kw["anchor_ids"] = tuple(ids)
         opts = PlanOptions(**kw)
         with console.status("planning…"):
-            res = plan(model, anchors, opts, start=samples)  # type: ignore[arg-type]
+            res = plan(model, anchors, opts, start=samples)
     except SampleError as exc:
         raise _fail(f"--start {start}: {exc}") from None
     except ModelError as exc:

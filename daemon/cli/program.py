@@ -9,7 +9,6 @@ command. The default dwell follows the sampler's ``settle_s`` as the daemon's se
 
 from __future__ import annotations
 
-import datetime as dt
 from enum import Enum
 from pathlib import Path
 from typing import Annotated
@@ -17,6 +16,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.programs.formats import DEFAULT_SPEED_PCT, PROGRAM_FORMATS, SUFFIX, TITLE
 from daemon.cli.errors import fail as _fail
 
@@ -46,7 +46,7 @@ def program_cmd(
     ] = None,
     robot: Annotated[
         str, typer.Option(help="Built-in model name or model .toml/.json (joint limits)")
-    ] = "hsr-jr680",
+    ] = DEFAULT_ROBOT_MODEL,
     name: Annotated[
         str | None, typer.Option(help="Program name (default: from the --out file name)")
     ] = None,
@@ -62,7 +62,7 @@ def program_cmd(
     from calib.models import ModelError
     from calib.programs.common import ProgramError
     from calib.programs.formats import dwell_s_for_settle
-    from calib.programs.registry import name_rule, program_from_csv
+    from calib.programs.registry import build_program, name_rule
     from calib.tcp import joint_limits_deg
     from daemon.config import ConfigError, Settings
     from daemon.datafiles import load_robot
@@ -90,24 +90,17 @@ def program_cmd(
         text = targets.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise _fail(f"{targets}: cannot read: {exc}") from None
-    now = dt.datetime.now(dt.UTC).replace(microsecond=0)
-    comments = (
-        f"cablecal program of {targets.name}",
-        f"robot {model.name}" + (f", sensor at anchor {anchor}" if anchor else ""),
-        f"made {now:%Y-%m-%d %H:%M} UTC",
-        f"speed {speed_pct:g} %, dwell {dwell_s:g} s",
-    )
     try:
-        program, body = program_from_csv(
+        program, body = build_program(
             text,
             fmt=fmt_name,
             name=prog_name,
+            robot_name=model.name,
             limits_deg=joint_limits_deg(model).tolist(),
             speed_pct=speed_pct,
             dwell_s=dwell_s,
-            comments=comments,
+            what=f"program of {targets.name}",
             source=str(targets),
-            created_utc=f"{now:%Y-%m-%d %H:%M:%S}",
             anchor=anchor,
         )
     except ProgramError as exc:

@@ -1,6 +1,8 @@
-"""``cablecal simulate``: run the emulated cell until interrupted (also ``python -m simulator``).
+"""``cablecal simulate``: run the emulated cell until interrupted.
 
-The simulator (pymodbus) is imported when the command runs, not when the command line is built.
+The simulator owns its entry (:func:`simulator.entry.run`, also ``python -m simulator``);
+this command calls it. The simulator (pymodbus) is imported when the command runs, not when
+the command line is built.
 """
 
 from __future__ import annotations
@@ -35,20 +37,15 @@ def simulate(
     ),
 ) -> None:
     """Run the emulated cell until SIGINT/SIGTERM (``--help``: :data:`SIMULATE_HELP`)."""
-    import asyncio
-    import logging
+    from simulator.entry import run
 
-    from simulator.config import load_config, with_ports
-    from simulator.runner import serve_forever
-
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING)
-    cfg = with_ports(
-        load_config(config),
-        robot_socketcmd=socketcmd_port,
-        robot_modbus=modbus_port,
-        control=control_port,
+    run(
+        config,
+        verbose=verbose,
+        socketcmd_port=socketcmd_port,
+        modbus_port=modbus_port,
+        control_port=control_port,
     )
-    asyncio.run(serve_forever(cfg))
 
 
 def register(app: typer.Typer) -> None:

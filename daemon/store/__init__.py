@@ -7,7 +7,9 @@ manager, ``cablecal db``). It is assembled from one module per concern:
   (a re-entrant lock and ``BEGIN IMMEDIATE``), the read-only open; the durability guarantees
   are stated there.
 - :mod:`.schema`: the migrations and the schema version.
-- :mod:`.robots`, :mod:`.campaigns`: robots, campaigns, samples, import and export.
+- :mod:`.robots`, :mod:`.campaigns`: robots and campaigns (and which has auto capture on).
+- :mod:`.samples`: samples: capture ingestion, bulk import, queries.
+- :mod:`.export`: a campaign as CSV or JSON.
 - :mod:`.jobs`: jobs, results, the calibrated model.
 - :mod:`.events`: the event log.
 - :mod:`.plans`: pose plans of campaigns.
@@ -35,11 +37,11 @@ Units and time
 
 from __future__ import annotations
 
-from daemon.store.campaigns import EXPORT_FORMAT, EXPORT_FORMAT_VERSION, CampaignStore
 from daemon.store.checks import CheckPoses, CheckRow, CheckStore
 from daemon.store.db import BUSY_TIMEOUT_MS, DB_FILENAME, Row
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.events import EventStore
+from daemon.store.export import EXPORT_FORMAT, EXPORT_FORMAT_VERSION, ExportStore
 from daemon.store.jobs import (
     INTERRUPTED_ERROR,
     JOB_STATUSES,
@@ -47,7 +49,7 @@ from daemon.store.jobs import (
     NO_CALIBRATION,
     JobStore,
 )
-from daemon.store.plans import MATCH_TOL_DEG, PlanRow, PlanStore, match_poses
+from daemon.store.plans import PlanRow, PlanStore
 from daemon.store.rows import (
     JOB_FINISHED,
     CalibratedModel,
@@ -73,7 +75,7 @@ from daemon.store.schema import (
 )
 
 
-class Store(CampaignStore, JobStore, EventStore, PlanStore, CheckStore):
+class Store(ExportStore, JobStore, EventStore, PlanStore, CheckStore):
     """The SQLite store. Implements :class:`daemon.capture.CaptureSink`.
 
     ``Store(path)`` opens the file, creating or migrating it; ``Store(path, readonly=True)``
@@ -81,8 +83,10 @@ class Store(CampaignStore, JobStore, EventStore, PlanStore, CheckStore):
     export`` next to a running daemon). Parameters and errors: :class:`~daemon.store.db.StoreDB`.
 
     The methods live in :class:`~daemon.store.robots.RobotStore`,
-    :class:`~daemon.store.campaigns.CampaignStore`, :class:`~daemon.store.jobs.JobStore`,
-    :class:`~daemon.store.events.EventStore` and :class:`~daemon.store.plans.PlanStore`, all
+    :class:`~daemon.store.campaigns.CampaignStore`, :class:`~daemon.store.samples.SampleStore`,
+    :class:`~daemon.store.export.ExportStore`, :class:`~daemon.store.jobs.JobStore`,
+    :class:`~daemon.store.events.EventStore`, :class:`~daemon.store.plans.PlanStore` and
+    :class:`~daemon.store.checks.CheckStore`, all
     on the one connection of :class:`~daemon.store.db.StoreDB`.
     """
 
@@ -96,7 +100,6 @@ __all__ = [
     "JOB_FINISHED",
     "JOB_STATUSES",
     "JOB_TERMINAL",
-    "MATCH_TOL_DEG",
     "MIGRATIONS",
     "NO_CALIBRATION",
     "SCHEMA_VERSION",
@@ -124,6 +127,5 @@ __all__ = [
     "StoreInvalid",
     "StoreNotFound",
     "apply_migrations",
-    "match_poses",
     "schema_version_of",
 ]

@@ -1,7 +1,7 @@
 """Drift checks: each robot's check poses and the history of its checks.
 
 A check captures the robot's check poses into a campaign of its own and compares the lengths
-with the accepted calibration's predictions (:mod:`daemon.drift`). The store keeps:
+with the accepted calibration's predictions (:mod:`daemon.holdcheck`). The store keeps:
 
 - ``check_poses``: the poses chosen by the user (``PUT /robots/{id}/check-poses``), one row
   per robot; absent: the daemon picks well-spread poses of the calibration's samples.
@@ -23,13 +23,10 @@ from typing_extensions import TypedDict
 
 from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
 from daemon.store.errors import StoreInvalid
+from daemon.store.rows import CHECK_STATUSES, CHECK_TRIGGERS, CheckStatus
 
-CHECK_STATUSES: Final = ("running", "ok", "drift", "failed")
-CHECK_TRIGGERS: Final = ("manual", "schedule")
 #: Largest number of check poses a robot may have.
 MAX_CHECK_POSES: Final = 100
-
-CheckStatus = Literal["running", "ok", "drift", "failed"]
 
 
 class CheckRow(TypedDict):

@@ -5,8 +5,8 @@ A plan is stored whole, as JSON: the options it was made with, its summary
 ``q1..q6`` [deg], ``anchor``, ``extension_mm``, ``anchor_x_mm..anchor_z_mm``). A campaign may
 be planned again; :meth:`PlanStore.latest_plan` is the newest.
 
-Progress is not stored: :func:`match_poses` computes it from the campaign's samples each time
-it is asked (see its docstring for why that is enough).
+Progress is not stored: :func:`calib.planning.progress.match_poses` computes it from the
+campaign's samples each time it is asked (see its docstring for why that is enough).
 """
 
 from __future__ import annotations
@@ -14,17 +14,12 @@ from __future__ import annotations
 import json
 from typing import Any, cast
 
-import numpy as np
 from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
-from calib.kinematics import FloatArray, IndexArray
 from daemon.store.db import Row, StoreDB, decode_row, last_id, now, to_json
 from daemon.store.errors import StoreInvalid, StoreNotFound
 from daemon.store.rows import JointsDeg
-
-#: Default tolerance per joint for a sample to count as a planned pose [deg].
-MATCH_TOL_DEG = 0.5
 
 
 class _PoseNumber(TypedDict):
@@ -120,52 +115,3 @@ class PlanStore(StoreDB):
         if row is None:
             raise StoreNotFound("campaign", campaign_id, "no plan yet")
         return _plan_out(row)
-
-
-def match_poses(
-    planned_deg: FloatArray,
-    planned_anchor: list[str],
-    sample_deg: FloatArray,
-    sample_anchor: list[str],
-    tol_deg: float = MATCH_TOL_DEG,
-) -> IndexArray:
-    """For each planned pose, the sample that measured it, or -1.
-
-    A sample measures a planned pose when it was taken at the same anchor and every joint is
-    within ``tol_deg`` of the plan (a robot reaches a commanded pose to a few hundredths of a
-    degree; 0.5 deg also accepts a pose taught by hand near the plan). Among several, the
-    closest (smallest largest-joint difference) wins.
-
-    Progress is computed from the samples rather than stored when a capture happens: auto and
-    manual captures and CSV imports all end as samples, so every way of measuring a pose
-    counts, a sample excluded later (callers pass the included ones) makes its pose pending
-    again, and a restart loses nothing. The cost is one (n × m × 6) comparison per request
-    (500 planned poses × 2000 samples: 6 million differences, milliseconds).
-
-    Parameters
-    ----------
-    planned_deg : ndarray, shape (n, 6) [deg]
-    planned_anchor : list of str, length n
-    sample_deg : ndarray, shape (m, 6) [deg]
-    sample_anchor : list of str, length m
-    tol_deg : float
-        Largest allowed difference per joint [deg]; > 0.
-
-    Returns
-    -------
-    ndarray of int, shape (n,)
-        Index into the samples, or -1 (pending).
-    """
-    if not tol_deg > 0:
-        raise StoreInvalid(f"tol_deg: must be > 0, got {tol_deg}")
-    n = planned_deg.shape[0]
-    out = np.full(n, -1, dtype=int)
-    if n == 0 or sample_deg.shape[0] == 0:
-        return out
-    diff = np.abs(planned_deg[:, None, :] - sample_deg[None, :, :]).max(axis=2)  # (n, m)
-    same = np.asarray(planned_anchor)[:, None] == np.asarray(sample_anchor)[None, :]
-    diff = np.where(same, diff, np.inf)
-    best = np.argmin(diff, axis=1)
-    ok = diff[np.arange(n), best] <= tol_deg
-    out[ok] = best[ok]
-    return out

@@ -17,11 +17,12 @@ latter only on Python >= 3.12.
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any, Literal, NotRequired
+from typing import Any, Final, Literal, NotRequired, get_args
 
 from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
+from daemon.capture import CaptureMode
 
 
 class JobState(StrEnum):
@@ -45,6 +46,14 @@ JOB_FINISHED: frozenset[JobState] = frozenset(
     {JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED}
 )
 JobStatus = JobState
+
+#: The one home of a drift check's states (``running`` until it ends ``ok``, ``drift`` or
+#: ``failed``): the store's CHECK constraint and :mod:`daemon.store.checks` read them here.
+CheckStatus = Literal["running", "ok", "drift", "failed"]
+CHECK_STATUSES: Final[tuple[str, ...]] = get_args(CheckStatus)
+#: What started a drift check: the operator or the schedule.
+CheckTrigger = Literal["manual", "schedule"]
+CHECK_TRIGGERS: Final[tuple[str, ...]] = get_args(CheckTrigger)
 
 
 class RobotRow(TypedDict):
@@ -137,7 +146,7 @@ class SampleRow(_SampleStd):
     count: int | None
     t_start: float | None
     t_end: float | None
-    mode: Literal["manual", "auto"] | None
+    mode: CaptureMode | None
     excluded: bool
     excluded_reason: str | None
     source: Literal["capture", "import"]

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 from typing import Final
 
 from calib.dataset import JOINT_COLUMNS
+from daemon.capture import CAPTURE_MODES
 from daemon.store.errors import StoreError, StoreInvalid
+from daemon.store.rows import CHECK_STATUSES, CHECK_TRIGGERS, JobState
 
 
 @dataclass(frozen=True)
@@ -24,6 +26,12 @@ class Migration:
     version: int
     description: str
     apply: Callable[[sqlite3.Connection], None]
+
+
+def _one_of(values: tuple[str, ...] | list[str]) -> str:
+    """The SQL list of a CHECK (column IN (...)): ``'a', 'b'``. The values are the project's
+    own identifiers (states, modes), never user text."""
+    return ", ".join(f"'{v}'" for v in values)
 
 
 def _joint_columns(suffix: str, constraint: str) -> str:
@@ -62,7 +70,7 @@ def _migration_1(conn: sqlite3.Connection) -> None:
             count INTEGER CHECK (count IS NULL OR count >= 1),
             t_start REAL,
             t_end REAL,
-            mode TEXT CHECK (mode IS NULL OR mode IN ('manual', 'auto')),
+            mode TEXT CHECK (mode IS NULL OR mode IN ({_one_of(CAPTURE_MODES)})),
             excluded INTEGER NOT NULL DEFAULT 0 CHECK (excluded IN (0, 1)),
             excluded_reason TEXT,
             source TEXT NOT NULL CHECK (source IN ('capture', 'import')),
@@ -86,14 +94,14 @@ def _migration_2(conn: sqlite3.Connection) -> None:
     statements = [
         # The CSV ``group`` column (pose group for grouped hold-out), kept through import/export.
         "ALTER TABLE samples ADD COLUMN pose_group TEXT",
-        """CREATE TABLE jobs (
+        f"""CREATE TABLE jobs (
             id INTEGER PRIMARY KEY,
             campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             method TEXT NOT NULL CHECK (method <> ''),
-            options_json TEXT NOT NULL DEFAULT '{}',
+            options_json TEXT NOT NULL DEFAULT '{{}}',
             status TEXT NOT NULL DEFAULT 'queued'
-                CHECK (status IN ('queued', 'running', 'succeeded', 'failed', 'cancelled')),
+                CHECK (status IN ({_one_of([s.value for s in JobState])})),
             progress REAL NOT NULL DEFAULT 0 CHECK (progress >= 0 AND progress <= 1),
             message TEXT NOT NULL DEFAULT '',
             error TEXT,
@@ -152,7 +160,7 @@ def _migration_3(conn: sqlite3.Connection) -> None:
 
 
 def _migration_4(conn: sqlite3.Connection) -> None:
-    # Drift checks (daemon.store.checks, daemon.drift): the check poses of each robot and the
+    # Drift checks (daemon.store.checks, daemon.holdcheck): the check poses of each robot and the
     # history of checks.
     statements = [
         """CREATE TABLE check_poses (
@@ -160,13 +168,13 @@ def _migration_4(conn: sqlite3.Connection) -> None:
             poses_json TEXT NOT NULL,
             updated_at REAL NOT NULL
         )""",
-        """CREATE TABLE checks (
+        f"""CREATE TABLE checks (
             id INTEGER PRIMARY KEY,
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
             result_id INTEGER NOT NULL REFERENCES results(id),
-            trigger TEXT NOT NULL CHECK (trigger IN ('manual', 'schedule')),
-            status TEXT NOT NULL CHECK (status IN ('running', 'ok', 'drift', 'failed')),
+            trigger TEXT NOT NULL CHECK (trigger IN ({_one_of(CHECK_TRIGGERS)})),
+            status TEXT NOT NULL CHECK (status IN ({_one_of(CHECK_STATUSES)})),
             refit_anchor INTEGER NOT NULL CHECK (refit_anchor IN (0, 1)),
             threshold_mm REAL NOT NULL CHECK (threshold_mm > 0),
             rms_mm REAL,

@@ -60,7 +60,7 @@ def test_import_joint_limit_violation_names_row_and_column(
 def test_import_samples_is_all_or_nothing(
     store: Store, campaign: dict[str, Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import daemon.store.campaigns as campaigns_module
+    import daemon.store.samples as campaigns_module
 
     samples = parse_samples_csv(csv_text(50))
     real = campaigns_module._import_batches

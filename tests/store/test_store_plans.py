@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from _store_helpers import ROBOT
 
-from daemon.store import Store, StoreInvalid, StoreNotFound, apply_migrations, match_poses
+from daemon.store import Store, StoreInvalid, StoreNotFound, apply_migrations
 
 
 def _pose(i: int, anchor: str = "A") -> dict[str, Any]:
@@ -46,19 +46,6 @@ def test_an_older_file_gets_the_plans_table(tmp_path: Path) -> None:
     with Store(path) as s:
         cid = s.create_campaign("c", s.ensure_builtin_robot(ROBOT)["id"])["id"]
         assert s.save_plan(cid, {}, {}, [_pose(1)])["poses"] == [_pose(1)]
-
-
-def test_match_poses_tolerance_anchor_and_closest() -> None:
-    planned = np.array([[0.0] * 6, [10.0] * 6, [20.0] * 6])
-    samples = np.array([[0.4] * 6, [10.0] * 6, [0.1] * 6, [20.0, 20, 20, 20, 20, 20.6]])
-    got = match_poses(planned, ["A", "A", "A"], samples, ["A", "B", "A", "A"], tol_deg=0.5)
-    # Pose 0: the closer of two matches; pose 1: only a sample at another anchor; pose 2:
-    # one joint 0.6 deg off.
-    assert got.tolist() == [2, -1, -1]
-    assert match_poses(planned, ["A"] * 3, samples, ["A"] * 4, tol_deg=0.7).tolist() == [2, 1, 3]
-    assert match_poses(planned, ["A"] * 3, np.zeros((0, 6)), [], 0.5).tolist() == [-1, -1, -1]
-    with pytest.raises(StoreInvalid, match="tol_deg"):
-        match_poses(planned, ["A"] * 3, samples, ["A"] * 4, tol_deg=0.0)
 
 
 def test_a_result_off_the_plan_says_so_and_what_it_cost(

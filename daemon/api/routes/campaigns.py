@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 from typing import cast
 
-import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
@@ -16,7 +15,6 @@ from calib.dataset import (
     parse_samples_csv,
     validate_joint_limits,
 )
-from calib.kinematics import FloatArray
 from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import (
     AppState,
@@ -39,6 +37,7 @@ from daemon.api.schemas import (
     SampleOut,
     SamplePatch,
 )
+from daemon.autocapture import SamplerRefused, SamplerUnavailable
 from daemon.capture import CaptureRejected
 from daemon.store import CampaignRow
 
@@ -159,7 +158,7 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
     error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``. Outside the limits of
     the campaign's robot model is a 409 (a rule of the robot, not of the request's shape)."""
     try:
-        pose = make_samples(np.asarray([joints_deg], dtype=float), np.zeros(1))
+        pose = make_samples([joints_deg], [0.0])
         validate_joint_limits(pose, state.store.robot_model(robot_id))
     except SampleError as exc:
         j = JOINT_COLUMNS.index(exc.column) if exc.column in JOINT_COLUMNS else None
@@ -184,57 +183,21 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
     Validated first (the body, the campaign, a running sampler), then stored (one
     transaction), then applied to the sampler; if the sampler refuses, the stored change is
     rolled back and the sampler put back as it was, so the database and the sampler agree.
-    One switch at a time (``AppState.auto_capture_lock``, held from the store's write to the
-    sampler's): parallel switches end with the database and the sampler naming the same
-    campaign. The store's reads and writes run in a worker thread, the sampler's switch on the
-    event loop that owns the sampler."""
-    async with state.auto_capture_lock:
-        before, row, known = await run_in_threadpool(_store_auto, state, campaign_id, body)
-        try:
-            _apply_auto(state, campaign_id, body, known)
-        except Exception as exc:
-            await run_in_threadpool(state.store.restore_auto_capture, before)
-            await _restore_sampler(state, before)
-            log.exception("auto capture: the sampler refused; rolled back")
-            raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
-    return _out(state, row)
-
-
-def _store_auto(
-    state: AppState, campaign_id: int, body: AutoCapture
-) -> tuple[list[CampaignRow], CampaignRow, FloatArray | None]:
-    """The stored part of a switch (in a worker thread): the auto campaigns before, the
-    switched row, and the campaign's captured poses [deg] when switching on."""
-    state.store.campaign(campaign_id)  # 404 before anything changes
-    if body.enabled and state.sampler is None:
+    One switch at a time (a lock held from the store's write to the sampler's): parallel
+    switches end with the database and the sampler naming the same campaign. The store's
+    reads and writes run in a worker thread, the sampler's switch on the event loop that owns
+    the sampler."""
+    # Auto capture's one owner: daemon.autocapture.AutoCapture.
+    if state.auto is None:
+        state.store.campaign(campaign_id)  # 404 first
         raise HTTPException(503, "sampler: not running")
-    before = state.store.auto_capture_campaigns()
-    row = state.store.set_auto_capture(campaign_id, body.enabled, body.anchor)
-    known = state.store.poses_deg(campaign_id) if body.enabled else None
-    return before, row, known
-
-
-def _apply_auto(state: AppState, campaign_id: int, body: AutoCapture, known: object) -> None:
-    """The stored auto-capture switch, applied to the sampler (on the event loop)."""
-    if body.enabled:
-        state.sampler.set_auto(campaign_id, anchor=body.anchor, known_poses_deg=known)
-    elif state.sampler is not None and state.sampler.auto_campaign_id == campaign_id:
-        state.sampler.set_auto(None)
-
-
-async def _restore_sampler(state: AppState, before: list[CampaignRow]) -> None:
-    """The sampler as the restored rows say (best effort: logged if it fails again)."""
-    if state.sampler is None:
-        return
     try:
-        if before:
-            cid = int(before[0]["id"])
-            known = await run_in_threadpool(state.store.poses_deg, cid)
-            state.sampler.set_auto(cid, anchor=before[0]["auto_anchor"], known_poses_deg=known)
-        else:
-            state.sampler.set_auto(None)
-    except Exception:
-        log.exception("auto capture: restoring the sampler failed")
+        row = await state.auto.switch(campaign_id, body.enabled, body.anchor)
+    except SamplerUnavailable as exc:
+        raise HTTPException(503, f"sampler: {exc}") from exc
+    except SamplerRefused as exc:
+        raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
+    return _out(state, row)
 
 
 @router.get(

@@ -9,11 +9,10 @@ from typing import Annotated, Any, cast
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from typing_extensions import TypedDict
 
-from calib.options import default, samples_for_training_rows, spec
-from daemon.api.compare import Comparison, compare_results
+from calib.compare import Comparison, compare_results
+from calib.options import default, held_out, samples_for_training_rows, spec
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
 from daemon.api.errors import error_responses
-from daemon.api.min_samples import held_out
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs import JobError

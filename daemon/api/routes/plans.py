@@ -1,8 +1,8 @@
 """Pose plans of a campaign: plan (``calib.planning``, off the event loop) and follow progress.
 
-The request and response bodies live here, not in :mod:`daemon.api.schemas`: their defaults
-come from :class:`calib.planning.PlanOptions` (one definition), and the plan's summary is
-:meth:`calib.planning.PlanResult.to_json` as it is.
+The request body, :class:`daemon.api.schemas.PlanRequest`, takes its defaults from
+:class:`calib.planning.PlanOptions` (one definition); the response bodies live here, and the
+plan's summary is :meth:`calib.planning.PlanResult.to_json` as it is.
 """
 
 from __future__ import annotations
@@ -10,108 +10,25 @@ from __future__ import annotations
 import asyncio
 import csv
 import io
-from typing import Annotated, Any, Literal
+import time
+from typing import Any, Literal
 
-import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, status
-from pydantic import ConfigDict, Field
 from typing_extensions import TypedDict
 
-from calib.dataset import JOINT_COLUMNS, SampleError, SampleSet
+from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan, start_anchors_mm
+from calib.planning.progress import MATCH_TOL_DEG, match_plan
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
-from daemon.api.schemas import MAX_ANCHOR_CHARS, Anchor, StrictBody
+from daemon.api.schemas import MAX_ANCHOR_CHARS, PlanRequest
 from daemon.plan_noise import NoiseEstimate, cell_noise
-from daemon.store import MATCH_TOL_DEG, match_poses
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
 router = APIRouter(tags=["plans"], responses=error_responses(401, 404, 413, 422))
-
-_D = PlanOptions()
-
-#: Bounds of a plan request: what one request may ask of the 2-core cell PC.
-MAX_POSES = 200
-MAX_CANDIDATES = 10_000
-MAX_ANCHORS = 4
-
-Coordinate = Annotated[float, Field(ge=-10_000.0, le=10_000.0, allow_inf_nan=False)]
-Extension = Annotated[float, Field(ge=0, le=10_000, allow_inf_nan=False)]
-
-
-class PlanRequest(StrictBody):
-    """Options of a plan (see ``cablecal plan --help``; units in the names). The robot is the
-    campaign's. Strict: no unknown keys, ``"1"`` is not a number, ``"yes"`` not a boolean;
-    pairs and triples are JSON lists of that length."""
-
-    # The schema states the one rule between fields: anchors_mm, unless start_from_samples.
-    model_config = ConfigDict(json_schema_extra={"anyOf": [
-        {"required": ["anchors_mm"], "properties": {"anchors_mm": {"type": "array"}}},
-        {"required": ["start_from_samples"], "properties": {"start_from_samples": {"const": True}}},
-    ]})  # fmt: skip
-
-    anchors_mm: Annotated[
-        list[Annotated[list[Coordinate], Field(min_length=3, max_length=3)]],
-        Field(min_length=1, max_length=MAX_ANCHORS),
-    ] | None = Field(
-        None,
-        description="Anchor guesses [x, y, z] [mm] in the robot base frame, one per sensor "
-        "position; default (with start_from_samples): where the campaign's samples put them.",
-    )  # fmt: skip
-    anchor_ids: Annotated[list[Anchor], Field(min_length=1, max_length=MAX_ANCHORS)] | None = Field(
-        None, description="Id per anchor (default A, B, …); an id of the samples means the "
-        "sensor has not moved."
-    )  # fmt: skip
-    n: int = Field(_D.n, ge=1, le=MAX_POSES, description="Poses to plan, all anchors.")
-    candidates: int = Field(
-        _D.candidates, ge=1, le=MAX_CANDIDATES, description="Random feasible candidate poses."
-    )
-    seed: int = Field(_D.seed, ge=0, le=2**32 - 1)
-    min_z_mm: float = Field(
-        _D.min_z_mm, ge=-10_000, le=10_000, allow_inf_nan=False,
-        description="Flange and tool point above this z.",
-    )  # fmt: skip
-    extension_mm: Annotated[list[Extension], Field(min_length=2, max_length=2)] = Field(
-        list(_D.extension_mm), description="Allowed cable extension [min, max] [mm]."
-    )
-    anchor_uncertainty_mm: float = Field(
-        _D.anchor_uncertainty_mm, ge=0, le=1000, allow_inf_nan=False,
-        description="How far the guess may be off.",
-    )  # fmt: skip
-    noise_mm: float | None = Field(
-        None, gt=0, le=10, allow_inf_nan=False,
-        description="1σ noise of one captured length [mm]; default (null): from the cell "
-        "(the robot's accepted result, the campaign's captures, the live indicator, else "
-        f"{_D.noise_mm}); the summary names it (noise_source).",
-    )  # fmt: skip
-    joint_speed_deg_s: Annotated[
-        list[Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]],
-        Field(min_length=6, max_length=6),
-    ] = Field(list(_D.joint_speed_deg_s), description="Joint speeds for the moves [deg/s].")
-    dwell_s: float = Field(
-        _D.dwell_s, ge=0, le=600, allow_inf_nan=False,
-        description="Settle and read time per pose.",
-    )  # fmt: skip
-    start_from_samples: bool = Field(
-        False, description="Plan more poses on top of the campaign's included samples."
-    )
-
-    def options(self, noise_mm: float | None = None) -> PlanOptions:
-        """The engine's options (anchor ids set by the caller when taken from samples), with
-        ``noise_mm`` when the request gives none (else the engine's default)."""
-        noise = self.noise_mm if self.noise_mm is not None else noise_mm
-        return PlanOptions(
-            n=self.n, candidates=self.candidates, seed=self.seed, min_z_mm=self.min_z_mm,
-            extension_mm=(self.extension_mm[0], self.extension_mm[1]),
-            anchor_uncertainty_mm=self.anchor_uncertainty_mm,
-            noise_mm=_D.noise_mm if noise is None else noise,
-            joint_speed_deg_s=tuple(self.joint_speed_deg_s),
-            dwell_s=self.dwell_s,
-            anchor_ids=None if self.anchor_ids is None else tuple(self.anchor_ids),
-        )  # fmt: skip
 
 
 class PlannedPose(PlannedPoseRow):
@@ -143,15 +60,13 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
     """The plan with each pose done or pending against the campaign's included samples."""
     samples, sample_ids = state.store.sample_set(stored["campaign_id"])  # included ones
     poses = stored["poses"]
-    planned = np.array([[p[c] for c in JOINT_COLUMNS] for p in poses], dtype=np.float64)  # type: ignore[literal-required]
-    match = match_poses(planned, [p["anchor"] for p in poses], samples.joints_deg,
-                        [str(a) for a in samples.anchor], tol_deg)  # fmt: skip
+    match = match_plan(poses, samples.joints_deg, [str(a) for a in samples.anchor], tol_deg)
     out: list[PlannedPose] = []
     for pose, k in zip(poses, match, strict=True):
-        done = bool(k >= 0)
+        done = k >= 0
         out.append({**pose, "status": "done" if done else "pending",
-                    "sample_id": sample_ids[int(k)] if done else None})  # fmt: skip
-    n_done = int(np.count_nonzero(match >= 0))
+                    "sample_id": sample_ids[k] if done else None})  # fmt: skip
+    n_done = sum(1 for k in match if k >= 0)
     pending = [p["pose"] for p in out if p["status"] == "pending"]
     progress: PlanProgress = {
         "n_planned": len(out), "n_done": n_done, "n_pending": len(out) - n_done,
@@ -180,7 +95,7 @@ def _compute(
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
-    res = plan(model, np.asarray(anchors, dtype=float), opts, start=start)
+    res = plan(model, anchors, opts, start=start, clock=time.perf_counter)
     summary = res.to_json()
     summary.update(noise_source=noise.source, noise_detail=noise.detail)
     return summary, res.csv_rows()
@@ -228,7 +143,7 @@ async def make_plan(
             )
         )  # fmt: skip
         summary, poses = await asyncio.to_thread(_compute, model, body, start, noise)
-    except (ValueError, SampleError, np.linalg.LinAlgError) as exc:
+    except (ValueError, SampleError) as exc:  # numpy's LinAlgError is a ValueError
         raise unprocessable(_loc(str(exc)), str(exc)) from exc
     finally:
         request.app.state.planning_campaign = None

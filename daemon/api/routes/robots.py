@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, HTTPException, Query, Response
 
 from daemon.api.deps import ReadAuth, RobotId, State
+from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses
 from daemon.api.schemas import CalibratedModelOut, RobotOut
 
@@ -16,6 +17,13 @@ router = APIRouter(
     dependencies=[ReadAuth],
     responses=error_responses(401, 404, 413, 422),
 )
+
+#: Media type of each model-file format of ``GET /robots/{id}/calibrated-model?format=``.
+EXPORT_MEDIA_TYPES = {
+    "toml": "application/toml",
+    "urdf": "application/xml",
+    "json": "application/json",
+}
 
 
 @router.get("/{robot_id}", summary="One robot and its nominal model")
@@ -41,7 +49,20 @@ def calibrated_model(
     ``format``: the model file (``application/toml``, ``application/json``,
     ``application/xml``) named ``<robot>-calibrated.<format>``."""
     if format is not None:
-        from daemon.api.routes.apply import export_response
-
         return export_response(state, robot_id, format)
     return state.store.calibrated_model(robot_id)
+
+
+def export_response(state: State, robot_id: int, fmt: str) -> Response:
+    """The accepted calibration as a model file (``toml``, ``json``) or a URDF, with its media
+    type and a download filename ``<robot>-calibrated.<ext>``."""
+    from calib.export import export_result
+
+    result = state.store.accepted_result(robot_id)["result"]
+    nominal = state.store.robot_model(robot_id)
+    try:
+        text = export_result(result, fmt, nominal)
+    except ValueError as exc:
+        raise HTTPException(409, f"robot {robot_id}: the accepted result: {exc}") from exc
+    name = f"{nominal.name}-calibrated.{fmt}"
+    return Response(text, media_type=EXPORT_MEDIA_TYPES[fmt], headers=download_headers(name))

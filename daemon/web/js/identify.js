@@ -7,9 +7,8 @@ import { costChart, driftChart, histogramChart, residualChart } from "./charts.j
 import { $, clock, dismiss, duration, el, every, fillTable, fix, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 const DH = [["alpha", "α", "deg"], ["a", "a", "mm"], ["d", "d", "mm"], ["theta", "θ", "deg"]];
-//: The fields shown first; the others go under "More options". Everything else about an
-//: option (type, default, limits, choices, help) comes from GET /options/identify.
-const MAIN_FIELDS = ["method", "test_fraction", "holdout", "robust", "seed", "prior"];
+// Everything about an option (type, default, limits, choices, help, and whether it is shown
+// first or under "More options": main_fields) comes from GET /options/identify.
 let spec = null; // GET /options/identify
 let job = null; // the job followed (GET /identifications/{id})
 let live = { x: [], y: [], plot: null };
@@ -48,7 +47,7 @@ function rangeWords(f) {
 async function buildForm() {
   spec = await api("GET", "/options/identify");
   const main = [], more = [];
-  for (const f of spec.fields) (MAIN_FIELDS.includes(f.name) ? main : more).push(fieldNode(f));
+  for (const f of spec.fields) (spec.main_fields.includes(f.name) ? main : more).push(fieldNode(f));
   $("identify-fields").replaceChildren(...main);
   $("identify-more-fields").replaceChildren(...more);
 }

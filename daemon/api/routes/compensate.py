@@ -1,84 +1,36 @@
-"""Applying and watching a calibration: compensate, export, verify, check poses, drift checks.
+"""Compensation: a program's targets corrected with the robot's accepted calibration.
 
-The heavy work (IK of up to :data:`MAX_TARGETS` targets, a verification) runs in a worker
-thread, never on the event loop.
+Decoding, validation and the IK of up to :data:`daemon.api.schemas.MAX_TARGETS` targets run
+in a worker thread, never on the event loop.
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from fastapi import APIRouter, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
-from pydantic import Field, TypeAdapter, ValidationError
+from pydantic import ValidationError
 
 from calib.programs.formats import DEFAULT_SPEED_PCT
-from daemon.api.deps import MAX_ID, JobId, ReadAuth, RobotId, State, WriteAuth
+from daemon.api.deps import RobotId, State, WriteAuth
 from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
-from daemon.api.schemas import StrictBody
-from daemon.drift import CheckConflict, check_poses
-from daemon.store import CheckPoses, CheckRow
+from daemon.api.schemas import (
+    ANY_TARGETS,
+    MAX_TARGETS,
+    TARGET_LISTS,
+    TARGET_MODELS,
+    TARGETS_SCHEMA,
+)
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))
 
-#: Most targets one compensation request may carry (the body is bounded by the request
-#: guard: :data:`daemon.api.guard.MAX_COMPENSATE_BYTES`).
-MAX_TARGETS = 10_000
 #: Longest ``tool_mm`` / ``seed_deg`` query value [characters].
 MAX_QUERY_CHARS = 200
-
-EXPORT_MEDIA_TYPES = {
-    "toml": "application/toml",
-    "urdf": "application/xml",
-    "json": "application/json",
-}
-
-JointDeg = Annotated[float, Field(ge=-3600.0, le=3600.0, allow_inf_nan=False)]
-LengthMm = Annotated[float, Field(ge=-100_000.0, le=100_000.0, allow_inf_nan=False)]
-
-
-class JointTarget(StrictBody):
-    """A target as joint angles q1..q6 [deg]."""
-
-    q1: JointDeg
-    q2: JointDeg
-    q3: JointDeg
-    q4: JointDeg
-    q5: JointDeg
-    q6: JointDeg
-
-
-class PositionTarget(StrictBody):
-    """A target as a TCP position x, y, z [mm] in the robot base frame."""
-
-    x: LengthMm
-    y: LengthMm
-    z: LengthMm
-
-
-class PoseTarget(PositionTarget):
-    """A target as a TCP position [mm] and orientation rx, ry, rz [deg]."""
-
-    rx: JointDeg
-    ry: JointDeg
-    rz: JointDeg
-
-
-def _targets(model: type[StrictBody]) -> Any:
-    return Annotated[list[model], Field(min_length=1, max_length=MAX_TARGETS)]  # type: ignore[valid-type]
-
-
-_TARGET_MODELS: tuple[type[StrictBody], ...] = (JointTarget, PoseTarget, PositionTarget)
-_TARGET_LISTS = {m: TypeAdapter(_targets(m)) for m in _TARGET_MODELS}
-_ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
-    Annotated[list[dict[str, Any]], Field(min_length=1, max_length=MAX_TARGETS)]
-)
-#: The JSON request body as documented: one of the three target lists.
-TARGETS_SCHEMA = {"anyOf": [TypeAdapter(_targets(m)).json_schema() for m in _TARGET_MODELS]}
 
 
 #: A decimal number as :func:`_numbers` reads it (the exponent bounded: always finite).
@@ -115,17 +67,17 @@ def _json_targets_csv(raw: bytes) -> str:
     validated strictly (errors name the list index and key), as the CSV text
     :func:`calib.compensate.parse_targets_csv` reads."""
     try:
-        items = _ANY_TARGETS.validate_json(raw, strict=True)
+        items = ANY_TARGETS.validate_json(raw, strict=True)
     except ValidationError as exc:
         raise _validated(exc) from None
     first = set(items[0])
-    model = next((m for m in _TARGET_MODELS if set(m.model_fields) <= first), None)
+    model = next((m for m in TARGET_MODELS if set(m.model_fields) <= first), None)
     if model is None:
         raise unprocessable(
             ("body", 0), "body[0]: a target needs q1..q6, or x, y, z (+ rx, ry, rz)"
         )
     try:
-        targets = _TARGET_LISTS[model].validate_python(items)
+        targets = TARGET_LISTS[model].validate_python(items)
     except ValidationError as exc:
         raise _validated(exc) from None
     keys = list(model.model_fields)
@@ -244,114 +196,3 @@ async def compensate_targets(
             headers=download_headers(f"robot-{robot_id}-compensated.csv"),
         )
     return out
-
-
-def export_response(state: State, robot_id: int, fmt: str) -> Response:
-    """The accepted calibration as a model file (``toml``, ``json``) or a URDF, with its media
-    type and a download filename ``<robot>-calibrated.<ext>``."""
-    from calib.export import export_result
-
-    result = state.store.accepted_result(robot_id)["result"]
-    nominal = state.store.robot_model(robot_id)
-    try:
-        text = export_result(result, fmt, nominal)
-    except ValueError as exc:
-        raise HTTPException(409, f"robot {robot_id}: the accepted result: {exc}") from exc
-    name = f"{nominal.name}-calibrated.{fmt}"
-    return Response(text, media_type=EXPORT_MEDIA_TYPES[fmt], headers=download_headers(name))
-
-
-class VerifyRequest(StrictBody):
-    """Verify an identification's result on another campaign."""
-
-    campaign_id: int = Field(ge=1, le=MAX_ID, description="The campaign whose samples to predict")
-    refit_anchor: bool = Field(False, description="Fit the anchor and zero offset first")
-
-
-@router.post(
-    "/identifications/{job_id}/verify",
-    summary="Predict another campaign's lengths from a result",
-    dependencies=[WriteAuth],
-    responses=error_responses(400, 409),
-)
-async def verify_result(state: State, job_id: JobId, body: VerifyRequest) -> dict[str, Any]:
-    """RMSE, MAE, STD, MAX of ``measured − predicted`` over the campaign's included samples
-    and the per-pose residuals (``calib.verify``); ``refit_anchor`` fits the anchor P0 and
-    zero offset first (a moved sensor). 409 if the job has no result yet."""
-    from calib.verify import VerifyOptions, verify
-
-    state.store.job(job_id)
-    result = state.store.get_result_for_job(job_id)
-    if result is None:
-        raise HTTPException(409, f"identification {job_id}: has no result")
-    samples, _ = state.store.sample_set(body.campaign_id)
-    if len(samples) == 0:
-        raise unprocessable(
-            ("body", "campaign_id"), f"campaign_id: campaign {body.campaign_id} has no samples"
-        )
-    try:
-        out = await asyncio.to_thread(verify, result["result"], samples,
-                                      VerifyOptions(refit_anchor=body.refit_anchor))  # fmt: skip
-    except (ValueError, KeyError) as exc:
-        raise unprocessable(("body",), f"campaign {body.campaign_id}: {exc}") from exc
-    return out.to_json()
-
-
-class CheckPosesBody(StrictBody):
-    """A robot's check poses [deg]."""
-
-    poses_deg: Annotated[
-        list[Annotated[list[JointDeg], Field(min_length=6, max_length=6)]],
-        Field(min_length=3, max_length=100),
-    ]
-
-
-@router.put(
-    "/robots/{robot_id}/check-poses",
-    summary="Set the drift-check poses",
-    dependencies=[WriteAuth],
-    responses=error_responses(400),
-)
-def put_check_poses(state: State, robot_id: RobotId, body: CheckPosesBody) -> CheckPoses:
-    """3 to 100 joint vectors of finite numbers [deg]; they replace the default (spread poses
-    of the calibration's samples)."""
-    return state.store.set_check_poses(robot_id, body.poses_deg)
-
-
-@router.get(
-    "/robots/{robot_id}/check-poses", summary="The drift-check poses", dependencies=[ReadAuth]
-)
-def get_check_poses(state: State, robot_id: RobotId) -> CheckPoses:
-    """The user's poses (``source`` user) or the default (``source`` default: spread poses
-    of the accepted calibration's samples; 404 without one)."""
-    return check_poses(state.store, robot_id, state.settings.drift.n_poses)
-
-
-@router.post(
-    "/robots/{robot_id}/checks",
-    status_code=status.HTTP_202_ACCEPTED,
-    summary="Start a drift check",
-    dependencies=[WriteAuth],
-    responses=error_responses(409),
-)
-async def start_check(state: State, robot_id: RobotId) -> CheckRow:
-    """Creates the check campaign and switches auto capture to it (on the event loop, where
-    the sampler and the check's task live); the robot must visit the check poses
-    (``GET …/check-poses``). Follow it at ``GET /robots/{id}/checks``. 409 while another
-    check runs or auto capture is on for a campaign."""
-    try:
-        return state.drift.start_check(robot_id, "manual")  # type: ignore[no-any-return]
-    except CheckConflict as exc:
-        raise HTTPException(409, str(exc)) from exc
-    except ValueError as exc:
-        raise HTTPException(409, str(exc)) from exc
-
-
-@router.get("/robots/{robot_id}/checks", summary="Drift-check history", dependencies=[ReadAuth])
-def list_checks(
-    state: State, robot_id: RobotId, limit: int = Query(100, ge=1, le=1000)
-) -> list[CheckRow]:
-    """The newest ``limit`` checks, oldest first: ``status`` running/ok/drift/failed,
-    ``rms_mm``, ``threshold_mm``, ``campaign_id``, ``poses_deg``."""
-    state.store.robot(robot_id)
-    return state.store.list_checks(robot_id, limit=limit)

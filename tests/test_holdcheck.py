@@ -1,4 +1,5 @@
-"""The drift decision as pure functions: threshold, judgement, spread and coverage of poses."""
+"""The hold check's decision (the daemon's drift check) as pure functions
+(:mod:`calib.monitor.holdcheck`): threshold, judgement, spread and coverage of poses."""
 
 from __future__ import annotations
 
@@ -7,20 +8,25 @@ import math
 import numpy as np
 import pytest
 
-from daemon.config import DriftSettings
-from daemon.drift import covered, judge, spread_indices, threshold_mm
+from calib.monitor.holdcheck import covered, judge, spread_indices, threshold_mm
+from daemon.config import HoldCheckSettings
+
+
+def _threshold(reference_rmse_mm: float | None, s: HoldCheckSettings) -> float:
+    return threshold_mm(reference_rmse_mm, s.threshold_mm, s.threshold_factor, s.min_threshold_mm)
 
 
 def test_threshold_is_three_times_the_calibration_rmse_by_default() -> None:
-    s = DriftSettings()
-    assert threshold_mm(0.04, s) == pytest.approx(0.12)
-    assert threshold_mm(0.001, s) == pytest.approx(s.min_threshold_mm)  # the floor
-    assert threshold_mm(0.04, DriftSettings(threshold_factor=5)) == pytest.approx(0.2)
-    assert threshold_mm(0.04, DriftSettings(threshold_mm=0.5)) == 0.5  # absolute wins
-    assert threshold_mm(None, DriftSettings(threshold_mm=0.5)) == 0.5
+    s = HoldCheckSettings()
+    assert _threshold(0.04, s) == pytest.approx(0.12)
+    assert _threshold(0.001, s) == pytest.approx(s.min_threshold_mm)  # the floor
+    assert _threshold(0.04, HoldCheckSettings(threshold_factor=5)) == pytest.approx(0.2)
+    assert _threshold(0.04, HoldCheckSettings(threshold_mm=0.5)) == 0.5  # absolute wins
+    assert _threshold(None, HoldCheckSettings(threshold_mm=0.5)) == 0.5
+    assert threshold_mm(0.04, None, 3.0, 0.5) == 0.5  # the floor, from plain numbers
     for ref in (None, math.nan):
         with pytest.raises(ValueError, match=r"drift\.threshold_mm"):
-            threshold_mm(ref, s)
+            _threshold(ref, s)
 
 
 def test_judge_flags_only_above_the_threshold() -> None:

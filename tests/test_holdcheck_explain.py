@@ -9,7 +9,7 @@ import pytest
 
 from calib.dataset import SampleSet
 from calib.identify import IdentifyOptions, identify
-from daemon.drift import evaluate, spread_indices
+from calib.monitor.holdcheck import evaluate, spread_indices
 from simulator.cell import EmulatedCell
 from simulator.config import SimConfig
 

@@ -1,8 +1,16 @@
-"""Drift checks: is the robot still the one its accepted calibration describes?
+"""Hold checks: is the robot still the one its accepted calibration describes?
+
+What an operator sees calls them drift checks (the ``drift`` settings, ``POST
+/robots/{id}/checks``, the ``drift`` and ``drift_check`` events, the ``cablecal_drift_*``
+gauges, the ``drift`` block of ``GET /status``); the code calls them hold checks, apart from
+:mod:`calib.drift`, the measurement drifting within one campaign. The numeric decisions are
+pure, in :mod:`calib.monitor.holdcheck`; this module holds the store, the sampler, the
+schedule and the events.
 
 The flow
     1. A robot with an accepted calibration has **check poses**: the user's
-       (``PUT /robots/{id}/check-poses``), else :func:`spread_indices` picks
+       (``PUT /robots/{id}/check-poses``), else :func:`calib.monitor.holdcheck.spread_indices`
+       picks
        ``drift.n_poses`` (8) well-spread poses of the accepted calibration's own samples.
     2. A check starts on ``POST /robots/{id}/checks`` or every ``drift.check_interval_h``
        (default off). It creates a campaign ``check <n> of robot <id>`` and switches the
@@ -17,17 +25,19 @@ The flow
        stays mounted between checks, and refitting four parameters per anchor on 8 poses
        would absorb part of a real drift. Set ``drift.refit_anchor = true`` after moving the
        sensor (it needs at least 5 poses per anchor).
-    4. :func:`judge`: ``drift`` when the RMS exceeds the threshold
-       (:func:`threshold_mm`: ``drift.threshold_mm``, else ``drift.threshold_factor`` (3) ×
-       the calibration's own residual RMSE, never below ``drift.min_threshold_mm``).
+    4. :func:`calib.monitor.holdcheck.judge`: ``drift`` when the RMS exceeds the threshold
+       (:func:`calib.monitor.holdcheck.threshold_mm`: ``drift.threshold_mm``, else
+       ``drift.threshold_factor`` (3) × the calibration's own residual RMSE, never below
+       ``drift.min_threshold_mm``).
        The check row, a ``drift`` (or ``drift_check``) event, the gauges
        ``cablecal_drift_rms_mm`` and ``cablecal_drift_threshold_mm`` and the ``drift`` block
        of ``GET /status`` show it. A drift event names its likely cause: a moved sensor (a
        point shift of P0 changes lengths by ``−u·δ``, ``u`` the cable direction) or a robot
        change (a joint's zero offset), whichever fits the residuals better
-       (:func:`daemon.stepwatch.explain_change`; ``unclear`` when the poses cannot tell).
+       (:func:`calib.monitor.stepwatch.explain_change`; ``unclear`` when the poses cannot
+       tell).
 
-numpy and ``calib`` are imported inside the functions that use them.
+``calib`` is imported inside the functions that use it.
 """
 
 from __future__ import annotations
@@ -35,16 +45,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 import time
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 from daemon import metrics
 
 if TYPE_CHECKING:
-    from calib.kinematics import FloatArray
-    from daemon.config import DriftSettings
+    from daemon.config import HoldCheckSettings
     from daemon.store import CheckPoses, CheckRow, Store
 
 log = logging.getLogger("cablecal.drift")
@@ -57,70 +64,10 @@ class CheckConflict(RuntimeError):
     """A check cannot start now (another check runs, or auto capture is on elsewhere)."""
 
 
-# ------------------------------------------------------------------ pure decisions
-def threshold_mm(reference_rmse_mm: float | None, settings: DriftSettings) -> float:
-    """The RMS [mm] above which a check is drift.
-
-    ``settings.threshold_mm`` when set; else ``threshold_factor × reference_rmse_mm`` (the
-    calibration's own residual RMSE), at least ``min_threshold_mm``.
-
-    Raises
-    ------
-    ValueError
-        No absolute threshold and no usable reference RMSE.
-    """
-    if settings.threshold_mm is not None:
-        return float(settings.threshold_mm)
-    if reference_rmse_mm is None or not math.isfinite(reference_rmse_mm):
-        raise ValueError("drift.threshold_mm: the calibration has no residual RMSE; set one")
-    return max(settings.threshold_factor * float(reference_rmse_mm), settings.min_threshold_mm)
-
-
-def judge(rms_mm: float, limit_mm: float) -> Literal["ok", "drift"]:
-    """``drift`` when ``rms_mm`` exceeds ``limit_mm`` (equal is ok); a NaN RMS is drift."""
-    return "ok" if rms_mm <= limit_mm else "drift"
-
-
-def spread_indices(joints_deg: FloatArray, k: int) -> list[int]:
-    """``k`` well-spread rows of ``joints_deg`` (shape (n, 6) [deg]), in row order.
-
-    Farthest-point sampling on the max-abs joint distance, starting from the pose nearest to
-    the mean pose: deterministic, and every pose far from the chosen ones. ``k >= n`` gives
-    all rows.
-    """
-    import numpy as np
-
-    q = np.asarray(joints_deg, dtype=float)
-    n = q.shape[0]
-    if k >= n:
-        return list(range(n))
-    first = int(np.argmin(np.abs(q - q.mean(axis=0)).max(axis=1)))
-    chosen = [first]
-    dist = np.abs(q - q[first]).max(axis=1)
-    while len(chosen) < k:
-        nxt = int(np.argmax(dist))
-        chosen.append(nxt)
-        dist = np.minimum(dist, np.abs(q - q[nxt]).max(axis=1))
-    return sorted(chosen)
-
-
-def covered(poses_deg: FloatArray, captured_deg: FloatArray, tol_deg: float) -> FloatArray:
-    """Per check pose (rows of ``poses_deg``, (m, 6)), whether a capture (rows of
-    ``captured_deg``, (n, 6)) lies within ``tol_deg`` on every joint: bool array (m,)."""
-    import numpy as np
-
-    p = np.asarray(poses_deg, dtype=float)
-    c = np.asarray(captured_deg, dtype=float).reshape(-1, 6)
-    if c.shape[0] == 0:
-        return np.zeros(p.shape[0], dtype=bool)
-    near: FloatArray = (np.abs(p[:, None, :] - c[None, :, :]).max(axis=2) <= tol_deg).any(axis=1)
-    return near
-
-
 # ------------------------------------------------------------------ store-level helpers
 def check_poses(store: Store, robot_id: int, n_poses: int) -> CheckPoses:
     """The robot's check poses: the user's, else ``n_poses`` spread poses of the accepted
-    calibration's campaign samples (:func:`spread_indices`).
+    calibration's campaign samples (:func:`calib.monitor.holdcheck.spread_indices`).
 
     Raises
     ------
@@ -131,6 +78,8 @@ def check_poses(store: Store, robot_id: int, n_poses: int) -> CheckPoses:
     if user is not None:
         store.robot(robot_id)
         return user
+    from calib.monitor.holdcheck import spread_indices
+
     result = store.accepted_result(robot_id)
     samples, _ = store.sample_set(int(result["campaign_id"]))
     q = samples.joints_deg
@@ -139,107 +88,23 @@ def check_poses(store: Store, robot_id: int, n_poses: int) -> CheckPoses:
             "poses_deg": [[float(v) for v in q[i]] for i in rows], "updated_at": None}  # fmt: skip
 
 
-@dataclass
-class Evaluation:
-    """What :func:`evaluate` found: ``status`` ok/drift, the figures, the threshold."""
-
-    status: Literal["ok", "drift"]
-    metrics: dict[str, float]
-    threshold_mm: float
-    detail: dict[str, Any]
-
-
-def change_jacobians(
-    result: dict[str, Any], joints_deg: FloatArray, anchors: tuple[str, ...]
-) -> tuple[FloatArray, FloatArray]:
-    """At the check poses ``joints_deg`` (n, 6) [deg] with their anchor ids: the length's
-    derivatives by the anchor's P0 and offset, ``(−u, 1)`` (n, 4) [mm/mm], and by each
-    joint's zero offset (n, 6) [mm/deg] (central differences of the result's predictions)."""
-    import copy
-
-    import numpy as np
-
-    from calib.kinematics import forward_position
-    from calib.predict import calibrated_dh_internal, predict_lengths_from_result
-
-    q = np.asarray(joints_deg, dtype=float)
-    pos = forward_position(calibrated_dh_internal(result), np.deg2rad(q),
-                           np.asarray(result["tool_mm"], dtype=float),
-                           result.get("convention", "dh"))  # fmt: skip
-    first = str(result.get("anchor_id", "A"))
-    others = result.get("anchors") or {}
-    p0 = np.array([result["anchor_mm"] if a == first else others[a]["anchor_mm"]
-                   for a in anchors], dtype=float)  # fmt: skip
-    diff = pos - p0
-    unit = diff / np.linalg.norm(diff, axis=1)[:, None]
-    anchor_jac = np.hstack([-unit, np.ones((q.shape[0], 1))])
-    step_deg = 1e-3
-    joint_jac = np.zeros((q.shape[0], 6))
-    for j in range(6):
-        lengths = []
-        for sign in (1.0, -1.0):
-            shifted = copy.deepcopy(result)
-            shifted["dh"][j]["theta_deg"] = float(shifted["dh"][j]["theta_deg"]) + sign * step_deg
-            lengths.append(np.concatenate([
-                predict_lengths_from_result(shifted, q[i : i + 1], anchors[i])
-                for i in range(q.shape[0])
-            ]))  # fmt: skip
-        joint_jac[:, j] = (lengths[0] - lengths[1]) / (2 * step_deg)
-    return anchor_jac, joint_jac
-
-
-def explanation_text(explained: dict[str, Any]) -> str:
-    """One phrase naming the explanation of :func:`daemon.stepwatch.explain_change`."""
-    if explained["kind"] == "sensor":
-        shift = ", ".join(f"{v:+.2f}" for v in explained["anchor_shift_mm"])
-        return (f"the sensor moved (P0 shift [{shift}] mm, offset "
-                f"{explained['offset_change_mm']:+.2f} mm)")  # fmt: skip
-    if explained["kind"] == "robot":
-        return (f"the robot changed (joint {explained['joint']} zero offset "
-                f"{explained['joint_offset_deg']:+.4f} deg)")  # fmt: skip
-    return "robot or sensor: the check poses cannot tell"
-
-
-def evaluate(
-    result: dict[str, Any], samples: Any, limit_mm: float, refit_anchor: bool
-) -> Evaluation:
-    """Compare a check campaign's samples (a :class:`calib.dataset.SampleSet`) with a
-    ``result.json`` mapping's predictions (:func:`calib.verify.verify`) and judge them.
-
-    Without ``refit_anchor``, ``detail["explanation"]`` says whether a moved sensor (a P0
-    shift and an offset change) or a robot change (one joint's zero offset) explains the
-    residuals better (:func:`daemon.stepwatch.explain_change`)."""
-    from calib.verify import VerifyOptions, verify
-    from daemon.stepwatch import explain_change
-
-    out = verify(result, samples, VerifyOptions(refit_anchor=refit_anchor, max_rmse_mm=limit_mm))
-    figures = {k: float(v) for k, v in out.metrics.items()}
-    detail: dict[str, Any] = {"reference_rmse_mm": out.reference_rmse_mm, "anchors": out.anchors,
-                              "residual_mm": [float(v) for v in out.residual_mm]}  # fmt: skip
-    if not refit_anchor:
-        anchor_jac, joint_jac = change_jacobians(result, out.joints_deg, out.anchor)
-        noise = out.reference_rmse_mm or 0.05
-        detail["explanation"] = explain_change(out.residual_mm, anchor_jac, joint_jac, noise)
-    return Evaluation(judge(figures["rmse_mm"], limit_mm), figures, limit_mm, detail)
-
-
 # ------------------------------------------------------------------ the monitor
-class DriftMonitor:
-    """Runs drift checks in the daemon: one at a time, manual or scheduled.
+class HoldCheckMonitor:
+    """Runs hold checks (drift checks) in the daemon: one at a time, manual or scheduled.
 
     Parameters
     ----------
     store : Store
-    settings : DriftSettings
-    sampler : object or None
-        The daemon's sampler (``set_auto``, ``auto_campaign_id``); None: captures come
-        from ``POST /campaigns/{id}/captures`` only.
+    settings : HoldCheckSettings
+    auto : daemon.autocapture.AutoCapture or None
+        Auto capture's owner (a check captures its campaign in auto mode); None: captures
+        come from ``POST /campaigns/{id}/captures`` only.
     """
 
-    def __init__(self, store: Store, settings: DriftSettings, sampler: Any = None) -> None:
+    def __init__(self, store: Store, settings: HoldCheckSettings, auto: Any = None) -> None:
         self.store = store
         self.settings = settings
-        self.sampler = sampler
+        self.auto = auto
         self._task: asyncio.Task[None] | None = None
         self._running: CheckRow | None = None
         self._schedule: asyncio.Task[None] | None = None
@@ -258,11 +123,13 @@ class DriftMonitor:
         checks = self.store.list_checks(limit=1000)
         for check in checks:
             if check["status"] in ("ok", "drift") and check["rms_mm"] is not None:
-                metrics.DRIFT_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
-                metrics.DRIFT_THRESHOLD.labels(str(check["robot_id"])).set(check["threshold_mm"])
+                metrics.HOLD_CHECK_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
+                metrics.HOLD_CHECK_THRESHOLD.labels(str(check["robot_id"])).set(
+                    check["threshold_mm"]
+                )
         self._remember_last(checks)
         if self.settings.check_interval_h:
-            self._schedule = asyncio.create_task(self._scheduled(), name="drift-schedule")
+            self._schedule = asyncio.create_task(self._scheduled(), name="hold-check-schedule")
 
     async def stop(self) -> None:
         """Cancel the schedule and a running check (it is marked failed)."""
@@ -287,18 +154,21 @@ class DriftMonitor:
         daemon.store.StoreNotFound
             No such robot, or no accepted calibration.
         ValueError
-            No threshold can be derived (see :func:`threshold_mm`).
+            No threshold can be derived (see :func:`calib.monitor.holdcheck.threshold_mm`).
         """
         if self._running is not None:
             raise CheckConflict(f"check {self._running['id']} is running")
-        busy = getattr(self.sampler, "auto_campaign_id", None)
+        busy = None if self.auto is None else self.auto.campaign_id
         if busy is not None:
             raise CheckConflict(f"auto capture is on for campaign {busy}; switch it off first")
         result_row = self.store.accepted_result(robot_id)
         result = result_row["result"]
+        from calib.monitor.holdcheck import threshold_mm
         from calib.verify import reference_rmse_mm
 
-        limit = threshold_mm(reference_rmse_mm(result), self.settings)
+        cfg = self.settings
+        limit = threshold_mm(reference_rmse_mm(result), cfg.threshold_mm, cfg.threshold_factor,
+                             cfg.min_threshold_mm)  # fmt: skip
         poses = check_poses(self.store, robot_id, self.settings.n_poses)["poses_deg"]
         n = len(self.store.list_checks(robot_id, limit=10_000)) + 1
         campaign = self.store.create_campaign(
@@ -310,18 +180,18 @@ class DriftMonitor:
             robot_id, cid, int(result_row["id"]), trigger=trigger, threshold_mm=limit,
             refit_anchor=self.settings.refit_anchor, poses_deg=poses,
         )  # fmt: skip
-        if self.sampler is not None and not getattr(self.sampler, "manual_robot", False):
-            self.sampler.set_auto(cid, anchor=str(result.get("anchor_id") or "A"))
+        if self.auto is not None:
+            self.auto.start_check(cid, anchor=str(result.get("anchor_id") or "A"))
         self._running = check
-        self._task = asyncio.create_task(self._follow(check, result), name="drift-check")
+        self._task = asyncio.create_task(self._follow(check, result), name="hold-check")
         log.info("drift check started", extra={"campaign_id": cid, "check_id": check["id"]})
         return check
 
     async def _follow(self, check: CheckRow, result: dict[str, Any]) -> None:
-        import numpy as np
+        from calib.monitor.holdcheck import covered, evaluate
 
         cid, deadline = check["campaign_id"], time.monotonic() + self.settings.timeout_s
-        poses = np.asarray(check["poses_deg"], dtype=float)
+        poses = check["poses_deg"]
         try:
             while True:
                 samples, _ = self.store.sample_set(cid)
@@ -346,8 +216,8 @@ class DriftMonitor:
             self._finish(check, "failed", error=f"{type(exc).__name__}: {exc}")
 
     def _release(self, campaign_id: int) -> None:
-        if self.sampler is not None and self.sampler.auto_campaign_id == campaign_id:
-            self.sampler.set_auto(None)
+        if self.auto is not None:
+            self.auto.release(campaign_id)
 
     def _finish(
         self,
@@ -367,12 +237,14 @@ class DriftMonitor:
         if status == "failed":
             message = f"check {row['id']} of robot {robot} failed: {error}"
         else:
-            metrics.DRIFT_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
-            metrics.DRIFT_THRESHOLD.labels(str(robot)).set(float(row["threshold_mm"]))
+            metrics.HOLD_CHECK_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
+            metrics.HOLD_CHECK_THRESHOLD.labels(str(robot)).set(float(row["threshold_mm"]))
             message = (f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
                        f"threshold {row['threshold_mm']:.4f} mm: {status}")  # fmt: skip
             explained = (detail or {}).get("explanation")
             if status == "drift" and explained is not None:
+                from calib.monitor.holdcheck import explanation_text
+
                 message += f"; {explanation_text(explained)}"
         kind = "drift" if status == "drift" else "drift_check"
         self.store.record_event(kind, None, message,
