@@ -185,3 +185,22 @@ def test_the_cli_escapes_control_characters_from_the_store(tmp_path: Path) -> No
     assert "\x1b" not in r.output
     r = runner.invoke(cli_app, ["db", "export", "nope\x1b[2J", "--db", str(db)])
     assert r.exit_code == 2 and "\x1b" not in r.output and "nope\\x1b[2J" in r.output, r.output
+
+
+def test_a_csv_import_refuses_control_characters_in_anchors(client: TestClient) -> None:
+    """ESC stayed in exported anchor cells: an imported anchor is held to the same rule as
+    one sent as JSON; a 400 names the file line and the column, and nothing is stored."""
+    cid = _campaign(client)
+    rows = ["q1,q2,q3,q4,q5,q6,L,anchor"]
+    rows += [f"0,-60,200,-170,40,{60 + i},500,A" for i in range(3)]
+    rows += ["", "0,-60,200,-170,40,70,500,B\x1b[2J"]
+    r = client.post(
+        f"{API}/campaigns/{cid}/samples/import",
+        content="\n".join(rows) + "\n",
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
+    assert r.status_code == 400, r.text
+    detail = r.json()["detail"]
+    assert detail["row"] == 6 and detail["column"] == "anchor", detail
+    assert "control character U+001B" in detail["message"]
+    assert client.get(f"{API}/campaigns/{cid}/samples", headers=AUTH).json() == []

@@ -7,9 +7,12 @@ checked here the way a reader meets them: parsed."""
 
 from __future__ import annotations
 
+import csv
+import io
 import tomllib
 import xml.etree.ElementTree as ET
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -91,3 +94,37 @@ def test_clean_comment_and_name_rule_are_the_helpers() -> None:
     assert clean_comment("a;b\nc\x1b!") == "a_b_c_!"
     assert "\n" not in clean_comment("x\r\ny") and ";" not in clean_comment("x;y")
     assert NameRule("KRL", 24).from_text("1 evil;\nDEF") == "P1_evil__DEF"
+
+
+def test_the_plan_csv_neutralises_formula_anchors_and_reads_them_back(
+    tmp_path: Path,
+) -> None:
+    """An anchor id ``=cmd|' /C calc'!A0`` came back in ``GET /campaigns/{id}/plan?format=csv``
+    as it was; the plan CSV is now written by the samples export's guard
+    (:func:`calib.csvtext.write_csv`): the cell gets one ``'``, numbers stay numbers, and a
+    program download for that anchor still finds it (the reader drops the ``'``)."""
+    from fastapi.testclient import TestClient
+    from test_service import AUTH, TOKEN, FakeSampler, _settings
+
+    from calib.csvtext import restore_cell
+    from daemon.api.main import create_app
+
+    evil = "=cmd|' /C calc'!A0"
+    app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
+    with TestClient(app) as client:
+        cid = client.post("/api/v1/campaigns", json={"name": "p"}, headers=AUTH).json()["id"]
+        body = {"anchors_mm": [[1430.0, 330.0, 230.0]], "anchor_ids": [evil], "n": 8,
+                "candidates": 200, "seed": 2}  # fmt: skip
+        r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
+        assert r.status_code == 201, r.text
+        url = f"/api/v1/campaigns/{cid}/plan"
+        text = client.get(url, params={"format": "csv"}, headers=AUTH).text
+        rows = list(csv.DictReader(io.StringIO(text)))
+        assert len(rows) == 8 and {r["anchor"] for r in rows} == {"'" + evil}
+        for row in rows:  # numbers are never prefixed: a minus sign stays a number
+            assert all(not row[f"q{j}"].startswith("'") for j in range(1, 7))
+            float(row["q2"])
+        assert {restore_cell(r["anchor"]) for r in rows} == {evil}
+        r = client.get(url, params={"format": "krl", "anchor": evil}, headers=AUTH)
+        assert r.status_code == 200, r.text
+        assert len(parse_program("krl", r.text).joints_deg) == len(rows)

@@ -69,16 +69,22 @@ _PRINTABLE = "[^\\x00-\\x1f\\x7f-\\x9f]"
 _PRINTABLE_NOTES = "[^\\x00-\\x08\\x0b-\\x1f\\x7f-\\x9f]"
 
 
+def not_printable(text: str, pattern: re.Pattern[str] = _CONTROL) -> str | None:
+    """Why ``text`` is not printable text (its first control character and position), or
+    None; also the rule of a CSV import's ``anchor`` and ``group`` cells."""
+    found = pattern.search(text)
+    if found is None:
+        return None
+    return f"control character U+{ord(found.group()):04X} at position {found.start()}"
+
+
 def _printable(pattern: re.Pattern[str], allowed: str) -> Any:
     """A validator (run on the value as sent, before stripping) refusing what ``pattern``
     finds, naming the character and its position."""
 
     def check(value: Any) -> Any:
-        if isinstance(value, str) and (found := pattern.search(value)):
-            raise ValueError(
-                f"control character U+{ord(found.group()):04X} at position {found.start()}: "
-                f"{allowed}"
-            )
+        if isinstance(value, str) and (why := not_printable(value, pattern)):
+            raise ValueError(f"{why}: {allowed}")
         return value
 
     return BeforeValidator(check)

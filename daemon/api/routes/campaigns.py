@@ -11,6 +11,7 @@ from starlette.concurrency import run_in_threadpool
 from calib.dataset import (
     JOINT_COLUMNS,
     SampleError,
+    SampleSet,
     make_samples,
     parse_samples_csv,
     validate_joint_limits,
@@ -36,6 +37,7 @@ from daemon.api.schemas import (
     ImportResult,
     SampleOut,
     SamplePatch,
+    not_printable,
 )
 from daemon.autocapture import SamplerRefused, SamplerUnavailable
 from daemon.capture import CaptureRejected
@@ -272,6 +274,7 @@ def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
         ) from exc
     try:
         samples = parse_samples_csv(text)  # header, numbers, NaN, sensor range: row and column
+        _check_printable(samples)
         ids = state.store.import_samples(campaign_id, samples)  # and the joint limits
     except SampleError as exc:
         raise HTTPException(
@@ -280,6 +283,17 @@ def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
     # The ImportResult, encoded in pieces: one json.dumps of 500k ids holds the GIL ~0.2 s.
     pieces = [",".join(map(str, ids[k : k + 20_000])) for k in range(0, len(ids), 20_000)]
     return f'{{"imported":{len(ids)},"sample_ids":[{",".join(pieces)}]}}'.encode()
+
+
+def _check_printable(samples: SampleSet) -> None:
+    """The text columns hold printable text, as a name or an anchor sent as JSON must
+    (:func:`daemon.api.schemas.not_printable`); else a :class:`SampleError` naming the row."""
+    for column, cells in (("anchor", samples.anchor), ("group", samples.group or ())):
+        for text in set(cells):
+            if why := not_printable(text):
+                index = cells.index(text)
+                row = int(samples.line[index]) if samples.line is not None else index + 2
+                raise SampleError(f"{why}: only printable text is allowed", row=row, column=column)
 
 
 @router.patch(
