@@ -7,9 +7,11 @@ The service runs in-process with the scripted FakeSampler of test_service.py; th
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
@@ -204,3 +206,74 @@ def test_a_csv_import_refuses_control_characters_in_anchors(client: TestClient) 
     assert detail["row"] == 6 and detail["column"] == "anchor", detail
     assert "control character U+001B" in detail["message"]
     assert client.get(f"{API}/campaigns/{cid}/samples", headers=AUTH).json() == []
+
+
+# ------------------------------------------------- 3. what is accepted can run
+def _import_anchors(client: TestClient, cid: int, counts: dict[str, int]) -> None:
+    from calib.dataset import samples_to_csv
+    from daemon.datafiles import read_samples
+
+    real = read_samples(None)
+    n = sum(counts.values())
+    anchors = [a for a, k in counts.items() for _ in range(k)]
+    sub = real.subset(np.arange(n))
+    text = samples_to_csv(replace(sub, anchor=tuple(anchors)))
+    r = client.post(
+        f"{API}/campaigns/{cid}/samples/import",
+        content=text,
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
+    assert r.status_code == 201, r.text
+
+
+def test_readiness_and_start_apply_the_same_rule_per_anchor(client: TestClient) -> None:
+    """40 rows at anchor A and 2 at B: readiness said ready and POST answered 202, then the
+    job failed ("anchor 'B' has 2 samples"). Now both refuse before answering, with the same
+    reason naming the anchor; with enough rows at B both accept."""
+    cid = _campaign(client)
+    _import_anchors(client, cid, {"A": 40, "B": 2})
+    ready = client.get(f"{API}/campaigns/{cid}/identification-readiness", headers=AUTH).json()
+    assert ready["ready"] is False and "anchor 'B'" in ready["reason"], ready
+    r = client.post(f"{API}/campaigns/{cid}/identifications", json={}, headers=AUTH)
+    assert r.status_code == 409, r.text
+    assert r.json()["detail"] == ready["reason"]
+    assert client.get(f"{API}/campaigns/{cid}/identifications", headers=AUTH).json() == []
+    cid = _campaign(client)
+    _import_anchors(client, cid, {"A": 40, "B": 14})
+    ready = client.get(f"{API}/campaigns/{cid}/identification-readiness", headers=AUTH).json()
+    assert ready["ready"] is True and ready["reason"] is None, ready
+    r = client.post(f"{API}/campaigns/{cid}/identifications", json={}, headers=AUTH)
+    assert r.status_code == 202, r.text
+
+
+def test_state_conflicts_are_409_with_the_reason(client: TestClient) -> None:
+    """The README promises 409 for a request the schema allows but the state refuses:
+    a capture with ``joints_deg`` on a robot that reports its own angles (422 before), and
+    verify against a campaign without samples (422 before; needs a result: a job row with
+    one is written straight into the store here)."""
+    cid = _campaign(client)
+    sampler = client.app.state.cablecal.sampler  # type: ignore[attr-defined]
+
+    async def own_angles(*args: Any, **kwargs: Any) -> Any:
+        raise ValueError("joints_deg: robot rob (FakeRobot) reports its own joint angles")
+
+    original = sampler.capture
+    sampler.capture = own_angles
+    try:
+        body = {"joints_deg": [0, -60, 200, -170, 40, 60]}
+        r = client.post(f"{API}/campaigns/{cid}/captures", json=body, headers=AUTH)
+    finally:
+        sampler.capture = original
+    assert r.status_code == 409 and "reports its own joint angles" in r.json()["detail"]
+    spec = client.get("/openapi.json").json()["paths"]
+    assert "409" in spec[f"{API}/campaigns/{{campaign_id}}/captures"]["post"]["responses"]
+    store = client.app.state.cablecal.store  # type: ignore[attr-defined]
+    robot_id = int(client.get(f"{API}/campaigns/{cid}", headers=AUTH).json()["robot_id"])
+    job = store.create_job(cid, robot_id, "lm", {})
+    store.save_result(int(job["id"]), {"robot": "x"}, accepted=False)
+    empty = _campaign(client)
+    r = client.post(
+        f"{API}/identifications/{job['id']}/verify", json={"campaign_id": empty}, headers=AUTH
+    )
+    assert r.status_code == 409 and "no included samples" in r.json()["detail"], r.text
+    assert "409" in spec[f"{API}/identifications/{{job_id}}/verify"]["post"]["responses"]

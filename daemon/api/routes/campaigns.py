@@ -124,7 +124,8 @@ def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
         409: {
             "model": Error,
             "description": "Robot moving / not settled, over-range, pose already captured, "
-            "joints_deg outside the joint limits of the campaign's robot model",
+            "joints_deg outside the joint limits of the campaign's robot model, joints_deg "
+            "for a robot driver that reports its own angles",
         },
         503: {
             "model": Error,
@@ -150,8 +151,8 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
             exc.http_status,
             {"reason": exc.reason, "detail": exc.detail, "device": exc.device},
         ) from exc
-    except ValueError as exc:
-        raise unprocessable(("body",), str(exc)) from exc
+    except ValueError as exc:  # joints_deg for a robot that reports its own: the cell's state
+        raise HTTPException(409, str(exc)) from exc
     return sample
 
 
