@@ -20,7 +20,7 @@ from pydantic import (
     ValidationInfo,
     field_validator,
 )
-from typing_extensions import TypedDict
+from typing_extensions import NotRequired, TypedDict  # noqa: UP035 (pydantic on 3.11)
 
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
@@ -296,8 +296,52 @@ TARGET_LISTS = {m: TypeAdapter(target_list(m)) for m in TARGET_MODELS}
 ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
     Annotated[list[dict[str, Any]], Field(min_length=1, max_length=MAX_TARGETS)]
 )
-#: The JSON request body as documented: one of the three target lists.
-TARGETS_SCHEMA = {"anyOf": [TypeAdapter(target_list(m)).json_schema() for m in TARGET_MODELS]}
+
+
+def inline_defs(schema: dict[str, Any]) -> dict[str, Any]:
+    """A JSON schema with its local ``#/$defs/...`` references replaced by their definitions
+    and no ``$defs`` left: a schema embedded in the OpenAPI document by hand (an
+    ``openapi_extra`` request body) must not point at a ``$defs`` the document lacks."""
+    defs = schema.get("$defs", {})
+
+    def resolve(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                return resolve(defs[ref.removeprefix("#/$defs/")])
+            return {k: resolve(v) for k, v in node.items() if k != "$defs"}
+        if isinstance(node, list):
+            return [resolve(v) for v in node]
+        return node
+
+    resolved: dict[str, Any] = resolve(schema)
+    return resolved
+
+
+class ModelFileJoint(TypedDict):
+    """One joint of a model file: DH row [deg, mm] and its limits [deg]."""
+
+    alpha_deg: float
+    a_mm: float
+    d_mm: float
+    theta_deg: float
+    limits_deg: NotRequired[list[float]]
+
+
+class ModelFile(TypedDict):
+    """A robot model file as ``--robot FILE.json`` reads it (:meth:`calib.models.RobotModel
+    .to_dict`): what ``GET /robots/{id}/calibrated-model?format=json`` answers."""
+
+    name: str
+    convention: Literal["dh", "mdh"]
+    tool_mm: list[float]
+    joints: list[ModelFileJoint]
+
+
+#: The JSON request body as documented: one of the three target lists (self-contained).
+TARGETS_SCHEMA = {
+    "anyOf": [inline_defs(TypeAdapter(target_list(m)).json_schema()) for m in TARGET_MODELS]
+}
 
 
 # ------------------------------------------------------------------ verification

@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException, Query, Response
 from daemon.api.deps import ReadAuth, RobotId, State
 from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses
-from daemon.api.schemas import CalibratedModelOut, RobotOut
+from daemon.api.schemas import CalibratedModelOut, ModelFile, RobotOut
 
 router = APIRouter(
     prefix="/robots",
@@ -34,8 +34,19 @@ def get_robot(state: State, robot_id: RobotId) -> RobotOut:
 @router.get(
     "/{robot_id}/calibrated-model",
     summary="The latest accepted calibrated DH table, or a model file",
-    response_model=CalibratedModelOut,
-    responses=error_responses(409),
+    response_model=CalibratedModelOut | ModelFile,
+    responses={
+        200: {
+            "description": "Without ``format``: the calibrated DH table (CalibratedModel). "
+            "With ``format=json``: the model file (ModelFile); ``toml``: the TOML model file; "
+            "``urdf``: the URDF (XML).",
+            "content": {
+                EXPORT_MEDIA_TYPES["toml"]: {"schema": {"type": "string"}},
+                EXPORT_MEDIA_TYPES["urdf"]: {"schema": {"type": "string"}},
+            },
+        },
+        **error_responses(409),
+    },
 )
 def calibrated_model(
     state: State,
