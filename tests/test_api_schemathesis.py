@@ -92,6 +92,8 @@ _BOUNDED = settings(
 #: Requests sent and failed, per (token?, operation): printed at the end of the module (``-s``).
 SENT: Counter[tuple[bool, str]] = Counter()
 FAILED: Counter[tuple[bool, str]] = Counter()
+#: Requests the schema forbids (negative mode), per token?.
+NEGATIVE: Counter[bool] = Counter()
 
 
 def teardown_module() -> None:
@@ -104,7 +106,8 @@ def teardown_module() -> None:
         n = sum(c for (t, _), c in SENT.items() if t == token)
         bad = {op for t, op in FAILED if t == token}
         print(f"\nschemathesis {'with' if token else 'without'} token: {len(ops)} operations, "
-              f"{n} requests, {len(bad)} failing operations")  # fmt: skip
+              f"{n} requests ({NEGATIVE[token]} the schema forbids), "
+              f"{len(bad)} failing operations")  # fmt: skip
 
 
 #: Operations whose body has rules between its fields that JSON Schema cannot state (open,
@@ -131,6 +134,8 @@ def _file_format_body(case: Any) -> bool:
 
 def _run(case: Any, token: bool) -> Any:
     SENT[token, case.operation.label] += 1
+    if case.meta is not None and case.meta.generation.mode.is_negative:
+        NEGATIVE[token] += 1
     checks = [c for c in CHECKS if c is not positive_data_acceptance or not _file_format_body(case)]
     try:
         return case.call_and_validate(
