@@ -242,14 +242,15 @@ def validate(
     """Check options against a sample set and the robot, before any computation.
 
     Checks the choices and bounds of every field, the ``fix``/``free`` names against the
-    parameter layout of the samples' anchors, and that the training rows (``train_rows``, or
-    the split identify makes of them: :func:`calib.split.split_rows` at the options' test
-    fraction, seed and hold-out) are more than the parameters identify will solve
-    (:func:`calib.identifiability.max_solved`: the base set of this robot and these anchors
-    at well-spread poses, less ``fix``, plus ``free``), at least
-    :data:`MIN_TRAINING_SAMPLES`, and at least :data:`calib.cable.MIN_ANCHOR_SAMPLES` for
-    each anchor (:func:`check_anchor_rows`). Costs one Jacobian at 200 poses (milliseconds) the
-    first time for a model, anchors and options (the answer is kept).
+    parameter layout of the samples' anchors, and that the training rows (``train_rows``, the
+    split identify makes: :func:`calib.split.split_rows` at the options' test fraction, seed
+    and hold-out; or only their count, what ``test_fraction`` leaves) are more than the
+    parameters identify will solve (:func:`calib.identifiability.max_solved`: the base set of
+    this robot and these anchors at well-spread poses, less ``fix``, plus ``free``), at least
+    :data:`MIN_TRAINING_SAMPLES`, and, given ``train_rows``, at least
+    :data:`calib.cable.MIN_ANCHOR_SAMPLES` for each anchor (:func:`check_anchor_rows`). Costs
+    one Jacobian at 200 poses (milliseconds) the first time for a model, anchors and options
+    (the answer is kept).
 
     Raises
     ------
@@ -269,14 +270,10 @@ def validate(
         if bad:
             raise OptionError(key, f"unknown parameter name(s) {bad}; known: {known}")
     n = len(samples)
-    if train_rows is None:
-        from calib.split import split_rows
-
-        train_rows = split_rows(
-            samples, options.test_fraction, options.seed, options.holdout, options.n_groups
-        )[0]
-    check_training_rows(len(train_rows), n, parameters_to_solve(model, anchors, options))
-    check_anchor_rows(samples, train_rows)
+    n_train = len(train_rows) if train_rows is not None else n - held_out(n, options.test_fraction)
+    check_training_rows(n_train, n, parameters_to_solve(model, anchors, options))
+    if train_rows is not None:
+        check_anchor_rows(samples, train_rows)
 
 
 def check_anchor_rows(samples: SampleSet, train_rows: Collection[Any]) -> None:

@@ -253,6 +253,7 @@ class JobManager:
             No such campaign.
         """
         from calib.options import OptionError, options_from_mapping, validate
+        from calib.split import split_rows
 
         campaign = self.store.get_campaign(campaign_id)
         if campaign is None:
@@ -264,7 +265,13 @@ class JobManager:
         robot_id = int(campaign["robot_id"])
         model = self.store.robot_model(robot_id)
         try:
-            validate(samples, options_from_mapping(opts), model=model)
+            parsed = options_from_mapping(opts)
+            # The rows identify will train on (its own split), so each anchor's count is the
+            # one the job would see.
+            train_rows = split_rows(
+                samples, parsed.test_fraction, parsed.seed, parsed.holdout, parsed.n_groups
+            )[0]
+            validate(samples, parsed, train_rows, model=model)
         except OptionError as exc:
             raise JobError(str(exc)) from exc
         except (TypeError, ValueError) as exc:

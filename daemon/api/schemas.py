@@ -20,7 +20,7 @@ from pydantic import (
     ValidationInfo,
     field_validator,
 )
-from typing_extensions import NotRequired, TypedDict  # noqa: UP035 (pydantic on 3.11)
+from typing_extensions import TypedDict
 
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
@@ -316,26 +316,6 @@ def inline_defs(schema: dict[str, Any]) -> dict[str, Any]:
 
     resolved: dict[str, Any] = resolve(schema)
     return resolved
-
-
-class ModelFileJoint(TypedDict):
-    """One joint of a model file: DH row [deg, mm] and its limits [deg]."""
-
-    alpha_deg: float
-    a_mm: float
-    d_mm: float
-    theta_deg: float
-    limits_deg: NotRequired[list[float]]
-
-
-class ModelFile(TypedDict):
-    """A robot model file as ``--robot FILE.json`` reads it (:meth:`calib.models.RobotModel
-    .to_dict`): what ``GET /robots/{id}/calibrated-model?format=json`` answers."""
-
-    name: str
-    convention: Literal["dh", "mdh"]
-    tool_mm: list[float]
-    joints: list[ModelFileJoint]
 
 
 #: The JSON request body as documented: one of the three target lists (self-contained).

@@ -5,11 +5,12 @@ from __future__ import annotations
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Response
+from typing_extensions import NotRequired, TypedDict  # noqa: UP035 (pydantic on 3.11)
 
 from daemon.api.deps import ReadAuth, RobotId, State
 from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses
-from daemon.api.schemas import CalibratedModelOut, ModelFile, RobotOut
+from daemon.api.schemas import CalibratedModelOut, RobotOut
 
 router = APIRouter(
     prefix="/robots",
@@ -17,6 +18,27 @@ router = APIRouter(
     dependencies=[ReadAuth],
     responses=error_responses(401, 404, 413, 422),
 )
+
+
+class ModelFileJoint(TypedDict):
+    """One joint of a model file: DH row [deg, mm] and its limits [deg]."""
+
+    alpha_deg: float
+    a_mm: float
+    d_mm: float
+    theta_deg: float
+    limits_deg: NotRequired[list[float]]
+
+
+class ModelFile(TypedDict):
+    """A robot model file as ``--robot FILE.json`` reads it (:meth:`calib.models.RobotModel
+    .to_dict`): what ``GET /robots/{id}/calibrated-model?format=json`` answers."""
+
+    name: str
+    convention: Literal["dh", "mdh"]
+    tool_mm: list[float]
+    joints: list[ModelFileJoint]
+
 
 #: Media type of each model-file format of ``GET /robots/{id}/calibrated-model?format=``.
 EXPORT_MEDIA_TYPES = {
