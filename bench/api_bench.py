@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from daemon.cli.emulated import Cell
 
 OUT = Path(__file__).resolve().parent
@@ -185,7 +186,7 @@ def run(
         with Cell(Path(tmp), SIM.format(baud=baud), daemon_env=env) as cell:
             assert cell.daemon is not None
             api = cell.daemon.client()
-            cid = api.post("/campaigns", json={"name": "bench", "robot_model": "hsr-jr680"})
+            cid = api.post("/campaigns", json={"name": "bench", "robot_model": DEFAULT_ROBOT_MODEL})
             campaign_id = cid.json()["id"]
             api.put(f"/campaigns/{campaign_id}/auto-capture", json={"enabled": True})
             time.sleep(3.0)

@@ -10,7 +10,9 @@ alike (each round runs each command once, in turn):
 * ``identify_100_cold``: the same command on a copy of the sources with no cached bytecode
   (and none written): what a start costs where the modules were never byte-compiled;
 * ``elapsed_100`` / ``elapsed_2017``: identify's own ``elapsed_s`` from ``result.json`` of the
-  100-row run and of a run on all 2017 rows.
+  100-row run and of a run on all 2017 rows;
+* ``bare`` and ``help``: ``python -c pass`` (a bare Python start) and ``cablecal --help`` (the
+  installed console script): what the command line costs before any command runs.
 
 On a shared machine wall time follows the load, so CPU time is measured as well: of each
 child process (``getrusage`` of the children, user + system) and, for identify's own part,
@@ -18,8 +20,9 @@ child process (``getrusage`` of the children, user + system) and, for identify's
 thread (the CLI's setting), on the same rows.
 
 Targets (issue 20): ``identify_100 / floor`` at most 1.5; ``elapsed_100`` at most 0.05 s;
-``elapsed_2017`` at most 0.1 s. Medians over ``--runs`` rounds, with the minimum (the figure
-least disturbed by other processes) next to it. The top-level imports of one
+``elapsed_2017`` at most 0.1 s; (issue 26) ``help`` at most 0.3 s over ``bare``. Medians over
+``--runs`` rounds, with the minimum (the figure least disturbed by other processes) next to
+it, and the load average at the start and the end of the run. The top-level imports of one
 ``python -X importtime`` run of the 100-row command list what the command still loads beyond
 the floor.
 
@@ -43,9 +46,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
+
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent / "calib" / "data" / "hsr-robotcali.csv"
 TARGETS = {"ratio_100": 1.5, "elapsed_100_s": 0.05, "elapsed_2017_s": 0.1}
+#: ``cablecal --help`` over a bare Python start, at most [s] (issue 26).
+HELP_OVER_BARE_S = 0.3
 #: Import-time entries listed in the report: cumulative at least this long [us].
 IMPORT_LIST_US = 20_000
 #: The project's packages (what ``make bytecode`` compiles; the cold figure runs them uncompiled).
@@ -89,7 +96,7 @@ def _identify_cpu(rows: int) -> float:
     samples = read_samples(None)
     part = samples.subset(np.arange(min(rows, len(samples.length_mm))))
     t0 = time.process_time()
-    identify(builtin_model("hsr-jr680"), part)
+    identify(builtin_model(DEFAULT_ROBOT_MODEL), part)
     return time.process_time() - t0
 
 
@@ -119,11 +126,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = ap.parse_args(argv)
     rows = DATA.read_text(encoding="utf-8").splitlines()
     floor_cmd = [sys.executable, "-c", "import numpy, scipy.linalg"]
+    bare_cmd = [sys.executable, "-c", "pass"]
+    help_cmd = [str(Path(sys.executable).parent / "cablecal"), "--help"]
+    load_start = os.getloadavg()
     from daemon.blas import single_threaded_blas
 
     single_threaded_blas()
-    walls: dict[str, list[float]] = {"floor": [], "identify_100": [], "identify_100_cold": []}
-    cpus: dict[str, list[float]] = {"floor": [], "identify_100": []}
+    walls: dict[str, list[float]] = {"floor": [], "identify_100": [], "identify_100_cold": [],
+                                     "bare": [], "help": []}  # fmt: skip
+    cpus: dict[str, list[float]] = {"floor": [], "identify_100": [], "bare": [], "help": []}
     elapsed: dict[str, list[float]] = {"elapsed_100_s": [], "elapsed_2017_s": [],
                                        "cpu_100_s": [], "cpu_2017_s": []}  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp_name:
@@ -138,7 +149,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cold_env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
         for _ in range(args.runs):
             walls["identify_100_cold"].append(_wall(_cli(small, out_small), src, cold_env)[0])
-            for key, cmd in (("floor", floor_cmd), ("identify_100", _cli(small, out_small))):
+            for key, cmd in (("floor", floor_cmd), ("identify_100", _cli(small, out_small)),
+                             ("bare", bare_cmd), ("help", help_cmd)):  # fmt: skip
                 wall, cpu = _wall(cmd)
                 walls[key].append(wall)
                 cpus[key].append(cpu)
@@ -170,7 +182,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     report: dict[str, Any] = {
         "runs": args.runs,
-        "machine": f"{platform.machine()}, {os.cpu_count()} cpus, load {os.getloadavg()[0]:.1f}",
+        "machine": f"{platform.machine()}, {os.cpu_count()} cpus",
+        "load_average": {"start": list(load_start), "end": list(os.getloadavg())},
         "python": platform.python_version(),
         "median_s": med,
         "min_s": low,
@@ -183,6 +196,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "met_cold": figures["ratio_100_cold"] <= TARGETS["ratio_100"],
         "met_cpu": {k: cpu_figures[k] <= TARGETS[k] for k in TARGETS},
         "top_imports_ms": imports,
+        "help_over_bare_s": {
+            "wall": med["help"] - med["bare"],
+            "wall_at_min": low["help"] - low["bare"],
+            "cpu": cpu_med["help"] - cpu_med["bare"],
+            "target": HELP_OVER_BARE_S,
+            "met": med["help"] - med["bare"] <= HELP_OVER_BARE_S,
+        },
     }
     (HERE / "cli_speed.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     (HERE / "cli_speed.md").write_text(_markdown(report), encoding="utf-8")
@@ -190,14 +210,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     return report
 
 
+def _load(values: list[float]) -> str:
+    return ", ".join(f"{v:.1f}" for v in values)
+
+
 def _markdown(r: dict[str, Any]) -> str:
     med, low, fig, best = r["median_s"], r["min_s"], r["figures"], r["figures_at_min"]
-    cpu, cfig = r["cpu_median_s"], r["figures_cpu"]
+    cpu, cfig, h = r["cpu_median_s"], r["figures_cpu"], r["help_over_bare_s"]
     lines = [
         "# CLI speed: `cablecal identify` against the import floor",
         "",
         f"Written by `python -m bench.cli_speed` ({r['runs']} interleaved rounds; "
-        f"{r['machine']}, Python {r['python']}). Data: the bundled real data (D1).",
+        f"{r['machine']}, Python {r['python']}; load average (1, 5, 15 min) at the start "
+        f"{_load(r['load_average']['start'])}, at the end {_load(r['load_average']['end'])}). "
+        "Data: the bundled real data (D1).",
         "",
         "| figure | median | min | target | met (median) |",
         "|---|---|---|---|---|",
@@ -217,6 +243,16 @@ def _markdown(r: dict[str, Any]) -> str:
         f"| identify's own elapsed, 2017 rows [s] | {fig['elapsed_2017_s']:.3f} | "
         f"{best['elapsed_2017_s']:.3f} | <= {TARGETS['elapsed_2017_s']} | "
         f"{'yes' if r['met']['elapsed_2017_s'] else 'no'} |",
+        "",
+        "`cablecal --help` against a bare Python start (`python -c pass`), in the same rounds:",
+        "",
+        "| figure | median | min | target | met (median) |",
+        "|---|---|---|---|---|",
+        f"| bare start `python -c pass`, wall [s] | {med['bare']:.3f} | {low['bare']:.3f} | | |",
+        f"| `cablecal --help`, wall [s] | {med['help']:.3f} | {low['help']:.3f} | | |",
+        f"| `--help` over the bare start, wall [s] | {h['wall']:.3f} | {h['wall_at_min']:.3f} | "
+        f"<= {h['target']} | {'yes' if h['met'] else 'no'} |",
+        f"| `--help` over the bare start, CPU [s] | {h['cpu']:.3f} | | | |",
         "",
         "The command runs as `make` leaves it: the project's modules byte-compiled "
         "(`make bytecode`, as pip does for an installed wheel). The no-cached-bytecode row runs "

@@ -39,6 +39,7 @@ from calib.compensate import (
     compensate,
 )
 from calib.dataset import make_samples
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.export import model_from_result
 from calib.identify import IdentifyOptions, identify
 from calib.ik import tool_pose
@@ -55,7 +56,7 @@ TARGET_S = 1.0
 
 
 def _setup() -> tuple[RobotModel, TrueCell, RobotModel]:
-    nominal = builtin_model("hsr-jr680")
+    nominal = builtin_model(DEFAULT_ROBOT_MODEL)
     errors = TABLE_XII_D1.copy()
     errors[5] = 0.0
     cell = make_true_cell(nominal, dh_errors_deg_mm=errors)

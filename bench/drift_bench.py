@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from calib.dataset import SampleSet, make_samples, parse_samples_csv
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import IdentifyOptions, identify
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel, builtin_model, parse_model_text
@@ -117,7 +118,7 @@ def hsr_protocols() -> list[dict[str, Any]]:
     the paper protocol (100 + 20 random rows, seeds 0-9), the grouped hold-out (seeds 0-9)
     and all rows with the default 20 % random hold-out."""
     samples = parse_samples_csv((ROOT / "calib" / "data" / "hsr-robotcali.csv").read_text())
-    model = builtin_model("hsr-jr680")
+    model = builtin_model(DEFAULT_ROBOT_MODEL)
     out = []
     for proto in ("paper", "grouped", "all rows"):
         for drift in ("none", "auto"):

@@ -10,11 +10,13 @@ identify with its default options and the random 80/20 split:
 - how many cells had any sample flagged, and how many samples in all (every one is a good
   sample: the cells are clean);
 - the median over cells of the noise the prior was weighed with (``prior.noise_mm``), and of
-  its ratio to the truth.
+  its ratio to the truth, the ratio's quartiles, and the chance that the median of 8 cells
+  (the outside check ``calib-min-n``) falls outside 0.8–1.25 × the truth (issue 27);
+- the same at 31 and 45 rows on the EMULATED cells (:func:`emulated_case`).
 
 Unless ``--no-outliers``, it also measures 5 % gross outliers (5–20 mm) in the training rows
-at 45, 60 and 100 rows: the aligned TCP error of the default fit against the plain fit on the
-clean lengths (the test of ``tests/test_min_n.py``).
+at 45, 60 and 100 rows (:data:`OUTLIER_CELLS` cells): the aligned TCP error of the default
+fit against the plain fit on the clean lengths (the test of ``tests/test_min_n.py``).
 
 Writes ``bench/min_n.json`` and ``bench/min_n.md`` (``--label`` names the column set, so a
 run before and after a change can be kept side by side: the table keeps every label's rows).
@@ -35,6 +37,7 @@ import numpy as np
 
 from calib.cable import N_DH, N_KIN
 from calib.dataset import make_samples
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import IdentifyOptions, identify
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel, builtin_model
@@ -42,9 +45,18 @@ from calib.synthetic import TrueCell, make_true_cell, noisy_lengths, random_pose
 from calib.tcp import aligned_position_error_mm, workspace_sample_deg
 
 OUT = Path(__file__).parent
-MODEL = builtin_model("hsr-jr680")
-#: Cells per row count.
-N_CELLS = 8
+MODEL = builtin_model(DEFAULT_ROBOT_MODEL)
+#: Cells (pose sets) per row count of the clean tables: at the minimum count one cell's
+#: noise estimate spreads widely (its quartiles are in the table), so a median over a few
+#: cells measures the draw more than the estimator.
+N_CELLS = 96
+#: Cells per row count of the outlier comparison (two fits each, at up to 100 rows).
+OUTLIER_CELLS = 24
+#: The outside check's sample: the median of this many cells must lie in NOISE_BAND × truth.
+CHECK_CELLS = 8
+NOISE_BAND = (0.8, 1.25)
+#: Row counts of the EMULATED cells' table (the simulator's cells, as the outside check).
+EMULATED_ROWS = (31, 45)
 #: The cells' length noise, 1σ [mm] (the emulated cell's default).
 NOISE_MM = 0.02
 #: The indicator's display step [mm] (two decimals, the emulated cell's default).
@@ -110,13 +122,32 @@ def tcp_error_mm(cell: TrueCell, theta: FloatArray, model: RobotModel = MODEL) -
     return float(np.sqrt(np.mean(err**2)))
 
 
-def clean_row(n_rows: int, cells: int = N_CELLS) -> dict[str, Any]:
-    """Flags and noise estimates of the default identify over ``cells`` clean cells."""
+def emulated_case(seed: int, n_rows: int) -> tuple[RobotModel, FloatArray, FloatArray]:
+    """The model, ``n_rows`` poses (n, 6) [deg] and clean-noise lengths (n,) [mm] (rounded to
+    the step) of EMULATED cell ``seed`` (:class:`simulator.cell.EmulatedCell`: the HSR JR680
+    with the paper's Table XII errors, anchor (1400, 300, 200) mm, its seeded pose list)."""
+    from simulator.cell import EmulatedCell
+    from simulator.config import RobotSection, SimConfig
+
+    cell = EmulatedCell(SimConfig(seed=seed, robot=RobotSection(n_poses=n_rows)))
+    q = cell.poses_deg[:n_rows]
+    rng = np.random.default_rng([27, seed, n_rows])
+    noisy = cell.truth.lengths_mm(q) + rng.normal(0.0, NOISE_MM, n_rows)
+    return cell.truth.model, q, np.round(noisy / STEP_MM) * STEP_MM
+
+
+def clean_row(n_rows: int, cells: int = N_CELLS, emulated: bool = False) -> dict[str, Any]:
+    """Flags and noise estimates of the default identify over ``cells`` clean cells (the
+    seeded VIRTUAL cells, or with ``emulated`` the EMULATED cells)."""
     flagged, noise, notes = [], [], []
     t0 = time.perf_counter()
     for seed in range(cells):
-        c = case(seed, n_rows)
-        res = identify(MODEL, make_samples(c.q_deg, c.length_mm), IdentifyOptions())
+        if emulated:
+            model, q, lengths = emulated_case(seed, n_rows)
+            res = identify(model, make_samples(q, lengths), IdentifyOptions())
+        else:
+            c = case(seed, n_rows)
+            res = identify(MODEL, make_samples(c.q_deg, c.length_mm), IdentifyOptions())
         flagged.append(len(res.flagged_rows))
         noise.append(float(res.to_json()["prior"]["noise_mm"]))
         notes.append(next((n for n in res.notes if n.startswith("robust")), ""))
@@ -127,13 +158,14 @@ def clean_row(n_rows: int, cells: int = N_CELLS) -> dict[str, Any]:
         "samples_flagged": int(np.sum(flagged)),
         "noise_median_mm": float(np.median(noise)),
         "noise_ratio": float(np.median(noise) / NOISE_MM),
+        "noise_ratio_quartiles": [float(v) for v in np.percentile(noise, [25, 75]) / NOISE_MM],
         "noise_mm": noise,
         "robust_notes": notes,
         "time_s": time.perf_counter() - t0,
     }
 
 
-def outlier_row(n_rows: int, cells: int = N_CELLS) -> dict[str, Any]:
+def outlier_row(n_rows: int, cells: int = OUTLIER_CELLS) -> dict[str, Any]:
     """Aligned TCP error of the default fit on 5 % outliers vs the plain fit on clean data."""
     plain, dirty, exact = [], [], 0
     for seed in range(cells):
@@ -155,24 +187,63 @@ def outlier_row(n_rows: int, cells: int = N_CELLS) -> dict[str, Any]:
     }
 
 
-def _markdown(runs: dict[str, Any]) -> str:
+def _quartiles(r: dict[str, Any]) -> str:
+    q = np.percentile(r["noise_mm"], [25, 75]) / NOISE_MM
+    return f"{q[0]:.2f}–{q[1]:.2f}"
+
+
+def outside_band(noise_mm: list[float], draws: int = 20000) -> float:
+    """The chance that the median of :data:`CHECK_CELLS` cells drawn from these (with
+    replacement, seeded) lies outside :data:`NOISE_BAND` × the truth."""
+    ratio = np.asarray(noise_mm) / NOISE_MM
+    picks = np.random.default_rng(27).integers(0, ratio.size, (draws, CHECK_CELLS))
+    med = np.median(ratio[picks], axis=1)
+    return float(np.mean((med < NOISE_BAND[0]) | (med > NOISE_BAND[1])))
+
+
+def _outside(r: dict[str, Any]) -> str:
+    return f"{outside_band(r['noise_mm']):.2f}" if r["cells"] >= 20 else "–"
+
+
+def _clean_table(runs: dict[str, Any], key: str) -> list[str]:
     lines = [
-        "# Identification near the minimum sample count (issue 22)",
-        "",
-        f"{N_CELLS} seeded VIRTUAL cells per row count (random DH, tool and anchor errors; "
-        f"random poses; noise {NOISE_MM} mm, lengths rounded to {STEP_MM} mm; no outliers), "
-        "default `identify` (random 80/20 split). Every flagged sample is a good sample. "
-        "Generated by `python -m bench.min_n`.",
-        "",
         "| run | rows | cells with good samples flagged | samples flagged | noise median [mm] "
-        "| × truth |",
-        "|---|---:|---:|---:|---:|---:|",
+        f"| × truth | × truth, 25–75 % | median of {CHECK_CELLS} outside "
+        f"{NOISE_BAND[0]}–{NOISE_BAND[1]} |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for label, run in runs.items():
-        for r in run["clean"]:
+        for r in run.get(key, []):
             lines.append(f"| {label} | {r['rows']} | {r['cells_flagged']} of {r['cells']} | "
                          f"{r['samples_flagged']} | {r['noise_median_mm']:.4f} | "
-                         f"{r['noise_ratio']:.2f} |")  # fmt: skip
+                         f"{r['noise_ratio']:.2f} | {_quartiles(r)} | {_outside(r)} |")  # fmt: skip
+    return lines
+
+
+def _markdown(runs: dict[str, Any]) -> str:
+    lines = [
+        "# Identification near the minimum sample count (issues 22 and 27)",
+        "",
+        "Seeded VIRTUAL cells per row count (random DH, tool and anchor errors; "
+        f"random poses; noise {NOISE_MM} mm, lengths rounded to {STEP_MM} mm; no outliers; "
+        f"{N_CELLS} by default, each row says how many), default `identify` (random 80/20 "
+        "split). Every flagged sample is a good sample. The noise is the one the prior was "
+        "weighed with; × truth is the median over cells, its quartiles show the spread of "
+        f"one cell's estimate, and the last column is the chance that {CHECK_CELLS} cells' "
+        f"median falls outside {NOISE_BAND[0]}–{NOISE_BAND[1]} × the truth (the outside check "
+        "`calib-min-n`; resampled from the row's cells). Generated by `python -m bench.min_n`.",
+        "",
+        *_clean_table(runs, "clean"),
+    ]
+    if any(run.get("emulated") for run in runs.values()):
+        lines += [
+            "",
+            "EMULATED cells (`simulator.cell.EmulatedCell`, seeds 0…: the HSR JR680 with the "
+            "paper's Table XII errors, anchor (1400, 300, 200) mm, the cell's seeded pose "
+            "list), the same noise and step:",
+            "",
+            *_clean_table(runs, "emulated"),
+        ]
     if any(run.get("outliers") for run in runs.values()):
         lines += [
             "",
@@ -198,6 +269,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--label", default="current")
     parser.add_argument("--cells", type=int, default=N_CELLS)
+    parser.add_argument("--outlier-cells", type=int, default=OUTLIER_CELLS)
     parser.add_argument("--no-outliers", action="store_true")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
@@ -206,9 +278,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     run: dict[str, Any] = {
         "machine": f"{platform.machine()}, Python {platform.python_version()}",
         "clean": [clean_row(n, args.cells) for n in ROWS],
+        "emulated": [clean_row(n, args.cells, emulated=True) for n in EMULATED_ROWS],
     }
     if not args.no_outliers:
-        run["outliers"] = [outlier_row(n, args.cells) for n in OUTLIER_ROWS]
+        run["outliers"] = [outlier_row(n, args.outlier_cells) for n in OUTLIER_ROWS]
     runs[args.label] = run
     path.write_text(json.dumps(runs, indent=2) + "\n")
     (args.out / "min_n.md").write_text(_markdown(runs))

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from calib.cable import ParamLayout, length_jacobian
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import builtin_model
 from calib.planning import PlanOptions, plan
 from calib.planning.emulated import emulated_trial, ratio_of_means
@@ -39,7 +40,7 @@ TARGET_S = 5.0
 
 def _baseline_s(n: int) -> float:
     """Time of one cable-length Jacobian over ``n`` random poses (the same-run yardstick)."""
-    model = builtin_model("hsr-jr680")
+    model = builtin_model(DEFAULT_ROBOT_MODEL)
     q = np.deg2rad(np.random.default_rng(0).uniform(-90, 90, size=(n, 6)))
     theta = np.zeros(ParamLayout(("A",)).size)
     theta[27:30] = ANCHOR_MM
@@ -49,7 +50,7 @@ def _baseline_s(n: int) -> float:
 
 
 def run(runs: int, n: int, candidates: int) -> dict[str, Any]:
-    model = builtin_model("hsr-jr680")
+    model = builtin_model(DEFAULT_ROBOT_MODEL)
     times, exchanges, tcp = [], [], []
     for seed in range(runs):
         t0 = time.perf_counter()
@@ -77,7 +78,7 @@ def run(runs: int, n: int, candidates: int) -> dict[str, Any]:
 
 def accuracy(seeds: int, n: int) -> dict[str, Any]:
     """Planned vs random on ``seeds`` emulated cells, per criterion (see the docstring)."""
-    model = builtin_model("hsr-jr680")
+    model = builtin_model(DEFAULT_ROBOT_MODEL)
     out: dict[str, Any] = {"seeds": seeds, "n_poses": n, "random_designs": 3}
     for criterion in ("tcp", "d"):
         trials = [emulated_trial(model, seed, PlanOptions(n=n, seed=seed, criterion=criterion))

@@ -35,6 +35,7 @@ import numpy as np
 
 from calib.cable import N_DH
 from calib.dataset import SampleSet
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import IdentifyOptions, IdentifyResult, identify
 from calib.models import RobotModel
 from calib.options import METHODS, default, options_from_mapping
@@ -43,7 +44,7 @@ from calib.split import split_rows
 from daemon.datafiles import load_robot, read_samples
 
 OUT = Path(__file__).parent
-ROBOT = "hsr-jr680"
+ROBOT = DEFAULT_ROBOT_MODEL
 SEEDS = tuple(range(10))
 N_TRAIN, N_TEST = PAPER_N_TRAIN, PAPER_N_TEST
 GROUPED_TEST_FRACTION = 0.2

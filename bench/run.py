@@ -40,6 +40,7 @@ from scipy.optimize import least_squares
 
 from calib.cable import predict_lengths
 from calib.dataset import SampleSet, make_samples
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import METHODS, IdentifyOptions, IdentifyResult, identify
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, builtin_model
@@ -63,7 +64,7 @@ WITHDRAWN = "none (withdrawn)"
 
 def _case(n: int, seed: int = 0) -> tuple[RobotModel, FloatArray, FloatArray, SampleSet]:
     """Nominal model, poses (n + N_TEST, 6) [deg], true lengths, noisy samples."""
-    model = builtin_model("hsr-jr680")
+    model = builtin_model(DEFAULT_ROBOT_MODEL)
     cell = make_true_cell(model)
     rng = np.random.default_rng(seed)
     q = random_poses_deg(cell, n + N_TEST, rng)

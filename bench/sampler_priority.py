@@ -32,6 +32,7 @@ from typing import Any
 import httpx
 from prometheus_client.parser import text_string_to_metric_families
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from daemon.cli.emulated import Cell, wait_for
 from daemon.datafiles import bundled_dataset_text
 
@@ -157,7 +158,7 @@ def run_config(env: dict[str, str], phase_s: float) -> dict[str, Any]:
             assert cell.daemon is not None
             url = cell.daemon.url
             api = cell.daemon.client()
-            r = api.post("/campaigns", json={"name": "bench", "robot_model": "hsr-jr680"})
+            r = api.post("/campaigns", json={"name": "bench", "robot_model": DEFAULT_ROBOT_MODEL})
             r.raise_for_status()
             cid = int(r.json()["id"])
             r = api.post(

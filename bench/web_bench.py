@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.api_bench import SIM, _load, errors_text
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from daemon.cli.emulated import FAST_DAEMON_ENV, Cell
 
 OUT = Path(__file__).resolve().parent
@@ -92,7 +93,7 @@ def run(run_s: float = RUN_S) -> dict[str, Any]:
         with Cell(Path(tmp), SIM.format(baud=115200), daemon_env=env) as cell:
             assert cell.daemon is not None
             api = cell.daemon.client()
-            cid = api.post("/campaigns", json={"name": "bench", "robot_model": "hsr-jr680"})
+            cid = api.post("/campaigns", json={"name": "bench", "robot_model": DEFAULT_ROBOT_MODEL})
             api.put(f"/campaigns/{cid.json()['id']}/auto-capture", json={"enabled": True})
             time.sleep(3.0)
             baseline = _load(cell.daemon.url + "/api/v1/status", cell.token, LOAD_RATE_HZ, LOAD_S)

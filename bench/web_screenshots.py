@@ -12,6 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,7 +33,9 @@ def main() -> None:
     ):
         assert cell.daemon is not None
         api = cell.daemon.client(timeout_s=300)
-        c = api.post("/campaigns", json={"name": "cell 4 – JR680 #2", "robot_model": "hsr-jr680"})
+        c = api.post(
+            "/campaigns", json={"name": "cell 4 – JR680 #2", "robot_model": DEFAULT_ROBOT_MODEL}
+        )
         cid = c.json()["id"]
         api.post(f"/campaigns/{cid}/plan", json={"n": 40, "anchors_mm": [list(ANCHOR_MM)]})
         api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": True})

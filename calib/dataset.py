@@ -25,8 +25,18 @@ from calib.csvtext import neutralise_cell, restore_cell
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 
+#: The indicator's reading range [mm]: the HY9648 shows the HY150-2000 drawstring sensor's
+#: length from 0 to 2000 mm and flags anything outside as over or under range (its status
+#: register, docs/hardware-protocols; the sampler refuses such a capture). A sample outside it
+#: is not a measurement; a plan keeps its predicted readings inside it.
 CABLE_MIN_MM = 0.0
 CABLE_MAX_MM = 2000.0
+#: How far inside the reading range a plan keeps a pose's predicted reading [mm]. The
+#: prediction uses the nominal kinematics, whose tool point an uncalibrated robot misses by
+#: a few mm (DH errors of the size of the paper's Table XII), and a fitted zero offset; 10 mm
+#: covers both. The anchor guess's own error is the plan's ``anchor_uncertainty_mm``, added
+#: to this.
+READING_MARGIN_MM = 10.0
 JOINT_COLUMNS = tuple(f"q{j + 1}" for j in range(N_JOINTS))
 LENGTH_COLUMNS = ("l", "length_mm")
 
@@ -336,3 +346,26 @@ def capture_times_s(t_end_s: list[float | None], captured: list[bool]) -> FloatA
         return None
     out: FloatArray = stamps - stamps[0]
     return out
+
+
+def known_pose_index(
+    known_deg: FloatArray | Sequence[Sequence[float]],
+    q_deg: FloatArray | Sequence[float],
+    tol_deg: float,
+) -> int | None:
+    """The rule for a repeated capture: the first pose of ``known_deg`` that ``q_deg`` is
+    closer than ``tol_deg`` to in every joint, or None when ``q_deg`` is a new pose. Auto
+    capture skips such a pose; a manual capture there is refused unless the operator confirms
+    it (``POST /campaigns/{id}/captures`` with ``repeat``).
+
+    Parameters
+    ----------
+    known_deg : ndarray, shape (n, 6) [deg]
+        The campaign's captured poses.
+    q_deg : ndarray, shape (6,) [deg]
+    tol_deg : float
+        Largest difference per joint that still counts as the same pose [deg].
+    """
+    known = np.asarray(known_deg, dtype=float).reshape(-1, N_JOINTS)
+    near = np.flatnonzero(np.all(np.abs(known - np.asarray(q_deg, dtype=float)) < tol_deg, axis=1))
+    return int(near[0]) if near.size else None

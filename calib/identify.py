@@ -206,8 +206,16 @@ def _weighed_solve(
         res = identify(d.model, samples, o, train_rows=tr, test_rows=te)
         return float(res.metrics["after"]["test"]["rmse_mm"])
 
+    # Randomly held-out rows are rows like the training rows: their prediction errors tell
+    # the noise too (prior.noise_from_map). Grouped hold-out keeps whole pose groups away on
+    # purpose; their errors include the extrapolation, so they stay out of it.
+    test = d.test_rows
+    held_out = (prior.HeldOutRows(d.q_all[test], np.asarray(d.samples.length_mm[test], float),
+                                  d.aidx_all[test])
+                if test.size and opts.holdout == "random" else None)  # fmt: skip
     return prior.weighed_solve(lambda o: _problem(d, theta_start, free, o), theta_start, opts,
-                               held_out_rmse, samples, d.train_rows, progress, clock)  # fmt: skip
+                               held_out_rmse, samples, d.train_rows, progress, clock,
+                               held_out)  # fmt: skip
 
 
 def _counting(progress: ProgressFn | None) -> ProgressFn | None:
@@ -336,6 +344,7 @@ def identify(
                                    selection, opts.drift)  # fmt: skip
         every = np.arange(len(samples))
         drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
+        drift_block["rows_flagged"] = [int(d.train_rows[i]) for i in solved.flagged]
         if opts.method not in drift.DRIFT_METHODS:
             drift_block["note"] = f"not modelled: method {opts.method} does not support it"
         # The one wording of what was found: the CLI, the HTML report and the page read it.

@@ -48,6 +48,14 @@ MIN_TRAINING_SAMPLES = 24
 #: The recommended count (:func:`training_rows_recommended`) adds it to the parameters.
 SCREEN_MIN_DOF = 10
 
+#: The 1σ length noise identify assumes when told to assume one [mm] (``prior_weight fixed``,
+#: ``noise_rank``; the default weight ``estimated`` takes the noise from the fit's own
+#: residuals instead). A chosen round figure, not a measurement, at or just above the noise
+#: the estimated weight finds on the bundled real data (bench/prior_weight.md). It is above
+#: the planner's :data:`calib.planning.options.PLAN_NOISE_MM`, the noise of one capture,
+#: because a fit's residuals also hold what the kinematic model does not explain.
+IDENTIFY_NOISE_MM = 0.1
+
 #: Largest seed: numpy's legacy seeding (and so scipy's DE) takes 0..2**32-1.
 MAX_SEED = 2**32 - 1
 
@@ -151,7 +159,7 @@ class IdentifyOptions:
         ),
     )
     noise_mm: float = field(
-        default=0.1,
+        default=IDENTIFY_NOISE_MM,
         metadata=_spec("Assumed 1-sigma length noise (prior_weight fixed, noise_rank) [mm]", gt=0),
     )
     fix: tuple[str, ...] = field(

@@ -16,7 +16,7 @@ the prior ``(1/10)² = 1/100`` of what it should. ``prior_weight`` chooses it:
     data (the bundled set) that fit slides metres along an unexcited valley and takes many
     iterations for a noise figure the MAP fit gives in two cheap fits.
 ``fixed``
-    ``noise_mm`` as given (the option; 0.1 mm by default).
+    ``noise_mm`` as given (the option; :data:`calib.options.IDENTIFY_NOISE_MM` by default).
 ``cv``
     ``σ̂`` as above, then the prior widths scaled by each of :data:`CV_SCALES` (and no prior at
     all) are scored by grouped-fold cross-validation on the training rows
@@ -32,7 +32,7 @@ A prior cannot make data excite parameters they do not excite: measured on the b
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -43,7 +43,7 @@ from calib.kinematics import FloatArray
 from calib.methods import internal_sigma
 from calib.noise import median_dof, noise_floor_mm
 from calib.problem import Problem
-from calib.robust import Solved, solve
+from calib.robust import Solved, auto_threshold, leverage, solve
 from calib.solvers.common import ProgressFn, report
 from calib.split import pose_groups
 from calib.timing import Clock
@@ -125,7 +125,17 @@ def _data_hat(jac: np.ndarray, n: int) -> tuple[float, float]:
     return float(np.trace(gram)), float(np.sum(gram * gram))
 
 
-def noise_from_map(problem: Problem, x: np.ndarray) -> float:
+@dataclass(frozen=True)
+class HeldOutRows:
+    """The held-out (test) rows of an identification: joints (m, 6) [rad], lengths (m,)
+    [mm], anchor index (m,) into the problem's layout."""
+
+    q_rad: FloatArray
+    length_mm: FloatArray
+    anchor_index: np.ndarray
+
+
+def noise_from_map(problem: Problem, x: np.ndarray, held_out: HeldOutRows | None = None) -> float:
     """``σ̂ = sqrt(Σ w r² / m(ν))`` [mm] of the data residuals at free values ``x`` (shape
     (k,)), at least the lengths' own resolution (:func:`calib.noise.noise_floor_mm`).
 
@@ -137,6 +147,20 @@ def noise_from_map(problem: Problem, x: np.ndarray) -> float:
     ``m(ν)`` is the median of χ²(ν) (:func:`calib.noise.median_dof`), so the
     estimate is as often above the real noise as below it even with a few degrees of freedom
     (``Σ r² / ν`` is below it most of the time there), and ``≈ Σ r² / ν`` once ``ν`` is large.
+
+    ``held_out`` rows (the test rows, never fitted) add what they know: each one's prediction
+    error ``r_t`` has the variance ``σ² (1 + g_t)``, ``g_t`` its leverage against the fit
+    (:func:`calib.robust.leverage`: the parameters' own uncertainty at that pose), so
+    ``r_t² / (1 + g_t)`` is one more degree of freedom of ``σ²``. At the minimum sample count
+    the training rows leave about 3 (25 rows, about 22 effective parameters on the HSR JR680)
+    and the estimate spreads from a third to twice the truth; the 6 test rows triple that
+    (measured in ``bench/min_n.md``). A held-out row whose studentised prediction error is a
+    gross error (beyond :func:`calib.robust.auto_threshold` of Student's t with the training
+    rows' ``ν``) is left out: test rows are not screened. The test rows only weigh the prior
+    (this one number); the parameters are fitted to the training rows alone. identify passes
+    them for a random hold-out only (rows like the training rows; a grouped hold-out's errors
+    include the extrapolation to other poses), and not with drift columns (the drift at a
+    test row is not in the fit).
     """
     ev = problem.evaluate(x)  # one model pass: the weighted residual and the Jacobian
     assert ev.jacobian is not None
@@ -145,8 +169,36 @@ def noise_from_map(problem: Problem, x: np.ndarray) -> float:
     n_w = int(np.count_nonzero(problem.weights > 0))
     tr_h, tr_h2 = _data_hat(ev.jacobian, n)
     dof = max(n_w - 2.0 * tr_h + tr_h2 - problem.n_drift, 1.0)
-    estimate = float(np.sqrt(float(weighted @ weighted) / median_dof(dof)))
-    return max(estimate, noise_floor_mm(problem.length_mm[problem.weights > 0]))
+    rss = float(weighted @ weighted)
+    lengths = problem.length_mm[problem.weights > 0]
+    if held_out is not None and held_out.length_mm.size and problem.n_drift == 0:
+        z = _held_out_terms(problem, x, ev.jacobian, held_out)
+        limit = auto_threshold(n_w + z.size, 0.0, dof) ** 2 * rss / median_dof(dof)
+        keep = z <= limit
+        rss += float(np.sum(z[keep]))
+        dof += float(np.count_nonzero(keep))
+        lengths = np.concatenate([lengths, held_out.length_mm])
+    estimate = float(np.sqrt(rss / median_dof(dof)))
+    return max(estimate, noise_floor_mm(lengths))
+
+
+def _held_out_terms(
+    problem: Problem, x: np.ndarray, stacked_jac: FloatArray, held_out: HeldOutRows
+) -> FloatArray:
+    """``r_t² / (1 + g_t)`` [mm²] of the held-out rows (m,) at ``x``: prediction errors
+    over their variance in units of ``σ²`` (``stacked_jac``: the fit's weighted data and
+    prior rows, (n[+k], k))."""
+    n, m = problem.n_samples, held_out.length_mm.shape[0]
+    test = replace(problem, q_rad=held_out.q_rad, length_mm=held_out.length_mm,
+                   anchor_index=held_out.anchor_index, weights=np.ones(m), prior_sigma=None,
+                   prior_mean=None, drift_basis=None)  # fmt: skip
+    ev = test.evaluate(x)
+    assert ev.jacobian is not None
+    r_t, j_t = ev.residual[:m], ev.jacobian[:m]
+    rows = np.vstack([stacked_jac[:n], j_t])  # the fit's rows (weighted) and the test rows
+    g = leverage(rows, np.concatenate([np.ones(n), np.zeros(m)]), stacked_jac[n:])[n:]
+    out: FloatArray = r_t**2 / (1.0 + g)
+    return out
 
 
 def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> IdentifyOptions:
@@ -215,6 +267,7 @@ def weighed_solve(
     make_problem: Callable[[IdentifyOptions], Problem], theta_start: FloatArray,
     opts: IdentifyOptions, held_out_rmse: HeldOutRmse, samples: SampleSet,
     train_rows: np.ndarray, progress: ProgressFn | None, clock: Clock | None = None,
+    held_out: HeldOutRows | None = None,
 ) -> tuple[IdentifyOptions, dict[str, Any], Solved]:  # fmt: skip
     """The fit (:func:`calib.robust.solve`), its prior weighed as ``prior_weight`` says.
 
@@ -222,7 +275,8 @@ def weighed_solve(
     noise) from the common start ``theta_start`` (p,). ``fixed`` (or no prior): one solve.
     ``estimated``: the noise fixed point, each round a MAP solve with the noise the last one
     estimated (from the option's ``noise_mm``), until ``σ̂`` agrees with the noise used within
-    :data:`NOISE_RTOL`; the last round is the fit. ``cv``: that noise, then the prior-width
+    :data:`NOISE_RTOL`; the last round is the fit. ``held_out``: the test rows, which the
+    noise estimate reads too (:func:`noise_from_map`). ``cv``: that noise, then the prior-width
     scale chosen by grouped-fold cross-validation on ``train_rows`` (:func:`cv_scale`, with
     ``held_out_rmse``), and a final solve. ``clock`` times the fits. Returns the options the
     fit ran with, the detail for ``result.json`` and the solve.
@@ -235,7 +289,7 @@ def weighed_solve(
     for rounds in range(1, NOISE_ROUNDS + 1):
         report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
         solved = solve(make_problem(used).with_theta0(warm), used, progress, clock)
-        noise = noise_from_map(solved.problem, solved.result.x)
+        noise = noise_from_map(solved.problem, solved.result.x, held_out)
         if abs(noise / used.noise_mm - 1.0) < NOISE_RTOL:
             break
         used = scaled_options(opts, noise, 1.0)

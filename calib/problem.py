@@ -29,6 +29,7 @@ from calib.cable import ParamLayout, length_jacobian, predict_lengths
 from calib.kinematics import FloatArray, IndexArray, JointTrig, joint_trig
 from calib.linalg import coefficients, orthonormal
 from calib.models import RobotModel
+from calib.options import IDENTIFY_NOISE_MM
 
 BoolArray = NDArray[np.bool_]
 
@@ -87,7 +88,7 @@ class Problem:
     weights: FloatArray = field(default_factory=lambda: np.ones(0))
     prior_sigma: FloatArray | None = None
     prior_mean: FloatArray | None = None
-    noise_mm: float = 0.1
+    noise_mm: float = IDENTIFY_NOISE_MM
     drift_basis: FloatArray | None = None
 
     def __post_init__(self) -> None:

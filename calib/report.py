@@ -7,7 +7,7 @@ millimetres.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -367,7 +367,8 @@ def drift_report(
     smooth drift (knots, values [mm], peak-to-peak [mm], steepest rate [mm/h or mm per 100
     samples]) and the criterion's scores (BIC, leave-one-out PRESS [mm²]), and the gross
     outliers left out of the choice. The caller adds
-    ``per_sample_mm`` (n,): the drift term at every sample [mm], in sample order."""
+    ``per_sample_mm`` (n,): the drift term at every sample [mm], in sample order, and
+    ``rows_flagged``: the rows (0-based) the robust screen left out of the fit."""
     per = "mm_per_h" if model.time_unit == "s" else "mm_per_100_samples"
     scale = 3600.0 if model.time_unit == "s" else 100.0
     out: dict[str, Any] = {"mode": mode, "model": model.name, "time_unit": model.time_unit,
@@ -407,9 +408,27 @@ def drift_report(
     return out
 
 
-def drift_summary(block: dict[str, Any]) -> str:
-    """One line for the notes and the CLI: what :func:`drift_report`'s ``block`` found."""
+def drift_summary(block: Mapping[str, Any]) -> str:
+    """The one wording of what :func:`drift_report`'s ``block`` found: the result carries it
+    (``drift.summary``) and the CLI, the operator page and the HTML report read it. A block
+    with a ``note`` (a method that does not model drift) says it was not looked for, never
+    that the measurement held still.
+
+    Samples set aside (``rows_left_out_of_the_choice``: gross outliers of the drift choice;
+    ``rows_flagged``: the robust screen's outliers) are named: a step among them is not seen,
+    so "held still" is said only when every sample was kept."""
+    if block.get("note"):
+        return (f"drift {block['mode']}: {block['note']}, so steps and drift of the "
+                "measurement were not looked for")  # fmt: skip
+    aside = sorted({*block.get("rows_left_out_of_the_choice", ()), *block.get("rows_flagged", ())})
+    left = ""
+    if aside:
+        shown = ", ".join(str(r) for r in aside[:8]) + (", …" if len(aside) > 8 else "")
+        left = (f"{len(aside)} sample(s) left out as outliers (rows {shown}): a step or drift "
+                "among them is not seen; check them")  # fmt: skip
     if block["model"] == "none":
+        if left:
+            return f"drift {block['mode']}: none found among the samples kept; {left}"
         return f"drift {block['mode']}: none found (the measurement held still)"
     per = "mm/h" if block["time_unit"] == "s" else "mm/100 samples"
     parts = []
@@ -423,4 +442,5 @@ def drift_summary(block: dict[str, Any]) -> str:
             f"smooth offset drift over {len(sm['knots_t'])} knots, "
             f"{sm['peak_to_peak_mm']:.2f} mm peak to peak, up to {sm[key]:.2f} {per}"
         )
-    return f"drift {block['mode']}: " + "; ".join(parts) + " (left out of the robot's figures)"
+    found = "; ".join(parts) + " (left out of the robot's figures)"
+    return f"drift {block['mode']}: {found}" + (f"; {left}" if left else "")

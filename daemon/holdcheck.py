@@ -46,13 +46,15 @@ import asyncio
 import contextlib
 import logging
 import time
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 from daemon import metrics
+from daemon.store.rows import CHECK_JUDGED
 
 if TYPE_CHECKING:
     from daemon.config import HoldCheckSettings
     from daemon.store import CheckPoses, CheckRow, Store
+    from daemon.store.rows import CheckStatus
 
 log = logging.getLogger("cablecal.drift")
 
@@ -122,7 +124,7 @@ class HoldCheckMonitor:
             log.warning("failed %d check(s) left running", n)
         checks = self.store.list_checks(limit=1000)
         for check in checks:
-            if check["status"] in ("ok", "drift") and check["rms_mm"] is not None:
+            if check["status"] in CHECK_JUDGED and check["rms_mm"] is not None:
                 metrics.HOLD_CHECK_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
                 metrics.HOLD_CHECK_THRESHOLD.labels(str(check["robot_id"])).set(
                     check["threshold_mm"]
@@ -222,7 +224,7 @@ class HoldCheckMonitor:
     def _finish(
         self,
         check: CheckRow,
-        status: Literal["ok", "drift", "failed"],
+        status: CheckStatus,
         *,
         metrics_: dict[str, float] | None = None,
         error: str | None = None,

@@ -33,7 +33,20 @@ def plan_check(
     keep = [i for i, sid in enumerate(ids) if sid in wanted]
     joints = [samples.joints_deg[i] for i in keep]
     anchors = [str(samples.anchor[i]) for i in keep]
-    return check_against_plan(plan, joints, anchors, result)
+    return check_against_plan(plan, joints, anchors, result, rejections(store, campaign_id))
+
+
+#: Most refused captures of a campaign read for its plan (the newest).
+MAX_REJECTIONS = 5000
+
+
+def rejections(store: Any, campaign_id: int) -> list[dict[str, Any]]:
+    """The campaign's refused captures (``capture_rejected`` events' details: ``reason``,
+    ``detail``, ``joints_deg`` when the pose was known), oldest first, at most the newest
+    :data:`MAX_REJECTIONS`: what :func:`calib.planning.progress.not_capturable` reads."""
+    events = store.list_events(kind="capture_rejected", campaign_id=campaign_id,
+                               limit=MAX_REJECTIONS)  # fmt: skip
+    return [dict(e["detail"]) for e in events if isinstance(e.get("detail"), dict)]
 
 
 def add_plan_check(

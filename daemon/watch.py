@@ -8,9 +8,11 @@ The flow (the decisions are pure, in :mod:`calib.monitor.running_fit` and
 2. The campaign's :class:`calib.monitor.running_fit.LiveTester` predicts the new sample's
    cable length with its running fit (refitted in a worker thread as the campaign grows) and
    tests the residual (:class:`calib.monitor.stepwatch.StepDetector`).
-3. On an alarm the samples from the run's first on go to a new anchor session
-   (:func:`calib.monitor.stepwatch.next_anchor`), auto capture goes on with it, and the event
-   ``sensor_moved`` (size, first sample id and row), the counter
+3. On an alarm the step is located among the recent samples
+   (:meth:`calib.monitor.running_fit.LiveTester.locate`); every sample of the session from it
+   on goes to a new anchor session (:func:`calib.monitor.stepwatch.next_anchor`; one still in
+   flight when auto capture switched follows), auto capture goes on with it, and the event
+   ``sensor_moved`` (size, first sample id and row, the moved sample ids), the counter
    ``cablecal_sensor_moved_total`` and the ``watch`` block of ``GET /status`` (the page's
    banner) tell the operator, who can undo it (``POST /campaigns/{id}/sensor-moved/undo``:
    :meth:`SensorWatch.undo`).
@@ -24,7 +26,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +59,8 @@ class CampaignWatch:
     task: asyncio.Task[None] | None = None
     tested: int = 0
     last_residual_mm: float | None = None
+    #: A move was just found: the next sample may have been in flight in the old session.
+    after_move: bool = False
 
 
 class WatchedSink:
@@ -71,6 +75,22 @@ class WatchedSink:
         row = self._inner.store_capture(campaign_id, capture)
         self._watch.saw_sample(campaign_id, dict(row))
         return row
+
+    def record_rejection(
+        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+    ) -> None:
+        """The refusal with the pose it happened at (the robot's latest joints, from
+        :attr:`SensorWatch.joints_now`), so that a plan's progress can tell a pose that
+        cannot be captured (:mod:`calib.planning.progress`)."""
+        joints = None
+        if self._watch.joints_now is not None:
+            with contextlib.suppress(Exception):
+                joints = self._watch.joints_now()
+        if joints is None:
+            self._inner.record_rejection(campaign_id, reason, detail, device)
+        else:  # the store takes the pose (daemon.store.events)
+            inner: Any = self._inner
+            inner.record_rejection(campaign_id, reason, detail, device, joints_deg=joints)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._inner, name)
@@ -98,6 +118,8 @@ class SensorWatch:
         self._campaigns: dict[int, CampaignWatch] = {}
         #: Newest unacknowledged move per campaign (the page's banner): the event detail.
         self._moves: dict[int, dict[str, Any]] = {}
+        #: The robot's latest joints [deg] (6) or None; set by the lifespan from the sampler.
+        self.joints_now: Callable[[], list[float] | None] | None = None
 
     def wrap(self, sink: CaptureSink) -> WatchedSink:
         """``sink`` with this watch listening to its stored captures."""
@@ -160,6 +182,8 @@ class SensorWatch:
         current = self.store.get_sample(sample_id)
         if current is None or current["excluded"]:
             return
+        if self._in_flight(cw, current):
+            return
         samples, ids = self.store.sample_set(cw.campaign_id)
         tester = cw.tester
         clean = tester.clean_rows(ids, sample_id)
@@ -174,6 +198,26 @@ class SensorWatch:
         if alarm is not None:
             self._moved(cw, alarm, ids)
 
+    def _in_flight(self, cw: CampaignWatch, sample: Mapping[str, Any]) -> bool:
+        """The first sample after a move, when it was captured in the old anchor session (in
+        flight while auto capture switched), goes to the new session too (added to the
+        banner's move; Undo takes back the new session's samples). Whether it was moved."""
+        move = self._moves.get(cw.campaign_id)
+        if not cw.after_move or move is None:
+            return False
+        sample_id = int(sample["id"])
+        if str(sample["anchor"]) == move["new_anchor"]:
+            cw.after_move = False  # captures go to the new session: nothing in flight
+        if (str(sample["anchor"]) != move["previous_anchor"]
+                or sample_id <= int(move["detected_at_sample_id"])):  # fmt: skip
+            return False
+        cw.after_move = False
+        self.store.move_samples_to_anchor(cw.campaign_id, [sample_id], move["new_anchor"])
+        move["moved_sample_ids"].append(sample_id)
+        log.info("watch: sample %d, in flight in anchor %s at the move, goes to %s",
+                 sample_id, move["previous_anchor"], move["new_anchor"])  # fmt: skip
+        return True
+
     # ------------------------------------------------------------------ a move
     def _moved(self, cw: CampaignWatch, alarm: StepAlarm, ids: list[int]) -> None:
         from calib.monitor.stepwatch import next_anchor
@@ -183,14 +227,20 @@ class SensorWatch:
         previous = str(first["anchor"])
         campaign = self.store.campaign(cid)
         new = next_anchor(previous, campaign["anchors"])
-        moved = [int(k) for k in alarm.keys]
+        # Every sample of the old session from the step on: the alarm's, and any stored
+        # since (still queued for the test).
+        first_id = int(alarm.first_key)
+        later = [int(r["id"]) for r in self.store.list_samples(cid, after_id=first_id - 1)
+                 if r["anchor"] == previous]  # fmt: skip
+        moved = sorted({*(int(k) for k in alarm.keys), *later})
         self.store.move_samples_to_anchor(cid, moved, new)
         auto = self.auto is not None and self.auto.move_anchor(cid, new)
         row = ids.index(moved[0]) + 1 if moved[0] in ids else None
         fit = cw.tester.fit
         detail = {
             "campaign_id": cid, "robot_id": cw.robot_id, "sample_id": moved[0], "row": row,
-            "detected_at_sample_id": moved[-1], "delay_samples": alarm.delay,
+            "detected_at_sample_id": max(int(k) for k in alarm.keys),
+            "delay_samples": alarm.delay,
             "step_mm": round(alarm.step_mm, 4), "size_mm": round(alarm.size_mm, 4),
             "previous_anchor": previous, "new_anchor": new, "moved_sample_ids": moved,
             "auto_capture_switched": auto, "fit": fit.kind if fit else None,
@@ -205,6 +255,7 @@ class SensorWatch:
         metrics.SENSOR_MOVED.labels(str(cw.robot_id)).inc()
         self._moves[cid] = detail
         cw.tester.moved()  # the new anchor has too few samples; refit from the next one
+        cw.after_move = True
         log.warning(message, extra={"campaign_id": cid, "sample_id": moved[0]})
 
     def undo(self, campaign_id: int) -> dict[str, Any]:
@@ -246,6 +297,18 @@ class SensorWatch:
             cw.tester.detector.reset()
             cw.tester.moved()
         return out
+
+    def offsets_mm(self, campaign_id: int) -> dict[str, float]:
+        """The indicator's zero offset [mm] per anchor id in the campaign's running fit
+        (empty without one): a plan keeps its predicted readings in range with it."""
+        cw = self._campaigns.get(campaign_id)
+        fit = None if cw is None else cw.tester.fit
+        if fit is None:
+            return {}
+        from calib.cable import N_KIN
+
+        return {aid: float(fit.theta[N_KIN + 4 * k + 3])
+                for k, aid in enumerate(fit.layout.anchors)}  # fmt: skip
 
     def status(self) -> dict[str, Any]:
         """The ``watch`` block of ``GET /status``: ``enabled``, ``moves`` (per campaign with

@@ -55,11 +55,11 @@ class SilentAttempts:
     last ``last_timeout_s`` (≥ the fast one). On loopback or a LAN a reply takes
     milliseconds, so short waits bound the stall of dropped replies: one drop costs
     ``fast_timeout_s``, two in a row ``2 * fast_timeout_s``. Both must stay below the
-    sampler's ``stale_s`` (0.5 s), or the stall breaks the settle window it falls into; with
-    10 % drops and ~30 polls/s two drops in a row come every few seconds (an earlier draft
-    waited 1 s from the first retry on, and auto capture lost ~20 % of the poses). The long
-    last wait still reads a controller that is alive but slow (busy), instead of declaring it
-    down after a string of short waits.
+    sampler's ``stale_s`` (0.5 s), or the stall breaks the settle window it falls into; on a
+    lossy link two drops in a row are common (the read rates with dropped replies:
+    bench/robot_link.md), and an earlier draft that waited a full second from the first retry
+    on made auto capture lose poses. The long last wait still reads a controller that is
+    alive but slow (busy), instead of declaring it down after a string of short waits.
     """
 
     def __init__(

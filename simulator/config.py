@@ -59,8 +59,8 @@ class CellSection(_Strict):
 
 #: 1σ noise of one EMULATED indicator reading [mm]: two counts of the display's last digit
 #: (``decimals`` 2: 0.01 mm), so rounding does not hide it. Not a measured figure of a real
-#: indicator; identify's assumed noise (``calib.options``, 0.1 mm) and the planner's
-#: (``calib.planning.PlanOptions``, 0.05 mm) are their own defaults.
+#: indicator; identify's assumed noise (:data:`calib.options.IDENTIFY_NOISE_MM`) and the
+#: planner's (:data:`calib.planning.options.PLAN_NOISE_MM`) are their own defaults.
 EMULATED_NOISE_MM: Final = 0.02
 
 

@@ -487,3 +487,35 @@ def test_compensated_targets_as_robot_programs(
         assert back.dwell_s == 1.5
     r = client.post(url, json=body, headers=AUTH, params={"format": "gcode"})
     assert r.status_code == 422 and "format" in _text(r)
+
+
+def test_check_poses_download_as_csv_and_robot_programs(
+    client: TestClient, calibrated: dict[str, int]
+) -> None:
+    """Issue 27 item 3: the check poses reach the robot as the plan does, from the check
+    poses' own route: CSV and every program format, each pose back from the program."""
+    from calib.programs import DOWNLOAD_FORMATS
+    from calib.programs.registry import parse_program
+
+    rid = calibrated["robot_id"]
+    url = f"{API}/robots/{rid}/check-poses"
+    poses = client.get(url, headers=AUTH).json()["poses_deg"]
+    for fmt in DOWNLOAD_FORMATS:
+        r = client.get(url, headers=AUTH, params={"format": fmt})
+        assert r.status_code == 200, (fmt, r.text)
+        assert f"robot-{rid}-check-poses" in r.headers["content-disposition"].lower().replace(
+            "_", "-"
+        ), r.headers["content-disposition"]
+        if fmt == "csv":
+            lines = r.text.splitlines()
+            assert lines[0] == "pose,q1,q2,q3,q4,q5,q6" and len(lines) == 1 + len(poses)
+            continue
+        back = parse_program(fmt, r.text)
+        assert len(back.joints_deg) == len(poses), fmt
+        for got, want in zip(back.joints_deg, poses, strict=True):
+            assert max(abs(a - b) for a, b in zip(got, want, strict=True)) <= 0.0005 + 1e-9
+    for bad in ({"format": "gcode"}, {"format": "krl", "speed_pct": 0}):
+        assert client.get(url, headers=AUTH, params=bad).status_code == 422
+    r = client.get(f"{API}/robots/{_uncalibrated_robot(client)}/check-poses?format=rapid",
+                   headers=AUTH)  # fmt: skip
+    assert r.status_code == 404 and "no accepted calibration" in r.json()["detail"], r.text

@@ -118,13 +118,17 @@ CROSS_FIELD_RULES = frozenset({"POST /api/v1/campaigns/{campaign_id}/plan"})
 
 def _file_format_body(case: Any) -> bool:
     """A body whose rules are a file format's, not the schema's: a CSV import (header, numbers,
-    sensor range, joint limits: a 400 naming row and column) and an uploaded robot model (the
+    sensor range, joint limits: a 400 naming row and column), robot programs to filter (a 422
+    naming the file and line) and an uploaded robot model (the
     model file format of ``--robot``: a 422 naming the key), and the :data:`CROSS_FIELD_RULES`
     operations. Schemathesis' valid data is not valid there, so it is not held to
     positive_data_acceptance; every other check applies."""
     if case.operation.label in CROSS_FIELD_RULES:
         return True
-    if case.operation.label == "POST /api/v1/campaigns/{campaign_id}/samples/import":
+    if case.operation.label in (
+        "POST /api/v1/campaigns/{campaign_id}/samples/import",
+        "POST /api/v1/robots/{robot_id}/filter",
+    ):  # program files
         return True
     body = case.body if isinstance(case.body, dict) else {}
     return case.operation.label == "POST /api/v1/campaigns" and isinstance(

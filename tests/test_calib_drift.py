@@ -111,3 +111,34 @@ def test_cli_summary_names_the_step_at_80_columns(tmp_path: Path) -> None:
     off = subprocess.run([*base, "--drift", "none"], cwd=REPO, env=env, capture_output=True,
                          text=True, timeout=120, check=False)  # fmt: skip
     assert "sensor moved" not in off.stdout
+
+
+def test_the_summary_never_says_held_still_while_samples_sit_millimetres_off() -> None:
+    """Issue 27 item 1: five samples after a 3 mm move left in the old anchor session (the
+    watch split late) were set aside as outliers, and the summary said "held still"."""
+    from calib.dataset import SampleSet
+    from simulator.cell import EmulatedCell
+    from simulator.config import SimConfig
+
+    cell = EmulatedCell(SimConfig(seed=4, robot={"n_poses": 42}))
+    q = np.vstack([cell.poses_deg[:42]] * 2)  # the same program run twice
+    lengths = cell.truth.lengths_mm(q)
+    cell.move_anchor([3.0, 0.0, 0.0])
+    lengths[65:] = cell.truth.lengths_mm(q[65:])
+    lengths = np.round((lengths + np.random.default_rng(1).normal(0, 0.02, 84)) / 0.01) * 0.01
+
+    def drift_block(split: int) -> dict:  # type: ignore[type-arg]
+        anchors = tuple("A" if i < split else "A2" for i in range(84))
+        samples = SampleSet(joints_deg=q, length_mm=lengths, anchor=anchors, group=None,
+                            line=np.arange(2, 86))  # fmt: skip
+        block: dict = identify(cell.truth.model, samples).to_json()["drift"]  # type: ignore[type-arg]
+        return block
+
+    late = drift_block(70)  # rows 65..69 were taken after the move
+    aside = sorted({*late["rows_left_out_of_the_choice"], *late["rows_flagged"]})
+    assert aside and set(aside) <= set(range(65, 70)), aside
+    assert "held still" not in late["summary"]
+    assert f"{len(aside)} sample(s) left out as outliers (rows {aside[0]}," in late["summary"]
+    right = drift_block(65)
+    assert right["rows_flagged"] == [] and right["rows_left_out_of_the_choice"] == []
+    assert right["summary"] == "drift auto: none found (the measurement held still)"

@@ -276,3 +276,23 @@ def test_browser_gate_blocks_and_records_requests_to_other_hosts(tmp_path: Path)
         "http://example.invalid/a.css",
         "https://cdn.example.invalid/b.png",
     ]
+
+
+def test_drift_wording_is_the_results_one_and_a_method_without_drift_says_so(
+    synthetic_case,
+) -> None:
+    """Issue 27 item 4: ukf-vslm does not model drift: the result's ``drift.summary`` (the
+    line the operator page shows) says it was not looked for, and the report shows that same
+    line, never "held still" or "no step and no drift found"."""
+    result, samples = synthetic_case
+    ukf = identify(MODEL, samples, IdentifyOptions(method="ukf-vslm", test_fraction=0)).to_json()
+    summary = ukf["drift"]["summary"]
+    assert "ukf-vslm" in summary and "not looked for" in summary and "held still" not in summary
+    html = render_report_html(ukf)
+    section = html[html.index('id="drift"') :]
+    section = section[: section.index("</section>")]
+    assert summary in section
+    assert "held still" not in section and "No step and no drift" not in section
+    # a method that models drift and found none: the same line in the report as in the result
+    lm = result["drift"]
+    assert lm["model"] == "none" and lm["summary"] in render_report_html(result)

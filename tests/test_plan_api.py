@@ -59,7 +59,8 @@ def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestC
     assert len(made["poses"]) == 8 and made["options"]["n"] == 8
     assert made["summary"]["tcp_sigma_mm"]["plan"]["rms"] > 0
     assert made["progress"] == {"n_planned": 8, "n_done": 0, "n_pending": 8,
-                                "fraction_done": 0.0, "tol_deg": 0.5, "next_pose": 1}  # fmt: skip
+                                "n_not_capturable": 0, "fraction_done": 0.0, "tol_deg": 0.5,
+                                "next_pose": 1}  # fmt: skip
     poses = _plan(client, cid)["poses"]
     assert poses == made["poses"]
     assert all(p["status"] == "pending" and p["sample_id"] is None for p in poses)

@@ -159,3 +159,25 @@ def test_summary_renders_at_80_columns_without_wrapping() -> None:
     assert max(len(line) for line in lines) <= 80
     assert any("theta0@B" in ln and "1.23e+04 deg" in ln and "theta1@B" in ln for ln in lines)
     assert any("1.58e+06" in ln for ln in lines)
+
+
+def test_start_data_give_the_zero_offset_and_every_reading_stays_in_range(
+    tmp_path: Path,
+) -> None:
+    """Issue 27 item 2: the start samples' zero offset (-300 mm: a cable shorter than 300 mm
+    reads below 0) keeps every planned pose's predicted reading inside the indicator's range."""
+    cell = make_true_cell(MODEL, anchors_mm=np.array([[1400.0, 300.0, 200.0]]),
+                          offsets_mm=np.array([-300.0]))  # fmt: skip
+    rng = np.random.default_rng(3)
+    q = random_poses_deg(cell, 30, rng)
+    start = tmp_path / "start.csv"
+    start.write_text(samples_to_csv(make_samples(q, noisy_lengths(cell, q, rng, noise_mm=0.02))))
+    out, js = tmp_path / "plan.csv", tmp_path / "plan.json"
+    code, text = _run(["--n", "24", "--candidates", "1500", "--seed", "5", "--start", str(start),
+                       "--out", str(out), "--json", str(js)])  # fmt: skip
+    assert code == 0, text
+    reading = json.loads(js.read_text())["reading_mm"]
+    assert reading["offsets_mm"]["A"] == pytest.approx(-300.0, abs=5.0)
+    lo, hi = reading["window_mm"]
+    assert lo <= reading["min"] and reading["max"] <= hi
+    assert all(float(r["extension_mm"]) - 300.0 >= lo - 5.0 for r in _read(out))

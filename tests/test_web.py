@@ -2,7 +2,8 @@
 the EMULATED cell (``cablecal simulate``) and ``cablecal serve``, as in tests/test_e2e.py.
 
 One test walks the whole operator flow: token → campaign → plan → auto capture → identify →
-result plots → accept → download the report → compensate, with no console error and no
+result plots → accept → download the report → compensate → filter programs (drop, summary,
+download), with no console error and no
 request to another host; a screenshot of each step goes to the test's tmp dir. Steps whose
 REST route this daemon does not have yet (plan, compensate) end the test as xfail after every
 other step passed.
@@ -10,8 +11,10 @@ other step passed.
 
 from __future__ import annotations
 
+import base64
 import json
 import re
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -22,6 +25,7 @@ import pytest
 from browser import offline_page, require_chromium
 
 from calib.dataset import make_samples, samples_to_csv
+from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.ik import tool_pose
 from calib.models import builtin_model
 from calib.options import default
@@ -90,7 +94,10 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         page.fill("#campaign-form input[name=name]", "browser test")
         page.click("#campaign-form button[type=submit]")
         page.wait_for_selector("#campaign-detail:not([hidden])")
-        cid = int(api.get("/campaigns").json()[-1]["id"])
+        created = api.get("/campaigns").json()[-1]
+        cid = int(created["id"])
+        # the built-in option leaves robot_model to the API's default (the page has no copy)
+        assert created["robot_name"] == DEFAULT_ROBOT_MODEL
         # the detail shows before its title is filled from the API: wait for the words
         page.wait_for_function(
             f"document.getElementById('campaign-title').textContent.includes('Campaign #{cid}')",
@@ -99,12 +106,15 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
 
         # plan (when the daemon has the route)
         if _has(routes, "POST", "/plan"):
-            page.fill("#plan-form input[name=n]", "30")
+            # the fewest poses the form takes: the API's count (issue 27 item 3)
+            n_plan = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
+            page.fill("#plan-form input[name=n]", str(n_plan))
             for axis, value in zip("xyz", (1400, 300, 200), strict=True):  # the cell's sensor
                 page.fill(f"#plan-form input[name=a{axis}]", str(value))
             page.click("#plan-form button")
             page.wait_for_function(
-                "document.querySelectorAll('#plan-poses tbody tr').length >= 30", timeout=120000
+                f"document.querySelectorAll('#plan-poses tbody tr').length >= {n_plan}",
+                timeout=120000,
             )
             summary = page.inner_text("#plan-summary")
             assert "Predicted tool-point accuracy" in summary
@@ -263,6 +273,41 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             missing.append("compensate")
         _shot(page, tmp_path, "6-apply")
 
+        # filter programs: drop two program files on the robot's view, read the summary
+        # table, download the zip of the filtered files
+        if _has(routes, "POST", "/filter"):
+            programs = Path(__file__).parent / "fixtures" / "programs"
+            dropped = {n: base64.b64encode((programs / n).read_bytes()).decode()
+                       for n in ("cell_a.mod", "notes_e.mod")}  # fmt: skip
+            page.evaluate(
+                """(files) => {
+                  const dt = new DataTransfer();
+                  for (const [name, b64] of Object.entries(files)) {
+                    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+                    dt.items.add(new File([bytes], name));
+                  }
+                  document.getElementById("filter-drop").dispatchEvent(
+                    new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+                }""",
+                dropped,
+            )
+            page.wait_for_function(
+                "document.querySelectorAll('#filter-result tbody tr').length === 7",
+                timeout=30000,
+            )
+            assert "7 corrected" in page.inner_text("#filter-state")
+            assert "pEdge" in page.inner_text("#filter-result")
+            with page.expect_download() as got:
+                page.click("#filter-download")
+            with zipfile.ZipFile(got.value.path()) as zf:
+                assert sorted(zf.namelist()) == ["cell_a.mod", "filter-summary.json",
+                                                 "notes_e.mod"]  # fmt: skip
+                assert zf.read("notes_e.mod") == (programs / "notes_e.mod").read_bytes()
+                assert zf.read("cell_a.mod") != (programs / "cell_a.mod").read_bytes()
+            _shot(page, tmp_path, "6b-filter")
+        else:
+            missing.append("filter")
+
         # item 3: the drift check lists its poses and counts them while it runs; the page
         # stays on the operator's campaign, and a fresh tab opens it too
         n_poses = len(api.get(f"/robots/{robot['id']}/check-poses").json()["poses_deg"])
@@ -300,7 +345,7 @@ def test_wrong_token_says_401_and_asks_again(cell: Cell, tmp_path: Path) -> None
         page.on("response", lambda r: refused.append(r.url) if r.status == 401 else None)
         page.goto(url + "/#token=wrong")
         page.wait_for_selector("#token-dialog[open]", timeout=10000)
-        assert "401" in page.inner_text("#messages")
+        assert "refused the access token" in page.inner_text("#messages")
         assert "#token" not in page.url  # dropped from the address bar
         page.wait_for_timeout(3000)
         assert len(refused) <= 6, refused  # the first wave only; polling is paused

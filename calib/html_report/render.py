@@ -31,6 +31,7 @@ from calib.html_report.tables import (
     plausibility_section,
     tcp_section,
 )
+from calib.report import drift_summary
 
 #: Section ids in page order, with their headings (the browser test checks each one).
 SECTIONS: tuple[tuple[str, str], ...] = (
@@ -149,8 +150,11 @@ def _drift(result: Mapping[str, Any]) -> str:
         "campaign are modelled as nuisance terms and left out of the robot's parameters, "
         f"compensation and TCP figures. Time: {when}</p>"
     )
-    if block.get("note"):
-        intro += f"<p>{text(block.get('note'))}</p>"
+    # The one wording of what was found (calib.drift.summary, carried in the result; the
+    # operator page shows the same line).
+    found = text(block.get("summary") or drift_summary(block))
+    if block.get("note"):  # not modelled by this method: nothing was looked for
+        return f"<p>{found}.</p>"
     steps = [s for s in get_list(block, "steps") if isinstance(s, Mapping)]
     rows = []
     for st in steps:
@@ -179,7 +183,7 @@ def _drift(result: Mapping[str, Any]) -> str:
             f"{num_fixed(rate, 3)} {per}, mean {num_fixed(mean, 3)} {per}.</p>"
         )
     if not rows and not smooth:
-        body += "<p>No step and no drift found: the measurement held still.</p>"
+        body += f"<p>{found}.</p>"
     return body
 
 

@@ -21,15 +21,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from calib.kinematics import FloatArray
 from calib.monitor.stepwatch import explain_change
 
-#: Noise floor [mm] of :func:`explain_change` when the result has no residual RMSE.
-EXPLAIN_NOISE_MM = 0.05
+#: What a finished check concludes; the store's check states
+#: (:data:`daemon.store.rows.CheckStatus`) add ``running`` and ``failed`` to these.
+CheckVerdict = Literal["ok", "drift"]
+CHECK_VERDICTS: tuple[str, ...] = get_args(CheckVerdict)
 
 
 def threshold_mm(
@@ -56,7 +58,7 @@ def threshold_mm(
     return max(factor * float(reference_rmse_mm), min_threshold_mm)
 
 
-def judge(rms_mm: float, limit_mm: float) -> Literal["ok", "drift"]:
+def judge(rms_mm: float, limit_mm: float) -> CheckVerdict:
     """``drift`` when ``rms_mm`` exceeds ``limit_mm`` (equal is ok); a NaN RMS is drift."""
     return "ok" if rms_mm <= limit_mm else "drift"
 
@@ -101,7 +103,7 @@ def covered(
 class Evaluation:
     """What :func:`evaluate` found: ``status`` ok/drift, the figures, the threshold."""
 
-    status: Literal["ok", "drift"]
+    status: CheckVerdict
     metrics: dict[str, float]
     threshold_mm: float
     detail: dict[str, Any]
@@ -165,6 +167,7 @@ def evaluate(
     Without ``refit_anchor``, ``detail["explanation"]`` says whether a moved sensor (a P0
     shift and an offset change) or a robot change (one joint's zero offset) explains the
     residuals better (:func:`calib.monitor.stepwatch.explain_change`)."""
+    from calib.planning.options import PLAN_NOISE_MM
     from calib.verify import VerifyOptions, verify
 
     out = verify(result, samples, VerifyOptions(refit_anchor=refit_anchor, max_rmse_mm=limit_mm))
@@ -173,6 +176,8 @@ def evaluate(
                               "residual_mm": [float(v) for v in out.residual_mm]}  # fmt: skip
     if not refit_anchor:
         anchor_jac, joint_jac = change_jacobians(result, out.joints_deg, out.anchor)
-        noise = out.reference_rmse_mm or EXPLAIN_NOISE_MM
+        # Without the calibration's residual RMSE, the noise floor is the planner's assumed
+        # noise of one captured length.
+        noise = out.reference_rmse_mm or PLAN_NOISE_MM
         detail["explanation"] = explain_change(out.residual_mm, anchor_jac, joint_jac, noise)
     return Evaluation(judge(figures["rmse_mm"], limit_mm), figures, limit_mm, detail)

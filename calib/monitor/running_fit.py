@@ -42,8 +42,8 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from calib.cable import MIN_ANCHOR_SAMPLES
-from calib.monitor.stepwatch import StepAlarm, StepDetector
+from calib.cable import MIN_ANCHOR_SAMPLES, N_KIN
+from calib.monitor.stepwatch import StepAlarm, StepDetector, locate_step
 
 if TYPE_CHECKING:
     from calib.cable import ParamLayout
@@ -61,6 +61,9 @@ MAP_TOOL_PRIOR_MM = 5.0
 SCAN_RATIO = 5.0
 #: Refit when the clean samples grew by this fraction since the last fit (at least one).
 REFIT_FRACTION = 0.1
+#: Tested samples an alarm looks back over for the step (:meth:`LiveTester.locate`): as
+#: many as the detector keeps clean residuals for (``StepSettings.history``'s default).
+LOCATE_WINDOW = 30
 
 
 @dataclass
@@ -88,6 +91,25 @@ class RunningFit:
         pose (``sqrt(1 + p / n)``, the mean leverage)."""
         n, p = self.n_rows, self.n_params
         return self.rmse_mm * math.sqrt(n / max(n - p, 1)) * math.sqrt(1.0 + p / n)
+
+    def step_design(self, joints_deg: FloatArray, anchor: str) -> FloatArray | None:
+        """How a change of ``anchor``'s sensor changes the length at poses ``joints_deg``
+        (n, 6) [deg]: ``(−u, 1)`` per pose (n, 4) [mm/mm], ``u`` the unit cable direction
+        from P0 to the hook point (a P0 shift ``δ`` and an offset change ``Δc`` change the
+        length by ``−u·δ + Δc``); None for an anchor not fitted."""
+        from calib.cable import kinematic_parts
+        from calib.kinematics import forward_position
+
+        if anchor not in self.layout.anchors:
+            return None
+        q = np.deg2rad(np.asarray(joints_deg, dtype=float).reshape(-1, 6))
+        dh, tool = kinematic_parts(self.model, self.theta)
+        hook = forward_position(dh, q, tool, self.model.convention)
+        start = N_KIN + 4 * self.layout.anchors.index(anchor)
+        diff = hook - self.theta[start : start + 3]
+        unit = diff / np.linalg.norm(diff, axis=1)[:, None]
+        out: FloatArray = np.hstack([-unit, np.ones((q.shape[0], 1))])
+        return out
 
     def predict_mm(self, joints_deg: Sequence[float] | FloatArray, anchor: str) -> float | None:
         """The predicted length [mm] of one pose (6,) [deg]; None for an anchor not fitted."""
@@ -244,6 +266,10 @@ class LiveTester:
     fit_clean: int = 0  # clean samples the fit saw
     scanned: bool = False  # the look back (scan_for_step) ran in this anchor session
     found: StepAlarm | None = None  # a move the look back found, reported by the next test
+    #: The samples tested in this anchor session, newest last, at most
+    #: :data:`LOCATE_WINDOW`: ``(key, joints (6,) [deg], length [mm], anchor)``. An alarm
+    #: looks for the step among them (:meth:`locate`); older ones the watch trusts.
+    tested: list[tuple[int, FloatArray, float, str]] = dataclasses.field(default_factory=list)
 
     def clean_rows(self, ids: list[int], sample_id: int) -> list[int]:
         """Rows of ``ids`` (sample ids, in order) the fit may use for ``sample_id``: the
@@ -303,10 +329,43 @@ class LiveTester:
         residual = float(length_mm) - predicted
         if not self.fit.testable:
             return residual, None
-        return residual, self.detector.update(sample_id, residual)
+        self.tested.append((sample_id, np.asarray(joints_deg, dtype=float), float(length_mm),
+                            anchor))  # fmt: skip
+        del self.tested[:-LOCATE_WINDOW]
+        alarm = self.detector.update(sample_id, residual)
+        return residual, None if alarm is None else self.locate(alarm)
+
+    def locate(self, alarm: StepAlarm) -> StepAlarm:
+        """``alarm`` with its first sample moved to where the sensor moved: the step located
+        (:func:`calib.monitor.stepwatch.locate_step`) among the samples of the alarm's anchor
+        tested since the last one the watch trusts (:attr:`tested`), by their residuals
+        against the running fit. The run's first exceedance is only the latest possible
+        step: samples before it whose change was inside the band (a pose whose cable is
+        nearly square to the bump) or whose run died out were taken after the move too.
+        ``keys`` become every sample of the window from the step on, and the alarm's own."""
+        fit = self.fit
+        first = next((t for t in self.tested if t[0] == alarm.first_key), None)
+        if fit is None or first is None:
+            return alarm
+        window = [t for t in self.tested if t[3] == first[3]]
+        keys = [t[0] for t in window]
+        q = np.array([t[1] for t in window], dtype=float).reshape(-1, 6)
+        design = fit.step_design(q, first[3])
+        if design is None:
+            return alarm
+        predicted = [fit.predict_mm(t[1], t[3]) for t in window]
+        residual = np.array([t[2] - (p if p is not None else t[2]) for t, p in
+                             zip(window, predicted, strict=True)])  # fmt: skip
+        settings = self.detector.settings
+        sigma = max(self.detector.scale_mm, settings.sigma_floor_mm)
+        size = max(alarm.size_mm, settings.min_step_mm)
+        k = locate_step(residual, design, sigma, size, keys.index(alarm.first_key))
+        moved = tuple(sorted({*keys[k:], *alarm.keys}))
+        return dataclasses.replace(alarm, first_key=moved[0], keys=moved, delay=len(moved))
 
     def moved(self) -> None:
         """After a move: the new anchor session needs a new fit."""
+        self.tested.clear()
         self.fit = None
         self.fit_clean = 0
         self.scanned = True  # a session after a move has a fitted model of the robot

@@ -28,7 +28,9 @@ Two questions a plant engineer asks while a campaign runs or a check comes back:
    differently over well-spread poses; a BIC comparison names ``sensor``, ``robot`` or
    ``unclear`` (too few poses, or neither explanation clearly better).
 
-Also :func:`next_anchor`: the id of the new anchor session after a move.
+Also :func:`locate_step`: after an alarm, where among the recent samples the sensor moved
+(the run's first exceedance can be late: a pose square to the bump changes little), and
+:func:`next_anchor`: the id of the new anchor session after a move.
 """
 
 from __future__ import annotations
@@ -174,6 +176,62 @@ class StepDetector:
             self.reset()
             return alarm
         return None
+
+
+def locate_step(
+    residual_mm: FloatArray,
+    design: FloatArray,
+    sigma_mm: float,
+    prior_mm: float,
+    latest: int,
+) -> int:
+    """Where in a run of tested samples did the sensor move? The row of the first moved one.
+
+    A step is a single time: every sample before it belongs to the old sensor position, every
+    one from it on to the new one, whatever the order of the poses (repeated poses too). Each
+    split ``k`` in ``0..latest`` is scored by the marginal likelihood of the residuals: the
+    rows before it are noise, ``N(0, σ²)``; the rows from it on are noise plus one change of
+    the sensor, ``design @ β`` with ``β`` (P0 shift [mm], offset change [mm]) of Gaussian
+    prior 1σ ``prior_mm``, so their covariance is ``σ² I + prior_mm² D Dᵀ``. Integrating
+    ``β`` out (rather than fitting it) keeps a split with few rows after it from fitting them
+    exactly: every split is judged with the same number of parameters, none of them fitted.
+    The split of highest likelihood wins; ties go to the latest.
+
+    Parameters
+    ----------
+    residual_mm : ndarray, shape (m,)
+        Measured minus predicted length of the samples since the last one the watch trusts,
+        in capture order [mm].
+    design : ndarray, shape (m, q)
+        How a change of the sensor changes each row's length: ``(−u, 1)`` per row (``u`` the
+        unit cable direction from P0 to the hook point) [mm/mm].
+    sigma_mm : float
+        The residuals' noise, 1σ [mm] (> 0).
+    prior_mm : float
+        Plausible size of the change, 1σ per component of ``β`` [mm] (> 0).
+    latest : int
+        The latest possible split (the row of the alarm's first exceeding sample): rows
+        from it on are known to be after the move.
+    """
+    r = np.asarray(residual_mm, dtype=float)
+    d = np.asarray(design, dtype=float)
+    m = r.shape[0]
+    if d.shape[0] != m or not 0 <= latest < m:
+        raise ValueError(f"residual_mm ({m},), design ({m}, q) and 0 <= latest < {m}: got "
+                         f"{d.shape} and latest {latest}")  # fmt: skip
+    if not (math.isfinite(sigma_mm) and sigma_mm > 0 and math.isfinite(prior_mm) and prior_mm > 0):
+        raise ValueError(f"sigma_mm and prior_mm: finite and > 0, got {sigma_mm}, {prior_mm}")
+    var = sigma_mm**2
+    best_k, best = latest, -math.inf
+    for k in range(latest, -1, -1):
+        before = -0.5 * float(r[:k] @ r[:k]) / var - 0.5 * k * math.log(var)
+        tail, dt = r[k:], d[k:]
+        cov = var * np.eye(m - k) + prior_mm**2 * (dt @ dt.T)
+        sign, logdet = np.linalg.slogdet(cov)
+        after = -0.5 * float(tail @ np.linalg.solve(cov, tail)) - 0.5 * logdet
+        if sign > 0 and before + after > best:
+            best_k, best = k, before + after
+    return best_k
 
 
 def next_anchor(current: str, existing: list[str] | tuple[str, ...] = ()) -> str:

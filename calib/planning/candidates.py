@@ -6,13 +6,21 @@ A candidate pose is feasible for an anchor when
 - the cable extension ``|p − P0|`` (tool point ``p`` of the nominal model, anchor ``P0``) lies
   within ``extension_mm`` shrunk on both sides by ``margin_mm`` (the anchor guess's
   uncertainty: a pose planned at the guess must stay within the stroke at the true anchor);
-- the flange origin and the tool point are above ``min_z_mm`` in the base frame.
+- the flange origin and the tool point are above ``min_z_mm`` in the base frame;
+- when the indicator's zero offset ``c`` at the anchor is known (the reading is
+  ``|p − P0| + c``), the predicted reading lies within the indicator's range
+  (:data:`calib.dataset.CABLE_MIN_MM` .. :data:`calib.dataset.CABLE_MAX_MM`) shrunk by
+  :data:`calib.dataset.READING_MARGIN_MM` plus ``margin_mm``: a pose the indicator shows as
+  over or under range cannot be captured.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
+from calib.dataset import CABLE_MAX_MM, CABLE_MIN_MM, READING_MARGIN_MM
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames, tool_position
 from calib.models import RobotModel
 from calib.tcp import joint_limits_deg
@@ -24,6 +32,13 @@ def flange_and_tool_mm(model: RobotModel, q_deg: FloatArray) -> tuple[FloatArray
     return origin[:, -1], tool_position(rot, origin, model.tool_mm)
 
 
+def reading_window_mm(margin_mm: float = 0.0) -> tuple[float, float]:
+    """The readings [mm] a plan may predict: the indicator's range shrunk by
+    :data:`calib.dataset.READING_MARGIN_MM` plus ``margin_mm`` on both sides."""
+    shrink = READING_MARGIN_MM + margin_mm
+    return CABLE_MIN_MM + shrink, CABLE_MAX_MM - shrink
+
+
 def feasible(
     model: RobotModel,
     q_deg: FloatArray,
@@ -31,6 +46,7 @@ def feasible(
     extension_mm: tuple[float, float],
     min_z_mm: float,
     margin_mm: float = 0.0,
+    offset_mm: float | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Feasibility mask and cable extension of poses for one anchor.
 
@@ -38,6 +54,9 @@ def feasible(
     ----------
     q_deg : ndarray, shape (n, 6)
     anchor_mm : ndarray, shape (3,)
+    offset_mm : float, optional
+        The indicator's zero offset ``c`` at this anchor [mm] (reading = extension + c);
+        None: unknown, the readings are not checked.
 
     Returns
     -------
@@ -50,6 +69,10 @@ def feasible(
     flange, tool = flange_and_tool_mm(model, q_deg)
     ext = np.linalg.norm(tool - np.asarray(anchor_mm, dtype=float), axis=1)
     ok &= (ext >= extension_mm[0] + margin_mm) & (ext <= extension_mm[1] - margin_mm)
+    if offset_mm is not None:
+        lo, hi = reading_window_mm(margin_mm)
+        reading = ext + offset_mm
+        ok &= (reading >= lo) & (reading <= hi)
     ok &= (flange[:, 2] >= min_z_mm) & (tool[:, 2] >= min_z_mm)
     return ok, ext
 
@@ -63,6 +86,7 @@ def draw_candidates(
     min_z_mm: float,
     margin_mm: float = 0.0,
     max_batches: int = 200,
+    offsets_mm: Sequence[float | None] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """``n`` feasible (pose, anchor) candidates, spread evenly over the anchors.
 
@@ -71,6 +95,8 @@ def draw_candidates(
     anchors_mm : ndarray, shape (m, 3)
     n : int
         Candidates in total; each anchor gets ``n // m`` (the first ones one more).
+    offsets_mm : sequence of m (float or None), optional
+        The indicator's zero offset per anchor [mm] (:func:`feasible`); None: unknown.
 
     Returns
     -------
@@ -87,18 +113,22 @@ def draw_candidates(
     qs, idx = [], []
     for k in range(m):
         want = n // m + (1 if k < n % m else 0)
+        offset = None if offsets_mm is None else offsets_mm[k]
         got = np.empty((0, N_JOINTS))
         for _ in range(max_batches):
             q = rng.uniform(limits[:, 0], limits[:, 1], size=(max(2 * want, 64), N_JOINTS))
-            ok, _ = feasible(model, q, anchors_mm[k], extension_mm, min_z_mm, margin_mm)
+            ok, _ = feasible(model, q, anchors_mm[k], extension_mm, min_z_mm, margin_mm, offset)
             got = np.vstack([got, q[ok]])
             if got.shape[0] >= want:
                 break
         if got.shape[0] < want:
+            lo, hi = reading_window_mm(margin_mm)
+            reading = (f" and a reading within {lo:.0f}..{hi:.0f} mm at zero offset "
+                       f"{offset:.1f} mm" if offset is not None else "")  # fmt: skip
             raise ValueError(
                 f"anchor {k + 1} at {anchors_mm[k].tolist()} mm: only {got.shape[0]} of {want} "
                 f"random poses reach it within the cable extension {extension_mm} mm "
-                f"(margin {margin_mm} mm) above z = {min_z_mm} mm"
+                f"(margin {margin_mm} mm){reading} above z = {min_z_mm} mm"
             )
         qs.append(got[:want])
         idx.append(np.full(want, k))

@@ -28,7 +28,7 @@ from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
 from calib.planning.candidates import draw_candidates
 from calib.planning.options import PlanOptions
-from calib.planning.plan import plan
+from calib.planning.planner import plan
 from calib.synthetic import make_true_cell, noisy_lengths
 from calib.tcp import aligned_position_error_mm, workspace_sample_deg
 

@@ -1,10 +1,23 @@
-"""Options of :func:`calib.planning.plan`."""
+"""Options of :func:`calib.planning.plan`. Standard library only, so the CLI's ``--help``
+reads the defaults from here without loading numpy."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from calib.planning.order import DEFAULT_JOINT_SPEED_DEG_S
+#: Default joint speeds for a campaign's moves [deg/s]: a cautious fraction of a 6-axis
+#: industrial robot's maximum axis speeds (base axes slower than wrist axes).
+DEFAULT_JOINT_SPEED_DEG_S = (30.0, 30.0, 30.0, 45.0, 45.0, 60.0)
+
+#: The 1σ noise of one captured length a plan assumes when it is given none [mm]. A capture
+#: is the mean of a settled window of readings, so its noise is below one reading's; the
+#: figure is a chosen round value, not a measurement. It scales the predicted σ only: the
+#: information matrix is divided by its square, so which poses are chosen does not depend on
+#: it. The daemon replaces it by the cell's own figure when it has one
+#: (:mod:`daemon.plan_noise`); the hold check's step test also falls back to it
+#: (:func:`calib.monitor.holdcheck.evaluate`).
+PLAN_NOISE_MM = 0.05
 
 
 @dataclass(frozen=True)
@@ -29,8 +42,14 @@ class PlanOptions:
     anchor_uncertainty_mm : float
         How far the anchor guess may be off [mm]: the stroke is shrunk by it and the
         criterion is summed over ``anchor_draws`` anchors this far from the guess.
+    offsets_mm : tuple of (float or None), optional
+        The indicator's zero offset ``c`` per anchor (the reading is ``|p − P0| + c``) [mm],
+        e.g. from the accepted calibration or the campaign's running fit: each planned pose's
+        predicted reading then stays within the indicator's range
+        (:func:`calib.planning.candidates.reading_window_mm`). None, or None for an anchor:
+        not known, only the cable extension is bounded.
     noise_mm : float
-        1σ length noise for the predicted parameter and TCP σ [mm].
+        1σ length noise for the predicted parameter and TCP σ [mm] (:data:`PLAN_NOISE_MM`).
     joint_speed_deg_s : 6 floats
         Joint speeds for the campaign's moves [deg/s].
     dwell_s : float
@@ -67,7 +86,8 @@ class PlanOptions:
     extension_mm: tuple[float, float] = (50.0, 1950.0)
     anchor_uncertainty_mm: float = 30.0
     anchor_draws: int = 2
-    noise_mm: float = 0.05
+    offsets_mm: tuple[float | None, ...] | None = None
+    noise_mm: float = PLAN_NOISE_MM
     joint_speed_deg_s: tuple[float, ...] = DEFAULT_JOINT_SPEED_DEG_S
     dwell_s: float = 3.0
     max_exchanges: int = 200
@@ -102,5 +122,11 @@ class PlanOptions:
             raise ValueError(f"dwell_s: must be >= 0, got {self.dwell_s}")
         if self.criterion not in ("tcp", "d"):
             raise ValueError(f"criterion: 'tcp' or 'd', got {self.criterion!r}")
+        if self.offsets_mm is not None:
+            if len(self.offsets_mm) != n_anchors:
+                raise ValueError(f"offsets_mm: {len(self.offsets_mm)} offsets for {n_anchors} "
+                                 "anchors")  # fmt: skip
+            if any(c is not None and not math.isfinite(c) for c in self.offsets_mm):
+                raise ValueError(f"offsets_mm: need finite offsets, got {self.offsets_mm}")
         if self.anchor_ids is not None and len(self.anchor_ids) != n_anchors:
             raise ValueError(f"anchor_ids: {len(self.anchor_ids)} ids for {n_anchors} anchors")

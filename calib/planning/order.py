@@ -16,10 +16,6 @@ import numpy as np
 
 from calib.kinematics import FloatArray
 
-#: Default joint speeds for a campaign's moves [deg/s]: a cautious fraction of a 6-axis
-#: industrial robot's maximum axis speeds (base axes slower than wrist axes).
-DEFAULT_JOINT_SPEED_DEG_S = (30.0, 30.0, 30.0, 45.0, 45.0, 60.0)
-
 
 def travel_time_matrix(q_deg: FloatArray, speed_deg_s: FloatArray) -> FloatArray:
     """Move times between every pair of poses, shape (n, n) [s], for poses (n, 6) [deg]."""

@@ -21,6 +21,11 @@ from calib.kinematics import FloatArray, IndexArray
 MATCH_TOL_DEG = 0.5
 #: Achieved over planned TCP σ RMS above which a result on the plan is still worth a word.
 SIGMA_RATIO_NOTE = 1.5
+#: Refusal reasons (the sampler's, :data:`daemon.capture.REJECTION_STATUS`) that say a planned
+#: pose cannot be captured as planned: the indicator over or under its range there, or a pose
+#: that never settled within the capture timeout. A device error or a stale reading may pass
+#: on a retry, so they do not.
+NOT_CAPTURABLE_REASONS = ("over_range", "moving")
 
 
 def match_poses(
@@ -91,11 +96,44 @@ def match_plan(
     return [int(k) for k in match_poses(planned, anchors, sample_deg, sample_anchor, tol_deg)]
 
 
+def not_capturable(
+    poses: Sequence[Mapping[str, Any]],
+    match: Sequence[int],
+    rejections: Sequence[Mapping[str, Any]],
+    tol_deg: float = MATCH_TOL_DEG,
+) -> list[str | None]:
+    """Per planned pose not measured (``match`` -1, :func:`match_plan`): why it cannot be
+    captured, or None. ``rejections`` are refused captures, oldest first, each with
+    ``reason``, ``detail`` and ``joints_deg`` (6 [deg], the pose it was refused at; ones
+    without it are skipped); a refusal of a reason in :data:`NOT_CAPTURABLE_REASONS` with
+    every joint within ``tol_deg`` of the pose marks it, with the newest such refusal's
+    ``"reason: detail"``. A measured pose is never marked."""
+    known = [
+        r for r in rejections
+        if r.get("reason") in NOT_CAPTURABLE_REASONS
+        and isinstance(r.get("joints_deg"), list | tuple) and len(r["joints_deg"]) == 6
+    ]  # fmt: skip
+    out: list[str | None] = [None] * len(poses)
+    if not known:
+        return out
+    at = np.array([[float(v) for v in r["joints_deg"]] for r in known])  # (m, 6) [deg]
+    for i, (pose, k) in enumerate(zip(poses, match, strict=True)):
+        if k >= 0:
+            continue
+        q = np.array([float(pose[c]) for c in JOINT_COLUMNS])
+        near = np.flatnonzero(np.abs(at - q).max(axis=1) <= tol_deg)
+        if near.size:
+            r = known[int(near[-1])]
+            out[i] = f"{r['reason']}: {r.get('detail', '')}"
+    return out
+
+
 def plan_check(
     plan: Mapping[str, Any],
     joints_deg: FloatArray | Sequence[Sequence[float]],
     anchors: Sequence[str],
     result: Mapping[str, Any],
+    rejections: Sequence[Mapping[str, Any]] = (),
 ) -> dict[str, Any]:
     """The plan check of a result identified from samples at ``joints_deg`` (n, 6) [deg] with
     their ``anchors``, against the stored ``plan`` (``id``, ``poses``, ``summary``).
@@ -105,7 +143,9 @@ def plan_check(
     dict
         ``plan_id``, ``n_planned``, ``n_measured`` (planned poses a sample measured),
         ``n_samples``, ``n_off_plan`` (samples at no planned pose), ``on_plan`` (every planned
-        pose measured), ``tol_deg``, ``planned_tcp_sigma_mm`` and ``achieved_tcp_sigma_mm``
+        capturable pose measured), ``n_not_capturable`` (pending poses the sampler refused
+        for good, :func:`not_capturable` of ``rejections``: counted apart, never asked
+        for), ``tol_deg``, ``planned_tcp_sigma_mm`` and ``achieved_tcp_sigma_mm``
         (``{"rms", "max"}`` [mm]), ``sigma_ratio`` (achieved / planned RMS), ``plan_noise_mm``
         (the noise the plan assumed) and ``plan_noise_source`` (where it came from, see
         :mod:`daemon.plan_noise`; None for plans made before), ``fit_noise_mm`` (the noise
@@ -117,13 +157,24 @@ def plan_check(
     match = match_plan(poses, joints_deg, anchors)
     n_samples = len(anchors)
     n_planned, n_measured = len(poses), sum(1 for k in match if k >= 0)
+    why = not_capturable(poses, match, rejections)
+    impossible = [int(p["pose"]) if "pose" in p else i + 1
+                  for i, (p, w) in enumerate(zip(poses, why, strict=True)) if w]  # fmt: skip
+    n_not = len(impossible)
     n_off = n_samples - len({k for k in match if k >= 0})
     summary = plan.get("summary") or {}
     planned_tcp = ((summary.get("tcp_sigma_mm") or {}).get("plan")) or {}
     achieved = result.get("tcp_uncertainty_mm") or {}
     p_rms, a_rms = planned_tcp.get("rms"), achieved.get("rms")
     ratio = float(a_rms) / float(p_rms) if p_rms and a_rms is not None else None
-    on_plan = n_measured == n_planned
+    on_plan = n_measured + n_not == n_planned
+    aside = (
+        f" {n_not} planned pose(s) cannot be captured (pose {', '.join(map(str, impossible))}: "
+        "the sampler refused them, e.g. over the indicator's range); plan again to replace "
+        "them."
+        if n_not
+        else ""
+    )
     # The plan assumed a length noise; the fit estimates its own (captures are window means,
     # so usually quieter). The plan's σ at the fit's noise separates design from noise.
     plan_noise = summary.get("noise_mm")
@@ -139,7 +190,8 @@ def plan_check(
         else "no tool-point σ to compare"
     )
     if on_plan:
-        note = f"The samples measured all {n_planned} planned poses: {sigma}."
+        note = f"The samples measured all {n_measured} capturable planned poses: {sigma}."
+        note += aside
         if n_off:
             note += f" {n_off} further samples are off the plan."
         if ratio is not None and ratio > SIGMA_RATIO_NOTE:
@@ -154,13 +206,14 @@ def plan_check(
             f"poses measured, {n_off} samples off the plan; {sigma}. Run the plan's program "
             "on the robot (the plan's download, or cablecal program) and capture the pending "
             "poses, or plan again on top of these samples."
-        )
+        ) + aside
     return {
         "plan_id": int(plan["id"]),
         "n_planned": n_planned,
         "n_measured": n_measured,
         "n_samples": n_samples,
         "n_off_plan": n_off,
+        "n_not_capturable": n_not,
         "on_plan": on_plan,
         "tol_deg": MATCH_TOL_DEG,
         "planned_tcp_sigma_mm": planned_tcp,
@@ -179,6 +232,8 @@ def plan_check(
 
 def worth_a_note(check: Mapping[str, Any]) -> bool:
     """Whether a :func:`plan_check` goes into the result's notes: the samples stray from the
-    plan, or fall short of its prediction by more than :data:`SIGMA_RATIO_NOTE`."""
+    plan, some planned poses cannot be captured, or they fall short of its prediction by more
+    than :data:`SIGMA_RATIO_NOTE`."""
     ratio = check["sigma_ratio"]
-    return not check["on_plan"] or (ratio is not None and ratio > SIGMA_RATIO_NOTE)
+    return (not check["on_plan"] or bool(check.get("n_not_capturable"))
+            or (ratio is not None and ratio > SIGMA_RATIO_NOTE))  # fmt: skip

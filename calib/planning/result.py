@@ -56,6 +56,11 @@ class PlanResult:
     tcp_random : dict
         ``{"rms": mean, "max": mean}`` [mm] of the same prediction for random poses drawn from
         the same feasible set, same count and anchors (averaged over several draws).
+    offsets_mm : tuple of (float or None), optional
+        The indicator's zero offset per anchor the plan kept the readings in range with [mm]
+        (:attr:`calib.planning.PlanOptions.offsets_mm`); ``reading_window_mm`` the readings
+        allowed [mm]. ``to_json``'s ``reading_mm``: the offsets, the window and the predicted
+        readings' min and max (None without an offset).
     travel_s, campaign_s : float
         Estimated move time and campaign time (moves plus dwell) [s]; moving the sensor
         between anchors is not included.
@@ -82,6 +87,28 @@ class PlanResult:
     anchor_gain: dict[str, Any] | None = None
     elapsed_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    offsets_mm: tuple[float | None, ...] | None = None
+    reading_window_mm: tuple[float, float] | None = None
+
+    def readings_mm(self) -> FloatArray:
+        """Predicted indicator reading of each pose (n,) [mm]: extension + the anchor's zero
+        offset, NaN where the offset is not known."""
+        offsets = np.array([np.nan if self.offsets_mm is None or self.offsets_mm[k] is None
+                            else float(self.offsets_mm[k]) for k in self.anchor_index])  # fmt: skip
+        out: FloatArray = self.extension_mm + offsets
+        return out
+
+    def _readings_json(self) -> dict[str, Any] | None:
+        if self.offsets_mm is None or all(c is None for c in self.offsets_mm):
+            return None
+        known = self.readings_mm()
+        known = known[np.isfinite(known)]
+        return {
+            "offsets_mm": {aid: self.offsets_mm[k] for k, aid in enumerate(self.anchor_ids)},
+            "window_mm": list(self.reading_window_mm) if self.reading_window_mm else None,
+            "min": float(known.min()) if known.size else None,
+            "max": float(known.max()) if known.size else None,
+        }
 
     def csv_rows(self) -> list[dict[str, Any]]:
         """One mapping per planned pose, keys :data:`CSV_COLUMNS`."""
@@ -137,4 +164,5 @@ class PlanResult:
             "anchor_gain": self.anchor_gain,
             "elapsed_s": self.elapsed_s,
             "notes": list(self.notes),
+            "reading_mm": self._readings_json(),
         }

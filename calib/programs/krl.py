@@ -42,6 +42,7 @@ from calib.programs.common import (
     fmt_deg,
     fmt_num,
 )
+from calib.programs.parsing import Collected, parse_lines
 
 NAME_RULE = NameRule("KRL", 24)
 
@@ -91,68 +92,46 @@ def parse(text: str) -> JointProgram:
         Naming the line: no ``DEF``/``END``, an unknown statement, an approximated or partial
         ``PTP``, no moves.
     """
-    name = ""
-    moves: list[Joints] = []
-    dwells: list[float] = []
+    got = Collected()
     vel: list[float] = []
-    comments: list[str] = []
-    state = "outside"
-    for line_no, raw in enumerate(text.splitlines(), start=1):
-        stmt = raw.split(";", 1)[0].strip()
-        if raw.strip().startswith(";"):
-            if state == "body" and not moves:
-                comments.append(raw.strip()[1:].strip())
-            continue
-        if not stmt:
-            continue
-        if state == "outside":
-            if stmt.startswith("&"):
-                continue
-            m = re.fullmatch(r"(?:GLOBAL\s+)?DEF\s+([A-Za-z_]\w*)\s*\(\s*\)", stmt, re.IGNORECASE)
-            if not m:
-                raise ProgramError(f"line {line_no}: expected DEF name( ), got {stmt!r}")
-            name, state = m.group(1), "body"
-        elif state == "body":
-            up = stmt.upper()
-            if up == "END":
-                state = "done"
-                continue
-            if re.fullmatch(r"BAS\s*\(\s*#\w+\s*,\s*" + _NUM + r"\s*\)", stmt, re.IGNORECASE):
-                continue
-            m = re.fullmatch(
-                r"\$(VEL|ACC)_AXIS\s*\[\s*[1-6]\s*\]\s*=\s*(" + _NUM + ")", stmt, re.IGNORECASE
-            )
-            if m:
-                if m.group(1).upper() == "VEL":
-                    vel.append(float(m.group(2)))
-                continue
-            m = re.fullmatch(r"WAIT\s+SEC\s+(" + _NUM + ")", stmt, re.IGNORECASE)
-            if m:
-                if not moves:
-                    raise ProgramError(f"line {line_no}: WAIT SEC before the first PTP")
-                dwells.append(float(m.group(1)))
-                continue
-            m = re.fullmatch(r"PTP\s*\{([^}]*)\}\s*(\S.*)?", stmt, re.IGNORECASE)
-            if not m:
-                raise ProgramError(f"line {line_no}: unknown statement {stmt!r}")
-            if m.group(2):
-                raise ProgramError(
-                    f"line {line_no}: {m.group(2).strip()} approximates the move; the robot "
-                    "must stop at each target"
-                )
-            moves.append(_axes(m.group(1), line_no))
-        else:
-            raise ProgramError(f"line {line_no}: text after END: {stmt!r}")
-    if state != "done":
-        raise ProgramError(
-            f"line {len(text.splitlines())}: missing {'END' if state == 'body' else 'DEF name( )'}"
+
+    def outside(stmt: str, line_no: int) -> str:
+        if stmt.startswith("&"):
+            return "outside"
+        m = re.fullmatch(r"(?:GLOBAL\s+)?DEF\s+([A-Za-z_]\w*)\s*\(\s*\)", stmt, re.IGNORECASE)
+        if not m:
+            raise ProgramError(f"line {line_no}: expected DEF name( ), got {stmt!r}")
+        got.name = m.group(1)
+        return "body"
+
+    def body(stmt: str, line_no: int) -> str:
+        if stmt.upper() == "END":
+            return "done"
+        if re.fullmatch(r"BAS\s*\(\s*#\w+\s*,\s*" + _NUM + r"\s*\)", stmt, re.IGNORECASE):
+            return "body"
+        m = re.fullmatch(
+            r"\$(VEL|ACC)_AXIS\s*\[\s*[1-6]\s*\]\s*=\s*(" + _NUM + ")", stmt, re.IGNORECASE
         )
-    if not moves:
-        raise ProgramError(f"{name}: no PTP")
-    return JointProgram(
-        name=name,
-        joints_deg=tuple(moves),
-        speed_pct=min(vel) if vel else 100.0,
-        dwell_s=min(dwells) if dwells else 0.0,
-        comments=tuple(comments),
-    )
+        if m:
+            if m.group(1).upper() == "VEL":
+                vel.append(float(m.group(2)))
+            return "body"
+        m = re.fullmatch(r"WAIT\s+SEC\s+(" + _NUM + ")", stmt, re.IGNORECASE)
+        if m:
+            got.dwell(float(m.group(1)), line_no, "WAIT SEC", "PTP")
+            return "body"
+        m = re.fullmatch(r"PTP\s*\{([^}]*)\}\s*(\S.*)?", stmt, re.IGNORECASE)
+        if not m:
+            raise ProgramError(f"line {line_no}: unknown statement {stmt!r}")
+        if m.group(2):
+            raise ProgramError(
+                f"line {line_no}: {m.group(2).strip()} approximates the move; the robot "
+                "must stop at each target"
+            )
+        got.moves.append(_axes(m.group(1), line_no))
+        return "body"
+
+    parse_lines(text, got, comment=";", inline_comments=True, header_state="body",
+                handlers={"outside": outside, "body": body},
+                missing={"outside": "DEF name( )", "body": "END"}, end="END")  # fmt: skip
+    return got.program(min(vel) if vel else 100.0, f"{got.name}: no PTP")

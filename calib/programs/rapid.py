@@ -39,6 +39,7 @@ from calib.programs.common import (
     fmt_deg,
     fmt_num,
 )
+from calib.programs.parsing import Collected, parse_lines
 
 NAME_RULE = NameRule("RAPID", 32)
 #: ABB's v1000: TCP 1000 mm/s, orientation 500 deg/s, external axes 5000 mm/s, 1000 deg/s.
@@ -90,111 +91,90 @@ def parse(text: str) -> JointProgram:
         Naming the line: no ``MODULE``/``PROC main()``, an unknown instruction, a MoveAbsJ to
         an undeclared target or without ``fine``, a malformed number, no moves.
     """
-    name = ""
+    got = Collected()
     targets: dict[str, Joints] = {}
     speeds: dict[str, float] = {}
-    moves: list[Joints] = []
-    dwells: list[float] = []
-    speed_pct: float | None = None
-    comments: list[str] = []
-    state = "outside"  # outside → module → main → module → done
-    for line_no, raw in enumerate(text.splitlines(), start=1):
-        stmt = raw.split("!", 1)[0].strip()
-        if raw.strip().startswith("!"):
-            if state == "module" and not moves:
-                comments.append(raw.strip()[1:].strip())
-            continue
-        if not stmt:
-            continue
-        low = stmt.lower()
-        if state == "outside":
-            m = re.fullmatch(r"module\s+([A-Za-z]\w*)(\s*\([^)]*\))?", stmt, re.IGNORECASE)
-            if not m:
-                raise ProgramError(f"line {line_no}: expected MODULE name, got {stmt!r}")
-            name, state = m.group(1), "module"
-        elif state == "module":
-            if low == "endmodule":
-                state = "done"
-                continue
-            if re.fullmatch(r"proc\s+main\s*\(\s*\)", stmt, re.IGNORECASE):
-                state = "main"
-                continue
-            m = re.fullmatch(
-                r"(?:const|pers|var)\s+(jointtarget|speeddata)\s+([A-Za-z]\w*)\s*:=\s*(.*);",
-                stmt,
-                re.IGNORECASE,
+
+    def outside(stmt: str, line_no: int) -> str:
+        m = re.fullmatch(r"module\s+([A-Za-z]\w*)(\s*\([^)]*\))?", stmt, re.IGNORECASE)
+        if not m:
+            raise ProgramError(f"line {line_no}: expected MODULE name, got {stmt!r}")
+        got.name = m.group(1)
+        return "module"
+
+    def module(stmt: str, line_no: int) -> str:
+        if stmt.lower() == "endmodule":
+            return "done"
+        if re.fullmatch(r"proc\s+main\s*\(\s*\)", stmt, re.IGNORECASE):
+            return "main"
+        m = re.fullmatch(
+            r"(?:const|pers|var)\s+(jointtarget|speeddata)\s+([A-Za-z]\w*)\s*:=\s*(.*);",
+            stmt,
+            re.IGNORECASE,
+        )
+        if not m:
+            raise ProgramError(
+                f"line {line_no}: expected a declaration or PROC main(), got {stmt!r}"
             )
-            if not m:
-                raise ProgramError(
-                    f"line {line_no}: expected a declaration or PROC main(), got {stmt!r}"
-                )
-            kind, var, value = m.group(1).lower(), m.group(2).lower(), m.group(3)
-            if kind == "jointtarget":
-                targets[var] = _jointtarget(value, line_no)
-            else:
-                sm = re.fullmatch(
-                    rf"\[\s*({_NUM})\s*,\s*{_NUM}\s*,\s*{_NUM}\s*,\s*{_NUM}\s*\]", value.strip()
-                )
-                if not sm:
-                    raise ProgramError(f"line {line_no}: speeddata needs 4 numbers, got {value!r}")
-                speeds[var] = float(sm.group(1))
-        elif state == "main":
-            if low == "endproc":
-                state = "module"
-                continue
-            if not stmt.endswith(";"):
-                raise ProgramError(f"line {line_no}: missing ';' after {stmt!r}")
-            body = stmt[:-1].strip()
-            if re.fullmatch(r"conf[jl]\s*\\\s*(on|off)", body, re.IGNORECASE):
-                continue
-            m = re.fullmatch(
-                r"waittime\s*(\\\s*inpos\s*)?,?\s*(" + _NUM + r")", body, re.IGNORECASE
-            )
-            if m:
-                if not moves:
-                    raise ProgramError(f"line {line_no}: WaitTime before the first MoveAbsJ")
-                dwells.append(float(m.group(2)))
-                continue
-            m = re.fullmatch(r"moveabsj\s+(.+)", body, re.IGNORECASE | re.DOTALL)
-            if not m:
-                raise ProgramError(f"line {line_no}: unknown instruction {body!r}")
-            args = m.group(1)
-            if args.lstrip().startswith("["):
-                end = args.index("]]") + 2 if "]]" in args else -1
-                if end < 0:
-                    raise ProgramError(f"line {line_no}: unterminated jointtarget")
-                target, rest = _jointtarget(args[:end], line_no), args[end:]
-            else:
-                tm = re.match(r"\s*([A-Za-z]\w*)", args)
-                if not tm or tm.group(1).lower() not in targets:
-                    raise ProgramError(
-                        f"line {line_no}: MoveAbsJ to an undeclared jointtarget: {args!r}"
-                    )
-                target, rest = targets[tm.group(1).lower()], args[tm.end() :]
-            parts = [
-                p.strip()
-                for p in re.sub(r"^\s*(\\\s*NoEOffs)?", "", rest, flags=re.IGNORECASE).split(",")
-            ]
-            if len(parts) < 4 or parts[0] != "" or parts[2].lower() != "fine":
-                raise ProgramError(
-                    f"line {line_no}: expected MoveAbsJ target, speed, fine, tool; got {body!r}"
-                )
-            speed = parts[1].lower()
-            if speed not in speeds:
-                raise ProgramError(f"line {line_no}: undeclared speeddata {parts[1]!r}")
-            speed_pct = 100.0 * speeds[speed] / V1000[0]
-            moves.append(target)
+        kind, var, value = m.group(1).lower(), m.group(2).lower(), m.group(3)
+        if kind == "jointtarget":
+            targets[var] = _jointtarget(value, line_no)
         else:
-            raise ProgramError(f"line {line_no}: text after ENDMODULE: {stmt!r}")
-    if state != "done":
-        missing = {"main": "ENDPROC", "module": "ENDMODULE"}.get(state, "MODULE")
-        raise ProgramError(f"line {len(text.splitlines())}: missing {missing}")
-    if not moves:
-        raise ProgramError("PROC main(): no MoveAbsJ")
-    return JointProgram(
-        name=name,
-        joints_deg=tuple(moves),
-        speed_pct=speed_pct if speed_pct is not None else 100.0,
-        dwell_s=min(dwells) if dwells else 0.0,
-        comments=tuple(comments),
-    )
+            sm = re.fullmatch(
+                rf"\[\s*({_NUM})\s*,\s*{_NUM}\s*,\s*{_NUM}\s*,\s*{_NUM}\s*\]", value.strip()
+            )
+            if not sm:
+                raise ProgramError(f"line {line_no}: speeddata needs 4 numbers, got {value!r}")
+            speeds[var] = float(sm.group(1))
+        return "module"
+
+    def main(stmt: str, line_no: int) -> str:
+        if stmt.lower() == "endproc":
+            return "module"
+        if not stmt.endswith(";"):
+            raise ProgramError(f"line {line_no}: missing ';' after {stmt!r}")
+        body = stmt[:-1].strip()
+        if re.fullmatch(r"conf[jl]\s*\\\s*(on|off)", body, re.IGNORECASE):
+            return "main"
+        m = re.fullmatch(r"waittime\s*(\\\s*inpos\s*)?,?\s*(" + _NUM + r")", body, re.IGNORECASE)
+        if m:
+            got.dwell(float(m.group(2)), line_no, "WaitTime", "MoveAbsJ")
+            return "main"
+        m = re.fullmatch(r"moveabsj\s+(.+)", body, re.IGNORECASE | re.DOTALL)
+        if not m:
+            raise ProgramError(f"line {line_no}: unknown instruction {body!r}")
+        args = m.group(1)
+        if args.lstrip().startswith("["):
+            end = args.index("]]") + 2 if "]]" in args else -1
+            if end < 0:
+                raise ProgramError(f"line {line_no}: unterminated jointtarget")
+            target, rest = _jointtarget(args[:end], line_no), args[end:]
+        else:
+            tm = re.match(r"\s*([A-Za-z]\w*)", args)
+            if not tm or tm.group(1).lower() not in targets:
+                raise ProgramError(
+                    f"line {line_no}: MoveAbsJ to an undeclared jointtarget: {args!r}"
+                )
+            target, rest = targets[tm.group(1).lower()], args[tm.end() :]
+        parts = [
+            p.strip()
+            for p in re.sub(r"^\s*(\\\s*NoEOffs)?", "", rest, flags=re.IGNORECASE).split(",")
+        ]
+        if len(parts) < 4 or parts[0] != "" or parts[2].lower() != "fine":
+            raise ProgramError(
+                f"line {line_no}: expected MoveAbsJ target, speed, fine, tool; got {body!r}"
+            )
+        speed = parts[1].lower()
+        if speed not in speeds:
+            raise ProgramError(f"line {line_no}: undeclared speeddata {parts[1]!r}")
+        got.speed_pct = 100.0 * speeds[speed] / V1000[0]
+        got.moves.append(target)
+        return "main"
+
+    # outside → module → main → module → done
+    parse_lines(text, got, comment="!", inline_comments=True, header_state="module",
+                handlers={"outside": outside, "module": module, "main": main},
+                missing={"outside": "MODULE", "module": "ENDMODULE", "main": "ENDPROC"},
+                end="ENDMODULE")  # fmt: skip
+    return got.program(got.speed_pct if got.speed_pct is not None else 100.0,
+                       "PROC main(): no MoveAbsJ")  # fmt: skip

@@ -30,13 +30,13 @@ import re
 from calib.programs.common import (
     DECIMALS,
     JointProgram,
-    Joints,
     NameRule,
     ProgramError,
     clean_comment,
     fmt_num,
     round_joints,
 )
+from calib.programs.parsing import Collected, parse_lines
 
 NAME_RULE = NameRule("URScript", 32)
 #: Joint speed at 100 % [rad/s] (180 deg/s).
@@ -72,64 +72,44 @@ def parse(text: str) -> JointProgram:
         Naming the line: no ``def name():``/``end``, an unknown statement, a blended or
         malformed ``movej``, no moves.
     """
-    name = ""
-    moves: list[Joints] = []
-    dwells: list[float] = []
-    speed_pct: float | None = None
-    comments: list[str] = []
-    state = "outside"
-    for line_no, raw in enumerate(text.splitlines(), start=1):
-        stmt = raw.strip()
-        if stmt.startswith("#"):
-            if state == "body" and not moves:
-                comments.append(stmt[1:].strip())
-            continue
-        if not stmt:
-            continue
-        if state == "outside":
-            m = re.fullmatch(r"def\s+([A-Za-z_]\w*)\s*\(\s*\)\s*:", stmt)
-            if not m:
-                raise ProgramError(f"line {line_no}: expected def name():, got {stmt!r}")
-            name, state = m.group(1), "body"
-        elif state == "body":
-            if stmt == "end":
-                state = "done"
-                continue
-            m = re.fullmatch(r"sleep\(\s*(" + _NUM + r")\s*\)", stmt)
-            if m:
-                if not moves:
-                    raise ProgramError(f"line {line_no}: sleep before the first movej")
-                dwells.append(float(m.group(1)))
-                continue
-            m = re.fullmatch(
-                r"movej\(\s*\[([^\]]*)\]\s*((?:,\s*[avtr]\s*=\s*" + _NUM + r"\s*)*)\)", stmt
-            )
-            if not m:
-                raise ProgramError(f"line {line_no}: unknown statement {stmt!r}")
-            values = [v.strip() for v in m.group(1).split(",")]
-            if len(values) != 6 or not all(re.fullmatch(_NUM, v) for v in values):
-                raise ProgramError(f"line {line_no}: movej needs 6 joint angles in radians")
-            kw = dict(re.findall(r"([avtr])\s*=\s*(" + _NUM + r")", m.group(2)))
-            if float(kw.get("r", "0")) != 0:
-                raise ProgramError(
-                    f"line {line_no}: a blended movej (r > 0) does not stop at the target"
-                )
-            if "v" in kw:
-                speed_pct = round(float(kw["v"]) / MAX_JOINT_SPEED_RAD_S * 100.0, 2)
-            q = [round(math.degrees(float(v)), DECIMALS) + 0.0 for v in values]
-            moves.append((q[0], q[1], q[2], q[3], q[4], q[5]))
-        else:
-            raise ProgramError(f"line {line_no}: text after end: {stmt!r}")
-    if state != "done":
-        raise ProgramError(
-            f"line {len(text.splitlines())}: missing {'end' if state == 'body' else 'def name():'}"
+    got = Collected()
+
+    def outside(stmt: str, line_no: int) -> str:
+        m = re.fullmatch(r"def\s+([A-Za-z_]\w*)\s*\(\s*\)\s*:", stmt)
+        if not m:
+            raise ProgramError(f"line {line_no}: expected def name():, got {stmt!r}")
+        got.name = m.group(1)
+        return "body"
+
+    def body(stmt: str, line_no: int) -> str:
+        if stmt == "end":
+            return "done"
+        m = re.fullmatch(r"sleep\(\s*(" + _NUM + r")\s*\)", stmt)
+        if m:
+            got.dwell(float(m.group(1)), line_no, "sleep", "movej")
+            return "body"
+        m = re.fullmatch(
+            r"movej\(\s*\[([^\]]*)\]\s*((?:,\s*[avtr]\s*=\s*" + _NUM + r"\s*)*)\)", stmt
         )
-    if not moves:
-        raise ProgramError(f"{name}: no movej")
-    return JointProgram(
-        name=name,
-        joints_deg=tuple(moves),
-        speed_pct=min(max(speed_pct if speed_pct is not None else 100.0, 1.0), 100.0),
-        dwell_s=min(dwells) if dwells else 0.0,
-        comments=tuple(comments),
-    )
+        if not m:
+            raise ProgramError(f"line {line_no}: unknown statement {stmt!r}")
+        values = [v.strip() for v in m.group(1).split(",")]
+        if len(values) != 6 or not all(re.fullmatch(_NUM, v) for v in values):
+            raise ProgramError(f"line {line_no}: movej needs 6 joint angles in radians")
+        kw = dict(re.findall(r"([avtr])\s*=\s*(" + _NUM + r")", m.group(2)))
+        if float(kw.get("r", "0")) != 0:
+            raise ProgramError(
+                f"line {line_no}: a blended movej (r > 0) does not stop at the target"
+            )
+        if "v" in kw:
+            got.speed_pct = round(float(kw["v"]) / MAX_JOINT_SPEED_RAD_S * 100.0, 2)
+        q = [round(math.degrees(float(v)), DECIMALS) + 0.0 for v in values]
+        got.moves.append((q[0], q[1], q[2], q[3], q[4], q[5]))
+        return "body"
+
+    # A '#' inside a statement is not a comment here: such a line is an unknown statement.
+    parse_lines(text, got, comment="#", inline_comments=False, header_state="body",
+                handlers={"outside": outside, "body": body},
+                missing={"outside": "def name():", "body": "end"}, end="end")  # fmt: skip
+    speed_pct = got.speed_pct if got.speed_pct is not None else 100.0
+    return got.program(min(max(speed_pct, 1.0), 100.0), f"{got.name}: no movej")

@@ -43,6 +43,9 @@ MAX_IMPORT_BYTES: Final = 20 * 1024 * 1024
 #: Largest compensation body [bytes], CSV or JSON: 10 000 pose rows are about 1 MB.
 MAX_COMPENSATE_BYTES: Final = 4 * 1024 * 1024
 
+#: Largest program-filter upload [bytes] (``POST /robots/{id}/filter``): all files together.
+MAX_FILTER_BYTES: Final = 16 * 1024 * 1024
+
 #: Longest pause in a request body that has started [s]: a stalled body is a 408.
 BODY_GAP_TIMEOUT_S: Final = 10.0
 #: Longest time to receive a whole request body [s] (20 MiB at 1 MiB/s would still fit).
@@ -50,6 +53,7 @@ BODY_TIMEOUT_S: Final = 60.0
 
 _IMPORT_PATH = re.compile(re.escape(API_PREFIX) + r"/campaigns/[^/]+/samples/import/?")
 _COMPENSATE_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/compensate/?")
+_FILTER_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/filter/?")
 #: The liveness route: open without the token (and kept a connection by daemon.api.server).
 HEALTH_PATH: Final = API_PREFIX + "/health"
 _OPEN_PATHS = frozenset({HEALTH_PATH})
@@ -74,6 +78,8 @@ def body_limit(path: str) -> int:
     """The largest body [bytes] a request to ``path`` may carry."""
     if _IMPORT_PATH.fullmatch(path):
         return MAX_IMPORT_BYTES
+    if _FILTER_PATH.fullmatch(path):
+        return MAX_FILTER_BYTES
     return MAX_COMPENSATE_BYTES if _COMPENSATE_PATH.fullmatch(path) else MAX_JSON_BYTES
 
 

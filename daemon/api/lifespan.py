@@ -58,9 +58,20 @@ def default_sampler(state: AppState) -> Any:
 
 def watch_captures(sampler: Any, watch: SensorWatch) -> None:
     """The sampler's sink wrapped, so that the watch tests each stored capture (test
-    doubles without a sink store nothing)."""
+    doubles without a sink store nothing) and a refused capture is stored with its pose."""
     if hasattr(sampler, "sink"):
         sampler.sink = watch.wrap(sampler.sink)
+    if hasattr(sampler, "status"):
+        watch.joints_now = lambda: robot_joints_deg(sampler.status())
+
+
+def robot_joints_deg(status: dict[str, Any]) -> list[float] | None:
+    """The robot's latest joints [deg] (6) from the sampler's ``status()``, or None."""
+    reading = ((status.get("devices") or {}).get("robot") or {}).get("last_reading") or {}
+    value = reading.get("value")
+    if not isinstance(value, list | tuple) or len(value) != 6:
+        return None
+    return [float(v) for v in value]
 
 
 def make_lifespan(
@@ -85,8 +96,8 @@ def make_lifespan(
             state.drift = HoldCheckMonitor(state.store, settings.drift, state.auto)
             await state.drift.start()
             # Everything built so far (modules, schemas, models) lives as long as the process:
-            # out of the collector's sight, a full collection during a large import takes
-            # milliseconds instead of ~100 ms on the event loop.
+            # out of the collector's sight, a full collection during a large import has far
+            # less to walk, and holds the event loop that much shorter.
             gc.freeze()
             sys.setswitchinterval(SWITCH_INTERVAL_S)
             yield

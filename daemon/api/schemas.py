@@ -184,6 +184,12 @@ class CaptureRequest(_Body):
         None, description="Joint angles [deg], only with the manual robot driver."
     )
     anchor: Anchor = Field("A", description="Sensor position id (not blank).")
+    repeat: bool = Field(
+        False,
+        description="Store it even at a pose the campaign has captured already (the operator "
+        "confirmed the repeat); without it such a capture is refused (409 not_new_pose), the "
+        "rule auto capture follows.",
+    )
 
 
 class AutoCapture(_Body):

@@ -1,4 +1,10 @@
-"""The ``cablecal`` command line: one typer app; each part registers its own commands."""
+"""The ``cablecal`` command line: one typer app; each part registers its own commands.
+
+The command modules registered here do not use ``from __future__ import annotations``: typer
+reads every command's signature when it builds the command line (also for ``--help``), and
+string annotations would have to be compiled and evaluated one by one at every start. Names
+imported only for type checking are quoted.
+"""
 
 from __future__ import annotations
 
@@ -18,11 +24,12 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import apply, calibration, db, plan, program, report, serve, simulate
+    from daemon.cli import apply, calibration, db, filter, plan, program, report, serve, simulate
 
     calibration.register(app)
     plan.register(app)
     apply.register(app)
+    filter.register(app)
     program.register(app)
     report.register(app)
     serve.register(app)

@@ -5,8 +5,6 @@ without the daemon. ``calib`` (numpy, scipy) is imported inside the commands, so
 ``cablecal --help`` does not pay for them. Every table fits 80 columns.
 """
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -43,7 +41,7 @@ def read_result(path: Path) -> dict[str, Any]:
     return data
 
 
-def nominal_model(result: dict[str, Any], robot: str | None, result_path: Path) -> RobotModel:
+def nominal_model(result: dict[str, Any], robot: str | None, result_path: Path) -> "RobotModel":
     """The nominal model: ``--robot`` (built-in name or model file), else the result's robot."""
     from calib.models import ModelError
     from daemon.datafiles import load_robot
@@ -78,7 +76,7 @@ def _seed(text: str | None) -> list[float] | None:
     return values
 
 
-def compensation_summary(out: CompensateResult, con: Console) -> None:
+def compensation_summary(out: "CompensateResult", con: Console) -> None:
     """The figures of a compensation, its flagged rows (first 10) and the note."""
     s = out.summary
     kind = "joint" if out.kind == "joints" else out.kind
@@ -106,7 +104,7 @@ def compensation_summary(out: CompensateResult, con: Console) -> None:
     con.print(f"[bold]note:[/] {out.note}", highlight=False)
 
 
-def verify_tables(out: VerifyResult, con: Console) -> None:
+def verify_tables(out: "VerifyResult", con: Console) -> None:
     """Metrics and per-pose residuals (the largest :data:`MAX_PRINTED_ROWS` when longer)."""
     m = out.metrics
     title = "Verification" + (" (anchor refit)" if out.refit_anchor else "")

@@ -4,8 +4,6 @@
 other commands do not pay for them.
 """
 
-from __future__ import annotations
-
 import json
 import statistics
 import time
@@ -72,7 +70,7 @@ def _opt(name: str, suffix: str = "") -> Any:
     return typer.Option(help=escape(f"{sp.help}{choices}{suffix}"))  # keep "[mm]" literal
 
 
-def _progress() -> Progress:
+def _progress() -> "Progress":
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     return Progress(
@@ -85,7 +83,7 @@ def _progress() -> Progress:
     )
 
 
-def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: Any) -> Any:
+def _run_identify(model: "RobotModel", samples: Any, opts: IdentifyOptions, **kw: Any) -> Any:
     from calib.identify import identify
 
     with _progress() as bar:
@@ -97,7 +95,7 @@ def _run_identify(model: RobotModel, samples: Any, opts: IdentifyOptions, **kw: 
         return identify(model, samples, opts, progress=cb, clock=time.perf_counter, **kw)
 
 
-def _summary(result: IdentifyResult) -> None:
+def _summary(result: "IdentifyResult") -> None:
     data = result.to_json()
     table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
     table.add_column("figure [mm]")
@@ -210,7 +208,7 @@ def identify_cmd(
         raise typer.Exit(code)
 
 
-def exit_code(result: IdentifyResult, strict: bool) -> int:
+def exit_code(result: "IdentifyResult", strict: bool) -> int:
     """0, :data:`EXIT_NOT_CONVERGED` when the solver did not converge, or (``strict``)
     :data:`EXIT_IMPLAUSIBLE` when the result is physically implausible; non-convergence wins."""
     if not result.solver.success:
@@ -274,7 +272,7 @@ def register(app: typer.Typer) -> None:
 
 
 def compare(
-    model: RobotModel,
+    model: "RobotModel",
     samples: Any,
     methods: tuple[str, ...],
     n_train: int,

@@ -11,8 +11,6 @@ file, also through a symlink or a hard link) or any other SQLite file: exit 2, n
 The store (sqlite-utils) is imported when the command runs, not when the command line is built.
 """
 
-from __future__ import annotations
-
 import enum
 import json
 import os

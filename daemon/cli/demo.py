@@ -77,20 +77,27 @@ def serve_cmd(
     console.print("  open (URL with the token, one line; the page keeps the token for the tab):")
     # Plain print: one line that a terminal does not wrap or restyle, to copy as it is.
     print(f"  {daemon.url}/#token={token}", flush=True)
-    console.print(f"  REST API docs  {daemon.url}/docs")
-    console.print(f"  token          {token}")
-    console.print(f"  database       {state_dir / 'cablecal.sqlite3'}")
-    console.print(f"  logs           {state_dir / 'daemon.log'}, {state_dir / 'simulator.log'}")
+    # soft_wrap: every line whole even when the output is not a terminal (rich would wrap it at
+    # 80 columns, breaking the commands below mid-line); a terminal still wraps visually.
+    console.print(f"  REST API docs  {daemon.url}/docs", soft_wrap=True)
+    console.print(f"  token          {token}", soft_wrap=True)
+    console.print(f"  database       {state_dir / 'cablecal.sqlite3'}", soft_wrap=True)
+    console.print(
+        f"  logs           {state_dir / 'daemon.log'}, {state_dir / 'simulator.log'}",
+        soft_wrap=True,
+    )
     if sim.ready.get("control"):
         console.print(
             f"  robot program  cablecal emulated-robot-run PLAN_FILE --control "
             f"{sim.ready['control']}  (a plan downloaded from the page: the EMULATED robot "
             "runs it)",
             highlight=False,
+            soft_wrap=True,
         )
     console.print(
         f"  try: curl -H 'Authorization: Bearer {token}' {daemon.url}/api/v1/status\n"
-        "Ctrl-C stops both."
+        "Ctrl-C stops both.",
+        soft_wrap=True,
     )
     try:
         while daemon.popen.poll() is None and sim.popen.poll() is None:

@@ -5,8 +5,6 @@ them. Engine options left unset take :class:`calib.planning.PlanOptions`' defaul
 texts quote them; tests/test_plan_cli.py keeps the two in step).
 """
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
 from typing import Annotated, Any
@@ -18,7 +16,15 @@ from rich.table import Table
 from rich.text import Text
 
 from calib.default_robot import DEFAULT_ROBOT_MODEL
+from calib.planning.options import PlanOptions as _PlanOptions
 from daemon.cli.errors import fail as _fail
+
+#: The defaults the help names: read from calib's one definition (standard library only).
+_D = _PlanOptions()
+
+
+def _csv(values: tuple[float, ...]) -> str:
+    return ",".join(f"{v:g}" for v in values)
 
 
 def parse_floats(text: str, option: str, count: int, what: str) -> tuple[float, ...]:
@@ -144,32 +150,38 @@ def plan_cmd(
     anchor_id: Annotated[
         list[str] | None, typer.Option(help="Id per --anchor-mm (default A, B, …)")
     ] = None,
-    n: Annotated[int | None, typer.Option(help="Poses to plan, all anchors (40)")] = None,
+    n: Annotated[int | None, typer.Option(help=f"Poses to plan, all anchors ({_D.n})")] = None,
     min_z_mm: Annotated[
-        float | None, typer.Option(help="Flange and tool point above this z [mm] (0)")
+        float | None,
+        typer.Option(help=f"Flange and tool point above this z [mm] ({_D.min_z_mm:g})"),
     ] = None,
     candidates: Annotated[
-        int | None, typer.Option(help="Random feasible candidate poses (3000)")
+        int | None, typer.Option(help=f"Random feasible candidate poses ({_D.candidates})")
     ] = None,
-    seed: Annotated[int | None, typer.Option(help="Random seed (0)")] = None,
+    seed: Annotated[int | None, typer.Option(help=f"Random seed ({_D.seed})")] = None,
     start: Annotated[
         Path | None, typer.Option(help="CSV of poses already measured (identify's format)")
     ] = None,
     extension_mm: Annotated[
-        str | None, typer.Option(help="Allowed cable extension MIN,MAX [mm] (50,1950)")
+        str | None,
+        typer.Option(help=f"Allowed cable extension MIN,MAX [mm] ({_csv(_D.extension_mm)})"),
     ] = None,
     anchor_uncertainty_mm: Annotated[
-        float | None, typer.Option(help="How far the anchor guess may be off [mm] (30)")
+        float | None,
+        typer.Option(
+            help=f"How far the anchor guess may be off [mm] ({_D.anchor_uncertainty_mm:g})"
+        ),
     ] = None,
     noise_mm: Annotated[
-        float | None, typer.Option(help="1σ length noise for the predictions [mm] (0.05)")
+        float | None,
+        typer.Option(help=f"1σ length noise for the predictions [mm] ({_D.noise_mm:g})"),
     ] = None,
     joint_speed_deg_s: Annotated[
         str | None,
-        typer.Option(help="Six joint speeds [deg/s] (30,30,30,45,45,60)"),
+        typer.Option(help=f"Six joint speeds [deg/s] ({_csv(_D.joint_speed_deg_s)})"),
     ] = None,
     dwell_s: Annotated[
-        float | None, typer.Option(help="Settle and read time per pose [s] (3)")
+        float | None, typer.Option(help=f"Settle and read time per pose [s] ({_D.dwell_s:g})")
     ] = None,
     criterion: Annotated[
         str | None,
@@ -188,6 +200,7 @@ def plan_cmd(
     from calib.dataset import SampleError
     from calib.models import ModelError
     from calib.planning import PlanOptions, plan, start_anchors_mm
+    from calib.planning.planner import plan_anchor_ids, start_offsets_mm
     from daemon.datafiles import load_robot, read_samples
 
     console = Console()  # created here so COLUMNS is read at run time
@@ -220,6 +233,10 @@ def plan_cmd(
             raise ValueError(f"--anchor-id: {len(ids)} ids for {len(anchors)} anchors")
         if ids:
             kw["anchor_ids"] = tuple(ids)
+        if samples is not None:  # the start samples' zero offsets keep the readings in range
+            kw["offsets_mm"] = start_offsets_mm(
+                model, samples, plan_anchor_ids(kw.get("anchor_ids"), len(anchors))
+            )
         opts = PlanOptions(**kw)
         with console.status("planning…"):
             res = plan(model, anchors, opts, start=samples)

@@ -7,8 +7,6 @@ command. The default dwell follows the sampler's ``settle_s`` as the daemon's se
 :func:`calib.programs.formats.dwell_s_for_settle`.
 """
 
-from __future__ import annotations
-
 from enum import Enum
 from pathlib import Path
 from typing import Annotated

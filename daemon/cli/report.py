@@ -3,8 +3,6 @@
 ``calib`` (numpy, scipy) is imported inside the command, so ``cablecal --help`` stays light.
 """
 
-from __future__ import annotations
-
 import json
 from pathlib import Path
 from typing import Annotated

@@ -9,8 +9,6 @@ uvicorn, FastAPI, pydantic and the daemon's modules are imported when the comman
 when the command line is built.
 """
 
-from __future__ import annotations
-
 import contextlib
 import json
 import logging
@@ -41,7 +39,7 @@ def load_settings(
     host: str | None,
     port: int | None,
     robot_kind: str | None = None,
-) -> Settings:
+) -> "Settings":
     """Settings from the file, the environment and the command-line overrides."""
     from daemon.config import ConfigError, Settings, simulated_cell_overrides
 
@@ -84,7 +82,7 @@ def write_token_file(state_dir: Path, token: str) -> Path:
     return path
 
 
-def _notifying_server(config: uvicorn.Config, notifier: Any) -> uvicorn.Server:
+def _notifying_server(config: "uvicorn.Config", notifier: Any) -> "uvicorn.Server":
     """uvicorn's server, telling systemd ``STOPPING=1`` as soon as a stop signal arrives
     (uvicorn re-raises SIGTERM after its shutdown, so code after ``serve()`` may not run)."""
     import uvicorn
@@ -97,7 +95,7 @@ def _notifying_server(config: uvicorn.Config, notifier: Any) -> uvicorn.Server:
     return NotifyingServer(config)
 
 
-async def serve(settings: Settings, token: str, generated: bool) -> int:
+async def serve(settings: "Settings", token: str, generated: bool) -> int:
     """Run until SIGTERM/SIGINT; returns the exit code."""
     import asyncio
 

@@ -5,8 +5,6 @@ this command calls it. The simulator (pymodbus) is imported when the command run
 the command line is built.
 """
 
-from __future__ import annotations
-
 from pathlib import Path
 
 import typer

@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
+from calib.dataset import known_pose_index
 from daemon.capture import CaptureRejected, Joints
 from daemon.devices import Device
 from daemon.sampler.config import SamplerConfig
@@ -173,12 +174,10 @@ class AutoState:
         if self.need_motion or now < self.retry_after:
             return NOTHING
         q = mean_pose(r.joints_deg for r in verdict.window)
-        tol = cfg.auto_new_pose_deg
-        near = [i for i, k in enumerate(self.known) if _max_deviation_deg(k, q) < tol]
-        if not near:
+        index = known_pose_index(self.known, q, cfg.auto_new_pose_deg)  # the one repeat rule
+        if index is None:
             return AutoAction(store=True)
         self.stay(q)
-        index = near[0]
         if index in self.reported_known:
             return NOTHING
         self.reported_known.add(index)

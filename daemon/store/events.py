@@ -7,6 +7,7 @@ event never fails because of what it names, nor because of its payload.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from typing import Any, cast
 
 from daemon.store.db import StoreDB, decode_row, now, strict
@@ -43,16 +44,21 @@ class EventStore(StoreDB):
             )  # fmt: skip
 
     def record_rejection(
-        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+        self,
+        campaign_id: int | None,
+        reason: str,
+        detail: str,
+        device: str | None,
+        joints_deg: Sequence[float] | None = None,
     ) -> None:
         """Record a refused capture: kind ``capture_rejected``, message ``"reason: detail"``,
-        detail ``{"reason", "detail"}``."""
+        detail ``{"reason", "detail"}`` and, when known, ``joints_deg`` (6 floats [deg]: the
+        pose it was refused at, which a plan's progress reads)."""
+        info: dict[str, Any] = {"reason": reason, "detail": detail}
+        if joints_deg is not None:
+            info["joints_deg"] = [float(v) for v in joints_deg]
         self.record_event(
-            "capture_rejected",
-            device,
-            f"{reason}: {detail}",
-            {"reason": reason, "detail": detail},
-            campaign_id=campaign_id,
+            "capture_rejected", device, f"{reason}: {detail}", info, campaign_id=campaign_id
         )
 
     def list_events(

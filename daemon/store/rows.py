@@ -22,6 +22,7 @@ from typing import Any, Final, Literal, NotRequired, get_args
 from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
+from calib.monitor.holdcheck import CHECK_VERDICTS, CheckVerdict
 from daemon.capture import CaptureMode
 
 
@@ -48,9 +49,13 @@ JOB_FINISHED: frozenset[JobState] = frozenset(
 JobStatus = JobState
 
 #: The one home of a drift check's states (``running`` until it ends ``ok``, ``drift`` or
-#: ``failed``): the store's CHECK constraint and :mod:`daemon.store.checks` read them here.
-CheckStatus = Literal["running", "ok", "drift", "failed"]
+#: ``failed``): the store's CHECK constraint, :mod:`daemon.store.checks` and
+#: :mod:`daemon.holdcheck` read them here. The verdicts ``ok`` and ``drift`` are calib's
+#: (:data:`calib.monitor.holdcheck.CheckVerdict`, the pure decision).
+CheckStatus = Literal["running", CheckVerdict, "failed"]
 CHECK_STATUSES: Final[tuple[str, ...]] = get_args(CheckStatus)
+#: The states of a check that reached a verdict (it has an RMS and a threshold).
+CHECK_JUDGED: Final[tuple[str, ...]] = CHECK_VERDICTS
 #: What started a drift check: the operator or the schedule.
 CheckTrigger = Literal["manual", "schedule"]
 CHECK_TRIGGERS: Final[tuple[str, ...]] = get_args(CheckTrigger)

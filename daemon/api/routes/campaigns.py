@@ -12,6 +12,7 @@ from calib.dataset import (
     JOINT_COLUMNS,
     SampleError,
     SampleSet,
+    known_pose_index,
     make_samples,
     parse_samples_csv,
     validate_joint_limits,
@@ -142,6 +143,8 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
         raise HTTPException(503, "sampler: not running")
     if body.joints_deg is not None:
         _check_limits(state, int(campaign["robot_id"]), body.joints_deg)
+    if not body.repeat:
+        _refuse_a_repeat(state, campaign_id, body.joints_deg)
     try:
         sample: SampleOut = await state.sampler.capture(
             campaign_id, anchor=body.anchor, joints_deg=body.joints_deg
@@ -154,6 +157,31 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
     except ValueError as exc:  # joints_deg for a robot that reports its own: the cell's state
         raise HTTPException(409, str(exc)) from exc
     return sample
+
+
+def _refuse_a_repeat(state: State, campaign_id: int, joints_deg: list[float] | None) -> None:
+    """409 ``not_new_pose`` when the robot stands at a pose the campaign has captured
+    already: auto capture's rule (:func:`calib.dataset.known_pose_index` within the sampler's
+    ``auto_new_pose_deg``, every sample of the campaign, excluded ones too), checked on the
+    angles sent (manual robot) or the newest paired reading. The page asks the operator and
+    sends ``repeat`` to store it anyway."""
+    assert state.sampler is not None
+    q: list[float] | tuple[float, ...] | None = joints_deg
+    if q is None:
+        newest = state.sampler.recent_readings(0.0, 1)
+        if not newest:
+            return  # no reading yet: the capture itself says so
+        q = newest[-1].joints_deg
+    known = state.store.poses_deg(campaign_id)
+    index = known_pose_index(known, q, state.settings.sampler.auto_new_pose_deg)
+    if index is None:
+        return
+    rows = state.store.list_samples(campaign_id, limit=min(index + 1, 10_000))
+    which = f"sample {rows[index]['id']}" if index < len(rows) else "a sample"
+    detail = (f"the robot stands at the pose of {which} (every joint within "
+              f"{state.settings.sampler.auto_new_pose_deg:g} deg); move it to a new pose, or "
+              "confirm the repeat (repeat: true)")  # fmt: skip
+    raise HTTPException(409, {"reason": "not_new_pose", "detail": detail, "device": None})
 
 
 def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
@@ -281,7 +309,8 @@ def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
         raise HTTPException(
             400, {"row": exc.row, "column": exc.column, "message": str(exc)}
         ) from exc
-    # The ImportResult, encoded in pieces: one json.dumps of 500k ids holds the GIL ~0.2 s.
+    # The ImportResult, encoded in pieces: one json.dumps of a large import's ids would hold
+    # the GIL, and so the event loop, for the whole encoding.
     pieces = [",".join(map(str, ids[k : k + 20_000])) for k in range(0, len(ids), 20_000)]
     return f'{{"imported":{len(ids)},"sample_ids":[{",".join(pieces)}]}}'.encode()
 

@@ -1,11 +1,19 @@
-"""A robot's drift-check poses: the user's, or the default spread of its calibration's samples."""
+"""A robot's drift-check poses: the user's, or the default spread of its calibration's samples;
+as JSON, or as a download for the robot (CSV or a robot program, the plan's formats)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+import csv
+import io
+from typing import Any
 
+from fastapi import APIRouter, Query
+
+from calib.dataset import JOINT_COLUMNS
+from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses
+from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import CheckPosesBody
 from daemon.holdcheck import check_poses
 from daemon.store import CheckPoses
@@ -25,10 +33,47 @@ def put_check_poses(state: State, robot_id: RobotId, body: CheckPosesBody) -> Ch
     return state.store.set_check_poses(robot_id, body.poses_deg)
 
 
+def _poses_csv(poses_deg: list[list[float]]) -> str:
+    """The check poses as joint targets: ``pose`` (1-based) and ``q1..q6`` [deg]."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["pose", *JOINT_COLUMNS])
+    writer.writerows([[i + 1, *(f"{v:.6f}" for v in q)] for i, q in enumerate(poses_deg)])
+    return buf.getvalue()
+
+
 @router.get(
-    "/robots/{robot_id}/check-poses", summary="The drift-check poses", dependencies=[ReadAuth]
+    "/robots/{robot_id}/check-poses",
+    summary="The drift-check poses",
+    dependencies=[ReadAuth],
+    response_model=CheckPoses,
+    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}},
 )
-def get_check_poses(state: State, robot_id: RobotId) -> CheckPoses:
+def get_check_poses(
+    state: State,
+    robot_id: RobotId,
+    format: DownloadFormat | None = Query(None, description=FORMAT_HELP),
+    speed_pct: SpeedPct = DEFAULT_SPEED_PCT,
+    dwell_s: DwellS = None,
+) -> Any:
     """The user's poses (``source`` user) or the default (``source`` default: spread poses
-    of the accepted calibration's samples; 404 without one)."""
-    return check_poses(state.store, robot_id, state.settings.drift.n_poses)
+    of the accepted calibration's samples; 404 without one).
+
+    With ``format``, the poses as a download for the robot, as the plan's (``GET
+    /campaigns/{id}/plan?format=``, the same program building): ``csv`` or a robot program
+    (each pose a joint move to a fine stop, then a dwell of ``dwell_s``, default from the
+    sampler's ``settle_s``); a drift check's auto capture records each pose the robot
+    stops at."""
+    poses = check_poses(state.store, robot_id, state.settings.drift.n_poses)
+    if format is None:
+        return poses
+    return download(
+        _poses_csv(poses["poses_deg"]),
+        str(format.value),
+        stem=f"robot-{robot_id}-check-poses",
+        model=state.store.robot_model(robot_id),
+        what=f"drift-check poses of robot {robot_id} ({poses['source']})",
+        speed_pct=speed_pct,
+        dwell_s=dwell_s,
+        settle_s=state.settings.sampler.settle_s,
+    )

@@ -17,32 +17,40 @@ from typing_extensions import TypedDict
 from calib.csvtext import write_csv
 from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
-from calib.planning import CSV_COLUMNS, PlanOptions, plan, start_anchors_mm
-from calib.planning.progress import MATCH_TOL_DEG, match_plan
+from calib.planning import CSV_COLUMNS, PlanOptions, plan
+from calib.planning.planner import plan_anchor_ids, start_anchor_fits
+from calib.planning.progress import MATCH_TOL_DEG, match_plan, not_capturable
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import MAX_ANCHOR_CHARS, PlanRequest
+from daemon.plan_check import rejections
 from daemon.plan_noise import NoiseEstimate, cell_noise
+from daemon.store import StoreNotFound
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 
 router = APIRouter(tags=["plans"], responses=error_responses(401, 404, 413, 422))
 
 
 class PlannedPose(PlannedPoseRow):
-    """A planned pose with its state: ``done`` once a sample of the campaign measured it."""
+    """A planned pose with its state: ``done`` once a sample of the campaign measured it,
+    ``not_capturable`` when the sampler refused it for good (``why``: the refusal, e.g. the
+    indicator over its range there), else ``pending``."""
 
-    status: Literal["done", "pending"]
+    status: Literal["done", "pending", "not_capturable"]
     sample_id: int | None
+    why: str | None
 
 
 class PlanProgress(TypedDict):
-    """Counts, the tolerance used and the first pending pose in visiting order."""
+    """Counts (poses that cannot be captured apart from the pending ones), the tolerance used
+    and the first pending pose in visiting order."""
 
     n_planned: int
     n_done: int
     n_pending: int
+    n_not_capturable: int
     fraction_done: float
     tol_deg: float
     next_pose: int | None
@@ -60,43 +68,91 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
     samples, sample_ids = state.store.sample_set(stored["campaign_id"])  # included ones
     poses = stored["poses"]
     match = match_plan(poses, samples.joints_deg, [str(a) for a in samples.anchor], tol_deg)
+    why = not_capturable(poses, match, rejections(state.store, stored["campaign_id"]), tol_deg)
     out: list[PlannedPose] = []
-    for pose, k in zip(poses, match, strict=True):
+    for pose, k, w in zip(poses, match, why, strict=True):
         done = k >= 0
-        out.append({**pose, "status": "done" if done else "pending",
-                    "sample_id": sample_ids[k] if done else None})  # fmt: skip
+        status: Literal["done", "pending", "not_capturable"] = (
+            "done" if done else "not_capturable" if w else "pending"
+        )
+        out.append({**pose, "status": status, "sample_id": sample_ids[k] if done else None,
+                    "why": w})  # fmt: skip
     n_done = sum(1 for k in match if k >= 0)
+    n_not = sum(1 for w in why if w)
     pending = [p["pose"] for p in out if p["status"] == "pending"]
     progress: PlanProgress = {
-        "n_planned": len(out), "n_done": n_done, "n_pending": len(out) - n_done,
+        "n_planned": len(out), "n_done": n_done, "n_pending": len(pending),
+        "n_not_capturable": n_not,
         "fraction_done": n_done / len(out), "tol_deg": tol_deg,
         "next_pose": int(pending[0]) if pending else None,
     }  # fmt: skip
     return {**stored, "poses": out, "progress": progress}
 
 
+#: An anchor's zero offset [mm] and where it came from.
+Offset = tuple[float, str]
+
+
+def known_offsets(state: State, campaign_id: int, robot_id: int) -> dict[str, Offset]:
+    """The indicator's zero offset per anchor id that a plan predicts readings with: the
+    campaign's running fit (the sensor watch's), else the robot's accepted calibration."""
+    out: dict[str, Offset] = {}
+    try:
+        accepted = state.store.accepted_result(robot_id)
+    except StoreNotFound:  # none accepted yet
+        accepted = None
+    if accepted is not None:
+        res = accepted["result"]
+        label = f"the accepted calibration (result #{accepted['id']})"
+        if "anchor_id" in res and "length_offset_mm" in res:
+            out[str(res["anchor_id"])] = (float(res["length_offset_mm"]), label)
+        for aid, a in (res.get("anchors") or {}).items():
+            if "length_offset_mm" in a:
+                out[str(aid)] = (float(a["length_offset_mm"]), label)
+    if state.watch is not None:
+        for aid, c in state.watch.offsets_mm(campaign_id).items():
+            out[aid] = (c, "the campaign's running fit")
+    return out
+
+
 def _compute(
-    model: RobotModel, body: PlanRequest, start: SampleSet | None, noise: NoiseEstimate
-) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    model: RobotModel, body: PlanRequest, start: SampleSet | None, noise: NoiseEstimate,
+    known: dict[str, Offset] | None = None,
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:  # fmt: skip
     """Run the planning (in a worker thread): the summary (with ``noise_source`` and
-    ``noise_detail``: where its ``noise_mm`` came from) and the poses."""
+    ``noise_detail``: where its ``noise_mm`` came from; ``reading_mm.offset_source``: where
+    the zero offsets came from) and the poses. ``known``: zero offsets per anchor id
+    (:func:`known_offsets`); the start samples' multilateration fills in the others."""
     opts = body.options(noise.noise_mm)
     anchors = body.anchors_mm
     found = {}
+    offsets = dict(known or {})
     if start is not None:
         try:  # where the samples put the anchors (plan() needs it too)
-            found = start_anchors_mm(model, start)
+            fits = start_anchor_fits(model, start)
         except (ValueError, SampleError) as exc:  # the campaign's samples: its state, 409
             raise HTTPException(409, f"start_from_samples: {exc}") from exc
+        found = {aid: p0 for aid, (p0, _) in fits.items()}
+        for aid, (_, c) in fits.items():
+            offsets.setdefault(aid, (float(c), "the campaign's samples"))
     if anchors is None:
         if start is None:
             raise ValueError("anchors_mm: required unless start_from_samples is true")
         anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
         if body.anchor_ids is None:
             opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
+    ids = plan_anchor_ids(opts.anchor_ids, len(anchors))
+    used = [offsets.get(aid) for aid in ids]
+    if any(u is not None for u in used):
+        values = tuple(None if u is None else u[0] for u in used)
+        opts = PlanOptions(**{**opts.__dict__, "offsets_mm": values})
     res = plan(model, anchors, opts, start=start, clock=time.perf_counter)
     summary = res.to_json()
     summary.update(noise_source=noise.source, noise_detail=noise.detail)
+    if summary.get("reading_mm") is not None:
+        summary["reading_mm"]["offset_source"] = {
+            aid: u[1] for aid, u in zip(ids, used, strict=True) if u is not None
+        }
     return summary, res.csv_rows()
 
 
@@ -141,7 +197,8 @@ async def make_plan(
                 int(campaign["robot_id"]),
             )
         )  # fmt: skip
-        summary, poses = await asyncio.to_thread(_compute, model, body, start, noise)
+        known = known_offsets(state, campaign_id, int(campaign["robot_id"]))
+        summary, poses = await asyncio.to_thread(_compute, model, body, start, noise, known)
     except (ValueError, SampleError) as exc:  # numpy's LinAlgError is a ValueError
         raise unprocessable(_loc(str(exc)), str(exc)) from exc
     finally:

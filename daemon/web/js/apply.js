@@ -1,6 +1,6 @@
 // View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
 // the drift-check state and history (the ``drift`` block of /status).
-import { api, saveBlob } from "./api.js";
+import { api, download, saveBlob } from "./api.js";
 import { $, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 let lastCsv = null;
@@ -33,17 +33,17 @@ async function compensate(ev) {
   ev.preventDefault();
   const c = state.campaign;
   if (!hasRoute("POST", "/robots/{}/compensate")) {
-    showMessage("error", "Compensate: this daemon has no compensation route (POST /robots/{id}/compensate).");
+    showMessage("error", "The program was not compensated: this daemon cannot compensate (it has no compensation route).", "compensate", "no route POST /robots/{id}/compensate in /openapi.json");
     return;
   }
-  if (!c) { showMessage("error", "Compensate: select the campaign of the robot first (tab 2)."); return; }
+  if (!c) { showMessage("error", "The program was not compensated: select the campaign of the robot first (tab 2).", "compensate"); return; }
   const f = ev.target.elements;
   const file = f.file.files[0];
   const text = file ? await file.text() : f.csv.value;
-  if (!text.trim()) { showMessage("error", "Compensate: paste targets (CSV with q1..q6 in deg) or choose a file."); return; }
+  if (!text.trim()) { showMessage("error", "The program was not compensated: paste targets (CSV with q1..q6 in deg) or choose a file.", "compensate"); return; }
   const seed = f.seed.value.trim().split(/[\s,]+/).filter(Boolean);
   if (seed.length && (seed.length !== 6 || seed.some((v) => !Number.isFinite(Number(v))))) {
-    setText("compensate-state", `IK seed: type six joint angles q1..q6 in deg, comma-separated (got “${f.seed.value}”).`);
+    setText("compensate-state", `The program was not compensated: the IK seed needs six joint angles q1..q6 in deg, comma-separated (got “${f.seed.value}”).`);
     return;
   }
   const query = seed.length ? `?seed_deg=${encodeURIComponent(seed.join(","))}` : "";
@@ -52,9 +52,9 @@ async function compensate(ev) {
   try {
     out = await api("POST", `/robots/${c.robot_id}/compensate${query}`, { body: text, type: "text/csv", quiet: true });
   } catch (exc) {
-    const why = exc.status === 404 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
-    setText("compensate-state", `Compensation failed: ${why}`);
-    showMessage("error", `Compensate: ${why}`, "compensate");
+    const text = exc.status === 404 ? `The program was not compensated: robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3).` : exc.message;
+    setText("compensate-state", text);
+    showMessage("error", text, "compensate", exc.detail);
     return;
   }
   dismiss("compensate");
@@ -74,6 +74,78 @@ async function compensate(ev) {
     `largest IK residual ${sig(m.max_residual_mm, 2)} mm, ${m.n_flagged ?? 0} flagged.`);
   setText("compensate-note", out.note || "");
   $("compensate-download").onclick = () => saveBlob(new Blob([lastCsv], { type: "text/csv" }), `robot-${c.robot_id}-compensated.csv`);
+}
+
+// ------------------------------------------------------------------ filter programs
+let filterFiles = [];
+
+function filterForm() {
+  const form = new FormData();
+  for (const f of filterFiles) form.append("files", f, f.name);
+  return form;
+}
+
+function filterQuery(dryRun) {
+  const q = [];
+  if (dryRun) q.push("dry_run=true");
+  if ($("filter-keep-joints").checked) q.push("keep_joint_targets=true");
+  return q.length ? `?${q.join("&")}` : "";
+}
+
+/** Filter the chosen files with a dry run: the summary table; the download then fetches the
+ * filtered files (one file, or a zip of several with filter-summary.json). */
+async function filterPrograms(files) {
+  const c = state.campaign;
+  if (!hasRoute("POST", "/robots/{}/filter")) {
+    showMessage("error", "Filter: this daemon has no filter route (POST /robots/{id}/filter).");
+    return;
+  }
+  if (!c) { showMessage("error", "Filter: select the campaign of the robot first (tab 2)."); return; }
+  filterFiles = Array.from(files);
+  if (!filterFiles.length) return;
+  $("filter-download").hidden = true;
+  setText("filter-state", `Filtering ${filterFiles.length} file(s) …`);
+  let summary;
+  try {
+    summary = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(true)}`, { form: filterForm(), quiet: true });
+  } catch (exc) {
+    const why = exc.status === 409 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
+    setText("filter-state", `Filtering failed: ${why}`);
+    showMessage("error", `Filter: ${why}`, "filter");
+    return;
+  }
+  dismiss("filter");
+  const rows = summary.targets || [];
+  fillTable($("filter-result"), [{ label: "file" }, { label: "line", num: true }, { label: "target" }, { label: "status" },
+    { label: "shift [mm]", num: true }, { label: "shift [deg]", num: true }, { label: "configuration" },
+    { label: "σ at the tool [mm]", num: true }, { label: "reason" }],
+  rows.map((r) => [r.file, String(r.line), r.name,
+    el("span", { class: r.status === "corrected" ? "ok" : "bad" }, r.status),
+    fix(r.shift_mm, 3), fix(r.shift_deg, 4), r.configuration_kept == null ? "–" : r.configuration_kept ? "kept" : "changed",
+    fix(r.sigma_at_tool_mm, 3), r.reason || ""]));
+  const n = summary.counts || {};
+  setText("filter-state", `${n.targets ?? rows.length} targets in ${filterFiles.length} file(s): ${n.corrected ?? 0} corrected, ` +
+    `${n.left ?? 0} left unchanged${n.left ? " (see the reasons below)" : ""}, with the accepted calibration of ${c.robot_name}.`);
+  $("filter-download").hidden = false;
+}
+
+async function downloadFiltered() {
+  const c = state.campaign;
+  const response = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(false)}`, { form: filterForm(), raw: true });
+  const disposition = response.headers.get("Content-Disposition") || "";
+  const m = /filename="?([^";]+)"?/.exec(disposition);
+  saveBlob(await response.blob(), m ? m[1] : `robot-${c.robot_id}-filtered.zip`);
+}
+
+function initFilter() {
+  const drop = $("filter-drop");
+  const run = (files) => filterPrograms(files).catch((e) => showMessage("error", `filter: ${e.message}`));
+  $("filter-files").addEventListener("change", (ev) => run(ev.target.files));
+  drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
+  drop.addEventListener("dragleave", () => drop.classList.remove("over"));
+  drop.addEventListener("drop", (ev) => { ev.preventDefault(); drop.classList.remove("over"); run(ev.dataTransfer.files); });
+  $("filter-keep-joints").addEventListener("change", () => { if (filterFiles.length) run(filterFiles); });
+  $("filter-download").addEventListener("click", () => downloadFiltered().catch((e) => showMessage("error", `filter: ${e.message}`)));
 }
 
 /** ``outside_limits:J3=-80.000<-75.000`` → "J3 -80.000 deg below its limit -75.000 deg". */
@@ -122,10 +194,21 @@ async function renderDrift() {
 /** The check poses (of the running check, else the robot's), and while a check runs how many
  * of them are captured so far (samples in the check's own campaign). */
 async function renderCheckPoses(c, running) {
-  const poses = running ? running.poses_deg : (await api("GET", `/robots/${c.robot_id}/check-poses`)).poses_deg;
+  let poses;
+  try {
+    poses = running ? running.poses_deg : (await api("GET", `/robots/${c.robot_id}/check-poses`, { quiet: true })).poses_deg;
+  } catch (exc) {
+    if (exc.status !== 404) throw exc;
+    // No accepted calibration yet: there is nothing to check against, so no check poses.
+    fillTable($("drift-poses"), [], [], "none");
+    $("drift-downloads").hidden = true;
+    setText("drift-poses-note", `Robot ${c.robot_name} has no accepted calibration yet: a drift check compares against one (accept a result in tab 3).`);
+    return;
+  }
   let done = null;
   if (running) done = (await api("GET", `/campaigns/${running.campaign_id}`)).n_included;
-  fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "" }],
+  renderCheckDownloads(c);
+  fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "state" }],
     poses.map((q, i) => [String(i + 1), ...q.map((v) => fix(v, 1)), done == null ? "" : i < done ? "captured" : i === done ? "next" : ""]),
     JSON.stringify([poses, done]));
   setText("drift-poses-note", running
@@ -133,18 +216,57 @@ async function renderCheckPoses(c, running) {
     : `${poses.length} check poses: a drift check moves through these.`);
 }
 
+/** Download buttons of the check poses, one per format of the REST enum (the plan's: CSV
+ * and the robot programs), from the check poses' own route; the file name is the daemon's. */
+function renderCheckDownloads(c) {
+  const box = $("drift-downloads");
+  box.hidden = !state.downloadFormats.length;
+  const key = box.hidden ? "" : String(c.robot_id);
+  if (box.dataset.key === key) return;
+  box.dataset.key = key;
+  if (box.hidden) return;
+  const fetchOne = async (fmt) => {
+    const r = await api("GET", `/robots/${c.robot_id}/check-poses?format=${fmt}`, { raw: true, what: "The check poses could not be downloaded" });
+    const m = /filename="([^"]+)"/.exec(r.headers.get("Content-Disposition") || "");
+    saveBlob(await r.blob(), m ? m[1] : `robot-${c.robot_id}-check-poses.${fmt}`);
+  };
+  box.replaceChildren("Download the check poses for the robot: ", ...state.downloadFormats.map((fmt) => {
+    const b = el("button", { type: "button", class: "secondary small", "data-format": fmt }, fmt);
+    b.addEventListener("click", () => fetchOne(fmt).catch(() => {}));
+    return b;
+  }));
+}
+
+/** Start a drift check. A check records its poses with auto capture, so while auto capture
+ * runs for a campaign the operator is asked first: switch it off and start, or keep it and
+ * be told in words why no check started. */
 async function startDrift() {
   const c = state.campaign;
-  if (!c) { showMessage("error", "Drift check: select the campaign of the robot first (tab 2)."); return; }
+  if (!c) { showMessage("error", "The drift check did not start: select the campaign of the robot first (tab 2).", "drift"); return; }
+  const s = state.status?.sampler;
+  if (s?.mode === "auto" && s.auto_campaign_id != null) {
+    const busy = s.auto_campaign_id;
+    const ok = confirm(`Auto capture is on for campaign #${busy}. A drift check needs auto capture for its own poses.\n\n`
+      + `Switch auto capture off for campaign #${busy} and start the check? (Switch it on again in tab 2 afterwards.)`);
+    if (!ok) {
+      showMessage("warn", `No drift check started: auto capture is still on for campaign #${busy}. A check needs it for its own poses; switch it off in tab 2 (or answer OK here) to start one.`, "drift-auto");
+      return;
+    }
+    await api("PUT", `/campaigns/${busy}/auto-capture`, { json: { enabled: false } });
+  }
   const k = await api("POST", `/robots/${c.robot_id}/checks`);
-  showMessage("info", `Drift check #${k.id} started: auto capture now records the check poses.`, "drift");
+  dismiss("drift-auto");
+  showMessage("info", `Drift check #${k.id} started: auto capture now records the check poses. Run the check poses on the robot (download them below).`, "drift");
 }
 
 export function initApply() {
-  $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch((e) => showMessage("error", `compensate: ${e.message}`)));
+  initFilter();
+  $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch(() => {}));
   $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
   every(3000, renderDrift, () => state.view === "apply");
   onChange((kind) => {
+    // the "auto capture is still on" warning goes once auto capture is off (its cause)
+    if (kind === "status" && state.status?.sampler?.mode !== "auto") dismiss("drift-auto");
     if (kind === "view" && state.view === "apply") {
       renderDrift().catch(() => {});
       loadExample().catch(() => {});

@@ -2,7 +2,7 @@
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
 import { api, download, saveBlob } from "./api.js";
 import { isManualRobot } from "./cell.js";
-import { $, changed, clock, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, state } from "./ui.js";
+import { $, changed, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, requestSchema, setText, showMessage, state } from "./ui.js";
 
 const CAMPAIGN_KEY = "cablecal-campaign";
 const JOINTS = ["q1", "q2", "q3", "q4", "q5", "q6"];
@@ -60,6 +60,8 @@ export async function select(c) {
   samples = [];
   plan = null;
   $("campaign-list").dataset.key = "";
+  delete $("capture-anchor").dataset.typed; // the anchor field follows the new campaign
+  delete $("plan-form").elements.n.dataset.typed;
   changed("campaign");
   await refreshDetail();
 }
@@ -72,6 +74,7 @@ export async function refreshDetail() {
   const list = await api("GET", `/campaigns/${c.id}/samples`);
   samples = Array.isArray(list) ? list : list.items || [];
   renderCounts();
+  renderPlanCount();
   renderSamples();
   renderCoverage();
   await refreshPlan();
@@ -102,15 +105,15 @@ function renderSamples() {
     return {
       class: s.excluded ? "excluded" : "",
       cells: [String(s.id), clock(s.t_end ?? s.created_at), ...JOINTS.map((q) => fix(s[q], 3)),
-        fix(s.length_mm, 3), fix(s.length_std_mm, 4), s.count == null ? "–" : String(s.count),
+        s.anchor ?? "–", fix(s.length_mm, 3), fix(s.length_std_mm, 4), s.count == null ? "–" : String(s.count),
         s.mode || s.source, el("span", { class: "keep" }, s.excluded ? `excluded: ${s.excluded_reason || "no reason"}` : "included"), action],
     };
   });
   fillTable($("samples"), [
     { label: "#", num: true }, { label: "time" }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
-    { label: "length [mm]", num: true }, { label: "std [mm]", num: true }, { label: "readings", num: true },
-    { label: "how" }, { label: "status", class: "keep" }, { label: "" },
-  ], rows, JSON.stringify(samples.map((s) => [s.id, s.excluded, s.excluded_reason])));
+    { label: "anchor" }, { label: "length [mm]", num: true }, { label: "std [mm]", num: true }, { label: "readings", num: true },
+    { label: "how" }, { label: "status", class: "keep" }, { label: "action" },
+  ], rows, JSON.stringify(samples.map((s) => [s.id, s.excluded, s.excluded_reason, s.anchor])));
 }
 
 async function setExcluded(s, excluded) {
@@ -161,6 +164,20 @@ function renderCoverage() {
 }
 
 // ------------------------------------------------------------------ capture
+/** The campaign's unresolved sensor move (the ``watch`` block of /status), or null. */
+export function campaignMove() {
+  return (state.status?.watch?.moves || []).find((m) => m.campaign_id === state.campaign?.id) || null;
+}
+
+/** The anchor session captures of this campaign go to now: auto capture's, else the new
+ * session of a sensor move the watch found, else the newest sample's; null with no sample. */
+function anchorInUse(on) {
+  if (on) return state.status.sampler.auto_anchor;
+  const move = campaignMove();
+  if (move) return move.new_anchor;
+  return samples.length ? samples[samples.length - 1].anchor : null;
+}
+
 function renderCaptureState() {
   const manual = isManualRobot();
   $("manual-joints").hidden = !manual;
@@ -169,9 +186,16 @@ function renderCaptureState() {
   const on = !!state.campaign && s?.mode === "auto" && s.auto_campaign_id === state.campaign.id;
   if (document.activeElement !== auto) auto.checked = on;
   $("capture-now").disabled = on;
-  setText("capture-state", on
+  // The anchor field follows the session in use until the operator types one of their own
+  // (a new sensor position); auto capture's anchor is the daemon's, not the field's.
+  const field = $("capture-anchor");
+  const inUse = anchorInUse(on);
+  if (inUse && (on || !field.dataset.typed) && document.activeElement !== field) field.value = inUse;
+  field.disabled = on;
+  const session = `Anchor session in use: ${field.value || "A"}.`;
+  setText("capture-state", (on
     ? `Auto capture is on: ${samples.length} samples so far. Move the robot through the poses; each new still pose is captured once.`
-    : manual ? "Manual robot: enter the six joint angles, then Capture now." : "Press Capture now when the robot stands still at a pose.");
+    : manual ? "Manual robot: enter the six joint angles, then Capture now." : "Press Capture now when the robot stands still at a pose.") + ` ${session}`);
 }
 
 async function captureNow() {
@@ -184,11 +208,27 @@ async function captureNow() {
   const button = $("capture-now");
   button.disabled = true;
   setText(button, "Capturing … (waiting for the robot to settle)");
+  const url = `/campaigns/${state.campaign.id}/captures`;
   try {
-    const s = await api("POST", `/campaigns/${state.campaign.id}/captures`, { json: body });
+    let s;
+    try {
+      s = await api("POST", url, { json: body, quiet: true });
+    } catch (exc) {
+      // A pose the campaign has already (auto capture's rule): ask before storing it again.
+      if (exc.status !== 409 || exc.body?.detail?.reason !== "not_new_pose") throw exc;
+      dismiss("capture-repeat");
+      if (!confirm(`This pose was captured already: ${exc.body.detail.detail.replace(/; move it.*$/, "")}.\n\nStore another sample at the same pose?`)) {
+        showMessage("info", "Not captured: the robot stands at a pose the campaign has already. Move it to a new pose (or confirm the repeat).", "capture-repeat");
+        return;
+      }
+      s = await api("POST", url, { json: { ...body, repeat: true } });
+    }
+    dismiss("POST /campaigns/{id}/captures");
     showMessage("info", `Sample #${s.id} captured: length ${fix(s.length_mm, 3)} mm (std ${fix(s.length_std_mm, 4)} mm over ${s.count} readings).`, "capture");
     if (isManualRobot()) $("manual-joints").reset();
-  } catch { /* shown in the message area */ } finally {
+  } catch (exc) {
+    if (exc.status !== 401) showMessage("error", exc.message, "POST /campaigns/{id}/captures", exc.detail);
+  } finally {
     button.disabled = false;
     setText(button, "Capture now");
   }
@@ -233,6 +273,59 @@ function renderPlanDownloads() {
   }));
 }
 
+/** The plan form's pose count: at least the samples Identify needs, the recommended count by
+ * default, both said next to it. The counts are the campaign's (the API's), for the anchors
+ * its samples have; "add to the samples already taken" counts the included ones already there.
+ * The largest count is the plan request's own bound (/openapi.json). */
+function planCounts() {
+  const c = state.campaign;
+  const included = samples.filter((s) => !s.excluded).length;
+  const onTop = $("plan-form").elements.start_from_samples.checked ? included : 0;
+  const max = requestSchema("PlanRequest")?.properties?.n?.maximum ?? null;
+  const min = Math.max(1, c.min_samples_to_identify - onTop);
+  const recommended = Math.max(min, c.recommended_samples - onTop);
+  return { min, recommended, max: max == null ? null : Math.max(min, max), onTop };
+}
+
+function renderPlanCount() {
+  const input = $("plan-form").elements.n;
+  const k = planCounts();
+  input.min = String(k.min);
+  if (k.max != null) input.max = String(k.max);
+  if (!input.dataset.typed && document.activeElement !== input) input.value = String(k.recommended);
+  const c = state.campaign;
+  setText("plan-count-note", (k.onTop
+    ? `On top of the ${k.onTop} included samples: at least ${k.min} more poses (Identify needs ${c.min_samples_to_identify} in all), ${k.recommended} recommended`
+    : `At least ${k.min} poses (the fewest Identify accepts for this robot), ${k.recommended} recommended (from ${c.recommended_samples} samples the fit can also screen outliers)`) +
+    (k.max != null ? `; at most ${k.max} per plan.` : "."));
+}
+
+/** Why the plan form cannot be sent, in words (null when it can). */
+function planFormProblem(f) {
+  const k = planCounts();
+  const n = Number(f.n.value);
+  if (f.n.value === "" || !Number.isInteger(n)) return `Poses: type a whole number from ${k.min}${k.max != null ? ` to ${k.max}` : ""}.`;
+  if (n < k.min) return `Poses: ${n} is too few. Identify needs at least ${k.min}${k.onTop ? " more" : ""} poses; ${k.recommended} are recommended.`;
+  if (k.max != null && n > k.max) return `Poses: at most ${k.max} per plan.`;
+  const given = ["ax", "ay", "az"].filter((a) => f[a].value !== "");
+  if (given.length && given.length < 3) return "Sensor position: give all three of x, y and z [mm], or none.";
+  if (!given.length && !f.start_from_samples.checked) return "Give the sensor position x, y, z [mm] (roughly, within a few cm), or tick “add to the samples already taken”.";
+  const coord = requestSchema("PlanRequest")?.properties?.min_z_mm;
+  for (const a of given) {
+    const v = Number(f[a].value);
+    if (!Number.isFinite(v) || (coord?.minimum != null && v < coord.minimum) || (coord?.maximum != null && v > coord.maximum)) {
+      return `Sensor position ${a.slice(1)}: ${f[a].value} mm is not a position in the cell (from ${coord?.minimum} to ${coord?.maximum} mm).`;
+    }
+  }
+  return null;
+}
+
+function planFormError(message) {
+  const node = $("plan-form-error");
+  node.hidden = !message;
+  setText(node, message || "");
+}
+
 async function refreshPlan() {
   if (!hasRoute("GET", "/campaigns/{}/plan")) {
     $("plan-form").querySelector("button").disabled = true;
@@ -244,9 +337,10 @@ async function refreshPlan() {
   const { id, plan_id: planId } = state.campaign;
   if (planId == null) { plan = null; renderPlan(); return; }
   try {
-    plan = await api("GET", `/campaigns/${id}/plan`, { quiet: true });
+    plan = await api("GET", `/campaigns/${id}/plan`, { quiet: true, what: "The plan could not be read" });
+    dismiss("plan");
   } catch (exc) {
-    if (exc.status !== 404) showMessage("error", `plan: ${exc.message}`, "plan");
+    if (exc.status !== 404) showMessage("error", exc.message, "plan", exc.detail);
     plan = null;
   }
   renderPlan();
@@ -262,27 +356,29 @@ function renderPlan() {
   const tcp = plan.summary?.tcp_sigma_mm;
   const pr = plan.progress || {};
   setText("plan-summary", `${pr.n_planned} planned poses: ${pr.n_done} captured, ${pr.n_pending} to go` +
-    (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") + "." +
+    (pr.next_pose != null ? ` (next: pose ${pr.next_pose})` : "") +
+    (pr.n_not_capturable ? `, ${pr.n_not_capturable} not capturable (the sampler refused them; plan again to replace them)` : "") + "." +
     (tcp ? ` Predicted tool-point accuracy after calibration: ${fix(tcp.plan?.rms, 3)} mm RMS (1σ; max ${fix(tcp.plan?.max, 3)} mm), against ${fix(tcp.random?.rms, 3)} mm with as many random poses.` : "") +
     (plan.summary?.noise_mm ? ` It assumes ${fix(plan.summary.noise_mm, 4)} mm length noise per capture` +
       (plan.summary.noise_detail ? ` (${plan.summary.noise_detail}).` : ".") : ""));
   fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
     { label: "anchor" }, { label: "status" }],
   plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
-    el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
+    p.status === "not_capturable" ? el("span", { class: "pill warn", title: p.why || "" }, `not capturable: ${p.why}`)
+      : el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
   JSON.stringify([plan.id, plan.poses.map((p) => p.status)]));
 }
 
 async function startPlan(ev) {
   ev.preventDefault();
   const f = ev.target.elements;
+  const problem = planFormProblem(f);
+  planFormError(problem);
+  if (problem) return;
   const body = { n: Number(f.n.value), min_z_mm: Number(f.min_z_mm.value), seed: Number(f.seed.value),
     start_from_samples: f.start_from_samples.checked };
   if (f.ax.value !== "" || f.ay.value !== "" || f.az.value !== "") {
     body.anchors_mm = [[Number(f.ax.value), Number(f.ay.value), Number(f.az.value)]];
-  } else if (!body.start_from_samples) {
-    showMessage("error", "Plan: give the sensor position x, y, z [mm] (roughly), or tick 'add to the samples already taken'.", "plan-anchor");
-    return;
   }
   const button = ev.target.querySelector("button");
   button.disabled = true;
@@ -306,13 +402,18 @@ async function createCampaign(ev) {
   let model = f.robot_model.value;
   if (model === "__file__") {
     const file = f.robot_file.files[0];
-    if (!file) { showMessage("error", "Robot model: choose a .json model file."); return; }
+    if (!file) { showMessage("error", "The campaign was not created: choose the robot's .json model file.", "campaign-form"); return; }
     try { model = JSON.parse(await file.text()); } catch (exc) {
-      showMessage("error", `Robot model file ${file.name}: not JSON (${exc.message})`);
+      showMessage("error", `The campaign was not created: the model file ${file.name} is not JSON.`, "campaign-form", exc.message);
       return;
     }
   }
-  const c = await api("POST", "/campaigns", { json: { name: f.name.value.trim(), robot_model: model, notes: f.notes.value } });
+  // The built-in option's value is empty: the body then leaves robot_model out and the API
+  // takes its default (calib.default_robot.DEFAULT_ROBOT_MODEL), so the page keeps no copy.
+  const body = { name: f.name.value.trim(), notes: f.notes.value };
+  if (model !== "") body.robot_model = model;
+  const c = await api("POST", "/campaigns", { json: body });
+  dismiss("campaign-form");
   ev.target.reset();
   await loadCampaigns();
   await select(c);
@@ -333,6 +434,13 @@ export function initCampaign() {
   $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
   $("robot-model").addEventListener("change", (ev) => { $("robot-file-label").hidden = ev.target.value !== "__file__"; });
   $("plan-form").addEventListener("submit", (ev) => startPlan(ev).catch(() => {}));
+  $("plan-form").addEventListener("input", (ev) => {
+    if (ev.target.name === "n") ev.target.dataset.typed = "1";
+    if (ev.target.name === "start_from_samples" && state.campaign) renderPlanCount();
+    // the form's error is the form's: it goes as soon as the form is right again
+    if (!$("plan-form-error").hidden) planFormError(planFormProblem(ev.currentTarget.elements));
+  });
+  $("capture-anchor").addEventListener("input", (ev) => { ev.target.dataset.typed = "1"; });
   $("capture-now").addEventListener("click", () => captureNow());
   $("auto-capture").addEventListener("change", (ev) => setAuto(ev.target.checked));
   $("download-samples").addEventListener("click", () => download(`/campaigns/${state.campaign.id}/samples?format=csv`, `campaign-${state.campaign.id}-samples.csv`).catch(() => {}));

@@ -124,7 +124,7 @@ function renderDevices(devices) {
 function renderJoints(robot) {
   const q = robot?.last_reading?.value;
   const rows = [0, 1, 2, 3, 4, 5].map((j) => [`J${j + 1}`, el("span", { class: "num" }, Array.isArray(q) ? `${fix(q[j], 3)} deg` : "–")]);
-  fillTable($("cell-joints"), [{ label: "" }, { label: "" }], rows, Array.isArray(q) ? q.join() : "none");
+  fillTable($("cell-joints"), [{ label: "joint" }, { label: "angle" }], rows, Array.isArray(q) ? q.join() : "none");
   $("cell-joints").querySelector("thead").hidden = true;
   setText("cell-joints-note", isManualRobot()
     ? "Manual robot: the angles are typed in at each capture (tab 2)."

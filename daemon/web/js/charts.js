@@ -32,7 +32,7 @@ export function traceChart(node) {
     scales: { x: { time: false, range: [-60, 0] } },
     axes: [
       { ...AXIS, label: "time before now [s]", values: (u, ticks) => ticks.map((t) => t.toFixed(0)) },
-      { ...AXIS, label: "cable length [mm]", size: 70, values: (u, ticks) => ticks.map((t) => t.toFixed(1)) },
+      { ...AXIS, label: "cable length [mm]", size: 70, values: linearTicks },
     ],
     series: [{}, { label: "length", stroke: COLORS.trace, width: 1.5, points: { show: false } }],
   }, [[], []]);
@@ -69,7 +69,7 @@ export function residualChart(node, sampleNo, beforeMm, afterMm) {
     legend: { live: false },
     scales: { x: { time: false } },
     axes: [{ ...AXIS, label: "sample (in id order)" },
-      { ...AXIS, label: "residual [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) }],
+      { ...AXIS, label: "residual [mm]", size: 70, values: linearTicks }],
     series,
   }, data);
 }
@@ -82,7 +82,7 @@ export function driftChart(node, sampleNo, driftMm) {
     cursor: { show: false },
     scales: { x: { time: false } },
     axes: [{ ...AXIS, label: "sample (in id order)" },
-      { ...AXIS, label: "drift [mm]", size: 70, values: (u, t) => t.map((v) => fmtTick(v)) }],
+      { ...AXIS, label: "drift [mm]", size: 70, values: linearTicks }],
     series: [{}, { label: "drift [mm]", stroke: COLORS.cost, width: 2, points: { show: false } }],
   }, [sampleNo, driftMm]);
 }
@@ -113,10 +113,20 @@ export function histogramChart(node, beforeMm, afterMm) {
     legend: { live: false },
     cursor: { show: false },
     scales: { x: { time: false, range: [-lim - step, lim + step] } },
-    axes: [{ ...AXIS, label: "residual [mm]", values: (u, t) => t.map((v) => fmtTick(v)) },
+    axes: [{ ...AXIS, label: "residual [mm]", values: linearTicks },
       { ...AXIS, label: "samples", size: 50 }],
     series,
   }, data);
+}
+
+/** Tick labels of a linear axis with as many decimals as the tick spacing needs, so that no
+ * two ticks read the same (a steady cable over 0.04 mm: 1034.02, 1034.03, … not 1034.0 four
+ * times). */
+export function linearTicks(u, ticks) {
+  const step = ticks.length > 1 ? Math.abs(ticks[1] - ticks[0]) : 0;
+  let digits = 0; // the decimals the spacing has (0.25 → 2, 2.5 → 1, 0.01 → 2)
+  while (digits < 6 && step > 0 && Math.abs(step * 10 ** digits - Math.round(step * 10 ** digits)) > 1e-6 * step * 10 ** digits) digits += 1;
+  return ticks.map((v) => (v == null ? "" : Math.abs(v) < step / 2 ? "0" : v.toFixed(digits)));
 }
 
 function fmtTick(v) {

@@ -213,7 +213,8 @@ function renderJob() {
   else dismiss("identify-job");
   updateNeed();
   if (job.status === "succeeded" && (shownResult !== job.id || shownJob?.current !== job.current)) {
-    renderResult(job).catch((e) => showMessage("error", `result: ${e.message}`, "identify-result"));
+    renderResult(job).then(() => dismiss("identify-result"))
+      .catch((e) => showMessage("error", `The result of identification #${job.id} could not be shown: ${e.message}`, "identify-result", e.detail));
   }
   // While another job runs, the result shown (the previous one) stays, and says so.
   const note = $("result-shown-note");
@@ -240,6 +241,7 @@ async function renderResult(j) {
     : j.accepted ? "accepted earlier, replaced by a newer calibration"
       : plaus.plausible ? "plausible, waiting for Accept" : "implausible parameters — review before accepting");
   $("accept").hidden = !!j.current;
+  renderModelDownloads(j);
   await renderCompare(j);
   const mb = r.metrics?.before || {};
   const ma = r.metrics?.after || {};
@@ -260,14 +262,14 @@ async function renderResult(j) {
   renderCost(r);
   renderDrift(r);
   try {
-    const res = await api("GET", `/identifications/${j.id}/residuals`, { quiet: true });
+    const res = await api("GET", `/identifications/${j.id}/residuals`, { quiet: true, what: "Not available" });
     const idx = res.after_mm.map((_, i) => i + 1);
     plots.push(residualChart($("chart-residuals"), idx, res.before_mm, res.after_mm));
     plots.push(histogramChart($("chart-histogram"), res.before_mm, res.after_mm));
     const differs = res.n_job_samples != null && res.n_job_samples !== res.after_mm.length;
     setText("residuals-note", `${res.before_note}.` + (differs ? ` Note: the campaign now has ${res.after_mm.length} included samples; the identification used ${res.n_job_samples}.` : ""));
   } catch (exc) {
-    setText("residuals-note", `Residuals per sample not available: ${exc.message}`);
+    setText("residuals-note", `Residuals per sample: ${exc.message}`);
   }
 }
 
@@ -279,6 +281,9 @@ function renderDrift(r) {
   $("result-drift-card").hidden = !d;
   if (!d) return;
   setText("result-drift", d.summary || "");
+  // A method that does not model drift (the result's note): the line says so; the card's
+  // explanation of what is modelled does not apply.
+  $("result-drift-hint").hidden = !!d.note;
   const per = d.per_sample_mm || [];
   const found = d.model !== "none" && per.length;
   $("chart-drift").hidden = !found;
@@ -308,6 +313,16 @@ function renderCost(r) {
     : ""));
 }
 
+/** The calibrated model (TOML, URDF) is the robot's accepted calibration: its buttons work
+ * only on the result that is the current one, and say why otherwise. */
+function renderModelDownloads(j) {
+  for (const b of document.querySelectorAll("[data-download=toml], [data-download=urdf]")) {
+    b.disabled = !j.current;
+    b.title = j.current ? "" : "The calibrated model is the robot's accepted calibration: accept this result first.";
+  }
+  setText("model-download-note", j.current ? "" : "The calibrated model (TOML, URDF) is offered for the accepted calibration only: accept this result first.");
+}
+
 /** Old and new side by side: test RMSE on the same held-out rows, TCP σ, the parameters
  * that changed (GET /identifications/{id}/compare). */
 async function renderCompare(j) {
@@ -317,10 +332,23 @@ async function renderCompare(j) {
   if (!c.current) { box.hidden = true; return; }
   box.hidden = false;
   setText("compare-title", `#${j.id} next to the current calibration #${c.current.job_id}`);
-  fillTable($("compare-table"), [{ label: "" }, { label: `current #${c.current.job_id} (${c.current.method})`, num: true }, { label: `new #${j.id} (${c.new.method})`, num: true }], [
-    [`test RMSE on the same ${c.n_rows} held-out rows [mm]`, fix(c.current.test_rmse_mm, 3), fix(c.new.test_rmse_mm, 3)],
-    ["TCP uncertainty 1σ RMS [mm]", fix(c.current.tcp_sigma_mm, 3), fix(c.new.tcp_sigma_mm, 3)],
+  // The new result's figures are the tiles' (its result.json): one source. The current
+  // calibration is scored by the daemon on the new one's held-out rows as the campaign has
+  // them now; when the samples changed since the new result (an exclusion, an Undo of a
+  // sensor move), the new model scores differently on them today, and the page says so.
+  const own = j.result.metrics?.after?.test?.rmse_mm;
+  const tcpOwn = j.result.tcp_uncertainty_mm?.rms;
+  fillTable($("compare-table"), [{ label: "figure" }, { label: `current #${c.current.job_id} (${c.current.method})`, num: true }, { label: `new #${j.id} (${c.new.method})`, num: true }], [
+    [`test RMSE on the same ${c.n_rows} held-out rows [mm]`, fix(c.current.test_rmse_mm, 3), fix(own, 3)],
+    ["TCP uncertainty 1σ RMS [mm]", fix(c.current.tcp_sigma_mm, 3), fix(tcpOwn, 3)],
   ]);
+  const today = c.new.test_rmse_mm;
+  const stale = typeof own === "number" && typeof today === "number" && fix(own, 3) !== fix(today, 3);
+  $("compare-stale").hidden = !stale;
+  if (stale) {
+    setText("compare-stale", `The campaign's samples changed since #${j.id} was identified (samples excluded, or moved between anchor sessions): `
+      + `on its held-out rows as they are now, #${j.id} scores ${fix(today, 3)} mm, not the ${fix(own, 3)} mm of its result. Identify again before accepting.`);
+  }
   fillTable($("compare-changed"), [{ label: "parameter" }, { label: "current", num: true }, { label: "new", num: true }, { label: "change", num: true }],
     c.changed.length ? c.changed.map((p) => [p.name, `${fix(p.current, 3)} ${p.unit}`, `${fix(p.new, 3)} ${p.unit}`, `${p.change > 0 ? "+" : ""}${fix(p.change, 3)} ${p.unit}`])
       : [["no parameter changed by more than 0.001", "", "", ""]]);
@@ -385,14 +413,13 @@ async function downloadKind(kind) {
     await download(`/identifications/${id}/report.html`, `identification-${id}-report.html`);
   } else if (kind === "samples") {
     await download(`/campaigns/${shown.campaign_id}/samples?format=csv`, `campaign-${shown.campaign_id}-samples.csv`);
-  } else if (!shown.current) {
-    showMessage("warn", "The calibrated model is the robot's ACCEPTED result: accept this one first (or download the current one).", "model-dl");
-  } else {
+  } else if (shown.current) {
     const response = await api("GET", `/robots/${robotId}/calibrated-model?format=${kind}`, { raw: true });
     const type = response.headers.get("Content-Type") || "";
     // A daemon without the export formats answers JSON whatever the format: say so, save .json.
     const ext = type.includes("json") ? "json" : kind;
     if (ext !== kind) showMessage("warn", `This daemon serves the calibrated model as JSON only; saved as .json instead of .${kind}.`, "model-format");
+    else dismiss("model-format");
     saveBlob(await response.blob(), `robot-${robotId}-calibrated.${ext}`);
   }
 }

@@ -84,26 +84,47 @@ export function fillTable(table, columns, rows, key) {
 const messages = new Map(); // key -> {node, count}
 
 /**
- * Show a message (kind: error, warn, info) with its time; it stays until dismissed. The
+ * Show a message (kind: error, warn, info) with its time; it stays until dismissed or until
+ * its owner (the code that showed it, under ``key``) clears it when its cause is gone. The
  * same text (or ``key``) again updates the time and a repeat count instead of stacking.
+ * ``detail``: the technical text behind it (the API's answer), shown behind a "details"
+ * toggle, never as the headline.
  */
-export function showMessage(kind, text, key) {
+export function showMessage(kind, text, key, detail) {
   const k = key || `${kind}:${text}`;
   const now = new Date().toLocaleTimeString([], { hour12: false });
   const known = messages.get(k);
   if (known) {
     known.count += 1;
+    known.node.className = `message ${kind}`;
     known.node.querySelector("time").textContent = `${now} (×${known.count})`;
-    known.node.querySelector(".text").textContent = text;
+    known.node.querySelector(".text").replaceChildren(...messageBody(text, detail));
     return;
   }
-  const node = el("div", { class: `message ${kind}`, role: kind === "error" ? "alert" : "status" },
+  const node = el("div", { class: `message ${kind}`, role: kind === "error" ? "alert" : "status", dataset: { key: k } },
     el("time", {}, now),
-    el("span", { class: "text" }, text),
-    el("button", { title: "Dismiss", "aria-label": "Dismiss", onclick: () => dismiss(k) }, "×"));
+    el("div", { class: "text" }, ...messageBody(text, detail)),
+    el("button", { class: "dismiss", title: "Dismiss", "aria-label": "Dismiss", onclick: () => dismiss(k) }, "×"));
   messages.set(k, { node, count: 1 });
   $("messages").append(node);
+  if (kind === "info") {
+    setTimeout(() => { if (messages.get(k)?.node === node) dismiss(k); }, INFO_MS);
+  }
 }
+
+function messageBody(text, detail) {
+  const head = el("span", { class: "headline" }, text);
+  return detail ? [head, el("details", {}, el("summary", {}, "details"), el("code", {}, detail))] : [head];
+}
+
+/** An error of the page itself (a bug, not the daemon's answer): one banner, the JS error
+ * behind "details". */
+export function pageError(exc) {
+  showMessage("error", "The page hit an internal error; reload it. If it comes back, report it with the details.", "page", String(exc?.message || exc));
+}
+
+/** Info messages go by themselves after this long [ms]: they report a done action. */
+const INFO_MS = 20000;
 
 /** Remove the message of ``key`` (or of ``kind:text``). */
 export function dismiss(key) {
@@ -124,6 +145,7 @@ export const state = {
   routes: new Set(), // "METHOD /path/{}" of every route in /openapi.json
   authRefused: false, // the daemon refused the token (401): polling pauses until a new one
   downloadFormats: [], // the plan's download formats (csv, robot programs): the REST enum
+  schemas: {}, // components.schemas of /openapi.json (request bounds)
 };
 
 const norm = (path) => path.replace(/\{[^}]*\}/g, "{}");
@@ -137,7 +159,11 @@ export async function loadRoutes() {
     for (const method of Object.keys(ops)) state.routes.add(`${method.toUpperCase()} ${norm(path)}`);
   }
   state.downloadFormats = spec.components?.schemas?.DownloadFormat?.enum || [];
+  state.schemas = spec.components?.schemas || {};
 }
+
+/** The JSON schema of request body ``name`` in /openapi.json (its fields' bounds), or null. */
+export const requestSchema = (name) => state.schemas?.[name] || null;
 
 /** True when the daemon has route ``method path`` (path under /api/v1, ids as {name}). */
 export const hasRoute = (method, path) => state.routes.has(`${method} ${norm(`/api/v1${path}`)}`);
@@ -149,7 +175,7 @@ export function onChange(fn) {
 
 export function changed(kind) {
   for (const fn of state.listeners) {
-    try { fn(kind); } catch (exc) { showMessage("error", `page: ${exc.message}`); }
+    try { fn(kind); } catch (exc) { pageError(exc); }
   }
 }
 
@@ -160,7 +186,7 @@ export function every(ms, fn, active = () => true) {
   const tick = async () => {
     const t0 = performance.now();
     if (active() && !document.hidden && !state.authRefused) {
-      try { await fn(); } catch (exc) { if (!exc.status && exc.status !== 0) showMessage("error", `page: ${exc.message}`); }
+      try { await fn(); } catch (exc) { if (!exc.status && exc.status !== 0) pageError(exc); }
     }
     setTimeout(tick, Math.max(0, ms - (performance.now() - t0)));
   };

@@ -51,7 +51,7 @@ from calib.identifiability import analyse
 from calib.kinematics import FloatArray, IndexArray, forward_position
 from calib.models import RobotModel
 from calib.planning import design
-from calib.planning.candidates import draw_candidates, flange_and_tool_mm
+from calib.planning.candidates import draw_candidates, flange_and_tool_mm, reading_window_mm
 from calib.planning.options import PlanOptions
 from calib.planning.order import campaign_time_s, order_poses
 from calib.planning.result import PlanResult
@@ -81,13 +81,35 @@ class _Setup:
     nuisance: IndexArray | None  # columns of rows that are anchor parameters (Ds), or None
 
 
+def plan_anchor_ids(anchor_ids: tuple[str, ...] | None, n_anchors: int) -> tuple[str, ...]:
+    """The ids of a plan's anchors: ``anchor_ids`` as given, else ``A, B, …``."""
+    return anchor_ids or tuple(chr(ord("A") + k) for k in range(n_anchors))
+
+
+def start_offsets_mm(
+    model: RobotModel, start: SampleSet, ids: tuple[str, ...]
+) -> tuple[float | None, ...] | None:
+    """The zero offset [mm] of each of the plan's anchors ``ids`` that the start samples
+    measured (multilateration, :func:`start_anchor_fits`), None for the others; None when
+    they measured none (:attr:`PlanOptions.offsets_mm`)."""
+    fits = start_anchor_fits(model, start)
+    out = tuple(float(fits[a][1]) if a in fits else None for a in ids)
+    return out if any(c is not None for c in out) else None
+
+
 def start_anchors_mm(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
     """P0 of each start anchor by multilateration with the nominal model, each (3,) [mm]
     (the anchor guess for planning more poses at a sensor that has not moved)."""
+    return {aid: p0 for aid, (p0, _) in start_anchor_fits(model, start).items()}
+
+
+def start_anchor_fits(model: RobotModel, start: SampleSet) -> dict[str, tuple[FloatArray, float]]:
+    """P0 (3,) [mm] and the indicator's zero offset [mm] of each start anchor, by
+    multilateration with the nominal model."""
     pos = forward_position(model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm,
                            model.convention)  # fmt: skip
     idx = start.anchor_index()
-    return {aid: multilaterate(pos[idx == k], start.length_mm[idx == k])[0]
+    return {aid: multilaterate(pos[idx == k], start.length_mm[idx == k])
             for k, aid in enumerate(start.anchor_ids)}  # fmt: skip
 
 
@@ -95,7 +117,7 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
            start: SampleSet | None) -> _Setup:  # fmt: skip
     rng = np.random.default_rng(opts.seed)
     m = anchors_mm.shape[0]
-    plan_ids = opts.anchor_ids or tuple(chr(ord("A") + k) for k in range(m))
+    plan_ids = plan_anchor_ids(opts.anchor_ids, m)
     start_ids = start.anchor_ids if start is not None else ()
     ids = tuple(start_ids) + tuple(a for a in plan_ids if a not in start_ids)
     layout = ParamLayout(ids)
@@ -110,7 +132,8 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
             if aid not in plan_ids:
                 theta[layout.anchor_slice(ids.index(aid))][:3] = p0
     q_c, a_c = draw_candidates(model, anchors_mm, opts.candidates, rng, opts.extension_mm,
-                               opts.min_z_mm, opts.anchor_uncertainty_mm)  # fmt: skip
+                               opts.min_z_mm, opts.anchor_uncertainty_mm,
+                               offsets_mm=opts.offsets_mm)  # fmt: skip
     cand_anchor = plan_index[a_c]
     q_rad = np.deg2rad(q_c)
     _, jac0 = length_jacobian(model, theta, q_rad, cand_anchor)
@@ -392,6 +415,8 @@ def _plan(
         anchor_gain=gain,
         elapsed_s=timer.elapsed(),
         notes=notes,
+        offsets_mm=opts.offsets_mm,
+        reading_window_mm=reading_window_mm(opts.anchor_uncertainty_mm),
     )
 
 

@@ -1,0 +1,455 @@
+"""The dialect interface of ``cablecal filter``: sources, target sites, uses, edits.
+
+A **dialect** (one module per controller language under :mod:`calib.filter`) turns the text
+of the files given to the filter into :class:`Target` sites and writes corrected numbers
+back. It never rewrites a file: it returns :class:`Edit` s, each replacing exactly the
+characters of one number, and :func:`apply_edits` splices them in. Every other character
+(comments, whitespace, line endings, the rest of the program) is kept, and
+:class:`Source` re-encodes the text with the file's own encoding, so every byte outside the
+edited numbers is unchanged.
+
+The flow (:mod:`calib.filter.run`):
+
+1. :meth:`Dialect.parse` reads all files of its dialect at once (a RAPID task's tool data may
+   sit in another module; a KRL ``.src`` needs its ``.dat`` and ``$config.dat``) and returns
+   one :class:`Target` per target site: a declaration (or one element of an array
+   declaration), or an inline target inside a move. Each carries its pose (Cartesian: a
+   4x4 frame in its work object, mm) or joints (deg), how the controller picks the IK
+   branch (:class:`Configuration`), and its :class:`Use` s: every move that uses it, with
+   the tool and work object resolved to frames (or the reason they could not be).
+2. The core (:mod:`calib.filter.correct`) corrects every target whose uses agree on one
+   tool and one work object and returns a :class:`~calib.filter.correct.Correction`.
+3. :meth:`Dialect.render` turns a correction into edits of the target's numbers, written
+   with :func:`format_number`: at the precision the controller keeps, and a number whose
+   corrected value equals the original at that precision keeps its original text, so a
+   filter with the calibration equal to the nominal model changes no byte.
+
+Frames: ``tool`` is the TCP frame in the flange frame, ``work`` the work object in the robot's
+base frame; a Cartesian target ``T`` (in ``work``, of ``tool``) asks the flange to be at
+``work · T · tool⁻¹``. All 4x4, translation in mm.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Literal, Protocol
+
+import numpy as np
+
+from calib.filter.rotations import frame, zyx_deg_to_matrix
+from calib.kinematics import N_JOINTS, FloatArray
+
+Kind = Literal["cartesian", "joint"]
+#: What became of a target: corrected (possibly by less than the written precision, then no
+#: byte changes), unreachable (no calibrated solution on the branch, or outside the joint
+#: limits), or skipped (with the reason: frame not resolved, used with two tools, ...).
+Status = Literal["corrected", "unreachable", "skipped"]
+
+#: Largest rounding a written number may cost: position [mm] and orientation [deg].
+POSITION_ROUNDING_MM = 0.001
+ORIENTATION_ROUNDING_DEG = 0.0005
+
+
+class FilterInputError(ValueError):
+    """A file cannot be filtered (unparseable, unknown dialect, bad frames); the message
+    names the file and, where there is one, the line."""
+
+    def __init__(self, file: str, message: str, line: int | None = None) -> None:
+        where = f"{file}:{line}" if line is not None else file
+        super().__init__(f"{where}: {message}")
+        self.file = file
+        self.line = line
+
+
+@dataclass(frozen=True)
+class Source:
+    """One input file, decoded losslessly.
+
+    Attributes
+    ----------
+    name : str
+        The file's name as given (used in messages and the summary).
+    text : str
+        Decoded text; line ends are kept as they are (``\\r\\n`` stays ``\\r\\n``).
+    encoding : {"utf-8", "latin-1"}
+        UTF-8 when the bytes are valid UTF-8 (a BOM stays in ``text`` as ``\\ufeff``), else
+        Latin-1, which maps every byte to one character and back.
+    """
+
+    name: str
+    text: str
+    encoding: str
+
+    @classmethod
+    def from_bytes(cls, name: str, data: bytes) -> Source:
+        try:
+            return cls(name, data.decode("utf-8"), "utf-8")
+        except UnicodeDecodeError:
+            return cls(name, data.decode("latin-1"), "latin-1")
+
+    def encode(self, text: str | None = None) -> bytes:
+        """``text`` (default: the original) in the file's encoding.
+
+        Raises
+        ------
+        FilterInputError
+            The text holds a character the encoding cannot carry (never for edits made
+            of digits, signs and points).
+        """
+        try:
+            return (self.text if text is None else text).encode(self.encoding)
+        except UnicodeEncodeError as exc:
+            raise FilterInputError(self.name, f"cannot encode as {self.encoding}: {exc}") from None
+
+    @cached_property
+    def _line_starts(self) -> list[int]:
+        return [m.end() for m in re.finditer("\n", self.text)]
+
+    def line_of(self, offset: int) -> int:
+        """1-based line number of a character offset."""
+        return bisect.bisect_right(self._line_starts, offset) + 1
+
+
+@dataclass(frozen=True, slots=True)
+class Num:
+    """One number of a target as it stands in its file.
+
+    ``start, end`` are character offsets into :attr:`Source.text`; ``text`` the original
+    characters; ``value`` what they mean (as the controller reads them).
+    """
+
+    file: str
+    start: int
+    end: int
+    text: str
+    value: float
+
+
+@dataclass(frozen=True)
+class Edit:
+    """Replace ``text[start:end]`` of ``file`` by ``new``."""
+
+    file: str
+    start: int
+    end: int
+    new: str
+
+
+@dataclass(frozen=True)
+class Use:
+    """One move that uses a target, with its tool and work object.
+
+    Attributes
+    ----------
+    file : str
+    line : int
+        1-based line of the move.
+    tool_name, work_name : str
+        As the program names them (``tool0``, ``UT:2``, ``set_tcp@12`` …).
+    tool : ndarray, shape (4, 4), or None
+        TCP in the flange frame [mm]; None when it cannot be resolved (``problem`` says why).
+    work : ndarray, shape (4, 4), or None
+        Work object / user frame in the base frame [mm]; None when unresolved.
+    problem : str
+        Why the tool or work object could not be resolved; empty when both are.
+    """
+
+    file: str
+    line: int
+    tool_name: str
+    work_name: str
+    tool: FloatArray | None
+    work: FloatArray | None
+    problem: str = ""
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return (self.tool_name, self.work_name)
+
+
+@dataclass(frozen=True)
+class Configuration:
+    """How the controller picks the IK branch of a Cartesian target, in dialect-neutral form.
+
+    Attributes
+    ----------
+    joint_ranges_deg : ndarray, shape (6, 2)
+        Per joint the half-open interval ``[lo, hi)`` the nominal solution must lie in
+        (RAPID ``cf1/cf4/cf6`` quadrants, KUKA ``T`` signs, Fanuc turn numbers); ``±inf``
+        where the program says nothing.
+    shoulder, elbow, wrist : {+1, -1} or None
+        Branch signs, None where the program says nothing (computed by
+        :func:`calib.filter.branches.branch_signs` on the nominal model; ``c`` is the wrist
+        centre, ``o_k`` a point on axis ``k``, ``x_1`` the x axis of frame 1, ``z`` the base
+        z axis and ``h`` the horizontal unit vector from axis 1 towards ``c``):
+
+        * ``shoulder`` +1 (front) when ``(c − o_1) · x_1 > 0``, else −1 (behind axis 1);
+        * ``elbow`` +1 (up) when axis 3 lies above the line from axis 2 to the wrist centre,
+          ``(z × h) · ((c − o_2) × (o_3 − o_2)) < 0``, else −1 (down);
+        * ``wrist`` +1 when joint 5 (the controller's angle) is ≥ 0, else −1.
+
+        A dialect maps its own flags to these (RAPID ``cfx``, KUKA ``S``, Fanuc ``N/F U/D
+        T/B``). They only break ties: the joint ranges (quadrants, signs, turns) decide
+        first, and the only solution within the joint limits is taken whatever they say.
+    nearest_deg : ndarray, shape (6,), or None
+        Take the solution nearest these joints (UR: the waypoint's ``q``).
+    after : str or None
+        Take the solution nearest the nominal joints of this other target of the same file
+        (UR without a ``q``: the previous move's target).
+    text : str
+        The configuration as the program writes it, for messages.
+    """
+
+    joint_ranges_deg: FloatArray = field(
+        default_factory=lambda: np.tile([-np.inf, np.inf], (N_JOINTS, 1))
+    )
+    shoulder: int | None = None
+    elbow: int | None = None
+    wrist: int | None = None
+    nearest_deg: FloatArray | None = None
+    after: str | None = None
+    text: str = ""
+
+
+@dataclass
+class Target:
+    """One target site of a program.
+
+    Attributes
+    ----------
+    file : str
+    line : int
+        1-based line where the target's value starts.
+    name : str
+        Declared name (``p10``, ``p10{3}``, ``XP4``, ``P[7]``) or ``inline@<line>``.
+    kind : {"cartesian", "joint"}
+    pose : ndarray, shape (4, 4), or None
+        Cartesian targets: the target in its work object [mm].
+    joints_deg : ndarray, shape (6,), or None
+        Joint targets [deg] (the controller's joint angles).
+    configuration : Configuration or None
+        Cartesian targets: how the controller picks the branch.
+    uses : list of Use
+        Every move using the target, in program order.
+    problem : str
+        The dialect's reason not to correct this target (e.g. a stationary tool); empty
+        otherwise.
+    follows : str or None
+        A joint target that must become the corrected joints of another (Cartesian) target
+        of the same file (a PolyScope ``Waypoint_n_q`` follows ``Waypoint_n_p``): its name.
+    site : Any
+        The dialect's own data about where the numbers are (only :meth:`Dialect.render`
+        reads it).
+    """
+
+    file: str
+    line: int
+    name: str
+    kind: Kind
+    pose: FloatArray | None = None
+    joints_deg: FloatArray | None = None
+    configuration: Configuration | None = None
+    uses: list[Use] = field(default_factory=list)
+    problem: str = ""
+    follows: str | None = None
+    site: Any = None
+
+
+@dataclass(frozen=True)
+class Correction:
+    """What the core found for one target.
+
+    Attributes
+    ----------
+    status : {"corrected", "unreachable", "skipped"}
+    reason : str
+        Why a target was not corrected (empty when it was).
+    pose : ndarray, shape (4, 4), or None
+        Cartesian targets: the corrected target ``T′`` in its work object [mm].
+    joints_deg : ndarray, shape (6,), or None
+        Joint targets: the corrected joints ``q′``; Cartesian targets: ``q*``, the joints the
+        nominal controller will reach ``T′`` at (its quadrant/turn fields follow them).
+    nominal_joints_deg : ndarray, shape (6,), or None
+        The nominal solution of the original target on the controller's branch.
+    shift_mm, shift_deg : float
+        How far the target moved (TCP position [mm], orientation [deg]); NaN when not
+        corrected.
+    configuration_kept : bool or None
+        The corrected joints lie on the same branch (shoulder, elbow, wrist) as the nominal
+        solution (quadrant/turn numbers may change; they follow the joints).
+    sigma_mm : float
+        Predicted 1σ position error at the target's own tool point from the result's
+        covariance [mm]; NaN when the result carries none.
+    """
+
+    status: Status
+    reason: str = ""
+    pose: FloatArray | None = None
+    joints_deg: FloatArray | None = None
+    nominal_joints_deg: FloatArray | None = None
+    shift_mm: float = math.nan
+    shift_deg: float = math.nan
+    configuration_kept: bool | None = None
+    sigma_mm: float = math.nan
+
+
+@dataclass(frozen=True)
+class FrameTables:
+    """User frames and tools given with ``--frames`` (Fanuc ``UF``/``UT``), numbered.
+
+    ``uframe[n]`` is a work object in the base frame, ``utool[n]`` a TCP in the flange
+    frame, both (4, 4) [mm]. Number 0 is the identity in both (and cannot be redefined).
+    """
+
+    uframe: Mapping[int, FloatArray] = field(default_factory=dict)
+    utool: Mapping[int, FloatArray] = field(default_factory=dict)
+
+    def get(self, kind: Literal["uframe", "utool"], number: int) -> FloatArray | None:
+        """The frame, the identity for 0, None when not given."""
+        if number == 0:
+            return np.eye(4)
+        table = self.uframe if kind == "uframe" else self.utool
+        return table.get(number)
+
+
+def parse_frames_toml(text: str, name: str = "frames") -> FrameTables:
+    """``[uframe.N]`` and ``[utool.N]`` tables, each ``xyz_mm = [x, y, z]`` and ``wpr_deg =
+    [w, p, r]`` (Fanuc: ``R = Rz(r) Ry(p) Rx(w)``), N = 1..99.
+
+    Raises
+    ------
+    FilterInputError
+        Naming the table and field.
+    """
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise FilterInputError(name, f"not TOML: {exc}") from None
+    out: dict[str, dict[int, FloatArray]] = {"uframe": {}, "utool": {}}
+    for key, tables in data.items():
+        if key not in out:
+            raise FilterInputError(name, f"[{key}]: unknown table; expected uframe.N or utool.N")
+        if not isinstance(tables, dict):
+            raise FilterInputError(name, f"{key}: expected tables [{key}.N]")
+        for num, body in tables.items():
+            where = f"[{key}.{num}]"
+            if not re.fullmatch(r"[1-9]\d?", str(num)):
+                raise FilterInputError(name, f"{where}: the number must be 1..99")
+            if not isinstance(body, dict) or set(body) != {"xyz_mm", "wpr_deg"}:
+                raise FilterInputError(name, f"{where}: needs exactly xyz_mm and wpr_deg")
+            vals = []
+            for fld in ("xyz_mm", "wpr_deg"):
+                v = body[fld]
+                if (not isinstance(v, list) or len(v) != 3
+                        or not all(isinstance(x, int | float) and not isinstance(x, bool)
+                                   and math.isfinite(x) for x in v)):  # fmt: skip
+                    raise FilterInputError(name, f"{where}.{fld}: expected 3 finite numbers")
+                vals.append([float(x) for x in v])
+            w, p, r = vals[1]
+            out[key][int(num)] = frame(np.array(vals[0]), zyx_deg_to_matrix(r, p, w))
+    return FrameTables(out["uframe"], out["utool"])
+
+
+class Dialect(Protocol):
+    """What a controller language module provides (see the module docstring).
+
+    Attributes
+    ----------
+    name : str
+        ``rapid``, ``krl``, ``urscript``, ``fanuc-ls``.
+    extensions : tuple of str
+        Lower-case file extensions with the dot (``.mod``); ``claims`` decides among them.
+    """
+
+    name: str
+    extensions: tuple[str, ...]
+
+    def claims(self, source: Source) -> bool:
+        """Whether this file is of the dialect (extension and content)."""
+        ...
+
+    def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
+        """All targets of the dialect's files (given together).
+
+        Raises
+        ------
+        FilterInputError
+            A file that cannot be read, naming the file and line.
+        """
+        ...
+
+    def render(self, target: Target, correction: Correction) -> list[Edit]:
+        """Edits writing a corrected target's numbers (and its quadrant/turn fields)."""
+        ...
+
+
+def decimals_of(text: str) -> int:
+    """Decimals written in a number's text (``"12.50"`` → 2, ``"7"`` → 0, ``"1E+3"`` → 0)."""
+    dot = text.find(".")
+    if dot < 0:
+        return 0
+    frac = text[dot + 1 :].rstrip()
+    exp = frac.find("e") if "e" in frac else frac.find("E")
+    return len(frac) if exp < 0 else exp
+
+
+def format_number(original: Num, value: float, min_decimals: int) -> str:
+    """``value`` written like ``original``: with ``max(its decimals, min_decimals)`` decimals
+    (fixed point). When ``value`` equals the original at that precision (or to floating-point
+    round-off), the original text is returned unchanged (so a filter that moves nothing
+    changes no byte)."""
+    otext = original.text
+    dec = decimals_of(otext)
+    if dec < min_decimals:
+        dec = min_decimals
+    # Equal at the written precision, or up to floating-point round-off (a PolyScope joint
+    # written with 16 decimals, converted to degrees and back).
+    diff = abs(value - original.value)
+    if diff < 0.5 * 10.0**-dec or diff < 1e-12 * max(1.0, abs(value)):
+        return otext
+    text = f"{value:.{dec}f}"
+    if text[0] == "-" and float(text) == 0.0:
+        text = text[1:]
+    first = otext[0]
+    if first == "+" and text[0] != "-":
+        text = "+" + text
+    if dec and (first == "." or otext[1:2] == ".") and first in ".+-":
+        sign = "-" if text[0] == "-" else ""
+        body = text.lstrip("+-")
+        if body.startswith("0."):
+            text = ("+" if text[0] == "+" else sign) + body[1:]  # keep a style like ".25"
+    return text
+
+
+def edit(original: Num, value: float, min_decimals: int) -> Edit | None:
+    """The edit writing ``value`` over ``original`` (None when the text stays)."""
+    new = format_number(original, value, min_decimals)
+    if new == original.text:
+        return None
+    return Edit(original.file, original.start, original.end, new)
+
+
+def apply_edits(text: str, edits: Sequence[Edit]) -> str:
+    """``text`` with the edits spliced in (edits of one file, non-overlapping).
+
+    Raises
+    ------
+    ValueError
+        Overlapping edits (a dialect bug).
+    """
+    out: list[str] = []
+    pos = 0
+    for e in sorted(edits, key=lambda e: e.start):
+        if e.start < pos:
+            raise ValueError(f"overlapping edits at offset {e.start}")
+        out.append(text[pos : e.start])
+        out.append(e.new)
+        pos = e.end
+    out.append(text[pos:])
+    return "".join(out)
