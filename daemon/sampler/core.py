@@ -7,7 +7,6 @@ decisions are in :mod:`daemon.sampler.auto`, the settings in :mod:`daemon.sample
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import time
@@ -202,8 +201,13 @@ class Sampler(CapturePath):
             if delay > 0 or errored:
                 await asyncio.sleep(delay)
             else:
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(tick.wait(), self._robot_wait_s())
+                # asyncio.wait, not wait_for: Python 3.11's wait_for can swallow a cancel that
+                # arrives as the tick fires, and stop() would then wait for this loop forever.
+                waiter = asyncio.ensure_future(tick.wait())
+                try:
+                    await asyncio.wait({waiter}, timeout=self._robot_wait_s())
+                finally:
+                    waiter.cancel()
 
     def _robot_wait_s(self) -> float:
         """Longest wait of the robot's loop for an indicator cycle [s]: a settle window then

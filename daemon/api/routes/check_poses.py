@@ -47,7 +47,7 @@ def _poses_csv(poses_deg: list[list[float]]) -> str:
     summary="The drift-check poses",
     dependencies=[ReadAuth],
     response_model=CheckPoses,
-    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}},
+    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(409)},
 )
 def get_check_poses(
     state: State,
