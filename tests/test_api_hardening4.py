@@ -152,6 +152,10 @@ def test_control_characters_are_refused_in_names_anchors_and_reasons(
         assert field in r.text and "control character" in r.text, r.text
     names = [c["name"] for c in client.get(f"{API}/campaigns", headers=AUTH).json()]
     assert not any(char in n for n in names)
+    model = client.get(f"{API}/robots/1", headers=AUTH).json()["model"]
+    body = {"name": "ok", "robot_model": {**model, "name": bad}}
+    r = client.post(f"{API}/campaigns", json=body, headers=AUTH)
+    assert r.status_code == 422 and "robot_model.name" in r.text, r.text
 
 
 def test_notes_keep_line_feeds_and_tabs(client: TestClient) -> None:

@@ -74,6 +74,11 @@ def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
             model = model_from_mapping(body.robot_model)
         except ModelError as exc:
             raise unprocessable(("body", "robot_model"), f"robot_model.{exc}") from exc
+        if why := not_printable(model.name):  # a name, printable as every name
+            raise unprocessable(
+                ("body", "robot_model", "name"),
+                f"robot_model.name: {why}: only printable text is allowed",
+            )
         robot = state.store.add_robot(model, source="uploaded")
     return _out(state, state.store.create_campaign(body.name, int(robot["id"]), body.notes))
 
