@@ -21,6 +21,7 @@ from typing import NoReturn
 
 import numpy as np
 
+from calib.csvtext import neutralise_cell, restore_cell
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 
@@ -48,25 +49,6 @@ _BLOCK_ROWS = 10_000
 #: exponent. No digit separators (Python's ``float("1_0")`` is 10), no ``nan``/``inf``, ASCII
 #: digits only (``re.ASCII``: Arabic-Indic ``٧`` or fullwidth ``７`` are not numbers here).
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
-
-
-#: A text cell a spreadsheet would run as a formula (OWASP "CSV injection"): it starts, after
-#: any number of ``'``, with ``=``, ``+``, ``-``, ``@``, a tab or a CR.
-_FORMULA_LIKE = re.compile("'*[=+\\-@\t\r]")
-
-
-def neutralise_cell(text: str) -> str:
-    """A text cell (``anchor``, ``group``) as an export writes it: one ``'`` put in front of
-    a formula-like cell (``=1+2`` -> ``'=1+2``), so a spreadsheet shows it as text. Numbers
-    are written by the exporters themselves (``-12.5`` stays ``-12.5``) and never pass here.
-    :func:`restore_cell` reverses it exactly, also for a name that itself starts with ``'``."""
-    return "'" + text if _FORMULA_LIKE.match(text) else text
-
-
-def restore_cell(text: str) -> str:
-    """The inverse of :func:`neutralise_cell`, applied by :func:`parse_samples_csv` to the
-    text columns: one leading ``'`` is dropped when a formula-like cell follows it."""
-    return text[1:] if text.startswith("'") and _FORMULA_LIKE.match(text, 1) else text
 
 
 class SampleError(ValueError):

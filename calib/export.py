@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -84,9 +85,37 @@ def model_from_result(
     return model_from_mapping(mapping)
 
 
+#: Characters XML 1.0 has no place for, not even escaped: C0 controls but tab, LF and CR;
+#: U+FFFE, U+FFFF; lone surrogates.
+_XML_INVALID = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ufffe\uffff\ud800-\udfff]")
+#: Control characters a one-line comment must not carry (line breaks included).
+_COMMENT_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def xml_text(text: str) -> str:
+    """``text`` as XML 1.0 can carry it in an attribute or element (ElementTree escapes ``&``,
+    ``<``, ``"`` and line breaks itself): characters XML cannot hold become U+FFFD."""
+    return _XML_INVALID.sub("\ufffd", text)
+
+
+def xml_comment(text: str) -> str:
+    """``text`` as the body of one ``<!-- … -->`` comment: one line, no ``--`` (which would
+    end the comment or make the XML invalid) and no ``-`` at its end."""
+    body = _COMMENT_CONTROL.sub(" ", xml_text(text))
+    while "--" in body:
+        body = body.replace("--", "- -")
+    return body + " " if body.endswith("-") else body
+
+
+def toml_comment(text: str) -> list[str]:
+    """``text`` as the bodies of TOML ``#`` comment lines, one per line of ``text``: TOML allows
+    no control character but the tab in a comment, so the others become U+FFFD."""
+    return [_COMMENT_CONTROL.sub("\ufffd", line) for line in text.splitlines()]
+
+
 def model_to_toml(model: RobotModel, comments: Sequence[str] = ()) -> str:
     """The model as a TOML model file (``--robot FILE.toml``), with ``#`` comment lines first."""
-    head = "".join(f"# {line}\n" for c in comments for line in c.splitlines())
+    head = "".join(f"# {line}\n" for c in comments for line in toml_comment(c))
     return head + tomli_w.dumps(model.to_dict())
 
 
@@ -123,7 +152,7 @@ def _joint_origins(model: RobotModel) -> list[dict[str, str]]:
 def model_to_urdf(model: RobotModel) -> str:
     """The model as URDF text: links ``base_link, link_1 … link_6, flange, tool_point``,
     revolute joints ``joint_1 … joint_6`` about ``z``, fixed ``flange`` and ``tool_point``."""
-    robot = ET.Element("robot", name=model.name)
+    robot = ET.Element("robot", name=xml_text(model.name))
     links = ["base_link", *(f"link_{j + 1}" for j in range(N_JOINTS)), "flange", "tool_point"]
     for link in links:
         ET.SubElement(robot, "link", name=link)
@@ -148,8 +177,9 @@ def model_to_urdf(model: RobotModel) -> str:
                 lo, hi = (_num(math.radians(v)) for v in limits[j])
                 ET.SubElement(joint, "limit", lower=lo, upper=hi, effort="0", velocity="0")
     ET.indent(robot)
-    comment = (f"<!-- {model.name}: {model.convention} chain exported by cablecal; lengths in m, "
-               "angles in rad; joint values are the controller's joint angles -->\n")  # fmt: skip
+    comment = (f"<!-- {xml_comment(model.name)}: {model.convention} chain exported by cablecal; "
+               "lengths in m, angles in rad; joint values are the controller's joint angles -->\n"
+               )  # fmt: skip
     return '<?xml version="1.0"?>\n' + comment + ET.tostring(robot, encoding="unicode") + "\n"
 
 

@@ -11,7 +11,7 @@ it); :func:`validate` imports numpy-based modules when called.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sized
+from collections.abc import Collection, Mapping
 from dataclasses import MISSING, dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Literal, get_args
 
@@ -243,19 +243,22 @@ def options_from_mapping(values: Mapping[str, Any]) -> IdentifyOptions:
 def validate(
     samples: SampleSet,
     options: IdentifyOptions,
-    train_rows: Sized | None = None,
+    train_rows: Collection[Any] | None = None,
     *,
     model: RobotModel,
 ) -> None:
     """Check options against a sample set and the robot, before any computation.
 
     Checks the choices and bounds of every field, the ``fix``/``free`` names against the
-    parameter layout of the samples' anchors, and that the training rows (``train_rows``, or
-    what ``test_fraction`` leaves) are more than the parameters identify will solve
-    (:func:`calib.identifiability.max_solved`: the base set of this robot and these anchors
-    at well-spread poses, less ``fix``, plus ``free``), and at least
-    :data:`MIN_TRAINING_SAMPLES`. Costs one Jacobian at 200 poses (milliseconds) the first time
-    for a model, anchors and options (the answer is kept).
+    parameter layout of the samples' anchors, and that the training rows (``train_rows``, the
+    split identify makes: :func:`calib.split.split_rows` at the options' test fraction, seed
+    and hold-out; or only their count, what ``test_fraction`` leaves) are more than the
+    parameters identify will solve (:func:`calib.identifiability.max_solved`: the base set of
+    this robot and these anchors at well-spread poses, less ``fix``, plus ``free``), at least
+    :data:`MIN_TRAINING_SAMPLES`, and, given ``train_rows``, at least
+    :data:`calib.cable.MIN_ANCHOR_SAMPLES` for each anchor (:func:`check_anchor_rows`). Costs
+    one Jacobian at 200 poses (milliseconds) the first time for a model, anchors and options
+    (the answer is kept).
 
     Raises
     ------
@@ -277,6 +280,38 @@ def validate(
     n = len(samples)
     n_train = len(train_rows) if train_rows is not None else n - held_out(n, options.test_fraction)
     check_training_rows(n_train, n, parameters_to_solve(model, anchors, options))
+    if train_rows is not None:
+        check_anchor_rows(samples, train_rows)
+
+
+def check_anchor_rows(samples: SampleSet, train_rows: Collection[Any]) -> None:
+    """The one rule on each anchor's training rows: at least
+    :data:`calib.cable.MIN_ANCHOR_SAMPLES`, the fewest that locate its ``P0`` and zero offset.
+
+    Raises
+    ------
+    calib.dataset.SampleError
+        Naming the anchor, its training rows and its included samples.
+    """
+    from calib.cable import MIN_ANCHOR_SAMPLES
+    from calib.dataset import SampleError
+
+    anchors = samples.anchor_ids
+    if len(samples) == 0 or not anchors:
+        return
+    index = samples.anchor_index()
+    counts = [0] * len(anchors)
+    for row in train_rows:
+        counts[int(index[int(row)])] += 1
+    for aid, n_train in zip(anchors, counts, strict=True):
+        if n_train < MIN_ANCHOR_SAMPLES:
+            n_all = sum(a == aid for a in samples.anchor)
+            raise SampleError(
+                f"anchor {aid!r} has {n_train} training samples (of {n_all} included); at "
+                f"least {MIN_ANCHOR_SAMPLES} are needed to locate it (capture more at this "
+                "anchor, or exclude its samples)",
+                column="anchor",
+            )
 
 
 def parameters_to_solve(

@@ -17,8 +17,6 @@ not observable from cable lengths.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -28,6 +26,7 @@ import numpy as np
 
 from calib.anchors import fit_anchors
 from calib.cable import N_KIN, ParamLayout, predict_lengths
+from calib.csvtext import write_csv
 from calib.dataset import JOINT_COLUMNS, SampleSet
 from calib.export import model_from_result
 from calib.kinematics import FloatArray
@@ -107,11 +106,7 @@ class VerifyResult:
     def to_csv(self) -> str:
         """CSV text of :meth:`csv_rows`."""
         rows = self.csv_rows()
-        out = io.StringIO()
-        writer = csv.DictWriter(out, fieldnames=list(rows[0]), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-        return out.getvalue()
+        return write_csv(rows, list(rows[0]))
 
     def to_json(self) -> dict[str, Any]:
         """``metrics, refit_anchor, anchors, reference_rmse_mm, passed, notes, residuals``."""

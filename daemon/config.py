@@ -166,6 +166,9 @@ class Settings(BaseSettings):
     public_reads: bool = False
     """Serve the read routes (GET) without a token. ``/health`` and ``/metrics`` are always
     open."""
+    max_connections_per_client: Annotated[int, Field(ge=1, le=1024)] = 64
+    """Connections one peer address may hold open at once; a further one is answered 503 and
+    closed (the other bounds on clients: :mod:`daemon.api.server`)."""
     state_dir: Path = Field(default_factory=default_state_dir)
     """Directory of the SQLite database and the generated token."""
     db_path: Path | None = None

@@ -37,13 +37,17 @@ from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from calib.options import default as default_option
 from daemon import metrics
 from daemon.config import JobSettings
 from daemon.store import JOB_FINISHED, JobState, StoreNotFound
 from daemon.workers import init_child
+
+if TYPE_CHECKING:
+    from calib.dataset import SampleSet
+    from calib.models import RobotModel
 
 log = logging.getLogger("cablecal.jobs")
 
@@ -59,6 +63,16 @@ _FINAL_PROGRESS = "_final_progress"
 
 class JobError(ValueError):
     """A job request cannot run (names the field)."""
+
+
+class _Checked(NamedTuple):
+    """A checked job request: the samples and their ids, the robot and the options."""
+
+    samples: SampleSet
+    sample_ids: list[int]
+    robot_id: int
+    model: RobotModel
+    options: dict[str, Any]
 
 
 def _noop() -> int:
@@ -225,8 +239,11 @@ class JobManager:
                 self._manager.shutdown()
 
     # ------------------------------------------------------------------ submit / cancel
-    def submit(self, campaign_id: int, options: Mapping[str, Any]) -> dict[str, Any]:
-        """Queue an identification of the campaign's included samples.
+    def check(self, campaign_id: int, options: Mapping[str, Any]) -> _Checked:
+        """What an identification of the campaign's included samples with ``options`` would
+        run on, after the one rule of what can run (:func:`calib.options.validate`: options,
+        training rows, each anchor's training rows). ``submit`` and the readiness route both
+        ask it, so what is called ready is what is accepted.
 
         Raises
         ------
@@ -236,6 +253,7 @@ class JobManager:
             No such campaign.
         """
         from calib.options import OptionError, options_from_mapping, validate
+        from calib.split import split_rows
 
         campaign = self.store.get_campaign(campaign_id)
         if campaign is None:
@@ -247,11 +265,30 @@ class JobManager:
         robot_id = int(campaign["robot_id"])
         model = self.store.robot_model(robot_id)
         try:
-            validate(samples, options_from_mapping(opts), model=model)
+            parsed = options_from_mapping(opts)
+            # The rows identify will train on (its own split), so each anchor's count is the
+            # one the job would see.
+            train_rows = split_rows(
+                samples, parsed.test_fraction, parsed.seed, parsed.holdout, parsed.n_groups
+            )[0]
+            validate(samples, parsed, train_rows, model=model)
         except OptionError as exc:
             raise JobError(str(exc)) from exc
         except (TypeError, ValueError) as exc:
             raise JobError(f"campaign {campaign_id}: {exc}") from exc
+        return _Checked(samples, sample_ids, robot_id, model, opts)
+
+    def submit(self, campaign_id: int, options: Mapping[str, Any]) -> dict[str, Any]:
+        """Queue an identification of the campaign's included samples (:meth:`check` first).
+
+        Raises
+        ------
+        JobError
+            Bad options (the message names the option) or too few samples.
+        daemon.store.StoreNotFound
+            No such campaign.
+        """
+        samples, sample_ids, robot_id, model, opts = self.check(campaign_id, options)
         job = self.store.create_job(
             campaign_id, robot_id, str(opts.get("method", default_option("method"))), opts
         )

@@ -41,6 +41,20 @@ CAPTURES = Counter(
     ["outcome", "reason", "mode"],  # outcome: accepted | rejected | failed (not stored)
     registry=REGISTRY,
 )
+ROBOT_LATE = Counter(
+    "cablecal_robot_late",
+    "Episodes in which a robot that answers had no joint reading newer than the settle window "
+    "(settle_s): its replies come late, so no window can settle (daemon.sampler.late).",
+    ["device"],
+    registry=REGISTRY,
+)
+POSES_LOST = Counter(
+    "cablecal_poses_lost",
+    "Auto mode: poses the robot stood still at and left without a capture or a recorded "
+    "rejection, by why no window settled there (robot_late, stale, moving, over_range, ...).",
+    ["reason"],
+    registry=REGISTRY,
+)
 JOBS = Counter(
     "cablecal_identification_jobs",
     "Finished identification jobs by method and final status.",

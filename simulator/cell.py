@@ -8,6 +8,7 @@ noise and quantisation to the indicator's decimals. Nothing here does I/O.
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,7 +26,12 @@ from simulator.config import (
     MAX_DRIFT_TAU_S,
     SimConfig,
 )
-from simulator.poses import parse_poses_file, spread_poses_deg
+from simulator.poses import PoseCsvError, parse_poses_file, spread_poses_deg
+
+#: Largest poses file the control port reads [bytes] (a 2000-pose plan CSV is about 150 kB).
+MAX_POSES_FILE_BYTES = 8 * 1024 * 1024
+#: Where a program's error is: its line, or a target and joint (no text of the file).
+_PROGRAM_WHERE = re.compile(r"\bline \d+|\btarget \d+(, q\d)?")
 
 #: Display limits of the 6-digit indicator (counts).
 DISPLAY_MIN, DISPLAY_MAX = -199999, 999999
@@ -214,6 +220,47 @@ class EmulatedCell:
         except OSError as exc:
             raise ValueError(f"robot.poses: cannot read {full}: {exc.strerror}") from None
         return parse_poses_file(text, str(full), joint_limits_deg(self.truth.model))
+
+    def parse_poses_text(self, text: str, source: str) -> FloatArray:
+        """Joint angles [deg], shape (n, 6), of a plan CSV's or robot program's text, checked
+        against the joint limits; errors name ``source``."""
+        return parse_poses_file(text, source, joint_limits_deg(self.truth.model))
+
+    def confined_path(self, path: str) -> Path:
+        """``path`` (relative or absolute) resolved, symlinks and ``..`` included, and checked
+        to be a regular file inside the config's ``base_dir`` of at most
+        :data:`MAX_POSES_FILE_BYTES` (the control port reads nothing else).
+
+        Raises ``ValueError`` naming ``path`` as given, never anything read from it.
+        """
+        base = Path(self.config.base_dir).resolve()
+        full = (base / path).resolve()
+        if not full.is_relative_to(base):
+            raise ValueError(f"{path}: outside the cell's config directory {base}")
+        if not full.is_file():
+            raise ValueError(f"{path}: no such file in the cell's config directory {base}")
+        if full.stat().st_size > MAX_POSES_FILE_BYTES:
+            raise ValueError(f"{path}: larger than {MAX_POSES_FILE_BYTES} bytes")
+        return full
+
+    def read_confined_poses(self, path: str) -> FloatArray:
+        """Joint angles [deg], shape (n, 6), of a plan CSV or robot program at ``path`` inside
+        the config's directory (:meth:`confined_path`), for the control port: an error names
+        the file and where in it (row, column, target), never its contents."""
+        full = self.confined_path(path)
+        try:
+            text = full.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            raise ValueError(f"{path}: not a valid poses file (not UTF-8 text)") from None
+        try:
+            return parse_poses_file(text, path, joint_limits_deg(self.truth.model))
+        except PoseCsvError as exc:
+            where = [f"row {exc.row}"] if exc.row is not None else []
+            where += [f"column {exc.column!r}"] if exc.column is not None else []
+            if not where and (found := _PROGRAM_WHERE.search(str(exc))):
+                where = [found.group(0)]
+            detail = f" ({', '.join(where)})" if where else ""
+            raise ValueError(f"{path}: not a valid poses file{detail}") from None
 
     def load_poses(
         self, poses_deg: FloatArray, loop: bool | None = None, now: float | None = None

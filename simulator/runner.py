@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from simulator.cell import EmulatedCell
+from simulator.cell import MAX_POSES_FILE_BYTES, EmulatedCell
 from simulator.config import ServerSection, SimConfig
 from simulator.faces import FACE_READY_KEYS, FACES, FaceServer
 from simulator.servers import (
@@ -93,7 +93,11 @@ class CellRunner:
                 self.faces[face.ready_key] = server
         if cfg.control.enabled:
             self._control_server = await asyncio.start_server(
-                self._control_client, cfg.control.host, cfg.control.port, reuse_address=True
+                self._control_client,
+                cfg.control.host,
+                cfg.control.port,
+                reuse_address=True,
+                limit=2 * MAX_POSES_FILE_BYTES,  # a line may carry a program's text
             )
             self._control_port = self._control_server.sockets[0].getsockname()[1]
         return self.ready()
@@ -197,11 +201,13 @@ class CellRunner:
             The pose list (``poses_deg``) and ``loop``.
         ``load_poses``
             Follow a new pose list: ``poses_deg`` (list of 6-lists [deg]), ``csv`` (path of a
-            plan CSV with ``q1..q6`` columns, relative to the config's directory) or
-            ``program`` (path of a robot program in any format of ``cablecal program``: the
-            robot runs its joint moves; a CSV is read as with ``csv``); optional
+            plan CSV with ``q1..q6`` columns) or ``program`` (path of a robot program in any
+            format of ``cablecal program``: the robot runs its joint moves; a CSV is read as
+            with ``csv``), or ``text`` (a program's or plan CSV's text); optional
             ``loop``. The robot moves from where it is to the new pose 0, then dwells and
-            moves as usual. Replies like ``poses``.
+            moves as usual. Replies like ``poses``. A path must lead, after symlinks and
+            ``..``, to a file inside the config's directory; an error names where in the file
+            it is, never what the file holds.
         ``shift_joint_offset``
             Drift emulation: ``joint`` (1..6), ``delta_deg``: the TRUE joint offset moves by
             ``delta_deg`` (the controller reports the same angles; the lengths change).
@@ -302,13 +308,19 @@ class CellRunner:
     def _load_poses(self, request: dict[str, Any]) -> dict[str, Any]:
         """The ``load_poses`` command."""
         cell = self.cell
-        given = [k for k in ("csv", "program", "poses_deg") if k in request]
+        given = [k for k in ("csv", "program", "text", "poses_deg") if k in request]
         if len(given) != 1:
             raise ValueError(
-                "load_poses: give exactly one of 'csv' (a path), 'program' (a path) or 'poses_deg'"
+                "load_poses: give exactly one of 'csv' (a path), 'program' (a path), 'text' "
+                "(a program or plan CSV) or 'poses_deg'"
             )
-        if given[0] != "poses_deg":
-            poses = cell.read_poses_csv(str(request[given[0]]))
+        if given[0] in ("csv", "program"):
+            poses = cell.read_confined_poses(str(request[given[0]]))
+        elif given[0] == "text":
+            text = request["text"]
+            if not isinstance(text, str):
+                raise ValueError("text: expected the program or plan CSV as a string")
+            poses = cell.parse_poses_text(text, "text")
         else:
             poses = np.asarray(request["poses_deg"], dtype=float)
         loop = request.get("loop")

@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -253,6 +254,16 @@ def test_calibrated_model_formats(client: TestClient, calibrated: dict[str, int]
     js = client.get(url, params={"format": "json"}, headers=AUTH)
     assert js.headers["content-type"].startswith("application/json") and "joints" in js.json()
     assert client.get(url, params={"format": "step"}, headers=AUTH).status_code == 422
+    # Issue 28, item 6: every answer is as the OpenAPI document declares it, media type and
+    # body (the JSON model file was an undocumented body under the CalibratedModel schema).
+    spec = client.get("/openapi.json").json()
+    path = spec["paths"]["/api/v1/robots/{robot_id}/calibrated-model"]["get"]
+    declared = path["responses"]["200"]["content"]
+    for r in (table, toml, urdf, js):
+        assert r.headers["content-type"].split(";")[0] in declared, r.headers["content-type"]
+    schema = {**declared["application/json"]["schema"], "components": spec["components"]}
+    for r in (table, js):
+        jsonschema.validate(r.json(), schema)
 
 
 def test_verify_route(client: TestClient, cell: TrueCell, calibrated: dict[str, int]) -> None:

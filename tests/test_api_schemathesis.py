@@ -22,8 +22,10 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
+from schemathesis.generation import GenerationMode
 from schemathesis.specs.openapi.checks import (
     content_type_conformance,
+    negative_data_rejection,
     positive_data_acceptance,
     response_schema_conformance,
     status_code_conformance,
@@ -43,10 +45,8 @@ CHECKS = [
     content_type_conformance,
     response_schema_conformance,
     positive_data_acceptance,  # a request the schema allows is not refused (400/413/415/422)
+    negative_data_rejection,  # a request the schema forbids is refused (a 4xx)
 ]
-# Not negative_data_rejection: unknown query parameters are ignored (as HTTP APIs commonly
-# do), and the token each call adds turns its "missing Authorization" negatives into valid
-# requests.
 EXAMPLES_PER_OPERATION = 25
 #: One request's limit [s]: a valid plan request computes a plan (bounded by the route's
 #: limits), which on a loaded 2-core machine can take longer than Schemathesis' default 10 s.
@@ -62,6 +62,19 @@ def _app_and_schema() -> Any:
     app = create_app(_settings(tmp), TOKEN, sampler_factory=FakeSampler)
     loaded = schemathesis.openapi.from_dict(app.openapi())
     loaded.app = app
+    # Both: requests the schema allows and requests it forbids, in the same example budget.
+    # Exemptions from negative_data_rejection, each with its reason:
+    # - allow_extra_parameters=False: an unknown query parameter is ignored, not refused (as
+    #   HTTP APIs commonly do: a browser's or a proxy's cache-buster must not break a read),
+    #   so "a parameter the schema lacks" is not invalid data here;
+    # - with_security_parameters=False: the Authorization header is the test's to set (the run
+    #   with the token adds it to every call, the run without checks the 401 of every guarded
+    #   operation), so "Authorization missing" is not a negative case either.
+    loaded.config.generation.update(
+        modes=[GenerationMode.POSITIVE, GenerationMode.NEGATIVE],
+        allow_extra_parameters=False,
+        with_security_parameters=False,
+    )
     return loaded
 
 
@@ -79,6 +92,8 @@ _BOUNDED = settings(
 #: Requests sent and failed, per (token?, operation): printed at the end of the module (``-s``).
 SENT: Counter[tuple[bool, str]] = Counter()
 FAILED: Counter[tuple[bool, str]] = Counter()
+#: Requests the schema forbids (negative mode), per token?.
+NEGATIVE: Counter[bool] = Counter()
 
 
 def teardown_module() -> None:
@@ -91,7 +106,8 @@ def teardown_module() -> None:
         n = sum(c for (t, _), c in SENT.items() if t == token)
         bad = {op for t, op in FAILED if t == token}
         print(f"\nschemathesis {'with' if token else 'without'} token: {len(ops)} operations, "
-              f"{n} requests, {len(bad)} failing operations")  # fmt: skip
+              f"{n} requests ({NEGATIVE[token]} the schema forbids), "
+              f"{len(bad)} failing operations")  # fmt: skip
 
 
 #: Operations whose body has rules between its fields that JSON Schema cannot state (open,
@@ -126,6 +142,8 @@ def _file_format_body(case: Any) -> bool:
 
 def _run(case: Any, token: bool) -> Any:
     SENT[token, case.operation.label] += 1
+    if case.meta is not None and case.meta.generation.mode.is_negative:
+        NEGATIVE[token] += 1
     checks = [c for c in CHECKS if c is not positive_data_acceptance or not _file_format_body(case)]
     try:
         return case.call_and_validate(

@@ -155,7 +155,8 @@ async def test_driver_sees_the_plan_csv_poses_in_order(tmp_path: Path) -> None:
 async def test_load_poses_command_and_csv_over_the_control_port(tmp_path: Path) -> None:
     path = write_plan_csv(tmp_path / "plan.csv", PLAN_DEG[::-1])
     robot = {"dwell_s": 0.35, "move_time_s": 0.15}
-    with SimulatorThread(SimConfig(robot=robot, indicator={"pty": False})) as sim:
+    config = SimConfig(robot=robot, indicator={"pty": False}, base_dir=str(tmp_path))
+    with SimulatorThread(config) as sim:
         reply = sim.control("load_poses", poses_deg=PLAN_DEG.tolist(), loop=False)
         assert reply["poses_deg"] == PLAN_DEG.tolist() and reply["loop"] is False
         readings = await _poll_joints(sim.ready["robot_socketcmd"], 0.15 + 4 * 0.5 + 0.4)
@@ -211,3 +212,44 @@ def test_cablecal_emulated_robot_run_loads_a_program(tmp_path: Path) -> None:
         res = CliRunner().invoke(app, ["emulated-robot-run", str(path), "--control", control])
         assert res.exit_code == 2 and "CNT100 blends" in res.output
         assert sim.control("state")["n_poses"] == 4  # a bad program changes nothing
+
+
+def test_the_control_port_reads_only_inside_its_directory(tmp_path: Path) -> None:
+    """Issue 28, item 9: ``load_poses`` reads a path only when it leads, after ``..`` and
+    symlinks, to a regular file inside the config's directory; a file that is not a poses
+    file is refused without a byte of it in the reply."""
+    cell_dir = tmp_path / "cell"
+    cell_dir.mkdir()
+    secret = tmp_path / "secret.txt"
+    secret.write_text("root:SECRET-HASH:19000:0:99999:7:::\nSECRET=second-line\n")
+    inside_secret = cell_dir / "notes.csv"
+    inside_secret.write_text("SECRET-HEADER,x\nSECRET-CELL,1\n")
+    (cell_dir / "link.csv").symlink_to(secret)
+    (cell_dir / "sub").mkdir()
+    write_plan_csv(cell_dir / "sub" / "plan.csv", PLAN_DEG)
+    config = SimConfig(indicator={"pty": False}, base_dir=str(cell_dir))
+    with SimulatorThread(config) as sim:
+        refused = {
+            "/etc/passwd": "outside the cell's config directory",
+            "/proc/self/environ": "outside the cell's config directory",
+            str(secret): "outside the cell's config directory",
+            "../secret.txt": "outside the cell's config directory",
+            "sub/../../secret.txt": "outside the cell's config directory",
+            "link.csv": "outside the cell's config directory",  # a symlink out
+            "sub": "no such file",
+            "missing.csv": "no such file",
+            "notes.csv": "notes.csv: not a valid poses file",
+        }
+        for key in ("csv", "program"):
+            for path, reason in refused.items():
+                with pytest.raises(RuntimeError) as info:
+                    sim.control("load_poses", **{key: path})
+                message = str(info.value)
+                assert reason in message, (path, message)
+                assert "SECRET" not in message and "root:" not in message, message
+                assert "PATH=" not in message and "HOME=" not in message, message
+        # Inside the directory, relative, through "..", or absolute: read.
+        for path in ("sub/plan.csv", "sub/../sub/plan.csv", str(cell_dir / "sub/plan.csv")):
+            reply = sim.control("load_poses", csv=path)
+            np.testing.assert_allclose(reply["poses_deg"], PLAN_DEG)
+        assert sim.control("state")["n_poses"] == len(PLAN_DEG)  # refusals changed nothing

@@ -18,13 +18,9 @@ from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api import guard
 from daemon.api.main import create_app
-from daemon.api.server import BoundedH11Protocol, uvicorn_options
+from daemon.api.server import uvicorn_options
 
 HELD = 150  # connections of each kind held open
-
-
-class QuickHeadTimeout(BoundedH11Protocol):
-    head_timeout_s = 1.0
 
 
 @pytest.fixture
@@ -32,7 +28,7 @@ def server(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
     monkeypatch.setattr(guard, "BODY_GAP_TIMEOUT_S", 1.0)
     monkeypatch.setattr(guard, "BODY_TIMEOUT_S", 2.0)
     app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
-    options = {**uvicorn_options(), "http": QuickHeadTimeout}
+    options = uvicorn_options(2 * HELD + 10, head_timeout_s=1.0)
     config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, **options)
     srv = uvicorn.Server(config)
     thread = threading.Thread(target=srv.run, daemon=True)

@@ -447,3 +447,29 @@ def test_docs_page_works_offline(cell: Cell) -> None:
         assert page.locator(".opblock").count() > 10
         assert log.blocked_requests == []
         assert log.page_errors == []
+
+
+def test_a_late_robot_shows_as_late_in_the_device_table(cell: Cell) -> None:
+    """Issue 28, item 7: the status's ``late`` robot (its replies come later than the settle
+    window; tests/test_sampler_late.py makes one) reads as late on the page, with the age of
+    its joints, in the device table and the top pill. The status is the daemon's own, with
+    the robot's state set to late on its way to the page."""
+    assert cell.daemon is not None
+    url = cell.daemon.url
+
+    def late_status(route: Any) -> None:
+        body = route.fetch().json()
+        body["devices"]["robot"].update(state="late", late=True, late_age_s=0.8)
+        route.fulfill(json=body)
+
+    with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
+        page.route("**/api/v1/status", late_status)
+        page.goto(f"{url}/#token={TOKEN}")
+        page.wait_for_function(
+            "document.getElementById('cell-devices').innerText.includes('late: no reply for')",
+            timeout=10000,
+        )
+        robot_row = page.locator("#cell-devices tbody tr", has_text="late: no reply for")
+        assert robot_row.locator("span.bad").count() == 1
+        assert "late" in page.inner_text("#top-devices")
+        assert log.console_errors == [] and log.page_errors == []

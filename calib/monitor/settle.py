@@ -14,7 +14,9 @@ settled when all of these hold:
 
 * the newest reading is at most ``stale_s`` old, and no gap between consecutive readings
   (including the one just before the window) exceeds ``stale_s``: the window is covered;
-* it holds at least ``min_readings`` readings;
+* it holds at least ``min_readings`` readings, with at least ``min_readings`` distinct robot
+  readings among them (the robot is polled on its own: a slow robot's one reading paired with
+  many lengths says nothing about whether it stood still);
 * no reading is stale (each stamp at most ``stale_s`` old when paired, and the two devices'
   stamps at most ``stale_s`` apart);
 * no reading is over-range;
@@ -88,6 +90,9 @@ class PairedReading:
     over_range : bool
     staleness_s : float
         Worst of: the stamps' ages at pairing, the skew between the two stamps [s].
+    t_joints : float
+        Monotonic stamp of the robot reading [s]; NaN for the manual robot (its angles are
+        typed in, one submission for every pairing).
     """
 
     t_poll: float
@@ -97,6 +102,7 @@ class PairedReading:
     length_mm: float
     over_range: bool
     staleness_s: float
+    t_joints: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -173,6 +179,14 @@ def _spread(window: Sequence[PairedReading], cfg: SettleConfig, device: str) -> 
     q = np.array([r.joints_deg for r in window])  # shape (n, 6) [deg]
     dev_deg = np.abs(q - q.mean(axis=0)).max(axis=0)  # shape (6,) [deg]
     still = bool(dev_deg.max() <= cfg.settle_tol_deg)
+    robot = {r.t_joints for r in window if not math.isnan(r.t_joints)}
+    if robot and len(robot) < cfg.min_readings:
+        return Verdict(
+            "stale",
+            f"{len(robot)} robot readings in {cfg.settle_s} s, fewer than min_readings "
+            f"{cfg.min_readings}: the robot answers late",
+            joints_still=still if len(robot) > 1 else None,
+        )
     worst = max(window, key=lambda r: r.staleness_s)
     if worst.staleness_s > cfg.stale_s:
         return Verdict(

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from calib.csvtext import write_csv
 from calib.kinematics import N_JOINTS, FloatArray, IndexArray
 from calib.tcp import TcpUncertainty
 
@@ -132,11 +131,7 @@ class PlanResult:
 
     def to_csv(self) -> str:
         """The plan as CSV text (header :data:`CSV_COLUMNS`)."""
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(self.csv_rows())
-        return buf.getvalue()
+        return write_csv(self.csv_rows(), CSV_COLUMNS)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able summary (no per-pose rows: see :meth:`csv_rows`)."""

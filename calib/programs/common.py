@@ -14,6 +14,8 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from calib.csvtext import restore_cell
+
 #: Joints of the arm; programs carry exactly six.
 N_JOINTS = 6
 #: Decimals of a joint angle in a program [deg].
@@ -183,7 +185,7 @@ def read_targets_csv(text: str, source: str = "targets", anchor: str | None = No
         if not any(c.strip() for c in row):
             continue
         if anchor_col is not None:
-            row_anchor = row[anchor_col].strip() if anchor_col < len(row) else ""
+            row_anchor = restore_cell(row[anchor_col].strip()) if anchor_col < len(row) else ""
             anchors_seen[row_anchor] = None
             if anchor is not None and row_anchor != anchor:
                 continue

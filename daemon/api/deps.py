@@ -3,6 +3,7 @@ id path parameters and the pagination of list routes."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -12,7 +13,7 @@ from fastapi import Depends, HTTPException, Path, Query, Request, Response, stat
 from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from daemon.api.guard import UNAUTHORIZED_DETAIL, token_matches
+from daemon.api.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
 from daemon.api.min_samples import MinSamplesCache
 from daemon.config import Settings
 from daemon.jobs import JobManager
@@ -125,6 +126,51 @@ def bound_path_ids(request: Request) -> None:
                     }
                 ]
             )
+
+
+def _number_queries(app: Any, template: str, method: str) -> frozenset[str]:
+    """The query parameters that the app's OpenAPI document declares as numbers (``type:
+    number``, alone or in ``anyOf``) for ``method`` on ``template``; cached per app."""
+    cache: dict[tuple[str, str], frozenset[str]] | None = getattr(app.state, "number_queries", None)
+    if cache is None:
+        cache = {}
+        for path, operations in app.openapi().get("paths", {}).items():
+            for verb, op in operations.items():
+                names = set()
+                for param in op.get("parameters", []) if isinstance(op, dict) else []:
+                    schema = param.get("schema", {})
+                    kinds = [schema, *schema.get("anyOf", [])]
+                    if param.get("in") == "query" and any(k.get("type") == "number" for k in kinds):
+                        names.add(param["name"])
+                cache[(path, verb.upper())] = frozenset(names)
+        app.state.number_queries = cache
+    return cache.get((template, method), frozenset())
+
+
+def finite_queries(request: Request) -> None:
+    """Every route (an app-wide dependency): a query parameter declared as a number that
+    spells NaN or ±Infinity (``nan``, ``inf``, ``-Infinity``, …) is a 422 naming it, as
+    finite numbers are the rule of every body too (:class:`daemon.api.schemas.StrictBody`)."""
+    from daemon.api.latency import route_label  # the template the route matched
+
+    method = "GET" if request.method == "HEAD" else request.method
+    names = _number_queries(request.app, route_label(request.scope, API_PREFIX), method)
+    for name in names:
+        for text in request.query_params.getlist(name):
+            try:
+                value = float(text)
+            except ValueError:
+                continue  # not a number at all: the route's own validation says so
+            if not math.isfinite(value):
+                raise RequestValidationError(
+                    [
+                        {
+                            "loc": ("query", name),
+                            "msg": f"{name}: must be a finite number, got {text[:40]!r}",
+                            "type": "finite_number",
+                        }
+                    ]
+                )
 
 
 CampaignId = Annotated[int, _id("Campaign")]

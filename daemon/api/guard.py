@@ -33,6 +33,8 @@ Receive = Callable[[], Awaitable[Message]]
 Send = Callable[[Message], Awaitable[None]]
 ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 
+#: The prefix of the REST API (the routes' home: daemon.api.main).
+API_PREFIX: Final = "/api/v1"
 #: Largest JSON request body [bytes]. The largest legitimate one is a campaign with an uploaded
 #: robot model (about 2 kB) and notes of at most 10 000 characters (40 kB as UTF-8).
 MAX_JSON_BYTES: Final = 256 * 1024
@@ -49,10 +51,12 @@ BODY_GAP_TIMEOUT_S: Final = 10.0
 #: Longest time to receive a whole request body [s] (20 MiB at 1 MiB/s would still fit).
 BODY_TIMEOUT_S: Final = 60.0
 
-_IMPORT_PATH = re.compile(r"/api/v1/campaigns/[^/]+/samples/import/?")
-_COMPENSATE_PATH = re.compile(r"/api/v1/robots/[^/]+/compensate/?")
-_FILTER_PATH = re.compile(r"/api/v1/robots/[^/]+/filter/?")
-_OPEN_PATHS = frozenset({"/api/v1/health"})
+_IMPORT_PATH = re.compile(re.escape(API_PREFIX) + r"/campaigns/[^/]+/samples/import/?")
+_COMPENSATE_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/compensate/?")
+_FILTER_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/filter/?")
+#: The liveness route: open without the token (and kept a connection by daemon.api.server).
+HEALTH_PATH: Final = API_PREFIX + "/health"
+_OPEN_PATHS = frozenset({HEALTH_PATH})
 _READ_METHODS = frozenset({"GET", "HEAD"})
 
 UNAUTHORIZED_DETAIL: Final = (

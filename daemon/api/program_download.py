@@ -98,6 +98,10 @@ def download(
             # the plan lacks is a 404, a plan that needs one picked a 409 (both name it).
             if message.startswith("anchor:"):
                 raise HTTPException(404 if " is not in " in message else 409, message) from exc
+            # Targets outside the robot model's limits: a rule of the robot, not of the
+            # request's form (as for a capture's joints_deg): 409, naming row and joint.
+            if "outside the joint limits" in message:
+                raise HTTPException(409, f"format: {message}") from exc
             raise unprocessable(("query", "format"), f"format: {exc}") from exc
         filename = name + SUFFIX[fmt]
     return Response(

@@ -5,12 +5,14 @@ Every request body lives here and derives from the one strict body class, :class
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any, Literal
 
 from pydantic import (
     AfterValidator,
     AliasChoices,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     StringConstraints,
@@ -57,31 +59,80 @@ def _not_blank(value: str) -> str:
     return value
 
 
+#: C0 and C1 control characters (and DEL): never in a name, an anchor, a reason or notes
+#: (ESC, BEL, CR, ... would act on a terminal or break a line of an exported file).
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+#: The same, except the line feed and the tab that notes may hold.
+_CONTROL_BUT_LINES = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+#: The schema's patterns of the same rules (ECMA-262 and Python read them alike).
+_PRINTABLE = "[^\\x00-\\x1f\\x7f-\\x9f]"
+_PRINTABLE_NOTES = "[^\\x00-\\x08\\x0b-\\x1f\\x7f-\\x9f]"
+
+
+def not_printable(text: str, pattern: re.Pattern[str] = _CONTROL) -> str | None:
+    """Why ``text`` is not printable text (its first control character and position), or
+    None; also the rule of a CSV import's ``anchor`` and ``group`` cells."""
+    found = pattern.search(text)
+    if found is None:
+        return None
+    return f"control character U+{ord(found.group()):04X} at position {found.start()}"
+
+
+def _printable(pattern: re.Pattern[str], allowed: str) -> Any:
+    """A validator (run on the value as sent, before stripping) refusing what ``pattern``
+    finds, naming the character and its position."""
+
+    def check(value: Any) -> Any:
+        if isinstance(value, str) and (why := not_printable(value, pattern)):
+            raise ValueError(f"{why}: {allowed}")
+        return value
+
+    return BeforeValidator(check)
+
+
+_NO_CONTROL = _printable(_CONTROL, "only printable text is allowed")
+_NO_CONTROL_BUT_LINES = _printable(
+    _CONTROL_BUT_LINES, "only printable text, line feeds and tabs are allowed"
+)
 _Stripped = StringConstraints(strip_whitespace=True)
-#: The "not blank" rule as the schema states it (at least one non-space character); the
-#: server's check is :func:`_not_blank` after stripping, with its own message.
-NOT_BLANK_SCHEMA: dict[str, Any] = {"minLength": 1, "pattern": r"\S"}
+#: The "not blank" and "printable" rules as the schema states them (at least one non-space
+#: character, no control character); the server's checks are :func:`_not_blank` after
+#: stripping and :data:`_NO_CONTROL` before it, with their own messages.
+NOT_BLANK_SCHEMA: dict[str, Any] = {
+    "minLength": 1,
+    "pattern": f"^{_PRINTABLE}*[^\\s\\x00-\\x1f\\x7f-\\x9f]{_PRINTABLE}*$",
+}
 Name = Annotated[
     str,
     _Stripped,
     Field(max_length=MAX_NAME_CHARS, json_schema_extra=NOT_BLANK_SCHEMA),
     AfterValidator(_not_blank),
+    _NO_CONTROL,
 ]
 Anchor = Annotated[
     str,
     _Stripped,
     Field(max_length=MAX_ANCHOR_CHARS, json_schema_extra=NOT_BLANK_SCHEMA),
     AfterValidator(_not_blank),
+    _NO_CONTROL,
 ]
-Notes = Annotated[str, _Stripped, Field(max_length=MAX_NOTES_CHARS)]
-Reason = Annotated[str, _Stripped, Field(max_length=MAX_REASON_CHARS)]
+Notes = Annotated[
+    str,
+    _Stripped,
+    Field(max_length=MAX_NOTES_CHARS, pattern=f"^{_PRINTABLE_NOTES}*$"),
+    _NO_CONTROL_BUT_LINES,
+]
+Reason = Annotated[
+    str, _Stripped, Field(max_length=MAX_REASON_CHARS, pattern=f"^{_PRINTABLE}*$"), _NO_CONTROL
+]
 
 
 class _Body(BaseModel):
     """Request bodies: no unknown keys, strict types (``"yes"`` is not a boolean, ``"1"`` not a
-    number), every string valid Unicode."""
+    number), finite numbers only (NaN and ±Infinity are a 422 in every float field, nested
+    bodies and lists included), every string valid Unicode."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -251,8 +302,32 @@ TARGET_LISTS = {m: TypeAdapter(target_list(m)) for m in TARGET_MODELS}
 ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
     Annotated[list[dict[str, Any]], Field(min_length=1, max_length=MAX_TARGETS)]
 )
-#: The JSON request body as documented: one of the three target lists.
-TARGETS_SCHEMA = {"anyOf": [TypeAdapter(target_list(m)).json_schema() for m in TARGET_MODELS]}
+
+
+def inline_defs(schema: dict[str, Any]) -> dict[str, Any]:
+    """A JSON schema with its local ``#/$defs/...`` references replaced by their definitions
+    and no ``$defs`` left: a schema embedded in the OpenAPI document by hand (an
+    ``openapi_extra`` request body) must not point at a ``$defs`` the document lacks."""
+    defs = schema.get("$defs", {})
+
+    def resolve(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                return resolve(defs[ref.removeprefix("#/$defs/")])
+            return {k: resolve(v) for k, v in node.items() if k != "$defs"}
+        if isinstance(node, list):
+            return [resolve(v) for v in node]
+        return node
+
+    resolved: dict[str, Any] = resolve(schema)
+    return resolved
+
+
+#: The JSON request body as documented: one of the three target lists (self-contained).
+TARGETS_SCHEMA = {
+    "anyOf": [inline_defs(TypeAdapter(target_list(m)).json_schema()) for m in TARGET_MODELS]
+}
 
 
 # ------------------------------------------------------------------ verification

@@ -23,6 +23,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from daemon.cli.errors import fail as _fail
+from daemon.cli.errors import printable
 
 err_console = Console(stderr=True)
 
@@ -134,7 +135,7 @@ def export_cmd(
     except StoreError as exc:
         raise _fail(str(exc), EXIT_DB_ERROR) from None
     if out is None:
-        typer.echo(text, nl=False)
+        typer.echo(printable(text), nl=False)  # CSV cells may be old rows with controls
         return
     try:
         out.write_text(text, encoding="utf-8")
@@ -142,7 +143,7 @@ def export_cmd(
         raise _fail(f"cannot write {out}: {exc.strerror}", EXIT_DB_ERROR) from None
     n = found["n_included"] if fmt is ExportFormat.csv else found["n_samples"]
     err_console.print(
-        escape(f"wrote {out}: campaign {found['id']} ({found['name']}), {n} samples"),
+        escape(printable(f"wrote {out}: campaign {found['id']} ({found['name']}), {n} samples")),
         soft_wrap=True,
     )
 

@@ -134,11 +134,15 @@ def emulated_robot_run_cmd(
     if not host or not port.isdigit():
         raise _fail(f"--control: expected HOST:PORT, got {control!r}")
     try:
+        text = program.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise _fail(f"{program}: cannot read it as UTF-8 text: {exc}") from None
+    try:
         client = ControlClient(control)
     except OSError as exc:
         raise _fail(f"--control {control}: cannot connect: {exc}") from None
-    try:
-        reply = client("load_poses", program=str(program.resolve()), loop=loop)
+    try:  # the text: the cell reads files only inside its own config directory
+        reply = client("load_poses", text=text, loop=loop)
     except RuntimeError as exc:
         raise _fail(str(exc)) from None
     finally:

@@ -114,7 +114,7 @@ async def serve(settings: "Settings", token: str, generated: bool) -> int:
         access_log=False,
         lifespan="on",
         timeout_graceful_shutdown=5,
-        **uvicorn_options(),  # bounds on slow and many clients (daemon/api/server.py)
+        **uvicorn_options(settings.max_connections_per_client),  # daemon/api/server.py
     )
     notifier = Notifier.from_env()
     server = _notifying_server(config, notifier)

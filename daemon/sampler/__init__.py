@@ -1,10 +1,17 @@
 """The sampler: polls the indicator and the robot, detects settling, and captures samples.
 
-One asyncio task polls both devices concurrently each cycle and pairs the two replies into a
-reading (joint angles, cable length, monotonic and wall stamps, over-range flag) kept in a ring
-buffer of ``history_s``. A device error never stops the loop: it is counted, logged with the
-device's last frames, recorded as an event at the start of each error episode, and the loop
-pauses ``error_backoff_s`` before the next poll.
+Each device has its own asyncio loop, so one slow device never slows the other: the
+indicator's loop pairs each length with the robot's newest joints into a reading (joint
+angles, cable length, monotonic and wall stamps, over-range flag) kept in a ring buffer of
+``history_s``; the robot's loop polls once per indicator cycle (waiting at most a tenth of a
+settle window for it). The manual robot (no I/O) is read in the indicator's loop. A device
+error never stops a loop: it is counted, logged with the device's last frames, recorded as an
+event at the start of each error episode, and that device's loop pauses ``error_backoff_s``.
+
+A robot that answers, but whose newest joints are older than ``settle_s``, is ``late``
+(:mod:`daemon.sampler.late`: status, ``robot_late`` event, ``cablecal_robot_late_total``);
+a settle window needs ``min_readings`` distinct robot readings too, and a pose auto mode
+leaves without a capture is counted in ``cablecal_poses_lost_total`` (event ``pose_lost``).
 
 Settling
 --------
@@ -33,8 +40,10 @@ joint) of a pose already captured in the campaign is never captured again.
 Modules
 -------
 :mod:`daemon.sampler.config` (:class:`SamplerConfig`), :mod:`daemon.sampler.auto` (auto mode's
-state and per-cycle decisions), :mod:`daemon.sampler.core` (:class:`Sampler`: the poll loop,
-captures, status; :func:`build_sampler`).
+state and per-cycle decisions), :mod:`daemon.sampler.late` (late robot replies),
+:mod:`daemon.sampler.captures` (settle checks and the capture path),
+:mod:`daemon.sampler.core` (:class:`Sampler`: the poll loops, auto steps, status;
+:func:`build_sampler`). None of them imports numpy (:mod:`daemon.settle` does).
 """
 
 from daemon.sampler.auto import AutoAction, AutoState, start_auto

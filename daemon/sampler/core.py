@@ -7,36 +7,30 @@ decisions are in :mod:`daemon.sampler.auto`, the settings in :mod:`daemon.sample
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
-import numpy as np
-from numpy.typing import NDArray
-
 from daemon import metrics
-from daemon.capture import CaptureRejected, CaptureSink, Joints
+from daemon.capture import CaptureSink, Joints
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState, start_auto
+from daemon.sampler.captures import CapturePath
 from daemon.sampler.config import MAX_BUFFER, SamplerConfig
+from daemon.sampler.late import LateWatch
 from daemon.settle import (
     NOT_SETTLED,
     Mode,
     PairedReading,
     Verdict,
-    as_joints,
-    evaluate,
-    make_capture,
     staleness_s,
 )
 from drivers import (
     IndicatorDriver,
     IndicatorOverRange,
-    ManualRobot,
     RobotDriver,
     RobotNoData,
     make_indicator,
@@ -47,7 +41,6 @@ from drivers.robot import JointReading
 
 log = logging.getLogger("cablecal.sampler")
 
-FloatArray = NDArray[np.float64]
 _T = TypeVar("_T")
 
 
@@ -63,9 +56,18 @@ def _as_error(result: _T | BaseException) -> _T | Exception:
     raise result
 
 
+async def _outcome(call: Awaitable[_T]) -> _T | Exception:
+    """The result of a driver call, or its exception (see :func:`_as_error`)."""
+    try:
+        return await call
+    except BaseException as exc:
+        return _as_error(exc)
+
+
 # --------------------------------------------------------------------------- the sampler
-class Sampler:
-    """Polls ``indicator`` and ``robot``, detects settling, and hands captures to ``sink``.
+class Sampler(CapturePath):
+    """Polls ``indicator`` and ``robot``, detects settling, and hands captures to ``sink``
+    (the capture path: :class:`daemon.sampler.captures.CapturePath`).
 
     Parameters
     ----------
@@ -93,6 +95,10 @@ class Sampler:
         self.sink = sink
         self._ind = Device(indicator.name, "indicator", indicator, self._event)
         self._rob = Device(robot.name, "robot", robot, self._event)
+        self._late = LateWatch(self._rob, self._event)
+        #: The robot's newest joints [deg], their stamp and the start of their poll
+        #: (monotonic [s]); None while the robot fails or has no data.
+        self._joints: tuple[Joints, float, float] | None = None
         self._buffer: deque[PairedReading] = deque(maxlen=MAX_BUFFER)
         self._verdict: Verdict = NOT_SETTLED
         self._used_until = -math.inf  # t_poll of the newest reading used by a capture
@@ -104,16 +110,6 @@ class Sampler:
         self._manual_campaign_id: int | None = None
 
     # ------------------------------------------------------------------ lifecycle
-    @property
-    def running(self) -> bool:
-        """True while the poll task runs."""
-        return self._task is not None and not self._task.done()
-
-    @property
-    def manual_robot(self) -> bool:
-        """True when the robot driver is a :class:`drivers.ManualRobot`."""
-        return isinstance(self.robot, ManualRobot)
-
     @property
     def mode(self) -> Mode:
         """``auto`` while auto capture is enabled, else ``manual``."""
@@ -153,45 +149,110 @@ class Sampler:
                 )
         self._wake()
 
-    # ------------------------------------------------------------------ poll loop
+    # ------------------------------------------------------------------ poll loops
     async def _run(self) -> None:
-        cfg = self.config
+        """The indicator's loop, which pairs each length with the robot's newest joints. The
+        robot has a loop of its own, so a slow device never slows the other; the manual
+        robot (no I/O: the angles typed in) is read in this loop."""
+        robot_task = None
+        if not self.manual_robot:
+            robot_task = asyncio.get_running_loop().create_task(
+                self._run_robot(), name="cablecal-sampler-robot"
+            )
+        try:
+            await self._run_indicator()
+        finally:
+            if robot_task is not None:
+                robot_task.cancel()
+                await asyncio.gather(robot_task, return_exceptions=True)
+
+    async def _run_indicator(self) -> None:
         while True:
             t_poll = time.monotonic()
-            ind_res, rob_res = await asyncio.gather(
-                self.indicator.read(), self.robot.read_joints(), return_exceptions=True
-            )
-            ind_res = _as_error(ind_res)
-            rob_res = _as_error(rob_res)
+            if self.manual_robot:
+                ind_res, rob_res = await asyncio.gather(
+                    self.indicator.read(), self.robot.read_joints(), return_exceptions=True
+                )
+                self._book_robot(t_poll, _as_error(rob_res))
+                ind_res = _as_error(ind_res)
+            else:
+                ind_res = await _outcome(self.indicator.read())
             try:
-                errored = self._cycle(t_poll, ind_res, rob_res)
+                errored = self._cycle(t_poll, ind_res)
             except Exception:  # a bug in a cycle must not stop sampling
                 log.exception("sampler cycle failed")
                 errored = True
             self._wake()
-            if errored:
-                delay = cfg.error_backoff_s
+            await asyncio.sleep(self._delay(t_poll, errored))
+
+    async def _run_robot(self) -> None:
+        """The robot's loop: one poll per indicator cycle (a faster robot would only be polled
+        for nothing), but never waiting longer than :meth:`_robot_wait_s` for that cycle."""
+        while True:
+            t_poll = time.monotonic()
+            tick = self._tick
+            result = await _outcome(self.robot.read_joints())
+            try:
+                errored = self._book_robot(t_poll, result)
+            except Exception:  # a bug in the book-keeping must not stop polling
+                log.exception("robot poll book-keeping failed")
+                errored = True
+            delay = self._delay(t_poll, errored)
+            if delay > 0 or errored:
+                await asyncio.sleep(delay)
             else:
-                delay = max(0.0, cfg.poll_interval_s - (time.monotonic() - t_poll))
-            await asyncio.sleep(delay)
+                # asyncio.wait, not wait_for: Python 3.11's wait_for can swallow a cancel that
+                # arrives as the tick fires, and stop() would then wait for this loop forever.
+                waiter = asyncio.ensure_future(tick.wait())
+                try:
+                    await asyncio.wait({waiter}, timeout=self._robot_wait_s())
+                finally:
+                    waiter.cancel()
+
+    def _robot_wait_s(self) -> float:
+        """Longest wait of the robot's loop for an indicator cycle [s]: a settle window then
+        still holds twice ``min_readings`` robot readings while the indicator is slow."""
+        return self.config.settle_s / (2 * self.config.min_readings)
+
+    def _delay(self, t_poll: float, errored: bool) -> float:
+        """Pause before a device's next poll [s]: the back-off after an error, else the rest
+        of ``poll_interval_s``."""
+        if errored:
+            return self.config.error_backoff_s
+        return max(0.0, self.config.poll_interval_s - (time.monotonic() - t_poll))
 
     def _wake(self) -> None:
         """Wake every :meth:`capture` waiting for the next cycle."""
         self._tick.set()
         self._tick = asyncio.Event()
 
-    def _cycle(
-        self,
-        t_poll: float,
-        ind_res: IndicatorReading | Exception,
-        rob_res: JointReading | Exception,
-    ) -> bool:
-        """Book one poll of both devices; returns True when a device failed."""
+    def _book_robot(self, t_poll: float, result: JointReading | Exception) -> bool:
+        """Book one robot poll (started at ``t_poll``); returns True when it failed."""
+        rob = self._rob
+        rob.prune(time.monotonic())
+        if isinstance(result, RobotNoData):
+            rob.waiting(t_poll, result)
+            self._joints = None
+            return False
+        if isinstance(result, Exception):
+            rob.failed(t_poll, result)
+            self._joints = None
+            return True
+        joints, t_rob = result.joints_deg, result.t_monotonic_s
+        rob.good(t_poll, joints, False, t_rob, result.t_wall)
+        self._joints = (joints, t_rob, t_poll)
+        self._late.on_reading(time.monotonic())
+        if self._auto is not None:
+            self._auto.saw_joints(joints, self.config.settle_tol_deg)
+        return False
+
+    def _cycle(self, t_poll: float, ind_res: IndicatorReading | Exception) -> bool:
+        """Book one indicator poll, pair it with the robot's newest joints and take the
+        cycle's decisions; returns True when the indicator failed."""
         t_done, w_done = time.monotonic(), time.time()
         errored = False
-        ind, rob = self._ind, self._rob
+        ind = self._ind
         ind.prune(t_done)
-        rob.prune(t_done)
 
         length: float | None = None
         over = False
@@ -209,22 +270,18 @@ class Sampler:
             t_ind, w_ind = ind_res.t_monotonic_s, ind_res.t_wall
             ind.good(t_poll, length, over, t_ind, w_ind)
 
-        joints: Joints | None = None
-        t_rob = t_done
-        if isinstance(rob_res, RobotNoData):
-            rob.waiting(t_poll, rob_res)
-        elif isinstance(rob_res, Exception):
-            rob.failed(t_poll, rob_res)
-            errored = True
-        else:
-            joints, t_rob = rob_res.joints_deg, rob_res.t_monotonic_s
-            rob.good(t_poll, joints, False, t_rob, rob_res.t_wall)
-            if self._auto is not None:
-                self._auto.saw_joints(joints, self.config.settle_tol_deg)
-
-        if length is not None and joints is not None:
+        paired = self._joints
+        if length is not None and paired is not None:
+            joints, t_rob, t_poll_rob = paired
             staleness = staleness_s(t_done, t_ind, t_rob, self.manual_robot)
-            self._append(PairedReading(t_poll, t_ind, w_ind, joints, length, over, staleness))
+            # Polled when the older of the two polls started: a capture requested after it
+            # takes neither reading (not_before), and no reading goes into two captures.
+            t_pair = min(t_poll, t_poll_rob)
+            t_joints = math.nan if self.manual_robot else t_rob
+            self._append(
+                PairedReading(t_pair, t_ind, w_ind, joints, length, over, staleness, t_joints)
+            )
+        late = not self.manual_robot and self._late.check(t_done, self.config.settle_s)
         self._verdict = self._evaluate(t_done, -math.inf)
         # Auto capture steps every cycle, also while a manual capture into another campaign
         # waits (a loop of manual captures would starve it otherwise); the window it takes is
@@ -233,7 +290,7 @@ class Sampler:
         if self._auto is not None and not (
             self._capture_lock.locked() and self._manual_campaign_id == self._auto.campaign_id
         ):
-            self._auto_step(t_done)
+            self._auto_step(t_done, late)
         return errored
 
     def _append(self, reading: PairedReading) -> None:
@@ -251,145 +308,12 @@ class Sampler:
         except Exception:
             log.exception("recording event %s failed", kind, extra={"device": device})
 
-    # ------------------------------------------------------------------ settle detection
-    def _evaluate(self, now: float, not_before: float) -> Verdict:
-        """Settle check of the window ending at the newest reading polled at or after
-        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`."""
-        return evaluate(self._buffer, self.config, now, not_before, self._ind.name)
-
-    def _device_fault(self, now: float, not_before: float) -> tuple[CaptureRejected, Device] | None:
-        """A device failing for longer than ``stale_s``, or the manual robot without angles
-        (seen in a poll after ``not_before``)."""
-        for dev in (self._ind, self._rob):
-            rejection = dev.fault(now, self.config.stale_s)
-            if rejection is not None:
-                return rejection, dev
-        rob = self._rob
-        if rob.no_data is not None and rob.t_state_poll >= not_before:
-            hint = "; send joints_deg with the capture" if self.manual_robot else ""
-            detail = f"robot {rob.name}: {rob.no_data}{hint}"
-            return CaptureRejected("no_data", detail, device=rob.name), rob
-        return None
-
-    # ------------------------------------------------------------------ captures
-    async def capture(
-        self,
-        campaign_id: int,
-        anchor: str = "A",
-        joints_deg: Sequence[float] | None = None,
-        mode: Mode = "manual",
-    ) -> dict[str, Any]:
-        """Capture the next settled window after this call; returns the stored sample row.
-
-        Parameters
-        ----------
-        campaign_id : int
-        anchor : str
-            Sensor position id.
-        joints_deg : sequence of 6 float, optional
-            Joint angles [deg] for the manual robot driver; submitted before waiting.
-        mode : {"manual", "auto"}
-            Label of the capture (metrics, stored sample).
-
-        Raises
-        ------
-        ValueError
-            ``joints_deg`` given for a driver other than the manual one, or not 6 finite
-            numbers.
-        CaptureRejected
-            No settled window within ``capture_timeout_s`` (``moving``, ``stale``,
-            ``over_range``, ``no_data``), or a device is failing (``indicator_error``,
-            ``robot_error``). The rejection is recorded and counted first.
-        """
-        joints: Joints | None = None
-        if joints_deg is not None:
-            if not isinstance(self.robot, ManualRobot):
-                raise ValueError(
-                    f"joints_deg: robot {self.robot.name} ({type(self.robot).__name__}) reports "
-                    "its own joint angles; only the manual driver takes them from the request"
-                )
-            values = [float(v) for v in joints_deg]
-            if len(values) != 6 or not all(math.isfinite(v) for v in values):
-                raise ValueError(f"joints_deg: expected 6 finite angles [deg], got {values}")
-            joints = as_joints(values)
-        async with self._capture_lock:
-            self._manual_campaign_id = campaign_id
-            t_request = time.monotonic()
-            if joints is not None:
-                assert isinstance(self.robot, ManualRobot)
-                self.robot.submit(joints)
-            try:
-                window = await self._wait_settled(t_request)
-            except CaptureRejected as exc:
-                self._rejected(campaign_id, exc, mode)
-                raise
-            finally:
-                self._manual_campaign_id = None
-            return self._store(campaign_id, anchor, window, mode)
-
-    async def _wait_settled(self, t_request: float) -> tuple[PairedReading, ...]:
-        cfg = self.config
-        deadline = t_request + cfg.capture_timeout_s
-        while True:
-            now = time.monotonic()
-            not_before = max(t_request, self._used_until + 1e-9)
-            fault = self._device_fault(now, not_before)
-            if fault is not None:
-                raise fault[0]
-            verdict = self._evaluate(now, not_before)
-            if verdict.reason is None:
-                return verdict.window
-            if verdict.final:
-                raise CaptureRejected(verdict.reason, verdict.detail)
-            if not self.running:
-                raise CaptureRejected("no_data", "the sampler is not running")
-            if now >= deadline:
-                raise CaptureRejected(
-                    verdict.reason,
-                    f"not settled within capture_timeout_s {cfg.capture_timeout_s} s: "
-                    f"{verdict.detail}",
-                )
-            tick = self._tick
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(tick.wait(), min(deadline - now, cfg.stale_s) + 1e-3)
-
-    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: Mode) -> None:
-        metrics.CAPTURES.labels("rejected", exc.reason, mode).inc()
-        log.info(
-            "capture rejected: %s",
-            exc,
-            extra={"campaign_id": campaign_id, "device": exc.device, "error": exc.reason},
-        )
-        try:
-            self.sink.record_rejection(campaign_id, exc.reason, exc.detail, exc.device)
-        except Exception:
-            log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
-
-    def _store(
-        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: Mode
-    ) -> dict[str, Any]:
-        capture = make_capture(window, anchor, mode)
-        row = dict(self.sink.store_capture(campaign_id, capture))  # commits before returning
-        self._used_until = window[-1].t_poll
-        metrics.CAPTURES.labels("accepted", "ok", mode).inc()
-        auto = self._auto
-        if auto is not None and auto.campaign_id == campaign_id:
-            auto.captured(np.array(capture.joints_deg))
-        log.info(
-            "captured %s sample: length %.3f mm, %d readings",
-            mode,
-            capture.length_mm,
-            capture.count,
-            extra={"campaign_id": campaign_id, "sample_id": row.get("id")},
-        )
-        return row
-
     # ------------------------------------------------------------------ auto mode
     def set_auto(
         self,
         campaign_id: int | None,
         anchor: str = "A",
-        known_poses_deg: FloatArray | Sequence[Sequence[float]] | None = None,
+        known_poses_deg: Iterable[Sequence[float]] | None = None,
     ) -> None:
         """Enable auto capture into ``campaign_id`` (None disables).
 
@@ -425,14 +349,16 @@ class Sampler:
         if self._auto is not None:
             self._auto.anchor = anchor
 
-    def _auto_step(self, now: float) -> None:
+    def _auto_step(self, now: float, robot_late: bool) -> None:
         """Take auto mode's decision for this cycle (:meth:`AutoState.decide`)."""
         auto = self._auto
         assert auto is not None
         verdict = self._evaluate(now, max(auto.since, self._used_until + 1e-9))
         fault = self._device_fault(now, auto.since)
         last = self._buffer[-1].joints_deg if self._buffer else None
-        action = auto.decide(verdict, fault, now, self.config, last)
+        action = auto.decide(verdict, fault, now, self.config, last, robot_late)
+        if action.lost is not None:
+            self._lost(auto.campaign_id, action.lost, last)
         if action.reject is not None:
             self._rejected(auto.campaign_id, action.reject, "auto")
         elif action.store:
@@ -453,6 +379,14 @@ class Sampler:
                     {"campaign_id": auto.campaign_id, "error": f"{type(exc).__name__}: {exc}"},
                 )
 
+    def _lost(self, campaign_id: int, reason: str, joints_deg: Joints | None) -> None:
+        """Count and record a pose the robot left without a capture (auto mode)."""
+        metrics.POSES_LOST.labels(reason).inc()
+        message = f"auto capture: the robot left a still pose without a capture ({reason})"
+        log.warning(message, extra={"campaign_id": campaign_id, "error": reason})
+        detail = {"campaign_id": campaign_id, "reason": reason, "joints_deg": joints_deg}
+        self._event("pose_lost", self._rob.name, message, detail)
+
     # ------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:
         """Devices and sampler state; cheap (no I/O, nothing proportional to the buffer).
@@ -461,7 +395,10 @@ class Sampler:
         -------
         dict
             ``devices``: ``{"indicator": {...}, "robot": {...}}``, each with ``name``,
-            ``role``, ``driver`` (class), ``state`` (``ok``, ``error`` or ``unknown``),
+            ``role``, ``driver`` (class), ``state`` (``ok``, ``error``, ``unknown``, or for the
+            robot ``late``: it answers, but its newest joints are older than ``settle_s``;
+            :mod:`daemon.sampler.late`), the robot's ``late``, ``late_age_s`` [s] and
+            ``late_episodes``,
             ``connected``, ``waiting_for`` (manual robot without angles), ``last_reading``
             (``value`` [mm] or joint list [deg], ``over_range``, ``age_s``, ``t_wall``) or
             None, ``last_error`` (``class``, ``message``, ``frames_hex``, ``age_s``,
@@ -479,14 +416,17 @@ class Sampler:
             and now - latest.t_mono <= self.config.stale_s
         )
         auto = self._auto
+        robot = self._rob.status(now) | self._late.status(now)
+        if robot["late"]:
+            robot["state"] = "late"
         return {
-            "devices": {"indicator": self._ind.status(now), "robot": self._rob.status(now)},
+            "devices": {"indicator": self._ind.status(now), "robot": robot},
             "sampler": {
                 "running": self.running,
                 "mode": self.mode,
                 "auto_campaign_id": None if auto is None else auto.campaign_id,
                 "auto_anchor": None if auto is None else auto.anchor,
-                "auto_known_poses": 0 if auto is None else int(auto.known.shape[0]),
+                "auto_known_poses": 0 if auto is None else len(auto.known),
                 "settled": settled,
                 "settle_state": "settled" if settled else verdict.reason,
                 "settle_detail": verdict.detail,

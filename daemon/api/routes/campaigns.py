@@ -11,6 +11,7 @@ from starlette.concurrency import run_in_threadpool
 from calib.dataset import (
     JOINT_COLUMNS,
     SampleError,
+    SampleSet,
     known_pose_index,
     make_samples,
     parse_samples_csv,
@@ -37,6 +38,7 @@ from daemon.api.schemas import (
     ImportResult,
     SampleOut,
     SamplePatch,
+    not_printable,
 )
 from daemon.autocapture import SamplerRefused, SamplerUnavailable
 from daemon.capture import CaptureRejected
@@ -72,6 +74,11 @@ def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
             model = model_from_mapping(body.robot_model)
         except ModelError as exc:
             raise unprocessable(("body", "robot_model"), f"robot_model.{exc}") from exc
+        if why := not_printable(model.name):  # a name, printable as every name
+            raise unprocessable(
+                ("body", "robot_model", "name"),
+                f"robot_model.name: {why}: only printable text is allowed",
+            )
         robot = state.store.add_robot(model, source="uploaded")
     return _out(state, state.store.create_campaign(body.name, int(robot["id"]), body.notes))
 
@@ -123,7 +130,8 @@ def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
         409: {
             "model": Error,
             "description": "Robot moving / not settled, over-range, pose already captured, "
-            "joints_deg outside the joint limits of the campaign's robot model",
+            "joints_deg outside the joint limits of the campaign's robot model, joints_deg "
+            "for a robot driver that reports its own angles",
         },
         503: {
             "model": Error,
@@ -151,8 +159,8 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
             exc.http_status,
             {"reason": exc.reason, "detail": exc.detail, "device": exc.device},
         ) from exc
-    except ValueError as exc:
-        raise unprocessable(("body",), str(exc)) from exc
+    except ValueError as exc:  # joints_deg for a robot that reports its own: the cell's state
+        raise HTTPException(409, str(exc)) from exc
     return sample
 
 
@@ -300,6 +308,7 @@ def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
         ) from exc
     try:
         samples = parse_samples_csv(text)  # header, numbers, NaN, sensor range: row and column
+        _check_printable(samples)
         ids = state.store.import_samples(campaign_id, samples)  # and the joint limits
     except SampleError as exc:
         raise HTTPException(
@@ -309,6 +318,17 @@ def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
     # the GIL, and so the event loop, for the whole encoding.
     pieces = [",".join(map(str, ids[k : k + 20_000])) for k in range(0, len(ids), 20_000)]
     return f'{{"imported":{len(ids)},"sample_ids":[{",".join(pieces)}]}}'.encode()
+
+
+def _check_printable(samples: SampleSet) -> None:
+    """The text columns hold printable text, as a name or an anchor sent as JSON must
+    (:func:`daemon.api.schemas.not_printable`); else a :class:`SampleError` naming the row."""
+    for column, cells in (("anchor", samples.anchor), ("group", samples.group or ())):
+        for text in set(cells):
+            if why := not_printable(text):
+                index = cells.index(text)
+                row = int(samples.line[index]) if samples.line is not None else index + 2
+                raise SampleError(f"{why}: only printable text is allowed", row=row, column=column)
 
 
 @router.patch(

@@ -7,7 +7,7 @@ import csv
 import io
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Query, status
+from fastapi import APIRouter, Query
 
 from calib.dataset import JOINT_COLUMNS
 from calib.programs.common import ProgramError, check_limits
@@ -78,20 +78,13 @@ def get_check_poses(
     poses = check_poses(state.store, robot_id, state.settings.drift.n_poses)
     if format is None:
         return poses
-    model = state.store.robot_model(robot_id)
-    try:  # poses stored before their limits were checked cannot become a program: a conflict
-        check_limits(poses["poses_deg"], joint_limits_deg(model).tolist())
-    except ProgramError as exc:
-        raise HTTPException(
-            status.HTTP_409_CONFLICT,
-            f"the robot's check poses cannot be written as a program: {exc} (row = pose); "
-            "set them again (PUT /robots/{robot_id}/check-poses)",
-        ) from None
+    # Poses stored before PUT checked their limits cannot become a program: download()
+    # answers 409 naming the pose (row) and joint.
     return download(
         _poses_csv(poses["poses_deg"]),
         str(format.value),
         stem=f"robot-{robot_id}-check-poses",
-        model=model,
+        model=state.store.robot_model(robot_id),
         what=f"drift-check poses of robot {robot_id} ({poses['source']})",
         speed_pct=speed_pct,
         dwell_s=dwell_s,

@@ -127,7 +127,7 @@ def _compensate(
     "/robots/{robot_id}/compensate",
     summary="Correct a program with the robot's accepted calibration",
     dependencies=[WriteAuth],
-    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(400)},
+    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(400, 409)},
     openapi_extra={
         "requestBody": {
             "required": True,

@@ -49,7 +49,10 @@ def options(state: State) -> IdentifyOptionsSpec:
 class Readiness(TypedDict):
     """Whether the campaign has enough samples at ``test_fraction``: ``n_included`` samples
     split into ``n_train`` / ``n_test``; ``min_training_samples`` for this robot and these
-    anchors, ``min_samples`` the fewest included samples at this test fraction."""
+    anchors, ``min_samples`` the fewest included samples at this test fraction; ``ready``
+    exactly when ``POST /campaigns/{id}/identifications`` with this test fraction would be
+    accepted, and ``reason`` why not (the 409's message: too few training rows, or too few at
+    an anchor), else null."""
 
     test_fraction: float
     n_included: int
@@ -58,6 +61,7 @@ class Readiness(TypedDict):
     min_training_samples: int
     min_samples: int | None
     ready: bool
+    reason: str | None
 
 
 @router.get(
@@ -79,12 +83,17 @@ def readiness(
     need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
     n = int(row["n_included"])
     n_test = held_out(n, test_fraction)
+    try:  # the rule POST applies (the job manager's check), per anchor included
+        state.jobs.check(campaign_id, {"test_fraction": test_fraction})
+        reason = None
+    except JobError as exc:
+        reason = str(exc)
     return {
         "test_fraction": test_fraction, "n_included": n, "n_train": n - n_test,
         "n_test": n_test, "min_training_samples": need,
         "min_samples": samples_for_training_rows(need, test_fraction)
         if need / (1.0 - test_fraction) <= MAX_READINESS_SAMPLES else None,
-        "ready": n - n_test >= need,
+        "ready": reason is None, "reason": reason,
     }  # fmt: skip
 
 

@@ -8,14 +8,13 @@ plan's summary is :meth:`calib.planning.PlanResult.to_json` as it is.
 from __future__ import annotations
 
 import asyncio
-import csv
-import io
 import time
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request, status
 from typing_extensions import TypedDict
 
+from calib.csvtext import write_csv
 from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan
@@ -211,11 +210,7 @@ async def make_plan(
 
 def _plan_csv(stored: PlanRow) -> str:
     """The stored plan's poses as ``cablecal plan`` writes them (columns ``CSV_COLUMNS``)."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(CSV_COLUMNS), lineterminator="\n")
-    writer.writeheader()
-    writer.writerows([{k: p.get(k) for k in CSV_COLUMNS} for p in stored["poses"]])
-    return buf.getvalue()
+    return write_csv(({k: p.get(k) for k in CSV_COLUMNS} for p in stored["poses"]), CSV_COLUMNS)
 
 
 @router.get(

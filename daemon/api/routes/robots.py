@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Response
+from typing_extensions import NotRequired, TypedDict  # noqa: UP035 (pydantic on 3.11)
 
 from daemon.api.deps import ReadAuth, RobotId, State
 from daemon.api.downloads import download_headers
@@ -17,6 +18,27 @@ router = APIRouter(
     dependencies=[ReadAuth],
     responses=error_responses(401, 404, 413, 422),
 )
+
+
+class ModelFileJoint(TypedDict):
+    """One joint of a model file: DH row [deg, mm] and its limits [deg]."""
+
+    alpha_deg: float
+    a_mm: float
+    d_mm: float
+    theta_deg: float
+    limits_deg: NotRequired[list[float]]
+
+
+class ModelFile(TypedDict):
+    """A robot model file as ``--robot FILE.json`` reads it (:meth:`calib.models.RobotModel
+    .to_dict`): what ``GET /robots/{id}/calibrated-model?format=json`` answers."""
+
+    name: str
+    convention: Literal["dh", "mdh"]
+    tool_mm: list[float]
+    joints: list[ModelFileJoint]
+
 
 #: Media type of each model-file format of ``GET /robots/{id}/calibrated-model?format=``.
 EXPORT_MEDIA_TYPES = {
@@ -34,8 +56,19 @@ def get_robot(state: State, robot_id: RobotId) -> RobotOut:
 @router.get(
     "/{robot_id}/calibrated-model",
     summary="The latest accepted calibrated DH table, or a model file",
-    response_model=CalibratedModelOut,
-    responses=error_responses(409),
+    response_model=CalibratedModelOut | ModelFile,
+    responses={
+        200: {
+            "description": "Without ``format``: the calibrated DH table (CalibratedModel). "
+            "With ``format=json``: the model file (ModelFile); ``toml``: the TOML model file; "
+            "``urdf``: the URDF (XML).",
+            "content": {
+                EXPORT_MEDIA_TYPES["toml"]: {"schema": {"type": "string"}},
+                EXPORT_MEDIA_TYPES["urdf"]: {"schema": {"type": "string"}},
+            },
+        },
+        **error_responses(409),
+    },
 )
 def calibrated_model(
     state: State,

@@ -70,7 +70,12 @@ def list_events(
     return rows
 
 
-@metrics_router.get("/metrics", summary="Prometheus metrics", response_class=Response)
+@metrics_router.get(
+    "/metrics",
+    summary="Prometheus metrics",
+    response_class=Response,
+    responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}}},
+)
 async def get_metrics(state: State) -> Response:
     """Prometheus text format (always open: counters only, no secrets)."""
     if state.sampler is not None:

@@ -106,7 +106,9 @@ function renderDevices(devices) {
     } else if (d.waiting_for) {
       value = `waiting for ${d.waiting_for}`;
     }
-    const stateCell = el("span", { class: d.state === "ok" ? "ok" : "bad" }, d.state === "ok" ? "connected" : d.state);
+    const stateWords = d.state === "ok" ? "connected"
+      : d.state === "late" ? `late: no reply for ${age(d.late_age_s)}` : d.state;
+    const stateCell = el("span", { class: d.state === "ok" ? "ok" : "bad" }, stateWords);
     return [d.name, d.role, d.driver, stateCell, value, reading ? age(reading.age_s) : "–",
       fix(d.poll_rate_hz, 1), String(d.polls),
       el("span", { title: Object.entries(d.errors_by_class || {}).map(([c, n]) => `${c}: ${n}`).join(", ") }, String(d.errors))];

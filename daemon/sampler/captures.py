@@ -1,0 +1,183 @@
+"""The sampler's capture path: settle checks, device faults, manual captures, rejections and
+stores (a mixin of :class:`daemon.sampler.core.Sampler`, whose attributes it names below)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Sequence
+from typing import Any
+
+from daemon import metrics
+from daemon.capture import CaptureRejected, CaptureSink, Joints
+from daemon.devices import Device
+from daemon.sampler.auto import AutoState
+from daemon.sampler.config import SamplerConfig
+from daemon.settle import Mode, PairedReading, Verdict, as_joints, evaluate, make_capture
+from drivers import ManualRobot, RobotDriver
+
+log = logging.getLogger("cablecal.sampler")
+
+
+class CapturePath:
+    """Settle checks and captures over the sampler's buffer (see the module)."""
+
+    robot: RobotDriver
+    config: SamplerConfig
+    sink: CaptureSink
+    _ind: Device
+    _rob: Device
+    _buffer: deque[PairedReading]
+    _used_until: float
+    _auto: AutoState | None
+    _task: asyncio.Task[None] | None
+    _tick: asyncio.Event
+    _capture_lock: asyncio.Lock
+    _manual_campaign_id: int | None
+
+    @property
+    def running(self) -> bool:
+        """True while the poll task runs."""
+        return self._task is not None and not self._task.done()
+
+    @property
+    def manual_robot(self) -> bool:
+        """True when the robot driver is a :class:`drivers.ManualRobot`."""
+        return isinstance(self.robot, ManualRobot)
+
+    # ------------------------------------------------------------------ settle detection
+    def _evaluate(self, now: float, not_before: float) -> Verdict:
+        """Settle check of the window ending at the newest reading polled at or after
+        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`."""
+        return evaluate(self._buffer, self.config, now, not_before, self._ind.name)
+
+    def _device_fault(self, now: float, not_before: float) -> tuple[CaptureRejected, Device] | None:
+        """A device failing for longer than ``stale_s``, or the manual robot without angles
+        (seen in a poll after ``not_before``)."""
+        for dev in (self._ind, self._rob):
+            rejection = dev.fault(now, self.config.stale_s)
+            if rejection is not None:
+                return rejection, dev
+        rob = self._rob
+        if rob.no_data is not None and rob.t_state_poll >= not_before:
+            hint = "; send joints_deg with the capture" if self.manual_robot else ""
+            detail = f"robot {rob.name}: {rob.no_data}{hint}"
+            return CaptureRejected("no_data", detail, device=rob.name), rob
+        return None
+
+    # ------------------------------------------------------------------ captures
+    async def capture(
+        self,
+        campaign_id: int,
+        anchor: str = "A",
+        joints_deg: Sequence[float] | None = None,
+        mode: Mode = "manual",
+    ) -> dict[str, Any]:
+        """Capture the next settled window after this call; returns the stored sample row.
+
+        Parameters
+        ----------
+        campaign_id : int
+        anchor : str
+            Sensor position id.
+        joints_deg : sequence of 6 float, optional
+            Joint angles [deg] for the manual robot driver; submitted before waiting.
+        mode : {"manual", "auto"}
+            Label of the capture (metrics, stored sample).
+
+        Raises
+        ------
+        ValueError
+            ``joints_deg`` given for a driver other than the manual one, or not 6 finite
+            numbers.
+        CaptureRejected
+            No settled window within ``capture_timeout_s`` (``moving``, ``stale``,
+            ``over_range``, ``no_data``), or a device is failing (``indicator_error``,
+            ``robot_error``). The rejection is recorded and counted first.
+        """
+        joints: Joints | None = None
+        if joints_deg is not None:
+            if not isinstance(self.robot, ManualRobot):
+                raise ValueError(
+                    f"joints_deg: robot {self.robot.name} ({type(self.robot).__name__}) reports "
+                    "its own joint angles; only the manual driver takes them from the request"
+                )
+            values = [float(v) for v in joints_deg]
+            if len(values) != 6 or not all(math.isfinite(v) for v in values):
+                raise ValueError(f"joints_deg: expected 6 finite angles [deg], got {values}")
+            joints = as_joints(values)
+        async with self._capture_lock:
+            self._manual_campaign_id = campaign_id
+            t_request = time.monotonic()
+            if joints is not None:
+                assert isinstance(self.robot, ManualRobot)
+                self.robot.submit(joints)
+            try:
+                window = await self._wait_settled(t_request)
+            except CaptureRejected as exc:
+                self._rejected(campaign_id, exc, mode)
+                raise
+            finally:
+                self._manual_campaign_id = None
+            return self._store(campaign_id, anchor, window, mode)
+
+    async def _wait_settled(self, t_request: float) -> tuple[PairedReading, ...]:
+        cfg = self.config
+        deadline = t_request + cfg.capture_timeout_s
+        while True:
+            now = time.monotonic()
+            not_before = max(t_request, self._used_until + 1e-9)
+            fault = self._device_fault(now, not_before)
+            if fault is not None:
+                raise fault[0]
+            verdict = self._evaluate(now, not_before)
+            if verdict.reason is None:
+                return verdict.window
+            if verdict.final:
+                raise CaptureRejected(verdict.reason, verdict.detail)
+            if not self.running:
+                raise CaptureRejected("no_data", "the sampler is not running")
+            if now >= deadline:
+                raise CaptureRejected(
+                    verdict.reason,
+                    f"not settled within capture_timeout_s {cfg.capture_timeout_s} s: "
+                    f"{verdict.detail}",
+                )
+            tick = self._tick
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(tick.wait(), min(deadline - now, cfg.stale_s) + 1e-3)
+
+    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: Mode) -> None:
+        metrics.CAPTURES.labels("rejected", exc.reason, mode).inc()
+        log.info(
+            "capture rejected: %s",
+            exc,
+            extra={"campaign_id": campaign_id, "device": exc.device, "error": exc.reason},
+        )
+        try:
+            self.sink.record_rejection(campaign_id, exc.reason, exc.detail, exc.device)
+        except Exception:
+            log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
+
+    def _store(
+        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: Mode
+    ) -> dict[str, Any]:
+        capture = make_capture(window, anchor, mode)
+        row = dict(self.sink.store_capture(campaign_id, capture))  # commits before returning
+        self._used_until = window[-1].t_poll
+        metrics.CAPTURES.labels("accepted", "ok", mode).inc()
+        auto = self._auto
+        if auto is not None and auto.campaign_id == campaign_id:
+            auto.captured(capture.joints_deg)
+        log.info(
+            "captured %s sample: length %.3f mm, %d readings",
+            mode,
+            capture.length_mm,
+            capture.count,
+            extra={"campaign_id": campaign_id, "sample_id": row.get("id")},
+        )
+        return row
