@@ -7,7 +7,7 @@ import csv
 import io
 from typing import Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, HTTPException, Query, status
 
 from calib.dataset import JOINT_COLUMNS
 from calib.programs.common import ProgramError, check_limits
@@ -78,13 +78,20 @@ def get_check_poses(
     poses = check_poses(state.store, robot_id, state.settings.drift.n_poses)
     if format is None:
         return poses
-    # Poses stored before PUT checked their limits cannot become a program: download()
-    # answers 409 naming the pose (row) and joint.
+    model = state.store.robot_model(robot_id)
+    try:  # poses stored before PUT checked their limits: a conflict, named by pose (not CSV row)
+        check_limits(poses["poses_deg"], joint_limits_deg(model).tolist())
+    except ProgramError as exc:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT,
+            f"the robot's check poses cannot be written as a program: {exc} (row = pose); "
+            "set them again (PUT /robots/{robot_id}/check-poses)",
+        ) from None
     return download(
         _poses_csv(poses["poses_deg"]),
         str(format.value),
         stem=f"robot-{robot_id}-check-poses",
-        model=state.store.robot_model(robot_id),
+        model=model,
         what=f"drift-check poses of robot {robot_id} ({poses['source']})",
         speed_pct=speed_pct,
         dwell_s=dwell_s,
