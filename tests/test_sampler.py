@@ -34,6 +34,7 @@ from drivers import (
     ModbusIndicator,
     RobotTimeout,
 )
+from drivers.robot import JointReading
 
 pytestmark = pytest.mark.anyio
 
@@ -319,3 +320,33 @@ async def test_status_rates_and_age_metrics() -> None:
     assert 0 <= metric("cablecal_last_reading_age_seconds", device="rob-st", role="robot") < 5
     assert per_call_s < 0.005  # generous; it is some microseconds
     assert ind.closed and rob.closed
+
+
+class _CancelSwallowingRobot(FakeRobot):
+    """A robot driver whose read swallows a cancel, as Python 3.11's ``asyncio.wait_for``
+    (the drivers' per-read timeout) does when the cancel arrives as the read completes: the
+    call returns a reading and the task's cancel request stays counted."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.swallowed = 0
+        self.reads = 0
+
+    async def read_joints(self) -> JointReading:
+        self.reads += 1
+        try:  # the first read answers at once, every later one is slow: a cancel lands here
+            await asyncio.sleep(0.003 if self.reads == 1 else 10.0)
+        except asyncio.CancelledError:
+            self.swallowed += 1
+        return await super().read_joints()
+
+
+async def test_stop_ends_the_poll_loops_when_a_driver_swallows_the_cancel() -> None:
+    """Regression (intermittent hang of the emulated-cell sampler tests): a cancel lost inside
+    a driver call must not keep the poll loop running, so stop() returns."""
+    robot = _CancelSwallowingRobot()
+    sampler = Sampler(FakeIndicator(), robot, SamplerConfig(**FAST), FakeSink())
+    await sampler.start()
+    await asyncio.sleep(0.2)
+    await asyncio.wait_for(sampler.stop(), timeout=2.0)
+    assert robot.swallowed >= 1  # the cancel did land inside the driver's read
