@@ -49,7 +49,7 @@ from calib.filter.sites import (
     Source,
     Target,
     Use,
-    edit,
+    edits_for,
 )
 from calib.kinematics import N_JOINTS
 
@@ -299,25 +299,22 @@ class FanucLsDialect:
         return out
 
     def render(self, target: Target, correction: Correction) -> list[Edit]:
-        edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.joints, correction.joints_deg.tolist(), strict=True):
-                edits.append(edit(num, v, JOINT_DECIMALS))
-            return [e for e in edits if e is not None]
+            return edits_for(target.site.joints, correction.joints_deg.tolist(), JOINT_DECIMALS)
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
         old = [n.value for n in site.wpr][::-1]  # R, P, W
         rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
-        for num, v in zip(site.position, correction.pose[:3, 3].tolist(), strict=True):
-            edits.append(edit(num, v, DECIMALS))
-        for num, v in zip(site.wpr, rpw[::-1], strict=True):
-            edits.append(edit(num, v, DECIMALS))
+        edits = [
+            *edits_for(site.position, correction.pose[:3, 3].tolist(), DECIMALS),
+            *edits_for(site.wpr, rpw[::-1], DECIMALS),
+        ]
         for num, j in zip(site.turns, TURN_JOINTS, strict=False):
             new = turn_number(float(correction.joints_deg[j]))
             if new != int(num.value):
                 edits.append(Edit(num.file, num.start, num.end, str(new)))
-        return [e for e in edits if e is not None]
+        return edits
 
 
 DIALECT = FanucLsDialect()

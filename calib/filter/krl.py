@@ -75,7 +75,7 @@ from calib.filter.sites import (
     Num,
     Source,
     Target,
-    edit,
+    edits_for,
 )
 from calib.kinematics import N_JOINTS, FloatArray
 
@@ -212,23 +212,20 @@ class KrlDialect:
         return t
 
     def render(self, target: Target, correction: Correction) -> list[Edit]:
-        edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.joints, correction.joints_deg.tolist(), strict=True):
-                edits.append(edit(num, v, JOINT_DECIMALS))
-            return [e for e in edits if e is not None]
+            return edits_for(target.site.joints, correction.joints_deg.tolist(), JOINT_DECIMALS)
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
         old = [n.value for n in site.angles]
         abc = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
-        for num, v in zip(site.position, correction.pose[:3, 3].tolist(), strict=True):
-            edits.append(edit(num, v, POSITION_DECIMALS))
-        for num, v in zip(site.angles, abc, strict=True):
-            edits.append(edit(num, v, ANGLE_DECIMALS))
-        if site.turn is not None:
-            edits.append(_turn_edit(site.turn, correction.joints_deg))
-        return [e for e in edits if e is not None]
+        edits = [
+            *edits_for(site.position, correction.pose[:3, 3].tolist(), POSITION_DECIMALS),
+            *edits_for(site.angles, abc, ANGLE_DECIMALS),
+        ]
+        if site.turn is not None and (turn := _turn_edit(site.turn, correction.joints_deg)):
+            edits.append(turn)
+        return edits
 
 
 def _fill_poses(targets: list[Target]) -> None:

@@ -79,7 +79,7 @@ from calib.filter.sites import (
     Source,
     Target,
     Use,
-    edit,
+    edits_for,
 )
 from calib.kinematics import FloatArray
 
@@ -449,12 +449,9 @@ class RapidDialect:
 
     # -- writing -----------------------------------------------------------------------
     def render(self, target: Target, correction: Correction) -> list[Edit]:
-        edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.joints, correction.joints_deg, strict=True):
-                edits.append(edit(num, float(v), JOINT_DECIMALS))
-            return [e for e in edits if e is not None]
+            return edits_for(target.site.joints, correction.joints_deg, JOINT_DECIMALS)
         site: RobSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
         old_q = np.array([n.value for n in site.quaternion])
@@ -463,15 +460,15 @@ class RapidDialect:
         # where the file's quaternion was not of unit norm.
         if correction.shift_deg < 1e-5:
             quat = old_q
-        for num, v in zip(site.position, correction.pose[:3, 3], strict=True):
-            edits.append(edit(num, float(v), POSITION_DECIMALS))
-        for num, v in zip(site.quaternion, quat, strict=True):
-            edits.append(edit(num, float(v), QUATERNION_DECIMALS))
+        edits = [
+            *edits_for(site.position, correction.pose[:3, 3], POSITION_DECIMALS),
+            *edits_for(site.quaternion, quat, QUATERNION_DECIMALS),
+        ]
         for num, j in zip(site.conf[:3], (0, 3, 5), strict=True):
             cf = math.floor(float(correction.joints_deg[j]) / 90.0)
             if cf != num.value:  # a quadrant that did not change keeps its text
-                edits.append(edit(num, float(cf), 0))
-        return [e for e in edits if e is not None]
+                edits.extend(edits_for([num], [cf], 0))
+        return edits
 
 
 DIALECT = RapidDialect()

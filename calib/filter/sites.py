@@ -35,7 +35,7 @@ import bisect
 import math
 import re
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Literal, Protocol
@@ -433,6 +433,17 @@ def edit(original: Num, value: float, min_decimals: int) -> Edit | None:
     if new == original.text:
         return None
     return Edit(original.file, original.start, original.end, new)
+
+
+def edits_for(nums: Sequence[Num], values: Iterable[float], min_decimals: int) -> list[Edit]:
+    """The edits writing ``values`` over ``nums`` in order, each with at least
+    ``min_decimals``; a number whose text stays is left out (:func:`edit`)."""
+    out = []
+    for num, value in zip(nums, values, strict=True):
+        e = edit(num, float(value), min_decimals)
+        if e is not None:
+            out.append(e)
+    return out
 
 
 def apply_edits(text: str, edits: Sequence[Edit]) -> str:

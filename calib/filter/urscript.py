@@ -51,7 +51,7 @@ from calib.filter.sites import (
     Source,
     Target,
     Use,
-    edit,
+    edits_for,
 )
 from calib.kinematics import FloatArray
 
@@ -353,20 +353,17 @@ class URScriptDialect:
         return None
 
     def render(self, target: Target, correction: Correction) -> list[Edit]:
-        edits: list[Edit | None] = []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
-            for num, v in zip(target.site.numbers, np.deg2rad(correction.joints_deg), strict=True):
-                edits.append(edit(num, float(v), ANGLE_DECIMALS))
-            return [e for e in edits if e is not None]
+            return edits_for(target.site.numbers, np.deg2rad(correction.joints_deg), ANGLE_DECIMALS)
         site: PoseSite = target.site
         assert correction.pose is not None
         old = np.array([n.value for n in site.numbers])
         rv = matrix_to_rotvec(correction.pose[:3, :3], near=old[3:])
-        values = [*(correction.pose[:3, 3] / 1000.0), *rv]
-        for k, (num, v) in enumerate(zip(site.numbers, values, strict=True)):
-            edits.append(edit(num, float(v), POSITION_DECIMALS if k < 3 else ANGLE_DECIMALS))
-        return [e for e in edits if e is not None]
+        return [
+            *edits_for(site.numbers[:3], correction.pose[:3, 3] / 1000.0, POSITION_DECIMALS),
+            *edits_for(site.numbers[3:], rv, ANGLE_DECIMALS),
+        ]
 
 
 DIALECT = URScriptDialect()
