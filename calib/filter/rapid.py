@@ -60,7 +60,6 @@ from calib.filter.rapid_syntax import (
     parse_literal,
     pose,
     skip_space,
-    split_args,
     split_options,
     statement_end,
 )
@@ -80,6 +79,7 @@ from calib.filter.sites import (
     Target,
     Use,
     edits_for,
+    split_args,
 )
 from calib.kinematics import FloatArray
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.filter.rotations import frame, quat_wxyz_to_matrix
-from calib.filter.sites import FilterInputError, Num, Source
+from calib.filter.sites import BRACKETS, FilterInputError, Num, Source
 from calib.kinematics import FloatArray
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
@@ -161,33 +161,6 @@ def pose(node: Node) -> FloatArray:
     return frame(pos, quat_wxyz_to_matrix(quat))
 
 
-_BRACKETS = re.compile(r"[\[({\])}]")
-
-
-def split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
-    """Comma-separated arguments of ``code[start:end]`` at bracket depth 0, as spans."""
-    if not _BRACKETS.search(code, start, end):  # the common case: no nesting
-        out: list[tuple[int, int]] = []
-        last = start
-        while (i := code.find(",", last, end)) >= 0:
-            out.append((last, i))
-            last = i + 1
-        out.append((last, end))
-        return out
-    out, depth, last = [], 0, start
-    for i in range(start, end):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == "," and depth == 0:
-            out.append((last, i))
-            last = i + 1
-    out.append((last, end))
-    return out
-
-
 def split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], list[str]]:
     """An argument's positional part (span) and its ``\\Option[:=value]`` texts."""
     if code.find("\\", start, end) < 0:
@@ -211,7 +184,7 @@ def statement_end(code: str, i: int) -> int:
     """The ``;`` ending the statement that starts at ``i`` (RAPID has no ``;`` inside a
     bracket outside strings, which are blanked), or the end of the code."""
     j = code.find(";", i)
-    if j >= 0 and not _BRACKETS.search(code, i, j):
+    if j >= 0 and not BRACKETS.search(code, i, j):
         return j
     depth = 0
     while i < len(code):

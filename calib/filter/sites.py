@@ -464,3 +464,32 @@ def apply_edits(text: str, edits: Sequence[Edit]) -> str:
         pos = e.end
     out.append(text[pos:])
     return "".join(out)
+
+
+#: Any bracket: where an argument list nests.
+BRACKETS = re.compile(r"[\[({\])}]")
+
+
+def split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
+    """Comma-separated arguments of ``code[start:end]`` at bracket depth 0 (``[]``, ``()``,
+    ``{}``), as spans: a RAPID argument list, a URScript list or call."""
+    if not BRACKETS.search(code, start, end):  # the common case: no nesting
+        out: list[tuple[int, int]] = []
+        last = start
+        while (i := code.find(",", last, end)) >= 0:
+            out.append((last, i))
+            last = i + 1
+        out.append((last, end))
+        return out
+    out, depth, last = [], 0, start
+    for i in range(start, end):
+        c = code[i]
+        if c in "[({":
+            depth += 1
+        elif c in "])}":
+            depth -= 1
+        elif c == "," and depth == 0:
+            out.append((last, i))
+            last = i + 1
+    out.append((last, end))
+    return out

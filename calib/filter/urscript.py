@@ -52,6 +52,7 @@ from calib.filter.sites import (
     Target,
     Use,
     edits_for,
+    split_args,
 )
 from calib.kinematics import FloatArray
 
@@ -112,7 +113,7 @@ def _numbers(code: str, src: Source, start: int, end: int) -> list[Num] | None:
     """The numbers of ``[a, b, …]`` spanning ``code[start:end]`` (brackets included), or
     None when an element is not a plain number."""
     out = []
-    for a, b in _split(code, start + 1, end - 1):
+    for a, b in split_args(code, start + 1, end - 1):
         item = code[a:b]
         s = item.strip()
         m = _NUMBER.fullmatch(s)
@@ -120,21 +121,6 @@ def _numbers(code: str, src: Source, start: int, end: int) -> list[Num] | None:
             return None
         off = a + item.index(s)
         out.append(Num(src.name, off, off + len(s), src.text[off : off + len(s)], float(s)))
-    return out
-
-
-def _split(code: str, start: int, end: int) -> list[tuple[int, int]]:
-    out, depth, last = [], 0, start
-    for i in range(start, end):
-        c = code[i]
-        if c in "[(":
-            depth += 1
-        elif c in "])":
-            depth -= 1
-        elif c == "," and depth == 0:
-            out.append((last, i))
-            last = i + 1
-    out.append((last, end))
     return out
 
 
@@ -253,7 +239,7 @@ class URScriptDialect:
                 raise FilterInputError(src.name, f"unclosed '(' of {m.group(1)}",
                                        src.line_of(m.start()))  # fmt: skip
             line = src.line_of(m.start())
-            args = _split(code, m.end(), end - 1)
+            args = split_args(code, m.end(), end - 1)
             n_pose = 2 if m.group(1) == "movec" else 1
             tool: FloatArray | None = np.eye(4)
             tool_name, problem = "flange", ""
@@ -308,7 +294,7 @@ class URScriptDialect:
         work_name, why = "base", ""
         m = re.match(r"pose_trans\s*\(", s)
         if m:
-            inner = _split(code, off + m.end(), off + len(s) - 1)
+            inner = split_args(code, off + m.end(), off + len(s) - 1)
             if len(inner) != 2:
                 return None
             fa, fb = inner[0]
@@ -325,7 +311,7 @@ class URScriptDialect:
         m = re.match(r"get_inverse_kin\s*\(", s)
         qnear = None
         if m:
-            inner = _split(code, off + m.end(), off + len(s) - 1)
+            inner = split_args(code, off + m.end(), off + len(s) - 1)
             for ia, ib in inner[1:]:
                 kw = code[ia:ib].strip()
                 if kw.startswith("qnear") and "=" in kw:
