@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 from typing import Any
 
 from simulator.config import SimConfig
@@ -67,3 +68,18 @@ def deviation_from_truth_deg(
 
     t_best, _ = best(np.arange(t_from_s, t_to_s + 0.0002, 0.0002))
     return best(np.arange(t_best - 0.0002, t_best + 0.0002, 0.000002))[1]
+
+
+def closed_by_server(s: socket.socket, timeout_s: float) -> bytes | None:
+    """What the server sent on ``s`` before it closed the connection, or None when it kept the
+    connection open for ``timeout_s``."""
+    s.settimeout(timeout_s)
+    got = b""
+    try:
+        while chunk := s.recv(4096):
+            got += chunk
+    except TimeoutError:
+        return None
+    except ConnectionResetError:
+        pass
+    return got

@@ -19,6 +19,7 @@ from typing import Any
 import httpx
 import pytest
 import uvicorn
+from helpers import closed_by_server
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api import server as server_module
@@ -65,21 +66,6 @@ def _client(addr: tuple[str, int], source: str) -> httpx.Client:
     return httpx.Client(base_url=f"http://{addr[0]}:{addr[1]}", transport=transport, timeout=5)
 
 
-def _answer(s: socket.socket, timeout_s: float) -> bytes | None:
-    """What the server sent before closing the connection, None if still open after
-    ``timeout_s``."""
-    s.settimeout(timeout_s)
-    got = b""
-    try:
-        while chunk := s.recv(4096):
-            got += chunk
-    except TimeoutError:
-        return None
-    except ConnectionResetError:
-        pass
-    return got
-
-
 @pytest.mark.slow
 def test_600_slow_sockets_from_one_peer_leave_another_client_served(served: Any) -> None:
     """600 slow heads from 127.0.0.1: 64 are held (then closed by the head timeout), the rest
@@ -104,7 +90,7 @@ def test_600_slow_sockets_from_one_peer_leave_another_client_served(served: Any)
                 r = same.get("/api/v1/health")
                 assert r.status_code == 503, r.text
                 assert "max_connections_per_client" in r.json()["detail"]
-            answers = [_answer(s, HEAD_TIMEOUT_S + 3.0) for s in held]
+            answers = [closed_by_server(s, HEAD_TIMEOUT_S + 3.0) for s in held]
             elapsed_s = time.monotonic() - t_open
         finally:
             for s in held:
@@ -156,7 +142,7 @@ def _send_head(addr: tuple[str, int], head: bytes, pieces: int) -> bytes:
             s.sendall(head[i : i + step])
             if pieces > 1 and select.select([s], [], [], 0.005)[0]:
                 break
-        return _answer(s, 5.0) or b""
+        return closed_by_server(s, 5.0) or b""
 
 
 @pytest.mark.parametrize("pieces", [1, 40])

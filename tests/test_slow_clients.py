@@ -14,6 +14,7 @@ from pathlib import Path
 import httpx
 import pytest
 import uvicorn
+from helpers import closed_by_server
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api import guard
@@ -50,20 +51,6 @@ def _open(addr: str, data: bytes) -> socket.socket:
     return s
 
 
-def _closed_by_server(s: socket.socket, timeout_s: float) -> bytes | None:
-    """What the server sent before closing, or None if it kept the connection open."""
-    s.settimeout(timeout_s)
-    got = b""
-    try:
-        while chunk := s.recv(4096):
-            got += chunk
-    except TimeoutError:
-        return None
-    except ConnectionResetError:
-        pass
-    return got
-
-
 @pytest.mark.slow
 def test_partial_heads_and_bodies_are_dropped_and_health_answers(server: str) -> None:
     auth = AUTH["Authorization"].encode()
@@ -85,9 +72,9 @@ def test_partial_heads_and_bodies_are_dropped_and_health_answers(server: str) ->
                 time.sleep(0.05)
         assert worst_s < 1.0, worst_s
         for s in heads:
-            assert _closed_by_server(s, 5.0) == b""  # closed without a word: no request yet
+            assert closed_by_server(s, 5.0) == b""  # closed without a word: no request yet
         for s in bodies:
-            answer = _closed_by_server(s, 5.0)
+            answer = closed_by_server(s, 5.0)
             assert answer is not None and answer.startswith(b"HTTP/1.1 408 "), answer
             assert b"body: incomplete after" in answer
     finally:
