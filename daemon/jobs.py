@@ -341,9 +341,8 @@ class JobManager:
         status = JobState.FAILED
         try:
             # Marked running once a worker picks it up (first progress) or here on start.
-            result = await asyncio.wait_for(
-                asyncio.wrap_future(future), timeout=self.settings.timeout_s
-            )
+            async with asyncio.timeout(self.settings.timeout_s):
+                result = await asyncio.wrap_future(future)
         except asyncio.CancelledError:
             status = JobState.CANCELLED
             self._finish(job_id, status, error="cancelled before it started")

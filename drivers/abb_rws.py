@@ -142,7 +142,8 @@ class AbbRwsRobot(LinkedRobot):
         client = self._client
         if client is not None:
             with contextlib.suppress(Exception):
-                await asyncio.wait_for(client.get(self.base_url + "/logout"), 0.5)
+                async with asyncio.timeout(0.5):
+                    await client.get(self.base_url + "/logout")
         await self._close()
         self._cookies = httpx.Cookies()
 
@@ -153,7 +154,8 @@ class AbbRwsRobot(LinkedRobot):
             raise LinkLost("not connected")
         self.frames.note(f"tx GET {self._url}")
         try:
-            response = await asyncio.wait_for(client.get(self._url), timeout_s)
+            async with asyncio.timeout(timeout_s):
+                response = await client.get(self._url)
         except TimeoutError:
             raise
         except httpx.TimeoutException as exc:

@@ -172,8 +172,9 @@ class AsciiIndicator:
                     self.name, f"no frame within {cfg.timeout_s} s", self.frames.snapshot()
                 )
             self._event.clear()
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(self._event.wait(), remaining)
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(remaining):
+                    await self._event.wait()
         t_mono, t_wall = time.monotonic(), time.time()
         return reading_from_status(
             self.name,

@@ -266,9 +266,8 @@ class FanucRmiRobot(LinkedRobot):
                 writer.write(encode_packet({"Communication": "FRC_Disconnect"}))
                 await writer.drain()
                 if reader is not None:
-                    await asyncio.wait_for(
-                        reader.readuntil(TERMINATOR), self.config.fast_reply_timeout_s
-                    )
+                    async with asyncio.timeout(self.config.fast_reply_timeout_s):
+                        await reader.readuntil(TERMINATOR)
         writer.close()
         with contextlib.suppress(Exception):
             await writer.wait_closed()
@@ -324,7 +323,8 @@ class FanucRmiRobot(LinkedRobot):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise TimeoutError
-            line = await asyncio.wait_for(self._reader.readuntil(TERMINATOR), remaining)
+            async with asyncio.timeout(remaining):
+                line = await self._reader.readuntil(TERMINATOR)
             self.frames.add("rx", line)
             try:
                 packet = decode_packet(line)

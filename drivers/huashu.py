@@ -147,7 +147,8 @@ class HuashuSocketCmdRobot(StreamLinkedRobot):
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     raise TimeoutError
-                frame = await asyncio.wait_for(self._reader.readuntil(TERMINATOR), remaining)
+                async with asyncio.timeout(remaining):
+                    frame = await self._reader.readuntil(TERMINATOR)
                 self.frames.add("rx", frame)
                 try:
                     r_seq, code, data = decode_reply(frame)

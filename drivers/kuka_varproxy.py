@@ -320,7 +320,8 @@ class KukaVarProxyRobot(StreamLinkedRobot):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise TimeoutError
-            chunk = await asyncio.wait_for(self._reader.read(4096), remaining)
+            async with asyncio.timeout(remaining):
+                chunk = await self._reader.read(4096)
             if not chunk:
                 raise asyncio.IncompleteReadError(bytes(self._rx), None)
             self._rx += chunk

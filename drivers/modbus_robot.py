@@ -12,7 +12,7 @@ once on the same connection (``retries``); the connection is closed and re-opene
 with its own MBAP transaction id (pymodbus' own ``retries`` would re-send the *same* id, so a
 late reply to the first send would be taken for the retry's; we keep them at 0). pymodbus
 skips a frame whose transaction id is not the pending request's, so a late reply to an
-abandoned attempt is never returned. The per-attempt wait is our ``asyncio.wait_for``;
+abandoned attempt is never returned. The per-attempt wait is our ``asyncio.timeout``;
 pymodbus' timeout is set longer so that its disconnect-after-N-timeouts rule never fires.
 """
 
@@ -108,7 +108,7 @@ class ModbusTcpRobot(LinkedRobot):
             cfg.host,
             port=cfg.port,
             framer=FramerType.SOCKET,
-            # Our own per-attempt wait (asyncio.wait_for) always ends first, so pymodbus'
+            # Our own per-attempt wait (asyncio.timeout) always ends first, so pymodbus'
             # timeout and its "no response N times: disconnect" rule never fire.
             timeout=2 * cfg.timeout_s,
             retries=0,
@@ -127,7 +127,8 @@ class ModbusTcpRobot(LinkedRobot):
         """One attempt: ``count`` registers from ``address`` (a new pymodbus request, so a
         new transaction id; see the module docstring)."""
         try:
-            response: Any = await asyncio.wait_for(self._request(address, count), timeout_s)
+            async with asyncio.timeout(timeout_s):
+                response: Any = await self._request(address, count)
         except ModbusException as exc:
             if not self._is_open():
                 raise LinkLost(str(exc)) from exc

@@ -218,7 +218,8 @@ class LinkedRobot(ABC):
                 self.frames.snapshot(),
             )
         try:
-            await asyncio.wait_for(self._open(), self.link_config.timeout_s)
+            async with asyncio.timeout(self.link_config.timeout_s):
+                await self._open()
         except (TimeoutError, OSError, LinkLost) as exc:
             await self._close()
             self._backoff.failed()

@@ -221,7 +221,8 @@ class UrRtdeRobot(LinkedRobot):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 raise TimeoutError
-            await asyncio.wait_for(self._fresh.wait_for(fresh), remaining)
+            async with asyncio.timeout(remaining):
+                await self._fresh.wait_for(fresh)
         if self._lost is not None:
             raise LinkLost(self._lost)
         assert self._latest is not None

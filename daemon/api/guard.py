@@ -160,7 +160,8 @@ class RequestGuard:
                 return await receive()
             wait_s = min(self.body_gap_timeout_s, body_deadline - loop.time())
             try:
-                message = await asyncio.wait_for(receive(), max(wait_s, 0.0))
+                async with asyncio.timeout(max(wait_s, 0.0)):
+                    message = await receive()
             except TimeoutError:
                 raise HTTPException(
                     408,

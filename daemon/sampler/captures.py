@@ -16,6 +16,7 @@ from daemon import metrics
 from daemon.capture import CaptureRejected, CaptureSink, Joints
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState
+from daemon.sampler.cancel import raise_if_cancelled
 from daemon.sampler.config import SamplerConfig
 from daemon.settle import Mode, PairedReading, Verdict, as_joints, evaluate, make_capture
 from drivers import ManualRobot, RobotDriver
@@ -123,6 +124,7 @@ class CapturePath:
                 raise
             finally:
                 self._manual_campaign_id = None
+            raise_if_cancelled()  # a capture whose request was cancelled stores nothing
             return self._store(campaign_id, anchor, window, mode)
 
     async def _wait_settled(self, t_request: float) -> tuple[PairedReading, ...]:
@@ -148,8 +150,11 @@ class CapturePath:
                     f"{verdict.detail}",
                 )
             tick = self._tick
+            # asyncio.timeout, not wait_for: Python 3.11's wait_for returns normally when a
+            # cancel arrives as the tick fires, and the cancelled capture would go on to store.
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(tick.wait(), min(deadline - now, cfg.stale_s) + 1e-3)
+                async with asyncio.timeout(min(deadline - now, cfg.stale_s) + 1e-3):
+                    await tick.wait()
 
     def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: Mode) -> None:
         metrics.CAPTURES.labels("rejected", exc.reason, mode).inc()

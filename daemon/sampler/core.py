@@ -18,6 +18,7 @@ from daemon import metrics
 from daemon.capture import CaptureSink, Joints
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState, start_auto
+from daemon.sampler.cancel import raise_if_cancelled
 from daemon.sampler.captures import CapturePath
 from daemon.sampler.config import MAX_BUFFER, SamplerConfig
 from daemon.sampler.late import LateWatch
@@ -54,18 +55,6 @@ def _as_error(result: _T | BaseException) -> _T | Exception:
     if isinstance(result, asyncio.CancelledError) and not (task and task.cancelling()):
         return RuntimeError(f"driver call was cancelled: {result!r}")
     raise result
-
-
-def _raise_if_cancelled() -> None:
-    """Raise :class:`asyncio.CancelledError` when the current task has a cancel pending.
-
-    Python 3.11's ``asyncio.wait_for`` (the drivers' per-read timeout) swallows a cancel that
-    arrives as the awaited read completes: the call returns normally and the task runs on with
-    its cancel request still counted (``Task.cancelling()``). A poll loop checks this at the top
-    of every cycle, so :meth:`Sampler.stop` never waits on a loop that missed its cancel."""
-    task = asyncio.current_task()
-    if task is not None and task.cancelling():
-        raise asyncio.CancelledError
 
 
 async def _outcome(call: Awaitable[_T]) -> _T | Exception:
@@ -180,7 +169,7 @@ class Sampler(CapturePath):
 
     async def _run_indicator(self) -> None:
         while True:
-            _raise_if_cancelled()
+            raise_if_cancelled()
             t_poll = time.monotonic()
             if self.manual_robot:
                 ind_res, rob_res = await asyncio.gather(
@@ -202,7 +191,7 @@ class Sampler(CapturePath):
         """The robot's loop: one poll per indicator cycle (a faster robot would only be polled
         for nothing), but never waiting longer than :meth:`_robot_wait_s` for that cycle."""
         while True:
-            _raise_if_cancelled()
+            raise_if_cancelled()
             t_poll = time.monotonic()
             tick = self._tick
             result = await _outcome(self.robot.read_joints())

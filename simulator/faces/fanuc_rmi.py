@@ -208,7 +208,8 @@ class FanucRmiServer(FaceServer):
 
     async def serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
-            line = await asyncio.wait_for(read_line(reader), GRANT_S)
+            async with asyncio.timeout(GRANT_S):
+                line = await read_line(reader)
         except (TimeoutError, asyncio.IncompleteReadError):
             return
         try:
