@@ -77,8 +77,9 @@ def _wall(
     """Wall and CPU (user + system) time [s] of one run of ``cmd``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                   cwd=cwd, env=env)  # fmt: skip
+    subprocess.run(
+        cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=cwd, env=env
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -107,8 +108,9 @@ def _elapsed(result_json: Path) -> float:
 def _top_imports(cmd: list[str]) -> list[tuple[str, float]]:
     """Top-level modules (and their direct children) of one ``-X importtime`` run, with
     their cumulative time [ms], longest first."""
-    proc = subprocess.run([cmd[0], "-X", "importtime", *cmd[1:]], capture_output=True,
-                          text=True, check=True)  # fmt: skip
+    proc = subprocess.run(
+        [cmd[0], "-X", "importtime", *cmd[1:]], capture_output=True, text=True, check=True
+    )
     out: list[tuple[str, float]] = []
     for line in proc.stderr.splitlines():
         if not line.startswith("import time:") or "cumulative" in line:
@@ -132,11 +134,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from daemon.blas import single_threaded_blas
 
     single_threaded_blas()
-    walls: dict[str, list[float]] = {"floor": [], "identify_100": [], "identify_100_cold": [],
-                                     "bare": [], "help": []}  # fmt: skip
+    walls: dict[str, list[float]] = {
+        "floor": [],
+        "identify_100": [],
+        "identify_100_cold": [],
+        "bare": [],
+        "help": [],
+    }
     cpus: dict[str, list[float]] = {"floor": [], "identify_100": [], "bare": [], "help": []}
-    elapsed: dict[str, list[float]] = {"elapsed_100_s": [], "elapsed_2017_s": [],
-                                       "cpu_100_s": [], "cpu_2017_s": []}  # fmt: skip
+    elapsed: dict[str, list[float]] = {
+        "elapsed_100_s": [],
+        "elapsed_2017_s": [],
+        "cpu_100_s": [],
+        "cpu_2017_s": [],
+    }
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         small = tmp / "first-100.csv"
@@ -149,8 +160,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cold_env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
         for _ in range(args.runs):
             walls["identify_100_cold"].append(_wall(_cli(small, out_small), src, cold_env)[0])
-            for key, cmd in (("floor", floor_cmd), ("identify_100", _cli(small, out_small)),
-                             ("bare", bare_cmd), ("help", help_cmd)):  # fmt: skip
+            for key, cmd in (
+                ("floor", floor_cmd),
+                ("identify_100", _cli(small, out_small)),
+                ("bare", bare_cmd),
+                ("help", help_cmd),
+            ):
                 wall, cpu = _wall(cmd)
                 walls[key].append(wall)
                 cpus[key].append(cpu)

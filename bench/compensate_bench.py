@@ -84,8 +84,12 @@ def _time_case(
         runs.append(time.perf_counter() - t0)
     n = out.corrected_joints_deg.shape[0]
     t0 = time.perf_counter()
-    looped = np.vstack([compensate(nominal, calibrated, _subset(targets, i), opts)
-                        .corrected_joints_deg for i in range(n)])  # fmt: skip
+    looped = np.vstack(
+        [
+            compensate(nominal, calibrated, _subset(targets, i), opts).corrected_joints_deg
+            for i in range(n)
+        ]
+    )
     loop_s = time.perf_counter() - t0
     return {
         "n": n,
@@ -122,15 +126,19 @@ def _accuracy(nominal: RobotModel, cell: TrueCell, calibrated: RobotModel) -> di
     )
     own = float(np.sqrt(np.mean(own_res * own_res)))
     out: dict[str, Any] = {"identification_aligned_flange_rms_mm": own}
-    out["uncompensated"] = dict(zip(("aligned_rms_mm", "orientation_median_deg"), aligned(q),
-                                    strict=True))  # fmt: skip
+    out["uncompensated"] = dict(
+        zip(("aligned_rms_mm", "orientation_median_deg"), aligned(q), strict=True)
+    )
     for mode in ("position", "pose"):
         comp = compensate(nominal, calibrated, JointTargets(q), CompensateOptions(mode=mode))
         ok = comp.ok
         rms, ang = aligned(comp.corrected_joints_deg)
-        out[mode] = {"aligned_rms_mm": rms, "orientation_median_deg": ang,
-                     "n_flagged": int(np.count_nonzero(~ok)),
-                     "flag_counts": comp.summary["flag_counts"]}  # fmt: skip
+        out[mode] = {
+            "aligned_rms_mm": rms,
+            "orientation_median_deg": ang,
+            "n_flagged": int(np.count_nonzero(~ok)),
+            "flag_counts": comp.summary["flag_counts"],
+        }
     return out
 
 
@@ -151,9 +159,14 @@ def run() -> dict[str, Any]:
         print(name, json.dumps(speed[name]), flush=True)
     accuracy = _accuracy(nominal, cell, calibrated)
     print(json.dumps(accuracy, indent=1))
-    checks = {name: {"measured_s": row["vectorised_s"], "target": f"<= {TARGET_S} s",
-                     "met": row["vectorised_s"] <= TARGET_S}
-              for name, row in speed.items()}  # fmt: skip
+    checks = {
+        name: {
+            "measured_s": row["vectorised_s"],
+            "target": f"<= {TARGET_S} s",
+            "met": row["vectorised_s"] <= TARGET_S,
+        }
+        for name, row in speed.items()
+    }
     doc = {"environment": environment(), "speed": speed, "accuracy": accuracy, "checks": checks}
     (OUT / "compensate_results.json").write_text(json.dumps(doc, indent=2) + "\n", "utf-8")
     (OUT / "compensate_results.md").write_text(_markdown(doc), "utf-8")
@@ -175,9 +188,11 @@ def _markdown(doc: dict[str, Any]) -> str:
         "|---|---:|---:|---:|---:|---:|---|",
     ]
     for name, r in doc["speed"].items():
-        lines.append(f"| {name} | {r['vectorised_s']:.4f} | {r['per_target_loop_s']:.3f} | "
-                     f"{r['speedup']:.0f}x | {r['max_abs_difference_deg']:.1e} | "
-                     f"{r['mean_iterations']:.2f} | {r['flag_counts']} |")  # fmt: skip
+        lines.append(
+            f"| {name} | {r['vectorised_s']:.4f} | {r['per_target_loop_s']:.3f} | "
+            f"{r['speedup']:.0f}x | {r['max_abs_difference_deg']:.1e} | "
+            f"{r['mean_iterations']:.2f} | {r['flag_counts']} |"
+        )
     lines += [
         "",
         "## Accuracy of the true robot (virtual cell, rigidly aligned, flange)",
@@ -192,11 +207,16 @@ def _markdown(doc: dict[str, Any]) -> str:
     ]
     for mode in ("position", "pose"):
         a = acc[mode]
-        lines.append(f"| compensated, {mode} mode | {a['aligned_rms_mm']:.4f} | "
-                     f"{a['orientation_median_deg']:.4f} | {a['n_flagged']} |")  # fmt: skip
-    lines += ["", "Pose mode can only be as good as the identified flange orientation: with the "
-              "cable hook near the flange, the joint-5 terms trade against the hook point and "
-              "the orientation is weakly observed."]  # fmt: skip
+        lines.append(
+            f"| compensated, {mode} mode | {a['aligned_rms_mm']:.4f} | "
+            f"{a['orientation_median_deg']:.4f} | {a['n_flagged']} |"
+        )
+    lines += [
+        "",
+        "Pose mode can only be as good as the identified flange orientation: with the "
+        "cable hook near the flange, the joint-5 terms trade against the hook point and "
+        "the orientation is weakly observed.",
+    ]
     return "\n".join(lines) + "\n"
 
 

@@ -42,9 +42,12 @@ def abb_model() -> RobotModel:
 
 def abb_cell() -> TrueCell:
     """A true IRB 120 cell: half of Table XII D1 as DH errors, the anchor 0.8 m in front."""
-    return make_true_cell(abb_model(), dh_errors_deg_mm=0.5 * TABLE_XII_D1,
-                          anchors_mm=np.array([[800.0, 250.0, -100.0]]),
-                          offsets_mm=np.array([-150.0]))  # fmt: skip
+    return make_true_cell(
+        abb_model(),
+        dh_errors_deg_mm=0.5 * TABLE_XII_D1,
+        anchors_mm=np.array([[800.0, 250.0, -100.0]]),
+        offsets_mm=np.array([-150.0]),
+    )
 
 
 def campaign(case: str, n: int, seed: int, model_error: bool = False) -> tuple[TrueCell, SampleSet]:
@@ -78,8 +81,9 @@ def campaign(case: str, n: int, seed: int, model_error: bool = False) -> tuple[T
         )
     samples = make_samples(q, length)
     if case == "rate":
-        samples = SampleSet(samples.joints_deg, samples.length_mm, samples.anchor,
-                            line=samples.line, t_s=t_s)  # fmt: skip
+        samples = SampleSet(
+            samples.joints_deg, samples.length_mm, samples.anchor, line=samples.line, t_s=t_s
+        )
     return cell, samples
 
 
@@ -105,12 +109,17 @@ def run_case(case: str, n: int, seed: int, drift: str, model_error: bool = False
     js = res.to_json()
     block = js.get("drift") or {}
     label = case + (" + model error" if model_error else "")
-    return {"case": label, "n": n, "seed": seed, "drift": drift,
-            "test_rmse_mm": js["metrics"]["after"]["test"]["rmse_mm"],
-            "tcp_mm": tcp_error_mm(cell, js), "found": block.get("model", "none"),
-            "steps": [(s["row"], s["kind"], round(s["size_mm"], 2))
-                      for s in block.get("steps", [])],
-            "elapsed_s": elapsed}  # fmt: skip
+    return {
+        "case": label,
+        "n": n,
+        "seed": seed,
+        "drift": drift,
+        "test_rmse_mm": js["metrics"]["after"]["test"]["rmse_mm"],
+        "tcp_mm": tcp_error_mm(cell, js),
+        "found": block.get("model", "none"),
+        "steps": [(s["row"], s["kind"], round(s["size_mm"], 2)) for s in block.get("steps", [])],
+        "elapsed_s": elapsed,
+    }
 
 
 def hsr_protocols() -> list[dict[str, Any]]:
@@ -135,29 +144,52 @@ def hsr_protocols() -> list[dict[str, Any]]:
                 elapsed += time.perf_counter() - t0
                 rmse.append(res.metrics["after"]["test"]["rmse_mm"])
                 found += int(res.drift is not None and res.drift["model"] != "none")
-            out.append({"protocol": proto, "drift": drift, "runs": len(rmse),
-                        "test_rmse_mm": float(np.mean(rmse)), "drift_found": found,
-                        "time_s": elapsed / len(rmse)})  # fmt: skip
+            out.append(
+                {
+                    "protocol": proto,
+                    "drift": drift,
+                    "runs": len(rmse),
+                    "test_rmse_mm": float(np.mean(rmse)),
+                    "drift_found": found,
+                    "time_s": elapsed / len(rmse),
+                }
+            )
     return out
 
 
 def main() -> None:
-    rows = [run_case(c, n, s, d) for c in CASES for n in (120, 300, 1000) for s in (1, 2)
-            for d in ("none", "auto")]  # fmt: skip
-    rows += [run_case(c, n, 3, d, model_error=True) for c in ("clean", "wander", "bump")
-             for n in (120, 1000) for d in ("none", "auto")]  # fmt: skip
+    rows = [
+        run_case(c, n, s, d)
+        for c in CASES
+        for n in (120, 300, 1000)
+        for s in (1, 2)
+        for d in ("none", "auto")
+    ]
+    rows += [
+        run_case(c, n, 3, d, model_error=True)
+        for c in ("clean", "wander", "bump")
+        for n in (120, 1000)
+        for d in ("none", "auto")
+    ]
     hsr = hsr_protocols()
     (ROOT / "bench" / "drift.json").write_text(
         json.dumps({"synthetic": rows, "hsr": hsr}, indent=1) + "\n"
     )
-    out = ["# Drift and steps of the measurement (`python -m bench.drift_bench`)", "",
-           __doc__.split("\n\n")[1].replace("\n", " "), "",
-           "| case | n | seed | drift | found | steps (row, kind, mm) | test RMSE mm "
-           "| TCP error mm | time ms |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    out = [
+        "# Drift and steps of the measurement (`python -m bench.drift_bench`)",
+        "",
+        __doc__.split("\n\n")[1].replace("\n", " "),
+        "",
+        "| case | n | seed | drift | found | steps (row, kind, mm) | test RMSE mm "
+        "| TCP error mm | time ms |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        out.append(f"| {r['case']} | {r['n']} | {r['seed']} | {r['drift']} | {r['found']} | "
-                   f"{r['steps'] or ''} | {r['test_rmse_mm']:.4f} | {r['tcp_mm']:.4f} | "
-                   f"{1000 * r['elapsed_s']:.0f} |")  # fmt: skip
+        out.append(
+            f"| {r['case']} | {r['n']} | {r['seed']} | {r['drift']} | {r['found']} | "
+            f"{r['steps'] or ''} | {r['test_rmse_mm']:.4f} | {r['tcp_mm']:.4f} | "
+            f"{1000 * r['elapsed_s']:.0f} |"
+        )
     out += [
         "",
         "A step case's test RMSE well above the clean one (while its TCP error is not) "
@@ -165,12 +197,19 @@ def main() -> None:
         "step is placed at their midpoint, and a held-out row on the wrong side of it is "
         "off by the step's size (5 mm in one of 60 rows: 0.65 mm RMSE).",
     ]
-    out += ["", "## Real data: HSR-RobotCali (the paper's D1), default options", "",
-            "| protocol | drift | runs | mean test RMSE mm | runs with a drift found "
-            "| time per run ms |", "|---|---|---|---|---|---|"]  # fmt: skip
+    out += [
+        "",
+        "## Real data: HSR-RobotCali (the paper's D1), default options",
+        "",
+        "| protocol | drift | runs | mean test RMSE mm | runs with a drift found "
+        "| time per run ms |",
+        "|---|---|---|---|---|---|",
+    ]
     for h in hsr:
-        out.append(f"| {h['protocol']} | {h['drift']} | {h['runs']} | {h['test_rmse_mm']:.4f} "
-                   f"| {h['drift_found']} | {1000 * h['time_s']:.0f} |")  # fmt: skip
+        out.append(
+            f"| {h['protocol']} | {h['drift']} | {h['runs']} | {h['test_rmse_mm']:.4f} "
+            f"| {h['drift_found']} | {1000 * h['time_s']:.0f} |"
+        )
     (ROOT / "bench" / "drift.md").write_text("\n".join(out) + "\n")
     print("\n".join(out))
 

@@ -46,9 +46,14 @@ QUANTUM_MM = 0.01
 
 
 def stream(
-    seed: int, n: int, noise_mm: float, drift_mm_per_h: float = 0.0,
-    bump_at: int | None = None, bump_mm: float = 0.0, direction: str = "along",
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    seed: int,
+    n: int,
+    noise_mm: float,
+    drift_mm_per_h: float = 0.0,
+    bump_at: int | None = None,
+    bump_mm: float = 0.0,
+    direction: str = "along",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Poses (n, 6) [deg], measured lengths (n,) [mm], true anchor shift (3,) [mm]."""
     cell = EmulatedCell(SimConfig(seed=seed, robot={"n_poses": n}))
     q = cell.poses_deg[:n]
@@ -76,8 +81,13 @@ def calibration_result(noise_mm: float = 0.02) -> dict[str, Any]:
     q = cell.poses_deg
     rng = np.random.default_rng(999)
     lengths = cell.truth.lengths_mm(q) + rng.normal(0.0, noise_mm, len(q))
-    samples = SampleSet(joints_deg=q, length_mm=lengths, anchor=("A",) * len(q), group=None,
-                        line=np.arange(2, len(q) + 2))  # fmt: skip
+    samples = SampleSet(
+        joints_deg=q,
+        length_mm=lengths,
+        anchor=("A",) * len(q),
+        group=None,
+        line=np.arange(2, len(q) + 2),
+    )
     result: dict[str, Any] = identify(cell.truth.model, samples, IdentifyOptions()).to_json()
     return result
 
@@ -96,14 +106,24 @@ def replay(
         clean = tester.clean_rows(ids, i)
         if tester.needs_refit(len(clean)):
             rows = np.array(clean, dtype=int)
-            sub = SampleSet(joints_deg=q[rows], length_mm=length[rows],
-                            anchor=tuple(anchors[r] for r in rows), group=None,
-                            line=rows + 2)  # fmt: skip
+            sub = SampleSet(
+                joints_deg=q[rows],
+                length_mm=length[rows],
+                anchor=tuple(anchors[r] for r in rows),
+                group=None,
+                line=rows + 2,
+            )
             tester.refit(sub, len(clean), [int(r) for r in rows])
         _, alarm = tester.test(i, q[i], float(length[i]), anchors[i])
         if alarm is not None:
-            alarms.append({"at": i, "first": alarm.first_key, "step_mm": alarm.step_mm,
-                           "fit": tester.fit.kind if tester.fit else None})  # fmt: skip
+            alarms.append(
+                {
+                    "at": i,
+                    "first": alarm.first_key,
+                    "step_mm": alarm.step_mm,
+                    "fit": tester.fit.kind if tester.fit else None,
+                }
+            )
             new = f"A{len(alarms) + 1}"
             for k in alarm.keys:
                 anchors[k] = new
@@ -118,8 +138,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--campaigns", type=int, default=30)
     parser.add_argument("--bump-campaigns", type=int, default=10)
     parser.add_argument("--samples", type=int, default=60)
-    parser.add_argument("--bump-at", type=int, default=40, help="0-based index of the first "
-                        "sample after the bump")  # fmt: skip
+    parser.add_argument(
+        "--bump-at", type=int, default=40, help="0-based index of the first sample after the bump"
+    )
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
     nominal = EmulatedCell(SimConfig()).truth.model
@@ -127,16 +148,24 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     calibration = calibration_result()
     clean: list[dict[str, Any]] = []
     for label, noise, drift, calib in (
-        ("noise 0.02 mm", 0.02, 0.0, None), ("noise 0.2 mm", 0.2, 0.0, None),
+        ("noise 0.02 mm", 0.02, 0.0, None),
+        ("noise 0.2 mm", 0.2, 0.0, None),
         ("noise 0.02 mm, drift 2 mm/h", 0.02, 2.0, None),
         ("noise 0.02 mm, with a calibration", 0.02, 0.0, calibration),
-    ):  # fmt: skip
+    ):
         alarms = []
         for seed in range(args.campaigns):
             q, length, _ = stream(seed, args.samples, noise, drift)
             alarms += [{**a, "seed": seed} for a in replay(q, length, nominal, calib)]
-        clean.append({"case": label, "campaigns": args.campaigns, "samples": args.samples,
-                      "false_alarms": len(alarms), "alarms": alarms})  # fmt: skip
+        clean.append(
+            {
+                "case": label,
+                "campaigns": args.campaigns,
+                "samples": args.samples,
+                "false_alarms": len(alarms),
+                "alarms": alarms,
+            }
+        )
         print(f"clean, {label}: {len(alarms)} false alarm(s) in {args.campaigns} campaigns")
     bumps: list[dict[str, Any]] = []
     cases: list[tuple[str, float, int, dict[str, Any] | None]] = [
@@ -148,8 +177,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if True:
             delays, placed, missed, early = [], 0, 0, 0
             for seed in range(100, 100 + args.bump_campaigns):
-                q, length, _ = stream(seed, args.samples, 0.02, bump_at=bump_at,
-                                      bump_mm=size, direction=direction)  # fmt: skip
+                q, length, _ = stream(
+                    seed, args.samples, 0.02, bump_at=bump_at, bump_mm=size, direction=direction
+                )
                 alarms = replay(q, length, nominal, calib)
                 before = [a for a in alarms if a["at"] < bump_at]
                 after = [a for a in alarms if a["at"] >= bump_at]
@@ -159,18 +189,30 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     continue
                 delays.append(after[0]["at"] - bump_at + 1)
                 placed += after[0]["first"] == bump_at
-            row = {"direction": direction, "bump_mm": size, "bump_at": bump_at,
-                   "calibration": calib is not None,
-                   "campaigns": args.bump_campaigns,
-                   "detected": len(delays), "missed": missed, "alarms_before_bump": early,
-                   "delay_median": float(np.median(delays)) if delays else None,
-                   "delay_max": int(max(delays)) if delays else None,
-                   "placed_at_bump": placed}  # fmt: skip
+            row = {
+                "direction": direction,
+                "bump_mm": size,
+                "bump_at": bump_at,
+                "calibration": calib is not None,
+                "campaigns": args.bump_campaigns,
+                "detected": len(delays),
+                "missed": missed,
+                "alarms_before_bump": early,
+                "delay_median": float(np.median(delays)) if delays else None,
+                "delay_max": int(max(delays)) if delays else None,
+                "placed_at_bump": placed,
+            }
             bumps.append(row)
             print(f"{direction} {size:g} mm: {row}")
-    out = {"elapsed_s": round(time.perf_counter() - t0, 1), "machine": platform.machine(),
-           "python": platform.python_version(), "samples": args.samples,
-           "bump_at": args.bump_at, "clean": clean, "bumps": bumps}  # fmt: skip
+    out = {
+        "elapsed_s": round(time.perf_counter() - t0, 1),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+        "samples": args.samples,
+        "bump_at": args.bump_at,
+        "clean": clean,
+        "bumps": bumps,
+    }
     (args.out / "drift_watch.json").write_text(json.dumps(out, indent=2) + "\n")
     (args.out / "drift_watch.md").write_text(markdown(out))
     return out
@@ -213,13 +255,15 @@ def markdown(out: dict[str, Any]) -> str:
         "| bump | size [mm] | first sample after it | calibration | campaigns | detected | missed "
         "| median delay | max delay | placed at the bump | alarms before the bump |",
         "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|",
-    ]  # fmt: skip
+    ]
     for b in out["bumps"]:
-        lines.append(f"| {b['direction']} the cable | {b['bump_mm']:g} | {b['bump_at'] + 1} | "
-                     f"{'yes' if b['calibration'] else 'no'} | {b['campaigns']} | "
-                     f"{b['detected']} | {b['missed']} | {b['delay_median']} | "
-                     f"{b['delay_max']} | {b['placed_at_bump']} | "
-                     f"{b['alarms_before_bump']} |")  # fmt: skip
+        lines.append(
+            f"| {b['direction']} the cable | {b['bump_mm']:g} | {b['bump_at'] + 1} | "
+            f"{'yes' if b['calibration'] else 'no'} | {b['campaigns']} | "
+            f"{b['detected']} | {b['missed']} | {b['delay_median']} | "
+            f"{b['delay_max']} | {b['placed_at_bump']} | "
+            f"{b['alarms_before_bump']} |"
+        )
     lines += ["", f"Run time {out['elapsed_s']} s ({out['machine']}, Python {out['python']}).", ""]
     return "\n".join(lines)
 

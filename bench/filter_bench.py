@@ -88,8 +88,9 @@ def _probe_s() -> float:
     return time.perf_counter() - t
 
 
-def _program(dialect: str, cell: Cell, q: FloatArray) -> tuple[list[tuple[str, bytes]],
-                                                                FrameTables | None]:  # fmt: skip
+def _program(
+    dialect: str, cell: Cell, q: FloatArray
+) -> tuple[list[tuple[str, bytes]], FrameTables | None]:
     """The files of a program of the targets at joints ``q`` (n, 6) [deg]."""
     nominal, tool, work = cell.nominal, tool_frame(220.0), work_frame()
     if dialect == "RAPID":
@@ -128,13 +129,20 @@ def speed(cell: Cell, dialect: str) -> dict[str, Any]:
     for body, fr in singles:
         n_single += len(filter_files(cal, body, frames=fr).targets)
     loop_s = time.perf_counter() - t
-    return {"targets": len(run.targets), "corrected": corrected,
-            "bytes": sum(len(b) for _, b in files), "load_average_1_5_15": load,
-            "vectorised_s": statistics.median(times), "runs_s": times,
-            "vectorised_cpu_s": statistics.median(cpu), "runs_cpu_s": cpu,
-            "loop_targets": n_single, "loop_s": loop_s,
-            "loop_scaled_s": loop_s * len(run.targets) / n_single,
-            "probe_1e6_additions_s": statistics.median(probes)}  # fmt: skip
+    return {
+        "targets": len(run.targets),
+        "corrected": corrected,
+        "bytes": sum(len(b) for _, b in files),
+        "load_average_1_5_15": load,
+        "vectorised_s": statistics.median(times),
+        "runs_s": times,
+        "vectorised_cpu_s": statistics.median(cpu),
+        "runs_cpu_s": cpu,
+        "loop_targets": n_single,
+        "loop_s": loop_s,
+        "loop_scaled_s": loop_s * len(run.targets) / n_single,
+        "probe_1e6_additions_s": statistics.median(probes),
+    }
 
 
 def speeds(cell: Cell) -> dict[str, dict[str, Any]]:
@@ -145,14 +153,22 @@ def _rms(v: FloatArray) -> float:
     return float(np.sqrt(np.mean(np.asarray(v) ** 2)))
 
 
-def _figures(cell: Cell, q_plan: FloatArray, q_exec: FloatArray, q_star: FloatArray,
-             tool: FloatArray, work: FloatArray) -> dict[str, float]:  # fmt: skip
+def _figures(
+    cell: Cell,
+    q_plan: FloatArray,
+    q_exec: FloatArray,
+    q_star: FloatArray,
+    tool: FloatArray,
+    work: FloatArray,
+) -> dict[str, float]:
     intended = planned_targets(cell.nominal, q_plan, tool, work)
 
     def err(q: FloatArray) -> tuple[FloatArray, FloatArray]:
         reached = invert(work) @ cell.true_flange(q) @ tool
-        return (np.linalg.norm(reached[:, :3, 3] - intended[:, :3, 3], axis=1),
-                rotation_angle_deg(reached[:, :3, :3], intended[:, :3, :3]))  # fmt: skip
+        return (
+            np.linalg.norm(reached[:, :3, 3] - intended[:, :3, 3], axis=1),
+            rotation_angle_deg(reached[:, :3, :3], intended[:, :3, :3]),
+        )
 
     cal = calibration_from_result(cell.result, cell.nominal).calibrated
     true, model = cell.true_flange(q_star) @ tool, flange_frames(cal, q_star) @ tool
@@ -160,12 +176,16 @@ def _figures(cell: Cell, q_plan: FloatArray, q_exec: FloatArray, q_star: FloatAr
     floor_deg = rotation_angle_deg(true[:, :3, :3], model[:, :3, :3])
     unf_mm, unf_deg = err(q_plan)
     fil_mm, fil_deg = err(q_exec)
-    return {"n": int(q_plan.shape[0]),
-            "unfiltered_rms_mm": _rms(unf_mm), "filtered_rms_mm": _rms(fil_mm),
-            "floor_rms_mm": _rms(floor_mm), "max_filtered_minus_floor_mm": float(
-                np.max(fil_mm - floor_mm)),
-            "unfiltered_rms_deg": _rms(unf_deg), "filtered_rms_deg": _rms(fil_deg),
-            "floor_rms_deg": _rms(floor_deg)}  # fmt: skip
+    return {
+        "n": int(q_plan.shape[0]),
+        "unfiltered_rms_mm": _rms(unf_mm),
+        "filtered_rms_mm": _rms(fil_mm),
+        "floor_rms_mm": _rms(floor_mm),
+        "max_filtered_minus_floor_mm": float(np.max(fil_mm - floor_mm)),
+        "unfiltered_rms_deg": _rms(unf_deg),
+        "filtered_rms_deg": _rms(fil_deg),
+        "floor_rms_deg": _rms(floor_deg),
+    }
 
 
 def accuracy(cell: Cell, noisy: Cell) -> dict[str, dict[str, float]]:
@@ -176,15 +196,19 @@ def accuracy(cell: Cell, noisy: Cell) -> dict[str, dict[str, float]]:
         q_plan = regular_poses(nominal, 100, seed=int(tool_mm))
         tool, work = tool_frame(tool_mm), work_frame()
         run = filter_files(cal, [("a.mod", rapid_module(nominal, q_plan, tool, work).encode())])
-        done = [t for t in RAPID.parse([Source.from_bytes("a.mod", run.outputs["a.mod"])],
-                                       FrameTables()) if t.kind == "cartesian"]  # fmt: skip
+        done = [
+            t
+            for t in RAPID.parse([Source.from_bytes("a.mod", run.outputs["a.mod"])], FrameTables())
+            if t.kind == "cartesian"
+        ]
         fl = np.array([work @ t.pose @ invert(tool) for t in done])  # type: ignore[operator]
         sol = nominal_solutions(nominal, fl)
         idx, _ = choose(sol, [t.configuration for t in done])
         q_exec = sol.joints_deg[np.arange(len(done)), idx]
         q_star = np.array([c.joints_deg for c in run.corrections])
-        name = f"RAPID, tool {tool_mm:.0f} mm" + (f", lengths σ {NOISE_MM} mm" if c is noisy
-                                                  else "")  # fmt: skip
+        name = f"RAPID, tool {tool_mm:.0f} mm" + (
+            f", lengths σ {NOISE_MM} mm" if c is noisy else ""
+        )
         out[name] = _figures(c, q_plan, q_exec, q_star, tool, work)
     cal = calibration_from_result(cell.result, nominal)
     q_plan = regular_poses(nominal, 100, seed=7)
@@ -198,37 +222,50 @@ def accuracy(cell: Cell, noisy: Cell) -> dict[str, dict[str, float]]:
     q_exec = solve_ik(nominal, qs, fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), IK_OPTIONS).joints_deg
     by = {t.name: c for t, c in zip(run.targets, run.corrections, strict=True)}
     q_star = np.array([by[f"Waypoint_{i + 1}_p"].joints_deg for i in range(100)])
-    out["URScript (PolyScope), tool 200 mm"] = _figures(cell, q_plan, q_exec, q_star, tool,
-                                                        np.eye(4))  # fmt: skip
+    out["URScript (PolyScope), tool 200 mm"] = _figures(
+        cell, q_plan, q_exec, q_star, tool, np.eye(4)
+    )
     q_plan = smooth_path(nominal, 60, seed=4)
     tool = tool_frame(230.0, tilt_deg=10.0)
-    run = filter_files(cal, [("d.script", urscript(nominal, q_plan, tool, polyscope=False)
-                              .encode())])  # fmt: skip
-    targets = URSCRIPT.parse([Source.from_bytes("d.script", run.outputs["d.script"])],
-                             FrameTables())  # fmt: skip
+    run = filter_files(
+        cal, [("d.script", urscript(nominal, q_plan, tool, polyscope=False).encode())]
+    )
+    targets = URSCRIPT.parse(
+        [Source.from_bytes("d.script", run.outputs["d.script"])], FrameTables()
+    )
     q_prev = np.asarray(targets[0].joints_deg)
     execs = []
     for t in targets[1:]:
         f = (t.pose @ invert(tool))[None]  # type: ignore[operator]
-        q_prev = solve_ik(nominal, q_prev[None], f[:, :3, 3], f[:, :3, :3], np.zeros(3),
-                          IK_OPTIONS).joints_deg[0]  # fmt: skip
+        q_prev = solve_ik(
+            nominal, q_prev[None], f[:, :3, 3], f[:, :3, :3], np.zeros(3), IK_OPTIONS
+        ).joints_deg[0]
         execs.append(q_prev)
-    q_star = np.array([c.joints_deg for t, c in zip(run.targets, run.corrections, strict=True)
-                       if t.kind == "cartesian"])  # fmt: skip
-    out["URScript (movel path), tool 230 mm"] = _figures(cell, q_plan, np.array(execs), q_star,
-                                                         tool, np.eye(4))  # fmt: skip
+    q_star = np.array(
+        [
+            c.joints_deg
+            for t, c in zip(run.targets, run.corrections, strict=True)
+            if t.kind == "cartesian"
+        ]
+    )
+    out["URScript (movel path), tool 230 mm"] = _figures(
+        cell, q_plan, np.array(execs), q_star, tool, np.eye(4)
+    )
     out.update(_krl_ls_rows(cell, noisy))
     return out
 
 
 def _row(acc: dict[str, FloatArray]) -> dict[str, float]:
-    return {"n": int(acc["filtered_mm"].size),
-            "unfiltered_rms_mm": rms(acc["unfiltered_mm"]), "filtered_rms_mm": rms(
-                acc["filtered_mm"]), "floor_rms_mm": rms(acc["floor_mm"]),
-            "max_filtered_minus_floor_mm": float(np.max(acc["filtered_mm"] - acc["floor_mm"])),
-            "unfiltered_rms_deg": rms(acc["unfiltered_deg"]),
-            "filtered_rms_deg": rms(acc["filtered_deg"]), "floor_rms_deg": rms(
-                acc["floor_deg"])}  # fmt: skip
+    return {
+        "n": int(acc["filtered_mm"].size),
+        "unfiltered_rms_mm": rms(acc["unfiltered_mm"]),
+        "filtered_rms_mm": rms(acc["filtered_mm"]),
+        "floor_rms_mm": rms(acc["floor_mm"]),
+        "max_filtered_minus_floor_mm": float(np.max(acc["filtered_mm"] - acc["floor_mm"])),
+        "unfiltered_rms_deg": rms(acc["unfiltered_deg"]),
+        "filtered_rms_deg": rms(acc["filtered_deg"]),
+        "floor_rms_deg": rms(acc["floor_deg"]),
+    }
 
 
 def _krl_ls_rows(cell: Cell, noisy: Cell) -> dict[str, dict[str, float]]:
@@ -241,24 +278,30 @@ def _krl_ls_rows(cell: Cell, noisy: Cell) -> dict[str, dict[str, float]]:
         noise = f", lengths σ {NOISE_MM} mm" if c is noisy else ""
         q_plan = regular_poses(nominal, 100, seed=int(tool_mm) + 1)
         tool = tool_frame(tool_mm)
-        files = {k: v.encode("latin-1") for k, v in krl_program(nominal, q_plan, tool,
-                                                                work).items()}  # fmt: skip
+        files = {
+            k: v.encode("latin-1") for k, v in krl_program(nominal, q_plan, tool, work).items()
+        }
         run = filter_files(cal, list(files.items()))
-        out[f"KRL, tool {tool_mm:.0f} mm{noise}"] = _row(olp_accuracy(c, KRL, files, run,
-                                                                      FrameTables()))  # fmt: skip
+        out[f"KRL, tool {tool_mm:.0f} mm{noise}"] = _row(
+            olp_accuracy(c, KRL, files, run, FrameTables())
+        )
         q_plan = regular_poses(nominal, 100, seed=int(tool_mm) + 2)
         tool = tool_frame(tool_mm, tilt_deg=30.0)
         frames = parse_frames_toml(frames_toml(tool, work))
         files = {"OLP.LS": ls_program(nominal, q_plan, tool, work).encode("ascii")}
         run = filter_files(cal, list(files.items()), frames=frames)
-        ls_rows[f"Fanuc LS, tool {tool_mm:.0f} mm{noise}"] = _row(olp_accuracy(
-            c, LS, files, run, frames))  # fmt: skip
+        ls_rows[f"Fanuc LS, tool {tool_mm:.0f} mm{noise}"] = _row(
+            olp_accuracy(c, LS, files, run, frames)
+        )
     return {**out, **ls_rows}
 
 
-def markdown(env: dict[str, Any], sp: dict[str, dict[str, Any]],
-             acc: dict[str, dict[str, float]],
-             before: dict[str, dict[str, Any]] | None = None) -> str:  # fmt: skip
+def markdown(
+    env: dict[str, Any],
+    sp: dict[str, dict[str, Any]],
+    acc: dict[str, dict[str, float]],
+    before: dict[str, dict[str, Any]] | None = None,
+) -> str:
     lines = [
         "# cablecal filter: speed and accuracy",
         "",
@@ -278,25 +321,36 @@ def markdown(env: dict[str, Any], sp: dict[str, dict[str, Any]],
         "|---|---:|---:|---:|---|---:|---:|---|---:|",
     ]
     for name, r in sp.items():
-        lines.append(f"| {name} | {r['targets']:,} | {r['bytes'] / 1e6:.1f} | "
-                     f"{r['vectorised_s']:.2f} | {', '.join(f'{t:.2f}' for t in r['runs_s'])} | "
-                     f"{r.get('vectorised_cpu_s', float('nan')):.2f} | "
-                     f"{r['loop_scaled_s']:.1f} | {r['load_average_1_5_15']} | "
-                     f"{r['probe_1e6_additions_s']:.3f} |")  # fmt: skip
+        lines.append(
+            f"| {name} | {r['targets']:,} | {r['bytes'] / 1e6:.1f} | "
+            f"{r['vectorised_s']:.2f} | {', '.join(f'{t:.2f}' for t in r['runs_s'])} | "
+            f"{r.get('vectorised_cpu_s', float('nan')):.2f} | "
+            f"{r['loop_scaled_s']:.1f} | {r['load_average_1_5_15']} | "
+            f"{r['probe_1e6_additions_s']:.3f} |"
+        )
     if before:
-        lines += ["", "Before the parse was reworked (the same script on the previous "
-                  "checkout, same machine, just before):", "",
-                  "| dialect | vectorised [s] | runs [s] | CPU [s] | load average 1/5/15 | "
-                  "probe [s] |", "|---|---:|---|---:|---|---:|"]  # fmt: skip
+        lines += [
+            "",
+            "Before the parse was reworked (the same script on the previous "
+            "checkout, same machine, just before):",
+            "",
+            "| dialect | vectorised [s] | runs [s] | CPU [s] | load average 1/5/15 | probe [s] |",
+            "|---|---:|---|---:|---|---:|",
+        ]
         for name, r in before.items():
             runs = ", ".join(f"{t:.2f}" for t in r["runs_s"])
-            lines.append(f"| {name} | {r['vectorised_s']:.2f} | {runs} | "
-                         f"{r.get('vectorised_cpu_s', float('nan')):.2f} | "
-                         f"{r['load_average_1_5_15']} | "
-                         f"{r['probe_1e6_additions_s']:.3f} |")  # fmt: skip
-        lines += ["", "Only the KRL and Fanuc LS code (and the rotation helper they render "
-                  "with) differs between the two checkouts: RAPID's and URScript's differences "
-                  "are the shared machine's."]  # fmt: skip
+            lines.append(
+                f"| {name} | {r['vectorised_s']:.2f} | {runs} | "
+                f"{r.get('vectorised_cpu_s', float('nan')):.2f} | "
+                f"{r['load_average_1_5_15']} | "
+                f"{r['probe_1e6_additions_s']:.3f} |"
+            )
+        lines += [
+            "",
+            "Only the KRL and Fanuc LS code (and the rotation helper they render "
+            "with) differs between the two checkouts: RAPID's and URScript's differences "
+            "are the shared machine's.",
+        ]
     lines += [
         "",
         "URScript's 10,000 targets are 5,000 PolyScope waypoints (`Waypoint_n_p` and the "
@@ -315,10 +369,12 @@ def markdown(env: dict[str, Any], sp: dict[str, dict[str, Any]],
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, f in acc.items():
-        lines.append(f"| {name} | {f['n']} | {f['unfiltered_rms_mm']:.3f} | "
-                     f"{f['filtered_rms_mm']:.4f} | {f['floor_rms_mm']:.4f} | "
-                     f"{f['max_filtered_minus_floor_mm']:.4f} | {f['unfiltered_rms_deg']:.4f} | "
-                     f"{f['filtered_rms_deg']:.5f} | {f['floor_rms_deg']:.5f} |")  # fmt: skip
+        lines.append(
+            f"| {name} | {f['n']} | {f['unfiltered_rms_mm']:.3f} | "
+            f"{f['filtered_rms_mm']:.4f} | {f['floor_rms_mm']:.4f} | "
+            f"{f['max_filtered_minus_floor_mm']:.4f} | {f['unfiltered_rms_deg']:.4f} | "
+            f"{f['filtered_rms_deg']:.5f} | {f['floor_rms_deg']:.5f} |"
+        )
     lines += [
         "",
         f"The identifications are noise-free (0.01 mm display only) but for the row with "
@@ -340,9 +396,12 @@ def main() -> None:
         before = json.loads(Path(sys.argv[sys.argv.index("--before") + 1]).read_text())["speed"]
     sp = speeds(cell)
     acc = accuracy(cell, make_cell(noise_mm=NOISE_MM))
-    (OUT / "filter.json").write_text(json.dumps({"environment": env, "speed": sp,
-                                                 "speed_before": before,
-                                                 "accuracy": acc}, indent=2) + "\n")  # fmt: skip
+    (OUT / "filter.json").write_text(
+        json.dumps(
+            {"environment": env, "speed": sp, "speed_before": before, "accuracy": acc}, indent=2
+        )
+        + "\n"
+    )
     (OUT / "filter.md").write_text(markdown(env, sp, acc, before))
     print((OUT / "filter.md").read_text())
 

@@ -89,8 +89,12 @@ def virtual_cell(seed: int, model: RobotModel = MODEL) -> TrueCell:
     sd = np.array([0.05, 1.0, 1.0, 0.05])
     errors = rng.normal(0.0, 1.0, (N_JOINTS, 4)) * sd
     anchor = np.array([1400.0, 300.0, 200.0]) + rng.uniform(-150.0, 150.0, 3)
-    return make_true_cell(model, dh_errors_deg_mm=errors, tool_error_mm=rng.normal(0, 1.0, 3),
-                          anchors_mm=anchor[None, :])  # fmt: skip
+    return make_true_cell(
+        model,
+        dh_errors_deg_mm=errors,
+        tool_error_mm=rng.normal(0, 1.0, 3),
+        anchors_mm=anchor[None, :],
+    )
 
 
 def case(seed: int, n_rows: int, outlier_fraction: float = 0.0) -> Case:
@@ -116,8 +120,7 @@ def tcp_error_mm(cell: TrueCell, theta: FloatArray, model: RobotModel = MODEL) -
     """RMS aligned hook-point position error [mm] of ``theta`` over 300 workspace poses."""
     qw = workspace_sample_deg(model, 300, seed=1)
     dh = model.dh_internal() + theta[:N_DH].reshape(N_JOINTS, 4)
-    pts = forward_position(dh, np.deg2rad(qw), model.tool_mm + theta[N_DH:N_KIN],
-                           model.convention)  # fmt: skip
+    pts = forward_position(dh, np.deg2rad(qw), model.tool_mm + theta[N_DH:N_KIN], model.convention)
     err = aligned_position_error_mm(pts, cell.tool_positions_mm(qw))
     return float(np.sqrt(np.mean(err**2)))
 
@@ -171,8 +174,9 @@ def outlier_row(n_rows: int, cells: int = OUTLIER_CELLS) -> dict[str, Any]:
     for seed in range(cells):
         c = case(seed, n_rows, OUTLIER_FRACTION)
         kw = {"train_rows": c.train_rows, "test_rows": c.test_rows}
-        ref = identify(MODEL, make_samples(c.q_deg, c.length_mm), IdentifyOptions(robust="none"),
-                       **kw)  # fmt: skip
+        ref = identify(
+            MODEL, make_samples(c.q_deg, c.length_mm), IdentifyOptions(robust="none"), **kw
+        )
         res = identify(MODEL, make_samples(c.q_deg, c.corrupted_mm), IdentifyOptions(), **kw)
         plain.append(tcp_error_mm(c.cell, ref.theta))
         dirty.append(tcp_error_mm(c.cell, res.theta))
@@ -214,9 +218,11 @@ def _clean_table(runs: dict[str, Any], key: str) -> list[str]:
     ]
     for label, run in runs.items():
         for r in run.get(key, []):
-            lines.append(f"| {label} | {r['rows']} | {r['cells_flagged']} of {r['cells']} | "
-                         f"{r['samples_flagged']} | {r['noise_median_mm']:.4f} | "
-                         f"{r['noise_ratio']:.2f} | {_quartiles(r)} | {_outside(r)} |")  # fmt: skip
+            lines.append(
+                f"| {label} | {r['rows']} | {r['cells_flagged']} of {r['cells']} | "
+                f"{r['samples_flagged']} | {r['noise_median_mm']:.4f} | "
+                f"{r['noise_ratio']:.2f} | {_quartiles(r)} | {_outside(r)} |"
+            )
     return lines
 
 
@@ -257,9 +263,11 @@ def _markdown(runs: dict[str, Any]) -> str:
         ]
         for label, run in runs.items():
             for r in run.get("outliers", []):
-                lines.append(f"| {label} | {r['rows']} | {r['tcp_plain_clean_mm']:.4f} | "
-                             f"{r['tcp_default_outliers_mm']:.4f} | {r['ratio']:.3f} | "
-                             f"{r['cells_exactly_flagged']} of {r['cells']} |")  # fmt: skip
+                lines.append(
+                    f"| {label} | {r['rows']} | {r['tcp_plain_clean_mm']:.4f} | "
+                    f"{r['tcp_default_outliers_mm']:.4f} | {r['ratio']:.3f} | "
+                    f"{r['cells_exactly_flagged']} of {r['cells']} |"
+                )
     machine = next(iter(runs.values()))["machine"]
     lines += ["", f"Machine: {machine}.", ""]
     return "\n".join(lines)

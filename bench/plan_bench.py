@@ -54,8 +54,9 @@ def run(runs: int, n: int, candidates: int) -> dict[str, Any]:
     times, exchanges, tcp = [], [], []
     for seed in range(runs):
         t0 = time.perf_counter()
-        result = plan(model, np.array(ANCHOR_MM), PlanOptions(n=n, candidates=candidates,
-                                                              seed=seed))  # fmt: skip
+        result = plan(
+            model, np.array(ANCHOR_MM), PlanOptions(n=n, candidates=candidates, seed=seed)
+        )
         times.append(time.perf_counter() - t0)
         exchanges.append(result.exchanges)
         tcp.append((result.tcp.rms_mm, result.tcp_random["rms"]))
@@ -81,8 +82,10 @@ def accuracy(seeds: int, n: int) -> dict[str, Any]:
     model = builtin_model(DEFAULT_ROBOT_MODEL)
     out: dict[str, Any] = {"seeds": seeds, "n_poses": n, "random_designs": 3}
     for criterion in ("tcp", "d"):
-        trials = [emulated_trial(model, seed, PlanOptions(n=n, seed=seed, criterion=criterion))
-                  for seed in range(seeds)]  # fmt: skip
+        trials = [
+            emulated_trial(model, seed, PlanOptions(n=n, seed=seed, criterion=criterion))
+            for seed in range(seeds)
+        ]
         planned = np.array([t.planned_mm for t in trials])
         random_ = np.array([t.random_mean_mm for t in trials])
         out[criterion] = {
@@ -134,30 +137,35 @@ def _accuracy_markdown(acc: dict[str, Any]) -> list[str]:
         )
     r = acc["tcp"]
     lines += ["", "Per seed, TCP criterion (planned / random mm):", ""]
-    lines.append(", ".join(f"{i}: {p:.4f}/{q:.4f}"
-                           for i, (p, q) in enumerate(zip(r["planned_mm"], r["random_mm"],
-                                                          strict=True))))  # fmt: skip
+    lines.append(
+        ", ".join(
+            f"{i}: {p:.4f}/{q:.4f}"
+            for i, (p, q) in enumerate(zip(r["planned_mm"], r["random_mm"], strict=True))
+        )
+    )
     return [*lines, ""]
 
 
 def to_markdown(res: dict[str, Any]) -> str:
     tcp = res["tcp_sigma_rms_mm"]
-    return "\n".join([
-        "# Planning speed",
-        "",
-        f"{res['n_poses']} poses from {res['candidates']} candidates, HSR JR680, "
-        f"{res['runs']} runs (seeds 0..{res['runs'] - 1}).",
-        "",
-        "| median [s] | min [s] | max [s] | target [s] | same-run baseline: one Jacobian [s] |",
-        "|---|---|---|---|---|",
-        f"| {res['median_s']:.2f} | {res['min_s']:.2f} | {res['max_s']:.2f} | "
-        f"{res['target_s']:.1f} | {res['baseline_jacobian_s']:.4f} |",
-        "",
-        f"Predicted aligned TCP σ (RMS, noise 0.05 mm): plan {np.mean(tcp['plan']):.3f} mm, "
-        f"random poses {np.mean(tcp['random']):.3f} mm (mean over runs).",
-        "",
-        *(_accuracy_markdown(res["accuracy"]) if "accuracy" in res else []),
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            "# Planning speed",
+            "",
+            f"{res['n_poses']} poses from {res['candidates']} candidates, HSR JR680, "
+            f"{res['runs']} runs (seeds 0..{res['runs'] - 1}).",
+            "",
+            "| median [s] | min [s] | max [s] | target [s] | same-run baseline: one Jacobian [s] |",
+            "|---|---|---|---|---|",
+            f"| {res['median_s']:.2f} | {res['min_s']:.2f} | {res['max_s']:.2f} | "
+            f"{res['target_s']:.1f} | {res['baseline_jacobian_s']:.4f} |",
+            "",
+            f"Predicted aligned TCP σ (RMS, noise 0.05 mm): plan {np.mean(tcp['plan']):.3f} mm, "
+            f"random poses {np.mean(tcp['random']):.3f} mm (mean over runs).",
+            "",
+            *(_accuracy_markdown(res["accuracy"]) if "accuracy" in res else []),
+        ]
+    )
 
 
 def main() -> None:

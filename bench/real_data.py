@@ -113,8 +113,15 @@ def _summary(label: str, runs: list[dict[str, Any]]) -> dict[str, Any]:
         return np.array([r[key] for r in runs], dtype=float)
 
     out: dict[str, Any] = {"method": label, "n_seeds": len(runs)}
-    for key in ("rmse_mm", "mae_mm", "max_mm", "train_rmse_mm", "before_rmse_mm",
-                "iterations", "time_s"):  # fmt: skip
+    for key in (
+        "rmse_mm",
+        "mae_mm",
+        "max_mm",
+        "train_rmse_mm",
+        "before_rmse_mm",
+        "iterations",
+        "time_s",
+    ):
         out[key] = float(col(key).mean())
     out["rmse_mm_sd"] = float(col("rmse_mm").std(ddof=1)) if len(runs) > 1 else 0.0
     out["rmse_mm_min"] = float(col("rmse_mm").min())
@@ -157,9 +164,12 @@ def _identify(
 
 
 def run_paper_protocol(
-    model: RobotModel, samples: SampleSet, methods: tuple[str, ...], seeds: tuple[int, ...],
+    model: RobotModel,
+    samples: SampleSet,
+    methods: tuple[str, ...],
+    seeds: tuple[int, ...],
     prior: bool = False,
-) -> tuple[list[dict[str, Any]], dict[str, list[dict[str, Any]]]]:  # fmt: skip
+) -> tuple[list[dict[str, Any]], dict[str, list[dict[str, Any]]]]:
     """Mean rows per method (labelled as :class:`Variant` does) and the per-seed records: the
     paper's maximum-likelihood fits, or with the MAP prior (identify's default)."""
     labels = {m: Variant(m, prior).label for m in methods}
@@ -168,8 +178,10 @@ def run_paper_protocol(
         s, m = run.seed, labels[run.method]
         rec = _run_record(run.result, run.elapsed_s)
         per_seed[m].append({"seed": s, **rec})
-        print(f"paper protocol seed {s} {m:9s} rmse {rec['rmse_mm']:.3f} mm "
-              f"({rec['time_s']:.2f} s)", flush=True)  # fmt: skip
+        print(
+            f"paper protocol seed {s} {m:9s} rmse {rec['rmse_mm']:.3f} mm ({rec['time_s']:.2f} s)",
+            flush=True,
+        )
     return [_summary(labels[m], per_seed[labels[m]]) for m in methods], per_seed
 
 
@@ -181,9 +193,14 @@ def run_grouped(
     for s in seeds:
         for v in variants:
             opts = options_from_mapping(
-                {"method": v.method, "seed": s, "holdout": "grouped",
-                 "test_fraction": GROUPED_TEST_FRACTION, "prior": v.prior}
-            )  # fmt: skip
+                {
+                    "method": v.method,
+                    "seed": s,
+                    "holdout": "grouped",
+                    "test_fraction": GROUPED_TEST_FRACTION,
+                    "prior": v.prior,
+                }
+            )
             rec = _identify(model, samples, opts)
             per_seed[v.label].append({"seed": s, **rec})
             print(
@@ -221,14 +238,20 @@ def markdown(data: dict[str, Any]) -> str:
     rows = data["paper_protocol"]["summary"]
     before = float(np.mean([r["before_rmse_mm"] for r in rows]))
     pb = PAPER_TABLE_VIII_D1["before"]
-    lines.append(f"| before (nominal, P0 and c fitted) | {pb[0]:.2f} | {pb[1]:.2f} | {pb[2]:.2f} | "
-                 f"{_f(before)} | | | | | | |")  # fmt: skip
+    lines.append(
+        f"| before (nominal, P0 and c fitted) | {pb[0]:.2f} | {pb[1]:.2f} | {pb[2]:.2f} | "
+        f"{_f(before)} | | | | | | |"
+    )
     for r in rows:
         paper = r["method"] in PAPER_TABLE_VIII_D1
         p = [f"{v:.2f}" for v in PAPER_TABLE_VIII_D1[r["method"]]] if paper else ["–"] * 3
-        label = (f"{r['method']} ({PAPER_LABEL[r['method']]})" if paper
-                 else f"{r['method']} (the default)" if r["method"].endswith("+ prior")
-                 else f"{r['method']} (ML, not in the paper)")  # fmt: skip
+        label = (
+            f"{r['method']} ({PAPER_LABEL[r['method']]})"
+            if paper
+            else f"{r['method']} (the default)"
+            if r["method"].endswith("+ prior")
+            else f"{r['method']} (ML, not in the paper)"
+        )
         lines.append(
             f"| {label} | {p[0]} | {p[1]} | {p[2]} | {_f(r['rmse_mm'])} | "
             f"{_f(r['rmse_mm_sd'])} | {_f(r['mae_mm'])} | {_f(r['max_mm'])} | "
@@ -299,11 +322,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     samples = read_samples(None)
     t0 = time.perf_counter()
     paper_rows, paper_runs = run_paper_protocol(model, samples, methods, seeds)
-    default_rows, default_runs = run_paper_protocol(model, samples, (DEFAULT_METHOD,), seeds,
-                                                    prior=True)  # fmt: skip
+    default_rows, default_runs = run_paper_protocol(
+        model, samples, (DEFAULT_METHOD,), seeds, prior=True
+    )
     paper_rows, paper_runs = default_rows + paper_rows, default_runs | paper_runs
-    variants = (Variant(DEFAULT_METHOD, True), *(Variant(m) for m in methods),
-                Variant("ukf-vslm", True), Variant("lm", True))  # fmt: skip
+    variants = (
+        Variant(DEFAULT_METHOD, True),
+        *(Variant(m) for m in methods),
+        Variant("ukf-vslm", True),
+        Variant("lm", True),
+    )
     grouped_seeds = distinct_grouped_seeds(samples, len(seeds))
     grouped_rows, grouped_runs = run_grouped(model, samples, variants, grouped_seeds)
     data: dict[str, Any] = {
@@ -335,8 +363,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     (out / "real_data.json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
     (out / "real_data.md").write_text(markdown(data), encoding="utf-8")
     # The compare-style table (same keys as `cablecal compare --out`), kept for the README.
-    compare_keys = ("method", "rmse_mm", "mae_mm", "max_mm", "before_rmse_mm", "iterations",
-                    "time_s", "plausible", "rmse_mm_sd", "n_seeds")  # fmt: skip
+    compare_keys = (
+        "method",
+        "rmse_mm",
+        "mae_mm",
+        "max_mm",
+        "before_rmse_mm",
+        "iterations",
+        "time_s",
+        "plausible",
+        "rmse_mm_sd",
+        "n_seeds",
+    )
     table = [{k: r[k] for k in compare_keys} for r in paper_rows]
     (out / "paper_protocol.json").write_text(json.dumps(table, indent=2) + "\n", encoding="utf-8")
     print(f"wrote {out / 'real_data.json'}, {out / 'real_data.md'}, {out / 'paper_protocol.json'}")

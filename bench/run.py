@@ -92,32 +92,45 @@ def naive_problem(res: IdentifyResult, q_deg: FloatArray, samples: SampleSet) ->
     assert res.theta_start is not None
     free = np.array([name in res.free_names for name in res.layout.names])
     train = res.train_rows
-    return Problem(res.model, res.layout, np.deg2rad(q_deg[train]), samples.length_mm[train],
-                   samples.anchor_index()[train], free, res.theta_start)  # fmt: skip
+    return Problem(
+        res.model,
+        res.layout,
+        np.deg2rad(q_deg[train]),
+        samples.length_mm[train],
+        samples.anchor_index()[train],
+        free,
+        res.theta_start,
+    )
 
 
 def naive_solve(problem: Problem) -> tuple[FloatArray, float, dict[str, Any]]:
     """scipy's least_squares with its defaults and a finite-difference Jacobian."""
     t0 = time.perf_counter()
-    sol = least_squares(problem.residuals, problem.x0(), jac="2-point", method="trf",
-                        max_nfev=20000)  # fmt: skip
+    sol = least_squares(
+        problem.residuals, problem.x0(), jac="2-point", method="trf", max_nfev=20000
+    )
     elapsed = time.perf_counter() - t0
     info = {"nfev": int(sol.nfev), "njev": int(sol.njev or 0), "status": int(sol.status)}
     return problem.full(sol.x), elapsed, info
 
 
 def _time_method(
-    model: RobotModel, samples: SampleSet, method: str, train: np.ndarray, test: np.ndarray,
+    model: RobotModel,
+    samples: SampleSet,
+    method: str,
+    train: np.ndarray,
+    test: np.ndarray,
     repeats: int,
-) -> tuple[IdentifyResult, list[float], list[float]]:  # fmt: skip
+) -> tuple[IdentifyResult, list[float], list[float]]:
     """Result of the last run, total times and solver times of every run [s]."""
     totals, solver = [], []
     res: IdentifyResult | None = None
     for _ in range(repeats):
         opts = IdentifyOptions(method=method)  # type: ignore[arg-type]
         t0 = time.perf_counter()
-        res = identify(model, samples, opts, train_rows=train, test_rows=test,
-                       clock=time.perf_counter)  # fmt: skip
+        res = identify(
+            model, samples, opts, train_rows=train, test_rows=test, clock=time.perf_counter
+        )
         totals.append(time.perf_counter() - t0)
         solver.append(res.solver.elapsed_s)
     assert res is not None
@@ -138,20 +151,28 @@ def run_identification(repeats: int = REPEATS) -> list[dict[str, Any]]:
             reps = 1 if method == "de" else repeats
             res, totals, solver = _time_method(model, samples, method, train, test, reps)
             row = {
-                "n": n, "method": method, "repeats": reps,
-                "time_s": statistics.median(totals), "time_min_s": min(totals),
+                "n": n,
+                "method": method,
+                "repeats": reps,
+                "time_s": statistics.median(totals),
+                "time_min_s": min(totals),
                 "solver_time_s": statistics.median(solver),
-                "setup_time_s": statistics.median(t - s for t, s in zip(totals, solver,
-                                                                        strict=True)),
-                "iterations": res.solver.iterations, "status": res.solver.status,
+                "setup_time_s": statistics.median(
+                    t - s for t, s in zip(totals, solver, strict=True)
+                ),
+                "iterations": res.solver.iterations,
+                "status": res.solver.status,
                 "message": res.solver.message,
                 "heldout_rmse_vs_truth_mm": _truth_rmse(model, res.theta, q, clean, test),
                 "heldout_rmse_vs_measured_mm": res.metrics["after"]["test"]["rmse_mm"],
-            }  # fmt: skip
+            }
             rows.append(row)
-            print(f"n={n:5d} {method:9s} {row['time_s']:8.3f} s (solver {row['solver_time_s']:.3f}"
-                  f" s, {row['iterations']} it)  rmse vs truth "
-                  f"{row['heldout_rmse_vs_truth_mm']:.5f} mm", flush=True)  # fmt: skip
+            print(
+                f"n={n:5d} {method:9s} {row['time_s']:8.3f} s (solver {row['solver_time_s']:.3f}"
+                f" s, {row['iterations']} it)  rmse vs truth "
+                f"{row['heldout_rmse_vs_truth_mm']:.5f} mm",
+                flush=True,
+            )
             if method == DEFAULT:
                 default, default_result = row, res
         assert default_result is not None
@@ -162,22 +183,28 @@ def run_identification(repeats: int = REPEATS) -> list[dict[str, Any]]:
             naive_times.append(elapsed)
         solve_s = statistics.median(naive_times)
         row = {
-            "n": n, "method": NAIVE, "repeats": repeats,
+            "n": n,
+            "method": NAIVE,
+            "repeats": repeats,
             # End to end: the same pipeline around the solver as the default method's.
             "time_s": default["setup_time_s"] + solve_s,
             "time_min_s": default["setup_time_s"] + min(naive_times),
-            "solver_time_s": solve_s, "setup_time_s": default["setup_time_s"],
-            "iterations": info["njev"], "status": info["status"],
+            "solver_time_s": solve_s,
+            "setup_time_s": default["setup_time_s"],
+            "iterations": info["njev"],
+            "status": info["status"],
             "message": f"nfev {info['nfev']} residual evaluations, njev {info['njev']} "
-                       f"finite-difference Jacobians ({problem.n_free} + 1 evaluations each)",
+            f"finite-difference Jacobians ({problem.n_free} + 1 evaluations each)",
             "heldout_rmse_vs_truth_mm": _truth_rmse(model, theta_naive, q, clean, test),
             "heldout_rmse_vs_measured_mm": _measured_rmse(model, theta_naive, q, samples, test),
             **info,
-        }  # fmt: skip
+        }
         rows.append(row)
-        print(f"n={n:5d} naive     {solve_s:8.3f} s solve ({info['nfev']} + {info['njev']} FD "
-              f"Jacobians)  rmse vs truth {row['heldout_rmse_vs_truth_mm']:.5f} mm",
-              flush=True)  # fmt: skip
+        print(
+            f"n={n:5d} naive     {solve_s:8.3f} s solve ({info['nfev']} + {info['njev']} FD "
+            f"Jacobians)  rmse vs truth {row['heldout_rmse_vs_truth_mm']:.5f} mm",
+            flush=True,
+        )
     return rows
 
 
@@ -210,8 +237,9 @@ def checks_for(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             value["met"] = None
             continue
         bound = float(value["target"].split()[-1])
-        value["met"] = bool(value["measured"] <= bound if "<=" in value["target"]
-                            else value["measured"] >= bound)  # fmt: skip
+        value["met"] = bool(
+            value["measured"] <= bound if "<=" in value["target"] else value["measured"] >= bound
+        )
     return checks
 
 
@@ -228,9 +256,11 @@ def environment() -> dict[str, Any]:
 
 
 def _markdown(
-    rows: list[dict[str, Any]], checks: dict[str, Any], env: dict[str, Any],
+    rows: list[dict[str, Any]],
+    checks: dict[str, Any],
+    env: dict[str, Any],
     extra: dict[str, Any],
-) -> str:  # fmt: skip
+) -> str:
     lines = [
         "# Benchmark results",
         "",
@@ -264,8 +294,11 @@ def _markdown(
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="cablecal benchmarks")
-    parser.add_argument("--skip-real-data", action="store_true",
-                        help="do not run bench.real_data (about 15 minutes)")  # fmt: skip
+    parser.add_argument(
+        "--skip-real-data",
+        action="store_true",
+        help="do not run bench.real_data (about 15 minutes)",
+    )
     parser.add_argument("--repeats", type=int, default=REPEATS, help="timed runs per method")
     args = parser.parse_args(argv)
     env = environment()

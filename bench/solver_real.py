@@ -101,16 +101,21 @@ def build_problem(
     free0[N_DH:] = True
     start = _fit(Problem(model, layout, q, length, aidx, free0, before))
     _, jac = length_jacobian(model, start, q, aidx)
-    ident = analyse(jac, layout.names, np.ones(layout.size, dtype=bool),
-                    rtol=IdentifyOptions().rtol,
-                    structural_jacobian=generic_jacobian(model, layout, start))  # fmt: skip
+    ident = analyse(
+        jac,
+        layout.names,
+        np.ones(layout.size, dtype=bool),
+        rtol=IdentifyOptions().rtol,
+        structural_jacobian=generic_jacobian(model, layout, start),
+    )
     free = np.array([n in ident.base for n in layout.names])
     problem = Problem(model, layout, q, length, aidx, free, start)
     if objective == "ml":
         return problem
     opts = IdentifyOptions(test_fraction=0.0, robust="none")
-    fitted = identify(model, samples, opts, train_rows=np.asarray(rows),
-                      test_rows=np.zeros(0, dtype=int))  # fmt: skip
+    fitted = identify(
+        model, samples, opts, train_rows=np.asarray(rows), test_rows=np.zeros(0, dtype=int)
+    )
     noise_mm = float(fitted.to_json()["prior"]["noise_mm"])
     return with_prior(problem, dataclasses.replace(opts, noise_mm=noise_mm))
 
@@ -118,8 +123,15 @@ def build_problem(
 def fingerprint(problem: Problem) -> str:
     """Short hash of what defines the problem: data, start, free set, weights and prior."""
     h = hashlib.sha256()
-    for arr in (problem.q_rad, problem.length_mm, problem.theta0, problem.free,
-                problem.weights, problem.prior_sigma, problem.prior_mean):  # fmt: skip
+    for arr in (
+        problem.q_rad,
+        problem.length_mm,
+        problem.theta0,
+        problem.free,
+        problem.weights,
+        problem.prior_sigma,
+        problem.prior_mean,
+    ):
         h.update(b"-" if arr is None else np.ascontiguousarray(arr).tobytes())
     h.update(repr(problem.noise_mm).encode())
     return h.hexdigest()[:12]
@@ -128,11 +140,27 @@ def fingerprint(problem: Problem) -> str:
 def scipy_solve(problem: Problem, tol: float = 1e-8, max_nfev: int | None = None) -> SolverResult:
     """scipy ``least_squares`` (trf, analytic Jacobian, ``x_scale='jac'``) as a SolverResult."""
     t0 = time.perf_counter()
-    res = least_squares(problem.residuals, problem.x0(),
-                        jac=lambda x: problem.residuals_and_jacobian(x)[1], method="trf",
-                        x_scale="jac", ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)  # fmt: skip
-    return SolverResult("scipy", res.x, bool(res.status > 0), int(res.status), str(res.message),
-                        int(res.nfev), [], time.perf_counter() - t0)  # fmt: skip
+    res = least_squares(
+        problem.residuals,
+        problem.x0(),
+        jac=lambda x: problem.residuals_and_jacobian(x)[1],
+        method="trf",
+        x_scale="jac",
+        ftol=tol,
+        xtol=tol,
+        gtol=tol,
+        max_nfev=max_nfev,
+    )
+    return SolverResult(
+        "scipy",
+        res.x,
+        bool(res.status > 0),
+        int(res.status),
+        str(res.message),
+        int(res.nfev),
+        [],
+        time.perf_counter() - t0,
+    )
 
 
 def reference_run(problem: Problem, max_nfev: int) -> dict[str, Any]:
@@ -145,19 +173,31 @@ def reference_run(problem: Problem, max_nfev: int) -> dict[str, Any]:
         trace.append((time.perf_counter() - t0, 0.5 * float(r @ r)))
         return r
 
-    res = least_squares(residuals, problem.x0(),
-                        jac=lambda x: problem.residuals_and_jacobian(x)[1], method="trf",
-                        x_scale="jac", ftol=1e-15, xtol=1e-15, gtol=1e-15,
-                        max_nfev=max_nfev)  # fmt: skip
+    res = least_squares(
+        residuals,
+        problem.x0(),
+        jac=lambda x: problem.residuals_and_jacobian(x)[1],
+        method="trf",
+        x_scale="jac",
+        ftol=1e-15,
+        xtol=1e-15,
+        gtol=1e-15,
+        max_nfev=max_nfev,
+    )
     best = float(res.cost)
     within = next(t for t, c in trace if c <= 1.01 * best)
     improving: list[tuple[float, float]] = []  # (elapsed_s, cost) where the best cost fell
     for t, c in trace:
         if not improving or c < 0.999 * improving[-1][1]:
             improving.append((round(t, 4), c))
-    return {"cost": best, "nfev": int(res.nfev), "status": int(res.status),
-            "time_s": time.perf_counter() - t0, "time_to_1pct_s": float(within),
-            "trace": improving}  # fmt: skip
+    return {
+        "cost": best,
+        "nfev": int(res.nfev),
+        "status": int(res.status),
+        "time_s": time.perf_counter() - t0,
+        "time_to_1pct_s": float(within),
+        "trace": improving,
+    }
 
 
 def _solver(method: str) -> Callable[[Problem], SolverResult]:
@@ -169,15 +209,23 @@ def _solver(method: str) -> Callable[[Problem], SolverResult]:
 
 def test_rmse_mm(problem: Problem, x: FloatArray, samples: SampleSet, rows: np.ndarray) -> float:
     """RMSE of ``L_model − L`` on ``rows`` of ``samples`` [mm]."""
-    pred = predict_lengths(problem.model, problem.full(x), np.deg2rad(samples.joints_deg[rows]),
-                           samples.anchor_index()[rows])  # fmt: skip
+    pred = predict_lengths(
+        problem.model,
+        problem.full(x),
+        np.deg2rad(samples.joints_deg[rows]),
+        samples.anchor_index()[rows],
+    )
     return float(np.sqrt(np.mean((pred - samples.length_mm[rows]) ** 2)))
 
 
 def _case(
-    label: str, objective: str, problem: Problem, reference: dict[str, Any], repeats: int,
+    label: str,
+    objective: str,
+    problem: Problem,
+    reference: dict[str, Any],
+    repeats: int,
     test: tuple[SampleSet, np.ndarray] | None,
-) -> list[dict[str, Any]]:  # fmt: skip
+) -> list[dict[str, Any]]:
     out = []
     for m in METHODS:
         run = _solver(m)
@@ -189,32 +237,45 @@ def _case(
         assert res is not None
         cost = problem.cost(res.x)
         rec: dict[str, Any] = {
-            "case": label, "objective": objective, "method": m, "n": problem.n_samples,
-            "time_s": float(np.median(times)), "iterations": res.iterations,
-            "status": res.status, "converged": res.success, "cost": cost,
+            "case": label,
+            "objective": objective,
+            "method": m,
+            "n": problem.n_samples,
+            "time_s": float(np.median(times)),
+            "iterations": res.iterations,
+            "status": res.status,
+            "converged": res.success,
+            "cost": cost,
             "cost_ratio": cost / reference["cost"],
             "test_rmse_mm": test_rmse_mm(problem, res.x, *test) if test else None,
-        }  # fmt: skip
-        print(f"{label:10s} {objective:3s} {m:9s} {rec['time_s']:.3f} s it {res.iterations:4d} "
-              f"status {res.status} cost/ref {rec['cost_ratio']:.4f}", flush=True)  # fmt: skip
+        }
+        print(
+            f"{label:10s} {objective:3s} {m:9s} {rec['time_s']:.3f} s it {res.iterations:4d} "
+            f"status {res.status} cost/ref {rec['cost_ratio']:.4f}",
+            flush=True,
+        )
         out.append(rec)
     return out
 
 
-def _reference(key: str, problem: Problem, nfev: int, cache: dict[str, Any], redo: bool
-               ) -> dict[str, Any]:  # fmt: skip
+def _reference(
+    key: str, problem: Problem, nfev: int, cache: dict[str, Any], redo: bool
+) -> dict[str, Any]:
     full_key = f"{key}/nfev={nfev}/{fingerprint(problem)}"
     if redo or full_key not in cache:
         cache[full_key] = reference_run(problem, nfev)
-        print(f"reference {full_key}: cost {cache[full_key]['cost']:.5f} "
-              f"({cache[full_key]['time_s']:.1f} s)", flush=True)  # fmt: skip
+        print(
+            f"reference {full_key}: cost {cache[full_key]['cost']:.5f} "
+            f"({cache[full_key]['time_s']:.1f} s)",
+            flush=True,
+        )
     ref: dict[str, Any] = cache[full_key]
     return ref
 
 
 def end_to_end(
     model: RobotModel, samples: SampleSet, train: np.ndarray, test: np.ndarray, repeats: int
-) -> dict[str, Any]:  # fmt: skip
+) -> dict[str, Any]:
     """The whole default identify() on ``train`` (held-out ``test``): median wall time [s]."""
     times, res = [], None
     for _ in range(repeats):
@@ -222,10 +283,14 @@ def end_to_end(
         res = identify(model, samples, IdentifyOptions(), train_rows=train, test_rows=test)
         times.append(time.perf_counter() - t0)
     assert res is not None
-    return {"n": int(train.size), "time_s": float(np.median(times)),
-            "iterations": res.solver.iterations, "converged": res.solver.success,
-            "plausible": bool(res.plausibility["plausible"]),
-            "noise_rounds": res.to_json()["prior"].get("noise_rounds")}  # fmt: skip
+    return {
+        "n": int(train.size),
+        "time_s": float(np.median(times)),
+        "iterations": res.solver.iterations,
+        "converged": res.solver.success,
+        "plausible": bool(res.plausibility["plausible"]),
+        "noise_rounds": res.to_json()["prior"].get("noise_rounds"),
+    }
 
 
 #: Paper-protocol variants: the default identify, geolm and the paper's ukf-vslm by maximum
@@ -247,11 +312,22 @@ def paper_protocol(model: RobotModel, samples: SampleSet, seeds: range) -> dict[
             res = identify(model, samples, opts, train_rows=train, test_rows=test)
             rmse[m].append(float(res.metrics["after"]["test"]["rmse_mm"]))
             plausible[m] += bool(res.plausibility["plausible"])
-        print(f"paper protocol seed {s}: " + ", ".join(f"{m} {v[-1]:.3f}" for m, v in rmse.items())
-              + " mm", flush=True)  # fmt: skip
-    return {m: {"mean_mm": float(np.mean(v)), "max_mm": float(np.max(v)), "per_seed_mm": v,
-                "plausible": plausible[m], "draws": len(v)}
-            for m, v in rmse.items()}  # fmt: skip
+        print(
+            f"paper protocol seed {s}: "
+            + ", ".join(f"{m} {v[-1]:.3f}" for m, v in rmse.items())
+            + " mm",
+            flush=True,
+        )
+    return {
+        m: {
+            "mean_mm": float(np.mean(v)),
+            "max_mm": float(np.max(v)),
+            "per_seed_mm": v,
+            "plausible": plausible[m],
+            "draws": len(v),
+        }
+        for m, v in rmse.items()
+    }
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -259,22 +335,27 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--recompute", action="store_true", help="ignore the reference cache")
     parser.add_argument("--ref-nfev", type=int, default=2000, help="reference budget, n = 100")
-    parser.add_argument("--ref-nfev-full", type=int, default=5000,
-                        help="reference budget, n = 2017")  # fmt: skip
+    parser.add_argument(
+        "--ref-nfev-full", type=int, default=5000, help="reference budget, n = 2017"
+    )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--subsets", type=int, default=10)
     parser.add_argument("--splits", type=int, default=20)
     parser.add_argument("--no-full", action="store_true", help="skip the n = 2017 case")
-    parser.add_argument("--full-only", action="store_true",
-                        help="rerun only n = 2017, keep the rest of solver_real.json")  # fmt: skip
+    parser.add_argument(
+        "--full-only",
+        action="store_true",
+        help="rerun only n = 2017, keep the rest of solver_real.json",
+    )
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
     if args.quick:
         args.subsets, args.splits, args.ref_nfev, args.repeats = 2, 4, 500, 1
         args.ref_nfev_full = 500
     model, samples = load_robot(ROBOT), read_samples(None)
-    cache: dict[str, Any] = (json.loads(REFERENCE_CACHE.read_text())
-                             if REFERENCE_CACHE.exists() else {})  # fmt: skip
+    cache: dict[str, Any] = (
+        json.loads(REFERENCE_CACHE.read_text()) if REFERENCE_CACHE.exists() else {}
+    )
     rows: list[dict[str, Any]] = []
     refs: dict[str, Any] = {}
     previous: dict[str, Any] = {}
@@ -291,8 +372,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             problem = build_problem(model, samples, train, obj)
             key = f"n100/seed{s}/{obj}"
             refs[key] = _reference(key, problem, args.ref_nfev, cache, args.recompute)
-            rows += [r | {"ref": key} for r in _case(f"n100/s{s}", obj, problem, refs[key],
-                                                      args.repeats, (samples, test))]  # fmt: skip
+            rows += [
+                r | {"ref": key}
+                for r in _case(f"n100/s{s}", obj, problem, refs[key], args.repeats, (samples, test))
+            ]
         e2e.append(end_to_end(model, samples, train, test, args.repeats))
     if not args.no_full:
         every = np.arange(len(samples))
@@ -300,16 +383,24 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             problem = build_problem(model, samples, every, obj)
             key = f"n2017/{obj}"
             refs[key] = _reference(key, problem, args.ref_nfev_full, cache, args.recompute)
-            rows += [r | {"ref": key} for r in _case("n2017", obj, problem, refs[key],
-                                                      max(1, args.repeats // 2), None)]  # fmt: skip
+            rows += [
+                r | {"ref": key}
+                for r in _case("n2017", obj, problem, refs[key], max(1, args.repeats // 2), None)
+            ]
         e2e.append(end_to_end(model, samples, every, np.zeros(0, dtype=int), args.repeats))
     REFERENCE_CACHE.write_text(json.dumps(cache, indent=1) + "\n")
-    data = {"machine": f"{platform.machine()}, Python {platform.python_version()}",
-            "load_average_1_5_15": [round(v, 2) for v in os.getloadavg()],
-            "ref_nfev": args.ref_nfev, "ref_nfev_full": args.ref_nfev_full,
-            "references": refs, "runs": rows, "end_to_end": e2e,
-            "paper_protocol": previous["paper_protocol"] if args.full_only
-            else paper_protocol(model, samples, range(args.splits))}  # fmt: skip
+    data = {
+        "machine": f"{platform.machine()}, Python {platform.python_version()}",
+        "load_average_1_5_15": [round(v, 2) for v in os.getloadavg()],
+        "ref_nfev": args.ref_nfev,
+        "ref_nfev_full": args.ref_nfev_full,
+        "references": refs,
+        "runs": rows,
+        "end_to_end": e2e,
+        "paper_protocol": previous["paper_protocol"]
+        if args.full_only
+        else paper_protocol(model, samples, range(args.splits)),
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "solver_real.json").write_text(json.dumps(data, indent=1) + "\n")
     (args.out / "solver_real.md").write_text(markdown(data))
@@ -350,41 +441,60 @@ def _goal_lines(data: dict[str, Any], best: dict[str, float]) -> list[str]:
         worst = max(r["cost"] / best[r["ref"]] for r in small)
         rows += [
             (f"n = 100 ({len(small)} subsets): worst cost / best", f"{worst:.4f}", "<= 1.01"),
-            ("n = 100: mean solver time [s]", f"{np.mean([r['time_s'] for r in small]):.3f}",
-             "<= 0.05"),
-            ("n = 100: stopped by a convergence test",
-             f"{sum(r['converged'] for r in small)}/{len(small)}", "all"),
-        ]  # fmt: skip
+            (
+                "n = 100: mean solver time [s]",
+                f"{np.mean([r['time_s'] for r in small]):.3f}",
+                "<= 0.05",
+            ),
+            (
+                "n = 100: stopped by a convergence test",
+                f"{sum(r['converged'] for r in small)}/{len(small)}",
+                "all",
+            ),
+        ]
     for r in full:
-        rows += [("n = 2017: cost / best", f"{r['cost'] / best[r['ref']]:.4f}", "<= 1.01"),
-                 ("n = 2017: solver time [s]", f"{r['time_s']:.3f}", "<= 0.5"),
-                 ("n = 2017: stopped by a convergence test", str(r["converged"]),
-                  "True")]  # fmt: skip
+        rows += [
+            ("n = 2017: cost / best", f"{r['cost'] / best[r['ref']]:.4f}", "<= 1.01"),
+            ("n = 2017: solver time [s]", f"{r['time_s']:.3f}", "<= 0.5"),
+            ("n = 2017: stopped by a convergence test", str(r["converged"]), "True"),
+        ]
     for n, label in ((100, "n = 100"), (2017, "n = 2017")):
         e2e = [e for e in data.get("end_to_end", []) if (e["n"] == 2017) == (n == 2017)]
         if e2e:
             target = "<= 0.05" if n == 100 else "<= 0.5"
-            rows.append((f"{label}: whole default identify() [s] (mean over "
-                         f"{len(e2e)})", f"{np.mean([e['time_s'] for e in e2e]):.3f}",
-                         target))  # fmt: skip
+            rows.append(
+                (
+                    f"{label}: whole default identify() [s] (mean over {len(e2e)})",
+                    f"{np.mean([e['time_s'] for e in e2e]):.3f}",
+                    target,
+                )
+            )
     pp = data["paper_protocol"]
     first = next(iter(pp.values()), None) if pp else None
     if first is not None:
         rows.append(("paper protocol: mean test RMSE [mm]", f"{first['mean_mm']:.3f}", "<= 0.17"))
-    out = [f"### Goals of issue 10 for the default (`{DEFAULT}` on the MAP problem)", "",
-           "| goal | measured | target |", "|---|---:|---:|"]  # fmt: skip
+    out = [
+        f"### Goals of issue 10 for the default (`{DEFAULT}` on the MAP problem)",
+        "",
+        "| goal | measured | target |",
+        "|---|---:|---:|",
+    ]
     return out + [f"| {g} | {m} | {t} |" for g, m, t in rows] + [""]
 
 
 def _reference_lines(data: dict[str, Any], best: dict[str, float]) -> list[str]:
     """The reference runs, scipy's time to within 1 % of the best cost, and the paper's time."""
-    lines = ["## Reference runs and the paper's time", "",
-             f"The paper reports {PAPER_TIME_S:.0f} s for UKF-VSLM (its Table IX). *Time to "
-             "1 % of best*: when the long scipy run's best cost first came within 1 % of the "
-             "lowest cost any method reached on that problem (– : not within its budget).", "",
-             "| problem | cost [mm²] | best [mm²] | evaluations | time [s] | time to 1 % of "
-             "own final [s] | time to 1 % of best [s] |",
-             "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    lines = [
+        "## Reference runs and the paper's time",
+        "",
+        f"The paper reports {PAPER_TIME_S:.0f} s for UKF-VSLM (its Table IX). *Time to "
+        "1 % of best*: when the long scipy run's best cost first came within 1 % of the "
+        "lowest cost any method reached on that problem (– : not within its budget).",
+        "",
+        "| problem | cost [mm²] | best [mm²] | evaluations | time [s] | time to 1 % of "
+        "own final [s] | time to 1 % of best [s] |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for key, ref in data["references"].items():
         b = best.get(key, ref["cost"])
         to_best = ref.get("trace")
@@ -393,57 +503,74 @@ def _reference_lines(data: dict[str, Any], best: dict[str, float]) -> list[str]:
             hit = next((f"{t:.2f}" for t, c in to_best if c <= 1.01 * b), "–")
         elif ref["cost"] <= 1.01 * b:
             hit = f"≤ {ref['time_s']:.1f}"
-        lines.append(f"| {key} | {ref['cost']:.5f} | {b:.5f} | {ref['nfev']} | "
-                     f"{ref['time_s']:.1f} | {ref['time_to_1pct_s']:.2f} | {hit} |")  # fmt: skip
+        lines.append(
+            f"| {key} | {ref['cost']:.5f} | {b:.5f} | {ref['nfev']} | "
+            f"{ref['time_s']:.1f} | {ref['time_to_1pct_s']:.2f} | {hit} |"
+        )
     return lines
 
 
-def _method_row(
-    n: int, obj: str, m: str, sel: list[dict[str, Any]], best: dict[str, float]
-) -> str:  # fmt: skip
+def _method_row(n: int, obj: str, m: str, sel: list[dict[str, Any]], best: dict[str, float]) -> str:
     test = [r["test_rmse_mm"] for r in sel if r["test_rmse_mm"] is not None]
     ratios = [r["cost_ratio"] for r in sel]
     to_best = [r["cost"] / best[r["ref"]] for r in sel]
-    return (f"| {n} | {obj} | {m} | {np.mean([r['time_s'] for r in sel]):.3f} | "
-            f"{np.mean([r['iterations'] for r in sel]):.0f} | "
-            f"{sum(r['converged'] for r in sel)}/{len(sel)} | {np.mean(ratios):.4f} | "
-            f"{np.max(ratios):.4f} | {np.mean(to_best):.4f} | {np.max(to_best):.4f} | "
-            + (f"{np.mean(test):.3f} |" if test else "– |"))  # fmt: skip
+    return (
+        f"| {n} | {obj} | {m} | {np.mean([r['time_s'] for r in sel]):.3f} | "
+        f"{np.mean([r['iterations'] for r in sel]):.0f} | "
+        f"{sum(r['converged'] for r in sel)}/{len(sel)} | {np.mean(ratios):.4f} | "
+        f"{np.max(ratios):.4f} | {np.mean(to_best):.4f} | {np.max(to_best):.4f} | "
+        + (f"{np.mean(test):.3f} |" if test else "– |")
+    )
 
 
 def markdown(data: dict[str, Any]) -> str:
     """The tables of ``solver_real.md``."""
     load = data.get("load_average_1_5_15", "not recorded")
-    lines = ["# Solvers on the bundled real data (issue 10)", "",
-             f"Machine: {data['machine']}, load average at the start {load}. Reference: scipy "
-             f"least_squares, tolerances 1e-15, {data['ref_nfev']} evaluations (n = 2017: "
-             f"{data.get('ref_nfev_full', data['ref_nfev'])}). Generated by "
-             "`python -m bench.solver_real`.", ""]  # fmt: skip
+    lines = [
+        "# Solvers on the bundled real data (issue 10)",
+        "",
+        f"Machine: {data['machine']}, load average at the start {load}. Reference: scipy "
+        f"least_squares, tolerances 1e-15, {data['ref_nfev']} evaluations (n = 2017: "
+        f"{data.get('ref_nfev_full', data['ref_nfev'])}). Generated by "
+        "`python -m bench.solver_real`.",
+        "",
+    ]
     best = _best_costs(data)
     lines += _goal_lines(data, best)
-    lines += ["## Per method (n = 100: mean over subsets; time: median of repeats, then mean)", "",
-             "Solver only, after identify's common start-up. cost / ref: over the reference "
-             "run's cost; cost / best: over the lowest cost any method or the reference reached "
-             "on that problem.", "",
-             "| n | objective | method | time [s] | iterations | converged | cost / ref (mean) | "
-             "cost / ref (worst) | cost / best (mean) | cost / best (worst) | test RMSE [mm] |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    lines += [
+        "## Per method (n = 100: mean over subsets; time: median of repeats, then mean)",
+        "",
+        "Solver only, after identify's common start-up. cost / ref: over the reference "
+        "run's cost; cost / best: over the lowest cost any method or the reference reached "
+        "on that problem.",
+        "",
+        "| n | objective | method | time [s] | iterations | converged | cost / ref (mean) | "
+        "cost / ref (worst) | cost / best (mean) | cost / best (worst) | test RMSE [mm] |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     runs = data["runs"]
     for n in sorted({r["n"] for r in runs}):
         for obj in OBJECTIVES:
             for m in METHODS:
-                sel = [r for r in runs if r["n"] == n and r["method"] == m
-                       and r["objective"] == obj]  # fmt: skip
+                sel = [
+                    r for r in runs if r["n"] == n and r["method"] == m and r["objective"] == obj
+                ]
                 if sel:
                     lines.append(_method_row(n, obj, m, sel, best))
     lines += ["", *_reference_lines(data, best)]
     pp = data["paper_protocol"]
-    lines += ["", "## Paper protocol (100/20 random rows)", "",
-              "| identify | mean test RMSE [mm] | worst [mm] | plausible |",
-              "|---|---:|---:|---:|"]  # fmt: skip
-    lines += [f"| {m} | {v['mean_mm']:.3f} | {v['max_mm']:.3f} | "
-              f"{v.get('plausible', '–')}/{v.get('draws', len(v['per_seed_mm']))} |"
-              for m, v in pp.items()]  # fmt: skip
+    lines += [
+        "",
+        "## Paper protocol (100/20 random rows)",
+        "",
+        "| identify | mean test RMSE [mm] | worst [mm] | plausible |",
+        "|---|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {m} | {v['mean_mm']:.3f} | {v['max_mm']:.3f} | "
+        f"{v.get('plausible', '–')}/{v.get('draws', len(v['per_seed_mm']))} |"
+        for m, v in pp.items()
+    ]
     return "\n".join(lines) + "\n"
 
 

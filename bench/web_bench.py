@@ -133,34 +133,39 @@ def _markdown(r: dict[str, Any]) -> str:
         return "met" if r["met"][key] else "NOT met"
 
     w, wo = r["status_with_page"], r["status_without_page"]
-    return "\n".join([
-        f"# Operator page performance (EMULATED cell, headless chromium {r['viewport'][0]}x"
-        f"{r['viewport'][1]}, {r['run_s']:.0f} s with the page open)",
-        "",
-        "| measure | value | target | |",
-        "|---|---|---|---|",
-        f"| first contentful paint | {r['first_contentful_paint_ms']} ms | < 1000 ms | "
-        f"{ok('first_paint')} |",
-        f"| page load to first trace data | {r['first_trace_s'] * 1000:.0f} ms | | |",
-        f"| live trace chart updates | {r['trace_updates_hz']} per s | >= 5 | {ok('trace_rate')} |",
-        f"| JS heap start → end (after GC) | {r['js_heap_start_mb']} → {r['js_heap_end_mb']} MB "
-        f"({r['js_heap_growth_mb']:+.2f}) | no growth | {ok('memory')} |",
-        f"| GET /status p99, page open | {w['p99_ms']} ms (p50 {w['p50_ms']}) | < 20 ms | "
-        f"{ok('status_p99')} |",
-        f"| GET /status p99, no page (baseline, same run) | {wo['p99_ms']} ms (p50 "
-        f"{wo['p50_ms']}) | | |",
-        f"| GET /status errors (kinds), page open / no page | {errors_text(w)} / "
-        f"{errors_text(wo)} of {w['requests']} / {wo['requests']} | | |",
-        f"| console errors / requests to other hosts | {len(r['console_errors'])} / "
-        f"{len(r['blocked_requests'])} | 0 / 0 | "
-        f"{ok('no_console_errors')} / {ok('no_other_host')} |",
-        "",
-        f"/status load: open-loop {LOAD_RATE_HZ:.0f} req/s for {LOAD_S:.0f} s (bench.api_bench's "
-        f"generator). Indicator polled at {r['indicator_poll_rate_hz']} Hz (115200 baud), auto "
-        f"capture on. Load average (1 min) at the end: {r['load_average_1min']} on "
-        f"{os.cpu_count()} shared cores. Run: `python -m bench.web_bench` (`make bench`).",
-        "",
-    ])  # fmt: skip
+    return "\n".join(
+        [
+            f"# Operator page performance (EMULATED cell, headless chromium {r['viewport'][0]}x"
+            f"{r['viewport'][1]}, {r['run_s']:.0f} s with the page open)",
+            "",
+            "| measure | value | target | |",
+            "|---|---|---|---|",
+            f"| first contentful paint | {r['first_contentful_paint_ms']} ms | < 1000 ms | "
+            f"{ok('first_paint')} |",
+            f"| page load to first trace data | {r['first_trace_s'] * 1000:.0f} ms | | |",
+            f"| live trace chart updates | {r['trace_updates_hz']} per s | >= 5 | "
+            f"{ok('trace_rate')} |",
+            f"| JS heap start → end (after GC) | {r['js_heap_start_mb']} → "
+            f"{r['js_heap_end_mb']} MB ({r['js_heap_growth_mb']:+.2f}) | no growth | "
+            f"{ok('memory')} |",
+            f"| GET /status p99, page open | {w['p99_ms']} ms (p50 {w['p50_ms']}) | < 20 ms | "
+            f"{ok('status_p99')} |",
+            f"| GET /status p99, no page (baseline, same run) | {wo['p99_ms']} ms (p50 "
+            f"{wo['p50_ms']}) | | |",
+            f"| GET /status errors (kinds), page open / no page | {errors_text(w)} / "
+            f"{errors_text(wo)} of {w['requests']} / {wo['requests']} | | |",
+            f"| console errors / requests to other hosts | {len(r['console_errors'])} / "
+            f"{len(r['blocked_requests'])} | 0 / 0 | "
+            f"{ok('no_console_errors')} / {ok('no_other_host')} |",
+            "",
+            f"/status load: open-loop {LOAD_RATE_HZ:.0f} req/s for {LOAD_S:.0f} s "
+            f"(bench.api_bench's generator). Indicator polled at "
+            f"{r['indicator_poll_rate_hz']} Hz (115200 baud), auto "
+            f"capture on. Load average (1 min) at the end: {r['load_average_1min']} on "
+            f"{os.cpu_count()} shared cores. Run: `python -m bench.web_bench` (`make bench`).",
+            "",
+        ]
+    )
 
 
 if __name__ == "__main__":

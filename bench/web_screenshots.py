@@ -39,14 +39,22 @@ def main() -> None:
         cid = c.json()["id"]
         api.post(f"/campaigns/{cid}/plan", json={"n": 40, "anchors_mm": [list(ANCHOR_MM)]})
         api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": True})
-        wait_for(lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= N_SAMPLES,
-                 N_SAMPLES * 6.0, 1.0, "captures")  # fmt: skip
+        wait_for(
+            lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= N_SAMPLES,
+            N_SAMPLES * 6.0,
+            1.0,
+            "captures",
+        )
         api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": False})
         samples = api.get(f"/campaigns/{cid}/samples").json()
         api.patch(f"/samples/{samples[3]['id']}", json={"excluded": True, "reason": "bumped"})
         job = api.post(f"/campaigns/{cid}/identifications", json={"method": "ukf-vslm"}).json()
-        wait_for(lambda: api.get(f"/identifications/{job['id']}").json()["status"] == "succeeded",
-                 300, 1.0, "identification")  # fmt: skip
+        wait_for(
+            lambda: api.get(f"/identifications/{job['id']}").json()["status"] == "succeeded",
+            300,
+            1.0,
+            "identification",
+        )
         api.post(f"/identifications/{job['id']}/accept")
         targets = "q1,q2,q3,q4,q5,q6\n" + "\n".join(
             ",".join(f"{s[f'q{j}']:.2f}" for j in range(1, 7)) for s in samples[:8]

@@ -30,9 +30,13 @@ def plain_fit(problem: Problem, x0: FloatArray | None = None) -> FloatArray:
 
 
 def fit_anchors(
-    model: RobotModel, layout: ParamLayout, theta: FloatArray, q_rad: FloatArray,
-    anchor_index: np.ndarray, length_mm: FloatArray,
-) -> FloatArray:  # fmt: skip
+    model: RobotModel,
+    layout: ParamLayout,
+    theta: FloatArray,
+    q_rad: FloatArray,
+    anchor_index: np.ndarray,
+    length_mm: FloatArray,
+) -> FloatArray:
     """``theta`` with every anchor's P0 and c fitted (multilateration start, LM refinement)."""
     theta = theta.copy()
     dh, tool = kinematic_parts(model, theta)

@@ -194,8 +194,9 @@ def multilaterate(points_mm: FloatArray, length_mm: FloatArray) -> tuple[FloatAr
     offset_mm : float
     """
     if points_mm.shape[0] < MIN_ANCHOR_SAMPLES:
-        raise ValueError(f"multilateration needs at least {MIN_ANCHOR_SAMPLES} samples, "
-                         f"got {points_mm.shape[0]}")  # fmt: skip
+        raise ValueError(
+            f"multilateration needs at least {MIN_ANCHOR_SAMPLES} samples, got {points_mm.shape[0]}"
+        )
     a = np.column_stack([-2.0 * points_mm, 2.0 * length_mm, np.ones(points_mm.shape[0])])
     b = length_mm**2 - np.einsum("ij,ij->i", points_mm, points_mm)
     scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)

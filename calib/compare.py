@@ -120,8 +120,15 @@ def compare_results(
         before, after = _parameters(current), _parameters(new)
         for name, (value, unit) in after.items():
             if name in before and abs(value - before[name][0]) > CHANGE_TOL:
-                changed.append({"name": name, "unit": unit, "current": before[name][0],
-                                "new": value, "change": value - before[name][0]})  # fmt: skip
+                changed.append(
+                    {
+                        "name": name,
+                        "unit": unit,
+                        "current": before[name][0],
+                        "new": value,
+                        "change": value - before[name][0],
+                    }
+                )
     return {
         "n_rows": int(rows.size),
         "new": _figures(job_id, new, samples, rows),

@@ -125,8 +125,9 @@ class CompensateOptions:
         if len(self.tool_mm) != 3 or not all(math.isfinite(v) for v in self.tool_mm):
             raise ValueError(f"tool_mm must be 3 finite numbers, got {self.tool_mm!r}")
         if not (math.isfinite(self.branch_threshold_deg) and self.branch_threshold_deg > 0):
-            raise ValueError(f"branch_threshold_deg must be positive, got "
-                             f"{self.branch_threshold_deg!r}")  # fmt: skip
+            raise ValueError(
+                f"branch_threshold_deg must be positive, got {self.branch_threshold_deg!r}"
+            )
         if not 0 <= self.wrist_flip_min_deg < 90:
             raise ValueError(
                 f"wrist_flip_min_deg must be in [0, 90), got {self.wrist_flip_min_deg}"
@@ -269,7 +270,7 @@ class CompensateResult:
             row["uncompensated_error_mm"] = float(self.uncompensated_error_mm[i])
             row["iterations"] = int(self.iterations[i])
             row["flags"] = ";".join(self.flags[i])
-            rows.append(row)  # fmt: skip
+            rows.append(row)
         return rows
 
     def to_csv(self) -> str:
@@ -286,10 +287,18 @@ class CompensateResult:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able mapping: ``mode, kind, tool_mm, note, summary, rows`` (NaN → None)."""
-        rows = [{k: (None if isinstance(v, float) and math.isnan(v) else v)
-                 for k, v in r.items()} for r in self.csv_rows()]  # fmt: skip
-        return {"mode": self.mode, "kind": self.kind, "tool_mm": [float(v) for v in self.tool_mm],
-                "note": self.note, "summary": self.summary, "rows": rows}  # fmt: skip
+        rows = [
+            {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
+            for r in self.csv_rows()
+        ]
+        return {
+            "mode": self.mode,
+            "kind": self.kind,
+            "tool_mm": [float(v) for v in self.tool_mm],
+            "note": self.note,
+            "summary": self.summary,
+            "rows": rows,
+        }
 
 
 def _check_targets(nominal: RobotModel, targets: Targets, mode: Mode) -> FloatArray:
@@ -319,8 +328,9 @@ def _check_targets(nominal: RobotModel, targets: Targets, mode: Mode) -> FloatAr
     if seed.shape == (N_JOINTS,):
         seed = np.tile(seed, (pos.shape[0], 1))
     if seed.shape != (pos.shape[0], N_JOINTS) or not np.all(np.isfinite(seed)):
-        raise ValueError(f"seed_deg: expected finite shape (6,) or ({pos.shape[0]}, 6), "
-                         f"got {seed.shape}")  # fmt: skip
+        raise ValueError(
+            f"seed_deg: expected finite shape (6,) or ({pos.shape[0]}, 6), got {seed.shape}"
+        )
     return seed
 
 
@@ -359,8 +369,9 @@ def compensate(
         target_pos = np.asarray(targets.position_mm, dtype=float)
         target_rot = None
         if targets.rotation_deg is not None:
-            target_rot = Rotation.from_euler(EULER_SEQUENCE, targets.rotation_deg,
-                                             degrees=True).as_matrix()  # fmt: skip
+            target_rot = Rotation.from_euler(
+                EULER_SEQUENCE, targets.rotation_deg, degrees=True
+            ).as_matrix()
         pose_rot = target_rot if opts.mode == "pose" else None
         stage = solve_ik(nominal, seed, target_pos, pose_rot, tool, opts.ik)
         q_nom, nominal_iterations = stage.joints_deg, stage.iterations
@@ -393,11 +404,12 @@ def compensate(
         iterations=sol.iterations + nominal_iterations,
         uncompensated_error_mm=uncomp,
         corrected_position_mm=corr_pos,
-        corrected_rotation_deg=Rotation.from_matrix(corr_rot).as_euler(EULER_SEQUENCE,
-                                                                       degrees=True),
+        corrected_rotation_deg=Rotation.from_matrix(corr_rot).as_euler(
+            EULER_SEQUENCE, degrees=True
+        ),
         flags=flags,
         note=NOTE + (POSE_NOTE if opts.mode == "pose" else ""),
-    )  # fmt: skip
+    )
     result.summary = _summary(result)
     return result
 
@@ -414,10 +426,11 @@ def _summary(res: CompensateResult) -> dict[str, Any]:
         "flag_counts": counts,
         "max_residual_mm": float(np.max(res.position_residual_mm)),
         "rms_uncompensated_error_mm": float(np.sqrt(np.mean(res.uncompensated_error_mm**2))),
-        "max_correction_deg": float(np.max(np.abs(res.corrected_joints_deg
-                                                  - res.nominal_joints_deg))),
+        "max_correction_deg": float(
+            np.max(np.abs(res.corrected_joints_deg - res.nominal_joints_deg))
+        ),
         "euler_convention": "fixed-axis X-Y-Z: R = Rz(rz) Ry(ry) Rx(rx)",
-    }  # fmt: skip
+    }
 
 
 def parse_targets_csv(text: str, seed_deg: Sequence[float] | FloatArray | None = None) -> Targets:
@@ -464,7 +477,9 @@ def parse_targets_csv(text: str, seed_deg: Sequence[float] | FloatArray | None =
     if names == JOINT_COLUMNS:
         return JointTargets(data)
     if seed_deg is None:
-        raise ValueError("seed_deg: Cartesian targets need a seed (q1..q6 [deg]) that picks the "
-                         "IK branch")  # fmt: skip
-    return CartesianTargets(data[:, :3], data[:, 3:] if data.shape[1] == 6 else None,
-                            np.asarray(seed_deg, dtype=float))  # fmt: skip
+        raise ValueError(
+            "seed_deg: Cartesian targets need a seed (q1..q6 [deg]) that picks the IK branch"
+        )
+    return CartesianTargets(
+        data[:, :3], data[:, 3:] if data.shape[1] == 6 else None, np.asarray(seed_deg, dtype=float)
+    )

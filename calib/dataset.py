@@ -137,8 +137,9 @@ def make_samples(
     times = None if t_s is None else np.asarray(t_s, dtype=float)
     if times is not None and times.shape != (n,):
         raise SampleError(f"t_s must have shape ({n},), got {times.shape}")
-    s = SampleSet(q, length, anchors, tuple(group) if group is not None else None,
-                  np.arange(2, n + 2), times)  # fmt: skip
+    s = SampleSet(
+        q, length, anchors, tuple(group) if group is not None else None, np.arange(2, n + 2), times
+    )
     validate_values(s)
     return s
 
@@ -163,8 +164,9 @@ def _raise_first(samples: SampleSet, i: int, bad_q: np.ndarray) -> NoReturn:
     """The :class:`SampleError` of row ``i`` (``bad_q``: its non-finite joints, shape (6,))."""
     if bad_q.any():
         j = int(np.flatnonzero(bad_q)[0])
-        raise SampleError("joint angle is not finite", row=samples.line_of(i),
-                          column=JOINT_COLUMNS[j])  # fmt: skip
+        raise SampleError(
+            "joint angle is not finite", row=samples.line_of(i), column=JOINT_COLUMNS[j]
+        )
     value = float(samples.length_mm[i])
     if not math.isfinite(value):
         raise SampleError("cable length is not finite", row=samples.line_of(i), column="L")
@@ -200,19 +202,24 @@ def _header_columns(header: list[str]) -> tuple[dict[str, int], str]:
     for i, name in enumerate(header):
         key = name.strip().lower()
         if key in cols:
-            raise SampleError(f"duplicated column {name.strip()!r} (columns {cols[key] + 1} "
-                              f"and {i + 1})", row=1, column=name.strip())  # fmt: skip
+            raise SampleError(
+                f"duplicated column {name.strip()!r} (columns {cols[key] + 1} and {i + 1})",
+                row=1,
+                column=name.strip(),
+            )
         cols[key] = i
     missing = [c for c in JOINT_COLUMNS if c not in cols]
     if missing:
         raise SampleError(f"missing column(s) {missing}; the header has {header}", row=1)
     lengths = [c for c in LENGTH_COLUMNS if c in cols]
     if not lengths:
-        raise SampleError(f"missing column 'L' (cable length in mm); the header has {header}",
-                          row=1)  # fmt: skip
+        raise SampleError(
+            f"missing column 'L' (cable length in mm); the header has {header}", row=1
+        )
     if len(lengths) > 1:
-        raise SampleError("both 'L' and 'length_mm' are present; keep one cable length column",
-                          row=1)  # fmt: skip
+        raise SampleError(
+            "both 'L' and 'length_mm' are present; keep one cable length column", row=1
+        )
     return cols, lengths[0]
 
 
@@ -261,8 +268,9 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
     anchors: list[str] = []
     groups: list[str] = []
     lines = array.array("q")
-    wanted = [(cols[name], "L" if name == length_col else name)
-              for name in (*JOINT_COLUMNS, length_col)]  # fmt: skip
+    wanted = [
+        (cols[name], "L" if name == length_col else name) for name in (*JOINT_COLUMNS, length_col)
+    ]
     for line_no, row in enumerate(reader, start=2):
         if not row or all(not cell.strip() for cell in row):
             continue

@@ -294,9 +294,13 @@ def _scan(
 
 
 def _steps(
-    lin: _Linear, t: FloatArray, rows: np.ndarray, unit: FloatArray, n_bic: int,
+    lin: _Linear,
+    t: FloatArray,
+    rows: np.ndarray,
+    unit: FloatArray,
+    n_bic: int,
     base_params: int,
-) -> tuple[list[Step], FloatArray, float]:  # fmt: skip
+) -> tuple[list[Step], FloatArray, float]:
     """Binary segmentation on top of ``lin``: change points kept while they lower BIC.
 
     Returns the steps, their basis (n, m) and the final BIC.
@@ -383,16 +387,21 @@ def select(
     if not gross.any() or scale <= 0:
         return sel
     keep = np.concatenate([~gross, np.ones(residual.shape[0] - n, dtype=bool)])
-    again = _select_once(mode, _Linear(residual * keep, jacobian * keep[:, None], n), t, rows,
-                         unit, time_unit)  # fmt: skip
+    again = _select_once(
+        mode, _Linear(residual * keep, jacobian * keep[:, None], n), t, rows, unit, time_unit
+    )
     again.excluded_rows = sorted({*sel.excluded_rows, *(int(v) for v in rows[gross])})
     return again
 
 
 def _select_once(
-    mode: DriftMode, lin: _Linear, t: FloatArray, rows: np.ndarray, unit: FloatArray,
+    mode: DriftMode,
+    lin: _Linear,
+    t: FloatArray,
+    rows: np.ndarray,
+    unit: FloatArray,
     time_unit: str,
-) -> Selection:  # fmt: skip
+) -> Selection:
     """One pass of :func:`select` over the rows of ``lin`` (the linearised plain fit)."""
     n = t.shape[0]
     sel = Selection(DriftModel(time_unit=time_unit))
@@ -439,8 +448,10 @@ def _select_once(
             continue
         b = model.basis(t, unit)
         sel.rss_mm2[name], sel.press_mm2[name] = lin.rss_press(b)
-        if mode == "auto" and (sel.rss_mm2[name] > (1.0 - MIN_GAIN) * lin.rss0
-                               or sel.press_mm2[name] > (1.0 - MIN_GAIN) * press0):  # fmt: skip
+        if mode == "auto" and (
+            sel.rss_mm2[name] > (1.0 - MIN_GAIN) * lin.rss0
+            or sel.press_mm2[name] > (1.0 - MIN_GAIN) * press0
+        ):
             cands.pop(name)
     sel.model = min(cands.values(), key=lambda c: c[0])[1]
     return sel
@@ -451,9 +462,13 @@ DRIFT_METHODS = ("geolm", "lm", "vslm")
 
 
 def select_at_plain_fit(
-    mode: DriftMode, problem: Problem, t: FloatArray, rows: np.ndarray,
-    units: Callable[[FloatArray], FloatArray], time_unit: str,
-) -> tuple[Selection, FloatArray]:  # fmt: skip
+    mode: DriftMode,
+    problem: Problem,
+    t: FloatArray,
+    rows: np.ndarray,
+    units: Callable[[FloatArray], FloatArray],
+    time_unit: str,
+) -> tuple[Selection, FloatArray]:
     """:func:`select` at the plain fit of ``problem`` (MAP or ML, no drift basis) by geodesic
     LM (:data:`calib.anchors.PLAIN_FIT`) from its start. ``t`` (n,) and ``rows`` (n,) as for
     :func:`select`; ``units(theta)`` gives the unit vectors (n, 3) from ``P0`` to the tool of

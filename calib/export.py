@@ -177,9 +177,10 @@ def model_to_urdf(model: RobotModel) -> str:
                 lo, hi = (_num(math.radians(v)) for v in limits[j])
                 ET.SubElement(joint, "limit", lower=lo, upper=hi, effort="0", velocity="0")
     ET.indent(robot)
-    comment = (f"<!-- {xml_comment(model.name)}: {model.convention} chain exported by cablecal; "
-               "lengths in m, angles in rad; joint values are the controller's joint angles -->\n"
-               )  # fmt: skip
+    comment = (
+        f"<!-- {xml_comment(model.name)}: {model.convention} chain exported by cablecal; "
+        "lengths in m, angles in rad; joint values are the controller's joint angles -->\n"
+    )
     return '<?xml version="1.0"?>\n' + comment + ET.tostring(robot, encoding="unicode") + "\n"
 
 

@@ -178,9 +178,12 @@ def _base_set(jac_unit: FloatArray, forced: list[int], rest: list[int], rtol: fl
 
 
 def _noise_limited(
-    jac_unit: FloatArray, norms: FloatArray, base: list[int], noise_mm: float,
+    jac_unit: FloatArray,
+    norms: FloatArray,
+    base: list[int],
+    noise_mm: float,
     plausible: FloatArray,
-) -> tuple[list[int], dict[int, tuple[float, float]]]:  # fmt: skip
+) -> tuple[list[int], dict[int, tuple[float, float]]]:
     """Drop DH columns of ``base`` whose predicted 1σ exceeds their plausible error.
 
     ``jac_unit`` (r, p) unit columns, ``norms`` (p,) their original norms, ``plausible`` (p,)
@@ -259,8 +262,9 @@ def analyse(
     noisy: dict[int, tuple[float, float]] = {}
     if noise_mm is not None and plausible is not None:
         if jac.shape[1] != np.size(plausible):
-            raise ValueError(f"plausible: {np.size(plausible)} values for {jac.shape[1]} "
-                             "parameters")  # fmt: skip
+            raise ValueError(
+                f"plausible: {np.size(plausible)} values for {jac.shape[1]} parameters"
+            )
         base, noisy = _noise_limited(jac_unit, norms, base, noise_mm, np.asarray(plausible))
     _, cond_base = _condition(jac_unit[:, base])
     tool_free = all(candidates[i] for i in tool_idx) and all(i in base for i in tool_idx)
@@ -289,9 +293,11 @@ def analyse(
             sig, plaus = noisy[i]
             angle = name.startswith(("alpha", "theta"))
             f, unit = (180.0 / np.pi, "deg") if angle else (1.0, "mm")
-            reasons[name] = (f"below the noise: predicted 1σ {sig * f:.3g} {unit} exceeds a "
-                             f"plausible error {plaus * f:.3g} {unit} at {noise_mm} mm noise; "
-                             f"fixed at nominal")  # fmt: skip
+            reasons[name] = (
+                f"below the noise: predicted 1σ {sig * f:.3g} {unit} exceeds a "
+                f"plausible error {plaus * f:.3g} {unit} at {noise_mm} mm noise; "
+                f"fixed at nominal"
+            )
             continue
         coef = coefs[:, col]
         order = np.argsort(-np.abs(coef))
@@ -404,10 +410,16 @@ def max_solved(
     """
     free = tuple(free)
     limits = model.joint_limits_deg
-    key = (model.convention, np.asarray(model.dh_table, dtype=float).tobytes(),
-           None if limits is None else np.asarray(limits, dtype=float).tobytes(),
-           np.asarray(model.tool_mm, dtype=float).tobytes(), layout.anchors,
-           np.asarray(candidates, dtype=bool).tobytes(), free, rtol)  # fmt: skip
+    key = (
+        model.convention,
+        np.asarray(model.dh_table, dtype=float).tobytes(),
+        None if limits is None else np.asarray(limits, dtype=float).tobytes(),
+        np.asarray(model.tool_mm, dtype=float).tobytes(),
+        layout.anchors,
+        np.asarray(candidates, dtype=bool).tobytes(),
+        free,
+        rtol,
+    )
     with _max_solved_lock:
         known = _max_solved_cache.get(key)
     if known is not None:
@@ -427,9 +439,12 @@ _max_solved_lock = threading.Lock()
 
 
 def _max_solved(
-    model: RobotModel, layout: ParamLayout, candidates: np.ndarray, free: Iterable[str],
+    model: RobotModel,
+    layout: ParamLayout,
+    candidates: np.ndarray,
+    free: Iterable[str],
     rtol: float,
-) -> int:  # fmt: skip
+) -> int:
     theta = np.zeros(layout.size)
     if candidates[N_DH:N_KIN].any():
         theta[N_DH:N_KIN] = GENERIC_TOOL_ERROR_MM

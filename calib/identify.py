@@ -135,9 +135,12 @@ class _Data:
 
 
 def _prepare(
-    model: RobotModel, samples: SampleSet, opts: IdentifyOptions,
-    train_rows: np.ndarray | None, test_rows: np.ndarray | None,
-) -> _Data:  # fmt: skip
+    model: RobotModel,
+    samples: SampleSet,
+    opts: IdentifyOptions,
+    train_rows: np.ndarray | None,
+    test_rows: np.ndarray | None,
+) -> _Data:
     """Step 1: check the samples and options, split the rows, apply the tool override."""
     validate_joint_limits(samples, model)
     if train_rows is None or test_rows is None:
@@ -147,8 +150,15 @@ def _prepare(
     validate(samples, opts, train_rows, model=model)
     layout = ParamLayout(samples.anchor_ids)
     model = with_tool(model, opts.tool_mm)
-    data = _Data(model, layout, samples, np.deg2rad(samples.joints_deg), samples.anchor_index(),
-                 train_rows, test_rows)  # fmt: skip
+    data = _Data(
+        model,
+        layout,
+        samples,
+        np.deg2rad(samples.joints_deg),
+        samples.anchor_index(),
+        train_rows,
+        test_rows,
+    )
     for k, aid in enumerate(layout.anchors):
         if not np.any(data.aidx == k):
             raise SampleError(f"anchor {aid!r} has no training samples", column="anchor")
@@ -178,9 +188,15 @@ def _free_set(
     _, jac = length_jacobian(d.model, theta_start, d.q, d.aidx)
     generic = generic_jacobian(d.model, layout, theta_start)
     plausible = methods.internal_sigma(layout, opts.prior_mm, opts.prior_deg, np.inf)
-    ident = analyse(jac, layout.names, candidates, rtol=opts.rtol, structural_jacobian=generic,
-                    noise_mm=opts.noise_mm if opts.noise_rank else None,
-                    plausible=plausible)  # fmt: skip
+    ident = analyse(
+        jac,
+        layout.names,
+        candidates,
+        rtol=opts.rtol,
+        structural_jacobian=generic,
+        noise_mm=opts.noise_mm if opts.noise_rank else None,
+        plausible=plausible,
+    )
     free = solved_mask(layout, ident.base, candidates, opts.free)
     # validate() checked the bound before any fit; this checks the count on these data.
     check_training_rows(d.train_rows.size, len(d.samples), int(np.count_nonzero(free)))
@@ -190,15 +206,29 @@ def _free_set(
 def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions) -> Problem:
     """The problem the method solves: ML, or MAP with a Gaussian prior toward the nominal."""
     # noise_mm also sizes the filters' measurement noise, with or without the prior.
-    ml = Problem(d.model, d.layout, d.q, d.length_mm, d.aidx, free, theta_start,
-                 noise_mm=opts.noise_mm, drift_basis=d.drift_basis)  # fmt: skip
+    ml = Problem(
+        d.model,
+        d.layout,
+        d.q,
+        d.length_mm,
+        d.aidx,
+        free,
+        theta_start,
+        noise_mm=opts.noise_mm,
+        drift_basis=d.drift_basis,
+    )
     return prior.with_prior(ml, opts)
 
 
 def _weighed_solve(
-    d: _Data, samples: SampleSet, theta_start: FloatArray, free: np.ndarray,
-    opts: IdentifyOptions, progress: ProgressFn | None, clock: Clock | None,
-) -> tuple[IdentifyOptions, dict[str, Any], robust.Solved]:  # fmt: skip
+    d: _Data,
+    samples: SampleSet,
+    theta_start: FloatArray,
+    free: np.ndarray,
+    opts: IdentifyOptions,
+    progress: ProgressFn | None,
+    clock: Clock | None,
+) -> tuple[IdentifyOptions, dict[str, Any], robust.Solved]:
     """Step 5: the fit, its prior weighed as ``prior_weight`` says
     (:func:`calib.prior.weighed_solve`; ``cv`` scores each fold by an identification)."""
 
@@ -210,12 +240,24 @@ def _weighed_solve(
     # the noise too (prior.noise_from_map). Grouped hold-out keeps whole pose groups away on
     # purpose; their errors include the extrapolation, so they stay out of it.
     test = d.test_rows
-    held_out = (prior.HeldOutRows(d.q_all[test], np.asarray(d.samples.length_mm[test], float),
-                                  d.aidx_all[test])
-                if test.size and opts.holdout == "random" else None)  # fmt: skip
-    return prior.weighed_solve(lambda o: _problem(d, theta_start, free, o), theta_start, opts,
-                               held_out_rmse, samples, d.train_rows, progress, clock,
-                               held_out)  # fmt: skip
+    held_out = (
+        prior.HeldOutRows(
+            d.q_all[test], np.asarray(d.samples.length_mm[test], float), d.aidx_all[test]
+        )
+        if test.size and opts.holdout == "random"
+        else None
+    )
+    return prior.weighed_solve(
+        lambda o: _problem(d, theta_start, free, o),
+        theta_start,
+        opts,
+        held_out_rmse,
+        samples,
+        d.train_rows,
+        progress,
+        clock,
+        held_out,
+    )
 
 
 def _counting(progress: ProgressFn | None) -> ProgressFn | None:
@@ -245,9 +287,14 @@ def _select_drift(
         return None
     t_all, unit = d.times
     t = t_all[d.train_rows]
-    sel, units = drift.select_at_plain_fit(opts.drift, _problem(d, theta_start, free, opts), t,
-                                           d.train_rows, lambda th: d.units(th, d.train_rows),
-                                           unit)  # fmt: skip
+    sel, units = drift.select_at_plain_fit(
+        opts.drift,
+        _problem(d, theta_start, free, opts),
+        t,
+        d.train_rows,
+        lambda th: d.units(th, d.train_rows),
+        unit,
+    )
     if not sel.model.is_none:
         d.drift_model = sel.model
         d.drift_basis = sel.model.basis(t, units)
@@ -268,10 +315,13 @@ def _figures(
     """Length metrics before and after, on the training and the test rows; the after figures
     with the drift terms ``beta`` (m,) [mm] at each row's time (none before)."""
     return length_figures(
-        d.samples.length_mm, {"train": d.train_rows, "test": d.test_rows},
-        {"before": lambda rows: d.lengths(theta_before, rows),
-         "after": lambda rows: d.lengths(theta, rows) + _drift_mm(d, theta, beta, rows)},
-    )  # fmt: skip
+        d.samples.length_mm,
+        {"train": d.train_rows, "test": d.test_rows},
+        {
+            "before": lambda rows: d.lengths(theta_before, rows),
+            "after": lambda rows: d.lengths(theta, rows) + _drift_mm(d, theta, beta, rows),
+        },
+    )
 
 
 def identify(
@@ -340,8 +390,9 @@ def identify(
     beta = final.drift_coefficients(x)
     drift_block = None
     if opts.drift != "none":
-        drift_block = drift_report(d.drift_model or drift.DriftModel(time_unit=d.times[1]), beta,
-                                   selection, opts.drift)  # fmt: skip
+        drift_block = drift_report(
+            d.drift_model or drift.DriftModel(time_unit=d.times[1]), beta, selection, opts.drift
+        )
         every = np.arange(len(samples))
         drift_block["per_sample_mm"] = _drift_mm(d, theta, beta, every).tolist()
         drift_block["rows_flagged"] = [int(d.train_rows[i]) for i in solved.flagged]
@@ -354,21 +405,36 @@ def identify(
     # The covariance propagated to the tool point over a workspace sample within the joint
     # limits, after removing the rigid motions distances cannot see (calib.tcp).
     tcp = tcp_uncertainty_for_problem(final, x, cov).to_dict()
-    extension = (d.lengths(theta, np.arange(len(samples)))
-                 - theta[N_KIN:].reshape(-1, 4)[d.aidx_all, 3])  # fmt: skip
+    extension = (
+        d.lengths(theta, np.arange(len(samples))) - theta[N_KIN:].reshape(-1, 4)[d.aidx_all, 3]
+    )
     plaus = plausibility(layout, theta, d.model.tool_mm, extension)
     if not plaus["plausible"]:
         notes.append(implausibility_advice(layout, final.free_names, sigma, cov, plaus, opts))
     flagged = [int(d.train_rows[i]) for i in solved.flagged]
     report(progress, 1.0, "done")
     return IdentifyResult(
-        model=d.model, layout=layout, method=opts.method, theta=theta,
+        model=d.model,
+        layout=layout,
+        method=opts.method,
+        theta=theta,
         theta_before=theta_before,
         free_names=[n for n, f in zip(layout.names, free, strict=True) if f],
-        sigma=sigma, correlation=corr, identifiability=ident, solver=result,
-        metrics=_figures(d, theta_before, theta, beta), flagged_rows=flagged,
-        train_rows=d.train_rows, test_rows=d.test_rows, options=opts, plausibility=plaus,
-        notes=notes, elapsed_s=timer.elapsed(), theta_start=theta_start,
-        tcp_uncertainty_mm=tcp, prior=prior_block(opts, used, prior_detail),
-        robust_detail=robust_detail(opts, solved), drift=drift_block,
-    )  # fmt: skip
+        sigma=sigma,
+        correlation=corr,
+        identifiability=ident,
+        solver=result,
+        metrics=_figures(d, theta_before, theta, beta),
+        flagged_rows=flagged,
+        train_rows=d.train_rows,
+        test_rows=d.test_rows,
+        options=opts,
+        plausibility=plaus,
+        notes=notes,
+        elapsed_s=timer.elapsed(),
+        theta_start=theta_start,
+        tcp_uncertainty_mm=tcp,
+        prior=prior_block(opts, used, prior_detail),
+        robust_detail=robust_detail(opts, solved),
+        drift=drift_block,
+    )

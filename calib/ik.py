@@ -80,8 +80,7 @@ class IKOptions:
             raise ValueError(
                 f"stall_iterations must be an integer >= 1, got {self.stall_iterations}"
             )
-        for name in ("tol_mm", "tol_deg", "damping", "max_step_deg",
-                     "rotation_weight_mm_per_rad"):  # fmt: skip
+        for name in ("tol_mm", "tol_deg", "damping", "max_step_deg", "rotation_weight_mm_per_rad"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
@@ -147,8 +146,10 @@ def rotation_vector(rot: FloatArray) -> FloatArray:
     for ``θ < π`` and cheaper in the IK loop than scipy's ``Rotation.from_matrix``, which
     re-orthogonalises. Within about 1e-4 rad of ``π`` the axis comes from scipy.
     """
-    v = 0.5 * np.stack([rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0],
-                        rot[:, 1, 0] - rot[:, 0, 1]], axis=1)  # fmt: skip
+    v = 0.5 * np.stack(
+        [rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]],
+        axis=1,
+    )
     sin = np.linalg.norm(v, axis=1)
     cos = 0.5 * (rot[:, 0, 0] + rot[:, 1, 1] + rot[:, 2, 2] - 1.0)
     angle = np.arctan2(sin, cos)
@@ -161,9 +162,13 @@ def rotation_vector(rot: FloatArray) -> FloatArray:
 
 
 def _errors_and_jacobian(
-    model: RobotModel, dh: FloatArray, q_rad: FloatArray, tool: FloatArray,
-    target_pos: FloatArray, target_rot: FloatArray | None,
-) -> tuple[FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    model: RobotModel,
+    dh: FloatArray,
+    q_rad: FloatArray,
+    tool: FloatArray,
+    target_pos: FloatArray,
+    target_rot: FloatArray | None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Position error ``(n, 3)`` [mm], rotation error ``(n, 3)`` [rad] (zeros in position
     mode) and the geometric Jacobian ``(n, 3 or 6, 6)`` [mm/rad; rad/rad]."""
     rot, origin = forward_frames(dh, q_rad, model.convention)
@@ -215,8 +220,9 @@ def solve_ik(
     since_best = np.zeros(n, dtype=int)
     for it in range(options.max_iterations + 1):
         rot_t = None if target_rot is None else target_rot[active]
-        e_pos, e_rot, jac = _errors_and_jacobian(model, dh, q[active], tool,
-                                                 target_pos_mm[active], rot_t)  # fmt: skip
+        e_pos, e_rot, jac = _errors_and_jacobian(
+            model, dh, q[active], tool, target_pos_mm[active], rot_t
+        )
         err = e_pos if target_rot is None else np.concatenate([e_pos, weight * e_rot], axis=1)
         norm = np.linalg.norm(err, axis=1)
         improved = norm < (1.0 - STALL_GAIN) * best[active]
@@ -224,7 +230,8 @@ def solve_ik(
         best[rows], q_best[rows], since_best[rows] = norm[improved], q[rows], 0
         since_best[active[~improved]] += 1
         ok = (np.linalg.norm(e_pos, axis=1) <= options.tol_mm) & (
-            np.linalg.norm(e_rot, axis=1) <= tol_rad)  # fmt: skip
+            np.linalg.norm(e_rot, axis=1) <= tol_rad
+        )
         q_best[active[ok]] = q[active[ok]]
         keep = ~ok & (since_best[active] < options.stall_iterations)
         active, err, jac = active[keep], err[keep], jac[keep]
@@ -254,8 +261,9 @@ def solve_ik(
     return IKSolution(np.rad2deg(q), iterations, pos_err, rot_err, converged)
 
 
-def wrist_flipped(model: RobotModel, a_deg: FloatArray, b_deg: FloatArray,
-                   min_deg: float) -> np.ndarray:  # fmt: skip
+def wrist_flipped(
+    model: RobotModel, a_deg: FloatArray, b_deg: FloatArray, min_deg: float
+) -> np.ndarray:
     """Per pose (n,): the wrist bend changed sign between ``a`` and ``b`` (both poses (n, 6)
     [deg]), each bend at least ``min_deg`` away from the singularity."""
     sa, sb = wrist_bend(model, a_deg), wrist_bend(model, b_deg)

@@ -334,8 +334,11 @@ def position_jacobian(
     block = cols[:, : 4 * N_JOINTS].reshape(n, N_JOINTS, 4, 3)  # a view
     # Classic DH: α and a act about / along x_j, θ and d about / along z_{j-1};
     # modified DH: α and a about / along x_{j-1}, θ and d about / along z_j.
-    ax, zx = (slice(1, None), slice(None, -1)) if convention == "dh" else (
-        slice(None, -1), slice(1, None))  # fmt: skip
+    ax, zx = (
+        (slice(1, None), slice(None, -1))
+        if convention == "dh"
+        else (slice(None, -1), slice(1, None))
+    )
     block[:, :, 0] = _cross(x_axis[:, ax], lever[:, ax])
     block[:, :, 1] = x_axis[:, ax]
     block[:, :, 2] = z_axis[:, zx]

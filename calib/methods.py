@@ -82,9 +82,12 @@ def _geolm_options(opts: IdentifyOptions) -> geolm.GeoLMOptions:
 
 
 def _de_solve(
-    problem: Problem, x0: FloatArray, solver: de.DEOptions, opts: IdentifyOptions,
+    problem: Problem,
+    x0: FloatArray,
+    solver: de.DEOptions,
+    opts: IdentifyOptions,
     progress: ProgressFn | None,
-) -> SolverResult:  # fmt: skip
+) -> SolverResult:
     bounds = internal_sigma(problem.layout, 5.0, 0.5, 50.0)[problem.free]
     return de.solve(problem, bounds, x0, solver, progress)
 
@@ -126,9 +129,12 @@ assert tuple(REGISTRY) == METHODS, "calib.options.Method and the registry must l
 
 
 def run(
-    problem: Problem, x0: FloatArray, opts: IdentifyOptions, progress: ProgressFn | None,
+    problem: Problem,
+    x0: FloatArray,
+    opts: IdentifyOptions,
+    progress: ProgressFn | None,
     clock: Clock | None = None,
-) -> SolverResult:  # fmt: skip
+) -> SolverResult:
     """Run ``opts.method`` on ``problem`` from ``x0`` (shape (k,)); its ``elapsed_s`` by
     ``clock`` (:data:`calib.timing.Clock`; None: 0, not timed)."""
     entry = REGISTRY[opts.method]

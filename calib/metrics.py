@@ -25,8 +25,13 @@ def length_metrics(
     """
     e = np.asarray(measured_mm, dtype=float) - np.asarray(model_mm, dtype=float)
     if e.size == 0:
-        return {"n": 0, "rmse_mm": float("nan"), "mae_mm": float("nan"),
-                "std_mm": float("nan"), "max_mm": float("nan")}  # fmt: skip
+        return {
+            "n": 0,
+            "rmse_mm": float("nan"),
+            "mae_mm": float("nan"),
+            "std_mm": float("nan"),
+            "max_mm": float("nan"),
+        }
     return {
         "n": int(e.size),
         "rmse_mm": float(np.sqrt(np.mean(e * e))),

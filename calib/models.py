@@ -191,20 +191,50 @@ HSR_JR680: dict[str, Any] = {
     "convention": "dh",
     "tool_mm": [0.0, 0.0, 0.0],
     "joints": [
-        {"alpha_deg": -90.0, "a_mm": 250.0, "d_mm": 653.5, "theta_deg": 0.0,
-         "limits_deg": [-180.0, 180.0]},
-        {"alpha_deg": 0.0, "a_mm": 900.0, "d_mm": 0.0, "theta_deg": 0.0,
-         "limits_deg": [-155.0, 90.0]},
-        {"alpha_deg": 90.0, "a_mm": -205.0, "d_mm": 0.0, "theta_deg": 0.0,
-         "limits_deg": [60.0, 300.0]},
-        {"alpha_deg": -90.0, "a_mm": 0.0, "d_mm": 1030.2, "theta_deg": 0.0,
-         "limits_deg": [-360.0, 360.0]},
-        {"alpha_deg": 90.0, "a_mm": 0.0, "d_mm": 0.0, "theta_deg": 0.0,
-         "limits_deg": [-125.0, 125.0]},
-        {"alpha_deg": 0.0, "a_mm": 0.0, "d_mm": 200.6, "theta_deg": 0.0,
-         "limits_deg": [-360.0, 360.0]},
+        {
+            "alpha_deg": -90.0,
+            "a_mm": 250.0,
+            "d_mm": 653.5,
+            "theta_deg": 0.0,
+            "limits_deg": [-180.0, 180.0],
+        },
+        {
+            "alpha_deg": 0.0,
+            "a_mm": 900.0,
+            "d_mm": 0.0,
+            "theta_deg": 0.0,
+            "limits_deg": [-155.0, 90.0],
+        },
+        {
+            "alpha_deg": 90.0,
+            "a_mm": -205.0,
+            "d_mm": 0.0,
+            "theta_deg": 0.0,
+            "limits_deg": [60.0, 300.0],
+        },
+        {
+            "alpha_deg": -90.0,
+            "a_mm": 0.0,
+            "d_mm": 1030.2,
+            "theta_deg": 0.0,
+            "limits_deg": [-360.0, 360.0],
+        },
+        {
+            "alpha_deg": 90.0,
+            "a_mm": 0.0,
+            "d_mm": 0.0,
+            "theta_deg": 0.0,
+            "limits_deg": [-125.0, 125.0],
+        },
+        {
+            "alpha_deg": 0.0,
+            "a_mm": 0.0,
+            "d_mm": 200.6,
+            "theta_deg": 0.0,
+            "limits_deg": [-360.0, 360.0],
+        },
     ],
-}  # fmt: skip
+}
 
 BUILTIN_MODELS: dict[str, dict[str, Any]] = {"hsr-jr680": HSR_JR680}
 

@@ -189,9 +189,16 @@ def _held_out_terms(
     over their variance in units of ``σ²`` (``stacked_jac``: the fit's weighted data and
     prior rows, (n[+k], k))."""
     n, m = problem.n_samples, held_out.length_mm.shape[0]
-    test = replace(problem, q_rad=held_out.q_rad, length_mm=held_out.length_mm,
-                   anchor_index=held_out.anchor_index, weights=np.ones(m), prior_sigma=None,
-                   prior_mean=None, drift_basis=None)  # fmt: skip
+    test = replace(
+        problem,
+        q_rad=held_out.q_rad,
+        length_mm=held_out.length_mm,
+        anchor_index=held_out.anchor_index,
+        weights=np.ones(m),
+        prior_sigma=None,
+        prior_mean=None,
+        drift_basis=None,
+    )
     ev = test.evaluate(x)
     assert ev.jacobian is not None
     r_t, j_t = ev.residual[:m], ev.jacobian[:m]
@@ -206,15 +213,22 @@ def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> I
     if not np.isfinite(scale):
         return replace(options, prior=False, prior_weight="fixed", noise_mm=noise_mm)
     return replace(
-        options, prior=True, prior_weight="fixed", noise_mm=noise_mm,
-        prior_mm=options.prior_mm * scale, prior_deg=options.prior_deg * scale,
-    )  # fmt: skip
+        options,
+        prior=True,
+        prior_weight="fixed",
+        noise_mm=noise_mm,
+        prior_mm=options.prior_mm * scale,
+        prior_deg=options.prior_deg * scale,
+    )
 
 
 def cv_scale(
-    held_out_rmse: HeldOutRmse, samples: SampleSet, options: IdentifyOptions,
-    train_rows: np.ndarray, noise_mm: float,
-) -> tuple[float, dict[str, float]]:  # fmt: skip
+    held_out_rmse: HeldOutRmse,
+    samples: SampleSet,
+    options: IdentifyOptions,
+    train_rows: np.ndarray,
+    noise_mm: float,
+) -> tuple[float, dict[str, float]]:
     """The prior-width scale with the lowest mean grouped-fold held-out RMSE on ``train_rows``.
 
     ``held_out_rmse`` fits one fold (:data:`HeldOutRmse`). Returns the scale (``inf`` = no
@@ -264,11 +278,16 @@ def prior_block(
 
 
 def weighed_solve(
-    make_problem: Callable[[IdentifyOptions], Problem], theta_start: FloatArray,
-    opts: IdentifyOptions, held_out_rmse: HeldOutRmse, samples: SampleSet,
-    train_rows: np.ndarray, progress: ProgressFn | None, clock: Clock | None = None,
+    make_problem: Callable[[IdentifyOptions], Problem],
+    theta_start: FloatArray,
+    opts: IdentifyOptions,
+    held_out_rmse: HeldOutRmse,
+    samples: SampleSet,
+    train_rows: np.ndarray,
+    progress: ProgressFn | None,
+    clock: Clock | None = None,
     held_out: HeldOutRows | None = None,
-) -> tuple[IdentifyOptions, dict[str, Any], Solved]:  # fmt: skip
+) -> tuple[IdentifyOptions, dict[str, Any], Solved]:
     """The fit (:func:`calib.robust.solve`), its prior weighed as ``prior_weight`` says.
 
     ``make_problem(options)`` builds the problem (ML, or MAP with the options' widths and

@@ -212,8 +212,13 @@ class Problem:
 
         Returns shape ``(len(rows),)`` or ``(S, len(rows))``.
         """
-        return predict_lengths(self.model, self.full(x), self.q_rad[rows], self.anchor_index[rows],
-                               self._trig_rows(rows))  # fmt: skip
+        return predict_lengths(
+            self.model,
+            self.full(x),
+            self.q_rad[rows],
+            self.anchor_index[rows],
+            self._trig_rows(rows),
+        )
 
     def _prior_rows(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         assert self.prior_sigma is not None and self.prior_mean is not None

@@ -99,10 +99,15 @@ class IdentifyResult:
 
         def rows(table: FloatArray) -> list[dict[str, float | int]]:
             return [
-                {"joint": j + 1, "alpha_deg": float(table[j, 0]), "a_mm": float(table[j, 1]),
-                 "d_mm": float(table[j, 2]), "theta_deg": float(table[j, 3])}
+                {
+                    "joint": j + 1,
+                    "alpha_deg": float(table[j, 0]),
+                    "a_mm": float(table[j, 1]),
+                    "d_mm": float(table[j, 2]),
+                    "theta_deg": float(table[j, 3]),
+                }
                 for j in range(N_JOINTS)
-            ]  # fmt: skip
+            ]
 
         scale = self.layout.display_scale
         anchors: dict[str, dict[str, Any]] = {}
@@ -170,8 +175,9 @@ class IdentifyResult:
 
 def covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Free-parameter covariance (k, k) in internal units and σ̂ [mm]."""
-    pred, jac_full = length_jacobian(problem.model, problem.full(x), problem.q_rad,
-                                     problem.anchor_index)  # fmt: skip
+    pred, jac_full = length_jacobian(
+        problem.model, problem.full(x), problem.q_rad, problem.anchor_index
+    )
     sw = np.sqrt(problem.weights)
     res = problem.project(sw * (pred - problem.length_mm))  # drift terms profiled out
     jac = problem.project(sw[:, None] * jac_full[:, problem.free])
@@ -239,10 +245,20 @@ def plausibility(
         bound, kind = float(bounds[i]), "error" if i < N_DH else "absolute"
         if N_DH <= i < N_KIN:
             value = float(nominal_tool[i - N_DH] + theta[i])
-        items.append({"name": name, "value": value, "unit": layout.units[i], "kind": kind,
-                      "bound": bound, "ok": bool(abs(value) <= bound)})  # fmt: skip
-    ext_ok = bool(extension_mm.size == 0 or (
-        extension_mm.min() > 0 and extension_mm.max() <= CABLE_EXTENSION_MAX_MM))  # fmt: skip
+        items.append(
+            {
+                "name": name,
+                "value": value,
+                "unit": layout.units[i],
+                "kind": kind,
+                "bound": bound,
+                "ok": bool(abs(value) <= bound),
+            }
+        )
+    ext_ok = bool(
+        extension_mm.size == 0
+        or (extension_mm.min() > 0 and extension_mm.max() <= CABLE_EXTENSION_MAX_MM)
+    )
     outside = [it["name"] for it in items if not it["ok"]]
     return {
         "plausible": not outside and ext_ok,
@@ -280,9 +296,13 @@ def weakest_direction(
 
 
 def implausibility_advice(
-    layout: ParamLayout, free_names: list[str], sigma: FloatArray, cov: FloatArray,
-    plaus: dict[str, Any], options: IdentifyOptions,
-) -> str:  # fmt: skip
+    layout: ParamLayout,
+    free_names: list[str],
+    sigma: FloatArray,
+    cov: FloatArray,
+    plaus: dict[str, Any],
+    options: IdentifyOptions,
+) -> str:
     """The note of an implausible result: what is out of bounds, which parameters the data
     leave least constrained (largest 1σ against the plausible bound, and the weakest
     direction), and what to do: plan poses that excite them (``cablecal plan --start``), and
@@ -314,9 +334,10 @@ def implausibility_advice(
 
 
 def length_figures(
-    measured_mm: FloatArray, rows_by_part: dict[str, np.ndarray],
+    measured_mm: FloatArray,
+    rows_by_part: dict[str, np.ndarray],
     predicted: dict[str, Callable[[np.ndarray], FloatArray]],
-) -> dict[str, dict[str, dict[str, float]]]:  # fmt: skip
+) -> dict[str, dict[str, dict[str, float]]]:
     """Length metrics (:func:`calib.metrics.length_metrics`) per model label (``before``,
     ``after``) and per part (``train``, ``test``): ``measured_mm`` (n,) [mm] of every sample,
     ``rows_by_part`` the rows of each part, ``predicted[label](rows)`` the lengths (r,) [mm]
@@ -334,30 +355,49 @@ def robust_note(opts: IdentifyOptions, s: Solved, n_train: int, n_samples: int) 
     scr = s.screening
     if opts.robust == "auto" and scr is not None and not scr.screening:
         train = n_train + scr.rows_short()
-        more = max(samples_for_training_rows(train, opts.test_fraction) - n_samples,
-                   scr.rows_short())  # fmt: skip
-        gross = (f"{s.flagged.size} gross error(s) beyond {GROSS_ERROR_MM:g} mm rejected "
-                 "and refit from the start; " if s.flagged.size else "")  # fmt: skip
-        return (f"robust auto: {gross}too few samples to screen outliers: {more} more would "
-                f"allow it (redundancy {scr.redundancy:.1f}, screening needs "
-                f"{SCREEN_MIN_DOF}); only a residual beyond "
-                f"{GROSS_ERROR_MM:g} mm is rejected")  # fmt: skip
+        more = max(
+            samples_for_training_rows(train, opts.test_fraction) - n_samples, scr.rows_short()
+        )
+        gross = (
+            f"{s.flagged.size} gross error(s) beyond {GROSS_ERROR_MM:g} mm rejected "
+            "and refit from the start; "
+            if s.flagged.size
+            else ""
+        )
+        return (
+            f"robust auto: {gross}too few samples to screen outliers: {more} more would "
+            f"allow it (redundancy {scr.redundancy:.1f}, screening needs "
+            f"{SCREEN_MIN_DOF}); only a residual beyond "
+            f"{GROSS_ERROR_MM:g} mm is rejected"
+        )
     if opts.robust == "auto" and s.flagged.size == 0:
-        return (f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
-                f"robust σ, threshold {s.threshold:.2f}): the plain fit")  # fmt: skip
-    how = {"auto": "rejected, refit from the start", "reject": "rejected, refit from the start",
-           "huber": "down-weighted", "soft_l1": "down-weighted"}[opts.robust]  # fmt: skip
-    return (f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
-            f"({how}; {s.fits} fit(s))")  # fmt: skip
+        return (
+            f"robust auto: no gross outlier (largest residual {float(s.u.max()):.1f} "
+            f"robust σ, threshold {s.threshold:.2f}): the plain fit"
+        )
+    how = {
+        "auto": "rejected, refit from the start",
+        "reject": "rejected, refit from the start",
+        "huber": "down-weighted",
+        "soft_l1": "down-weighted",
+    }[opts.robust]
+    return (
+        f"robust {opts.robust}: {s.flagged.size} flagged beyond {s.threshold:.2f} robust σ "
+        f"({how}; {s.fits} fit(s))"
+    )
 
 
 def robust_detail(opts: IdentifyOptions, s: Solved) -> dict[str, Any]:
     """``result.json``'s ``robust_detail``: the threshold [robust σ] (null when not screening),
     the fits, and whether the residuals were screened at what redundancy."""
     scr = s.screening
-    return {"mode": opts.robust, "threshold": s.threshold if np.isfinite(s.threshold) else None,
-            "fits": s.fits, "screened": None if scr is None else scr.screening,
-            "redundancy": None if scr is None else scr.redundancy}  # fmt: skip
+    return {
+        "mode": opts.robust,
+        "threshold": s.threshold if np.isfinite(s.threshold) else None,
+        "fits": s.fits,
+        "screened": None if scr is None else scr.screening,
+        "redundancy": None if scr is None else scr.redundancy,
+    }
 
 
 def drift_report(
@@ -371,14 +411,24 @@ def drift_report(
     ``rows_flagged``: the rows (0-based) the robust screen left out of the fit."""
     per = "mm_per_h" if model.time_unit == "s" else "mm_per_100_samples"
     scale = 3600.0 if model.time_unit == "s" else 100.0
-    out: dict[str, Any] = {"mode": mode, "model": model.name, "time_unit": model.time_unit,
-                           "n_columns": model.n_columns, "steps": [], "smooth": None}  # fmt: skip
+    out: dict[str, Any] = {
+        "mode": mode,
+        "model": model.name,
+        "time_unit": model.time_unit,
+        "n_columns": model.n_columns,
+        "steps": [],
+        "smooth": None,
+    }
     n_smooth = max(len(model.knots) - 1, 0)
     smooth_beta = beta[:n_smooth]
     j = n_smooth
     for s in model.steps:
-        entry: dict[str, Any] = {"row": s.row, "t": s.t, "kind": s.kind,
-                                 "offset_mm": float(beta[j])}  # fmt: skip
+        entry: dict[str, Any] = {
+            "row": s.row,
+            "t": s.t,
+            "kind": s.kind,
+            "offset_mm": float(beta[j]),
+        }
         if s.kind == "sensor_moved":
             delta = beta[j + 1 : j + 4]
             entry["p0_shift_mm"] = [float(v) for v in delta]
@@ -418,14 +468,18 @@ def drift_summary(block: Mapping[str, Any]) -> str:
     ``rows_flagged``: the robust screen's outliers) are named: a step among them is not seen,
     so "held still" is said only when every sample was kept."""
     if block.get("note"):
-        return (f"drift {block['mode']}: {block['note']}, so steps and drift of the "
-                "measurement were not looked for")  # fmt: skip
+        return (
+            f"drift {block['mode']}: {block['note']}, so steps and drift of the "
+            "measurement were not looked for"
+        )
     aside = sorted({*block.get("rows_left_out_of_the_choice", ()), *block.get("rows_flagged", ())})
     left = ""
     if aside:
         shown = ", ".join(str(r) for r in aside[:8]) + (", …" if len(aside) > 8 else "")
-        left = (f"{len(aside)} sample(s) left out as outliers (rows {shown}): a step or drift "
-                "among them is not seen; check them")  # fmt: skip
+        left = (
+            f"{len(aside)} sample(s) left out as outliers (rows {shown}): a step or drift "
+            "among them is not seen; check them"
+        )
     if block["model"] == "none":
         if left:
             return f"drift {block['mode']}: none found among the samples kept; {left}"

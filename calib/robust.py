@@ -241,9 +241,15 @@ class Screening:
 
 
 def screen(
-    mode: str, res: FloatArray, jac: FloatArray, w: FloatArray, prior_jac: FloatArray | None,
-    flag_threshold: float, floor_mm: float = 0.0, screening: bool | None = None,
-) -> Screening:  # fmt: skip
+    mode: str,
+    res: FloatArray,
+    jac: FloatArray,
+    w: FloatArray,
+    prior_jac: FloatArray | None,
+    flag_threshold: float,
+    floor_mm: float = 0.0,
+    screening: bool | None = None,
+) -> Screening:
     """Screen the residuals of one fit for outliers.
 
     ``mode`` the ``robust`` option; ``res`` (n,) unweighted residuals [mm]; ``jac``, ``w``,
@@ -273,8 +279,7 @@ def screen(
     u = np.abs(t) / scale
     if mode in REJECTING and bool(screening) and np.all((w == 0) | (w == 1)):
         u = _unmasked(np.sqrt(w)[:, None] * proj, res, t, inside, scale, floor_mm)
-    return Screening(u, deletion, scale, redundancy, thr, bool(screening), n_in,
-                     int(jac.shape[1]))  # fmt: skip
+    return Screening(u, deletion, scale, redundancy, thr, bool(screening), n_in, int(jac.shape[1]))
 
 
 #: Share of the largest severity a newly flagged row needs to be rejected in the same round
@@ -295,9 +300,13 @@ MAX_DELETIONS = 10
 
 
 def _unmasked(
-    a: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray, scale: float,
+    a: FloatArray,
+    res: FloatArray,
+    t: FloatArray,
+    inside: np.ndarray,
+    scale: float,
     floor_mm: float,
-) -> FloatArray:  # fmt: skip
+) -> FloatArray:
     """Standardised residuals (n,) once outliers that mask each other are set aside: a
     backward search in the linearised fit.
 
@@ -343,9 +352,14 @@ def _unmasked(
 
 
 def _deleted(
-    a: FloatArray, h0: FloatArray, res: FloatArray, t: FloatArray, inside: np.ndarray,
-    deleted: list[int], floor_mm: float,
-) -> tuple[FloatArray, float, float]:  # fmt: skip
+    a: FloatArray,
+    h0: FloatArray,
+    res: FloatArray,
+    t: FloatArray,
+    inside: np.ndarray,
+    deleted: list[int],
+    floor_mm: float,
+) -> tuple[FloatArray, float, float]:
     """:func:`_unmasked`'s standardised residuals (n,), scale [mm] and redundancy with
     ``deleted`` rows out of the linearised fit; ``h0`` (n,) the leverages ``Σ a²`` per row."""
     a_s = a[deleted]  # (s, r)
@@ -382,8 +396,14 @@ class Solved:
     screening: Screening | None = None
 
 
-def _screen_fit(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOptions,
-                floor_mm: float, first: Screening | None) -> Screening:  # fmt: skip
+def _screen_fit(
+    problem: Problem,
+    x: FloatArray,
+    w: FloatArray,
+    opts: IdentifyOptions,
+    floor_mm: float,
+    first: Screening | None,
+) -> Screening:
     """The outlier screening of every training row at ``x`` under weights ``w`` (n,), the
     prior's rows counted in the leverage (:func:`screen`); whether ``auto`` screens is decided
     on the ``first`` (plain) fit. ``problem`` has unit weights, so its Jacobian's data rows are
@@ -392,9 +412,16 @@ def _screen_fit(problem: Problem, x: FloatArray, w: FloatArray, opts: IdentifyOp
     assert ev.jacobian is not None
     n = problem.n_samples
     prior_jac = ev.jacobian[n:] if problem.has_prior else None
-    return screen(opts.robust, ev.residual[:n], ev.jacobian[:n], w, prior_jac,
-                  opts.flag_threshold, floor_mm,
-                  None if first is None else first.screening)  # fmt: skip
+    return screen(
+        opts.robust,
+        ev.residual[:n],
+        ev.jacobian[:n],
+        w,
+        prior_jac,
+        opts.flag_threshold,
+        floor_mm,
+        None if first is None else first.screening,
+    )
 
 
 def solve(
@@ -423,8 +450,9 @@ def solve(
         prob_r = problem.with_weights(weights)
         lo = 0.05 + 0.9 * r / rounds
         start = problem.x0() if rejecting else x
-        result = methods.run(prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds),
-                             clock)  # fmt: skip
+        result = methods.run(
+            prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds), clock
+        )
         total_iter += result.iterations
         fits += 1
         starts.append(len(history))

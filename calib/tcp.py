@@ -81,8 +81,9 @@ def workspace_sample_deg(
     for _ in range(100):
         q = rng.uniform(limits[:, 0], limits[:, 1], size=(2 * n, N_JOINTS))
         if min_z_mm is not None:
-            pos = forward_position(model.dh_internal(), np.deg2rad(q), model.tool_mm,
-                                   model.convention)  # fmt: skip
+            pos = forward_position(
+                model.dh_internal(), np.deg2rad(q), model.tool_mm, model.convention
+            )
             q = q[pos[:, 2] >= min_z_mm]
         out = np.vstack([out, q])
         if out.shape[0] >= n:
@@ -162,8 +163,9 @@ def tcp_uncertainty(
     if free.shape != (layout.size,):
         raise ValueError(f"free: expected shape ({layout.size},), got {free.shape}")
     if cov_free.shape != (k, k):
-        raise ValueError(f"cov_free: expected shape ({k}, {k}) for {k} free parameters, "
-                         f"got {cov_free.shape}")  # fmt: skip
+        raise ValueError(
+            f"cov_free: expected shape ({k}, {k}) for {k} free parameters, got {cov_free.shape}"
+        )
     q = workspace_sample_deg(model, n_poses, seed) if q_deg is None else np.asarray(q_deg)
     b = aligned_tcp_jacobian(model, layout, theta, free, q)
     m = q.shape[0]
@@ -183,8 +185,16 @@ def tcp_uncertainty_for_problem(
 ) -> TcpUncertainty:
     """:func:`tcp_uncertainty` for a :class:`~calib.problem.Problem` at free values ``x``
     (shape (k,)), e.g. the fit and the free-parameter covariance ``identify`` computes."""
-    return tcp_uncertainty(problem.model, problem.layout, problem.full(x), problem.free,
-                           cov_free, q_deg=q_deg, n_poses=n_poses, seed=seed)  # fmt: skip
+    return tcp_uncertainty(
+        problem.model,
+        problem.layout,
+        problem.full(x),
+        problem.free,
+        cov_free,
+        q_deg=q_deg,
+        n_poses=n_poses,
+        seed=seed,
+    )
 
 
 def aligned_position_error_mm(points_mm: FloatArray, reference_mm: FloatArray) -> FloatArray:
@@ -200,8 +210,9 @@ def aligned_position_error_mm(points_mm: FloatArray, reference_mm: FloatArray) -
     """
     pa, pb = np.asarray(points_mm, dtype=float), np.asarray(reference_mm, dtype=float)
     if pa.ndim != 2 or pa.shape[1] != 3 or pa.shape != pb.shape or pa.shape[0] < 3:
-        raise ValueError(f"points_mm, reference_mm: need equal shapes (m>=3, 3), got "
-                         f"{pa.shape} and {pb.shape}")  # fmt: skip
+        raise ValueError(
+            f"points_mm, reference_mm: need equal shapes (m>=3, 3), got {pa.shape} and {pb.shape}"
+        )
     # Imported here: identify (which needs the rest of this module) never aligns points.
     from scipy.spatial.transform import Rotation
 

@@ -97,9 +97,12 @@ class VerifyResult:
         for i in range(self.residual_mm.shape[0]):
             row: dict[str, Any] = {"index": i}
             row |= {c: float(v) for c, v in zip(JOINT_COLUMNS, self.joints_deg[i], strict=True)}
-            row |= {"anchor": self.anchor[i], "measured_mm": float(self.measured_mm[i]),
-                    "predicted_mm": float(self.predicted_mm[i]),
-                    "residual_mm": float(self.residual_mm[i])}  # fmt: skip
+            row |= {
+                "anchor": self.anchor[i],
+                "measured_mm": float(self.measured_mm[i]),
+                "predicted_mm": float(self.predicted_mm[i]),
+                "residual_mm": float(self.residual_mm[i]),
+            }
             rows.append(row)
         return rows
 
@@ -139,9 +142,11 @@ def _stored_anchors(result: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
         }
     }
     for aid, vals in (result.get("anchors") or {}).items():
-        out[str(aid)] = {"anchor_mm": list(vals["anchor_mm"]),
-                         "length_offset_mm": vals["length_offset_mm"]}  # fmt: skip
-    return out  # fmt: skip
+        out[str(aid)] = {
+            "anchor_mm": list(vals["anchor_mm"]),
+            "length_offset_mm": vals["length_offset_mm"],
+        }
+    return out
 
 
 def verify(
@@ -171,19 +176,27 @@ def verify(
     if opts.refit_anchor:
         model = model_from_result(result)
         layout = ParamLayout(ids)
-        theta = fit_anchors(model, layout, np.zeros(layout.size), np.deg2rad(q), aidx,
-                            samples.length_mm)  # fmt: skip
+        theta = fit_anchors(
+            model, layout, np.zeros(layout.size), np.deg2rad(q), aidx, samples.length_mm
+        )
         predicted[:] = predict_lengths(model, theta, np.deg2rad(q), aidx)
         fitted = theta[N_KIN:].reshape(-1, 4)
-        anchors = {aid: {"anchor_mm": [float(v) for v in fitted[k, :3]],
-                         "length_offset_mm": float(fitted[k, 3]), "refit": True}
-                   for k, aid in enumerate(ids)}  # fmt: skip
+        anchors = {
+            aid: {
+                "anchor_mm": [float(v) for v in fitted[k, :3]],
+                "length_offset_mm": float(fitted[k, 3]),
+                "refit": True,
+            }
+            for k, aid in enumerate(ids)
+        }
     else:
         stored = _stored_anchors(result)
         missing = [a for a in ids if a not in stored]
         if missing:
-            raise ValueError(f"anchor: {missing} not in the result ({sorted(stored)}); "
-                             "use refit_anchor for a moved sensor")  # fmt: skip
+            raise ValueError(
+                f"anchor: {missing} not in the result ({sorted(stored)}); "
+                "use refit_anchor for a moved sensor"
+            )
         for k, aid in enumerate(ids):
             rows = aidx == k
             predicted[rows] = predict_lengths_from_result(result, q[rows], aid)

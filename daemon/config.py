@@ -132,8 +132,12 @@ class WatchSettings(BaseModel):
 
     def step_settings(self) -> StepSettings:
         """The pure detector's settings."""
-        return StepSettings(min_step_mm=self.min_step_mm, sigma_floor_mm=self.sigma_floor_mm,
-                            k_sigma=self.k_sigma, min_run=self.min_run)  # fmt: skip
+        return StepSettings(
+            min_step_mm=self.min_step_mm,
+            sigma_floor_mm=self.sigma_floor_mm,
+            k_sigma=self.k_sigma,
+            min_run=self.min_run,
+        )
 
 
 def default_state_dir() -> Path:

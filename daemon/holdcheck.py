@@ -86,8 +86,12 @@ def check_poses(store: Store, robot_id: int, n_poses: int) -> CheckPoses:
     samples, _ = store.sample_set(int(result["campaign_id"]))
     q = samples.joints_deg
     rows = spread_indices(q, n_poses)
-    return {"robot_id": robot_id, "source": "default",
-            "poses_deg": [[float(v) for v in q[i]] for i in rows], "updated_at": None}  # fmt: skip
+    return {
+        "robot_id": robot_id,
+        "source": "default",
+        "poses_deg": [[float(v) for v in q[i]] for i in rows],
+        "updated_at": None,
+    }
 
 
 # ------------------------------------------------------------------ the monitor
@@ -169,19 +173,26 @@ class HoldCheckMonitor:
         from calib.verify import reference_rmse_mm
 
         cfg = self.settings
-        limit = threshold_mm(reference_rmse_mm(result), cfg.threshold_mm, cfg.threshold_factor,
-                             cfg.min_threshold_mm)  # fmt: skip
+        limit = threshold_mm(
+            reference_rmse_mm(result), cfg.threshold_mm, cfg.threshold_factor, cfg.min_threshold_mm
+        )
         poses = check_poses(self.store, robot_id, self.settings.n_poses)["poses_deg"]
         n = len(self.store.list_checks(robot_id, limit=10_000)) + 1
         campaign = self.store.create_campaign(
-            f"check {n} of robot {robot_id}", robot_id,
+            f"check {n} of robot {robot_id}",
+            robot_id,
             f"drift check ({trigger}) against result {result_row['id']}",
-        )  # fmt: skip
+        )
         cid = int(campaign["id"])
         check = self.store.create_check(
-            robot_id, cid, int(result_row["id"]), trigger=trigger, threshold_mm=limit,
-            refit_anchor=self.settings.refit_anchor, poses_deg=poses,
-        )  # fmt: skip
+            robot_id,
+            cid,
+            int(result_row["id"]),
+            trigger=trigger,
+            threshold_mm=limit,
+            refit_anchor=self.settings.refit_anchor,
+            poses_deg=poses,
+        )
         if self.auto is not None:
             self.auto.start_check(cid, anchor=str(result.get("anchor_id") or "A"))
         self._running = check
@@ -201,14 +212,19 @@ class HoldCheckMonitor:
                 if near.all():
                     break
                 if time.monotonic() > deadline:
-                    self._finish(check, "failed", error=f"timed out after "
-                                 f"{self.settings.timeout_s:g} s: {int(near.sum())} of "
-                                 f"{len(near)} check poses captured")  # fmt: skip
+                    self._finish(
+                        check,
+                        "failed",
+                        error=f"timed out after "
+                        f"{self.settings.timeout_s:g} s: {int(near.sum())} of "
+                        f"{len(near)} check poses captured",
+                    )
                     return
                 await asyncio.sleep(POLL_S)
             self._release(cid)
-            ev = await asyncio.to_thread(evaluate, result, samples, check["threshold_mm"],
-                                         check["refit_anchor"])  # fmt: skip
+            ev = await asyncio.to_thread(
+                evaluate, result, samples, check["threshold_mm"], check["refit_anchor"]
+            )
             self._finish(check, ev.status, metrics_=ev.metrics, detail=ev.detail)
         except asyncio.CancelledError:
             self._finish(check, "failed", error="cancelled (daemon stopping)")
@@ -232,8 +248,9 @@ class HoldCheckMonitor:
     ) -> None:
         self._release(check["campaign_id"])
         self._running = None
-        row = self.store.finish_check(check["id"], status, metrics=metrics_, error=error,
-                                      detail=detail)  # fmt: skip
+        row = self.store.finish_check(
+            check["id"], status, metrics=metrics_, error=error, detail=detail
+        )
         self._last, self._last_loaded = row, True
         robot = check["robot_id"]
         if status == "failed":
@@ -241,19 +258,30 @@ class HoldCheckMonitor:
         else:
             metrics.HOLD_CHECK_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
             metrics.HOLD_CHECK_THRESHOLD.labels(str(robot)).set(float(row["threshold_mm"]))
-            message = (f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
-                       f"threshold {row['threshold_mm']:.4f} mm: {status}")  # fmt: skip
+            message = (
+                f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
+                f"threshold {row['threshold_mm']:.4f} mm: {status}"
+            )
             explained = (detail or {}).get("explanation")
             if status == "drift" and explained is not None:
                 from calib.monitor.holdcheck import explanation_text
 
                 message += f"; {explanation_text(explained)}"
         kind = "drift" if status == "drift" else "drift_check"
-        self.store.record_event(kind, None, message,
-                                {"check_id": row["id"], "robot_id": robot, "status": status,
-                                 "rms_mm": row["rms_mm"], "threshold_mm": row["threshold_mm"],
-                                 "explanation": (detail or {}).get("explanation")},
-                                campaign_id=check["campaign_id"])  # fmt: skip
+        self.store.record_event(
+            kind,
+            None,
+            message,
+            {
+                "check_id": row["id"],
+                "robot_id": robot,
+                "status": status,
+                "rms_mm": row["rms_mm"],
+                "threshold_mm": row["threshold_mm"],
+                "explanation": (detail or {}).get("explanation"),
+            },
+            campaign_id=check["campaign_id"],
+        )
         (log.warning if status != "ok" else log.info)(message)
 
     async def _scheduled(self) -> None:

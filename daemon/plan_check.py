@@ -44,8 +44,9 @@ def rejections(store: Any, campaign_id: int) -> list[dict[str, Any]]:
     """The campaign's refused captures (``capture_rejected`` events' details: ``reason``,
     ``detail``, ``joints_deg`` when the pose was known), oldest first, at most the newest
     :data:`MAX_REJECTIONS`: what :func:`calib.planning.progress.not_capturable` reads."""
-    events = store.list_events(kind="capture_rejected", campaign_id=campaign_id,
-                               limit=MAX_REJECTIONS)  # fmt: skip
+    events = store.list_events(
+        kind="capture_rejected", campaign_id=campaign_id, limit=MAX_REJECTIONS
+    )
     return [dict(e["detail"]) for e in events if isinstance(e.get("detail"), dict)]
 
 

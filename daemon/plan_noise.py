@@ -65,16 +65,22 @@ def _samples_noise(store: Any, campaign_id: int) -> NoiseEstimate | None:
     if not rows:
         return None
     samples, _ = store.sample_set(campaign_id)
-    repeat = repeat_estimate(samples.joints_deg, [str(a) for a in samples.anchor],
-                             samples.length_mm)  # fmt: skip
+    repeat = repeat_estimate(
+        samples.joints_deg, [str(a) for a in samples.anchor], samples.length_mm
+    )
     if repeat is not None:
         return repeat
-    stats = [(r["length_std_mm"], r["count"], r["id"]) for r in rows
-             if r["length_std_mm"] is not None and r["count"]]  # fmt: skip
+    stats = [
+        (r["length_std_mm"], r["count"], r["id"])
+        for r in rows
+        if r["length_std_mm"] is not None and r["count"]
+    ]
     if len(stats) < MIN_WINDOWS:
         return None  # too few to estimate: read no raw readings
-    raw = [[float(x["length_mm"]) for x in store.raw_readings(int(sid))]
-           for _, _, sid in stats[-MAX_RAW_SAMPLES:]]  # fmt: skip
+    raw = [
+        [float(x["length_mm"]) for x in store.raw_readings(int(sid))]
+        for _, _, sid in stats[-MAX_RAW_SAMPLES:]
+    ]
     return capture_mean_estimate([(float(s), float(c)) for s, c, _ in stats], raw)
 
 
@@ -84,10 +90,15 @@ def _sampler_noise(sampler: Any, cfg: Any) -> NoiseEstimate | None:
         return None
     buf = recent(0.0, MAX_BUFFER)
     return sampler_estimate(
-        [r.t_mono for r in buf], [r.joints_deg for r in buf], [r.length_mm for r in buf],
-        [r.over_range for r in buf], cfg.settle_s, cfg.settle_tol_deg, cfg.settle_tol_mm,
+        [r.t_mono for r in buf],
+        [r.joints_deg for r in buf],
+        [r.length_mm for r in buf],
+        [r.over_range for r in buf],
+        cfg.settle_s,
+        cfg.settle_tol_deg,
+        cfg.settle_tol_mm,
         cfg.min_readings,
-    )  # fmt: skip
+    )
 
 
 def cell_noise(
@@ -99,9 +110,9 @@ def cell_noise(
     ``settle_tol_deg``, ``settle_tol_mm`` and ``min_readings``."""
     result = _result_noise(store, robot_id)
     samples = None if result is not None else _samples_noise(store, campaign_id)
-    live = None if result is not None or samples is not None else _sampler_noise(
-        sampler, sampler_cfg
-    )  # fmt: skip
+    live = (
+        None if result is not None or samples is not None else _sampler_noise(sampler, sampler_cfg)
+    )
     return choose(result, samples, live, PlanOptions().noise_mm)
 
 

@@ -189,8 +189,14 @@ class SensorWatch:
         clean = tester.clean_rows(ids, sample_id)
         if tester.needs_refit(len(clean)):
             await asyncio.to_thread(tester.refit_rows, samples, ids, clean)
-        q = (current["q1"], current["q2"], current["q3"], current["q4"], current["q5"],
-             current["q6"])  # fmt: skip
+        q = (
+            current["q1"],
+            current["q2"],
+            current["q3"],
+            current["q4"],
+            current["q5"],
+            current["q6"],
+        )
         residual, alarm = tester.test(sample_id, q, current["length_mm"], str(current["anchor"]))
         if residual is not None:
             cw.tested += 1
@@ -208,14 +214,19 @@ class SensorWatch:
         sample_id = int(sample["id"])
         if str(sample["anchor"]) == move["new_anchor"]:
             cw.after_move = False  # captures go to the new session: nothing in flight
-        if (str(sample["anchor"]) != move["previous_anchor"]
-                or sample_id <= int(move["detected_at_sample_id"])):  # fmt: skip
+        if str(sample["anchor"]) != move["previous_anchor"] or sample_id <= int(
+            move["detected_at_sample_id"]
+        ):
             return False
         cw.after_move = False
         self.store.move_samples_to_anchor(cw.campaign_id, [sample_id], move["new_anchor"])
         move["moved_sample_ids"].append(sample_id)
-        log.info("watch: sample %d, in flight in anchor %s at the move, goes to %s",
-                 sample_id, move["previous_anchor"], move["new_anchor"])  # fmt: skip
+        log.info(
+            "watch: sample %d, in flight in anchor %s at the move, goes to %s",
+            sample_id,
+            move["previous_anchor"],
+            move["new_anchor"],
+        )
         return True
 
     # ------------------------------------------------------------------ a move
@@ -230,22 +241,32 @@ class SensorWatch:
         # Every sample of the old session from the step on: the alarm's, and any stored
         # since (still queued for the test).
         first_id = int(alarm.first_key)
-        later = [int(r["id"]) for r in self.store.list_samples(cid, after_id=first_id - 1)
-                 if r["anchor"] == previous]  # fmt: skip
+        later = [
+            int(r["id"])
+            for r in self.store.list_samples(cid, after_id=first_id - 1)
+            if r["anchor"] == previous
+        ]
         moved = sorted({*(int(k) for k in alarm.keys), *later})
         self.store.move_samples_to_anchor(cid, moved, new)
         auto = self.auto is not None and self.auto.move_anchor(cid, new)
         row = ids.index(moved[0]) + 1 if moved[0] in ids else None
         fit = cw.tester.fit
         detail = {
-            "campaign_id": cid, "robot_id": cw.robot_id, "sample_id": moved[0], "row": row,
+            "campaign_id": cid,
+            "robot_id": cw.robot_id,
+            "sample_id": moved[0],
+            "row": row,
             "detected_at_sample_id": max(int(k) for k in alarm.keys),
             "delay_samples": alarm.delay,
-            "step_mm": round(alarm.step_mm, 4), "size_mm": round(alarm.size_mm, 4),
-            "previous_anchor": previous, "new_anchor": new, "moved_sample_ids": moved,
-            "auto_capture_switched": auto, "fit": fit.kind if fit else None,
+            "step_mm": round(alarm.step_mm, 4),
+            "size_mm": round(alarm.size_mm, 4),
+            "previous_anchor": previous,
+            "new_anchor": new,
+            "moved_sample_ids": moved,
+            "auto_capture_switched": auto,
+            "fit": fit.kind if fit else None,
             "fit_rmse_mm": round(fit.rmse_mm, 4) if fit else None,
-        }  # fmt: skip
+        }
         message = (
             f"sensor moved at sample {moved[0]} (row {row}) of campaign {cid}: length change "
             f"{alarm.step_mm:+.2f} mm (median |change| {alarm.size_mm:.2f} mm); "
@@ -274,8 +295,7 @@ class SensorWatch:
         if not events:
             raise NothingToUndo(f"campaign {campaign_id} has no sensor_moved event")
         event = events[-1]
-        undone = self.store.list_events(kind=SENSOR_MOVED_UNDONE, campaign_id=campaign_id,
-                                        limit=1)  # fmt: skip
+        undone = self.store.list_events(kind=SENSOR_MOVED_UNDONE, campaign_id=campaign_id, limit=1)
         if undone and (undone[-1]["detail"] or {}).get("event_id") == event["id"]:
             raise NothingToUndo(f"sensor_moved event {event['id']} was undone already")
         detail = event["detail"] or {}
@@ -284,13 +304,15 @@ class SensorWatch:
         self.store.move_samples_to_anchor(campaign_id, ids, previous)
         if self.auto is not None:
             self.auto.move_anchor(campaign_id, previous, from_anchor=new)
-        out = {"event_id": event["id"], "anchor": previous, "from_anchor": new,
-               "sample_ids": ids}  # fmt: skip
+        out = {"event_id": event["id"], "anchor": previous, "from_anchor": new, "sample_ids": ids}
         self.store.record_event(
-            SENSOR_MOVED_UNDONE, None,
+            SENSOR_MOVED_UNDONE,
+            None,
             f"sensor move of campaign {campaign_id} undone by the operator: {len(ids)} "
-            f"sample(s) back from anchor {new!r} to {previous!r}", out, campaign_id=campaign_id,
-        )  # fmt: skip
+            f"sample(s) back from anchor {new!r} to {previous!r}",
+            out,
+            campaign_id=campaign_id,
+        )
         self._moves.pop(campaign_id, None)
         cw = self._campaigns.get(campaign_id)
         if cw is not None:
@@ -307,25 +329,31 @@ class SensorWatch:
             return {}
         from calib.cable import N_KIN
 
-        return {aid: float(fit.theta[N_KIN + 4 * k + 3])
-                for k, aid in enumerate(fit.layout.anchors)}  # fmt: skip
+        return {
+            aid: float(fit.theta[N_KIN + 4 * k + 3]) for k, aid in enumerate(fit.layout.anchors)
+        }
 
     def status(self) -> dict[str, Any]:
         """The ``watch`` block of ``GET /status``: ``enabled``, ``moves`` (per campaign with
         an automatic split not undone since this start: the ``sensor_moved`` detail without
         the sample id list), ``campaigns`` (per watched campaign: ``fit``, ``fit_rmse_mm``,
         ``tested``, ``last_residual_mm``, ``band_mm``)."""
-        moves = [{k: v for k, v in d.items() if k != "moved_sample_ids"}
-                 for d in self._moves.values()]  # fmt: skip
+        moves = [
+            {k: v for k, v in d.items() if k != "moved_sample_ids"} for d in self._moves.values()
+        ]
         campaigns = []
         for cw in self._campaigns.values():
             fit = cw.tester.fit
-            campaigns.append({
-                "campaign_id": cw.campaign_id, "fit": fit.kind if fit else None,
-                "fit_rmse_mm": None if fit is None else _round(fit.rmse_mm),
-                "tested": cw.tested, "last_residual_mm": _round(cw.last_residual_mm),
-                "band_mm": _round(cw.tester.detector.band_mm),
-            })  # fmt: skip
+            campaigns.append(
+                {
+                    "campaign_id": cw.campaign_id,
+                    "fit": fit.kind if fit else None,
+                    "fit_rmse_mm": None if fit is None else _round(fit.rmse_mm),
+                    "tested": cw.tested,
+                    "last_residual_mm": _round(cw.last_residual_mm),
+                    "band_mm": _round(cw.tester.detector.band_mm),
+                }
+            )
         return {"enabled": self.enabled, "moves": moves, "campaigns": campaigns}
 
 

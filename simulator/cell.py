@@ -350,8 +350,9 @@ class EmulatedCell:
         changes)."""
         if not isinstance(delta_mm, list | tuple) or len(delta_mm) != 3:
             raise ValueError(f"delta_mm: expected a list of 3 numbers [mm], got {delta_mm!r}")
-        delta = [_finite_number(v, f"delta_mm[{i}]", MAX_ANCHOR_MOVE_MM)
-                 for i, v in enumerate(delta_mm)]  # fmt: skip
+        delta = [
+            _finite_number(v, f"delta_mm[{i}]", MAX_ANCHOR_MOVE_MM) for i, v in enumerate(delta_mm)
+        ]
         theta = self.truth.theta.copy()
         start = self.truth.layout.anchor_slice(0).start
         theta[start : start + 3] += delta

@@ -73,12 +73,14 @@ def regular_poses(model: RobotModel, n: int, seed: int) -> FloatArray:
     out = np.empty((0, 6))
     tool = np.array([0.0, 0.0, 200.0])
     while out.shape[0] < n:
-        q = rng.uniform([-150, -110, 75, -160, -110, -160], [150, 50, 285, 160, 110, 160],
-                        size=(4 * n, 6))  # fmt: skip
+        q = rng.uniform(
+            [-150, -110, 75, -160, -110, -160], [150, 50, 285, 160, 110, 160], size=(4 * n, 6)
+        )
         q = q[np.abs(q[:, 4]) > 15]
         eye = np.tile(np.eye(3), (q.shape[0], 1, 1))
-        _, _, jac = _errors_and_jacobian(model, model.dh_internal(), np.deg2rad(q), tool,
-                                         np.zeros((q.shape[0], 3)), eye)  # fmt: skip
+        _, _, jac = _errors_and_jacobian(
+            model, model.dh_internal(), np.deg2rad(q), tool, np.zeros((q.shape[0], 3)), eye
+        )
         jac[:, 3:] *= 1000.0
         sv = np.linalg.svd(jac, compute_uv=False)
         out = np.vstack([out, q[sv[:, 0] < 25 * sv[:, -1]]])
@@ -111,8 +113,9 @@ def work_frame() -> FloatArray:
     return frame(np.array([900.0, -250.0, 300.0]), rot)
 
 
-def planned_targets(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray,
-                    work: FloatArray) -> FloatArray:  # fmt: skip
+def planned_targets(
+    nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work: FloatArray
+) -> FloatArray:
     """Targets (n, 4, 4) in ``work`` of ``tool`` that the nominal controller reaches at
     ``q_plan``."""
     out: FloatArray = invert(work) @ flange_frames(nominal, q_plan) @ tool
@@ -120,8 +123,9 @@ def planned_targets(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray,
 
 
 #: The object frame inside the work object (RAPID's oframe): the work object is uframe · oframe.
-OFRAME = frame(np.array([35.0, -20.0, 12.0]), np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0],
-                                                        [0.0, 0.0, 1.0]]))  # fmt: skip
+OFRAME = frame(
+    np.array([35.0, -20.0, 12.0]), np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+)
 
 
 def rapid_confdata(nominal: RobotModel, q_deg: FloatArray) -> list[tuple[int, int, int, int]]:
@@ -138,8 +142,14 @@ def _quat(rot: FloatArray) -> list[float]:
     return [float(v) for v in matrix_to_quat_wxyz(rot)]
 
 
-def rapid_module(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work: FloatArray,
-                 name: str = "OLP_PATH", newline: str = "\n") -> str:  # fmt: skip
+def rapid_module(
+    nominal: RobotModel,
+    q_plan: FloatArray,
+    tool: FloatArray,
+    work: FloatArray,
+    name: str = "OLP_PATH",
+    newline: str = "\n",
+) -> str:
     """A RAPID module as an OLP system writes it: tooldata, wobjdata, one robtarget per
     target (odd ones over several lines), and MoveL/MoveJ instructions."""
     targets = planned_targets(nominal, q_plan, tool, work)
@@ -162,8 +172,10 @@ def rapid_module(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work
         cf = ",".join(str(c) for c in conf[i])
         ext = "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]"
         if i % 2:
-            lines.append(f"    CONST robtarget p{i}:=[[{p}],\n        [{q}],\n        [{cf}],"
-                         f"\n        {ext}];")  # fmt: skip
+            lines.append(
+                f"    CONST robtarget p{i}:=[[{p}],\n        [{q}],\n        [{cf}],"
+                f"\n        {ext}];"
+            )
         else:
             lines.append(f"    CONST robtarget p{i}:=[[{p}],[{q}],[{cf}],{ext}];")
     lines.append("    PROC main()")
@@ -174,14 +186,18 @@ def rapid_module(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work
     return newline.join(lines)
 
 
-def urscript(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray,
-             polyscope: bool = True) -> str:  # fmt: skip
+def urscript(
+    nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, polyscope: bool = True
+) -> str:
     """A URScript program (base frame): PolyScope-style ``Waypoint_n_p``/``_q`` globals and
     ``movel``/``movej(get_inverse_kin(…, qnear=…))``, with ``set_tcp``."""
     targets = flange_frames(nominal, q_plan) @ tool
     tcp = matrix_to_rotvec(tool[:3, :3])
-    tcp_text = ", ".join(f"{v / 1000:.6f}" for v in tool[:3, 3]) + ", " + ", ".join(
-        f"{v:.6f}" for v in tcp)  # fmt: skip
+    tcp_text = (
+        ", ".join(f"{v / 1000:.6f}" for v in tool[:3, 3])
+        + ", "
+        + ", ".join(f"{v:.6f}" for v in tcp)
+    )
     lines = ["def olp_program():", f"  set_tcp(p[{tcp_text}])"]
     if not polyscope:  # a plain script starts from a joint move (its "q" for the first movel)
         home = ", ".join(repr(float(v)) for v in np.deg2rad(q_plan[0] + 2.0))
@@ -199,8 +215,10 @@ def urscript(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray,
             if i % 2:
                 lines.append(f"  movel(Waypoint_{i + 1}_p, a=1.2, v=0.25)")
             else:
-                lines.append(f"  movej(get_inverse_kin(Waypoint_{i + 1}_p, qnear=Waypoint_"
-                             f"{i + 1}_q), a=1.39, v=1.04)")  # fmt: skip
+                lines.append(
+                    f"  movej(get_inverse_kin(Waypoint_{i + 1}_p, qnear=Waypoint_"
+                    f"{i + 1}_q), a=1.39, v=1.04)"
+                )
         else:
             pos = [v / 1000 for v in targets[i][:3, 3]]
             rv = matrix_to_rotvec(targets[i][:3, :3])

@@ -35,8 +35,13 @@ def fanuc_config(nominal: RobotModel, q_deg: FloatArray) -> list[str]:
     sh, el, wr = branch_signs(nominal, q_deg)
     out = []
     for i, q in enumerate(q_deg):
-        letters = ("N" if wr[i] > 0 else "F") + " " + ("U" if el[i] > 0 else "D") + " " + (
-            "T" if sh[i] > 0 else "B")  # fmt: skip
+        letters = (
+            ("N" if wr[i] > 0 else "F")
+            + " "
+            + ("U" if el[i] > 0 else "D")
+            + " "
+            + ("T" if sh[i] > 0 else "B")
+        )
         out.append(f"{letters}, " + ", ".join(str(turn_number(q[j])) for j in (3, 4, 5)))
     return out
 
@@ -47,9 +52,15 @@ def _frame_text(f: FloatArray) -> str:
     return f"{{X {x:.4f},Y {y:.4f},Z {z:.4f},A {a:.4f},B {b:.4f},C {c:.4f}}}"
 
 
-def krl_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work: FloatArray,
-                name: str = "olp_path", tool_no: int = 3,
-                base_no: int = 2) -> dict[str, str]:  # fmt: skip
+def krl_program(
+    nominal: RobotModel,
+    q_plan: FloatArray,
+    tool: FloatArray,
+    work: FloatArray,
+    name: str = "olp_path",
+    tool_no: int = 3,
+    base_no: int = 2,
+) -> dict[str, str]:
     """``name.src``, ``name.dat`` and ``$config.dat`` (CRLF line ends; Latin-1 comments):
     every third target an inline ``LIN {…}`` after ``$TOOL``/``$BASE``, the others inline
     forms (``;FOLD`` with ``FDAT_ACT``) on ``.dat`` positions, the last two an array."""
@@ -57,22 +68,47 @@ def krl_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work:
     status = kuka_status(nominal, q_plan)
     n = len(targets)
     config = [
-        "&ACCESS RVP", "&REL 12", "DEFDAT  $CONFIG", ";FOLD BASISTECH GLOBALS",
-        "DECL INT TOOL_NO_DUMMY=0", ";ENDFOLD (BASISTECH GLOBALS)", ";FOLD TOOL_DATA",
+        "&ACCESS RVP",
+        "&REL 12",
+        "DEFDAT  $CONFIG",
+        ";FOLD BASISTECH GLOBALS",
+        "DECL INT TOOL_NO_DUMMY=0",
+        ";ENDFOLD (BASISTECH GLOBALS)",
+        ";FOLD TOOL_DATA",
         "DECL FRAME TOOL_DATA[16]",
         "TOOL_DATA[1]={X 0.0,Y 0.0,Z 150.0,A 0.0,B 0.0,C 0.0}",
         f"TOOL_DATA[{tool_no}]={_frame_text(tool)} ; Schweißbrenner (EMULATED)",
-        'TOOL_NAME[3,]="Brenner"', "TOOL_TYPE[3]=#NONE", ";ENDFOLD (TOOL_DATA)",
-        ";FOLD BASE_DATA", "DECL FRAME BASE_DATA[32]",
+        'TOOL_NAME[3,]="Brenner"',
+        "TOOL_TYPE[3]=#NONE",
+        ";ENDFOLD (TOOL_DATA)",
+        ";FOLD BASE_DATA",
+        "DECL FRAME BASE_DATA[32]",
         f"BASE_DATA[{base_no}]={_frame_text(work)} ; Tisch für Bauteil",
-        "BASE_DATA[5]={X 100.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}", "BASE_TYPE[2]=#BASE",
-        ";ENDFOLD (BASE_DATA)", "ENDDAT", "",
-    ]  # fmt: skip
-    dat = ["&ACCESS RVP", "&REL 12", f"DEFDAT  {name}", ";FOLD EXTERNAL DECLARATIONS;%{PE}",
-           ";ENDFOLD (EXTERNAL DECLARATIONS)", ""]  # fmt: skip
-    src = ["&ACCESS RVP", "&REL 12", "&PARAM EDITMASK = *", f"DEF {name}( )",
-           ";FOLD INI;%{PE}", "  BAS (#INITMOV,0 )", ";ENDFOLD (INI)",
-           "; Bahn geplant (OLP), Maße in mm", ""]  # fmt: skip
+        "BASE_DATA[5]={X 100.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}",
+        "BASE_TYPE[2]=#BASE",
+        ";ENDFOLD (BASE_DATA)",
+        "ENDDAT",
+        "",
+    ]
+    dat = [
+        "&ACCESS RVP",
+        "&REL 12",
+        f"DEFDAT  {name}",
+        ";FOLD EXTERNAL DECLARATIONS;%{PE}",
+        ";ENDFOLD (EXTERNAL DECLARATIONS)",
+        "",
+    ]
+    src = [
+        "&ACCESS RVP",
+        "&REL 12",
+        "&PARAM EDITMASK = *",
+        f"DEF {name}( )",
+        ";FOLD INI;%{PE}",
+        "  BAS (#INITMOV,0 )",
+        ";ENDFOLD (INI)",
+        "; Bahn geplant (OLP), Maße in mm",
+        "",
+    ]
     array = [i for i in range(n) if i >= n - 2 and i % 3]
     if array:
         dat.append(f"DECL E6POS XPATH[{len(array)}]")
@@ -80,35 +116,59 @@ def krl_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work:
         x, y, z = t[:3, 3]
         a, b, c = matrix_to_zyx_deg(t[:3, :3])
         s, tt = status[i], turn_of(q_plan[i])
-        value = (f"X {x:.4f},Y {y:.4f},Z {z:.4f},A {a:.4f},B {b:.4f},C {c:.4f},S {s},T {tt},"
-                 "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0")  # fmt: skip
+        value = (
+            f"X {x:.4f},Y {y:.4f},Z {z:.4f},A {a:.4f},B {b:.4f},C {c:.4f},S {s},T {tt},"
+            "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0"
+        )
         if i % 3 == 0:
-            src += [f"$TOOL=TOOL_DATA[{tool_no}]", f"$BASE = BASE_DATA[{base_no}]",
-                    f"LIN {{X {x:.4f},Y {y:.4f},Z {z:.4f},A {a:.4f},B {b:.4f},C {c:.4f},"
-                    f"S 'B{s:03b}',T 'B{tt:06b}'}} C_DIS ; Anfahrt"]  # fmt: skip
+            src += [
+                f"$TOOL=TOOL_DATA[{tool_no}]",
+                f"$BASE = BASE_DATA[{base_no}]",
+                f"LIN {{X {x:.4f},Y {y:.4f},Z {z:.4f},A {a:.4f},B {b:.4f},C {c:.4f},"
+                f"S 'B{s:03b}',T 'B{tt:06b}'}} C_DIS ; Anfahrt",
+            ]
             continue
         ref = f"XPATH[{array.index(i) + 1}]" if i in array else f"XP{i}"
         if i in array:
             dat.append(f"{ref}={{{value}}}")
         else:
             dat.append(f"DECL E6POS XP{i}={{{value}}}")
-        dat.append(f"DECL FDAT FP{i}={{TOOL_NO {tool_no},BASE_NO {base_no},IPO_FRAME #BASE,"
-                   'POINT2[] " ",TQ_STATE FALSE}')  # fmt: skip
+        dat.append(
+            f"DECL FDAT FP{i}={{TOOL_NO {tool_no},BASE_NO {base_no},IPO_FRAME #BASE,"
+            'POINT2[] " ",TQ_STATE FALSE}'
+        )
         dat.append(f"DECL PDAT PPDAT{i}={{VEL 100.000,ACC 100.000,APO_DIST 100.000}}")
         move = "PTP" if i % 2 else "LIN"
-        src += [f";FOLD {move} P{i} Vel=100 % PDAT{i} Tool[{tool_no}]:Brenner Base[{base_no}]:"
-                f"Tisch;%{{PE}}%R 8.3.31,%MKUKATPBASIS,%CMOVE,%V{move},%P 1:{move}",
-                "$BWDSTART=FALSE", f"PDAT_ACT=PPDAT{i}", f"FDAT_ACT=FP{i}",
-                "BAS(#PTP_PARAMS,100)", f"{move} {ref} ", ";ENDFOLD", ""]  # fmt: skip
+        src += [
+            f";FOLD {move} P{i} Vel=100 % PDAT{i} Tool[{tool_no}]:Brenner Base[{base_no}]:"
+            f"Tisch;%{{PE}}%R 8.3.31,%MKUKATPBASIS,%CMOVE,%V{move},%P 1:{move}",
+            "$BWDSTART=FALSE",
+            f"PDAT_ACT=PPDAT{i}",
+            f"FDAT_ACT=FP{i}",
+            "BAS(#PTP_PARAMS,100)",
+            f"{move} {ref} ",
+            ";ENDFOLD",
+            "",
+        ]
     dat.append("DECL E6AXIS XHOME={A1 0.0,A2 -60.0,A3 180.0,A4 0.0,A5 45.0,A6 0.0,E1 0.0}")
     src += ["PTP XHOME", "END", ""]
     dat += ["ENDDAT", ""]
-    return {f"{name}.src": "\r\n".join(src), f"{name}.dat": "\r\n".join(dat),
-            "$config.dat": "\r\n".join(config)}  # fmt: skip
+    return {
+        f"{name}.src": "\r\n".join(src),
+        f"{name}.dat": "\r\n".join(dat),
+        "$config.dat": "\r\n".join(config),
+    }
 
 
-def ls_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work: FloatArray,
-               name: str = "OLP_PATH", uf: int = 2, ut: int = 3) -> str:  # fmt: skip
+def ls_program(
+    nominal: RobotModel,
+    q_plan: FloatArray,
+    tool: FloatArray,
+    work: FloatArray,
+    name: str = "OLP_PATH",
+    uf: int = 2,
+    ut: int = 3,
+) -> str:
     """An ``.LS`` program: every target a Cartesian ``P[n]`` in ``UF uf``, ``UT ut`` (odd ones
     with a ``GP2`` rail group), then ``HOME`` in joint form."""
     targets = planned_targets(nominal, q_plan, tool, work)
@@ -121,21 +181,39 @@ def ls_program(nominal: RobotModel, q_plan: FloatArray, tool: FloatArray, work: 
         x, y, z = t[:3, 3]
         r, p, w = matrix_to_zyx_deg(t[:3, :3])
         label = f'P[{i}:"pick {i}"]' if i == 2 else f"P[{i}]"
-        pos += [f"{label}{{", "   GP1:", f"\tUF : {uf}, UT : {ut},\t\tCONFIG : '{config[i - 1]}',",
-                f"\tX = {x:10.3f}  mm,\tY = {y:10.3f}  mm,\tZ = {z:10.3f}  mm,",
-                f"\tW = {w:10.3f} deg,\tP = {p:10.3f} deg,\tR = {r:10.3f} deg"]  # fmt: skip
+        pos += [
+            f"{label}{{",
+            "   GP1:",
+            f"\tUF : {uf}, UT : {ut},\t\tCONFIG : '{config[i - 1]}',",
+            f"\tX = {x:10.3f}  mm,\tY = {y:10.3f}  mm,\tZ = {z:10.3f}  mm,",
+            f"\tW = {w:10.3f} deg,\tP = {p:10.3f} deg,\tR = {r:10.3f} deg",
+        ]
         if i % 2 == 0:
             pos += ["   GP2:", f"\tUF : {uf}, UT : {ut},", f"\tJ1= {250.0 * i:10.3f}  mm"]
         pos.append("};")
     mn.append(f'J P[{n + 1}:"HOME"] 50% FINE ;')
-    pos += [f'P[{n + 1}:"HOME"]{{', "   GP1:", "\tUF : 0, UT : 3,",
-            "\tJ1=     0.000 deg,\tJ2=   -60.000 deg,\tJ3=   180.000 deg,",
-            "\tJ4=     0.000 deg,\tJ5=    45.000 deg,\tJ6=     0.000 deg", "};"]  # fmt: skip
-    lines = [f"/PROG  {name}", "/ATTR", "OWNER\t\t= MNEDITOR;", 'COMMENT\t\t= "OLP";',
-             f"LINE_COUNT\t= {len(mn)};", "PROTECT\t\t= READ_WRITE;",
-             "DEFAULT_GROUP\t= 1,1,*,*,*;", "/MN"]  # fmt: skip
-    lines += [f"{k:4d}:  {s}" if not s.startswith(("J ", "L ")) else f"{k:4d}:{s}"
-              for k, s in enumerate(mn, start=1)]  # fmt: skip
+    pos += [
+        f'P[{n + 1}:"HOME"]{{',
+        "   GP1:",
+        "\tUF : 0, UT : 3,",
+        "\tJ1=     0.000 deg,\tJ2=   -60.000 deg,\tJ3=   180.000 deg,",
+        "\tJ4=     0.000 deg,\tJ5=    45.000 deg,\tJ6=     0.000 deg",
+        "};",
+    ]
+    lines = [
+        f"/PROG  {name}",
+        "/ATTR",
+        "OWNER\t\t= MNEDITOR;",
+        'COMMENT\t\t= "OLP";',
+        f"LINE_COUNT\t= {len(mn)};",
+        "PROTECT\t\t= READ_WRITE;",
+        "DEFAULT_GROUP\t= 1,1,*,*,*;",
+        "/MN",
+    ]
+    lines += [
+        f"{k:4d}:  {s}" if not s.startswith(("J ", "L ")) else f"{k:4d}:{s}"
+        for k, s in enumerate(mn, start=1)
+    ]
     lines += ["/POS", *pos, "/END", ""]
     return "\n".join(lines)
 
@@ -182,20 +260,28 @@ def _executed(cell: Cell, targets: list[Target]) -> tuple[FloatArray, FloatArray
     return out, q
 
 
-def accuracy(cell: Cell, dialect: Dialect, files: dict[str, bytes], run: FilterRun,
-             frames: FrameTables) -> dict[str, FloatArray]:  # fmt: skip
+def accuracy(
+    cell: Cell, dialect: Dialect, files: dict[str, bytes], run: FilterRun, frames: FrameTables
+) -> dict[str, FloatArray]:
     """Per corrected target, the true robot's error against the intended pose: unfiltered,
     filtered (the written numbers, the controller's branch) and the floor (the exact
     calibrated joints ``q*``): ``{"<which>_mm": (n,), "<which>_deg": (n,)}``."""
     before = dialect.parse([Source.from_bytes(k, v) for k, v in files.items()], frames)
-    after = dialect.parse([Source.from_bytes(k, v) for k, v in run.outputs.items()
-                           if k in files], frames)  # fmt: skip
+    after = dialect.parse(
+        [Source.from_bytes(k, v) for k, v in run.outputs.items() if k in files], frames
+    )
     by_key = {(t.file, t.name): c for t, c in zip(run.targets, run.corrections, strict=True)}
     keep = [k for k, t in enumerate(before) if by_key[(t.file, t.name)].status == "corrected"]
     before = [before[k] for k in keep]
     after = [after[k] for k in keep]
-    intended = np.stack([t.pose if t.kind == "cartesian" else flange_frames(
-        cell.nominal, np.asarray(t.joints_deg)[None])[0] for t in before])  # fmt: skip
+    intended = np.stack(
+        [
+            t.pose
+            if t.kind == "cartesian"
+            else flange_frames(cell.nominal, np.asarray(t.joints_deg)[None])[0]
+            for t in before
+        ]
+    )
     out: dict[str, FloatArray] = {}
     floor = [t for t in before]
     star = {id(t): by_key[(t.file, t.name)].joints_deg for t in floor}
@@ -219,5 +305,12 @@ def rms(v: FloatArray) -> float:
     return float(np.sqrt(np.mean(np.square(v))))
 
 
-__all__ = ["accuracy", "fanuc_config", "frames_toml", "krl_program", "kuka_status",
-           "ls_program", "rms"]  # fmt: skip
+__all__ = [
+    "accuracy",
+    "fanuc_config",
+    "frames_toml",
+    "krl_program",
+    "kuka_status",
+    "ls_program",
+    "rms",
+]

@@ -214,8 +214,11 @@ def test_strings_booleans_and_non_finite_numbers_are_strict(
     ):
         r = client.post(url, json=body, headers=AUTH)
         assert r.status_code == 422 and r.json()["detail"][0]["loc"] == loc, (body, r.text)
-    r = client.post(url, content=b'[{"q1": NaN, "q2": 0, "q3": 0, "q4": 0, "q5": 0, "q6": 0}]',
-                    headers={**AUTH, "Content-Type": "application/json"})  # fmt: skip
+    r = client.post(
+        url,
+        content=b'[{"q1": NaN, "q2": 0, "q3": 0, "q4": 0, "q5": 0, "q6": 0}]',
+        headers={**AUTH, "Content-Type": "application/json"},
+    )
     assert r.status_code == 422, r.text
     r = client.post(url, content=b"q1\n\xff\n", headers={**AUTH, "Content-Type": "text/csv"})
     assert r.status_code == 400 and "UTF-8" in r.json()["detail"], r.text
@@ -225,8 +228,9 @@ def test_strings_booleans_and_non_finite_numbers_are_strict(
         headers=AUTH,
     )
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "refit_anchor"]
-    r = client.put(f"{API}/robots/{rid}/check-poses", json={"poses_deg": [["0"] * 6] * 3},
-                   headers=AUTH)  # fmt: skip
+    r = client.put(
+        f"{API}/robots/{rid}/check-poses", json={"poses_deg": [["0"] * 6] * 3}, headers=AUTH
+    )
     assert r.status_code == 422 and r.json()["detail"][0]["loc"][:2] == ["body", "poses_deg"]
 
 
@@ -530,6 +534,7 @@ def test_check_poses_download_as_csv_and_robot_programs(
             assert max(abs(a - b) for a, b in zip(got, want, strict=True)) <= 0.0005 + 1e-9
     for bad in ({"format": "gcode"}, {"format": "krl", "speed_pct": 0}):
         assert client.get(url, headers=AUTH, params=bad).status_code == 422
-    r = client.get(f"{API}/robots/{_uncalibrated_robot(client)}/check-poses?format=rapid",
-                   headers=AUTH)  # fmt: skip
+    r = client.get(
+        f"{API}/robots/{_uncalibrated_robot(client)}/check-poses?format=rapid", headers=AUTH
+    )
     assert r.status_code == 404 and "no accepted calibration" in r.json()["detail"], r.text

@@ -38,8 +38,7 @@ def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 
 
 def _files(*names: str) -> list[tuple[str, tuple[str, bytes, str]]]:
-    return [("files", (n, (FIXTURES / n).read_bytes(), "application/octet-stream"))
-            for n in names]  # fmt: skip
+    return [("files", (n, (FIXTURES / n).read_bytes(), "application/octet-stream")) for n in names]
 
 
 def test_filter_needs_the_token_a_robot_and_a_calibration(
@@ -57,27 +56,42 @@ def test_filter_needs_the_token_a_robot_and_a_calibration(
 
 
 def test_dry_run_returns_the_summary(client: TestClient, calibrated: dict[str, int]) -> None:
-    r = client.post(f"{API}/robots/{calibrated['robot_id']}/filter",
-                    files=_files("cell_a.mod", "notes_e.mod"), params={"dry_run": "true"},
-                    headers=AUTH)  # fmt: skip
+    r = client.post(
+        f"{API}/robots/{calibrated['robot_id']}/filter",
+        files=_files("cell_a.mod", "notes_e.mod"),
+        params={"dry_run": "true"},
+        headers=AUTH,
+    )
     assert r.status_code == 200, r.text
     summary = r.json()
     rows = {t["name"]: t for t in summary["targets"]}
-    assert set(rows) == {"pApproach", "pEdge", "pPath{1}", "pPath{2}", "pPath{3}", "jHome",
-                         "inline@32"}  # fmt: skip
+    assert set(rows) == {
+        "pApproach",
+        "pEdge",
+        "pPath{1}",
+        "pPath{2}",
+        "pPath{3}",
+        "jHome",
+        "inline@32",
+    }
     assert all(t["status"] == "corrected" for t in rows.values())
     assert all(t["shift_mm"] > 0.01 and t["sigma_at_tool_mm"] is not None for t in rows.values())
     assert summary["exit_code"] == 0 and summary["counts"]["corrected"] == 7
-    assert {f["file"]: f["targets"] for f in summary["files"]} == {"cell_a.mod": 7,
-                                                                  "notes_e.mod": 0}  # fmt: skip
+    assert {f["file"]: f["targets"] for f in summary["files"]} == {
+        "cell_a.mod": 7,
+        "notes_e.mod": 0,
+    }
 
 
 def test_one_file_comes_back_changed_only_in_numbers(
     client: TestClient,
     calibrated: dict[str, int],
 ) -> None:
-    r = client.post(f"{API}/robots/{calibrated['robot_id']}/filter",
-                    files=_files("polyscope_c.script"), headers=AUTH)  # fmt: skip
+    r = client.post(
+        f"{API}/robots/{calibrated['robot_id']}/filter",
+        files=_files("polyscope_c.script"),
+        headers=AUTH,
+    )
     assert r.status_code == 200, r.text
     assert 'filename="polyscope_c.script"' in r.headers["content-disposition"]
     assert json.loads(r.headers["x-filter-counts"])["corrected"] == 9
@@ -91,8 +105,9 @@ def test_several_files_come_back_as_a_zip_with_the_summary(
     calibrated: dict[str, int],
 ) -> None:
     names = ("station_b.prg", "tools_b.sys", "notes_e.mod", "plain_d.urscript")
-    r = client.post(f"{API}/robots/{calibrated['robot_id']}/filter", files=_files(*names),
-                    headers=AUTH)  # fmt: skip
+    r = client.post(
+        f"{API}/robots/{calibrated['robot_id']}/filter", files=_files(*names), headers=AUTH
+    )
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == "application/zip"
     assert r.headers["x-filter-exit-code"] == "3"  # pB3, pB4, pB5 are left and named
@@ -104,27 +119,52 @@ def test_several_files_come_back_as_a_zip_with_the_summary(
         assert _NUMBER.sub(b"#", got[n]) == _NUMBER.sub(b"#", original), n
     assert got["notes_e.mod"] == (FIXTURES / "notes_e.mod").read_bytes()
     assert b"\r\n" in got["station_b.prg"] and "Schweiß".encode("latin-1") in got["station_b.prg"]
-    left = {t["name"]: t["reason"] for t in json.loads(got["filter-summary.json"])["targets"]
-            if t["status"] != "corrected"}  # fmt: skip
+    left = {
+        t["name"]: t["reason"]
+        for t in json.loads(got["filter-summary.json"])["targets"]
+        if t["status"] != "corrected"
+    }
     assert set(left) == {"pB3", "pB4", "pB5"}
 
 
 @pytest.mark.parametrize(
     ("files", "message"),
     [
-        ([("files", ("bad.mod", b"MODULE B\n  CONST robtarget p:=[[1,2],[1,0,0,0]];\nENDMODULE\n",
-                     "text/plain"))], "bad.mod:2"),
+        (
+            [
+                (
+                    "files",
+                    (
+                        "bad.mod",
+                        b"MODULE B\n  CONST robtarget p:=[[1,2],[1,0,0,0]];\nENDMODULE\n",
+                        "text/plain",
+                    ),
+                )
+            ],
+            "bad.mod:2",
+        ),
         ([("files", ("x.txt", b"hello", "text/plain"))], "x.txt: unknown program dialect"),
-        ([("files", ("../up.mod", b"MODULE U\nENDMODULE\n", "text/plain"))],
-         "must be a plain name"),
-        ([("frames", ("f.toml", FRAMES_BAD, "text/plain")),
-          ("files", ("notes_e.mod", b"MODULE N\nENDMODULE\n", "text/plain"))],
-         "xyz_mm: expected 3 finite numbers"),
+        (
+            [("files", ("../up.mod", b"MODULE U\nENDMODULE\n", "text/plain"))],
+            "must be a plain name",
+        ),
+        (
+            [
+                ("frames", ("f.toml", FRAMES_BAD, "text/plain")),
+                ("files", ("notes_e.mod", b"MODULE N\nENDMODULE\n", "text/plain")),
+            ],
+            "xyz_mm: expected 3 finite numbers",
+        ),
         ([("other", ("o.txt", b"x", "text/plain"))], "unknown part"),
-        ([("files", (f"f{k}.mod", b"MODULE N\nENDMODULE\n", "text/plain"))
-          for k in range(MAX_FILES + 1)], f"at most {MAX_FILES}"),
+        (
+            [
+                ("files", (f"f{k}.mod", b"MODULE N\nENDMODULE\n", "text/plain"))
+                for k in range(MAX_FILES + 1)
+            ],
+            f"at most {MAX_FILES}",
+        ),
     ],
-)  # fmt: skip
+)
 def test_bad_uploads_are_a_422_naming_the_file(
     client: TestClient, calibrated: dict[str, int], files: list[Any], message: str
 ) -> None:
@@ -135,8 +175,11 @@ def test_bad_uploads_are_a_422_naming_the_file(
 
 def test_not_multipart_and_too_large(client: TestClient, calibrated: dict[str, int]) -> None:
     rid = calibrated["robot_id"]
-    r = client.post(f"{API}/robots/{rid}/filter", content=b"MODULE X\nENDMODULE\n",
-                    headers={**AUTH, "Content-Type": "text/plain"})  # fmt: skip
+    r = client.post(
+        f"{API}/robots/{rid}/filter",
+        content=b"MODULE X\nENDMODULE\n",
+        headers={**AUTH, "Content-Type": "text/plain"},
+    )
     assert r.status_code == 422 and "multipart/form-data" in r.text
     big = [("files", ("big.mod", b"!" * (MAX_FILTER_BYTES + 10), "text/plain"))]
     r = client.post(f"{API}/robots/{rid}/filter", files=big, headers=AUTH)

@@ -120,8 +120,11 @@ def test_calibrated_model_download_of_a_robot_with_a_hostile_name(client: TestCl
     model = builtin_model("hsr-jr680").to_dict()
     # CR/LF in a name is refused since issue 28 (printable text only): a 422, and the
     # hostile name downloads with its quote, semicolon and ideographs.
-    r = client.post(f"{API}/campaigns", json={"name": "c", "robot_model": {**model,
-                    "name": 'Zelle 3 "Süd"; x=y\r\n機械'}}, headers=AUTH)  # fmt: skip
+    r = client.post(
+        f"{API}/campaigns",
+        json={"name": "c", "robot_model": {**model, "name": 'Zelle 3 "Süd"; x=y\r\n機械'}},
+        headers=AUTH,
+    )
     assert r.status_code == 422 and "robot_model.name" in r.text, r.text
     name = 'Zelle 3 "Süd"; x=y 機械'
     model["name"] = name
@@ -221,8 +224,11 @@ def test_import_refuses_a_csv_sent_as_json_with_415(client: TestClient) -> None:
         assert r.status_code == 415, (ctype, r.text)
         assert "Content-Type: expected text/csv" in r.json()["detail"]
     assert client.get(f"{API}/campaigns/{cid}/samples", headers=AUTH).json() == []
-    r = client.post(f"{API}/campaigns/{cid}/samples/import", content=_real_csv(3),
-                    headers={**AUTH, "Content-Type": "text/csv; charset=utf-8"})  # fmt: skip
+    r = client.post(
+        f"{API}/campaigns/{cid}/samples/import",
+        content=_real_csv(3),
+        headers={**AUTH, "Content-Type": "text/csv; charset=utf-8"},
+    )
     assert r.status_code == 201, r.text
 
 

@@ -105,9 +105,11 @@ def teardown_module() -> None:
         ops = {op for t, op in SENT if t == token}
         n = sum(c for (t, _), c in SENT.items() if t == token)
         bad = {op for t, op in FAILED if t == token}
-        print(f"\nschemathesis {'with' if token else 'without'} token: {len(ops)} operations, "
-              f"{n} requests ({NEGATIVE[token]} the schema forbids), "
-              f"{len(bad)} failing operations")  # fmt: skip
+        print(
+            f"\nschemathesis {'with' if token else 'without'} token: {len(ops)} operations, "
+            f"{n} requests ({NEGATIVE[token]} the schema forbids), "
+            f"{len(bad)} failing operations"
+        )
 
 
 #: Operations whose body has rules between its fields that JSON Schema cannot state (open,

@@ -99,17 +99,38 @@ def test_cli_summary_names_the_step_at_80_columns(tmp_path: Path) -> None:
     _, samples = campaign("bump", N, 1)
     data = tmp_path / "bump.csv"
     data.write_text(samples_to_csv(samples))
-    base = [sys.executable, "-m", "daemon.cli", "identify", str(data),
-            "--robot", str(REPO / "examples" / "abb-irb120.toml")]  # fmt: skip
+    base = [
+        sys.executable,
+        "-m",
+        "daemon.cli",
+        "identify",
+        str(data),
+        "--robot",
+        str(REPO / "examples" / "abb-irb120.toml"),
+    ]
     env = {**os.environ, "COLUMNS": "80", "NO_COLOR": "1"}
-    proc = subprocess.run([*base, "--out", str(tmp_path / "r.json")], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=120, check=True)  # fmt: skip
+    proc = subprocess.run(
+        [*base, "--out", str(tmp_path / "r.json")],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
     flat = " ".join((proc.stdout + proc.stderr).split())
     assert "drift auto: sensor moved at row 15" in flat, flat
     assert max(len(line) for line in proc.stdout.splitlines()) <= 80
     assert json.loads((tmp_path / "r.json").read_text())["drift"]["model"] == "steps"
-    off = subprocess.run([*base, "--drift", "none"], cwd=REPO, env=env, capture_output=True,
-                         text=True, timeout=120, check=False)  # fmt: skip
+    off = subprocess.run(
+        [*base, "--drift", "none"],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert "sensor moved" not in off.stdout
 
 
@@ -129,8 +150,9 @@ def test_the_summary_never_says_held_still_while_samples_sit_millimetres_off() -
 
     def drift_block(split: int) -> dict:  # type: ignore[type-arg]
         anchors = tuple("A" if i < split else "A2" for i in range(84))
-        samples = SampleSet(joints_deg=q, length_mm=lengths, anchor=anchors, group=None,
-                            line=np.arange(2, 86))  # fmt: skip
+        samples = SampleSet(
+            joints_deg=q, length_mm=lengths, anchor=anchors, group=None, line=np.arange(2, 86)
+        )
         block: dict = identify(cell.truth.model, samples).to_json()["drift"]  # type: ignore[type-arg]
         return block
 

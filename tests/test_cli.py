@@ -25,8 +25,15 @@ HEAVY = ("fastapi", "uvicorn", "scipy", "pymodbus", "sqlite_utils", "numpy", "ca
 # calib.options is standard library only: the CLI builds its identification options from it;
 # calib.programs.formats (the program formats' names) and calib.planning.options (the plan's
 # defaults, which `plan --help` names) likewise; calib.planning loads its other names lazily.
-ALLOWED = {"calib", "calib.options", "calib.programs", "calib.programs.formats",
-           "calib.default_robot", "calib.planning", "calib.planning.options"}  # fmt: skip
+ALLOWED = {
+    "calib",
+    "calib.options",
+    "calib.programs",
+    "calib.programs.formats",
+    "calib.default_robot",
+    "calib.planning",
+    "calib.planning.options",
+}
 
 
 def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:
@@ -161,8 +168,11 @@ def test_the_simulator_imports_no_daemon() -> None:
                 names = [node.module or ""]
             else:
                 continue
-            offenders += [f"{path.relative_to(REPO)}:{node.lineno}" for n in names
-                          if n.split(".")[0] == "daemon"]  # fmt: skip
+            offenders += [
+                f"{path.relative_to(REPO)}:{node.lineno}"
+                for n in names
+                if n.split(".")[0] == "daemon"
+            ]
     assert offenders == []
 
 
@@ -178,7 +188,8 @@ def test_the_command_runs_numpy_with_one_blas_thread_unless_told(
     if preset is not None:
         env["OPENBLAS_NUM_THREADS"] = preset
     code = "import os, daemon.cli; print(os.environ['OPENBLAS_NUM_THREADS'])"
-    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True,
-                          text=True, timeout=60)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == expected

@@ -146,8 +146,9 @@ def test_verify_prints_figures_and_writes_residuals(
     # The printed rows are numbered as the file's index column (0-based data rows), so the
     # largest residual appears under the same number in both.
     worst = max(rows, key=lambda row: abs(float(row["residual_mm"])))
-    printed = {line.split("│")[1].strip(): line for line in r.output.splitlines()
-               if line.count("│") >= 6}  # fmt: skip
+    printed = {
+        line.split("│")[1].strip(): line for line in r.output.splitlines() if line.count("│") >= 6
+    }
     assert worst["index"] in printed, r.output
     assert f"{float(worst['residual_mm']):+.4f}" in printed[worst["index"]]
     r = _run("verify", str(result), str(data), "--max-rmse-mm", "0.001")

@@ -61,11 +61,13 @@ def _regular_poses(model: RobotModel, n: int, seed: int) -> FloatArray:
     out = np.empty((0, 6))
     tool = np.array([10.0, -20.0, 150.0])
     while out.shape[0] < n:
-        q = rng.uniform([-150, -120, 70, -150, -110, -150], [150, 60, 290, 150, 110, 150],
-                        size=(4 * n, 6))  # fmt: skip
+        q = rng.uniform(
+            [-150, -120, 70, -150, -110, -150], [150, 60, 290, 150, 110, 150], size=(4 * n, 6)
+        )
         eye = np.tile(np.eye(3), (q.shape[0], 1, 1))
-        _, _, jac = _errors_and_jacobian(model, model.dh_internal(), np.deg2rad(q), tool,
-                                         np.zeros((q.shape[0], 3)), eye)  # fmt: skip
+        _, _, jac = _errors_and_jacobian(
+            model, model.dh_internal(), np.deg2rad(q), tool, np.zeros((q.shape[0], 3)), eye
+        )
         jac[:, 3:] *= 1000.0
         sv = np.linalg.svd(jac, compute_uv=False)
         out = np.vstack([out, q[sv[:, 0] < 25 * sv[:, -1]]])
@@ -86,8 +88,10 @@ def test_acceptance_true_robot_reaches_nominal_flange_targets(
         forward_position(calibrated.dh_internal(), np.deg2rad(q_targets), FLANGE),
         _true_flange(cell, q_targets),
     )
-    print(f"aligned RMS: uncompensated {uncompensated:.4f} mm, compensated {compensated:.4f} mm, "
-          f"identification's own {own:.4f} mm; flagged {out.summary['flag_counts']}")  # fmt: skip
+    print(
+        f"aligned RMS: uncompensated {uncompensated:.4f} mm, compensated {compensated:.4f} mm, "
+        f"identification's own {own:.4f} mm; flagged {out.summary['flag_counts']}"
+    )
     assert uncompensated > 1.0  # Table XII errors: millimetres before compensation
     assert compensated <= 0.2 * uncompensated
     assert compensated <= 1.5 * own
@@ -148,8 +152,9 @@ def test_position_mode_cartesian_from_one_home_seed(nominal: RobotModel) -> None
     home = np.array([0.0, -30.0, 180.0, 0.0, 45.0, 0.0])
     out = compensate(nominal, nominal, CartesianTargets(pos, None, home))
     assert not any("nominal_ik_failed" in f for f in out.flags)
-    np.testing.assert_allclose(tool_pose(nominal, out.corrected_joints_deg, FLANGE)[0], pos,
-                               atol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(
+        tool_pose(nominal, out.corrected_joints_deg, FLANGE)[0], pos, atol=1e-5
+    )
 
 
 def test_geometric_jacobian_matches_finite_differences(nominal: RobotModel) -> None:
@@ -214,8 +219,11 @@ def test_outputs_csv_and_json(nominal: RobotModel) -> None:
     rows = list(csv.DictReader(io.StringIO(out.to_csv())))
     assert len(rows) == 5
     # 0.001 deg in the CSV, no 17-digit floats
-    np.testing.assert_allclose([[float(r[f"q{j + 1}"]) for j in range(6)] for r in rows],
-                               out.corrected_joints_deg, atol=5e-4 + 1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        [[float(r[f"q{j + 1}"]) for j in range(6)] for r in rows],
+        out.corrected_joints_deg,
+        atol=5e-4 + 1e-9,
+    )
     assert all(len(r["q1"].split(".")[1]) == 3 for r in rows)
     doc = json.loads(json.dumps(out.to_json()))  # NaN orientation residuals become null
     assert doc["rows"][0]["residual_deg"] is None
@@ -230,8 +238,12 @@ def test_bad_input_is_named(nominal: RobotModel) -> None:
     with pytest.raises(ValueError, match="joints_deg"):
         compensate(nominal, nominal, JointTargets(np.zeros((3, 5))))
     with pytest.raises(ValueError, match="rotation_deg"):
-        compensate(nominal, nominal, CartesianTargets(np.zeros((2, 3)), None, np.zeros(6)),
-                   CompensateOptions(mode="pose"))  # fmt: skip
+        compensate(
+            nominal,
+            nominal,
+            CartesianTargets(np.zeros((2, 3)), None, np.zeros(6)),
+            CompensateOptions(mode="pose"),
+        )
     with pytest.raises(ValueError, match="seed_deg"):
         compensate(nominal, nominal, CartesianTargets(np.zeros((2, 3)), None, np.zeros(5)))
     with pytest.raises(ValueError, match="mode"):

@@ -166,8 +166,10 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
         time.sleep(1.0)
         assert any(sum(map(int, (proc_stat(p) or ["0"] * 14)[11:13])) > cpu[p] for p in workers)
 
-        names = {p: short_name(c, int((proc_stat(p) or ["", "0"])[1]) == daemon_pid)
-                 for p, c in children.items()}  # fmt: skip
+        names = {
+            p: short_name(c, int((proc_stat(p) or ["", "0"])[1]) == daemon_pid)
+            for p, c in children.items()
+        }
         t_kill = time.monotonic()
         os.kill(daemon_pid, signal.SIGKILL)
         left = children
@@ -292,8 +294,12 @@ def test_a_sigkilled_worker_is_reaped_and_the_next_job_runs(tmp_path: Path) -> N
         api = api_client(url)
         job_id = start_running_de_job(api)
         children = descendants(proc.popen.pid)
-        pool = [p for p, c in children.items() if short_name(c, False) != "resource_tracker"
-                and int((proc_stat(p) or ["", "0"])[1]) != proc.popen.pid]  # fmt: skip
+        pool = [
+            p
+            for p, c in children.items()
+            if short_name(c, False) != "resource_tracker"
+            and int((proc_stat(p) or ["", "0"])[1]) != proc.popen.pid
+        ]
 
         def ticks(p: int) -> int:
             return sum(map(int, (proc_stat(p) or ["0"] * 14)[11:13]))

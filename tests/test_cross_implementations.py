@@ -80,14 +80,52 @@ def _mbpoll_values(args: list[str]) -> list[int]:
 def test_mbpoll_rtu_and_tcp_read_the_same_length(sim: SimulatorThread) -> None:
     port = str(sim.ready["indicator_port"])
     rtu = _mbpoll_values(
-        ["-m", "rtu", "-b", "19200", "-P", "none", "-a", "1", "-0", "-r", "0", "-c", "1",
-         "-t", "4:int", "-B", "-1", "-o", "1", port]
-    )  # fmt: skip
+        [
+            "-m",
+            "rtu",
+            "-b",
+            "19200",
+            "-P",
+            "none",
+            "-a",
+            "1",
+            "-0",
+            "-r",
+            "0",
+            "-c",
+            "1",
+            "-t",
+            "4:int",
+            "-B",
+            "-1",
+            "-o",
+            "1",
+            port,
+        ]
+    )
     host, tcp_port = str(sim.ready["indicator_tcp"]).rsplit(":", 1)
     tcp = _mbpoll_values(
-        ["-m", "tcp", "-p", tcp_port, "-a", "1", "-0", "-r", "0", "-c", "1", "-t", "4:int",
-         "-B", "-1", "-o", "1", host]
-    )  # fmt: skip
+        [
+            "-m",
+            "tcp",
+            "-p",
+            tcp_port,
+            "-a",
+            "1",
+            "-0",
+            "-r",
+            "0",
+            "-c",
+            "1",
+            "-t",
+            "4:int",
+            "-B",
+            "-1",
+            "-o",
+            "1",
+            host,
+        ]
+    )
     assert len(rtu) == 1 and rtu == tcp
     assert _driver_counts(port) == rtu[0]
     true = sim.control("state")["true_length_mm"]

@@ -42,11 +42,16 @@ def _calibrate(api: httpx.Client, sim: Any) -> tuple[int, float]:
     lengths = truth + np.random.default_rng(5).normal(0.0, FAST_CELL_NOISE_MM, truth.shape)
     r = api.post("/campaigns", json={"name": "calibration", "robot_model": "hsr-jr680"})
     cid = int(r.json()["id"])
-    r = api.post(f"/campaigns/{cid}/samples/import", content=_csv(q, lengths),
-                 headers={"Content-Type": "text/csv"})  # fmt: skip
+    r = api.post(
+        f"/campaigns/{cid}/samples/import",
+        content=_csv(q, lengths),
+        headers={"Content-Type": "text/csv"},
+    )
     assert r.status_code in (200, 201), r.text
-    r = api.post(f"/campaigns/{cid}/identifications",
-                 json={"method": "ukf-vslm", "test_fraction": 0.2, "seed": 0})  # fmt: skip
+    r = api.post(
+        f"/campaigns/{cid}/identifications",
+        json={"method": "ukf-vslm", "test_fraction": 0.2, "seed": 0},
+    )
     job_id = r.json()["id"]
     job = wait_for(
         lambda: (

@@ -88,8 +88,13 @@ def test_the_robot_runs_the_plan_and_the_result_keeps_its_promise(
         # dwell only at some phases of the grid, and on a loaded machine some windows fall
         # short of min_readings; the estimate needs 3 still windows.
         time.sleep(4.0)
-        body = {"anchors_mm": [ANCHOR_MM], "n": N_POSES, "candidates": 1500, "seed": 1,
-                "extension_mm": [400.0, 1900.0]}  # fmt: skip
+        body = {
+            "anchors_mm": [ANCHOR_MM],
+            "n": N_POSES,
+            "candidates": 1500,
+            "seed": 1,
+            "extension_mm": [400.0, 1900.0],
+        }
         r = api.post(f"/campaigns/{cid}/plan", json=body, timeout=120)
         assert r.status_code == 201, r.text
         summary = r.json()["summary"]

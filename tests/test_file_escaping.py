@@ -113,8 +113,13 @@ def test_the_plan_csv_neutralises_formula_anchors_and_reads_them_back(
     app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
     with TestClient(app) as client:
         cid = client.post("/api/v1/campaigns", json={"name": "p"}, headers=AUTH).json()["id"]
-        body = {"anchors_mm": [[1430.0, 330.0, 230.0]], "anchor_ids": [evil], "n": 8,
-                "candidates": 200, "seed": 2}  # fmt: skip
+        body = {
+            "anchors_mm": [[1430.0, 330.0, 230.0]],
+            "anchor_ids": [evil],
+            "n": 8,
+            "candidates": 200,
+            "seed": 2,
+        }
         r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
         assert r.status_code == 201, r.text
         url = f"/api/v1/campaigns/{cid}/plan"

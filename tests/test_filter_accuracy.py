@@ -45,24 +45,35 @@ def cell() -> Cell:
     return make_cell()
 
 
-def _errors(cell: Cell, q: FloatArray, tool: FloatArray, intended: FloatArray,
-            work: FloatArray) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+def _errors(
+    cell: Cell, q: FloatArray, tool: FloatArray, intended: FloatArray, work: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Position [mm] and orientation [deg] errors of the true robot at joints q."""
     reached = invert(work) @ cell.true_flange(q) @ tool
-    return (np.linalg.norm(reached[:, :3, 3] - intended[:, :3, 3], axis=1),
-            rotation_angle_deg(reached[:, :3, :3], intended[:, :3, :3]))  # fmt: skip
+    return (
+        np.linalg.norm(reached[:, :3, 3] - intended[:, :3, 3], axis=1),
+        rotation_angle_deg(reached[:, :3, :3], intended[:, :3, :3]),
+    )
 
 
 def _floor(cell: Cell, q_star: FloatArray, tool: FloatArray) -> tuple[FloatArray, FloatArray]:
     cal = calibration_from_result(cell.result, cell.nominal).calibrated
     true = cell.true_flange(q_star) @ tool
     model = flange_frames(cal, q_star) @ tool
-    return (np.linalg.norm(true[:, :3, 3] - model[:, :3, 3], axis=1),
-            rotation_angle_deg(true[:, :3, :3], model[:, :3, :3]))  # fmt: skip
+    return (
+        np.linalg.norm(true[:, :3, 3] - model[:, :3, 3], axis=1),
+        rotation_angle_deg(true[:, :3, :3], model[:, :3, :3]),
+    )
 
 
-def _check(cell: Cell, q_plan: FloatArray, q_exec: FloatArray, q_star: FloatArray,
-           tool: FloatArray, work: FloatArray) -> None:  # fmt: skip
+def _check(
+    cell: Cell,
+    q_plan: FloatArray,
+    q_exec: FloatArray,
+    q_star: FloatArray,
+    tool: FloatArray,
+    work: FloatArray,
+) -> None:
     intended = planned_targets(cell.nominal, q_plan, tool, work)
     unf_mm, _ = _errors(cell, q_plan, tool, intended, work)
     fil_mm, fil_deg = _errors(cell, q_exec, tool, intended, work)
@@ -99,10 +110,15 @@ def test_rapid_program_reaches_the_floor(
     run = filter_files(calibration_from_result(cell.result, nominal), [("olp.mod", text.encode())])
     assert [c.status for c in run.corrections] == ["corrected"] * 60
     # The nominal controller executes the filtered file: IK on the written configuration.
-    done = _cartesian(RAPID.parse([Source.from_bytes("olp.mod", run.outputs["olp.mod"])],
-                                  FrameTables()))  # fmt: skip
-    flanges = np.array([t.uses[0].work @ t.pose @ invert(t.uses[0].tool)  # type: ignore[operator, arg-type]
-                        for t in done])  # fmt: skip
+    done = _cartesian(
+        RAPID.parse([Source.from_bytes("olp.mod", run.outputs["olp.mod"])], FrameTables())
+    )
+    flanges = np.array(
+        [
+            t.uses[0].work @ t.pose @ invert(t.uses[0].tool)  # type: ignore[operator, arg-type]
+            for t in done
+        ]
+    )
     sol = nominal_solutions(nominal, flanges)
     idx, why = choose(sol, [t.configuration for t in done])
     assert np.all(idx >= 0), why
@@ -149,14 +165,14 @@ def test_plain_urscript_path_reaches_the_floor(cell: Cell) -> None:
     text = urscript(nominal, q_plan, tool, polyscope=False)
     run = filter_files(calibration_from_result(cell.result, nominal), [("d.script", text.encode())])
     assert {c.status for c in run.corrections} == {"corrected"}, run.rows()
-    targets = URSCRIPT.parse([Source.from_bytes("d.script", run.outputs["d.script"])],
-                             FrameTables())  # fmt: skip
+    targets = URSCRIPT.parse(
+        [Source.from_bytes("d.script", run.outputs["d.script"])], FrameTables()
+    )
     q_prev = np.asarray(targets[0].joints_deg)  # the movej the script starts with
     q_exec = []
     for t in _cartesian(targets):  # movel: the IK solution nearest the current joints
         fl = (t.pose @ invert(tool))[None]  # type: ignore[operator]
-        sol = solve_ik(nominal, q_prev[None], fl[:, :3, 3], fl[:, :3, :3], np.zeros(3),
-                       IK_OPTIONS)  # fmt: skip
+        sol = solve_ik(nominal, q_prev[None], fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), IK_OPTIONS)
         q_prev = sol.joints_deg[0]
         q_exec.append(q_prev)
     corr = [c for t, c in zip(run.targets, run.corrections, strict=True) if t.kind == "cartesian"]

@@ -38,8 +38,16 @@ def _run(*args: Any) -> Any:
 def test_all_corrected_exit_0_files_and_summary(setup: dict[str, Path], tmp_path: Path) -> None:
     p = setup["progs"]
     out = tmp_path / "out"
-    r = _run(setup["result"], p / "cell_a.mod", p / "polyscope_c.script", p / "notes_e.mod",
-             "--robot", setup["robot"], "--out", out)  # fmt: skip
+    r = _run(
+        setup["result"],
+        p / "cell_a.mod",
+        p / "polyscope_c.script",
+        p / "notes_e.mod",
+        "--robot",
+        setup["robot"],
+        "--out",
+        out,
+    )
     assert r.exit_code == EXIT_OK, r.output
     assert sorted(f.name for f in out.iterdir()) == [
         "cell_a.mod",
@@ -63,8 +71,15 @@ def test_all_corrected_exit_0_files_and_summary(setup: dict[str, Path], tmp_path
 def test_targets_left_exit_3_and_are_named(setup: dict[str, Path], tmp_path: Path) -> None:
     p = setup["progs"]
     out = tmp_path / "out"
-    r = _run(setup["result"], p / "station_b.prg", p / "tools_b.sys", "--robot", setup["robot"],
-             "--out", out)  # fmt: skip
+    r = _run(
+        setup["result"],
+        p / "station_b.prg",
+        p / "tools_b.sys",
+        "--robot",
+        setup["robot"],
+        "--out",
+        out,
+    )
     assert r.exit_code == EXIT_LEFT, r.output
     text = " ".join(r.output.split())
     assert "station_b.prg:14 pB3: skipped: used with two tools/work objects" in text
@@ -78,11 +93,14 @@ def test_an_unparseable_file_exit_2_named_and_not_written(
     setup: dict[str, Path], tmp_path: Path
 ) -> None:
     bad = tmp_path / "bad.mod"
-    bad.write_bytes(b"MODULE B\n  PROC p()\n    MoveL [[1,2,3],[1,0,0,0]], v1, fine, tool0;\n"
-                    b"  ENDPROC\nENDMODULE\n")  # fmt: skip
+    bad.write_bytes(
+        b"MODULE B\n  PROC p()\n    MoveL [[1,2,3],[1,0,0,0]], v1, fine, tool0;\n"
+        b"  ENDPROC\nENDMODULE\n"
+    )
     out = tmp_path / "out"
-    r = _run(setup["result"], bad, setup["progs"] / "cell_a.mod", "--robot", setup["robot"],
-             "--out", out)  # fmt: skip
+    r = _run(
+        setup["result"], bad, setup["progs"] / "cell_a.mod", "--robot", setup["robot"], "--out", out
+    )
     assert r.exit_code == EXIT_BAD_INPUT
     assert "bad.mod:3: inline value is neither a robtarget nor a jointtarget" in r.output
     assert not (out / "bad.mod").exists() and (out / "cell_a.mod").exists()
@@ -96,8 +114,9 @@ def test_an_unparseable_file_exit_2_named_and_not_written(
         (["--robot", "no-such-robot"], "--robot"),
     ],
 )
-def test_bad_options_exit_2(setup: dict[str, Path], tmp_path: Path, extra: list[str],
-                            message: str) -> None:  # fmt: skip
+def test_bad_options_exit_2(
+    setup: dict[str, Path], tmp_path: Path, extra: list[str], message: str
+) -> None:
     (setup["dir"] / "bad_frames.toml").write_text("[utool.1]\nxyz_mm = [0, 0, 200]\n")
     args = [a.format(dir=setup["dir"]) for a in extra]
     if "--robot" not in args:
@@ -108,8 +127,14 @@ def test_bad_options_exit_2(setup: dict[str, Path], tmp_path: Path, extra: list[
 
 
 def test_out_must_not_hold_the_inputs(setup: dict[str, Path]) -> None:
-    r = _run(setup["result"], setup["progs"] / "cell_a.mod", "--robot", setup["robot"], "--out",
-             setup["progs"])  # fmt: skip
+    r = _run(
+        setup["result"],
+        setup["progs"] / "cell_a.mod",
+        "--robot",
+        setup["robot"],
+        "--out",
+        setup["progs"],
+    )
     assert r.exit_code == EXIT_BAD_INPUT and "holds the input" in r.output
 
 

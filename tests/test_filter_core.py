@@ -46,22 +46,27 @@ def test_rotation_conventions_exactly() -> None:
     np.testing.assert_allclose(zyx_deg_to_matrix(a, b, c), _rz(a) @ _ry(b) @ _rx(c), atol=1e-15)
     np.testing.assert_allclose(matrix_to_zyx_deg(_rz(a) @ _ry(b) @ _rx(c)), [a, b, c], atol=1e-9)
     # a whole turn stays near the program's own value
-    np.testing.assert_allclose(matrix_to_zyx_deg(_rx(-179.0), near_deg=[0, 0, 179.0]),
-                               [0, 0, 181.0], atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        matrix_to_zyx_deg(_rx(-179.0), near_deg=[0, 0, 179.0]), [0, 0, 181.0], atol=1e-9
+    )
     # RAPID: w first; 90 deg about z is [cos 45, 0, 0, sin 45]
-    np.testing.assert_allclose(quat_wxyz_to_matrix(np.array([0.7071068, 0, 0, 0.7071068])),
-                               _rz(90.0), atol=1e-7)  # fmt: skip
+    np.testing.assert_allclose(
+        quat_wxyz_to_matrix(np.array([0.7071068, 0, 0, 0.7071068])), _rz(90.0), atol=1e-7
+    )
     q = matrix_to_quat_wxyz(_rz(90.0), near=np.array([-1.0, 0, 0, 0]))
     np.testing.assert_allclose(q, [-math.sqrt(0.5), 0, 0, -math.sqrt(0.5)])  # sign kept
     # UR: rotation vector (axis · angle) in radians
-    np.testing.assert_allclose(rotvec_to_matrix(np.array([0, math.pi / 2, 0])), _ry(90.0),
-                               atol=1e-15)  # fmt: skip
+    np.testing.assert_allclose(
+        rotvec_to_matrix(np.array([0, math.pi / 2, 0])), _ry(90.0), atol=1e-15
+    )
     np.testing.assert_allclose(matrix_to_rotvec(_ry(90.0)), [0, math.pi / 2, 0], atol=1e-15)
 
 
 def test_frames_toml() -> None:
-    f = parse_frames_toml("[uframe.1]\nxyz_mm = [100, 0, 50]\nwpr_deg = [0, 0, 90]\n"
-                          "[utool.2]\nxyz_mm = [0, 0, 200]\nwpr_deg = [10, 0, 0]\n")  # fmt: skip
+    f = parse_frames_toml(
+        "[uframe.1]\nxyz_mm = [100, 0, 50]\nwpr_deg = [0, 0, 90]\n"
+        "[utool.2]\nxyz_mm = [0, 0, 200]\nwpr_deg = [10, 0, 0]\n"
+    )
     uf = f.get("uframe", 1)
     assert uf is not None
     np.testing.assert_allclose(uf[:3, :3], _rz(90.0), atol=1e-15)
@@ -70,10 +75,12 @@ def test_frames_toml() -> None:
     np.testing.assert_allclose(ut[:3, :3], _rx(10.0), atol=1e-15)
     np.testing.assert_array_equal(f.get("uframe", 0), np.eye(4))
     assert f.get("utool", 3) is None
-    for bad, message in (("[uframe.0]\nxyz_mm=[0,0,0]\nwpr_deg=[0,0,0]", "1..99"),
-                         ("[base.1]\n", "unknown table"),
-                         ("[utool.1]\nxyz_mm=[0,0]\nwpr_deg=[0,0,0]", "xyz_mm: expected 3"),
-                         ("[utool.1\n", "not TOML")):  # fmt: skip
+    for bad, message in (
+        ("[uframe.0]\nxyz_mm=[0,0,0]\nwpr_deg=[0,0,0]", "1..99"),
+        ("[base.1]\n", "unknown table"),
+        ("[utool.1]\nxyz_mm=[0,0]\nwpr_deg=[0,0,0]", "xyz_mm: expected 3"),
+        ("[utool.1\n", "not TOML"),
+    ):
         with pytest.raises(FilterInputError, match=message):
             parse_frames_toml(bad)
 
@@ -87,8 +94,9 @@ def test_every_nominal_solution_is_found_and_checked() -> None:
     for i in range(20):  # every candidate reaches the same flange pose
         cand = sol.joints_deg[i][sol.valid[i]]
         fk = flange_frames(model, cand)
-        np.testing.assert_allclose(fk, np.broadcast_to(flange_frames(model, q[i : i + 1]),
-                                                       fk.shape), atol=1e-6)  # fmt: skip
+        np.testing.assert_allclose(
+            fk, np.broadcast_to(flange_frames(model, q[i : i + 1]), fk.shape), atol=1e-6
+        )
         assert len(cand) >= 2
 
 
@@ -99,8 +107,11 @@ def test_the_rapid_configuration_picks_the_planned_branch() -> None:
     confs = []
     for i, qi in enumerate(q):
         cfx = (0 if sh[i] > 0 else 4) + (0 if el[i] > 0 else 2) + (0 if wr[i] > 0 else 1)
-        confs.append(configuration([math.floor(qi[0] / 90), math.floor(qi[3] / 90),
-                                    math.floor(qi[5] / 90), cfx]))  # fmt: skip
+        confs.append(
+            configuration(
+                [math.floor(qi[0] / 90), math.floor(qi[3] / 90), math.floor(qi[5] / 90), cfx]
+            )
+        )
     sol = nominal_solutions(model, flange_frames(model, q))
     idx, why = choose(sol, list(confs))
     assert np.all(idx >= 0), why

@@ -97,9 +97,11 @@ def _programs(nominal: Any) -> dict[str, Program]:
     far = "[[4000,0,0],[1,0,0,0],[0,0,0,0],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]"
     q, tool = regular_poses(nominal, 30, seed=31), tool_frame(185.0)
     move = "        MoveL pFar, v200, fine, tOlp\\WObj:=wOlp;\r\n"
-    mod = rapid_module(nominal, q, tool, work, newline="\r\n").replace(
-        "    PROC main()", f"    CONST robtarget pFar:={far};\r\n    PROC main()").replace(
-        "    ENDPROC", f"{move}    ENDPROC")  # fmt: skip
+    mod = (
+        rapid_module(nominal, q, tool, work, newline="\r\n")
+        .replace("    PROC main()", f"    CONST robtarget pFar:={far};\r\n    PROC main()")
+        .replace("    ENDPROC", f"{move}    ENDPROC")
+    )
     # The tool and the work object declared in a system module of the task, as cells do.
     lines = mod.split("\r\n")
     cell_data = [ln for ln in lines if "tooldata" in ln or "wobjdata" in ln]
@@ -117,9 +119,11 @@ def _programs(nominal: Any) -> dict[str, Program]:
     q, tool = regular_poses(nominal, 30, seed=32), tool_frame(240.0)
     krl = krl_program(nominal, q, tool, work)
     krl["olp_path.dat"] = krl["olp_path.dat"].replace(
-        "ENDDAT", "DECL E6POS XFAR={X 4000.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0,S 2,T 0,E1 0.0,"
+        "ENDDAT",
+        "DECL E6POS XFAR={X 4000.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0,S 2,T 0,E1 0.0,"
         "E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}\r\nDECL FDAT FFAR={TOOL_NO 3,BASE_NO 2,"
-        "IPO_FRAME #BASE}\r\nENDDAT")  # fmt: skip
+        "IPO_FRAME #BASE}\r\nENDDAT",
+    )
     krl["olp_path.src"] = krl["olp_path.src"].replace(
         "PTP XHOME", "FDAT_ACT=FFAR\r\nLIN XFAR\r\nPTP XHOME"
     )
@@ -134,13 +138,14 @@ def _programs(nominal: Any) -> dict[str, Program]:
     script = urscript(nominal, q, tool, polyscope=False).replace(
         "\nend\n", "\n  movel(p[4.0, 0.0, 0.0, 0.0, 3.1, 0.0], a=1.2, v=0.25)\nend\n"
     )
-    out["urscript-path"] = Program("urscript", {"path.script": script.encode()}, q, tool,
-                                   np.eye(4))  # fmt: skip
+    out["urscript-path"] = Program("urscript", {"path.script": script.encode()}, q, tool, np.eye(4))
     q, tool = regular_poses(nominal, 30, seed=34), tool_frame(215.0, 30.0)
     ls = ls_program(nominal, q, tool, work).replace(
-        "/END", "P[99]{\n   GP1:\n\tUF : 2, UT : 3,\t\tCONFIG : 'N U T, 0, 0, 0',\n"
+        "/END",
+        "P[99]{\n   GP1:\n\tUF : 2, UT : 3,\t\tCONFIG : 'N U T, 0, 0, 0',\n"
         "\tX =   4000.000  mm,\tY =      0.000  mm,\tZ =      0.000  mm,\n"
-        "\tW =      0.000 deg,\tP =      0.000 deg,\tR =      0.000 deg\n};\n/END")  # fmt: skip
+        "\tW =      0.000 deg,\tP =      0.000 deg,\tR =      0.000 deg\n};\n/END",
+    )
     out["fanuc-ls"] = Program("fanuc-ls", {"OLP_PATH.LS": ls.encode("ascii")}, q, tool, work)
     return out
 
@@ -159,13 +164,25 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     q = random_poses_deg(truth, 200, rng)
     lengths = truth.lengths_mm(q) + rng.normal(0.0, NOISE_MM, size=q.shape[0])
     lengths = np.round(lengths / DISPLAY_MM) * DISPLAY_MM
-    rows = ["q1,q2,q3,q4,q5,q6,L"] + [",".join(f"{v:.4f}" for v in [*qi, li])
-                                      for qi, li in zip(q, lengths, strict=True)]  # fmt: skip
+    rows = ["q1,q2,q3,q4,q5,q6,L"] + [
+        ",".join(f"{v:.4f}" for v in [*qi, li]) for qi, li in zip(q, lengths, strict=True)
+    ]
     (tmp / "lengths.csv").write_text("\n".join(rows) + "\n")
     result = tmp / "RESULT.json"
-    ident = subprocess.run([*_cablecal(), "identify", str(tmp / "lengths.csv"), "--robot",
-                            str(model_path), "--out", str(result)], capture_output=True,
-                           text=True, timeout=120)  # fmt: skip
+    ident = subprocess.run(
+        [
+            *_cablecal(),
+            "identify",
+            str(tmp / "lengths.csv"),
+            "--robot",
+            str(model_path),
+            "--out",
+            str(result),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert ident.returncode == 0, ident.stdout + ident.stderr
     cell = Cell(nominal, truth, json.loads(result.read_text()))
     programs = _programs(nominal)
@@ -179,10 +196,21 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
             (src / name).write_bytes(data)
             names.append(name)
     out = tmp / "DIR"
-    cmd = [*_cablecal(), "filter", str(result), *(str(src / n) for n in names), "--frames",
-           str(tmp / "FRAMES.toml"), "--robot", str(model_path), "--out", str(out)]  # fmt: skip
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "COLUMNS": "80"})  # fmt: skip
+    cmd = [
+        *_cablecal(),
+        "filter",
+        str(result),
+        *(str(src / n) for n in names),
+        "--frames",
+        str(tmp / "FRAMES.toml"),
+        "--robot",
+        str(model_path),
+        "--out",
+        str(out),
+    ]
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=120, env={**os.environ, "COLUMNS": "80"}
+    )
     summary = json.loads((out / "filter-summary.json").read_text())
     frames = parse_frames_toml((tmp / "FRAMES.toml").read_text())
     return Run(cell, programs, frames, out, proc.returncode, proc.stdout + proc.stderr, summary)
@@ -193,15 +221,21 @@ def _nums(t: Target) -> list[Num]:
     out: list[Num] = []
     for f in dataclasses.fields(t.site):
         v = getattr(t.site, f.name)
-        out += [v] if isinstance(v, Num) else [n for n in v if isinstance(n, Num)] if isinstance(
-            v, list) else []  # fmt: skip
+        out += (
+            [v]
+            if isinstance(v, Num)
+            else [n for n in v if isinstance(n, Num)]
+            if isinstance(v, list)
+            else []
+        )
     return out
 
 
 def _outside(text: str, targets: list[Target], name: str) -> list[str]:
     """The text between the numbers of the targets (in file order)."""
-    spans = sorted((n.start, n.end) for t in targets if t.file == name and t.site is not None
-                   for n in _nums(t))  # fmt: skip
+    spans = sorted(
+        (n.start, n.end) for t in targets if t.file == name and t.site is not None for n in _nums(t)
+    )
     out, pos = [], 0
     for a, b in spans:
         out.append(text[pos:a])
@@ -239,8 +273,7 @@ def test_per_dialect_bytes_unreachable_and_accuracy(run: Run, key: str) -> None:
         assert old.count(b"\r\n") == new.count(b"\r\n"), b.name
     rows = {(r["file"], r["name"]): r for r in run.summary["targets"]}
     # The unreachable target: left as it was, and named.
-    far = [t for t in before if t.kind == "cartesian"
-           and np.linalg.norm(t.pose[:3, 3]) > 3900.0]  # type: ignore[index]  # fmt: skip
+    far = [t for t in before if t.kind == "cartesian" and np.linalg.norm(t.pose[:3, 3]) > 3900.0]  # type: ignore[index]
     assert len(far) == 1
     row = rows[(far[0].file, far[0].name)]
     assert row["status"] == "unreachable", row
@@ -257,8 +290,9 @@ def test_per_dialect_bytes_unreachable_and_accuracy(run: Run, key: str) -> None:
     assert rms(acc["unfiltered_mm"]) > 1.0  # the cell's error is there to be filtered
 
 
-def _accuracy(run: Run, prog: Program, before: list[Target],
-              after: list[Target]) -> dict[str, FloatArray]:  # fmt: skip
+def _accuracy(
+    run: Run, prog: Program, before: list[Target], after: list[Target]
+) -> dict[str, FloatArray]:
     """Per corrected target (the joint targets at the flange, the Cartesian ones at the tool
     in their work object), the true robot's error against what was planned: unfiltered,
     filtered (DIR's numbers through the nominal controller on the written branch), and the
@@ -269,21 +303,40 @@ def _accuracy(run: Run, prog: Program, before: list[Target],
     cart = [k for k, t in enumerate(before) if t.kind == "cartesian"]
     joint = [k for k, t in enumerate(before) if t.kind == "joint" and t.follows is None]
     # Which planned target each Cartesian one is (the written numbers round the plan).
-    plan_of = [int(np.argmin(np.linalg.norm(planned[:, :3, 3] - before[k].pose[:3, 3],  # type: ignore[index]
-                                            axis=1))) for k in cart]  # fmt: skip
-    intended = np.concatenate([planned[plan_of], flange_frames(nominal, np.array(
-        [before[k].joints_deg for k in joint]).reshape(-1, 6))])  # fmt: skip
-    assert np.allclose(intended[: len(cart), :3, 3], [before[k].pose[:3, 3] for k in cart],  # type: ignore[index]
-                       atol=0.01)  # fmt: skip
+    plan_of = [
+        int(
+            np.argmin(
+                np.linalg.norm(
+                    planned[:, :3, 3] - before[k].pose[:3, 3],  # type: ignore[index]
+                    axis=1,
+                )
+            )
+        )
+        for k in cart
+    ]
+    intended = np.concatenate(
+        [
+            planned[plan_of],
+            flange_frames(nominal, np.array([before[k].joints_deg for k in joint]).reshape(-1, 6)),
+        ]
+    )
+    assert np.allclose(
+        intended[: len(cart), :3, 3],
+        [before[k].pose[:3, 3] for k in cart],  # type: ignore[index]
+        atol=0.01,
+    )
     tool = np.stack([prog.tool] * len(cart) + [np.eye(4)] * len(joint))
     work = np.stack([prog.work] * len(cart) + [np.eye(4)] * len(joint))
-    seeds = np.concatenate([prog.q_plan[plan_of], np.array(
-        [before[k].joints_deg for k in joint]).reshape(-1, 6)])  # fmt: skip
+    seeds = np.concatenate(
+        [prog.q_plan[plan_of], np.array([before[k].joints_deg for k in joint]).reshape(-1, 6)]
+    )
 
     def err(q: FloatArray) -> tuple[FloatArray, FloatArray]:
         got = invert(work) @ cell.true_flange(q) @ tool
-        return (np.linalg.norm(got[:, :3, 3] - intended[:, :3, 3], axis=1),
-                rotation_angle_deg(intended[:, :3, :3], got[:, :3, :3]))  # fmt: skip
+        return (
+            np.linalg.norm(got[:, :3, 3] - intended[:, :3, 3], axis=1),
+            rotation_angle_deg(intended[:, :3, :3], got[:, :3, :3]),
+        )
 
     def executed(ts: list[Target]) -> FloatArray:
         if prog.dialect != "urscript":
@@ -293,25 +346,32 @@ def _accuracy(run: Run, prog: Program, before: list[Target],
         if all(ts[k].name.endswith("_p") for k in cart):
             # PolyScope: movej(get_inverse_kin(Waypoint_n_p, qnear=Waypoint_n_q)).
             near = np.array([by_name[ts[k].name[:-1] + "q"].joints_deg for k in cart])
-            out: FloatArray = solve_ik(nominal, near, fl[:, :3, 3], fl[:, :3, :3],
-                                       np.zeros(3), IK_OPTIONS).joints_deg  # fmt: skip
+            out: FloatArray = solve_ik(
+                nominal, near, fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), IK_OPTIONS
+            ).joints_deg
             return out
         # movel from the joints of the last move (the first from the movej before it).
         q_prev = np.asarray(ts[joint[0]].joints_deg) if joint else prog.q_plan[0]
         rows = []
         for f in fl:
-            q_prev = solve_ik(nominal, q_prev[None], f[None, :3, 3], f[None, :3, :3],
-                              np.zeros(3), IK_OPTIONS).joints_deg[0]  # fmt: skip
+            q_prev = solve_ik(
+                nominal, q_prev[None], f[None, :3, 3], f[None, :3, :3], np.zeros(3), IK_OPTIONS
+            ).joints_deg[0]
             rows.append(q_prev)
-        return np.concatenate([np.array(rows), np.array([ts[k].joints_deg for k in joint])
-                               .reshape(-1, 6)])  # fmt: skip
+        return np.concatenate(
+            [np.array(rows), np.array([ts[k].joints_deg for k in joint]).reshape(-1, 6)]
+        )
 
     flange = work @ intended @ invert(tool)
-    q_star = solve_ik(calibrated, seeds, flange[:, :3, 3], flange[:, :3, :3], np.zeros(3),
-                      IK_OPTIONS).joints_deg  # fmt: skip
+    q_star = solve_ik(
+        calibrated, seeds, flange[:, :3, 3], flange[:, :3, :3], np.zeros(3), IK_OPTIONS
+    ).joints_deg
     out: dict[str, FloatArray] = {}
-    for which, q in (("unfiltered", executed(before)), ("filtered", executed(after)),
-                     ("floor", q_star)):  # fmt: skip
+    for which, q in (
+        ("unfiltered", executed(before)),
+        ("filtered", executed(after)),
+        ("floor", q_star),
+    ):
         assert np.all(np.isfinite(q)), f"{which}: the controller finds no solution"
         out[f"{which}_mm"], out[f"{which}_deg"] = err(q)
     return out

@@ -50,16 +50,23 @@ def test_calibration_equal_to_nominal_changes_no_byte(cell: Cell, frames: FrameT
     assert run.errors == []
     assert run.outputs == dict(_files())
     status = {r["name"]: r["status"] for r in run.rows()}
-    assert status == {"P[1]": "corrected", "P[2]": "corrected", "P[3]": "corrected",
-                      "P[4]": "corrected", "P[5]": "skipped", "P[6]": "corrected",
-                      "P[8]": "skipped"}  # fmt: skip
+    assert status == {
+        "P[1]": "corrected",
+        "P[2]": "corrected",
+        "P[3]": "corrected",
+        "P[4]": "corrected",
+        "P[5]": "skipped",
+        "P[6]": "corrected",
+        "P[8]": "skipped",
+    }
     assert all(c.shift_mm < 1e-6 for c in run.corrections if c.status == "corrected")
 
 
 def test_a_real_calibration_changes_only_position_numbers(cell: Cell, frames: FrameTables) -> None:
     files = dict(_files())
-    run = filter_files(calibration_from_result(cell.result, cell.nominal), list(files.items()),
-                       frames=frames)  # fmt: skip
+    run = filter_files(
+        calibration_from_result(cell.result, cell.nominal), list(files.items()), frames=frames
+    )
     assert run.errors == [] and run.exit_code == EXIT_LEFT
     out, data = run.outputs["PICK_PART.LS"], files["PICK_PART.LS"]
     assert out != data and run.outputs["GRIP_OPEN.LS"] == files["GRIP_OPEN.LS"]
@@ -95,8 +102,9 @@ def test_frames_and_their_absence(cell: Cell, frames: FrameTables) -> None:
     assert cfg is not None and (cfg.wrist, cfg.elbow, cfg.shoulder) == (-1, 1, 1)
     run = filter_files(_identity(cell), _files())  # no --frames
     reason = {r["name"]: r["reason"] for r in run.rows()}
-    assert reason["P[1]"] == ("line 38: UF 1 is not in --frames ([uframe.1]); UT 2 is not in "
-                              "--frames ([utool.2])")  # fmt: skip
+    assert reason["P[1]"] == (
+        "line 38: UF 1 is not in --frames ([uframe.1]); UT 2 is not in --frames ([utool.2])"
+    )
     assert reason["P[6]"] == "line 74: UT 2 is not in --frames ([utool.2])"
     assert reason["P[8]"] == "GP1 has extended axes E1: not supported"
     assert run.rows()[3]["status"] == "corrected"  # the joint form needs no frame
@@ -113,17 +121,25 @@ def test_an_unreachable_position_is_left_as_it_is_and_named(cell: Cell) -> None:
 
 def test_an_incremental_or_offset_position_is_named(cell: Cell) -> None:
     second = _GOOD.replace(b"P[1]", b"P[2]")
-    mn = (b"   1:L P[1] 100mm/sec FINE INC ;\n   2:  ! P[2] Offset in a remark only ;\n"
-          b"   3:L P[2] 100mm/sec FINE Offset,PR[1] ;\n")  # fmt: skip
+    mn = (
+        b"   1:L P[1] 100mm/sec FINE INC ;\n   2:  ! P[2] Offset in a remark only ;\n"
+        b"   3:L P[2] 100mm/sec FINE Offset,PR[1] ;\n"
+    )
     data = _prog(_GOOD + second).replace(b"   1:J P[1] 100% FINE ;\n", mn)
     run = filter_files(_identity(cell), [("OFS.LS", data)])
     assert run.outputs == {"OFS.LS": data}
     assert [(r["name"], r["status"], r["reason"]) for r in run.rows()] == [
-        ("P[1]", "skipped", "line 4: moved to with INC: the robot does not go to the position "
-         "itself"),
-        ("P[2]", "skipped", "line 6: moved to with Offset: the robot does not go to the "
-         "position itself"),
-    ]  # fmt: skip
+        (
+            "P[1]",
+            "skipped",
+            "line 4: moved to with INC: the robot does not go to the position itself",
+        ),
+        (
+            "P[2]",
+            "skipped",
+            "line 6: moved to with Offset: the robot does not go to the position itself",
+        ),
+    ]
 
 
 def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
@@ -131,8 +147,9 @@ def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
     tool, work = tool_frame(195.0, 30.0), work_frame()
     frames = parse_frames_toml(frames_toml(tool, work))
     files = {"OLP_PATH.LS": ls_program(cell.nominal, q, tool, work).encode("ascii")}
-    run = filter_files(calibration_from_result(cell.result, cell.nominal), list(files.items()),
-                       frames=frames)  # fmt: skip
+    run = filter_files(
+        calibration_from_result(cell.result, cell.nominal), list(files.items()), frames=frames
+    )
     assert run.errors == [] and run.exit_code == 0
     acc = accuracy(cell, LS, files, run, frames)
     assert acc["filtered_mm"].size == 25  # 24 Cartesian positions and HOME in joint form
@@ -144,7 +161,13 @@ def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
 
 def test_configuration_and_turn_numbers() -> None:
     assert [turn_number(v) for v in (0.0, 179.9, 180.0, -180.0, -180.1, 540.0)] == [
-        0, 0, 1, 0, -1, 2]  # fmt: skip
+        0,
+        0,
+        1,
+        0,
+        -1,
+        2,
+    ]
     cfg = configuration("F D B, 1, 0, -1", (1, 0, -1))
     assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (-1, -1, -1)
     np.testing.assert_allclose(cfg.joint_ranges_deg[3:], [[180, 540], [-180, 180], [-540, -180]])
@@ -152,9 +175,11 @@ def test_configuration_and_turn_numbers() -> None:
     assert configuration("NUT, 0, 0, 0", (0, 0, 0)).wrist == 1
 
 
-_GOOD = (b"P[1]{\n   GP1:\n\tUF : 0, UT : 0,\t\tCONFIG : 'N U T, 0, 0, 0',\n"
-         b"\tX = 1200.000 mm,\tY = 0.000 mm,\tZ = 900.000 mm,\n"
-         b"\tW = 180.000 deg,\tP = 0.000 deg,\tR = 0.000 deg\n};\n")  # fmt: skip
+_GOOD = (
+    b"P[1]{\n   GP1:\n\tUF : 0, UT : 0,\t\tCONFIG : 'N U T, 0, 0, 0',\n"
+    b"\tX = 1200.000 mm,\tY = 0.000 mm,\tZ = 900.000 mm,\n"
+    b"\tW = 180.000 deg,\tP = 0.000 deg,\tR = 0.000 deg\n};\n"
+)
 
 
 def _prog(pos: bytes, end: bytes = b"/END\n") -> bytes:
@@ -162,16 +187,19 @@ def _prog(pos: bytes, end: bytes = b"/END\n") -> bytes:
     return b"/PROG  BAD\n/ATTR\n/MN\n   1:J P[1] 100% FINE ;\n/POS\n" + pos + end
 
 
-@pytest.mark.parametrize(("data", "message"), [
-    (_prog(_GOOD.replace(b"\tW = 180.000 deg,", b"")), "BAD.LS:6: P[1]: GP1 has neither"),
-    (_prog(_GOOD.replace(b"N U T", b"N X T")), "BAD.LS:6: P[1]: CONFIG 'N X T, 0, 0, 0'"),
-    (_prog(_GOOD.replace(b"};\n", b"")), "BAD.LS:6: a position entry without its closing"),
-    (_prog(_GOOD.replace(b"};", b"}")), "BAD.LS:11: expected '};' after a position"),
-    (_prog(_GOOD + b"L P[2] 100mm/sec FINE ;\n"), "BAD.LS:12: expected P[n]{ in /POS"),
-    (_prog(_GOOD.replace(b"UT : 0", b"UT : X")), "BAD.LS:6: P[1]: UF and UT must be numbers"),
-    (_prog(_GOOD, end=b""), "BAD.LS:5: /POS without /END"),
-    (b"! not a program\n", "BAD.LS:1: the content is not fanuc-ls"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        (_prog(_GOOD.replace(b"\tW = 180.000 deg,", b"")), "BAD.LS:6: P[1]: GP1 has neither"),
+        (_prog(_GOOD.replace(b"N U T", b"N X T")), "BAD.LS:6: P[1]: CONFIG 'N X T, 0, 0, 0'"),
+        (_prog(_GOOD.replace(b"};\n", b"")), "BAD.LS:6: a position entry without its closing"),
+        (_prog(_GOOD.replace(b"};", b"}")), "BAD.LS:11: expected '};' after a position"),
+        (_prog(_GOOD + b"L P[2] 100mm/sec FINE ;\n"), "BAD.LS:12: expected P[n]{ in /POS"),
+        (_prog(_GOOD.replace(b"UT : 0", b"UT : X")), "BAD.LS:6: P[1]: UF and UT must be numbers"),
+        (_prog(_GOOD, end=b""), "BAD.LS:5: /POS without /END"),
+        (b"! not a program\n", "BAD.LS:1: the content is not fanuc-ls"),
+    ],
+)
 def test_bad_files_get_an_error_naming_file_and_line(cell: Cell, data: bytes, message: str) -> None:
     run = filter_files(_identity(cell), [("BAD.LS", data), *_files()])
     assert len(run.errors) == 1 and str(run.errors[0]).startswith(message), run.errors

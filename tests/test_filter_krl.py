@@ -19,9 +19,28 @@ from calib.filter.sites import Correction, FrameTables, Num, Source, Target
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs" / "krl"
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-CORRECTED = {"XG1", "XG2", "XG3", "XG4", "XG5", "XG6", "XP1", "XP2", "XP3", "XP4", "XSEAM[1]",
-             "XSEAM[2]", "XSEAM[3]", "XGLOBAL", "XNOST", "FAPP", "XHOME", "XPARK", "inline@63",
-             "inline@101"}  # fmt: skip
+CORRECTED = {
+    "XG1",
+    "XG2",
+    "XG3",
+    "XG4",
+    "XG5",
+    "XG6",
+    "XP1",
+    "XP2",
+    "XP3",
+    "XP4",
+    "XSEAM[1]",
+    "XSEAM[2]",
+    "XSEAM[3]",
+    "XGLOBAL",
+    "XNOST",
+    "FAPP",
+    "XHOME",
+    "XPARK",
+    "inline@63",
+    "inline@101",
+}
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +121,12 @@ def test_targets_frames_and_reasons(cell: Cell) -> None:
     for name, line in (("XG1", 12), ("XG2", 15), ("XG4", 18), ("XG5", 22)):
         (u,) = targets[name].uses
         assert (u.file, u.line, u.tool_name, u.work_name, u.problem) == (
-            "glue_bead.src", line, "TOOL_DATA[2]", "BASE_DATA[2]", "")  # fmt: skip
+            "glue_bead.src",
+            line,
+            "TOOL_DATA[2]",
+            "BASE_DATA[2]",
+            "",
+        )
     run = filter_files(_identity(cell), _files())
     reason = {r["name"]: r["reason"] for r in run.rows()}
     assert (
@@ -120,39 +144,54 @@ def test_targets_frames_and_reasons(cell: Cell) -> None:
 
 
 def test_config_dat_names_are_global() -> None:
-    cfg = (b"DEFDAT $CONFIG\r\n"
-           b"DECL E6AXIS XPARK2={A1 10.0,A2 -50.0,A3 170.0,A4 0.0,A5 40.0,A6 0.0}\r\n")  # fmt: skip
+    cfg = (
+        b"DEFDAT $CONFIG\r\n"
+        b"DECL E6AXIS XPARK2={A1 10.0,A2 -50.0,A3 170.0,A4 0.0,A5 40.0,A6 0.0}\r\n"
+    )
     src = b"DEF p( )\r\nPTP XPARK2\r\nEND\r\n"
-    got = KRL.parse([Source.from_bytes("$CONFIG.DAT", cfg + b"ENDDAT\r\n"),
-                     Source.from_bytes("p.src", src)], FrameTables())  # fmt: skip
+    got = KRL.parse(
+        [Source.from_bytes("$CONFIG.DAT", cfg + b"ENDDAT\r\n"), Source.from_bytes("p.src", src)],
+        FrameTables(),
+    )
     assert [(t.name, [u.line for u in t.uses]) for t in got] == [("XPARK2", [2])]
 
 
 def test_branches_and_loops_merge_the_frames_of_their_paths() -> None:
     pos = "{X 900.0,Y 100.0,Z 800.0,A 0.0,B 90.0,C 0.0,S 2,T 10}"
     dat = "DEFDAT p\n" + "".join(f"DECL E6POS X{k}={pos}\n" for k in range(1, 6)) + "ENDDAT\n"
-    src = ("DEF p( )\n$BASE=BASE_DATA[1]\n"
-           "SWITCH N\nCASE 1\n$TOOL=TOOL_DATA[1]\nCASE 2\n$TOOL=TOOL_DATA[1]\n"
-           "DEFAULT\n$TOOL=TOOL_DATA[1]\nENDSWITCH\nLIN X1\n"  # every path: tool 1
-           "IF A THEN\n$TOOL=TOOL_DATA[2]\nENDIF\nLIN X2\n"  # IF without ELSE: unknown
-           "$TOOL=TOOL_DATA[2]\nWHILE B\n  LIN X3\nENDWHILE\nLIN X4\n"  # no change: known
-           "FOR I=1 TO 3\n  $BASE=BASE_DATA[I]\nENDFOR\nLIN X5\nEND\n")  # fmt: skip
-    cfg = ("DEFDAT $CONFIG\nTOOL_DATA[1]={X 0.0,Y 0.0,Z 100.0,A 0.0,B 0.0,C 0.0}\n"
-           "TOOL_DATA[2]={X 0.0,Y 0.0,Z 200.0,A 0.0,B 0.0,C 0.0}\n"
-           "BASE_DATA[1]={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\nENDDAT\n")  # fmt: skip
-    files = [Source(n, text, "utf-8") for n, text in (("p.dat", dat), ("p.src", src),
-                                                       ("$config.dat", cfg))]  # fmt: skip
+    src = (
+        "DEF p( )\n$BASE=BASE_DATA[1]\n"
+        "SWITCH N\nCASE 1\n$TOOL=TOOL_DATA[1]\nCASE 2\n$TOOL=TOOL_DATA[1]\n"
+        "DEFAULT\n$TOOL=TOOL_DATA[1]\nENDSWITCH\nLIN X1\n"  # every path: tool 1
+        "IF A THEN\n$TOOL=TOOL_DATA[2]\nENDIF\nLIN X2\n"  # IF without ELSE: unknown
+        "$TOOL=TOOL_DATA[2]\nWHILE B\n  LIN X3\nENDWHILE\nLIN X4\n"  # no change: known
+        "FOR I=1 TO 3\n  $BASE=BASE_DATA[I]\nENDFOR\nLIN X5\nEND\n"
+    )
+    cfg = (
+        "DEFDAT $CONFIG\nTOOL_DATA[1]={X 0.0,Y 0.0,Z 100.0,A 0.0,B 0.0,C 0.0}\n"
+        "TOOL_DATA[2]={X 0.0,Y 0.0,Z 200.0,A 0.0,B 0.0,C 0.0}\n"
+        "BASE_DATA[1]={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\nENDDAT\n"
+    )
+    files = [
+        Source(n, text, "utf-8")
+        for n, text in (("p.dat", dat), ("p.src", src), ("$config.dat", cfg))
+    ]
     got = {t.name: t.uses[0] for t in KRL.parse(files, FrameTables())}
     assert (got["X1"].tool_name, got["X1"].problem) == ("TOOL_DATA[1]", "")
     assert got["X2"].problem == "the tool differs between the paths through the IF at line 12"
     assert (got["X3"].tool_name, got["X4"].tool_name, got["X4"].problem) == (
-        "TOOL_DATA[2]", "TOOL_DATA[2]", "")  # fmt: skip
+        "TOOL_DATA[2]",
+        "TOOL_DATA[2]",
+        "",
+    )
     assert got["X5"].problem == "the base differs between the paths through the FOR at line 21"
 
 
 def test_an_aggregate_over_several_lines_keeps_its_layout(cell: Cell) -> None:
-    dat = (b"DEFDAT p\r\nDECL E6POS XP1={X 1200.0,Y 10.0,Z 900.0,\r\n"
-           b"   A 0.0,B 90.0,C 0.0, S 2,T 2}\r\nENDDAT\r\n")  # fmt: skip
+    dat = (
+        b"DEFDAT p\r\nDECL E6POS XP1={X 1200.0,Y 10.0,Z 900.0,\r\n"
+        b"   A 0.0,B 90.0,C 0.0, S 2,T 2}\r\nENDDAT\r\n"
+    )
     src = b"DEF p( )\r\n$TOOL=$NULLFRAME\r\n$BASE=$WORLD\r\nPTP XP1\r\nEND\r\n"
     files = [("p.dat", dat), ("p.src", src)]
     (target,) = KRL.parse([Source.from_bytes(n, d) for n, d in files], FrameTables())
@@ -170,15 +209,21 @@ def test_an_unreachable_target_is_left_as_it_is_and_named(cell: Cell) -> None:
     run = filter_files(_identity(cell), [("far.dat", dat), ("far.src", src)])
     assert run.outputs == {"far.dat": dat, "far.src": src}
     (row,) = run.rows()
-    assert (row["file"], row["line"], row["name"], row["status"]) == ("far.dat", 2, "XFAR",
-                                                                      "unreachable")  # fmt: skip
+    assert (row["file"], row["line"], row["name"], row["status"]) == (
+        "far.dat",
+        2,
+        "XFAR",
+        "unreachable",
+    )
     assert run.exit_code == EXIT_LEFT
 
 
 def test_a_relative_move_leaves_its_offset_alone(cell: Cell) -> None:
-    dat = (b"DEFDAT r\r\nDECL E6POS XDZ={X 0.0,Y 0.0,Z 20.0,A 0.0,B 0.0,C 0.0}\r\n"
-           b"DECL E6AXIS XDA={A1 5.0,A2 0.0,A3 0.0,A4 0.0,A5 0.0,A6 0.0}\r\n"
-           b"ENDDAT\r\n")  # fmt: skip
+    dat = (
+        b"DEFDAT r\r\nDECL E6POS XDZ={X 0.0,Y 0.0,Z 20.0,A 0.0,B 0.0,C 0.0}\r\n"
+        b"DECL E6AXIS XDA={A1 5.0,A2 0.0,A3 0.0,A4 0.0,A5 0.0,A6 0.0}\r\n"
+        b"ENDDAT\r\n"
+    )
     src = b"DEF r( )\r\nLIN_REL XDZ C_DIS\r\nPTP_REL XDA\r\nEND\r\n"
     run = filter_files(_identity(cell), [("r.dat", dat), ("r.src", src)])
     assert run.outputs == {"r.dat": dat, "r.src": src}
@@ -212,8 +257,9 @@ def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:
     assert np.all(acc["filtered_deg"] <= 1.5 * acc["floor_deg"] + 0.002)
     # The configuration: S as written, T from the corrected joints, the same branch.
     out = run.outputs["olp_path.dat"] + run.outputs["olp_path.src"]
-    assert [s for _, s, _ in _status_turn(out)] == [s for _, s, _ in _status_turn(
-        files["olp_path.dat"] + files["olp_path.src"])]  # fmt: skip
+    assert [s for _, s, _ in _status_turn(out)] == [
+        s for _, s, _ in _status_turn(files["olp_path.dat"] + files["olp_path.src"])
+    ]
     assert all(c.configuration_kept for c in run.corrections)
     by_name = {t.name: c for t, c in zip(run.targets, run.corrections, strict=True)}
     for name, _s, t in _status_turn(run.outputs["olp_path.dat"]):
@@ -230,35 +276,53 @@ def test_status_and_turn_mapping() -> None:
     assert turn_of(np.array([-1.0, 0.0, 5.0, -0.1, 2.0, -170.0])) == 0b101001
 
 
-@pytest.mark.parametrize(("old", "joints", "new"), [
-    ("'B000010'", [-10, -30, 200, 5, 40, 10], "'B000011'"),
-    ("'B10'", [10, 30, 200, -5, 40, -10], "'B101000'"),
-    ("2", [-10, -30, 200, 5, 40, 10], "3"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("old", "joints", "new"),
+    [
+        ("'B000010'", [-10, -30, 200, 5, 40, 10], "'B000011'"),
+        ("'B10'", [10, 30, 200, -5, 40, -10], "'B101000'"),
+        ("2", [-10, -30, 200, 5, 40, 10], "3"),
+    ],
+)
 def test_turn_follows_the_corrected_joints(old: str, joints: list[float], new: str) -> None:
     text = "X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,T " + old
-    nums = [Num("a.dat", m.start(1), m.end(1), m.group(1), float(m.group(1)))
-            for m in re.finditer(r"[XYZABC] ([\d.]+)", text)]  # fmt: skip
+    nums = [
+        Num("a.dat", m.start(1), m.end(1), m.group(1), float(m.group(1)))
+        for m in re.finditer(r"[XYZABC] ([\d.]+)", text)
+    ]
     start = text.index("T ") + 2
     turn = Num("a.dat", start, len(text), old, 2.0)
-    target = Target("a.dat", 1, "XP", "cartesian", pose=np.eye(4),
-                    site=CartSite(nums[:3], nums[3:], turn))  # fmt: skip
+    target = Target(
+        "a.dat", 1, "XP", "cartesian", pose=np.eye(4), site=CartSite(nums[:3], nums[3:], turn)
+    )
     pose = frame(np.array([1.0, 2.0, 3.0]), zyx_deg_to_matrix(0.0, 0.0, 0.0))
     edits = KRL.render(target, Correction("corrected", pose=pose, joints_deg=np.array(joints)))
     assert [(e.start, e.new) for e in edits] == [(start, new)]
 
 
-@pytest.mark.parametrize(("name", "data", "message"), [
-    ("p.dat", b"DEFDAT p\r\nDECL E6POS XP1={X 1.0,Y 2.0,,Z 3.0}\r\nENDDAT\r\n",
-     "p.dat:2: expected a component name, got ','"),
-    ("p.dat", b"DEFDAT p\nDECL E6POS XP1={X 1.0,X 2.0}\nENDDAT\n",
-     "p.dat:2: component X given twice"),
-    ("p.dat", b"DEFDAT p\nDECL E6POS XP[2]\nXP[0]={X 1.0}\nENDDAT\n",
-     "p.dat:3: array index [0] below 1"),
-    ("p.dat", b"DEFDAT p\nDECL E6POS XP1={X 1.0\nENDDAT\n", "p.dat:2: expected ',' or '}'"),
-    ("p.src", b"; no routine here\nPTP XP1\n", "p.src:1: the content is not krl"),
-    ("p.src", b"DEF p( )\n$TOOL=TOOL_DATA[1]\nLIN {X 1.0,Y 2 C_DIS\nEND\n", "p.src:3:"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("name", "data", "message"),
+    [
+        (
+            "p.dat",
+            b"DEFDAT p\r\nDECL E6POS XP1={X 1.0,Y 2.0,,Z 3.0}\r\nENDDAT\r\n",
+            "p.dat:2: expected a component name, got ','",
+        ),
+        (
+            "p.dat",
+            b"DEFDAT p\nDECL E6POS XP1={X 1.0,X 2.0}\nENDDAT\n",
+            "p.dat:2: component X given twice",
+        ),
+        (
+            "p.dat",
+            b"DEFDAT p\nDECL E6POS XP[2]\nXP[0]={X 1.0}\nENDDAT\n",
+            "p.dat:3: array index [0] below 1",
+        ),
+        ("p.dat", b"DEFDAT p\nDECL E6POS XP1={X 1.0\nENDDAT\n", "p.dat:2: expected ',' or '}'"),
+        ("p.src", b"; no routine here\nPTP XP1\n", "p.src:1: the content is not krl"),
+        ("p.src", b"DEF p( )\n$TOOL=TOOL_DATA[1]\nLIN {X 1.0,Y 2 C_DIS\nEND\n", "p.src:3:"),
+    ],
+)
 def test_bad_files_get_an_error_naming_file_and_line(
     cell: Cell, name: str, data: bytes, message: str
 ) -> None:

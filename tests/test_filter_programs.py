@@ -43,8 +43,9 @@ def test_calibration_equal_to_nominal_changes_no_byte(nominal: RobotModel) -> No
     for name, data in _fixture_files():
         assert run.outputs[name] == data, name
     # Not vacuous: the targets were corrected (by nothing), not skipped.
-    corrected = {t.file for t, c in zip(run.targets, run.corrections, strict=True)
-                 if c.status == "corrected"}  # fmt: skip
+    corrected = {
+        t.file for t, c in zip(run.targets, run.corrections, strict=True) if c.status == "corrected"
+    }
     assert corrected == {"cell_a.mod", "station_b.prg", "polyscope_c.script", "plain_d.urscript"}
     assert all(c.shift_mm < 1e-6 for c in run.corrections if c.status == "corrected")
 
@@ -56,8 +57,12 @@ def test_a_real_calibration_changes_only_numbers_and_keeps_encoding_and_crlf(
     table = calibrated.dh_table.copy()
     table[1, 1] += 1.5  # a2 longer by 1.5 mm
     table[2, 3] += 0.05  # theta3 off by 0.05 deg
-    cal = Calibration(nominal, RobotModel("cal", "dh", table, nominal.joint_limits_deg),
-                      None, np.zeros(0, dtype=int))  # fmt: skip
+    cal = Calibration(
+        nominal,
+        RobotModel("cal", "dh", table, nominal.joint_limits_deg),
+        None,
+        np.zeros(0, dtype=int),
+    )
     files = _fixture_files()
     run = filter_files(cal, files)
     assert run.errors == []
@@ -88,8 +93,7 @@ def test_rapid_targets_uses_and_frames() -> None:
     assert targets["pB5"].uses == []
     cell = Source.from_bytes("cell_a.mod", (FIXTURES / "cell_a.mod").read_bytes())
     names = [t.name for t in RAPID.parse([cell], FrameTables())]
-    assert names == ["pApproach", "pEdge", "pPath{1}", "pPath{2}", "pPath{3}", "jHome",
-                     "inline@32"]  # fmt: skip
+    assert names == ["pApproach", "pEdge", "pPath{1}", "pPath{2}", "pPath{3}", "jHome", "inline@32"]
     by = {t.name: t for t in RAPID.parse([cell], FrameTables())}
     assert [u.line for u in by["pEdge"].uses] == [27, 31]  # direct and through Offs()
     assert all(len(by[f"pPath{{{k}}}"].uses) == 1 for k in (1, 2, 3))  # pPath{nIdx}
@@ -116,8 +120,10 @@ def test_urscript_pairs_tools_and_features() -> None:
 
 
 def test_an_unparseable_file_is_named_with_its_line_and_not_written(nominal: RobotModel) -> None:
-    bad = (b"MODULE BAD\n  CONST robtarget p1:=[[1,2,3],[1,0,0,0],[0,0,0,0],\n  [9E9,9E9]];\n"
-           b"ENDMODULE\n")  # fmt: skip
+    bad = (
+        b"MODULE BAD\n  CONST robtarget p1:=[[1,2,3],[1,0,0,0],[0,0,0,0],\n  [9E9,9E9]];\n"
+        b"ENDMODULE\n"
+    )
     files = [("bad.mod", bad), ("notes_e.mod", (FIXTURES / "notes_e.mod").read_bytes())]
     run = filter_files(_identity(nominal), files)
     assert [e.file for e in run.errors] == ["bad.mod"]
@@ -131,12 +137,19 @@ def test_an_unparseable_file_is_named_with_its_line_and_not_written(nominal: Rob
     [
         ("prog.txt", b"MODULE X\nENDMODULE\n", "unknown program dialect"),
         ("prog.mod", b"def main():\n  movej([0,0,0,0,0,0])\nend\n", "the content is not rapid"),
-        ("prog.mod", b"MODULE X\n  MoveL [[1,2,3],[1,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]"
-         b", v10, fine, tool0;\n  VAR robtarget q:=[[1,2;\nENDMODULE\n", "prog.mod:3"),
-        ("prog.script", b"def main():\n  movel(p[0.1, 0.2, 0.3, 0, 0, 0], a=1\nend\n",
-         "unclosed '(' of movel"),
+        (
+            "prog.mod",
+            b"MODULE X\n  MoveL [[1,2,3],[1,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]"
+            b", v10, fine, tool0;\n  VAR robtarget q:=[[1,2;\nENDMODULE\n",
+            "prog.mod:3",
+        ),
+        (
+            "prog.script",
+            b"def main():\n  movel(p[0.1, 0.2, 0.3, 0, 0, 0], a=1\nend\n",
+            "unclosed '(' of movel",
+        ),
     ],
-)  # fmt: skip
+)
 def test_bad_files_get_an_error_naming_them(
     nominal: RobotModel, name: str, data: bytes, message: str
 ) -> None:
@@ -154,9 +167,11 @@ def test_dialect_by_extension_and_content() -> None:
 
 
 def test_a_target_left_unchanged_is_named_and_counts(nominal: RobotModel) -> None:
-    far = (b"MODULE FAR\n  CONST robtarget pFar:=[[9000,0,500],[0,0,1,0],[0,0,0,0],"
-           b"[9E9,9E9,9E9,9E9,9E9,9E9]];\n  PROC main()\n    MoveL pFar, v100, fine, tool0;\n"
-           b"  ENDPROC\nENDMODULE\n")  # fmt: skip
+    far = (
+        b"MODULE FAR\n  CONST robtarget pFar:=[[9000,0,500],[0,0,1,0],[0,0,0,0],"
+        b"[9E9,9E9,9E9,9E9,9E9,9E9]];\n  PROC main()\n    MoveL pFar, v100, fine, tool0;\n"
+        b"  ENDPROC\nENDMODULE\n"
+    )
     run = filter_files(_identity(nominal), [("far.mod", far)])
     assert run.outputs["far.mod"] == far
     (row,) = run.rows()
@@ -170,7 +185,9 @@ def test_keep_joint_targets_and_only(nominal: RobotModel) -> None:
     status = {(r["file"], r["name"]): (r["status"], r["reason"]) for r in run.rows()}
     assert status[("cell_a.mod", "pEdge")] == ("corrected", "")
     assert status[("cell_a.mod", "jHome")] == (
-        "skipped", "joint target kept (--keep-joint-targets)")  # fmt: skip
+        "skipped",
+        "joint target kept (--keep-joint-targets)",
+    )
     assert status[("cell_a.mod", "pApproach")] == ("skipped", "not selected (--only)")
     assert run.exit_code == 0  # left out on purpose: not counted
     run = filter_files(cal, _fixture_files(), keep_joint_targets=True)
@@ -222,10 +239,15 @@ def test_a_correction_beyond_the_joint_limits_is_left_and_named(nominal: RobotMo
     text = rapid_module(nominal, q, np.eye(4), np.eye(4)).encode()
     table = nominal.dh_table.copy()
     table[0, 3] -= 0.02  # theta1: the calibrated robot needs q1 0.02 deg further
-    cal = Calibration(nominal, RobotModel("cal", "dh", table, nominal.joint_limits_deg), None,
-                      np.zeros(0, dtype=int))  # fmt: skip
+    cal = Calibration(
+        nominal,
+        RobotModel("cal", "dh", table, nominal.joint_limits_deg),
+        None,
+        np.zeros(0, dtype=int),
+    )
     run = filter_files(cal, [("edge.mod", text)])
     (row,) = run.rows()
     assert row["status"] == "unreachable" and row["reason"].startswith(
-        "outside the joint limits: J1=180.015")  # fmt: skip
+        "outside the joint limits: J1=180.015"
+    )
     assert run.outputs["edge.mod"] == text and run.exit_code == EXIT_LEFT

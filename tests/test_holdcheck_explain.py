@@ -18,8 +18,9 @@ NOISE_MM = 0.02
 
 def _samples(q: np.ndarray, lengths: np.ndarray) -> SampleSet:
     n = len(lengths)
-    return SampleSet(joints_deg=q, length_mm=lengths, anchor=("A",) * n, group=None,
-                     line=np.arange(2, n + 2))  # fmt: skip
+    return SampleSet(
+        joints_deg=q, length_mm=lengths, anchor=("A",) * n, group=None, line=np.arange(2, n + 2)
+    )
 
 
 @pytest.fixture(scope="module")

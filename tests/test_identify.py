@@ -41,13 +41,23 @@ def test_heldout_rmse_and_parameters_within_three_sigma(clean_case) -> None:
     pred = res.to_json()
     assert pred["identifiability"]["unidentifiable"]  # theta1, d1, joint 6 at least
     # The identifiable combinations equal the truth's: fit noise-free data on the same base set.
-    exact = identify(MODEL, make_samples(q, clean), IdentifyOptions(method="lm"),
-                     train_rows=train, test_rows=test)  # fmt: skip
+    exact = identify(
+        MODEL,
+        make_samples(q, clean),
+        IdentifyOptions(method="lm"),
+        train_rows=train,
+        test_rows=test,
+    )
     assert exact.free_names == res.free_names
     # Exact up to what the noise-level threshold fixed: a trace far below one noise σ.
     assert exact.metrics["after"]["train"]["rmse_mm"] < 0.05 * NOISE_MM
-    rank_only = identify(MODEL, make_samples(q, clean), IdentifyOptions(method="lm",
-                         noise_rank=False), train_rows=train, test_rows=test)  # fmt: skip
+    rank_only = identify(
+        MODEL,
+        make_samples(q, clean),
+        IdentifyOptions(method="lm", noise_rank=False),
+        train_rows=train,
+        test_rows=test,
+    )
     assert rank_only.metrics["after"]["train"]["rmse_mm"] < 1e-6
     idx = [res.layout.index(n) for n in res.free_names]
     z = (res.theta[idx] - exact.theta[idx]) / res.sigma[idx]
@@ -77,14 +87,15 @@ def test_robust_mode_flags_gross_outliers_and_stays_close_to_clean(clean_case) -
     bad = rng.choice(train, size=5, replace=False)  # 5 % of 100 training samples
     corrupted[bad] += rng.choice([-1, 1], 5) * rng.uniform(5, 20, 5)
     plain_opts = IdentifyOptions(method="lm", robust="none")
-    clean_res = identify(MODEL, make_samples(q, noisy), plain_opts,
-                         train_rows=train, test_rows=test)  # fmt: skip
-    plain = identify(MODEL, make_samples(q, corrupted), plain_opts,
-                     train_rows=train, test_rows=test)  # fmt: skip
+    clean_res = identify(
+        MODEL, make_samples(q, noisy), plain_opts, train_rows=train, test_rows=test
+    )
+    plain = identify(
+        MODEL, make_samples(q, corrupted), plain_opts, train_rows=train, test_rows=test
+    )
     for mode in ("huber", "reject", "auto"):
         opts = IdentifyOptions(robust=mode)  # type: ignore[arg-type]
-        res = identify(MODEL, make_samples(q, corrupted), opts, train_rows=train,
-                       test_rows=test)  # fmt: skip
+        res = identify(MODEL, make_samples(q, corrupted), opts, train_rows=train, test_rows=test)
         assert set(res.flagged_rows) >= set(bad.tolist()), mode
         assert len(res.flagged_rows) <= 8, mode
         got = res.metrics["after"]["test"]["rmse_mm"]
@@ -168,8 +179,13 @@ def test_unknown_parameter_name_in_fix_is_rejected() -> None:
 
 def test_fixing_a_parameter_by_name_keeps_it_at_nominal(clean_case) -> None:
     _, q, _, noisy, train, test = clean_case
-    res = identify(MODEL, make_samples(q, noisy), IdentifyOptions(method="lm", fix=("a2",)),
-                   train_rows=train, test_rows=test)  # fmt: skip
+    res = identify(
+        MODEL,
+        make_samples(q, noisy),
+        IdentifyOptions(method="lm", fix=("a2",)),
+        train_rows=train,
+        test_rows=test,
+    )
     assert "a2" not in res.free_names
     assert res.theta[res.layout.index("a2")] == 0.0
 
@@ -231,8 +247,7 @@ def test_noise_rank_fixes_joint5_terms_the_noise_cannot_resolve() -> None:
     rng = np.random.default_rng(1)
     q = random_poses_deg(cell, 40, rng)
     samples = make_samples(q, noisy_lengths(cell, q, rng, noise_mm=0.05))
-    on = identify(MODEL, samples, IdentifyOptions(method="lm", test_fraction=0.0,
-                                                  noise_rank=True))  # fmt: skip
+    on = identify(MODEL, samples, IdentifyOptions(method="lm", test_fraction=0.0, noise_rank=True))
     off = identify(MODEL, samples, IdentifyOptions(method="lm", test_fraction=0.0))
     joint5 = {"alpha5", "d5", "theta5"}
     assert joint5 <= set(off.identifiability.base)
@@ -258,8 +273,9 @@ def test_elapsed_is_by_the_injected_clock_and_calib_reads_none(clean_case, monke
     untimed = identify(MODEL, samples, opts, train_rows=train, test_rows=test)
     assert untimed.elapsed_s == 0.0 and untimed.solver.elapsed_s == 0.0
     ticks = iter(range(100))
-    timed = identify(MODEL, samples, opts, train_rows=train, test_rows=test,
-                     clock=lambda: float(next(ticks)))  # fmt: skip
+    timed = identify(
+        MODEL, samples, opts, train_rows=train, test_rows=test, clock=lambda: float(next(ticks))
+    )
     # identify reads the clock at its start (0) and end (3); its one fit (robust none, a fixed
     # prior weight) between (1, 2).
     assert timed.solver.elapsed_s == 1.0

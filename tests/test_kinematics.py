@@ -148,8 +148,9 @@ def test_projected_jacobian_rejects_a_batch_of_parameter_sets() -> None:
 
 def test_length_jacobian_matches_finite_differences_modified_dh() -> None:
     nominal = builtin_model("hsr-jr680")
-    model = RobotModel("mdh-test", "mdh", nominal.dh_table, nominal.joint_limits_deg,
-                       np.array([10.0, 5.0, 90.0]))  # fmt: skip
+    model = RobotModel(
+        "mdh-test", "mdh", nominal.dh_table, nominal.joint_limits_deg, np.array([10.0, 5.0, 90.0])
+    )
     rng = np.random.default_rng(10)
     layout = ParamLayout(("A",))
     theta = np.zeros(layout.size)

@@ -36,10 +36,22 @@ def _children_of(state_root: Path) -> list[int]:
 def test_make_run_prints_whole_lines_to_a_pipe(tmp_path: Path) -> None:
     env = {**os.environ, "COLUMNS": "80", "CABLECAL_API_TOKEN": "pipe-test-token-" + "x" * 40}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "daemon.cli.demo", "serve", "--port", "0",
-         "--state-dir", str(tmp_path / "state")],
-        cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "daemon.cli.demo",
+            "serve",
+            "--port",
+            "0",
+            "--state-dir",
+            str(tmp_path / "state"),
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     lines: list[str] = []
     try:
         assert proc.stdout is not None

@@ -79,8 +79,13 @@ def test_a_gross_error_is_rejected_even_below_the_screening_redundancy() -> None
     lengths = c.length_mm.copy()
     train = c.train_rows
     lengths[train[3]] += 30.0  # 3 cm: a slipped cable
-    res = identify(MODEL, make_samples(c.q_deg, lengths), IdentifyOptions(), train_rows=train,
-                   test_rows=c.test_rows)  # fmt: skip
+    res = identify(
+        MODEL,
+        make_samples(c.q_deg, lengths),
+        IdentifyOptions(),
+        train_rows=train,
+        test_rows=c.test_rows,
+    )
     assert res.flagged_rows == [int(train[3])]
     assert res.to_json()["prior"]["noise_mm"] < 5 * NOISE_MM
     assert any("gross error" in n for n in res.notes), res.notes
@@ -139,8 +144,9 @@ def test_robust_and_prior_import_neither_scipy_stats_nor_identify() -> None:
         "print('scipy.stats' in sys.modules, 'scipy.special' in sys.modules);"
         "import calib.prior; print('calib.identify' in sys.modules)"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, timeout=60).stdout.split()  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    ).stdout.split()
     assert out == ["False", "False", "False"]
 
 

@@ -27,8 +27,9 @@ def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 
 
 def _campaign(client: TestClient) -> int:
-    r = client.post("/api/v1/campaigns", json={"name": "p", "robot_model": "hsr-jr680"},
-                    headers=AUTH)  # fmt: skip
+    r = client.post(
+        "/api/v1/campaigns", json={"name": "p", "robot_model": "hsr-jr680"}, headers=AUTH
+    )
     assert r.status_code == 201, r.text
     return int(r.json()["id"])
 
@@ -58,16 +59,23 @@ def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestC
     assert again["id"] > made["id"]
     assert len(made["poses"]) == 8 and made["options"]["n"] == 8
     assert made["summary"]["tcp_sigma_mm"]["plan"]["rms"] > 0
-    assert made["progress"] == {"n_planned": 8, "n_done": 0, "n_pending": 8,
-                                "n_not_capturable": 0, "fraction_done": 0.0, "tol_deg": 0.5,
-                                "next_pose": 1}  # fmt: skip
+    assert made["progress"] == {
+        "n_planned": 8,
+        "n_done": 0,
+        "n_pending": 8,
+        "n_not_capturable": 0,
+        "fraction_done": 0.0,
+        "tol_deg": 0.5,
+        "next_pose": 1,
+    }
     poses = _plan(client, cid)["poses"]
     assert poses == made["poses"]
     assert all(p["status"] == "pending" and p["sample_id"] is None for p in poses)
 
     # A manual capture 0.2 deg off pose 1 measures it; with a 0.1 deg tolerance it does not.
-    r = client.post(f"/api/v1/campaigns/{cid}/captures",
-                    json={"joints_deg": _q(poses[0], 0.2)}, headers=AUTH)  # fmt: skip
+    r = client.post(
+        f"/api/v1/campaigns/{cid}/captures", json={"joints_deg": _q(poses[0], 0.2)}, headers=AUTH
+    )
     assert r.status_code == 201, r.text
     sid = r.json()["id"]
     got = _plan(client, cid)
@@ -76,15 +84,21 @@ def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestC
     assert _plan(client, cid, tol_deg=0.1)["progress"]["n_done"] == 0
 
     # The same pose at another anchor is another measurement: pose 2 stays pending.
-    r = client.post(f"/api/v1/campaigns/{cid}/captures",
-                    json={"joints_deg": _q(poses[1]), "anchor": "B"}, headers=AUTH)  # fmt: skip
+    r = client.post(
+        f"/api/v1/campaigns/{cid}/captures",
+        json={"joints_deg": _q(poses[1]), "anchor": "B"},
+        headers=AUTH,
+    )
     assert r.status_code == 201, r.text
     # A CSV import of poses 3 and 4 counts too.
     csv = "q1,q2,q3,q4,q5,q6,L\n" + "".join(
         ",".join(f"{v:.4f}" for v in _q(p)) + ",900.0\n" for p in poses[2:4]
     )
-    r = client.post(f"/api/v1/campaigns/{cid}/samples/import", content=csv,
-                    headers={**AUTH, "Content-Type": "text/csv"})  # fmt: skip
+    r = client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=csv,
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
     assert r.status_code == 201, r.text
     got = _plan(client, cid)
     assert [p["status"] for p in got["poses"][:4]] == ["done", "pending", "done", "done"]
@@ -93,11 +107,20 @@ def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestC
     # Auto capture: the sampler hands its capture to the store (its sink), as here.
     store = client.app.state.cablecal.store  # type: ignore[attr-defined]
     q5 = _q(poses[4], -0.3)
-    store.store_capture(cid, Capture(joints_deg=(q5[0], q5[1], q5[2], q5[3], q5[4], q5[5]),
-                                     joints_std_deg=(0.001,) * 6,  # type: ignore[arg-type]
-                                     length_mm=900.0, length_std_mm=0.01, count=10,
-                                     anchor="A", t_start_wall=time.time() - 1,
-                                     t_end_wall=time.time(), mode="auto"))  # fmt: skip
+    store.store_capture(
+        cid,
+        Capture(
+            joints_deg=(q5[0], q5[1], q5[2], q5[3], q5[4], q5[5]),
+            joints_std_deg=(0.001,) * 6,  # type: ignore[arg-type]
+            length_mm=900.0,
+            length_std_mm=0.01,
+            count=10,
+            anchor="A",
+            t_start_wall=time.time() - 1,
+            t_end_wall=time.time(),
+            mode="auto",
+        ),
+    )
     got = _plan(client, cid)
     assert got["poses"][4]["status"] == "done" and got["progress"]["n_done"] == 4
 
@@ -111,9 +134,11 @@ def test_plan_then_progress_through_captures_imports_and_exclusion(client: TestC
 def test_plan_from_the_campaigns_samples(client: TestClient) -> None:
     cid = _campaign(client)
     text = bundled_dataset_text()
-    r = client.post(f"/api/v1/campaigns/{cid}/samples/import",
-                    content="\n".join(text.splitlines()[:61]) + "\n",
-                    headers={**AUTH, "Content-Type": "text/csv"})  # fmt: skip
+    r = client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content="\n".join(text.splitlines()[:61]) + "\n",
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
     assert r.status_code == 201, r.text
     body = {"n": 6, "candidates": 200, "start_from_samples": True}
     r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
@@ -133,8 +158,7 @@ def test_not_found_auth_and_bounds(client: TestClient) -> None:
         r = client.request(method, "/api/v1/campaigns/999999/plan", json=SMALL, headers=AUTH)
         assert (r.status_code, r.json()) == (404, {"detail": "campaign 999999: not found"})
         for headers in ({}, {"Authorization": "Bearer wrong"}):
-            r = client.request(method, f"/api/v1/campaigns/{cid}/plan", json=SMALL,
-                               headers=headers)  # fmt: skip
+            r = client.request(method, f"/api/v1/campaigns/{cid}/plan", json=SMALL, headers=headers)
             assert r.status_code == 401, (method, r.text)
     bad = [
         ({"n": 201}, "n"),
@@ -225,9 +249,11 @@ def test_ids_beyond_sqlite_integer_blank_and_oversized_strings_are_422(
         assert r.status_code == 422, (change, r.text)
         assert r.json()["detail"][0]["loc"] == loc, (change, r.text)
     # NaN (which Python's JSON reader accepts) is not a coordinate.
-    r = client.post(f"/api/v1/campaigns/{cid}/plan",
-                    content=b'{"anchors_mm": [[NaN, 0, 0]], "n": 8, "candidates": 200}',
-                    headers={**AUTH, "Content-Type": "application/json"})  # fmt: skip
+    r = client.post(
+        f"/api/v1/campaigns/{cid}/plan",
+        content=b'{"anchors_mm": [[NaN, 0, 0]], "n": 8, "candidates": 200}',
+        headers={**AUTH, "Content-Type": "application/json"},
+    )
     assert r.status_code == 422, r.text
     r = client.get(f"/api/v1/campaigns/{cid}/plan", params={"tol_deg": "nan"}, headers=AUTH)
     assert r.status_code == 422, r.text
@@ -279,8 +305,13 @@ def test_a_plan_that_identifies_no_robot_parameter_is_a_clear_422_not_a_500(
     """Regression (schemathesis, after the plan-noise merge): one candidate pose gave a
     ZeroDivisionError (500) in the design's per-parameter log det."""
     cid = _campaign(client)
-    body = {"anchors_mm": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], "anchor_uncertainty_mm": 0.0,
-            "candidates": 1, "dwell_s": 0.0, "n": 1}  # fmt: skip
+    body = {
+        "anchors_mm": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
+        "anchor_uncertainty_mm": 0.0,
+        "candidates": 1,
+        "dwell_s": 0.0,
+        "n": 1,
+    }
     r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
     assert r.status_code == 422, r.text
     assert "candidates" in r.text and "identify none" in r.text

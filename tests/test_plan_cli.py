@@ -57,8 +57,9 @@ def test_plan_file_poses_and_80_column_summary(tmp_path: Path) -> None:
     # The tables are not squeezed: each figure row is whole on one line, plan beside random.
     summary = json.loads(js.read_text())
     tcp = summary["tcp_sigma_mm"]
-    assert any(f"{tcp['plan']['rms']:.4f}" in ln and f"{tcp['random']['rms']:.4f}" in ln
-               for ln in lines)  # fmt: skip
+    assert any(
+        f"{tcp['plan']['rms']:.4f}" in ln and f"{tcp['random']['rms']:.4f}" in ln for ln in lines
+    )
     assert tcp["plan"]["rms"] < tcp["random"]["rms"]
     assert any("campaign (moves + dwell)" in ln for ln in lines)
     # Every base parameter's σ is printed.
@@ -68,8 +69,20 @@ def test_plan_file_poses_and_80_column_summary(tmp_path: Path) -> None:
 
 def test_several_anchors_and_start_data(tmp_path: Path) -> None:
     out = tmp_path / "two.csv"
-    code, text = _run(["--anchor-mm", ANCHOR, "--anchor-mm=-300,1300,300", "--anchor-id", "A",
-                       "--anchor-id", "B", *FAST, "--out", str(out)])  # fmt: skip
+    code, text = _run(
+        [
+            "--anchor-mm",
+            ANCHOR,
+            "--anchor-mm=-300,1300,300",
+            "--anchor-id",
+            "A",
+            "--anchor-id",
+            "B",
+            *FAST,
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0, text
     assert "Several anchors against one" in text and "gain over" in text
     assert max(len(line) for line in text.splitlines()) <= 80
@@ -107,8 +120,11 @@ def test_several_anchors_and_start_data(tmp_path: Path) -> None:
 )
 def test_bad_input_names_the_option(tmp_path: Path, args: list[str], message: str) -> None:
     out = tmp_path / "p.csv"
-    code, text = _run([*args, "--candidates", "200", "--out", str(out)]
-                      if "--candidates" not in args else [*args, "--out", str(out)])  # fmt: skip
+    code, text = _run(
+        [*args, "--candidates", "200", "--out", str(out)]
+        if "--candidates" not in args
+        else [*args, "--out", str(out)]
+    )
     assert code == 2, text
     assert message in " ".join(text.split()), text
     assert not out.exists()
@@ -135,23 +151,36 @@ def test_help_states_the_engine_defaults() -> None:
 
 def test_summary_renders_at_80_columns_without_wrapping() -> None:
     data = {
-        "n_poses": 40, "anchors": {"A": [1430.0, 330.0, 230.0], "B": [-300.0, 1300.0, 300.0]},
-        "poses_per_anchor": {"A": 22, "B": 18}, "noise_mm": 0.05, "condition_number": 123.4,
-        "condition_number_start": 1.58e6, "n_candidates": 20000, "exchanges": 200,
+        "n_poses": 40,
+        "anchors": {"A": [1430.0, 330.0, 230.0], "B": [-300.0, 1300.0, 300.0]},
+        "poses_per_anchor": {"A": 22, "B": 18},
+        "noise_mm": 0.05,
+        "condition_number": 123.4,
+        "condition_number_start": 1.58e6,
+        "n_candidates": 20000,
+        "exchanges": 200,
         "elapsed_s": 12.3,
-        "parameters": [{"name": f"theta{j}@B", "sigma": 12345.6789, "unit": "deg"}
-                       for j in range(31)],
-        "tcp_sigma_mm": {"plan": {"rms": 0.0612, "max": 0.1}, "random": {"rms": 1.2e5,
-                                                                          "max": 3.4e6}},
-        "travel_s": 600.0, "campaign_s": 900.0,
-        "anchor_gain": {"single_anchor": {"A": {"kinematic_log_det": 3.2, "tcp_sigma_mm":
-                                                {"rms": 0.07, "max": 0.1}}},
-                        "all_anchors": {"kinematic_log_det": 3.4, "tcp_sigma_mm":
-                                        {"rms": 0.06, "max": 0.1}},
-                        "best_single_anchor": "A", "d_efficiency_gain": 1.22,
-                        "tcp_rms_ratio": 1.17, "plan_uses": "all"},
+        "parameters": [
+            {"name": f"theta{j}@B", "sigma": 12345.6789, "unit": "deg"} for j in range(31)
+        ],
+        "tcp_sigma_mm": {
+            "plan": {"rms": 0.0612, "max": 0.1},
+            "random": {"rms": 1.2e5, "max": 3.4e6},
+        },
+        "travel_s": 600.0,
+        "campaign_s": 900.0,
+        "anchor_gain": {
+            "single_anchor": {
+                "A": {"kinematic_log_det": 3.2, "tcp_sigma_mm": {"rms": 0.07, "max": 0.1}}
+            },
+            "all_anchors": {"kinematic_log_det": 3.4, "tcp_sigma_mm": {"rms": 0.06, "max": 0.1}},
+            "best_single_anchor": "A",
+            "d_efficiency_gain": 1.22,
+            "tcp_rms_ratio": 1.17,
+            "plan_uses": "all",
+        },
         "notes": [],
-    }  # fmt: skip
+    }
     console = Console(width=80, record=True, file=open("/dev/null", "w"))  # noqa: SIM115
     for item in summary_renderables(data, has_start=True):
         console.print(item)
@@ -166,15 +195,30 @@ def test_start_data_give_the_zero_offset_and_every_reading_stays_in_range(
 ) -> None:
     """Issue 27 item 2: the start samples' zero offset (-300 mm: a cable shorter than 300 mm
     reads below 0) keeps every planned pose's predicted reading inside the indicator's range."""
-    cell = make_true_cell(MODEL, anchors_mm=np.array([[1400.0, 300.0, 200.0]]),
-                          offsets_mm=np.array([-300.0]))  # fmt: skip
+    cell = make_true_cell(
+        MODEL, anchors_mm=np.array([[1400.0, 300.0, 200.0]]), offsets_mm=np.array([-300.0])
+    )
     rng = np.random.default_rng(3)
     q = random_poses_deg(cell, 30, rng)
     start = tmp_path / "start.csv"
     start.write_text(samples_to_csv(make_samples(q, noisy_lengths(cell, q, rng, noise_mm=0.02))))
     out, js = tmp_path / "plan.csv", tmp_path / "plan.json"
-    code, text = _run(["--n", "24", "--candidates", "1500", "--seed", "5", "--start", str(start),
-                       "--out", str(out), "--json", str(js)])  # fmt: skip
+    code, text = _run(
+        [
+            "--n",
+            "24",
+            "--candidates",
+            "1500",
+            "--seed",
+            "5",
+            "--start",
+            str(start),
+            "--out",
+            str(out),
+            "--json",
+            str(js),
+        ]
+    )
     assert code == 0, text
     reading = json.loads(js.read_text())["reading_mm"]
     assert reading["offsets_mm"]["A"] == pytest.approx(-300.0, abs=5.0)

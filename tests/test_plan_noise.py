@@ -82,8 +82,9 @@ def test_choose_takes_the_first_usable_source() -> None:
     assert choose(None, samples, live, 0.05) == samples
     assert choose(float("nan"), None, live, 0.05) == live
     assert choose(0.0, NoiseEstimate(0.0, "samples", "s"), None, 0.05).source == "default"
-    assert choose(None, None, None, 0.05) == NoiseEstimate(0.05, "default", choose(
-        None, None, None, 0.05).detail)  # fmt: skip
+    assert choose(None, None, None, 0.05) == NoiseEstimate(
+        0.05, "default", choose(None, None, None, 0.05).detail
+    )
 
 
 class _Sampler:
@@ -96,13 +97,18 @@ class _Sampler:
         return self.readings[-limit:]
 
 
-def _readings(rng: np.random.Generator, q: tuple[float, ...], t0: float, n: int,
-              repeat: int = 2) -> list[PairedReading]:  # fmt: skip
+def _readings(
+    rng: np.random.Generator, q: tuple[float, ...], t0: float, n: int, repeat: int = 2
+) -> list[PairedReading]:
     """``n`` still readings at 100 Hz of an indicator updating at 100/repeat Hz."""
     lengths = 800.0 + _held(rng, n, repeat)
     joints = (q[0], q[1], q[2], q[3], q[4], q[5])
-    return [PairedReading(t0 + i * 0.01, t0 + i * 0.01, 1e9 + t0 + i * 0.01, joints,
-                          float(lengths[i]), False, 0.0) for i in range(n)]  # fmt: skip
+    return [
+        PairedReading(
+            t0 + i * 0.01, t0 + i * 0.01, 1e9 + t0 + i * 0.01, joints, float(lengths[i]), False, 0.0
+        )
+        for i in range(n)
+    ]
 
 
 def test_cell_noise_sources_in_order(tmp_path: Path) -> None:
@@ -131,9 +137,18 @@ def test_cell_noise_sources_in_order(tmp_path: Path) -> None:
 
     for k in range(4):  # each pose again, with a 0.05 mm repeatability on top
         window = _readings(rng, (float(k),) + (0.0,) * 5, 100.0 + 10.0 * k, 30)
-        shifted = [PairedReading(r.t_poll, r.t_mono, r.t_wall, r.joints_deg,
-                                 r.length_mm + 0.05 * (-1) ** k, False, 0.0)
-                   for r in window]  # fmt: skip
+        shifted = [
+            PairedReading(
+                r.t_poll,
+                r.t_mono,
+                r.t_wall,
+                r.joints_deg,
+                r.length_mm + 0.05 * (-1) ** k,
+                False,
+                0.0,
+            )
+            for r in window
+        ]
         store.store_capture(cid, make_capture(shifted, "A", "auto"))
     est = cell_noise(store, live, CFG, cid, robot_id)
     assert est.source == "samples" and "repeated poses" in est.detail
@@ -162,19 +177,18 @@ def test_the_plan_route_records_the_noise_and_its_source(tmp_path: Path) -> None
     app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
     body = {"anchors_mm": [[1430.0, 330.0, 230.0]], "n": 8, "candidates": 200, "seed": 2}
     with TestClient(app) as c:
-        r = c.post("/api/v1/campaigns", json={"name": "p", "robot_model": "hsr-jr680"},
-                   headers=AUTH)  # fmt: skip
+        r = c.post(
+            "/api/v1/campaigns", json={"name": "p", "robot_model": "hsr-jr680"}, headers=AUTH
+        )
         cid = r.json()["id"]
         r = c.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
         assert r.status_code == 201, r.text
         s = r.json()["summary"]
         assert (s["noise_mm"], s["noise_source"]) == (PlanOptions().noise_mm, "default")
         rms = s["tcp_sigma_mm"]["plan"]["rms"]
-        r = c.post(f"/api/v1/campaigns/{cid}/plan", json={**body, "noise_mm": 0.005},
-                   headers=AUTH)  # fmt: skip
+        r = c.post(f"/api/v1/campaigns/{cid}/plan", json={**body, "noise_mm": 0.005}, headers=AUTH)
         s = r.json()["summary"]
         assert (s["noise_mm"], s["noise_source"]) == (0.005, "request")
         assert s["tcp_sigma_mm"]["plan"]["rms"] == pytest.approx(rms * 0.005 / 0.05, rel=1e-6)
-        r = c.post(f"/api/v1/campaigns/{cid}/plan", json={**body, "noise_mm": None},
-                   headers=AUTH)  # fmt: skip
+        r = c.post(f"/api/v1/campaigns/{cid}/plan", json={**body, "noise_mm": None}, headers=AUTH)
         assert r.json()["summary"]["noise_source"] == "default"

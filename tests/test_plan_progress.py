@@ -23,8 +23,10 @@ def test_match_poses_tolerance_anchor_and_closest() -> None:
 
 
 def test_match_plan_reads_the_stored_pose_rows() -> None:
-    poses = [{"pose": i, "anchor": a, **{f"q{j}": v for j in range(1, 7)}}
-             for i, (a, v) in enumerate((("A", 0.0), ("B", 10.0), ("A", 20.0)))]  # fmt: skip
+    poses = [
+        {"pose": i, "anchor": a, **{f"q{j}": v for j in range(1, 7)}}
+        for i, (a, v) in enumerate((("A", 0.0), ("B", 10.0), ("A", 20.0)))
+    ]
     samples = [[10.1] * 6, [0.2] * 6]
     assert match_plan(poses, samples, ["B", "A"]) == [1, 0, -1]
     assert match_plan(poses, [], []) == [-1, -1, -1]

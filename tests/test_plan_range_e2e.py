@@ -31,8 +31,9 @@ def test_poses_over_the_range_are_not_capturable_and_the_next_plan_avoids_them(
         assert cell.daemon is not None and cell.sim is not None
         api, sim = cell.daemon.client(), cell.sim
         assert sim.control("truth")["offset_mm"] == OFFSET_MM
-        cid = int(api.post("/campaigns", json={"name": "range", "robot_model": "hsr-jr680"})
-                  .json()["id"])  # fmt: skip
+        cid = int(
+            api.post("/campaigns", json={"name": "range", "robot_model": "hsr-jr680"}).json()["id"]
+        )
         body = {"anchors_mm": [ANCHOR], "n": 24, "candidates": 1500, "seed": 5}
         r = api.post(f"/campaigns/{cid}/plan", json=body)
         assert r.status_code == 201, r.text
@@ -50,8 +51,15 @@ def test_poses_over_the_range_are_not_capturable_and_the_next_plan_avoids_them(
             got: dict[str, Any] = api.get(f"/campaigns/{cid}/plan").json()
             return got
 
-        wait_for(lambda: (pr := progress()["progress"])["n_done"] + pr["n_not_capturable"]
-                 >= len(fine) + len(short), 120, 0.5, "every planned pose visited")  # fmt: skip
+        wait_for(
+            lambda: (
+                (pr := progress()["progress"])["n_done"] + pr["n_not_capturable"]
+                >= len(fine) + len(short)
+            ),
+            120,
+            0.5,
+            "every planned pose visited",
+        )
         api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": False})
         got = progress()
         status = {p["pose"]: p for p in got["poses"]}
@@ -69,8 +77,9 @@ def test_poses_over_the_range_are_not_capturable_and_the_next_plan_avoids_them(
                 page.click("#tabs button[data-view=campaign]")
                 page.wait_for_function(
                     "document.getElementById('plan-summary').textContent.includes("
-                    "'not capturable')", timeout=15000,
-                )  # fmt: skip
+                    "'not capturable')",
+                    timeout=15000,
+                )
                 summary = page.inner_text("#plan-summary")
                 assert f"{len(short)} not capturable" in summary, summary
                 rows = page.locator("#plan-poses tbody tr")

@@ -40,11 +40,12 @@ def test_the_planner_keeps_every_predicted_reading_inside_the_range() -> None:
     assert (_readings(blind.q_deg, OFFSET_MM) < CABLE_MIN_MM).any()
     assert blind.to_json()["reading_mm"] is None
     # ... with it, every pose reads inside the range less the margins.
-    known = plan(MODEL, ANCHOR, PlanOptions(n=40, candidates=800, seed=3,
-                                            offsets_mm=(OFFSET_MM,)))  # fmt: skip
+    known = plan(MODEL, ANCHOR, PlanOptions(n=40, candidates=800, seed=3, offsets_mm=(OFFSET_MM,)))
     lo, hi = reading_window_mm(opts.anchor_uncertainty_mm)
-    assert (lo, hi) == (CABLE_MIN_MM + READING_MARGIN_MM + 30.0,
-                        CABLE_MAX_MM - READING_MARGIN_MM - 30.0)  # fmt: skip
+    assert (lo, hi) == (
+        CABLE_MIN_MM + READING_MARGIN_MM + 30.0,
+        CABLE_MAX_MM - READING_MARGIN_MM - 30.0,
+    )
     readings = _readings(known.q_deg, OFFSET_MM)
     assert readings.min() >= lo and readings.max() <= hi
     np.testing.assert_allclose(known.readings_mm(), readings)
@@ -76,9 +77,12 @@ def test_refused_poses_are_not_capturable_and_the_plan_check_never_asks_for_them
         {"reason": "over_range", "detail": "no pose"},  # refused before poses were recorded
     ]
     match = [0, 1, -1, -1]
-    assert not_capturable(poses, match, refused) == [None, None,
-                                                     "over_range: indicator reads -243.5 mm",
-                                                     None]  # fmt: skip
+    assert not_capturable(poses, match, refused) == [
+        None,
+        None,
+        "over_range: indicator reads -243.5 mm",
+        None,
+    ]
     # a measured pose is never marked, even if it was refused once
     assert not_capturable(poses, [0, 1, 2, -1], refused)[2] is None
     plan_row = {"id": 7, "poses": poses, "summary": {"tcp_sigma_mm": {"plan": {"rms": 0.02}}}}
@@ -106,8 +110,9 @@ def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
 def test_the_api_marks_a_refused_pose_and_plans_with_the_samples_offset(
     client: TestClient,
 ) -> None:
-    r = client.post("/api/v1/campaigns", json={"name": "r", "robot_model": "hsr-jr680"},
-                    headers=AUTH)  # fmt: skip
+    r = client.post(
+        "/api/v1/campaigns", json={"name": "r", "robot_model": "hsr-jr680"}, headers=AUTH
+    )
     cid = int(r.json()["id"])
     # 30 samples at the anchor, zero offset -300 mm (the nominal robot's lengths)
     q = workspace_sample_deg(MODEL, 200, seed=4)
@@ -118,8 +123,11 @@ def test_the_api_marks_a_refused_pose_and_plans_with_the_samples_offset(
         ",".join(f"{v:.4f}" for v in (*row, length)) + "\n"
         for row, length in zip(keep, lengths, strict=True)
     )
-    r = client.post(f"/api/v1/campaigns/{cid}/samples/import", content=csv,
-                    headers={**AUTH, "Content-Type": "text/csv"})  # fmt: skip
+    r = client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=csv,
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
     assert r.status_code == 201, r.text
     body = {"n": 10, "candidates": 300, "seed": 1, "start_from_samples": True}
     r = client.post(f"/api/v1/campaigns/{cid}/plan", json=body, headers=AUTH)
@@ -137,8 +145,9 @@ def test_the_api_marks_a_refused_pose_and_plans_with_the_samples_offset(
     store = client.app.state.cablecal.store  # type: ignore[attr-defined]
     poses = made["poses"]
     joints = [[p[f"q{j}"] for j in range(1, 7)] for p in poses]
-    store.record_rejection(cid, "over_range", "indicator over range", "indicator",
-                           joints_deg=joints[1])  # fmt: skip
+    store.record_rejection(
+        cid, "over_range", "indicator over range", "indicator", joints_deg=joints[1]
+    )
     store.record_rejection(cid, "stale", "reading 2 s old", "indicator", joints_deg=joints[2])
     got = client.get(f"/api/v1/campaigns/{cid}/plan", headers=AUTH).json()
     assert got["poses"][1]["status"] == "not_capturable"
@@ -167,8 +176,11 @@ def test_a_refusal_through_the_watched_sink_is_stored_with_the_robots_pose(
         sink = watch.wrap(store)
         sink.record_rejection(cid, "over_range", "indicator over range", "indicator")
         (event,) = store.list_events(kind="capture_rejected", campaign_id=cid)
-        assert event["detail"] == {"reason": "over_range", "detail": "indicator over range",
-                                   "joints_deg": [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]}  # fmt: skip
+        assert event["detail"] == {
+            "reason": "over_range",
+            "detail": "indicator over range",
+            "joints_deg": [1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+        }
         assert event["message"] == "over_range: indicator over range"
         status = {"devices": {"robot": {"last_reading": None}}}  # no reading: no pose
         sink.record_rejection(cid, "stale", "old", "indicator")

@@ -123,8 +123,9 @@ def test_several_anchors_report_the_gain() -> None:
 
 def _assert_anchor_report_is_true(res: PlanResult) -> None:
     counts = res.to_json()["poses_per_anchor"]
-    assert counts == {aid: int(np.count_nonzero(res.anchor_index == k))
-                      for k, aid in enumerate(res.anchor_ids)}  # fmt: skip
+    assert counts == {
+        aid: int(np.count_nonzero(res.anchor_index == k)) for k, aid in enumerate(res.anchor_ids)
+    }
     gain = res.anchor_gain
     assert gain is not None and gain["poses_per_anchor"] == counts
     used = [a for a, c in counts.items() if c > 0]
@@ -182,8 +183,10 @@ def test_hsr_data_plus_30_planned_poses_lower_the_condition_number_100x() -> Non
     p0, _ = multilaterate(pos, samples.length_mm)
     res = plan(MODEL, p0, PlanOptions(n=30, seed=0), start=samples)
     assert res.condition_number_start is not None
-    print(f"HSR base-set condition number: data alone {res.condition_number_start:.3g}, "
-          f"with 30 planned poses {res.condition_number:.3g}")  # fmt: skip
+    print(
+        f"HSR base-set condition number: data alone {res.condition_number_start:.3g}, "
+        f"with 30 planned poses {res.condition_number:.3g}"
+    )
     assert res.condition_number_start / res.condition_number >= 100.0
 
 
@@ -202,9 +205,11 @@ def test_emulated_cells_planned_poses_beat_random_and_prediction_holds() -> None
     random_ = [t.random_mean_mm for t in trials]
     predicted = [t.predicted_planned_mm for t in trials]
     predicted_random = [t.predicted_random_mm for t in trials]
-    print(f"aligned TCP RMS error [mm]: planned {np.round(planned, 4)}, "
-          f"random {np.round(random_, 4)}, ratio of means {ratio:.3f}; predicted planned "
-          f"{np.mean(predicted):.4f}, random {np.mean(predicted_random):.4f}")  # fmt: skip
+    print(
+        f"aligned TCP RMS error [mm]: planned {np.round(planned, 4)}, "
+        f"random {np.round(random_, 4)}, ratio of means {ratio:.3f}; predicted planned "
+        f"{np.mean(predicted):.4f}, random {np.mean(predicted_random):.4f}"
+    )
     assert ratio <= 0.55
     assert np.mean(predicted) / np.mean(predicted_random) <= 0.5
     assert all(p < r for p, r in zip(planned, random_, strict=True))

@@ -63,11 +63,21 @@ def test_effective_dof_counts_what_the_data_fit() -> None:
     free = np.zeros(layout.size, dtype=bool)
     free[[1, 5, 9, 14]] = True  # a1 a2 a3 d4
     free[N_KIN:] = True  # P0 and the offset: 4 more
-    prob = Problem(MODEL, layout, np.deg2rad(q), cell.lengths_mm(q), np.zeros(80, int), free,
-                   cell.theta)  # fmt: skip
+    prob = Problem(
+        MODEL, layout, np.deg2rad(q), cell.lengths_mm(q), np.zeros(80, int), free, cell.theta
+    )
     assert effective_dof(prob, prob.x0()) == pytest.approx(8.0, abs=1e-6)
     sigma = np.full(layout.size, np.inf)
     sigma[[1, 5, 9, 14]] = 1e-6  # mm: the prior pins the four DH terms
-    tight = Problem(MODEL, layout, np.deg2rad(q), cell.lengths_mm(q), np.zeros(80, int), free,
-                    cell.theta, prior_sigma=sigma, noise_mm=0.1)  # fmt: skip
+    tight = Problem(
+        MODEL,
+        layout,
+        np.deg2rad(q),
+        cell.lengths_mm(q),
+        np.zeros(80, int),
+        free,
+        cell.theta,
+        prior_sigma=sigma,
+        noise_mm=0.1,
+    )
     assert effective_dof(tight, tight.x0()) == pytest.approx(4.0, abs=1e-3)

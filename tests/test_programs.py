@@ -46,8 +46,19 @@ def run(args: list[str], env: dict[str, str] | None = None) -> tuple[int, str]:
 def test_plan_to_program_and_back_gives_the_40_poses_in_order(tmp_path: Path, fmt: str) -> None:
     q = plan_csv(tmp_path / "plan.csv")
     out = tmp_path / "CAL_PLAN.prog"
-    code, text = run([str(tmp_path / "plan.csv"), "--format", fmt, "--out", str(out),
-                      "--speed-pct", "30", "--dwell-s", "2.5"])  # fmt: skip
+    code, text = run(
+        [
+            str(tmp_path / "plan.csv"),
+            "--format",
+            fmt,
+            "--out",
+            str(out),
+            "--speed-pct",
+            "30",
+            "--dwell-s",
+            "2.5",
+        ]
+    )
     assert code == 0, text
     assert "40 targets" in text and all(len(line) <= 80 for line in text.splitlines())
     body = out.read_text(encoding="utf-8")
@@ -62,18 +73,39 @@ def test_plan_to_program_and_back_gives_the_40_poses_in_order(tmp_path: Path, fm
     assert "plan.csv" in head and "hsr-jr680" in head
     assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", head)
     # One fine stop and one dwell per target.
-    stops = {"rapid": r"MoveAbsJ .*, fine, tool0;", "urscript": r"movej\(.*r=0\)",
-             "krl": r"^PTP \{A1 [^}]*\}$", "fanuc-ls": r"J P\[\d+\] 30% FINE"}  # fmt: skip
-    waits = {"rapid": r"WaitTime\\InPos, 2.5;", "urscript": r"sleep\(2.5\)",
-             "krl": r"^WAIT SEC 2.5$", "fanuc-ls": r"WAIT\s+2.50\(sec\)"}  # fmt: skip
+    stops = {
+        "rapid": r"MoveAbsJ .*, fine, tool0;",
+        "urscript": r"movej\(.*r=0\)",
+        "krl": r"^PTP \{A1 [^}]*\}$",
+        "fanuc-ls": r"J P\[\d+\] 30% FINE",
+    }
+    waits = {
+        "rapid": r"WaitTime\\InPos, 2.5;",
+        "urscript": r"sleep\(2.5\)",
+        "krl": r"^WAIT SEC 2.5$",
+        "fanuc-ls": r"WAIT\s+2.50\(sec\)",
+    }
     assert len(re.findall(stops[fmt], body, re.MULTILINE)) == 40
     assert len(re.findall(waits[fmt], body, re.MULTILINE)) == 40
 
 
 def test_compensated_targets_become_a_program_and_flagged_ones_are_refused(tmp_path: Path) -> None:
     q = np.round(workspace_sample_deg(MODEL, 5, 3), 6)
-    header = ["index", *(f"q{j}_nominal" for j in range(1, 7)), "q1", "q2", "q3", "q4", "q5",
-              "q6", "x", "y", "z", "residual_mm", "flags"]  # fmt: skip
+    header = [
+        "index",
+        *(f"q{j}_nominal" for j in range(1, 7)),
+        "q1",
+        "q2",
+        "q3",
+        "q4",
+        "q5",
+        "q6",
+        "x",
+        "y",
+        "z",
+        "residual_mm",
+        "flags",
+    ]
     rows = [[i, *(q[i] - 0.01), *q[i], 1.0, 2.0, 3.0, 0.0001, ""] for i in range(5)]
     path = tmp_path / "corrected.csv"
     with path.open("w", newline="", encoding="utf-8") as fh:
@@ -98,8 +130,9 @@ def test_default_dwell_follows_the_samplers_settle_window(tmp_path: Path) -> Non
     out = tmp_path / "p.script"
     default = SamplerConfig.model_fields["settle_s"].default
     for env, settle in (({}, default), ({"CABLECAL_SAMPLER__SETTLE_S": "1.2"}, 1.2)):
-        code, text = run([str(tmp_path / "plan.csv"), "--format", "urscript", "--out",
-                          str(out)], env)  # fmt: skip
+        code, text = run(
+            [str(tmp_path / "plan.csv"), "--format", "urscript", "--out", str(out)], env
+        )
         assert code == 0, text
         dwell = parse_program("urscript", out.read_text()).dwell_s
         assert dwell == dwell_s_for_settle(settle) and dwell > 2 * settle
@@ -108,15 +141,18 @@ def test_default_dwell_follows_the_samplers_settle_window(tmp_path: Path) -> Non
 
 OK_ROW = [0, -30, 200, 0, 20, 0]
 BAD_TARGETS = [
-    ([[0, -30, 301, 0, 20, 0]], [],
-     r"row 2, q3: 301.000 deg is outside the joint limits \[60, 300\] deg"),
+    (
+        [[0, -30, 301, 0, 20, 0]],
+        [],
+        r"row 2, q3: 301.000 deg is outside the joint limits \[60, 300\] deg",
+    ),
     ([OK_ROW, [0, -30, 200, 0, "x", 0]], [], r"row 3, column 'q5': not a number: 'x'"),
     ([[0, -30, 200, 0, 20, "nan"]], [], r"row 2, column 'q6': not finite"),
     ([OK_ROW], ["--speed-pct", "150"], r"speed_pct: must be within 1..100 %"),
     ([OK_ROW], ["--name", "9lives"], r"'9lives' is not a valid RAPID program name"),
     ([OK_ROW], ["--name", "a" * 33], r"has 33 characters; RAPID allows 32"),
     ([], [], r"no targets after the header"),
-]  # fmt: skip
+]
 
 
 @pytest.mark.parametrize(("rows", "args", "message"), BAD_TARGETS)
@@ -135,22 +171,38 @@ def test_bad_targets_and_options_name_the_row_and_joint(
 
 JT = "[[0,0,0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]]"
 BAD_PROGRAMS = [
-    ("krl", "DEF p( )\nPTP {A1 0,A2 0,A3 90,A4 0,A5 0,A6 0} C_PTP\nEND\n",
-     r"line 2: C_PTP approximates"),
+    (
+        "krl",
+        "DEF p( )\nPTP {A1 0,A2 0,A3 90,A4 0,A5 0,A6 0} C_PTP\nEND\n",
+        r"line 2: C_PTP approximates",
+    ),
     ("krl", "DEF p( )\nPTP {A1 0,A2 0,A3 90,A4 0,A5 0}\nEND\n", r"line 2: PTP without A6"),
     ("krl", "DEF p( )\nPTP {A1 0,A2 0,A3 90,A4 0,A5 0,A6 0}\n", r"missing END"),
-    ("urscript", "def p():\n  movej([0,0,0,0,0,0], a=1, v=1, r=0.05)\nend\n",
-     r"line 2: a blended movej"),
+    (
+        "urscript",
+        "def p():\n  movej([0,0,0,0,0,0], a=1, v=1, r=0.05)\nend\n",
+        r"line 2: a blended movej",
+    ),
     ("urscript", "def p():\n  movel(p[0,0,0,0,0,0])\nend\n", r"line 2: unknown statement"),
-    ("rapid", "MODULE m\nPROC main()\nMoveAbsJ jt9\\NoEOffs, v100, fine, tool0;\nENDPROC\n"
-     "ENDMODULE\n", r"line 3: MoveAbsJ to an undeclared jointtarget"),
-    ("rapid", f"MODULE m\nCONST speeddata v:=[1,1,1,1];\nPROC main()\nMoveAbsJ {JT}, v, z10, "
-     "tool0;\nENDPROC\nENDMODULE\n", r"line 4: expected MoveAbsJ target, speed, fine"),
+    (
+        "rapid",
+        "MODULE m\nPROC main()\nMoveAbsJ jt9\\NoEOffs, v100, fine, tool0;\nENDPROC\nENDMODULE\n",
+        r"line 3: MoveAbsJ to an undeclared jointtarget",
+    ),
+    (
+        "rapid",
+        f"MODULE m\nCONST speeddata v:=[1,1,1,1];\nPROC main()\nMoveAbsJ {JT}, v, z10, "
+        "tool0;\nENDPROC\nENDMODULE\n",
+        r"line 4: expected MoveAbsJ target, speed, fine",
+    ),
     ("fanuc-ls", "/PROG A\n/MN\n 1:J P[1] 50% CNT100 ;\n/POS\n/END\n", r"line 3: CNT100 blends"),
-    ("fanuc-ls", "/PROG A\n/MN\n 1:J P[2] 50% FINE ;\n/POS\n/END\n",
-     r"line 3: P\[2\] is not defined"),
+    (
+        "fanuc-ls",
+        "/PROG A\n/MN\n 1:J P[2] 50% FINE ;\n/POS\n/END\n",
+        r"line 3: P\[2\] is not defined",
+    ),
     ("fanuc-ls", "/PROG A\n/MN\n/END\n", r"expected /PROG, /MN, /POS, /END"),
-]  # fmt: skip
+]
 
 
 @pytest.mark.parametrize(("fmt", "text", "message"), BAD_PROGRAMS)
@@ -177,12 +229,14 @@ def test_a_plan_for_two_anchors_gives_one_program_per_anchor(tmp_path: Path) -> 
     code, text = run([str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out)])
     assert code == 2 and "--anchor: " in text and "anchors A, B" in " ".join(text.split())
     assert not out.exists()
-    code, text = run([str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out),
-                      "--anchor", "B"])  # fmt: skip
+    code, text = run(
+        [str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out), "--anchor", "B"]
+    )
     assert code == 0, text
     back = parse_program("krl", out.read_text())
     np.testing.assert_allclose(np.array(back.joints_deg), q[3:], atol=0.0005 + 1e-9)
     assert "sensor at anchor B" in " ".join(back.comments)
-    code, text = run([str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out),
-                      "--anchor", "C"])  # fmt: skip
+    code, text = run(
+        [str(tmp_path / "plan.csv"), "--format", "krl", "--out", str(out), "--anchor", "C"]
+    )
     assert code == 2 and "'C' is not in" in text

@@ -28,9 +28,25 @@ needs_promtool = pytest.mark.skipif(
 PROMETHEUS_OWN = {"up"}
 #: PromQL words that look like metric names: functions, aggregations, keywords.
 PROMQL_WORDS = {
-    "sum", "rate", "increase", "by", "without", "unless", "and", "or", "on", "ignoring",
-    "histogram_quantile", "max", "min", "avg", "count", "le", "label_values", "group_left",
-}  # fmt: skip
+    "sum",
+    "rate",
+    "increase",
+    "by",
+    "without",
+    "unless",
+    "and",
+    "or",
+    "on",
+    "ignoring",
+    "histogram_quantile",
+    "max",
+    "min",
+    "avg",
+    "count",
+    "le",
+    "label_values",
+    "group_left",
+}
 
 
 def exported_names() -> set[str]:
@@ -53,8 +69,9 @@ def metric_names(expr: str) -> set[str]:
     stripped = re.sub(r'"[^"]*"', "", expr)
     stripped = re.sub(r"\{[^}]*\}|\[[^\]]*\]", " ", stripped)
     # Label lists: by (...), without (...), on (...), ignoring (...), group_left (...).
-    stripped = re.sub(r"\b(by|without|on|ignoring|group_left|group_right)\s*\([^)]*\)", " ",
-                      stripped)  # fmt: skip
+    stripped = re.sub(
+        r"\b(by|without|on|ignoring|group_left|group_right)\s*\([^)]*\)", " ", stripped
+    )
     # Grafana's label_values(metric, label): the second argument is a label.
     stripped = re.sub(r"label_values\(\s*([A-Za-z_:][\w:]*)\s*,\s*\w+\s*\)", r"\1", stripped)
     words = set(re.findall(r"[A-Za-z_:][A-Za-z0-9_:]*", stripped))
@@ -74,8 +91,10 @@ def dashboard_exprs() -> list[str]:
 
 
 def test_metric_names_are_parsed_from_promql() -> None:
-    expr = ('sum by (instance, device) (rate(cablecal_device_errors_total{role="robot"}[5m])) '
-            "> 0 unless cablecal_device_polls_total")  # fmt: skip
+    expr = (
+        'sum by (instance, device) (rate(cablecal_device_errors_total{role="robot"}[5m])) '
+        "> 0 unless cablecal_device_polls_total"
+    )
     assert metric_names(expr) == {"cablecal_device_errors_total", "cablecal_device_polls_total"}
 
 
@@ -87,16 +106,24 @@ def test_rules_and_dashboard_use_only_exported_metrics() -> None:
     assert used_rules - known == set()
     assert used_dash - known == set()
     # The dashboard shows what the issue asks for: drift per robot, poll rates, device errors.
-    for name in ("cablecal_drift_rms_mm", "cablecal_device_polls_total",
-                 "cablecal_device_errors_total"):  # fmt: skip
+    for name in (
+        "cablecal_drift_rms_mm",
+        "cablecal_device_polls_total",
+        "cablecal_device_errors_total",
+    ):
         assert name in used_dash
 
 
 def test_the_alerts_cover_the_plant_s_failures() -> None:
     alerts = {r["alert"]: r for r in rules()}
-    assert {"CablecalDriftOverThreshold", "CablecalSensorMoved", "CablecalDeviceStale",
-            "CablecalDeviceDown", "CablecalUncleanShutdown",
-            "CablecalIdentificationFailed"} <= set(alerts)  # fmt: skip
+    assert {
+        "CablecalDriftOverThreshold",
+        "CablecalSensorMoved",
+        "CablecalDeviceStale",
+        "CablecalDeviceDown",
+        "CablecalUncleanShutdown",
+        "CablecalIdentificationFailed",
+    } <= set(alerts)
     for name, rule in alerts.items():
         assert rule["labels"]["severity"] in ("warning", "critical"), name
         assert rule["annotations"]["summary"], name
@@ -106,8 +133,14 @@ def test_the_alerts_cover_the_plant_s_failures() -> None:
 def test_promtool_checks_and_unit_tests_pass() -> None:
     assert PROMTOOL is not None
     for args in (["check", "rules", RULES.name], ["test", "rules", RULE_TESTS.name]):
-        proc = subprocess.run([PROMTOOL, *args], cwd=RULES.parent, capture_output=True,
-                              text=True, timeout=60, check=False)  # fmt: skip
+        proc = subprocess.run(
+            [PROMTOOL, *args],
+            cwd=RULES.parent,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
         assert proc.returncode == 0, proc.stdout + proc.stderr
         assert "SUCCESS" in proc.stdout + proc.stderr
     tests = yaml.safe_load(RULE_TESTS.read_text())["tests"]

@@ -30,8 +30,9 @@ N_TRAIN, N_TEST = 100, 200
 def _tool_positions_mm(theta: np.ndarray, q_deg: np.ndarray) -> np.ndarray:
     """Hook points (m, 3) [mm] of the model ``theta`` at poses (m, 6) [deg]."""
     dh = MODEL.dh_internal() + theta[:N_DH].reshape(N_JOINTS, 4)
-    return forward_position(dh, np.deg2rad(q_deg), MODEL.tool_mm + theta[N_DH:N_KIN],
-                            MODEL.convention)  # fmt: skip
+    return forward_position(
+        dh, np.deg2rad(q_deg), MODEL.tool_mm + theta[N_DH:N_KIN], MODEL.convention
+    )
 
 
 def _errors(cell: TrueCell, theta: np.ndarray, q_test: np.ndarray) -> tuple[float, float]:
@@ -59,12 +60,19 @@ def robust_runs() -> dict[str, np.ndarray]:
         bad = rng.choice(train, 5, replace=False)
         corrupted = noisy.copy()
         corrupted[bad] += rng.choice([-1, 1], 5) * rng.uniform(5, 20, 5)
-        plain = identify(MODEL, make_samples(q, noisy), IdentifyOptions(robust="none"),
-                         train_rows=train, test_rows=test)  # fmt: skip
-        auto = identify(MODEL, make_samples(q, noisy), IdentifyOptions(),
-                        train_rows=train, test_rows=test)  # fmt: skip
-        dirty = identify(MODEL, make_samples(q, corrupted), IdentifyOptions(),
-                         train_rows=train, test_rows=test)  # fmt: skip
+        plain = identify(
+            MODEL,
+            make_samples(q, noisy),
+            IdentifyOptions(robust="none"),
+            train_rows=train,
+            test_rows=test,
+        )
+        auto = identify(
+            MODEL, make_samples(q, noisy), IdentifyOptions(), train_rows=train, test_rows=test
+        )
+        dirty = identify(
+            MODEL, make_samples(q, corrupted), IdentifyOptions(), train_rows=train, test_rows=test
+        )
         assert auto.flagged_rows == []
         np.testing.assert_array_equal(auto.theta, plain.theta)  # the plain fit itself
         exact.append(sorted(dirty.flagged_rows) == sorted(bad.tolist()))
@@ -116,9 +124,11 @@ def test_estimated_noise_tracks_the_data_as_n_grows(noise_mm: float) -> None:
         block = identify(MODEL, make_samples(q, lengths), opts).to_json()["prior"]
         assert block["weight"] == "estimated" and block["applied"]
         assert 0.7 * noise_mm < block["noise_mm"] < 1.3 * noise_mm, (n, block)
-        fixed = identify(MODEL, make_samples(q, lengths),
-                         IdentifyOptions(method="lm", test_fraction=0.0, prior=True,
-                                         prior_weight="fixed")).to_json()["prior"]  # fmt: skip
+        fixed = identify(
+            MODEL,
+            make_samples(q, lengths),
+            IdentifyOptions(method="lm", test_fraction=0.0, prior=True, prior_weight="fixed"),
+        ).to_json()["prior"]
         assert fixed["noise_mm"] == 0.1
 
 

@@ -545,9 +545,13 @@ def test_not_found_is_one_404_path_naming_the_resource(client: TestClient) -> No
         ("DELETE", "/api/v1/identifications/999999", None, "identification 999999: not found"),
         ("POST", "/api/v1/campaigns/999999/identifications", {}, "campaign 999999: not found"),
         ("GET", "/api/v1/robots/999999", None, "robot 999999: not found"),
-        ("GET", f"/api/v1/robots/{rid}/calibrated-model", None,
-         f"robot {rid}: no accepted calibration yet"),
-    ]  # fmt: skip
+        (
+            "GET",
+            f"/api/v1/robots/{rid}/calibrated-model",
+            None,
+            f"robot {rid}: no accepted calibration yet",
+        ),
+    ]
     for method, url, body, detail in cases:
         r = client.request(method, url, json=body, headers=AUTH)
         assert (r.status_code, r.json()) == (404, {"detail": detail}), (method, url)

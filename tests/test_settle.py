@@ -77,12 +77,15 @@ def test_deviations_at_the_tolerances_settle_and_just_above_do_not() -> None:
         for k, r in enumerate(buf)
     ]  # joint 3 and length alternate: deviation from the mean = exactly the tolerance
     assert evaluate(at_tol, CFG, now_after(at_tol)).reason is None
-    over_deg = [with_joint(r, 2, r.joints_deg[2] + (1e-6 if k == 1 else 0.0))
-                for k, r in enumerate(at_tol)]  # fmt: skip
+    over_deg = [
+        with_joint(r, 2, r.joints_deg[2] + (1e-6 if k == 1 else 0.0)) for k, r in enumerate(at_tol)
+    ]
     verdict = evaluate(over_deg, CFG, now_after(over_deg))
     assert verdict.reason == "moving" and "joint 3" in verdict.detail
-    over_mm = [dataclasses.replace(r, length_mm=r.length_mm + (1e-6 if k == 1 else 0.0))
-               for k, r in enumerate(at_tol)]  # fmt: skip
+    over_mm = [
+        dataclasses.replace(r, length_mm=r.length_mm + (1e-6 if k == 1 else 0.0))
+        for k, r in enumerate(at_tol)
+    ]
     verdict = evaluate(over_mm, CFG, now_after(over_mm))
     assert verdict.reason == "moving" and "cable length" in verdict.detail
 

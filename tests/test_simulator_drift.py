@@ -40,8 +40,10 @@ async def test_shift_joint_offset_changes_lengths_as_the_truth_predicts() -> Non
     cfg = SimConfig(indicator={"baud": 115200, "noise_mm": 0.0})
     q0 = EmulatedCell(cfg).poses_deg[0]
     # The joint whose offset moves the reading at pose 0 most: the test can tell.
-    effect = [predicted_lengths_mm(q0, j, DELTA_DEG)[0] - predicted_lengths_mm(q0, j, 0.0)[0]
-              for j in range(1, 7)]  # fmt: skip
+    effect = [
+        predicted_lengths_mm(q0, j, DELTA_DEG)[0] - predicted_lengths_mm(q0, j, 0.0)[0]
+        for j in range(1, 7)
+    ]
     joint = int(np.argmax(np.abs(effect))) + 1
     assert abs(effect[joint - 1]) > 0.1  # mm, 20 display counts
     with SimulatorThread(cfg) as sim:

@@ -28,20 +28,35 @@ REFERENCE_NFEV = 1000
 def build_problem(samples: SampleSet) -> Problem:
     """The ML problem identify() solves on all rows, rebuilt from its start point and base set."""
     # Rank threshold only: the base set these tests and the long reference runs were made on.
-    res = identify(MODEL, samples, IdentifyOptions(method="lm", test_fraction=0.0,
-                                                   noise_rank=False))  # fmt: skip
+    res = identify(
+        MODEL, samples, IdentifyOptions(method="lm", test_fraction=0.0, noise_rank=False)
+    )
     free = np.isin(res.layout.names, res.free_names)
     assert res.theta_start is not None
-    return Problem(MODEL, res.layout, np.deg2rad(samples.joints_deg), samples.length_mm,
-                   samples.anchor_index(), free, res.theta_start)  # fmt: skip
+    return Problem(
+        MODEL,
+        res.layout,
+        np.deg2rad(samples.joints_deg),
+        samples.length_mm,
+        samples.anchor_index(),
+        free,
+        res.theta_start,
+    )
 
 
 def reference_cost(problem: Problem, max_nfev: int) -> float:
     """Cost after a tight scipy least_squares run (trf, analytic Jacobian) [mm²]."""
-    res = least_squares(problem.residuals, problem.x0(),
-                        jac=lambda x: problem.residuals_and_jacobian(x)[1], method="trf",
-                        x_scale="jac", ftol=1e-15, xtol=1e-15, gtol=1e-15,
-                        max_nfev=max_nfev)  # fmt: skip
+    res = least_squares(
+        problem.residuals,
+        problem.x0(),
+        jac=lambda x: problem.residuals_and_jacobian(x)[1],
+        method="trf",
+        x_scale="jac",
+        ftol=1e-15,
+        xtol=1e-15,
+        gtol=1e-15,
+        max_nfev=max_nfev,
+    )
     return float(res.cost)
 
 
@@ -157,10 +172,18 @@ def test_default_identify_on_bundled_rows_reaches_the_map_optimum_in_a_few_itera
     assert block["used"] and block["weight"] == "estimated"
     free = np.isin(res.layout.names, res.free_names)
     assert res.theta_start is not None
-    ml = Problem(MODEL, res.layout, np.deg2rad(samples.joints_deg), samples.length_mm,
-                 samples.anchor_index(), free, res.theta_start)  # fmt: skip
-    fitted = IdentifyOptions(prior_mm=block["dh_mm"], prior_deg=block["dh_deg"],
-                             noise_mm=block["noise_mm"])  # fmt: skip
+    ml = Problem(
+        MODEL,
+        res.layout,
+        np.deg2rad(samples.joints_deg),
+        samples.length_mm,
+        samples.anchor_index(),
+        free,
+        res.theta_start,
+    )
+    fitted = IdentifyOptions(
+        prior_mm=block["dh_mm"], prior_deg=block["dh_deg"], noise_mm=block["noise_mm"]
+    )
     problem = with_prior(ml, fitted)
     ours = problem.cost(res.theta[free])
     assert ours <= reference_cost(problem, 200) * (1 + 1e-6)

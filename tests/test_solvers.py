@@ -101,7 +101,8 @@ def test_vslm_from_the_ukf_seed_needs_few_iterations(noisy_case) -> None:
     s² ≈ 6e-7 s²_max converged at the rate s²/(s² + λ) instead of 1 − δ); now under 15."""
     q, lengths = noisy_case
     samples = make_samples(q, lengths)
-    res = identify(MODEL, samples, IdentifyOptions(), train_rows=np.arange(120),
-                   test_rows=np.arange(120, 150))  # fmt: skip
+    res = identify(
+        MODEL, samples, IdentifyOptions(), train_rows=np.arange(120), test_rows=np.arange(120, 150)
+    )
     vslm_iterations = res.solver.iterations - IdentifyOptions().ukf_epochs
     assert vslm_iterations <= 15, res.solver.message

@@ -95,8 +95,15 @@ def test_problem_entry_matches_the_layout_entry() -> None:
     q = random_poses_deg(cell, 40, rng)
     free = np.zeros(cell.layout.size, dtype=bool)
     free[[cell.layout.index(n) for n in ("a2", "alpha3", "tool_z", "p0_y")]] = True
-    problem = Problem(MODEL, cell.layout, np.deg2rad(q), noisy_lengths(cell, q, rng),
-                      np.zeros(40, dtype=int), free, cell.theta)  # fmt: skip
+    problem = Problem(
+        MODEL,
+        cell.layout,
+        np.deg2rad(q),
+        noisy_lengths(cell, q, rng),
+        np.zeros(40, dtype=int),
+        free,
+        cell.theta,
+    )
     cov = np.diag([0.01, 1e-8, 0.02, 0.05])
     a = tcp_uncertainty_for_problem(problem, problem.x0(), cov, n_poses=100, seed=5)
     b = tcp_uncertainty(MODEL, cell.layout, cell.theta, free, cov, n_poses=100, seed=5)

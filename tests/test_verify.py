@@ -66,8 +66,10 @@ def test_moved_anchor_needs_refit(
     samples = _campaign(moved, 33)
     plain = verify(result, samples)
     refit = verify(result, samples, VerifyOptions(refit_anchor=True))
-    print(f"moved anchor: plain RMSE {plain.metrics['rmse_mm']:.2f} mm, refit "
-          f"{refit.metrics['rmse_mm']:.4f} mm")  # fmt: skip
+    print(
+        f"moved anchor: plain RMSE {plain.metrics['rmse_mm']:.2f} mm, refit "
+        f"{refit.metrics['rmse_mm']:.4f} mm"
+    )
     assert plain.metrics["rmse_mm"] > 50 * NOISE_MM
     assert 0.7 * NOISE_MM < refit.metrics["rmse_mm"] < 1.6 * NOISE_MM
     np.testing.assert_allclose(refit.anchors["A"]["anchor_mm"], [1100.0, -400.0, 600.0], atol=2.0)

@@ -47,8 +47,11 @@ def test_a_bumped_sensor_is_found_within_15_samples_and_can_be_undone(
         rows = ["q1,q2,q3,q4,q5,q6,L"] + [
             ",".join(f"{v:.6f}" for v in (*q[i], noisy[i])) for i in range(N_IMPORTED)
         ]
-        r = api.post(f"/campaigns/{cid}/samples/import", content="\n".join(rows) + "\n",
-                     headers={"Content-Type": "text/csv"})  # fmt: skip
+        r = api.post(
+            f"/campaigns/{cid}/samples/import",
+            content="\n".join(rows) + "\n",
+            headers={"Content-Type": "text/csv"},
+        )
         assert r.status_code in (200, 201), r.text
         sim.control("load_poses", poses_deg=q[N_IMPORTED:].tolist(), loop=False)
         assert api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": True}).status_code == 200
@@ -58,8 +61,10 @@ def test_a_bumped_sensor_is_found_within_15_samples_and_can_be_undone(
 
         events = wait_for(
             lambda: api.get("/events", params={"kind": "sensor_moved"}).json(),
-            40, 0.3, "a sensor_moved event",
-        )  # fmt: skip
+            40,
+            0.3,
+            "a sensor_moved event",
+        )
         detail = events[0]["detail"]
         samples = _samples(api, cid)
         ids = [s["id"] for s in samples]
@@ -92,9 +97,11 @@ def test_a_bumped_sensor_is_found_within_15_samples_and_can_be_undone(
         assert api.get("/status").json()["watch"]["moves"] == []
         assert api.post(f"/campaigns/{cid}/sensor-moved/undo").status_code == 409
         with capsys.disabled():
-            print(f"\nwatch e2e: bump after sample {n_before}, detected at sample "
-                  f"{detected_at} ({detected_at - n_before} later), step "
-                  f"{detail['step_mm']:+.2f} mm; {time.monotonic() - t0:.0f} s")  # fmt: skip
+            print(
+                f"\nwatch e2e: bump after sample {n_before}, detected at sample "
+                f"{detected_at} ({detected_at - n_before} later), step "
+                f"{detail['step_mm']:+.2f} mm; {time.monotonic() - t0:.0f} s"
+            )
 
 
 def _undo_on_the_page(cell: Cell, cid: int, detail: dict[str, Any]) -> None:
@@ -125,10 +132,15 @@ def _identify(api: httpx.Client, cid: int) -> dict[str, Any]:
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
     job: dict[str, Any] = wait_for(
-        lambda: ((j := api.get(f"/identifications/{job_id}").json())["status"]
-                 in ("succeeded", "failed", "cancelled") and j),
-        90, 0.5, "the identification job",
-    )  # fmt: skip
+        lambda: (
+            (j := api.get(f"/identifications/{job_id}").json())["status"]
+            in ("succeeded", "failed", "cancelled")
+            and j
+        ),
+        90,
+        0.5,
+        "the identification job",
+    )
     assert job["status"] == "succeeded", job
     result: dict[str, Any] = job["result"]
     return result
@@ -157,13 +169,17 @@ def test_a_move_during_a_second_run_of_the_program_moves_every_later_sample(
         truth = np.array(sim.control("true_lengths", joints_deg=q.tolist())["lengths_mm"])
         rng = np.random.default_rng(4)
         first_run = truth + rng.normal(0.0, FAST_CELL_NOISE_MM, truth.shape)
-        cid = int(api.post("/campaigns", json={"name": "rerun", "robot_model": "hsr-jr680"})
-                  .json()["id"])  # fmt: skip
+        cid = int(
+            api.post("/campaigns", json={"name": "rerun", "robot_model": "hsr-jr680"}).json()["id"]
+        )
         rows = ["q1,q2,q3,q4,q5,q6,L"] + [
             ",".join(f"{v:.6f}" for v in (*q[i], first_run[i])) for i in range(N_PROGRAM)
         ]
-        r = api.post(f"/campaigns/{cid}/samples/import", content="\n".join(rows) + "\n",
-                     headers={"Content-Type": "text/csv"})  # fmt: skip
+        r = api.post(
+            f"/campaigns/{cid}/samples/import",
+            content="\n".join(rows) + "\n",
+            headers={"Content-Type": "text/csv"},
+        )
         assert r.status_code in (200, 201), r.text
         # The move: 3 mm square to the cable at the next two poses, plus what changes their
         # lengths by 0.3 mm: inside the watch's band (0.5 mm), so its run starts late, but
@@ -181,15 +197,27 @@ def test_a_move_during_a_second_run_of_the_program_moves_every_later_sample(
         move = 3.0 * square / np.linalg.norm(square) + np.linalg.pinv(g) @ np.full(2, 0.3)
         sim.control("load_poses", poses_deg=q[:N_SECOND].tolist(), loop=False)
         assert api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": True}).status_code == 200
-        wait_for(lambda: len(_samples(api, cid)) >= N_PROGRAM + MOVE_AFTER, 60, 0.1,
-                 "the second run's first captures")  # fmt: skip
+        wait_for(
+            lambda: len(_samples(api, cid)) >= N_PROGRAM + MOVE_AFTER,
+            60,
+            0.1,
+            "the second run's first captures",
+        )
         moved_at = time.time()
         sim.control("move_anchor", delta_mm=move.tolist())
-        wait_for(lambda: len(_samples(api, cid)) >= N_PROGRAM + N_SECOND, 90, 0.3,
-                 "the second run's captures")  # fmt: skip
+        wait_for(
+            lambda: len(_samples(api, cid)) >= N_PROGRAM + N_SECOND,
+            90,
+            0.3,
+            "the second run's captures",
+        )
         api.put(f"/campaigns/{cid}/auto-capture", json={"enabled": False})
-        events = wait_for(lambda: api.get("/events", params={"kind": "sensor_moved"}).json(),
-                          20, 0.3, "a sensor_moved event")  # fmt: skip
+        events = wait_for(
+            lambda: api.get("/events", params={"kind": "sensor_moved"}).json(),
+            20,
+            0.3,
+            "a sensor_moved event",
+        )
         detail = events[0]["detail"]
         time.sleep(2.0)  # the watch tests the last captures
         samples = _samples(api, cid)
@@ -218,7 +246,9 @@ def test_a_move_during_a_second_run_of_the_program_moves_every_later_sample(
         clean_held_out = clean.to_json()["metrics"]["after"]["test"]["rmse_mm"]
         assert held_out <= 0.05 and held_out <= 1.5 * clean_held_out, (held_out, clean_held_out)
         with capsys.disabled():
-            print(f"\nwatch e2e, second run: move after capture {N_PROGRAM + MOVE_AFTER}, "
-                  f"split at sample {detail['sample_id']}; {len(after)} later captures all in "
-                  f"A2, {len(in_flight)} in flight; held-out {held_out:.4f} mm (still: "
-                  f"{clean_held_out:.4f} mm)")  # fmt: skip
+            print(
+                f"\nwatch e2e, second run: move after capture {N_PROGRAM + MOVE_AFTER}, "
+                f"split at sample {detail['sample_id']}; {len(after)} later captures all in "
+                f"A2, {len(in_flight)} in flight; held-out {held_out:.4f} mm (still: "
+                f"{clean_held_out:.4f} mm)"
+            )

@@ -22,8 +22,13 @@ def _replay(cell: EmulatedCell, lengths: np.ndarray) -> tuple[list[tuple[int, ob
         clean = tester.clean_rows(ids, i)
         if tester.needs_refit(len(clean)):
             rows = np.array(clean, dtype=int)
-            sub = SampleSet(joints_deg=q[rows], length_mm=lengths[rows],
-                            anchor=("A",) * len(rows), group=None, line=rows + 2)  # fmt: skip
+            sub = SampleSet(
+                joints_deg=q[rows],
+                length_mm=lengths[rows],
+                anchor=("A",) * len(rows),
+                group=None,
+                line=rows + 2,
+            )
             tester.refit(sub, len(clean), [int(r) for r in rows])
         _, alarm = tester.test(i, q[i], float(lengths[i]), "A")
         kinds.append(tester.fit.kind if tester.fit else "none")
@@ -97,8 +102,13 @@ def test_a_move_in_a_second_run_is_placed_at_the_step_not_at_the_first_exceedanc
         clean = tester.clean_rows(ids, i)
         if tester.needs_refit(len(clean)):
             rows = np.array(clean, dtype=int)
-            sub = SampleSet(joints_deg=q[rows], length_mm=measured[rows],
-                            anchor=("A",) * len(rows), group=None, line=rows + 2)  # fmt: skip
+            sub = SampleSet(
+                joints_deg=q[rows],
+                length_mm=measured[rows],
+                anchor=("A",) * len(rows),
+                group=None,
+                line=rows + 2,
+            )
             tester.refit(sub, len(clean), [int(r) for r in rows])
         _, alarm = tester.test(i, q[i], float(measured[i]), "A")
         if alarm is not None:
@@ -153,12 +163,16 @@ def test_the_sample_in_flight_at_a_move_follows_to_the_new_session(tmp_path: obj
         ids = store.import_samples(cid, make_samples(q, cell.truth.lengths_mm(q)))
         store.move_samples_to_anchor(cid, ids[2:4], "A2")  # the move: samples 3 and 4
         watch = SensorWatch(store, StepSettings())
-        cw = CampaignWatch(cid, int(robot["id"]), LiveTester(cell.truth.model, None,
-                                                             StepDetector()))  # fmt: skip
+        cw = CampaignWatch(
+            cid, int(robot["id"]), LiveTester(cell.truth.model, None, StepDetector())
+        )
         watch._campaigns[cid] = cw
-        watch._moves[cid] = {"previous_anchor": "A", "new_anchor": "A2",
-                             "detected_at_sample_id": ids[3],
-                             "moved_sample_ids": [ids[2], ids[3]]}  # fmt: skip
+        watch._moves[cid] = {
+            "previous_anchor": "A",
+            "new_anchor": "A2",
+            "detected_at_sample_id": ids[3],
+            "moved_sample_ids": [ids[2], ids[3]],
+        }
         cw.after_move = True
         assert watch._in_flight(cw, store.sample(ids[4]))  # in flight: follows
         assert store.sample(ids[4])["anchor"] == "A2"

@@ -277,8 +277,10 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         # table, download the zip of the filtered files
         if _has(routes, "POST", "/filter"):
             programs = Path(__file__).parent / "fixtures" / "programs"
-            dropped = {n: base64.b64encode((programs / n).read_bytes()).decode()
-                       for n in ("cell_a.mod", "notes_e.mod")}  # fmt: skip
+            dropped = {
+                n: base64.b64encode((programs / n).read_bytes()).decode()
+                for n in ("cell_a.mod", "notes_e.mod")
+            }
             page.evaluate(
                 """(files) => {
                   const dt = new DataTransfer();
@@ -300,8 +302,7 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             with page.expect_download() as got:
                 page.click("#filter-download")
             with zipfile.ZipFile(got.value.path()) as zf:
-                assert sorted(zf.namelist()) == ["cell_a.mod", "filter-summary.json",
-                                                 "notes_e.mod"]  # fmt: skip
+                assert sorted(zf.namelist()) == ["cell_a.mod", "filter-summary.json", "notes_e.mod"]
                 assert zf.read("notes_e.mod") == (programs / "notes_e.mod").read_bytes()
                 assert zf.read("cell_a.mod") != (programs / "cell_a.mod").read_bytes()
             _shot(page, tmp_path, "6b-filter")

@@ -60,8 +60,11 @@ def job(client: TestClient) -> dict[str, Any]:
         "/api/v1/campaigns", json={"name": "w", "robot_model": "hsr-jr680"}, headers=AUTH
     )
     cid = r.json()["id"]
-    client.post(f"/api/v1/campaigns/{cid}/samples/import", content=_real_csv(120),
-                headers={**AUTH, "Content-Type": "text/csv"})  # fmt: skip
+    client.post(
+        f"/api/v1/campaigns/{cid}/samples/import",
+        content=_real_csv(120),
+        headers={**AUTH, "Content-Type": "text/csv"},
+    )
     r = client.post(f"/api/v1/campaigns/{cid}/identifications", json={"method": "lm"}, headers=AUTH)
     done = _wait_job(client, r.json()["id"])
     assert done["status"] == "succeeded", done
@@ -159,8 +162,19 @@ def test_cli_report_writes_the_page_with_residuals(job: dict[str, Any], tmp_path
     data = tmp_path / "data.csv"
     data.write_text(_real_csv(120))
     out = tmp_path / "report.html"
-    run = CliRunner().invoke(cli_app, ["report", str(result_path), "--data", str(data),
-                                       "--robot", "hsr-jr680", "--out", str(out)])  # fmt: skip
+    run = CliRunner().invoke(
+        cli_app,
+        [
+            "report",
+            str(result_path),
+            "--data",
+            str(data),
+            "--robot",
+            "hsr-jr680",
+            "--out",
+            str(out),
+        ],
+    )
     assert run.exit_code == 0, run.output
     html = out.read_text()
     assert 'id="chart-residuals-after"' in html and "result.json" in html

@@ -76,8 +76,10 @@ def result_walk(cell: Cell) -> int:
     first = api.post(f"/campaigns/{cid}/identifications", json={"method": "lm"}).json()["id"]
     wait_for(
         lambda: api.get(f"/identifications/{first}").json()["status"] == "succeeded",
-        120, 0.5, "the lm identification",
-    )  # fmt: skip
+        120,
+        0.5,
+        "the lm identification",
+    )
     if not api.get(f"/identifications/{first}").json()["current"]:
         assert api.post(f"/identifications/{first}/accept").is_success
     return cid
@@ -301,8 +303,11 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
     rows = ["q1,q2,q3,q4,q5,q6,L"] + [
         ",".join(f"{v:.6f}" for v in (*q[i], noisy[i])) for i in range(N_IMPORTED)
     ]
-    r = api.post(f"/campaigns/{cid}/samples/import", content="\n".join(rows) + "\n",
-                 headers={"Content-Type": "text/csv"})  # fmt: skip
+    r = api.post(
+        f"/campaigns/{cid}/samples/import",
+        content="\n".join(rows) + "\n",
+        headers={"Content-Type": "text/csv"},
+    )
     assert r.is_success, r.text
     sim.control("load_poses", poses_deg=q[N_IMPORTED:].tolist(), loop=False)
     with offline_page(TABLET, allowed_origin=url) as (page, log):
@@ -317,8 +322,12 @@ def test_sensor_moved_banner(cell: Cell, tmp_path: Path) -> None:
         assert "" not in [h.strip() for h in headers]  # no empty header (axe)
         assert page.input_value("#capture-anchor") == "A"
         page.check("#auto-capture")
-        wait_for(lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= N_IMPORTED + 4,
-                 60, 0.2, "4 auto captures")  # fmt: skip
+        wait_for(
+            lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= N_IMPORTED + 4,
+            60,
+            0.2,
+            "4 auto captures",
+        )
         sim.control("move_anchor", delta_mm=[4, 0, 0])
         banner = page.locator("#watch-banner")
         banner.wait_for(timeout=60000)

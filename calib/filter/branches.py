@@ -170,8 +170,10 @@ def _geometry(model: RobotModel) -> WristGeometry | None:
     rot, origin = forward_frames(model.dh_internal(), q, model.convention)
     # The chain must reproduce forward_frames' flange.
     flange = chain(g, q)
-    if not (np.allclose(flange[:, :3, :3], rot[:, N_JOINTS], atol=1e-9)
-            and np.allclose(flange[:, :3, 3], origin[:, N_JOINTS], atol=1e-6)):  # fmt: skip
+    if not (
+        np.allclose(flange[:, :3, :3], rot[:, N_JOINTS], atol=1e-9)
+        and np.allclose(flange[:, :3, 3], origin[:, N_JOINTS], atol=1e-6)
+    ):
         raise AssertionError("fixed_transforms disagrees with calib.kinematics")
     axes, points = _axes(model, rot, origin)
     centres = []
@@ -206,8 +208,9 @@ def _geometry(model: RobotModel) -> WristGeometry | None:
     d = pre[:, :3, 0] - pt[0, 1]
     dist = np.linalg.norm(d - np.outer(d @ ax[0, 1], ax[0, 1]), axis=1)
     x1 = rot0[0, 1, :, 0]
-    return WristGeometry(g, centre_arm, c_fl[0], float(grid[np.argmax(dist)]),
-                         math.atan2(x1[1], x1[0]))  # fmt: skip
+    return WristGeometry(
+        g, centre_arm, c_fl[0], float(grid[np.argmax(dist)]), math.atan2(x1[1], x1[0])
+    )
 
 
 def _wrap(q: FloatArray) -> FloatArray:
@@ -248,8 +251,9 @@ def _arm_point_jacobian(geo: WristGeometry, q: FloatArray) -> tuple[FloatArray, 
     return p, np.stack([j1, j2, j3], axis=2)
 
 
-def _arm_solve(geo: WristGeometry, model: RobotModel, centre: FloatArray,
-               seeds: FloatArray) -> tuple[FloatArray, np.ndarray]:  # fmt: skip
+def _arm_solve(
+    geo: WristGeometry, model: RobotModel, centre: FloatArray, seeds: FloatArray
+) -> tuple[FloatArray, np.ndarray]:
     """Damped Newton for q1..q3 placing the wrist centre; seeds (m, 3) [rad], centre (m, 3).
 
     A row whose error has not halved in 4 iterations is given up (out of reach from its
@@ -290,8 +294,9 @@ def _plane_angle(
     u, v = frm - point, to - point
     u = u - axis * np.einsum("ni,ni->n", u, axis)[:, None]
     v = v - axis * np.einsum("ni,ni->n", v, axis)[:, None]
-    out: FloatArray = np.arctan2(np.einsum("ni,ni->n", axis, np.cross(u, v)),
-                                 np.einsum("ni,ni->n", u, v))  # fmt: skip
+    out: FloatArray = np.arctan2(
+        np.einsum("ni,ni->n", axis, np.cross(u, v)), np.einsum("ni,ni->n", u, v)
+    )
     return out
 
 
@@ -401,8 +406,10 @@ def branch_signs(model: RobotModel, joints_deg: FloatArray) -> tuple[np.ndarray,
 def _require(model: RobotModel) -> WristGeometry:
     geo = wrist_geometry(model)
     if geo is None:
-        raise ValueError(f"robot {model.name}: the wrist axes 4, 5, 6 do not meet in one "
-                         "point; the filter needs a spherical wrist")  # fmt: skip
+        raise ValueError(
+            f"robot {model.name}: the wrist axes 4, 5, 6 do not meet in one "
+            "point; the filter needs a spherical wrist"
+        )
     return geo
 
 
@@ -465,8 +472,9 @@ def nominal_solutions(
     return Solutions(joints, valid, shoulder, elbow, wr)
 
 
-def _turns(base: FloatArray, ok: np.ndarray, limits: FloatArray,
-           near_deg: FloatArray | None) -> tuple[FloatArray, np.ndarray, int]:  # fmt: skip
+def _turns(
+    base: FloatArray, ok: np.ndarray, limits: FloatArray, near_deg: FloatArray | None
+) -> tuple[FloatArray, np.ndarray, int]:
     """Whole-turn variants of base solutions (n, b, 6) [rad] within ``limits`` (6, 2) [rad]:
     candidates (n, b·c, 6), their validity (n, b·c) and c, the variants per base solution
     (candidates are grouped by base solution)."""
@@ -486,14 +494,20 @@ def _turns(base: FloatArray, ok: np.ndarray, limits: FloatArray,
         if not np.any(multi_joint):
             return single, inside, 1
     per_joint = [int(min(np.max(np.where(inside, count[..., j], 1)), 3)) for j in range(N_JOINTS)]
-    combos = np.array(np.meshgrid(*[np.arange(c) for c in per_joint], indexing="ij")).reshape(
-        N_JOINTS, -1).T  # (c, 6)  # fmt: skip
+    combos = (
+        np.array(np.meshgrid(*[np.arange(c) for c in per_joint], indexing="ij"))
+        .reshape(N_JOINTS, -1)
+        .T
+    )  # (c, 6)
     cand = base[:, :, None, :] + two_pi * (k_lo[:, :, None, :] + combos[None, None])
     valid = inside[:, :, None] & np.all(combos[None, None] < count[:, :, None, :], axis=3)
     if near_deg is not None:
         near = np.deg2rad(np.asarray(near_deg, dtype=float))[:, None, None, :]
         has = np.isfinite(near)
-        k_near = np.clip(np.round((np.nan_to_num(near) - base[:, :, None, :]) / two_pi),
-                         k_lo[:, :, None, :], k_hi[:, :, None, :])  # fmt: skip
+        k_near = np.clip(
+            np.round((np.nan_to_num(near) - base[:, :, None, :]) / two_pi),
+            k_lo[:, :, None, :],
+            k_hi[:, :, None, :],
+        )
         cand = np.where(has, base[:, :, None, :] + two_pi * k_near, cand)
     return cand.reshape(n, -1, N_JOINTS), valid.reshape(n, -1), combos.shape[0]

@@ -99,8 +99,10 @@ def calibration_from_result(result: Mapping[str, Any], nominal: RobotModel) -> C
     """
     calibrated = model_from_result(result, nominal)
     if calibrated.convention != nominal.convention:
-        raise ValueError(f"convention: the result is {calibrated.convention!r}, the nominal "
-                         f"model {nominal.convention!r}")  # fmt: skip
+        raise ValueError(
+            f"convention: the result is {calibrated.convention!r}, the nominal "
+            f"model {nominal.convention!r}"
+        )
     corr = result.get("correlation") or {}
     names = corr.get("names") if isinstance(corr, Mapping) else None
     matrix = corr.get("matrix") if isinstance(corr, Mapping) else None
@@ -115,8 +117,7 @@ def calibration_from_result(result: Mapping[str, Any], nominal: RobotModel) -> C
         return Calibration(nominal, calibrated, None, np.zeros(0, dtype=int))
     if c.shape != (len(names), len(names)) or not np.all(np.isfinite(c)):
         return Calibration(nominal, calibrated, None, np.zeros(0, dtype=int))
-    scale = np.array([math.pi / 180.0 if n.startswith(("alpha", "theta")) else 1.0
-                      for n in names])  # fmt: skip
+    scale = np.array([math.pi / 180.0 if n.startswith(("alpha", "theta")) else 1.0 for n in names])
     sd = sd * scale
     cov = c * np.outer(sd, sd)
     columns = np.array([dh_names.index(n) if n in dh_names else -1 for n in names])
@@ -126,8 +127,11 @@ def calibration_from_result(result: Mapping[str, Any], nominal: RobotModel) -> C
 def _uses_frames(t: Target) -> tuple[FloatArray | None, FloatArray | None, str]:
     """The one tool and work object of a Cartesian target, or the reason there is none."""
     if not t.uses:
-        return None, None, ("not used by any move in the given files: its tool and work "
-                            "object are unknown")  # fmt: skip
+        return (
+            None,
+            None,
+            ("not used by any move in the given files: its tool and work object are unknown"),
+        )
     for u in t.uses:
         if u.problem:
             return None, None, f"line {u.line}: {u.problem}"
@@ -135,8 +139,10 @@ def _uses_frames(t: Target) -> tuple[FloatArray | None, FloatArray | None, str]:
     assert first.tool is not None and first.work is not None
     for u in t.uses[1:]:
         assert u.tool is not None and u.work is not None
-        if not (np.allclose(u.tool, first.tool, atol=1e-9)
-                and np.allclose(u.work, first.work, atol=1e-9)):  # fmt: skip
+        if not (
+            np.allclose(u.tool, first.tool, atol=1e-9)
+            and np.allclose(u.work, first.work, atol=1e-9)
+        ):
             return (
                 None,
                 None,
@@ -181,9 +187,13 @@ def sigma_at_tools(
     return out
 
 
-def correct_targets(cal: Calibration, targets: Sequence[Target], *,
-                    keep_joint_targets: bool = False,
-                    only: Sequence[str] | None = None) -> list[Correction]:  # fmt: skip
+def correct_targets(
+    cal: Calibration,
+    targets: Sequence[Target],
+    *,
+    keep_joint_targets: bool = False,
+    only: Sequence[str] | None = None,
+) -> list[Correction]:
     """One :class:`Correction` per target (same order); see the module docstring."""
     n = len(targets)
     out: list[Correction | None] = [None] * n
@@ -218,12 +228,17 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
     flanges: dict[int, FloatArray] = {}
     fl_of: dict[int, FloatArray] = {}
     if cart:
-        stacked = (np.array([works[i] for i in cart])
-                   @ np.array([targets[i].pose for i in cart])
-                   @ invert(np.array([tools[i] for i in cart])))  # fmt: skip
+        stacked = (
+            np.array([works[i] for i in cart])
+            @ np.array([targets[i].pose for i in cart])
+            @ invert(np.array([tools[i] for i in cart]))
+        )
         fl_of = dict(zip(cart, stacked, strict=True))
-    analytic = [i for i in cart if (c := targets[i].configuration) is None
-                or (c.nearest_deg is None and c.after is None)]  # fmt: skip
+    analytic = [
+        i
+        for i in cart
+        if (c := targets[i].configuration) is None or (c.nearest_deg is None and c.after is None)
+    ]
     if analytic:
         fl = np.stack([fl_of[i] for i in analytic])
         configs: list[Configuration | None] = [targets[i].configuration for i in analytic]
@@ -265,8 +280,10 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                     seeds[k] if k in seeds else np.asarray(targets[k].joints_deg, dtype=float)
                 )
             elif k is None or out[k] is not None or k not in todo:
-                out[i] = Correction("skipped", f"the previous move's target {c.after} has no "
-                                    "nominal joints to start from")  # fmt: skip
+                out[i] = Correction(
+                    "skipped",
+                    f"the previous move's target {c.after} has no nominal joints to start from",
+                )
         ready_set = set(ready)
         todo = [i for i in todo if i not in ready_set and out[i] is None]
         if not ready:
@@ -274,16 +291,19 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                 out[i] = Correction("skipped", "no joint reference for the branch")
             break
         fl = np.stack([fl_of[i] for i in ready])
-        sol_n = solve_ik(nominal, np.array(refs), fl[:, :3, 3], fl[:, :3, :3], np.zeros(3),
-                         IK_OPTIONS)  # fmt: skip
+        sol_n = solve_ik(
+            nominal, np.array(refs), fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), IK_OPTIONS
+        )
         limits_n = joint_limits_deg(nominal)
         for r, i in enumerate(ready):
             q = sol_n.joints_deg[r]
             if not sol_n.converged[r]:
                 out[i] = Correction("unreachable", "no nominal solution near its joint reference")
             elif np.any(q < limits_n[:, 0]) or np.any(q > limits_n[:, 1]):
-                out[i] = Correction("unreachable", "the nominal solution nearest its joint "
-                                    "reference is outside the joint limits")  # fmt: skip
+                out[i] = Correction(
+                    "unreachable",
+                    "the nominal solution nearest its joint reference is outside the joint limits",
+                )
             else:
                 seeds[i] = q
                 flanges[i] = fl[r]
@@ -292,8 +312,9 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
         q_nom = np.array([seeds[i] for i in rows])
         fk_nom = flange_frames(nominal, q_nom)
         target_fl = np.array([flanges.get(i, fk_nom[r]) for r, i in enumerate(rows)])
-        sol_c = solve_ik(calibrated, q_nom, target_fl[:, :3, 3], target_fl[:, :3, :3],
-                         np.zeros(3), IK_OPTIONS)  # fmt: skip
+        sol_c = solve_ik(
+            calibrated, q_nom, target_fl[:, :3, 3], target_fl[:, :3, :3], np.zeros(3), IK_OPTIONS
+        )
         q_star = sol_c.joints_deg
         limits = joint_limits_deg(nominal)
         s_nom = np.stack(branch_signs(nominal, q_nom), axis=1)
@@ -306,8 +327,12 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
         w_inv = invert(np.array([works.get(i, eye) for i in rows]))
         tl = np.array([tools.get(i, eye) for i in rows])
         new_all = w_inv @ fk_star @ tl
-        old_all = np.array([targets[i].pose if targets[i].kind == "cartesian" else fk_nom[r]
-                            for r, i in enumerate(rows)])  # fmt: skip
+        old_all = np.array(
+            [
+                targets[i].pose if targets[i].kind == "cartesian" else fk_nom[r]
+                for r, i in enumerate(rows)
+            ]
+        )
         shift_mm_all = np.linalg.norm(new_all[:, :3, 3] - old_all[:, :3, 3], axis=1)
         shift_deg_all = rotation_angle_deg(old_all[:, :3, :3], new_all[:, :3, :3])
         jump_all = np.max(np.abs(q_star - q_nom), axis=1)
@@ -321,15 +346,19 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             t = targets[i]
             qs = q_star[r]
             if not converged[r]:
-                out[i] = Correction("unreachable", "no calibrated solution near the nominal one "
-                                    f"(residual {sol_c.position_error_mm[r]:.3g} mm)")  # fmt: skip
+                out[i] = Correction(
+                    "unreachable",
+                    "no calibrated solution near the nominal one "
+                    f"(residual {sol_c.position_error_mm[r]:.3g} mm)",
+                )
                 continue
             if outside_l[r]:
                 low, high = qs < limits[:, 0], qs > limits[:, 1]
                 j = int(np.argmax(low | high))
                 lim = limits[j, 0] if low[j] else limits[j, 1]
-                out[i] = Correction("unreachable", f"outside the joint limits: J{j + 1}="
-                                    f"{qs[j]:.3f} (limit {lim:g})")  # fmt: skip
+                out[i] = Correction(
+                    "unreachable", f"outside the joint limits: J{j + 1}={qs[j]:.3f} (limit {lim:g})"
+                )
                 continue
             jump = jumps[r]
             if left_l[r]:
@@ -344,18 +373,30 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
                 if jump < NEGLIGIBLE_DEG:
                     qs = q_nom[r]
                 # The shift of a joint target: at the flange (its tool is irrelevant).
-                out[i] = Correction("corrected", joints_deg=qs, nominal_joints_deg=q_nom[r],
-                                    shift_mm=shift_mm, shift_deg=shift_deg,
-                                    configuration_kept=True, sigma_mm=sigmas[r])  # fmt: skip
+                out[i] = Correction(
+                    "corrected",
+                    joints_deg=qs,
+                    nominal_joints_deg=q_nom[r],
+                    shift_mm=shift_mm,
+                    shift_deg=shift_deg,
+                    configuration_kept=True,
+                    sigma_mm=sigmas[r],
+                )
                 continue
             new, old = new_all[r], t.pose
             assert old is not None
             if shift_mm < NEGLIGIBLE_MM and shift_deg < NEGLIGIBLE_DEG:
                 new = old
             out[i] = Correction(
-                "corrected", pose=new, joints_deg=qs, nominal_joints_deg=q_nom[r],
-                shift_mm=shift_mm, shift_deg=shift_deg, configuration_kept=True,
-                sigma_mm=sigmas[r])  # fmt: skip
+                "corrected",
+                pose=new,
+                joints_deg=qs,
+                nominal_joints_deg=q_nom[r],
+                shift_mm=shift_mm,
+                shift_deg=shift_deg,
+                configuration_kept=True,
+                sigma_mm=sigmas[r],
+            )
     # Joint targets that follow a Cartesian one (a PolyScope Waypoint_n_q).
     for i, t in enumerate(targets):
         if t.follows is None:
@@ -373,11 +414,15 @@ def correct_targets(cal: Calibration, targets: Sequence[Target], *,
             assert lead.nominal_joints_deg is not None
             delta = lead.joints_deg - lead.nominal_joints_deg
             q_new = q_old if float(np.max(np.abs(delta))) < NEGLIGIBLE_DEG else q_old + delta
-            out[i] = Correction("corrected", joints_deg=q_new,
-                                nominal_joints_deg=q_old,
-                                shift_mm=lead.shift_mm, shift_deg=lead.shift_deg,
-                                configuration_kept=lead.configuration_kept,
-                                sigma_mm=lead.sigma_mm)  # fmt: skip
+            out[i] = Correction(
+                "corrected",
+                joints_deg=q_new,
+                nominal_joints_deg=q_old,
+                shift_mm=lead.shift_mm,
+                shift_deg=lead.shift_deg,
+                configuration_kept=lead.configuration_kept,
+                sigma_mm=lead.sigma_mm,
+            )
     return [c if c is not None else Correction("skipped", "internal: not processed") for c in out]
 
 

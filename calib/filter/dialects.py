@@ -45,8 +45,10 @@ def dialect_for(source: Source) -> Dialect:
     by_ext = [d for d in dialects() if ext in d.extensions]
     if not by_ext:
         known = sorted({e for d in dialects() for e in d.extensions})
-        raise FilterInputError(source.name, f"unknown program dialect (extension {ext or 'none'!r}"
-                               f"; known: {', '.join(known)})")  # fmt: skip
+        raise FilterInputError(
+            source.name,
+            f"unknown program dialect (extension {ext or 'none'!r}; known: {', '.join(known)})",
+        )
     for d in by_ext:
         if d.claims(source):
             return d

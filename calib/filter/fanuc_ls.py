@@ -76,8 +76,14 @@ _FRAME_NO = re.compile(r"\b(UF|UT)\s*:\s*([^,\s]+)\s*,?")
 _CONFIG = re.compile(r"\bCONFIG\s*:\s*'([^'\r\n]*)'")
 _CARTESIAN = ("X", "Y", "Z", "W", "P", "R")
 _JOINTS = tuple(f"J{j}" for j in range(1, N_JOINTS + 1))
-_LETTERS = {"N": ("wrist", 1), "F": ("wrist", -1), "U": ("elbow", 1), "D": ("elbow", -1),
-            "T": ("shoulder", 1), "B": ("shoulder", -1)}  # fmt: skip
+_LETTERS = {
+    "N": ("wrist", 1),
+    "F": ("wrist", -1),
+    "U": ("elbow", 1),
+    "D": ("elbow", -1),
+    "T": ("shoulder", 1),
+    "B": ("shoulder", -1),
+}
 
 
 @dataclass
@@ -118,8 +124,13 @@ def configuration(text: str, turns: tuple[float, ...]) -> Configuration:
     ranges = np.tile([-np.inf, np.inf], (N_JOINTS, 1))
     for j, k in zip(TURN_JOINTS, turns, strict=False):
         ranges[j] = (-180.0 + 360.0 * k, 180.0 + 360.0 * k)
-    return Configuration(ranges, shoulder=signs.get("shoulder"), elbow=signs.get("elbow"),
-                         wrist=signs.get("wrist"), text=f"'{text}'")  # fmt: skip
+    return Configuration(
+        ranges,
+        shoulder=signs.get("shoulder"),
+        elbow=signs.get("elbow"),
+        wrist=signs.get("wrist"),
+        text=f"'{text}'",
+    )
 
 
 def _sections(src: Source) -> dict[str, tuple[int, int]]:
@@ -141,8 +152,10 @@ def _modified(src: Source, start: int, end: int) -> dict[str, str]:
         what = _MODIFIER.search(m.group())
         if not what or _REMARK.match(m.group()):
             continue
-        why = (f"line {src.line_of(m.start())}: moved to with {what.group(1)}: the robot "
-               "does not go to the position itself")  # fmt: skip
+        why = (
+            f"line {src.line_of(m.start())}: moved to with {what.group(1)}: the robot "
+            "does not go to the position itself"
+        )
         for ref in _REF.finditer(m.group()):
             out.setdefault(f"P[{ref.group(1)}]", why)
     return out
@@ -153,8 +166,9 @@ def _closing(text: str, i: int, src: Source) -> int:
     j = text.find("}", i)
     k = text.find("{", i)
     if j < 0 or (0 <= k < j):
-        raise FilterInputError(src.name, "a position entry without its closing '};'",
-                               src.line_of(i))  # fmt: skip
+        raise FilterInputError(
+            src.name, "a position entry without its closing '};'", src.line_of(i)
+        )
     return j
 
 
@@ -177,8 +191,9 @@ class FanucLsDialect:
             if "POS" not in sections:
                 continue
             if "END" not in sections:
-                raise FilterInputError(src.name, "/POS without /END",
-                                       src.line_of(sections["POS"][0]))  # fmt: skip
+                raise FilterInputError(
+                    src.name, "/POS without /END", src.line_of(sections["POS"][0])
+                )
             positions = self._positions(src, *sections["POS"], frames)
             used = _modified(src, *sections.get("MN", (0, 0)))
             for t in positions:
@@ -205,21 +220,25 @@ class FanucLsDialect:
                 return out
             m = _ENTRY.match(text, i)
             if not m:
-                raise FilterInputError(src.name, f"expected P[n]{{ in /POS, got "
-                                       f"{text[i:i + 20].splitlines()[0]!r}",
-                                       src.line_of(i))  # fmt: skip
+                raise FilterInputError(
+                    src.name,
+                    f"expected P[n]{{ in /POS, got {text[i : i + 20].splitlines()[0]!r}",
+                    src.line_of(i),
+                )
             close = _closing(text, m.end(), src)
             semi = re.compile(r"\s*;").match(text, close + 1)
             if not semi:
-                raise FilterInputError(src.name, "expected '};' after a position",
-                                       src.line_of(close))  # fmt: skip
+                raise FilterInputError(
+                    src.name, "expected '};' after a position", src.line_of(close)
+                )
             target = self._entry(src, f"P[{m.group(1)}]", m.start(), m.end(), close, frames)
             if target is not None:
                 out.append(target)
             i = semi.end()
 
-    def _entry(self, src: Source, name: str, at: int, start: int, end: int,
-               frames: FrameTables) -> Target | None:  # fmt: skip
+    def _entry(
+        self, src: Source, name: str, at: int, start: int, end: int, frames: FrameTables
+    ) -> Target | None:
         """The target of the entry ``P[n]{`` at offset ``at`` (body ``[start, end)``)."""
         text = src.text
         groups = list(_GROUP.finditer(text, start, end))
@@ -251,13 +270,17 @@ class FanucLsDialect:
             return t
         missing = [k for k in _CARTESIAN if k not in fields]
         if missing:
-            raise FilterInputError(src.name, f"{name}: GP1 has neither J1..J6 nor X..R "
-                                   f"(missing {', '.join(missing)})", line)  # fmt: skip
+            raise FilterInputError(
+                src.name,
+                f"{name}: GP1 has neither J1..J6 nor X..R (missing {', '.join(missing)})",
+                line,
+            )
         numbers = {m.group(1): m.group(2) for m in _FRAME_NO.finditer(body)}
         cfg = _CONFIG.search(body)
         if not cfg or set(numbers) != {"UF", "UT"}:
-            raise FilterInputError(src.name, f"{name}: a Cartesian GP1 needs UF, UT and CONFIG",
-                                   line)  # fmt: skip
+            raise FilterInputError(
+                src.name, f"{name}: a Cartesian GP1 needs UF, UT and CONFIG", line
+            )
         if not all(re.fullmatch(r"\d+", v) for v in numbers.values()):
             raise FilterInputError(src.name, f"{name}: UF and UT must be numbers", line)
         turn_nums = self._turns(src, g.end() + cfg.start(1), cfg.group(1))
@@ -267,23 +290,34 @@ class FanucLsDialect:
             raise FilterInputError(src.name, f"{name}: {exc}", line) from None
         uf, ut = int(numbers["UF"]), int(numbers["UT"])
         work, tool = frames.get("uframe", uf), frames.get("utool", ut)
-        missing_frames = [f"{label} {n} is not in --frames ([{table}.{n}])"
-                          for label, n, table, value in (("UF", uf, "uframe", work),
-                                                         ("UT", ut, "utool", tool))
-                          if value is None]  # fmt: skip
+        missing_frames = [
+            f"{label} {n} is not in --frames ([{table}.{n}])"
+            for label, n, table, value in (("UF", uf, "uframe", work), ("UT", ut, "utool", tool))
+            if value is None
+        ]
         use = Use(src.name, line, f"UT:{ut}", f"UF:{uf}", tool, work, "; ".join(missing_frames))
-        site = CartSite([fields[k] for k in _CARTESIAN[:3]], [fields[k] for k in _CARTESIAN[3:]],
-                        turn_nums)  # fmt: skip
-        t = Target(src.name, line, name, "cartesian", pose=np.eye(4), configuration=conf,
-                   uses=[use], site=site)  # pose: see parse  # fmt: skip
+        site = CartSite(
+            [fields[k] for k in _CARTESIAN[:3]], [fields[k] for k in _CARTESIAN[3:]], turn_nums
+        )
+        t = Target(
+            src.name,
+            line,
+            name,
+            "cartesian",
+            pose=np.eye(4),
+            configuration=conf,
+            uses=[use],
+            site=site,
+        )  # pose: see parse
         extra = sorted(set(fields) - set(_CARTESIAN))
         if extra:
             t.problem = f"GP1 has extended axes {', '.join(extra)}: not supported"
         for k in _CARTESIAN:
             want = "mm" if k in "XYZ" else "deg"
             if units[k] not in (want, ""):
-                raise FilterInputError(src.name, f"{name}: {k} in {units[k]}, expected {want}",
-                                       line)  # fmt: skip
+                raise FilterInputError(
+                    src.name, f"{name}: {k} in {units[k]}, expected {want}", line
+                )
         return t
 
     @staticmethod
@@ -291,11 +325,13 @@ class FanucLsDialect:
         """The turn numbers of a CONFIG string starting at offset ``at``."""
         out = []
         for m in re.finditer(r",\s*([-+]?\d+)\s*(?=,|$)", text):
-            out.append(Num(src.name, at + m.start(1), at + m.end(1), m.group(1),
-                           float(m.group(1))))  # fmt: skip
+            out.append(Num(src.name, at + m.start(1), at + m.end(1), m.group(1), float(m.group(1))))
         if len(out) > len(TURN_JOINTS):
-            raise FilterInputError(src.name, f"CONFIG '{text}': more than "
-                                   f"{len(TURN_JOINTS)} turn numbers", src.line_of(at))  # fmt: skip
+            raise FilterInputError(
+                src.name,
+                f"CONFIG '{text}': more than {len(TURN_JOINTS)} turn numbers",
+                src.line_of(at),
+            )
         return out
 
     def render(self, target: Target, correction: Correction) -> list[Edit]:

@@ -116,8 +116,13 @@ def configuration(s: float | None, t: float | None, text: str) -> Configuration:
     if s is None:
         return Configuration(ranges, text=text)
     si = int(s)
-    return Configuration(ranges, shoulder=-1 if si & 1 else 1, elbow=1 if si & 2 else -1,
-                         wrist=-1 if si & 4 else 1, text=text)  # fmt: skip
+    return Configuration(
+        ranges,
+        shoulder=-1 if si & 1 else 1,
+        elbow=1 if si & 2 else -1,
+        wrist=-1 if si & 4 else 1,
+        text=text,
+    )
 
 
 class KrlDialect:
@@ -153,8 +158,9 @@ class KrlDialect:
             for decl in df.decls.values():
                 if decl.kind in ("", "FDAT") or decl.name.upper() in frame_names:
                     continue
-                items = [((), decl.value)] if decl.value is not None else list(
-                    decl.elements.items())  # fmt: skip
+                items = (
+                    [((), decl.value)] if decl.value is not None else list(decl.elements.items())
+                )
                 for index, agg in items:
                     assert agg is not None
                     t = self._target(df.source, decl.name + index_text(index), agg, decl.kind)
@@ -189,24 +195,37 @@ class KrlDialect:
         if kind in AXIS_TYPES or (not kind and "A1" in items):
             nums = [agg.num(src, k) for k in JOINT_KEYS]
             if any(n is None for n in nums):
-                return Target(src.name, line, name, "joint", joints_deg=np.zeros(N_JOINTS),
-                              problem="not all of A1..A6 are numbers", site=None)  # fmt: skip
+                return Target(
+                    src.name,
+                    line,
+                    name,
+                    "joint",
+                    joints_deg=np.zeros(N_JOINTS),
+                    problem="not all of A1..A6 are numbers",
+                    site=None,
+                )
             joints = [n for n in nums if n is not None]
-            return Target(src.name, line, name, "joint",
-                          joints_deg=np.array([n.value for n in joints]),
-                          site=JointSite(joints))  # fmt: skip
+            return Target(
+                src.name,
+                line,
+                name,
+                "joint",
+                joints_deg=np.array([n.value for n in joints]),
+                site=JointSite(joints),
+            )
         if not (kind or any(k in items for k in CARTESIAN_KEYS)):
             return None
         nums = [agg.num(src, k) for k in CARTESIAN_KEYS]
         s_num, t_num = agg.num(src, "S"), agg.num(src, "T")
         text = " ".join(f"{k} {items[k].text}" for k in ("S", "T") if k in items)
-        conf = configuration(s_num.value if s_num else None, t_num.value if t_num else None,
-                             text)  # fmt: skip
+        conf = configuration(s_num.value if s_num else None, t_num.value if t_num else None, text)
         t = Target(src.name, line, name, "cartesian", pose=np.eye(4), configuration=conf)
         if any(n is None for n in nums):
             missing = [k for k, n in zip(CARTESIAN_KEYS, nums, strict=True) if n is None]
-            t.problem = (f"{', '.join(missing)} not given: the controller takes them from the "
-                         "current position")  # fmt: skip
+            t.problem = (
+                f"{', '.join(missing)} not given: the controller takes them from the "
+                "current position"
+            )
             return t
         t.site = CartSite([n for n in nums[:3] if n], [n for n in nums[3:] if n], t_num)
         return t

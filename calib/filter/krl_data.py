@@ -47,10 +47,13 @@ _DECL = re.compile(
     r"([A-Za-z_$][\w$]*)[ \t]*(\[[^\]\r\n]*\])?[ \t]*(=[ \t]*(?=\{))?",
     re.IGNORECASE | re.MULTILINE,
 )
-_ELEMENT = re.compile(r"^[ \t]*([A-Za-z_$][\w$]*)[ \t]*\[([^\]\r\n]*)\][ \t]*=[ \t]*(?=\{)",
-                      re.MULTILINE)  # fmt: skip
-_TYPE_OF = re.compile(r"^[ \t]*(TOOL_TYPE|BASE_TYPE)[ \t]*\[[ \t]*(\d+)[ \t]*\][ \t]*=[ \t]*#(\w+)",
-                      re.IGNORECASE | re.MULTILINE)  # fmt: skip
+_ELEMENT = re.compile(
+    r"^[ \t]*([A-Za-z_$][\w$]*)[ \t]*\[([^\]\r\n]*)\][ \t]*=[ \t]*(?=\{)", re.MULTILINE
+)
+_TYPE_OF = re.compile(
+    r"^[ \t]*(TOOL_TYPE|BASE_TYPE)[ \t]*\[[ \t]*(\d+)[ \t]*\][ \t]*=[ \t]*#(\w+)",
+    re.IGNORECASE | re.MULTILINE,
+)
 
 
 _COMMENT_OR_STRING = re.compile(r';[^\n]*|"[^"\n]*"?')
@@ -154,8 +157,9 @@ def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
 
     def fail(at: int, what: str) -> FilterInputError:
         got = repr(code[at]) if at < len(code) else "end of file"
-        return FilterInputError(source.name, f"{what}, got {got} in an aggregate",
-                                source.line_of(at))  # fmt: skip
+        return FilterInputError(
+            source.name, f"{what}, got {got} in an aggregate", source.line_of(at)
+        )
 
     if i >= len(code) or code[i] != "{":
         raise fail(i, "expected '{'")
@@ -192,8 +196,9 @@ def parse_aggregate(code: str, i: int, source: Source) -> Aggregate:
             item = Item(key, j, j + len(text), text)
             j = v.end()
         if key in agg.items:
-            raise FilterInputError(source.name, f"component {key} given twice",
-                                   source.line_of(item.start))  # fmt: skip
+            raise FilterInputError(
+                source.name, f"component {key} given twice", source.line_of(item.start)
+            )
         agg.items[key] = item
         j = _BLANKS.match(code, j).end()  # type: ignore[union-attr]
         if j < n and code[j] == ",":
@@ -268,11 +273,11 @@ def read_declarations(source: Source) -> DataFile:
         value = parse_aggregate(code, m.end(), source) if m.group(5) else None
         key = name.upper()
         if key in out.decls:
-            raise FilterInputError(source.name, f"{name} declared twice (also line "
-                                   f"{out.decls[key].line})", line)  # fmt: skip
+            raise FilterInputError(
+                source.name, f"{name} declared twice (also line {out.decls[key].line})", line
+            )
         is_global = "GLOBAL" in m.group(1).upper() or config
-        out.decls[key] = Decl(kind, name, source.name, line, is_global,
-                              dims, value)  # fmt: skip
+        out.decls[key] = Decl(kind, name, source.name, line, is_global, dims, value)
     for m in _ELEMENT.finditer(code):
         line = source.line_of(m.start())
         key = m.group(1).upper()
@@ -285,8 +290,11 @@ def read_declarations(source: Source) -> DataFile:
         if not decl.dims and decl.kind:
             raise FilterInputError(source.name, f"{m.group(1)} is not an array", line)
         if idx in decl.elements:
-            raise FilterInputError(source.name, f"{m.group(1)}[{m.group(2)}] assigned twice "
-                                   f"(also line {decl.element_lines[idx]})", line)  # fmt: skip
+            raise FilterInputError(
+                source.name,
+                f"{m.group(1)}[{m.group(2)}] assigned twice (also line {decl.element_lines[idx]})",
+                line,
+            )
         decl.elements[idx] = parse_aggregate(code, m.end(), source)
         decl.element_lines[idx] = line
     for m in _TYPE_OF.finditer(code):
@@ -353,8 +361,11 @@ class Program:
 
     def _own_dat(self, src_name: str) -> DataFile | None:
         stem = PurePath(src_name).with_suffix("").as_posix().lower()
-        same = (df for name, df in self.data.items()
-                if PurePath(name).with_suffix("").as_posix().lower() == stem)  # fmt: skip
+        same = (
+            df
+            for name, df in self.data.items()
+            if PurePath(name).with_suffix("").as_posix().lower() == stem
+        )
         return next(same, None)
 
     def lookup(self, name: str, src_name: str | None) -> Decl | None:
@@ -365,8 +376,11 @@ class Program:
         own = self.own_dat(src_name) if src_name else None
         if own is not None and key in own.decls:
             return own.decls[key]
-        found = [df.decls[key] for df in self.data.values() if df is not own
-                 and key in df.decls and (df.decls[key].is_global or src_name is None)]  # fmt: skip
+        found = [
+            df.decls[key]
+            for df in self.data.values()
+            if df is not own and key in df.decls and (df.decls[key].is_global or src_name is None)
+        ]
         return found[0] if len(found) == 1 else None
 
     def table(self, which: str, n: int) -> KrlFrame:
@@ -380,8 +394,10 @@ class Program:
         label = f"{which}[{n}]"
         if n == 0:
             return KrlFrame(label, np.eye(4), "")
-        types = [(df.tool_type if which == "TOOL_DATA" else df.base_type).get(n)
-                 for df in self.data.values()]  # fmt: skip
+        types = [
+            (df.tool_type if which == "TOOL_DATA" else df.base_type).get(n)
+            for df in self.data.values()
+        ]
         external = {"TOOL_DATA": "#BASE", "BASE_DATA": "#TCP"}[which]
         if external in types:
             kind = which.split("_")[0]

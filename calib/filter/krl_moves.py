@@ -49,16 +49,17 @@ _PUNCT = re.compile(r"[{}\[\](),]")
 #: which of its patterns each can start.
 _FAMILY = {
     **dict.fromkeys(("DEF", "DEFFCT", "GLOBAL"), "routine"),
-    **dict.fromkeys(("END", "ENDFCT"), "end"), "FDAT_ACT": "fdat", "BAS": "bas",
+    **dict.fromkeys(("END", "ENDFCT"), "end"),
+    "FDAT_ACT": "fdat",
+    "BAS": "bas",
     **dict.fromkeys(("$TOOL", "$BASE"), "set"),
     **dict.fromkeys(("IF", "SWITCH", "FOR", "WHILE", "LOOP", "REPEAT"), "open"),
     **dict.fromkeys(("ELSE", "CASE", "DEFAULT"), "middle"),
     **dict.fromkeys(("ENDIF", "ENDSWITCH", "ENDFOR", "ENDWHILE", "ENDLOOP", "UNTIL"), "close"),
     **dict.fromkeys(("PTP", "LIN", "CIRC", "SPTP", "SLIN", "SCIRC", "SPL"), "move"),
-    **dict.fromkeys(("PTP_REL", "LIN_REL", "CIRC_REL", "SPTP_REL", "SLIN_REL", "SCIRC_REL"),
-                    "rel"),
+    **dict.fromkeys(("PTP_REL", "LIN_REL", "CIRC_REL", "SPTP_REL", "SLIN_REL", "SCIRC_REL"), "rel"),
     **dict.fromkeys(("SPLINE", "PTP_SPLINE"), "spline"),
-}  # fmt: skip
+}
 _OPEN = re.compile(r"^\s*(IF|SWITCH|FOR|WHILE|LOOP|REPEAT)\b", re.I)
 _MIDDLE = re.compile(r"^\s*(ELSE|CASE|DEFAULT)\b", re.I)
 _CLOSE = re.compile(r"^\s*(ENDIF|ENDSWITCH|ENDFOR|ENDWHILE|ENDLOOP|UNTIL)\b", re.I)
@@ -81,8 +82,13 @@ class _Block:
 class Moves:
     """The moves of one ``.src``: their targets' uses, with the tool and base in force."""
 
-    def __init__(self, make_target: MakeTarget, prog: Program, src: Source,
-                 targets: dict[tuple[str, str], Target]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        make_target: MakeTarget,
+        prog: Program,
+        src: Source,
+        targets: dict[tuple[str, str], Target],
+    ) -> None:
         self.make_target, self.prog, self.src, self.targets = make_target, prog, src, targets
         self.tool = unknown_frame("no tool set before this move in its DEF")
         self.base = unknown_frame("no base set before this move in its DEF")
@@ -175,8 +181,12 @@ class Moves:
             if all(first.same(e[k]) for e in ends[1:]):
                 merged.append(first)
             else:
-                merged.append(unknown_frame(f"the {what} differs between the paths through the "
-                                       f"{blk.kind} at line {blk.line}"))  # fmt: skip
+                merged.append(
+                    unknown_frame(
+                        f"the {what} differs between the paths through the "
+                        f"{blk.kind} at line {blk.line}"
+                    )
+                )
         self.tool, self.base = merged[0], merged[1]
 
     def _fdat(self, name: str, no: int, which: tuple[str, ...] = ("TOOL", "BASE")) -> None:
@@ -192,8 +202,10 @@ class Moves:
             self.tool, self.base = unknown_frame(why), unknown_frame(why)
             return
         assert decl is not None and decl.value is not None
-        for key, table, what in (("TOOL_NO", "TOOL_DATA", "TOOL"), ("BASE_NO", "BASE_DATA",
-                                                                       "BASE")):  # fmt: skip
+        for key, table, what in (
+            ("TOOL_NO", "TOOL_DATA", "TOOL"),
+            ("BASE_NO", "BASE_DATA", "BASE"),
+        ):
             item = decl.value.items.get(key)
             if what not in which:
                 continue
@@ -236,8 +248,9 @@ class Moves:
         n_targets = 2 if kind in ("CIRC", "SCIRC") else 1
         fold_problem = self._fold_check(no)
         tool, base = self.tool, self.base
-        problem = "; ".join(dict.fromkeys(p for p in (tool.problem, base.problem, fold_problem)
-                                          if p))  # fmt: skip
+        problem = "; ".join(
+            dict.fromkeys(p for p in (tool.problem, base.problem, fold_problem) if p)
+        )
         use = Use(self.src.name, no, tool.name, base.name, tool.value, base.value, problem)
         for a, b in _top_level_spans(rest)[:n_targets]:
             part = rest[a:b]
@@ -248,14 +261,18 @@ class Moves:
         for tool_no, base_no, line in reversed(self.folds):
             if tool_no is None and base_no is None:
                 continue
-            for want, have, label in ((tool_no, self.tool, "TOOL_DATA"),
-                                      (base_no, self.base, "BASE_DATA")):  # fmt: skip
+            for want, have, label in (
+                (tool_no, self.tool, "TOOL_DATA"),
+                (base_no, self.base, "BASE_DATA"),
+            ):
                 if want is None or have.value is None:
                     continue
                 expect = f"{label}[{want}]"
                 if have.name != expect:
-                    return (f"the FOLD at line {line} says {label.split('_')[0].title()}[{want}] "
-                            f"but {have.name} is in force")  # fmt: skip
+                    return (
+                        f"the FOLD at line {line} says {label.split('_')[0].title()}[{want}] "
+                        f"but {have.name} is in force"
+                    )
             return ""
         return ""
 
@@ -280,9 +297,16 @@ class Moves:
             return
         for t in self._named(decl, name, index):
             if expression:
-                u = Use(use.file, use.line, use.tool_name, use.work_name, use.tool, use.work,
-                        f"used in the expression {part[:40]!r}: the robot does not go to the "
-                        "target itself")  # fmt: skip
+                u = Use(
+                    use.file,
+                    use.line,
+                    use.tool_name,
+                    use.work_name,
+                    use.tool,
+                    use.work,
+                    f"used in the expression {part[:40]!r}: the robot does not go to the "
+                    "target itself",
+                )
                 t.uses.append(u)
             else:
                 self._chain(t)
@@ -291,8 +315,11 @@ class Moves:
     def _named(self, decl: Decl, name: str, index: str | None) -> list[Target]:
         """The targets ``name[index]`` names (every element for a variable index)."""
         if index is None:
-            keys = [name.upper()] if decl.value is not None else [
-                (decl.name + index_text(i)).upper() for i in decl.elements]  # fmt: skip
+            keys = (
+                [name.upper()]
+                if decl.value is not None
+                else [(decl.name + index_text(i)).upper() for i in decl.elements]
+            )
         else:
             try:
                 idx = tuple(int(v) for v in index.split(","))
@@ -310,16 +337,21 @@ class Moves:
             if m is None or decl is None:
                 continue
             for t in self._named(decl, m.group(1), m.group(2)):
-                t.problem = t.problem or (f"line {no}: {kind} moves by it: an offset, not a "
-                                          "pose")  # fmt: skip
+                t.problem = t.problem or (f"line {no}: {kind} moves by it: an offset, not a pose")
 
     def _chain(self, t: Target) -> None:
         """A Cartesian target without S and T takes the branch nearest the previous move's
         target (same file only: the core looks it up there)."""
         c = t.configuration
-        if (t.kind == "cartesian" and c is not None and c.shoulder is None
-                and np.all(np.isinf(c.joint_ranges_deg)) and self.previous is not None
-                and self.previous.file == t.file and not t.uses):  # fmt: skip
+        if (
+            t.kind == "cartesian"
+            and c is not None
+            and c.shoulder is None
+            and np.all(np.isinf(c.joint_ranges_deg))
+            and self.previous is not None
+            and self.previous.file == t.file
+            and not t.uses
+        ):
             t.configuration = Configuration(after=self.previous.name, text="(none)")
         self.previous = t
 

@@ -129,9 +129,13 @@ def configuration(conf: Sequence[float]) -> Configuration:
     text = "[" + ",".join(f"{int(c)}" for c in conf) + "]"
     if not 0 <= cfx <= 7:
         return Configuration(ranges, text=text)
-    return Configuration(ranges, shoulder=1 if cfx < 4 else -1,
-                         elbow=1 if cfx in (0, 1, 4, 5) else -1,
-                         wrist=1 if cfx % 2 == 0 else -1, text=text)  # fmt: skip
+    return Configuration(
+        ranges,
+        shoulder=1 if cfx < 4 else -1,
+        elbow=1 if cfx in (0, 1, 4, 5) else -1,
+        wrist=1 if cfx % 2 == 0 else -1,
+        text=text,
+    )
 
 
 @dataclass
@@ -155,8 +159,9 @@ def _dims(text: str | None) -> tuple[int, ...]:
         return (-1,)  # a dimension given by a constant name: elements still read by shape
 
 
-def _elements(node: Node, depth: int, index: tuple[int, ...],
-              out: dict[tuple[int, ...], Node]) -> None:  # fmt: skip
+def _elements(
+    node: Node, depth: int, index: tuple[int, ...], out: dict[tuple[int, ...], Node]
+) -> None:
     if depth == 0:
         out[index] = node
         return
@@ -171,7 +176,8 @@ class _Module:
     decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
     frames: dict[tuple[str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
     lookups: dict[tuple[str, tuple[str, ...]], tuple[_Decl | None, str]] = field(
-        default_factory=dict)  # fmt: skip
+        default_factory=dict
+    )
 
 
 def _read_decls(mod: _Module) -> None:
@@ -194,13 +200,16 @@ def _read_decls(mod: _Module) -> None:
             check = {"robtarget": is_robtarget, "jointtarget": is_jointtarget}.get(kind)
             for index, node in decl.elements.items():
                 if check is not None and not check(node):
-                    raise FilterInputError(src.name, f"{kind} {name}"
-                                           f"{_index_text(index)}: not a {kind} literal",
-                                           src.line_of(node.start))  # fmt: skip
+                    raise FilterInputError(
+                        src.name,
+                        f"{kind} {name}{_index_text(index)}: not a {kind} literal",
+                        src.line_of(node.start),
+                    )
         key = name.lower()
         if key in mod.decls:
-            raise FilterInputError(src.name, f"{name} declared twice (also line "
-                                   f"{mod.decls[key].line})", line)  # fmt: skip
+            raise FilterInputError(
+                src.name, f"{name} declared twice (also line {mod.decls[key].line})", line
+            )
         mod.decls[key] = decl
 
 
@@ -249,8 +258,9 @@ class RapidDialect:
                     targets[(mod.source.name, t.name.lower())] = t
                     order.append(t)
                 for index, node in decl.elements.items():
-                    t = self._target(mod.source, f"{decl.name}{_index_text(index)}", decl.kind,
-                                     node)  # fmt: skip
+                    t = self._target(
+                        mod.source, f"{decl.name}{_index_text(index)}", decl.kind, node
+                    )
                     targets[(mod.source.name, t.name.lower())] = t
                     order.append(t)
         for mod in modules:
@@ -262,53 +272,74 @@ class RapidDialect:
         """A robtarget from :data:`ROBTARGET`'s groups (1-3 position, 4-7 quaternion, 8-11
         configuration; the external axes are never written)."""
         fname = src.name
-        got = [Num(fname, m.start(g), m.end(g), m.group(g), float(m.group(g)))
-               for g in range(1, 12)]  # fmt: skip
+        got = [
+            Num(fname, m.start(g), m.end(g), m.group(g), float(m.group(g))) for g in range(1, 12)
+        ]
         pos, quat, conf = got[:3], got[3:7], got[7:11]
         line = src.line_of(m.start())
         try:
             rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
         except ValueError:
             raise FilterInputError(fname, f"{name}: quaternion of zero norm", line) from None
-        return Target(fname, line, name, "cartesian",
-                      pose=frame(np.array([n.value for n in pos]), rot),
-                      configuration=configuration([n.value for n in conf]),
-                      site=RobSite(pos, quat, conf))  # fmt: skip
+        return Target(
+            fname,
+            line,
+            name,
+            "cartesian",
+            pose=frame(np.array([n.value for n in pos]), rot),
+            configuration=configuration([n.value for n in conf]),
+            site=RobSite(pos, quat, conf),
+        )
 
     def _target(self, src: Source, name: str, kind: str, node: Node) -> Target:
         assert node.items is not None
         line = src.line_of(node.start)
         if kind == "jointtarget":
             joints = nums(node.items[0], src)
-            return Target(src.name, line, name, "joint",
-                          joints_deg=np.array([n.value for n in joints]),
-                          site=JointSite(joints))  # fmt: skip
+            return Target(
+                src.name,
+                line,
+                name,
+                "joint",
+                joints_deg=np.array([n.value for n in joints]),
+                site=JointSite(joints),
+            )
         pos, quat, conf = (nums(node.items[k], src) for k in range(3))
         try:
             rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
         except ValueError:
             raise FilterInputError(src.name, f"{name}: quaternion of zero norm", line) from None
-        return Target(src.name, line, name, "cartesian",
-                      pose=frame(np.array([n.value for n in pos]), rot),
-                      configuration=configuration([n.value for n in conf]),
-                      site=RobSite(pos, quat, conf))  # fmt: skip
+        return Target(
+            src.name,
+            line,
+            name,
+            "cartesian",
+            pose=frame(np.array([n.value for n in pos]), rot),
+            configuration=configuration([n.value for n in conf]),
+            site=RobSite(pos, quat, conf),
+        )
 
     # -- moves -------------------------------------------------------------------------
-    def _lookup(self, name: str, mod: _Module, modules: list[_Module],
-                kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
+    def _lookup(
+        self, name: str, mod: _Module, modules: list[_Module], kinds: tuple[str, ...]
+    ) -> tuple[_Decl | None, str]:
         memo = (name, kinds)
         if memo not in mod.lookups:
             mod.lookups[memo] = self._find(name, mod, modules, kinds)
         return mod.lookups[memo]
 
-    def _find(self, name: str, mod: _Module, modules: list[_Module],
-              kinds: tuple[str, ...]) -> tuple[_Decl | None, str]:  # fmt: skip
+    def _find(
+        self, name: str, mod: _Module, modules: list[_Module], kinds: tuple[str, ...]
+    ) -> tuple[_Decl | None, str]:
         key = name.lower()
         d = mod.decls.get(key)
         if d is not None and d.kind in kinds:
             return d, ""
-        found = [m.decls[key] for m in modules if m is not mod and key in m.decls
-                 and m.decls[key].kind in kinds]  # fmt: skip
+        found = [
+            m.decls[key]
+            for m in modules
+            if m is not mod and key in m.decls and m.decls[key].kind in kinds
+        ]
         if len(found) == 1:
             return found[0], ""
         if len(found) > 1:
@@ -316,15 +347,17 @@ class RapidDialect:
             return None, f"{name} is declared in several files ({where})"
         return None, ""
 
-    def _frame_of(self, name: str, kind: str, mod: _Module,
-                  modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
+    def _frame_of(
+        self, name: str, kind: str, mod: _Module, modules: list[_Module]
+    ) -> tuple[FloatArray | None, str]:
         key = (name.lower(), kind)
         if key not in mod.frames:
             mod.frames[key] = self._resolve_frame(name, kind, mod, modules)
         return mod.frames[key]
 
-    def _resolve_frame(self, name: str, kind: str, mod: _Module,
-                       modules: list[_Module]) -> tuple[FloatArray | None, str]:  # fmt: skip
+    def _resolve_frame(
+        self, name: str, kind: str, mod: _Module, modules: list[_Module]
+    ) -> tuple[FloatArray | None, str]:
         if kind == "tooldata" and name.lower() in PREDEFINED_TOOLS:
             return np.eye(4), ""
         if kind == "wobjdata" and name.lower() in PREDEFINED_WOBJS:
@@ -344,16 +377,19 @@ class RapidDialect:
                 return None, f"tooldata {name}: stationary tool (robhold FALSE) is not supported"
             return pose(items[1]), ""
         if len(items) != 5 or not (is_pose(items[3]) and is_pose(items[4])):
-            return None, (f"wobjdata {name} ({decl.file}:{decl.line}) is not "
-                          "[robhold,ufprog,ufmec,uframe,oframe]")  # fmt: skip
+            return None, (
+                f"wobjdata {name} ({decl.file}:{decl.line}) is not "
+                "[robhold,ufprog,ufmec,uframe,oframe]"
+            )
         if items[0].word.upper() != "FALSE":
             return None, f"wobjdata {name}: robot-held work object (robhold TRUE): not supported"
         if items[1].word.upper() != "TRUE":
             return None, f"wobjdata {name}: moved by a unit (ufprog FALSE): not supported"
         return pose(items[3]) @ pose(items[4]), ""
 
-    def _moves(self, mod: _Module, modules: list[_Module],
-               targets: dict[tuple[str, str], Target]) -> list[Target]:  # fmt: skip
+    def _moves(
+        self, mod: _Module, modules: list[_Module], targets: dict[tuple[str, str], Target]
+    ) -> list[Target]:
         """Record the uses of every move of ``mod``; returns its inline targets."""
         src, code = mod.source, mod.code
         inline: list[Target] = []
@@ -383,8 +419,9 @@ class RapidDialect:
                 if wrap:
                     inner = split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
                     arg = code[inner[0] : inner[1]].strip()
-                    astart = inner[0] + (len(code[inner[0]:inner[1]])
-                                         - len(code[inner[0]:inner[1]].lstrip()))  # fmt: skip
+                    astart = inner[0] + (
+                        len(code[inner[0] : inner[1]]) - len(code[inner[0] : inner[1]].lstrip())
+                    )
                 if arg.startswith("["):
                     refs.append(("inline", parse_literal(code, astart, src)))
                     continue
@@ -410,11 +447,13 @@ class RapidDialect:
                 if kind == "inline":
                     node = ref
                     if is_robtarget(node):
-                        t = self._target(src, f"inline@{src.line_of(node.start)}", "robtarget",
-                                         node)  # fmt: skip
+                        t = self._target(
+                            src, f"inline@{src.line_of(node.start)}", "robtarget", node
+                        )
                     elif is_jointtarget(node):
-                        t = self._target(src, f"inline@{src.line_of(node.start)}",
-                                         "jointtarget", node)  # fmt: skip
+                        t = self._target(
+                            src, f"inline@{src.line_of(node.start)}", "jointtarget", node
+                        )
                     else:
                         raise FilterInputError(
                             src.name,

@@ -59,8 +59,9 @@ def skip_space(text: str, i: int) -> int:
 _N = r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*"
 _SHAPE = (3, 4, 4, 6)
 #: A robtarget literal of plain numbers, the common case, read by one regular expression.
-ROBTARGET = re.compile(r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]"
-                                                for k in _SHAPE) + r"\s*\]")  # fmt: skip
+ROBTARGET = re.compile(
+    r"\[\s*" + r"\s*,\s*".join(r"\[" + ",".join([_N] * k) + r"\]" for k in _SHAPE) + r"\s*\]"
+)
 
 
 def _fast_robtarget(code: str, i: int) -> Node | None:
@@ -111,8 +112,9 @@ def parse_literal(code: str, i: int, source: Source) -> Node:
                     node = Node(i, i, word="")
                 else:
                     got = code[i] if i < len(code) else "end of file"
-                    raise FilterInputError(source.name, f"unexpected {got!r} in a literal",
-                                           source.line_of(i))  # fmt: skip
+                    raise FilterInputError(
+                        source.name, f"unexpected {got!r} in a literal", source.line_of(i)
+                    )
         items.append(node)
         i = skip_space(code, node.end)
         if i < len(code) and code[i] == ",":
@@ -121,22 +123,26 @@ def parse_literal(code: str, i: int, source: Source) -> Node:
         if i < len(code) and code[i] == "]":
             return Node(start, i + 1, items=items)
         got = code[i] if i < len(code) else "end of file"
-        raise FilterInputError(source.name, f"expected ',' or ']' in a literal, got {got!r}",
-                               source.line_of(i))  # fmt: skip
+        raise FilterInputError(
+            source.name, f"expected ',' or ']' in a literal, got {got!r}", source.line_of(i)
+        )
 
 
 def nums(node: Node, source: Source) -> list[Num]:
     assert node.items is not None
-    return [Num(source.name, n.start, n.end, source.text[n.start : n.end], float(n.num or 0.0))
-            for n in node.items]  # fmt: skip
+    return [
+        Num(source.name, n.start, n.end, source.text[n.start : n.end], float(n.num or 0.0))
+        for n in node.items
+    ]
 
 
 def is_robtarget(node: Node) -> bool:
     if not node.is_list(4):
         return False
     assert node.items is not None
-    return all(it.is_list(k) and it.numbers() for it, k in zip(node.items, (3, 4, 4, 6),
-                                                               strict=True))  # fmt: skip
+    return all(
+        it.is_list(k) and it.numbers() for it, k in zip(node.items, (3, 4, 4, 6), strict=True)
+    )
 
 
 def is_jointtarget(node: Node) -> bool:
@@ -150,8 +156,11 @@ def is_pose(node: Node) -> bool:
     if not node.is_list(2):
         return False
     assert node.items is not None
-    return node.items[0].is_list(3) and node.items[1].is_list(4) and all(
-        it.numbers() for it in node.items)  # fmt: skip
+    return (
+        node.items[0].is_list(3)
+        and node.items[1].is_list(4)
+        and all(it.numbers() for it in node.items)
+    )
 
 
 def pose(node: Node) -> FloatArray:

@@ -100,8 +100,10 @@ def matrix_to_quat_wxyz(rot: FloatArray, near: FloatArray | None = None) -> Floa
     if r.shape == (3, 3):
         return _quat_one(r, None if near is None else np.asarray(near, dtype=float))
     m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
-    cand = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
-                     1 - m00 - m11 + m22], axis=-1)  # 4w², 4x², 4y², 4z²  # fmt: skip
+    cand = np.stack(
+        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
+        axis=-1,
+    )  # 4w², 4x², 4y², 4z²
     k = np.argmax(cand, axis=-1)
     s = 2.0 * np.sqrt(np.maximum(np.take_along_axis(cand, k[..., None], -1)[..., 0], 1e-300))
     d21, d02, d10 = (
@@ -114,10 +116,12 @@ def matrix_to_quat_wxyz(rot: FloatArray, near: FloatArray | None = None) -> Floa
         r[..., 0, 2] + r[..., 2, 0],
         r[..., 1, 2] + r[..., 2, 1],
     )
-    rows = [np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
-            np.stack([d21 / s, s / 4, a01 / s, a02 / s], -1),
-            np.stack([d02 / s, a01 / s, s / 4, a12 / s], -1),
-            np.stack([d10 / s, a02 / s, a12 / s, s / 4], -1)]  # fmt: skip
+    rows = [
+        np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
+        np.stack([d21 / s, s / 4, a01 / s, a02 / s], -1),
+        np.stack([d02 / s, a01 / s, s / 4, a12 / s], -1),
+        np.stack([d10 / s, a02 / s, a12 / s, s / 4], -1),
+    ]
     out: FloatArray = np.choose(k[..., None], rows)
     out = out / np.linalg.norm(out, axis=-1, keepdims=True)
     if near is not None:
@@ -136,8 +140,12 @@ def _quat_one(r: FloatArray, near: FloatArray | None) -> FloatArray:
     s = 2.0 * math.sqrt(max(cand[k], 1e-300))
     d21, d02, d10 = m21 - m12, m02 - m20, m10 - m01
     a01, a02, a12 = m01 + m10, m02 + m20, m12 + m21
-    q = ((s / 4, d21 / s, d02 / s, d10 / s), (d21 / s, s / 4, a01 / s, a02 / s),
-         (d02 / s, a01 / s, s / 4, a12 / s), (d10 / s, a02 / s, a12 / s, s / 4))[k]  # fmt: skip
+    q = (
+        (s / 4, d21 / s, d02 / s, d10 / s),
+        (d21 / s, s / 4, a01 / s, a02 / s),
+        (d02 / s, a01 / s, s / 4, a12 / s),
+        (d10 / s, a02 / s, a12 / s, s / 4),
+    )[k]
     n = math.sqrt(sum(v * v for v in q))
     sign = 1.0
     if near is not None:
@@ -176,8 +184,11 @@ def matrix_to_zyx_deg(
     cb = np.hypot(r00, r10)
     lock = cb < 1e-9
     a = np.where(lock, 0.0, np.arctan2(r10, r00))
-    c_lock = np.where(r20 < 0, np.arctan2(rot[..., 0, 1], rot[..., 0, 2]),
-                      np.arctan2(-rot[..., 0, 1], -rot[..., 0, 2]))  # fmt: skip
+    c_lock = np.where(
+        r20 < 0,
+        np.arctan2(rot[..., 0, 1], rot[..., 0, 2]),
+        np.arctan2(-rot[..., 0, 1], -rot[..., 0, 2]),
+    )
     c = np.where(lock, c_lock, np.arctan2(rot[..., 2, 1], rot[..., 2, 2]))
     out: FloatArray = np.degrees(np.stack([a, np.arctan2(-r20, cb), c], axis=-1))
     if near_deg is not None:
@@ -239,7 +250,13 @@ def rotation_angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:
     rel = np.einsum("...ji,...jk->...ik", a, b)
     cos = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     # arccos loses precision near 0: use the skew part there.
-    skew = 0.5 * np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0],
-                           rel[..., 1, 0] - rel[..., 0, 1]], axis=-1)  # fmt: skip
+    skew = 0.5 * np.stack(
+        [
+            rel[..., 2, 1] - rel[..., 1, 2],
+            rel[..., 0, 2] - rel[..., 2, 0],
+            rel[..., 1, 0] - rel[..., 0, 1],
+        ],
+        axis=-1,
+    )
     out: FloatArray = np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1), cos))
     return out

@@ -76,14 +76,22 @@ class FilterRun:
         for t, c in zip(self.targets, self.corrections, strict=True):
             tool = sorted({u.tool_name for u in t.uses})
             work = sorted({u.work_name for u in t.uses})
-            out.append({
-                "file": t.file, "line": t.line, "name": t.name, "kind": t.kind,
-                "status": c.status, "reason": c.reason,
-                "shift_mm": num(c.shift_mm, 4), "shift_deg": num(c.shift_deg, 5),
-                "configuration_kept": c.configuration_kept,
-                "sigma_at_tool_mm": num(c.sigma_mm, 4),
-                "tool": ",".join(tool), "work_object": ",".join(work),
-            })  # fmt: skip
+            out.append(
+                {
+                    "file": t.file,
+                    "line": t.line,
+                    "name": t.name,
+                    "kind": t.kind,
+                    "status": c.status,
+                    "reason": c.reason,
+                    "shift_mm": num(c.shift_mm, 4),
+                    "shift_deg": num(c.shift_deg, 5),
+                    "configuration_kept": c.configuration_kept,
+                    "sigma_at_tool_mm": num(c.sigma_mm, 4),
+                    "tool": ",".join(tool),
+                    "work_object": ",".join(work),
+                }
+            )
         order = {name: k for k, name in enumerate(self.dialects)}
         out.sort(key=lambda r: (order.get(str(r["file"]), len(order)), int(r["line"])))
         return out
@@ -91,8 +99,9 @@ class FilterRun:
     @property
     def left(self) -> int:
         """Targets left unchanged that were meant to be corrected."""
-        return sum(1 for c in self.corrections
-                   if c.status != "corrected" and c.reason not in DELIBERATE)  # fmt: skip
+        return sum(
+            1 for c in self.corrections if c.status != "corrected" and c.reason not in DELIBERATE
+        )
 
     @property
     def exit_code(self) -> int:
@@ -108,8 +117,9 @@ class FilterRun:
         files = []
         for name, dialect in self.dialects.items():
             n = sum(1 for t in self.targets if t.file == name)
-            files.append({"file": name, "dialect": dialect, "targets": n,
-                          "written": name in self.outputs})  # fmt: skip
+            files.append(
+                {"file": name, "dialect": dialect, "targets": n, "written": name in self.outputs}
+            )
         return {
             **(dict(extra) if extra else {}),
             "exit_code": self.exit_code,
@@ -120,8 +130,9 @@ class FilterRun:
         }
 
 
-def _parse_group(dialect: Dialect, sources: list[Source], frames: FrameTables,
-                 errors: list[FilterInputError]) -> tuple[list[Source], list[Target]]:  # fmt: skip
+def _parse_group(
+    dialect: Dialect, sources: list[Source], frames: FrameTables, errors: list[FilterInputError]
+) -> tuple[list[Source], list[Target]]:
     """Parse a dialect's files together; a file that fails is dropped (its error kept) and
     the rest parsed again."""
     todo = list(sources)
@@ -164,9 +175,13 @@ def filter_files(
             gc.enable()
 
 
-def _filter_files(cal: Calibration, files: Sequence[tuple[str, bytes]],
-                  frames: FrameTables | None, keep_joint_targets: bool,
-                  only: Sequence[str] | None) -> FilterRun:  # fmt: skip
+def _filter_files(
+    cal: Calibration,
+    files: Sequence[tuple[str, bytes]],
+    frames: FrameTables | None,
+    keep_joint_targets: bool,
+    only: Sequence[str] | None,
+) -> FilterRun:
     run = FilterRun()
     names = [n for n, _ in files]
     dup = {n for n in names if names.count(n) > 1}
@@ -192,8 +207,9 @@ def _filter_files(cal: Calibration, files: Sequence[tuple[str, bytes]],
         readable.extend(ok)
         parsed.extend((d, t) for t in targets)
     run.targets = [t for _, t in parsed]
-    run.corrections = correct_targets(cal, run.targets, keep_joint_targets=keep_joint_targets,
-                                      only=only)  # fmt: skip
+    run.corrections = correct_targets(
+        cal, run.targets, keep_joint_targets=keep_joint_targets, only=only
+    )
     edits: dict[str, list[Edit]] = defaultdict(list)
     for (d, t), c in zip(parsed, run.corrections, strict=True):
         if c.status == "corrected":

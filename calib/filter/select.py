@@ -38,8 +38,9 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
         want = np.array([getattr(c, attr) or 0 for c in cfgs])[:, None]
         m2 &= (want == 0) | (have == want)
     n_valid, n_in, n_m2 = valid.sum(axis=1), inr.sum(axis=1), m2.sum(axis=1)
-    dist = np.where(inr, np.linalg.norm(np.nan_to_num(q - near[:, None, :], nan=np.inf), axis=2),
-                    np.inf)  # fmt: skip
+    dist = np.where(
+        inr, np.linalg.norm(np.nan_to_num(q - near[:, None, :], nan=np.inf), axis=2), np.inf
+    )
     idx = np.full(n, -1)
     several = n_valid > 1
     pick_near = several & (n_in > 0) & has_near

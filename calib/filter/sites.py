@@ -346,9 +346,14 @@ def parse_frames_toml(text: str, name: str = "frames") -> FrameTables:
             vals = []
             for fld in ("xyz_mm", "wpr_deg"):
                 v = body[fld]
-                if (not isinstance(v, list) or len(v) != 3
-                        or not all(isinstance(x, int | float) and not isinstance(x, bool)
-                                   and math.isfinite(x) for x in v)):  # fmt: skip
+                if (
+                    not isinstance(v, list)
+                    or len(v) != 3
+                    or not all(
+                        isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                        for x in v
+                    )
+                ):
                     raise FilterInputError(name, f"{where}.{fld}: expected 3 finite numbers")
                 vals.append([float(x) for x in v])
             w, p, r = vals[1]

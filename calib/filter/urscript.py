@@ -62,12 +62,14 @@ POSITION_DECIMALS = 6  # metres
 ANGLE_DECIMALS = 6  # radians
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-_ASSIGN = re.compile(r"^[ \t]*(?:global[ \t]+|local[ \t]+)?([A-Za-z_]\w*)[ \t]*=[ \t]*(p[ \t]*)?\[",
-                     re.MULTILINE)  # fmt: skip
+_ASSIGN = re.compile(
+    r"^[ \t]*(?:global[ \t]+|local[ \t]+)?([A-Za-z_]\w*)[ \t]*=[ \t]*(p[ \t]*)?\[", re.MULTILINE
+)
 _MOVE = re.compile(r"(?<![\w.])(movel|movej|movep|movec|servoj)\s*\(")
 _SET_TCP = re.compile(r"(?<![\w.])set_tcp\s*\(")
-_DEF = re.compile(r"^\s*(?:def|thread|sec)\s+\w+\s*\(|^\s*(?:global|local)?\s*\w+\s*=|^\s*\w+\s*\(",
-                  re.MULTILINE)  # fmt: skip
+_DEF = re.compile(
+    r"^\s*(?:def|thread|sec)\s+\w+\s*\(|^\s*(?:global|local)?\s*\w+\s*=|^\s*\w+\s*\(", re.MULTILINE
+)
 
 
 def blank(text: str) -> str:
@@ -222,13 +224,24 @@ class URScriptDialect:
             if key in targets:
                 return targets[key]
             if v.kind == "pose":
-                t = Target(src.name, v.line, name, "cartesian", pose=_pose_of(v.nums),
-                           configuration=Configuration(text="(none)"),
-                           site=PoseSite(v.nums))  # fmt: skip
+                t = Target(
+                    src.name,
+                    v.line,
+                    name,
+                    "cartesian",
+                    pose=_pose_of(v.nums),
+                    configuration=Configuration(text="(none)"),
+                    site=PoseSite(v.nums),
+                )
             else:
-                t = Target(src.name, v.line, name, "joint",
-                           joints_deg=np.rad2deg([n.value for n in v.nums]),
-                           site=JointSite(v.nums))  # fmt: skip
+                t = Target(
+                    src.name,
+                    v.line,
+                    name,
+                    "joint",
+                    joints_deg=np.rad2deg([n.value for n in v.nums]),
+                    site=JointSite(v.nums),
+                )
             targets[key] = t
             order.append(t)
             return t
@@ -236,8 +249,9 @@ class URScriptDialect:
         for m in _MOVE.finditer(code):
             end = _close(code, m.end() - 1, "(", ")")
             if end < 0:
-                raise FilterInputError(src.name, f"unclosed '(' of {m.group(1)}",
-                                       src.line_of(m.start()))  # fmt: skip
+                raise FilterInputError(
+                    src.name, f"unclosed '(' of {m.group(1)}", src.line_of(m.start())
+                )
             line = src.line_of(m.start())
             args = split_args(code, m.end(), end - 1)
             n_pose = 2 if m.group(1) == "movec" else 1
@@ -258,8 +272,17 @@ class URScriptDialect:
                 t = target_of(v, key, name)
                 cart = t.kind == "cartesian"
                 reasons = "; ".join(w for w in (problem if cart else "", why) if w)
-                t.uses.append(Use(src.name, line, tool_name, work_name,
-                                  tool if cart else np.eye(4), work, reasons))  # fmt: skip
+                t.uses.append(
+                    Use(
+                        src.name,
+                        line,
+                        tool_name,
+                        work_name,
+                        tool if cart else np.eye(4),
+                        work,
+                        reasons,
+                    )
+                )
                 if qnear is not None:
                     follows[qnear] = key
                 elif cart and previous is not None and len(t.uses) == 1:
@@ -278,8 +301,9 @@ class URScriptDialect:
             t = target_of(v, qname, v.name)
             lead_t = targets[pkey]
             t.follows = lead_t.name
-            lead_t.configuration = Configuration(nearest_deg=np.asarray(t.joints_deg),
-                                                 text=f"nearest {t.name}")  # fmt: skip
+            lead_t.configuration = Configuration(
+                nearest_deg=np.asarray(t.joints_deg), text=f"nearest {t.name}"
+            )
         return order
 
     def _move_arg(

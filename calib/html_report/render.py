@@ -123,8 +123,16 @@ def _accuracy(result: Mapping[str, Any]) -> str:
             )
             gain_cell = f'<td class="num" rowspan="2">{gain}</td>' if k == 0 else ""
             rows.append(f"<tr>{first}{n_cell}<td>{model}</td>{cells}{gain_cell}</tr>")
-    headers = ["Set", "n", "Model", "RMSE [mm]", "MAE [mm]", "STD [mm]", "MAX [mm]",
-               "RMSE reduction [%]"]  # fmt: skip
+    headers = [
+        "Set",
+        "n",
+        "Model",
+        "RMSE [mm]",
+        "MAE [mm]",
+        "STD [mm]",
+        "MAX [mm]",
+        "RMSE reduction [%]",
+    ]
     return (
         "<p>Cable-length residuals, measured minus model. <em>Before</em>: the nominal model "
         "with only the anchor P0 and the indicator offset fitted; <em>after</em>: the "
@@ -137,8 +145,10 @@ def _drift(result: Mapping[str, Any]) -> str:
     """What :mod:`calib.drift` found: steps (row, kind, size) and the smooth offset drift."""
     block = get_map(result, "drift")
     if not block:
-        return ("<p>Not modelled: identified with <code>drift none</code>, or a result from "
-                "before drift modelling.</p>")  # fmt: skip
+        return (
+            "<p>Not modelled: identified with <code>drift none</code>, or a result from "
+            "before drift modelling.</p>"
+        )
     when = (
         "the samples' <code>t_s</code> [s]."
         if block.get("time_unit") == "s"
@@ -160,8 +170,7 @@ def _drift(result: Mapping[str, Any]) -> str:
     for st in steps:
         kind = "sensor moved" if st.get("kind") == "sensor_moved" else "indicator re-zeroed"
         shift = st.get("p0_shift_mm")
-        shift_txt = (", ".join(num_fixed(v, 3) for v in shift) if isinstance(shift, list)
-                     else "—")  # fmt: skip
+        shift_txt = ", ".join(num_fixed(v, 3) for v in shift) if isinstance(shift, list) else "—"
         rows.append(
             f'<tr><td class="num">{num_int(st.get("row"))}</td><td>{kind}</td>'
             f'<td class="num">{num_fixed(st.get("offset_mm"), 3)}</td><td>{shift_txt}</td>'
@@ -169,9 +178,12 @@ def _drift(result: Mapping[str, Any]) -> str:
         )
     body = intro
     if rows:
-        body += table("drift-steps", ["Row (0-based)", "Kind", "Offset step [mm]",
-                                      "P0 shift x, y, z [mm]", "Size [mm]"], rows,
-                      numeric={0, 2, 4})  # fmt: skip
+        body += table(
+            "drift-steps",
+            ["Row (0-based)", "Kind", "Offset step [mm]", "P0 shift x, y, z [mm]", "Size [mm]"],
+            rows,
+            numeric={0, 2, 4},
+        )
     smooth = get_map(block, "smooth")
     if smooth:
         per = "mm/h" if block.get("time_unit") == "s" else "mm per 100 samples"
@@ -197,22 +209,34 @@ def _residuals(res: SampleResiduals | None) -> str:
     n = res.after_mm.shape[0]
     idx = np.arange(n, dtype=float)
     label = "residual [mm]"
-    panels = [("before", "before calibration", res.before_mm), ("after", "after calibration",
-              res.after_mm)]  # fmt: skip
+    panels = [
+        ("before", "before calibration", res.before_mm),
+        ("after", "after calibration", res.after_mm),
+    ]
     lines, hists = [], []
     for key, words, values in panels:
         if values is None:
             continue
         css = f"series-{key}"
-        lines.append(line_chart(
-            f"chart-residuals-{key}", f"Cable-length residual per sample, {words}",
-            [Series(key, idx, values, css, markers=True, line=False)],
-            "sample index (0-based data row)", label, zero_line=True, size_px=(720, 230),
-        ))  # fmt: skip
+        lines.append(
+            line_chart(
+                f"chart-residuals-{key}",
+                f"Cable-length residual per sample, {words}",
+                [Series(key, idx, values, css, markers=True, line=False)],
+                "sample index (0-based data row)",
+                label,
+                zero_line=True,
+                size_px=(720, 230),
+            )
+        )
         hist = histogram_chart(
-            f"chart-histogram-{key}", f"Residual histogram, {words}", [(key, values, css)],
-            label, bins=25, size_px=(360, 260),
-        )  # fmt: skip
+            f"chart-histogram-{key}",
+            f"Residual histogram, {words}",
+            [(key, values, css)],
+            label,
+            bins=25,
+            size_px=(360, 260),
+        )
         hists.append(
             f"<figure>{hist}<figcaption>Distribution {words} (RMS "
             f"{num_fixed(_rms(values), 3)} mm).</figcaption></figure>"
@@ -246,25 +270,44 @@ def _convergence(result: Mapping[str, Any]) -> str:
     # One series per fit (robust rounds restart, so the cost may rise between them); the x
     # axis counts whole iterations over the fits, each fit's start sharing its predecessor's
     # last iteration number.
-    starts = sorted({int(i) for i in get_list(result, "cost_history_fit_starts")
-                     if isinstance(i, int) and 0 <= i < history.size} | {0})  # fmt: skip
+    starts = sorted(
+        {
+            int(i)
+            for i in get_list(result, "cost_history_fit_starts")
+            if isinstance(i, int) and 0 <= i < history.size
+        }
+        | {0}
+    )
     bounds = [*starts, history.size]
     series, x0 = [], 0
     for k in range(len(starts)):
         part = history[bounds[k] : bounds[k + 1]]
         label = "RMS residual" if k == 0 else f"fit {k + 1} (after robust reweighting)"
-        series.append(Series(label, x0 + np.arange(part.size, dtype=float), part,
-                             "series-cost", markers=history.size <= 60))  # fmt: skip
+        series.append(
+            Series(
+                label,
+                x0 + np.arange(part.size, dtype=float),
+                part,
+                "series-cost",
+                markers=history.size <= 60,
+            )
+        )
         x0 += max(part.size - 1, 0)
     chart = line_chart(
-        "chart-convergence", "RMS training residual at each iteration", series,
-        "iteration", "RMS residual [mm]" + (" (log scale)" if log_y else ""), log_y=log_y,
-    )  # fmt: skip
+        "chart-convergence",
+        "RMS training residual at each iteration",
+        series,
+        "iteration",
+        "RMS residual [mm]" + (" (log scale)" if log_y else ""),
+        log_y=log_y,
+    )
     fits = len(starts)
     how = ""
     if fits > 1:
-        how = (f" in {fits} fits: the robust step reweighted the rows and refit, and each "
-               "fit's curve starts again from its own start, so it may rise there")  # fmt: skip
+        how = (
+            f" in {fits} fits: the robust step reweighted the rows and refit, and each "
+            "fit's curve starts again from its own start, so it may rise there"
+        )
     return (
         f"<p>RMS residual of the training set from the start ({num_fixed(history[0], 3)} mm) "
         f"to the end ({num_fixed(history[-1], 3)} mm) over {x0} iterations{how}.</p>"

@@ -106,15 +106,24 @@ def sample_residuals(
     model = _nominal_model(result, nominal)
     if model is None:
         return SampleResiduals(
-            after, None, "No before residuals: the nominal tool point of "
-            f"{result.get('robot')!r} is unknown (not a built-in model)"
-        )  # fmt: skip
+            after,
+            None,
+            "No before residuals: the nominal tool point of "
+            f"{result.get('robot')!r} is unknown (not a built-in model)",
+        )
     convention = result.get("convention", model.convention)
-    model = RobotModel(model.name, convention, _nominal_dh_deg_mm(result),
-                       model.joint_limits_deg, model.tool_mm)  # fmt: skip
+    model = RobotModel(
+        model.name, convention, _nominal_dh_deg_mm(result), model.joint_limits_deg, model.tool_mm
+    )
     layout = ParamLayout(samples.anchor_ids)
-    theta = fit_anchors(model, layout, np.zeros(layout.size), np.deg2rad(samples.joints_deg),
-                        samples.anchor_index(), samples.length_mm)  # fmt: skip
+    theta = fit_anchors(
+        model,
+        layout,
+        np.zeros(layout.size),
+        np.deg2rad(samples.joints_deg),
+        samples.anchor_index(),
+        samples.length_mm,
+    )
     before_result = {
         "dh": [
             {"alpha_deg": r[0], "a_mm": r[1], "d_mm": r[2], "theta_deg": r[3]}

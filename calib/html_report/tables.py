@@ -223,9 +223,13 @@ def plausibility_section(result: Mapping[str, Any]) -> str:
     return (
         out
         + f"<h3>Outside their bounds ({len(bad)})</h3>"
-        + table("implausible-list", ["Parameter", "Kind", "Value", "Bound", "Unit"], rows,
-                numeric={2, 3})
-    )  # fmt: skip
+        + table(
+            "implausible-list",
+            ["Parameter", "Kind", "Value", "Bound", "Unit"],
+            rows,
+            numeric={2, 3},
+        )
+    )
 
 
 def tcp_section(result: Mapping[str, Any]) -> str:

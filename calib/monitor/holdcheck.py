@@ -121,13 +121,18 @@ def change_jacobians(
     from calib.predict import calibrated_dh_internal, predict_lengths_from_result
 
     q = np.asarray(joints_deg, dtype=float)
-    pos = forward_position(calibrated_dh_internal(result), np.deg2rad(q),
-                           np.asarray(result["tool_mm"], dtype=float),
-                           result.get("convention", "dh"))  # fmt: skip
+    pos = forward_position(
+        calibrated_dh_internal(result),
+        np.deg2rad(q),
+        np.asarray(result["tool_mm"], dtype=float),
+        result.get("convention", "dh"),
+    )
     first = str(result.get("anchor_id", "A"))
     others = result.get("anchors") or {}
-    p0 = np.array([result["anchor_mm"] if a == first else others[a]["anchor_mm"]
-                   for a in anchors], dtype=float)  # fmt: skip
+    p0 = np.array(
+        [result["anchor_mm"] if a == first else others[a]["anchor_mm"] for a in anchors],
+        dtype=float,
+    )
     diff = pos - p0
     unit = diff / np.linalg.norm(diff, axis=1)[:, None]
     anchor_jac = np.hstack([-unit, np.ones((q.shape[0], 1))])
@@ -138,10 +143,14 @@ def change_jacobians(
         for sign in (1.0, -1.0):
             shifted = copy.deepcopy(result)
             shifted["dh"][j]["theta_deg"] = float(shifted["dh"][j]["theta_deg"]) + sign * step_deg
-            lengths.append(np.concatenate([
-                predict_lengths_from_result(shifted, q[i : i + 1], anchors[i])
-                for i in range(q.shape[0])
-            ]))  # fmt: skip
+            lengths.append(
+                np.concatenate(
+                    [
+                        predict_lengths_from_result(shifted, q[i : i + 1], anchors[i])
+                        for i in range(q.shape[0])
+                    ]
+                )
+            )
         joint_jac[:, j] = (lengths[0] - lengths[1]) / (2 * step_deg)
     return anchor_jac, joint_jac
 
@@ -150,11 +159,15 @@ def explanation_text(explained: dict[str, Any]) -> str:
     """One phrase naming the explanation of :func:`calib.monitor.stepwatch.explain_change`."""
     if explained["kind"] == "sensor":
         shift = ", ".join(f"{v:+.2f}" for v in explained["anchor_shift_mm"])
-        return (f"the sensor moved (P0 shift [{shift}] mm, offset "
-                f"{explained['offset_change_mm']:+.2f} mm)")  # fmt: skip
+        return (
+            f"the sensor moved (P0 shift [{shift}] mm, offset "
+            f"{explained['offset_change_mm']:+.2f} mm)"
+        )
     if explained["kind"] == "robot":
-        return (f"the robot changed (joint {explained['joint']} zero offset "
-                f"{explained['joint_offset_deg']:+.4f} deg)")  # fmt: skip
+        return (
+            f"the robot changed (joint {explained['joint']} zero offset "
+            f"{explained['joint_offset_deg']:+.4f} deg)"
+        )
     return "robot or sensor: the check poses cannot tell"
 
 
@@ -172,8 +185,11 @@ def evaluate(
 
     out = verify(result, samples, VerifyOptions(refit_anchor=refit_anchor, max_rmse_mm=limit_mm))
     figures = {k: float(v) for k, v in out.metrics.items()}
-    detail: dict[str, Any] = {"reference_rmse_mm": out.reference_rmse_mm, "anchors": out.anchors,
-                              "residual_mm": [float(v) for v in out.residual_mm]}  # fmt: skip
+    detail: dict[str, Any] = {
+        "reference_rmse_mm": out.reference_rmse_mm,
+        "anchors": out.anchors,
+        "residual_mm": [float(v) for v in out.residual_mm],
+    }
     if not refit_anchor:
         anchor_jac, joint_jac = change_jacobians(result, out.joints_deg, out.anchor)
         # Without the calibration's residual RMSE, the noise floor is the planner's assumed

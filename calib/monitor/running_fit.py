@@ -155,8 +155,9 @@ def fit_campaign(
         model = nominal if calibration is None else model_from_result(calibration)
         kind = "nominal" if calibration is None else "calibration"
         n_params = 4 * len(layout.anchors)
-        theta = fit_anchors(model, layout, np.zeros(layout.size), np.deg2rad(q),
-                            sub.anchor_index(), length)  # fmt: skip
+        theta = fit_anchors(
+            model, layout, np.zeros(layout.size), np.deg2rad(q), sub.anchor_index(), length
+        )
     fitted = predict_lengths(model, theta, np.deg2rad(q), sub.anchor_index())
     rmse = float(np.sqrt(np.mean((length - fitted) ** 2)))
     return RunningFit(kind, model, layout, theta, rmse, len(sub), n_params)
@@ -311,9 +312,12 @@ class LiveTester:
         self.refit(subset, len(clean), [ids[i] for i in clean])
 
     def test(
-        self, sample_id: int, joints_deg: Sequence[float] | FloatArray, length_mm: float,
+        self,
+        sample_id: int,
+        joints_deg: Sequence[float] | FloatArray,
+        length_mm: float,
         anchor: str,
-    ) -> tuple[float | None, StepAlarm | None]:  # fmt: skip
+    ) -> tuple[float | None, StepAlarm | None]:
         """``(residual_mm, alarm)`` of one sample (joints (6,) [deg], length [mm]); residual
         None when the fit cannot predict it (no fit yet, or its anchor has too few samples).
         The nominal model's residuals are not tested (alarm None)."""
@@ -329,8 +333,9 @@ class LiveTester:
         residual = float(length_mm) - predicted
         if not self.fit.testable:
             return residual, None
-        self.tested.append((sample_id, np.asarray(joints_deg, dtype=float), float(length_mm),
-                            anchor))  # fmt: skip
+        self.tested.append(
+            (sample_id, np.asarray(joints_deg, dtype=float), float(length_mm), anchor)
+        )
         del self.tested[:-LOCATE_WINDOW]
         alarm = self.detector.update(sample_id, residual)
         return residual, None if alarm is None else self.locate(alarm)
@@ -354,8 +359,9 @@ class LiveTester:
         if design is None:
             return alarm
         predicted = [fit.predict_mm(t[1], t[3]) for t in window]
-        residual = np.array([t[2] - (p if p is not None else t[2]) for t, p in
-                             zip(window, predicted, strict=True)])  # fmt: skip
+        residual = np.array(
+            [t[2] - (p if p is not None else t[2]) for t, p in zip(window, predicted, strict=True)]
+        )
         settings = self.detector.settings
         sigma = max(self.detector.scale_mm, settings.sigma_floor_mm)
         size = max(alarm.size_mm, settings.min_step_mm)

@@ -217,8 +217,10 @@ def locate_step(
     d = np.asarray(design, dtype=float)
     m = r.shape[0]
     if d.shape[0] != m or not 0 <= latest < m:
-        raise ValueError(f"residual_mm ({m},), design ({m}, q) and 0 <= latest < {m}: got "
-                         f"{d.shape} and latest {latest}")  # fmt: skip
+        raise ValueError(
+            f"residual_mm ({m},), design ({m}, q) and 0 <= latest < {m}: got "
+            f"{d.shape} and latest {latest}"
+        )
     if not (math.isfinite(sigma_mm) and sigma_mm > 0 and math.isfinite(prior_mm) and prior_mm > 0):
         raise ValueError(f"sigma_mm and prior_mm: finite and > 0, got {sigma_mm}, {prior_mm}")
     var = sigma_mm**2
@@ -290,8 +292,9 @@ def explain_change(
     j = np.asarray(joint_jac, dtype=float)
     n = r.shape[0]
     if a.shape != (n, 4) or j.shape != (n, 6):
-        raise ValueError(f"anchor_jac (n, 4) and joint_jac (n, 6) for n = {n}: "
-                         f"got {a.shape} and {j.shape}")  # fmt: skip
+        raise ValueError(
+            f"anchor_jac (n, 4) and joint_jac (n, 6) for n = {n}: got {a.shape} and {j.shape}"
+        )
     rss_s, xs = _lstsq_rss(a, r)
     best = (math.inf, 0, 0.0)
     ones = np.ones((n, 1))

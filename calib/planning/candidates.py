@@ -123,8 +123,11 @@ def draw_candidates(
                 break
         if got.shape[0] < want:
             lo, hi = reading_window_mm(margin_mm)
-            reading = (f" and a reading within {lo:.0f}..{hi:.0f} mm at zero offset "
-                       f"{offset:.1f} mm" if offset is not None else "")  # fmt: skip
+            reading = (
+                f" and a reading within {lo:.0f}..{hi:.0f} mm at zero offset {offset:.1f} mm"
+                if offset is not None
+                else ""
+            )
             raise ValueError(
                 f"anchor {k + 1} at {anchors_mm[k].tolist()} mm: only {got.shape[0]} of {want} "
                 f"random poses reach it within the cable extension {extension_mm} mm "

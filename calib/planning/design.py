@@ -145,8 +145,10 @@ def fedorov_exchange(
             break
         old = design[i]
         design[i] = j
-        invs = [_sm_add(_sm_add(v, x[j], +1.0), x[old], -1.0)
-                for (x, _, _), v in zip(systems, invs, strict=True)]  # fmt: skip
+        invs = [
+            _sm_add(_sm_add(v, x[j], +1.0), x[old], -1.0)
+            for (x, _, _), v in zip(systems, invs, strict=True)
+        ]
         made += 1
     return design, made
 

@@ -92,13 +92,21 @@ def emulated_trial(
     planned = error_mm(res.q_deg)
     random_ = []
     for _ in range(random_designs):
-        q_rand, _ = draw_candidates(model, guess[None], opts.n, rng, opts.extension_mm,
-                                    opts.min_z_mm, opts.anchor_uncertainty_mm)  # fmt: skip
+        q_rand, _ = draw_candidates(
+            model,
+            guess[None],
+            opts.n,
+            rng,
+            opts.extension_mm,
+            opts.min_z_mm,
+            opts.anchor_uncertainty_mm,
+        )
         random_.append(error_mm(q_rand))
     return Trial(seed, planned, tuple(random_), res.tcp.rms_mm, res.tcp_random["rms"])
 
 
 def ratio_of_means(trials: list[Trial]) -> float:
     """Mean planned error over mean random error (random: each trial's mean over designs)."""
-    return float(np.mean([t.planned_mm for t in trials]) /
-                 np.mean([t.random_mean_mm for t in trials]))  # fmt: skip
+    return float(
+        np.mean([t.planned_mm for t in trials]) / np.mean([t.random_mean_mm for t in trials])
+    )

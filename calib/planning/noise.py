@@ -91,9 +91,11 @@ def window_mean_se_mm(
 
 
 def repeat_noise_mm(
-    joints_deg: FloatArray, anchors: Sequence[str], length_mm: FloatArray,
+    joints_deg: FloatArray,
+    anchors: Sequence[str],
+    length_mm: FloatArray,
     tol_deg: float = MATCH_TOL_DEG,
-) -> tuple[float, int]:  # fmt: skip
+) -> tuple[float, int]:
     """The pooled spread of the lengths of samples at the same pose and anchor (every joint
     within ``tol_deg`` of the group's first sample).
 
@@ -131,9 +133,15 @@ def repeat_noise_mm(
 
 
 def still_windows(
-    t_s: FloatArray, joints_deg: FloatArray, length_mm: FloatArray, over_range: FloatArray,
-    settle_s: float, tol_deg: float, tol_mm: float, min_readings: int,
-) -> list[FloatArray]:  # fmt: skip
+    t_s: FloatArray,
+    joints_deg: FloatArray,
+    length_mm: FloatArray,
+    over_range: FloatArray,
+    settle_s: float,
+    tol_deg: float,
+    tol_mm: float,
+    min_readings: int,
+) -> list[FloatArray]:
     """The readings cut into consecutive windows of ``settle_s`` (as a capture averages; the
     newest, still filling, left out); those in which the robot was still and the length
     steady, by the settle rules (:mod:`calib.monitor.settle`: ≥ ``min_readings``, no over-range,
@@ -175,9 +183,11 @@ def still_windows(
 
 
 def choose(
-    result_mm: float | None, samples: NoiseEstimate | None, sampler: NoiseEstimate | None,
+    result_mm: float | None,
+    samples: NoiseEstimate | None,
+    sampler: NoiseEstimate | None,
     default_mm: float,
-) -> NoiseEstimate:  # fmt: skip
+) -> NoiseEstimate:
     """The first usable estimate in :data:`NOISE_SOURCES` order (finite and > 0)."""
 
     def usable(x: float | None) -> bool:
@@ -186,9 +196,10 @@ def choose(
     if usable(result_mm):
         assert result_mm is not None
         return NoiseEstimate(
-            float(result_mm), "result",
+            float(result_mm),
+            "result",
             "the noise the robot's accepted identification ran with (σ̂ of its residuals)",
-        )  # fmt: skip
+        )
     for est in (samples, sampler):
         if est is not None and usable(est.noise_mm):
             return est
@@ -235,36 +246,48 @@ def capture_mean_estimate(
     count = np.array([c for _, c in stats], float)
     se = window_mean_se_mm(std, count, raw)
     return NoiseEstimate(
-        se, "samples",
+        se,
+        "samples",
         f"the standard error of the campaign's {len(stats)} capture means (reading spread, "
         f"count and correlation; a lower bound: no repeated poses to show what varies "
         f"between captures)",
-    )  # fmt: skip
+    )
 
 
 def sampler_estimate(
-    t_s: Sequence[float], joints_deg: Sequence[Sequence[float]], length_mm: Sequence[float],
-    over_range: Sequence[bool], settle_s: float, tol_deg: float, tol_mm: float,
+    t_s: Sequence[float],
+    joints_deg: Sequence[Sequence[float]],
+    length_mm: Sequence[float],
+    over_range: Sequence[bool],
+    settle_s: float,
+    tol_deg: float,
+    tol_mm: float,
     min_readings: int,
-) -> NoiseEstimate | None:  # fmt: skip
+) -> NoiseEstimate | None:
     """The ``sampler`` estimate of the live readings (monotonic stamps [s], joints (n, 6)
     [deg], lengths [mm], over-range flags): the standard error of a window mean over their
     :func:`still_windows` (at least :data:`MIN_WINDOWS`, else None)."""
     if not t_s:
         return None
     windows = still_windows(
-        np.asarray(t_s, float), np.asarray(joints_deg, float).reshape(-1, 6),
-        np.asarray(length_mm, float), np.asarray(over_range, bool), settle_s, tol_deg, tol_mm,
+        np.asarray(t_s, float),
+        np.asarray(joints_deg, float).reshape(-1, 6),
+        np.asarray(length_mm, float),
+        np.asarray(over_range, bool),
+        settle_s,
+        tol_deg,
+        tol_mm,
         min_readings,
-    )  # fmt: skip
+    )
     if len(windows) < MIN_WINDOWS:
         return None
     std = np.array([np.std(w, ddof=1) for w in windows])
     count = np.array([len(w) for w in windows], float)
     se = window_mean_se_mm(std, count, windows)
     return NoiseEstimate(
-        se, "sampler",
+        se,
+        "sampler",
         f"the live indicator: {len(windows)} still windows of {settle_s} s, "
         f"{float(np.mean(count)):.0f} readings each (a lower bound: what varies between "
         "captures is not in it)",
-    )  # fmt: skip
+    )

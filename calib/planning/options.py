@@ -109,23 +109,27 @@ class PlanOptions:
         if not 0.0 <= lo < hi:
             raise ValueError(f"extension_mm: need 0 <= min < max, got {self.extension_mm}")
         if hi - lo <= 2.0 * self.anchor_uncertainty_mm:
-            raise ValueError(f"anchor_uncertainty_mm: {self.anchor_uncertainty_mm} leaves no "
-                             f"extension range within {self.extension_mm}")  # fmt: skip
+            raise ValueError(
+                f"anchor_uncertainty_mm: {self.anchor_uncertainty_mm} leaves no "
+                f"extension range within {self.extension_mm}"
+            )
         if self.anchor_uncertainty_mm < 0 or self.anchor_draws < 0:
             raise ValueError("anchor_uncertainty_mm and anchor_draws must be >= 0")
         if self.noise_mm <= 0:
             raise ValueError(f"noise_mm: must be > 0, got {self.noise_mm}")
         if len(self.joint_speed_deg_s) != 6 or min(self.joint_speed_deg_s) <= 0:
-            raise ValueError(f"joint_speed_deg_s: need 6 positive speeds, "
-                             f"got {self.joint_speed_deg_s}")  # fmt: skip
+            raise ValueError(
+                f"joint_speed_deg_s: need 6 positive speeds, got {self.joint_speed_deg_s}"
+            )
         if self.dwell_s < 0:
             raise ValueError(f"dwell_s: must be >= 0, got {self.dwell_s}")
         if self.criterion not in ("tcp", "d"):
             raise ValueError(f"criterion: 'tcp' or 'd', got {self.criterion!r}")
         if self.offsets_mm is not None:
             if len(self.offsets_mm) != n_anchors:
-                raise ValueError(f"offsets_mm: {len(self.offsets_mm)} offsets for {n_anchors} "
-                                 "anchors")  # fmt: skip
+                raise ValueError(
+                    f"offsets_mm: {len(self.offsets_mm)} offsets for {n_anchors} anchors"
+                )
             if any(c is not None and not math.isfinite(c) for c in self.offsets_mm):
                 raise ValueError(f"offsets_mm: need finite offsets, got {self.offsets_mm}")
         if self.anchor_ids is not None and len(self.anchor_ids) != n_anchors:

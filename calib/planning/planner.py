@@ -106,15 +106,19 @@ def start_anchors_mm(model: RobotModel, start: SampleSet) -> dict[str, FloatArra
 def start_anchor_fits(model: RobotModel, start: SampleSet) -> dict[str, tuple[FloatArray, float]]:
     """P0 (3,) [mm] and the indicator's zero offset [mm] of each start anchor, by
     multilateration with the nominal model."""
-    pos = forward_position(model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm,
-                           model.convention)  # fmt: skip
+    pos = forward_position(
+        model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm, model.convention
+    )
     idx = start.anchor_index()
-    return {aid: multilaterate(pos[idx == k], start.length_mm[idx == k])
-            for k, aid in enumerate(start.anchor_ids)}  # fmt: skip
+    return {
+        aid: multilaterate(pos[idx == k], start.length_mm[idx == k])
+        for k, aid in enumerate(start.anchor_ids)
+    }
 
 
-def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
-           start: SampleSet | None) -> _Setup:  # fmt: skip
+def _setup(
+    model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions, start: SampleSet | None
+) -> _Setup:
     rng = np.random.default_rng(opts.seed)
     m = anchors_mm.shape[0]
     plan_ids = plan_anchor_ids(opts.anchor_ids, m)
@@ -131,20 +135,27 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
             start_theta[layout.anchor_slice(ids.index(aid))][:3] = p0
             if aid not in plan_ids:
                 theta[layout.anchor_slice(ids.index(aid))][:3] = p0
-    q_c, a_c = draw_candidates(model, anchors_mm, opts.candidates, rng, opts.extension_mm,
-                               opts.min_z_mm, opts.anchor_uncertainty_mm,
-                               offsets_mm=opts.offsets_mm)  # fmt: skip
+    q_c, a_c = draw_candidates(
+        model,
+        anchors_mm,
+        opts.candidates,
+        rng,
+        opts.extension_mm,
+        opts.min_z_mm,
+        opts.anchor_uncertainty_mm,
+        offsets_mm=opts.offsets_mm,
+    )
     cand_anchor = plan_index[a_c]
     q_rad = np.deg2rad(q_c)
     _, jac0 = length_jacobian(model, theta, q_rad, cand_anchor)
     if start is not None:
         start_idx = np.array([ids.index(a) for a in start.anchor])
-        _, start_full = length_jacobian(model, start_theta, np.deg2rad(start.joints_deg),
-                                        start_idx)  # fmt: skip
+        _, start_full = length_jacobian(model, start_theta, np.deg2rad(start.joints_deg), start_idx)
     else:
         start_full = np.zeros((0, layout.size))
-    ident = analyse(np.vstack([jac0, start_full]), layout.names, np.ones(layout.size, bool),
-                    rtol=opts.rtol)  # fmt: skip
+    ident = analyse(
+        np.vstack([jac0, start_full]), layout.names, np.ones(layout.size, bool), rtol=opts.rtol
+    )
     free = np.array([nm in ident.base for nm in layout.names])
     if not free[:N_KIN].any():  # e.g. one candidate: its one row pins an anchor, no joint
         raise ValueError(
@@ -163,8 +174,18 @@ def _setup(model: RobotModel, anchors_mm: FloatArray, opts: PlanOptions,
         jacs.append(length_jacobian(model, th, q_rad, cand_anchor)[1])
     rows = np.stack([j[:, free] / scale for j in jacs])
     nuisance = np.flatnonzero(np.flatnonzero(free) >= N_KIN) if opts.anchors_nuisance else None
-    return _Setup(layout, theta, free, scale, q_c, cand_anchor, rows, start_full[:, free],
-                  plan_index, nuisance)  # fmt: skip
+    return _Setup(
+        layout,
+        theta,
+        free,
+        scale,
+        q_c,
+        cand_anchor,
+        rows,
+        start_full[:, free],
+        plan_index,
+        nuisance,
+    )
 
 
 def covariance(jac: FloatArray, noise_mm: float) -> FloatArray:
@@ -202,8 +223,10 @@ def _kinematic_log_det(s: _Setup, jac: FloatArray) -> float:
     names = np.flatnonzero(s.free)
     kin = names < N_KIN
     a = info[np.ix_(~kin, ~kin)]
-    schur = info[np.ix_(kin, kin)] - info[np.ix_(kin, ~kin)] @ np.linalg.pinv(a) @ info[
-        np.ix_(~kin, kin)]  # fmt: skip
+    schur = (
+        info[np.ix_(kin, kin)]
+        - info[np.ix_(kin, ~kin)] @ np.linalg.pinv(a) @ info[np.ix_(~kin, kin)]
+    )
     return design.log_det(schur) / int(np.count_nonzero(kin))
 
 
@@ -214,8 +237,13 @@ def _tcp_weight(model: RobotModel, s: _Setup, ws_q_deg: FloatArray) -> FloatArra
     return out
 
 
-def _select(s: _Setup, fixed: FloatArray, opts: PlanOptions, weight: FloatArray,
-            among: IndexArray | None = None) -> tuple[IndexArray, int]:  # fmt: skip
+def _select(
+    s: _Setup,
+    fixed: FloatArray,
+    opts: PlanOptions,
+    weight: FloatArray,
+    among: IndexArray | None = None,
+) -> tuple[IndexArray, int]:
     """Design (candidate indices) among ``among`` (default all): D/Ds-optimal, then, for
     ``criterion="tcp"``, TCP-variance exchanges. Returns it and the exchanges made."""
     sub = np.arange(s.rows.shape[1]) if among is None else among
@@ -234,8 +262,9 @@ def _fixed(s: _Setup, ridge: float) -> FloatArray:
     return np.repeat(base[None], s.rows.shape[0], axis=0)
 
 
-def _predict(model: RobotModel, s: _Setup, chosen: IndexArray, opts: PlanOptions,
-             ws_q_deg: FloatArray) -> tuple[FloatArray, FloatArray, TcpUncertainty]:  # fmt: skip
+def _predict(
+    model: RobotModel, s: _Setup, chosen: IndexArray, opts: PlanOptions, ws_q_deg: FloatArray
+) -> tuple[FloatArray, FloatArray, TcpUncertainty]:
     """Unscaled Jacobian (plan + start), its covariance and the TCP σ of a design."""
     jac = np.vstack([s.rows[0][chosen] * s.scale, s.start_jac])
     cov = covariance(jac, opts.noise_mm)
@@ -243,8 +272,9 @@ def _predict(model: RobotModel, s: _Setup, chosen: IndexArray, opts: PlanOptions
     return jac, cov, tcp
 
 
-def _random_baseline(model: RobotModel, s: _Setup, opts: PlanOptions,
-                     ws_q_deg: FloatArray) -> dict[str, float]:  # fmt: skip
+def _random_baseline(
+    model: RobotModel, s: _Setup, opts: PlanOptions, ws_q_deg: FloatArray
+) -> dict[str, float]:
     rng = np.random.default_rng(opts.seed + 1)
     rms, mx = [], []
     for _ in range(max(opts.random_draws, 1)):
@@ -255,9 +285,16 @@ def _random_baseline(model: RobotModel, s: _Setup, opts: PlanOptions,
     return {"rms": float(np.mean(rms)), "max": float(np.mean(mx))}
 
 
-def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatArray,
-                 weight: FloatArray, all_jac: FloatArray, all_tcp: TcpUncertainty,
-                 ws_q_deg: FloatArray) -> tuple[dict[str, Any], IndexArray]:  # fmt: skip
+def _anchor_gain(
+    model: RobotModel,
+    s: _Setup,
+    opts: PlanOptions,
+    fixed: FloatArray,
+    weight: FloatArray,
+    all_jac: FloatArray,
+    all_tcp: TcpUncertainty,
+    ws_q_deg: FloatArray,
+) -> tuple[dict[str, Any], IndexArray]:
     """Plan at each anchor alone and compare with the plan over all anchors.
 
     Returns the comparison and the best single-anchor design (candidate indices): the joint
@@ -272,16 +309,21 @@ def _anchor_gain(model: RobotModel, s: _Setup, opts: PlanOptions, fixed: FloatAr
         picked, _ = _select(s, fixed, opts, weight, np.flatnonzero(s.cand_anchor == li))
         designs[aid] = picked
         jac, _, tcp = _predict(model, s, picked, opts, ws_q_deg)
-        singles[aid] = {"kinematic_log_det": _kinematic_log_det(s, jac), "tcp_sigma_mm":
-                        tcp.to_dict()}  # fmt: skip
+        singles[aid] = {
+            "kinematic_log_det": _kinematic_log_det(s, jac),
+            "tcp_sigma_mm": tcp.to_dict(),
+        }
     all_ld = _kinematic_log_det(s, all_jac)
     if opts.criterion == "tcp":
         best = min(singles, key=lambda a: singles[a]["tcp_sigma_mm"]["rms"])
     else:
         best = max(singles, key=lambda a: singles[a]["kinematic_log_det"])
     gain = float(np.exp(all_ld - singles[best]["kinematic_log_det"]))
-    joint_wins = (all_tcp.rms_mm <= singles[best]["tcp_sigma_mm"]["rms"]
-                  if opts.criterion == "tcp" else gain >= 1.0)  # fmt: skip
+    joint_wins = (
+        all_tcp.rms_mm <= singles[best]["tcp_sigma_mm"]["rms"]
+        if opts.criterion == "tcp"
+        else gain >= 1.0
+    )
     return {
         "single_anchor": singles,
         "best_single_anchor": best,
@@ -298,8 +340,10 @@ def _anchors_used(s: _Setup, picked: IndexArray, gain: dict[str, Any] | None) ->
     """Count the final plan's poses per anchor; record in ``gain`` which anchors it uses
     (``plan_uses``: ``"all"``, or the ids that got poses) and return a note when an anchor
     got none (the optimum may put every pose at one anchor, joint selection or not)."""
-    counts = {s.layout.anchors[int(li)]: int(np.count_nonzero(s.cand_anchor[picked] == li))
-              for li in s.plan_anchor_index}  # fmt: skip
+    counts = {
+        s.layout.anchors[int(li)]: int(np.count_nonzero(s.cand_anchor[picked] == li))
+        for li in s.plan_anchor_index
+    }
     used = [a for a, c in counts.items() if c > 0]
     if gain is not None:
         gain["poses_per_anchor"] = counts
@@ -307,9 +351,11 @@ def _anchors_used(s: _Setup, picked: IndexArray, gain: dict[str, Any] | None) ->
     unused = [a for a, c in counts.items() if c == 0]
     if not unused:
         return []
-    return [f"all {len(picked)} poses are at anchor(s) {', '.join(used)}: the best design "
-            f"found gives anchor(s) {', '.join(unused)} none (their own P0 and offset cost "
-            "more than their cable directions add)"]  # fmt: skip
+    return [
+        f"all {len(picked)} poses are at anchor(s) {', '.join(used)}: the best design "
+        f"found gives anchor(s) {', '.join(unused)} none (their own P0 and offset cost "
+        "more than their cable directions add)"
+    ]
 
 
 def plan(
@@ -386,13 +432,16 @@ def _plan(
         travel += t_move
         campaign += campaign_time_s(s.cand_q_deg[group[path]], speed, opts.dwell_s)
     q = s.cand_q_deg[order]
-    plan_k = np.array([int(np.flatnonzero(s.plan_anchor_index == li)[0])
-                       for li in s.cand_anchor[order]])  # fmt: skip
+    plan_k = np.array(
+        [int(np.flatnonzero(s.plan_anchor_index == li)[0]) for li in s.cand_anchor[order]]
+    )
     ext = np.linalg.norm(flange_and_tool_mm(model, q)[1] - anchors[plan_k], axis=1)
     free_idx = np.flatnonzero(s.free)
     if start is not None:
-        notes.append(f"{len(start)} start samples included; their anchors multilaterated "
-                     "with the nominal model")  # fmt: skip
+        notes.append(
+            f"{len(start)} start samples included; their anchors multilaterated "
+            "with the nominal model"
+        )
     return PlanResult(
         q_deg=q,
         anchor_index=plan_k,
@@ -446,8 +495,9 @@ def evaluate_poses(
         jac = length_jacobian(model, s.theta, np.deg2rad(q), layout_idx)[1][:, s.free]
         full = np.vstack([jac, s.start_jac])
         ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
-        tcp = tcp_uncertainty(model, s.layout, s.theta, s.free,
-                              covariance(full, opts.noise_mm), q_deg=ws)  # fmt: skip
+        tcp = tcp_uncertainty(
+            model, s.layout, s.theta, s.free, covariance(full, opts.noise_mm), q_deg=ws
+        )
         return {
             "kinematic_log_det": _kinematic_log_det(s, full),
             "condition_number": condition_number(full),

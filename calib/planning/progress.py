@@ -109,10 +109,12 @@ def not_capturable(
     every joint within ``tol_deg`` of the pose marks it, with the newest such refusal's
     ``"reason: detail"``. A measured pose is never marked."""
     known = [
-        r for r in rejections
+        r
+        for r in rejections
         if r.get("reason") in NOT_CAPTURABLE_REASONS
-        and isinstance(r.get("joints_deg"), list | tuple) and len(r["joints_deg"]) == 6
-    ]  # fmt: skip
+        and isinstance(r.get("joints_deg"), list | tuple)
+        and len(r["joints_deg"]) == 6
+    ]
     out: list[str | None] = [None] * len(poses)
     if not known:
         return out
@@ -158,8 +160,11 @@ def plan_check(
     n_samples = len(anchors)
     n_planned, n_measured = len(poses), sum(1 for k in match if k >= 0)
     why = not_capturable(poses, match, rejections)
-    impossible = [int(p["pose"]) if "pose" in p else i + 1
-                  for i, (p, w) in enumerate(zip(poses, why, strict=True)) if w]  # fmt: skip
+    impossible = [
+        int(p["pose"]) if "pose" in p else i + 1
+        for i, (p, w) in enumerate(zip(poses, why, strict=True))
+        if w
+    ]
     n_not = len(impossible)
     n_off = n_samples - len({k for k in match if k >= 0})
     summary = plan.get("summary") or {}
@@ -235,5 +240,8 @@ def worth_a_note(check: Mapping[str, Any]) -> bool:
     plan, some planned poses cannot be captured, or they fall short of its prediction by more
     than :data:`SIGMA_RATIO_NOTE`."""
     ratio = check["sigma_ratio"]
-    return (not check["on_plan"] or bool(check.get("n_not_capturable"))
-            or (ratio is not None and ratio > SIGMA_RATIO_NOTE))  # fmt: skip
+    return (
+        not check["on_plan"]
+        or bool(check.get("n_not_capturable"))
+        or (ratio is not None and ratio > SIGMA_RATIO_NOTE)
+    )

@@ -93,8 +93,14 @@ class PlanResult:
     def readings_mm(self) -> FloatArray:
         """Predicted indicator reading of each pose (n,) [mm]: extension + the anchor's zero
         offset, NaN where the offset is not known."""
-        offsets = np.array([np.nan if self.offsets_mm is None or self.offsets_mm[k] is None
-                            else float(self.offsets_mm[k]) for k in self.anchor_index])  # fmt: skip
+        offsets = np.array(
+            [
+                np.nan
+                if self.offsets_mm is None or self.offsets_mm[k] is None
+                else float(self.offsets_mm[k])
+                for k in self.anchor_index
+            ]
+        )
         out: FloatArray = self.extension_mm + offsets
         return out
 

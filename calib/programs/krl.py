@@ -131,7 +131,14 @@ def parse(text: str) -> JointProgram:
         got.moves.append(_axes(m.group(1), line_no))
         return "body"
 
-    parse_lines(text, got, comment=";", inline_comments=True, header_state="body",
-                handlers={"outside": outside, "body": body},
-                missing={"outside": "DEF name( )", "body": "END"}, end="END")  # fmt: skip
+    parse_lines(
+        text,
+        got,
+        comment=";",
+        inline_comments=True,
+        header_state="body",
+        handlers={"outside": outside, "body": body},
+        missing={"outside": "DEF name( )", "body": "END"},
+        end="END",
+    )
     return got.program(min(vel) if vel else 100.0, f"{got.name}: no PTP")

@@ -172,9 +172,16 @@ def parse(text: str) -> JointProgram:
         return "main"
 
     # outside → module → main → module → done
-    parse_lines(text, got, comment="!", inline_comments=True, header_state="module",
-                handlers={"outside": outside, "module": module, "main": main},
-                missing={"outside": "MODULE", "module": "ENDMODULE", "main": "ENDPROC"},
-                end="ENDMODULE")  # fmt: skip
-    return got.program(got.speed_pct if got.speed_pct is not None else 100.0,
-                       "PROC main(): no MoveAbsJ")  # fmt: skip
+    parse_lines(
+        text,
+        got,
+        comment="!",
+        inline_comments=True,
+        header_state="module",
+        handlers={"outside": outside, "module": module, "main": main},
+        missing={"outside": "MODULE", "module": "ENDMODULE", "main": "ENDPROC"},
+        end="ENDMODULE",
+    )
+    return got.program(
+        got.speed_pct if got.speed_pct is not None else 100.0, "PROC main(): no MoveAbsJ"
+    )

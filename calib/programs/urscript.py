@@ -108,8 +108,15 @@ def parse(text: str) -> JointProgram:
         return "body"
 
     # A '#' inside a statement is not a comment here: such a line is an unknown statement.
-    parse_lines(text, got, comment="#", inline_comments=False, header_state="body",
-                handlers={"outside": outside, "body": body},
-                missing={"outside": "def name():", "body": "end"}, end="end")  # fmt: skip
+    parse_lines(
+        text,
+        got,
+        comment="#",
+        inline_comments=False,
+        header_state="body",
+        handlers={"outside": outside, "body": body},
+        missing={"outside": "def name():", "body": "end"},
+        end="end",
+    )
     speed_pct = got.speed_pct if got.speed_pct is not None else 100.0
     return got.program(min(max(speed_pct, 1.0), 100.0), f"{got.name}: no movej")

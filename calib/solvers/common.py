@@ -255,9 +255,13 @@ class DampingRule(Protocol):
 
 
 def damped_descent(
-    gn: GaussNewton, rule: DampingRule, max_iterations: int, gtol: float, sigma_tol: float,
+    gn: GaussNewton,
+    rule: DampingRule,
+    max_iterations: int,
+    gtol: float,
+    sigma_tol: float,
     progress: ProgressFn | None,
-) -> SolverResult:  # fmt: skip
+) -> SolverResult:
     """The iteration LM, VSLM and geodesic LM share: per iteration the scaled linear model
     (stop 1 when the gradient is below ``gtol``), the ``sigma_tol`` test (stop 2), the rule's
     damped steps; a refused iteration repeats the last data RMS in the history; one progress
@@ -319,10 +323,17 @@ FilterUpdate = Callable[
 
 
 def run_epochs(
-    problem: Problem, x: FloatArray, p0: FloatArray, epochs: int, process_noise: float,
-    batches: list[IndexArray], update: FilterUpdate, progress: ProgressFn | None, method: str,
+    problem: Problem,
+    x: FloatArray,
+    p0: FloatArray,
+    epochs: int,
+    process_noise: float,
+    batches: list[IndexArray],
+    update: FilterUpdate,
+    progress: ProgressFn | None,
+    method: str,
     note_every: int | None = None,
-) -> SolverResult:  # fmt: skip
+) -> SolverResult:
     """The epoch loop the EKF and the UKF share: per epoch the covariance restarts at ``p0``
     (k, k); per batch the rows of weight 0 are skipped, ``Q = process_noise · p0`` is added
     and ``update`` moves the estimate; the data RMS after each epoch [mm] is the history and

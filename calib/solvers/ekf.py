@@ -63,5 +63,6 @@ def solve(
         return x_new, ikh @ p @ ikh.T + gain @ np.diag(r_var) @ gain.T  # Joseph form
 
     batches = sample_batches(problem.n_samples, opts.batch_size)
-    return run_epochs(problem, x, p0, opts.epochs, opts.process_noise, batches, update, progress,
-                      method)  # fmt: skip
+    return run_epochs(
+        problem, x, p0, opts.epochs, opts.process_noise, batches, update, progress, method
+    )

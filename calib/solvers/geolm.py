@@ -129,9 +129,13 @@ class GeoLMOptions:
 
 
 def _geodesic_step(
-    problem: Problem, gn: GaussNewton, js: FloatArray, lam: float, lin: LinearModel,
+    problem: Problem,
+    gn: GaussNewton,
+    js: FloatArray,
+    lam: float,
+    lin: LinearModel,
     opts: GeoLMOptions,
-) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
+) -> tuple[FloatArray, FloatArray, bool]:
     """Velocity ``v`` and total step ``v + a/2`` (scaled, shape (k,)); False if too curved.
 
     ``lin`` holds ``s`` and ``V`` of the scaled Jacobian ``js`` (m, k) without its tall ``U``
@@ -171,8 +175,9 @@ def solve(
     if not opts.ukf_start:
         return descend(problem, x, opts, progress, method)
     if p0 is None:
-        spread = np.where(problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg),
-                          opts.ukf_sigma_mm)  # fmt: skip
+        spread = np.where(
+            problem.layout.is_angle, np.deg2rad(opts.ukf_sigma_deg), opts.ukf_sigma_mm
+        )
         spread[N_DH:] = 4.0 * opts.ukf_sigma_mm  # tool and anchors, as identify's filters
         p0 = np.diag(spread[problem.free] ** 2)
     seed = ukf.solve(problem, x, p0, opts.ukf, sub_progress(progress, 0.0, 0.1), f"{method}/ukf")
@@ -204,8 +209,9 @@ def descend(
     failed = gn.start_failure()
     if failed is not None:
         return failed
-    return damped_descent(gn, _Rule(opts, gn.cost), opts.max_iterations, opts.gtol,
-                          opts.sigma_tol, progress)  # fmt: skip
+    return damped_descent(
+        gn, _Rule(opts, gn.cost), opts.max_iterations, opts.gtol, opts.sigma_tol, progress
+    )
 
 
 class _Rule:

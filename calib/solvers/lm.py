@@ -105,5 +105,4 @@ def solve(gn: GaussNewton, opts: LMOptions, progress: ProgressFn | None) -> Solv
     """Minimise the problem's residual with Levenberg–Marquardt from ``x0`` (shape (k,)).
     Called as ``solve(problem, x0=None, options=None, progress=None, method="lm")``
     (:func:`calib.solvers.common.gauss_newton_solver`)."""
-    return damped_descent(gn, _Rule(opts), opts.max_iterations, opts.gtol, opts.sigma_tol,
-                          progress)  # fmt: skip
+    return damped_descent(gn, _Rule(opts), opts.max_iterations, opts.gtol, opts.sigma_tol, progress)

@@ -129,5 +129,15 @@ def solve(
         return x_new, 0.5 * (p_new + p_new.T)
 
     batches = sample_batches(problem.n_samples, opts.batch_size, rng, opts.ramp)
-    return run_epochs(problem, x, p0, opts.epochs, opts.process_noise, batches, update, progress,
-                      method, note_every=50)  # fmt: skip
+    return run_epochs(
+        problem,
+        x,
+        p0,
+        opts.epochs,
+        opts.process_noise,
+        batches,
+        update,
+        progress,
+        method,
+        note_every=50,
+    )

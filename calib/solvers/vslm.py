@@ -131,5 +131,4 @@ def solve(gn: GaussNewton, opts: VSLMOptions, progress: ProgressFn | None) -> So
     """Run VSLM from ``x0`` (shape (k,)); see the module docstring for the corrections.
     Called as ``solve(problem, x0=None, options=None, progress=None, method="vslm")``
     (:func:`calib.solvers.common.gauss_newton_solver`)."""
-    return damped_descent(gn, _Rule(opts), opts.max_iterations, opts.gtol, opts.sigma_tol,
-                          progress)  # fmt: skip
+    return damped_descent(gn, _Rule(opts), opts.max_iterations, opts.gtol, opts.sigma_tol, progress)

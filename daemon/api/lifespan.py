@@ -89,8 +89,12 @@ def make_lifespan(
             state.sampler = (sampler_factory or default_sampler)(state)
             await state.sampler.start()
             state.auto = AutoCapture(state.store, state.sampler)
-            state.watch = SensorWatch(state.store, settings.watch.step_settings(), state.auto,
-                                      enabled=settings.watch.enabled)  # fmt: skip
+            state.watch = SensorWatch(
+                state.store,
+                settings.watch.step_settings(),
+                state.auto,
+                enabled=settings.watch.enabled,
+            )
             watch_captures(state.sampler, state.watch)
             state.auto.resume()
             state.drift = HoldCheckMonitor(state.store, settings.drift, state.auto)

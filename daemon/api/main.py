@@ -63,9 +63,21 @@ def create_app(
     )
     app.add_middleware(LatencyMiddleware, prefix=API_PREFIX)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
-    for module in (system, live, campaigns, identifications, reports, robots, plans,
-                   compensate, program_filter, verify, check_poses, checks,
-                   watch):  # fmt: skip
+    for module in (
+        system,
+        live,
+        campaigns,
+        identifications,
+        reports,
+        robots,
+        plans,
+        compensate,
+        program_filter,
+        verify,
+        check_poses,
+        checks,
+        watch,
+    ):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)
     errors.install(app)

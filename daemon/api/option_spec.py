@@ -69,12 +69,19 @@ def identify_options_spec(noise_mm: float | None = None) -> IdentifyOptionsSpec:
         value = default(name)
         if name == "noise_mm" and noise_mm is not None:
             value = noise_mm
-        out.append({
-            "name": name, "type": _type(value, sp.choices),
-            "default": list(value) if isinstance(value, tuple) else value,
-            "gt": sp.gt, "ge": sp.ge, "lt": sp.lt, "le": sp.le,
-            "choices": None if sp.choices is None else list(sp.choices), "help": sp.help,
-        })  # fmt: skip
+        out.append(
+            {
+                "name": name,
+                "type": _type(value, sp.choices),
+                "default": list(value) if isinstance(value, tuple) else value,
+                "gt": sp.gt,
+                "ge": sp.ge,
+                "lt": sp.lt,
+                "le": sp.le,
+                "choices": None if sp.choices is None else list(sp.choices),
+                "help": sp.help,
+            }
+        )
     return {
         "fields": out,
         "main_fields": list(MAIN_FIELDS),

@@ -367,53 +367,76 @@ class PlanRequest(_Body):
     pairs and triples are JSON lists of that length."""
 
     # The schema states the one rule between fields: anchors_mm, unless start_from_samples.
-    model_config = ConfigDict(json_schema_extra={"anyOf": [
-        {"required": ["anchors_mm"], "properties": {"anchors_mm": {"type": "array"}}},
-        {"required": ["start_from_samples"], "properties": {"start_from_samples": {"const": True}}},
-    ]})  # fmt: skip
+    model_config = ConfigDict(
+        json_schema_extra={
+            "anyOf": [
+                {"required": ["anchors_mm"], "properties": {"anchors_mm": {"type": "array"}}},
+                {
+                    "required": ["start_from_samples"],
+                    "properties": {"start_from_samples": {"const": True}},
+                },
+            ]
+        }
+    )
 
-    anchors_mm: Annotated[
-        list[Annotated[list[Coordinate], Field(min_length=3, max_length=3)]],
-        Field(min_length=1, max_length=MAX_ANCHORS),
-    ] | None = Field(
+    anchors_mm: (
+        Annotated[
+            list[Annotated[list[Coordinate], Field(min_length=3, max_length=3)]],
+            Field(min_length=1, max_length=MAX_ANCHORS),
+        ]
+        | None
+    ) = Field(
         None,
         description="Anchor guesses [x, y, z] [mm] in the robot base frame, one per sensor "
         "position; default (with start_from_samples): where the campaign's samples put them.",
-    )  # fmt: skip
+    )
     anchor_ids: Annotated[list[Anchor], Field(min_length=1, max_length=MAX_ANCHORS)] | None = Field(
-        None, description="Id per anchor (default A, B, …); an id of the samples means the "
-        "sensor has not moved."
-    )  # fmt: skip
+        None,
+        description="Id per anchor (default A, B, …); an id of the samples means the "
+        "sensor has not moved.",
+    )
     n: int = Field(_D.n, ge=1, le=MAX_POSES, description="Poses to plan, all anchors.")
     candidates: int = Field(
         _D.candidates, ge=1, le=MAX_CANDIDATES, description="Random feasible candidate poses."
     )
     seed: int = Field(_D.seed, ge=0, le=2**32 - 1)
     min_z_mm: float = Field(
-        _D.min_z_mm, ge=-10_000, le=10_000, allow_inf_nan=False,
+        _D.min_z_mm,
+        ge=-10_000,
+        le=10_000,
+        allow_inf_nan=False,
         description="Flange and tool point above this z.",
-    )  # fmt: skip
+    )
     extension_mm: Annotated[list[Extension], Field(min_length=2, max_length=2)] = Field(
         list(_D.extension_mm), description="Allowed cable extension [min, max] [mm]."
     )
     anchor_uncertainty_mm: float = Field(
-        _D.anchor_uncertainty_mm, ge=0, le=1000, allow_inf_nan=False,
+        _D.anchor_uncertainty_mm,
+        ge=0,
+        le=1000,
+        allow_inf_nan=False,
         description="How far the guess may be off.",
-    )  # fmt: skip
+    )
     noise_mm: float | None = Field(
-        None, gt=0, le=10, allow_inf_nan=False,
+        None,
+        gt=0,
+        le=10,
+        allow_inf_nan=False,
         description="1σ noise of one captured length [mm]; default (null): from the cell "
         "(the robot's accepted result, the campaign's captures, the live indicator, else "
         f"{_D.noise_mm}); the summary names it (noise_source).",
-    )  # fmt: skip
+    )
     joint_speed_deg_s: Annotated[
         list[Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)]],
         Field(min_length=6, max_length=6),
     ] = Field(list(_D.joint_speed_deg_s), description="Joint speeds for the moves [deg/s].")
     dwell_s: float = Field(
-        _D.dwell_s, ge=0, le=600, allow_inf_nan=False,
+        _D.dwell_s,
+        ge=0,
+        le=600,
+        allow_inf_nan=False,
         description="Settle and read time per pose.",
-    )  # fmt: skip
+    )
     start_from_samples: bool = Field(
         False, description="Plan more poses on top of the campaign's included samples."
     )
@@ -423,14 +446,17 @@ class PlanRequest(_Body):
         ``noise_mm`` when the request gives none (else the engine's default)."""
         noise = self.noise_mm if self.noise_mm is not None else noise_mm
         return PlanOptions(
-            n=self.n, candidates=self.candidates, seed=self.seed, min_z_mm=self.min_z_mm,
+            n=self.n,
+            candidates=self.candidates,
+            seed=self.seed,
+            min_z_mm=self.min_z_mm,
             extension_mm=(self.extension_mm[0], self.extension_mm[1]),
             anchor_uncertainty_mm=self.anchor_uncertainty_mm,
             noise_mm=_D.noise_mm if noise is None else noise,
             joint_speed_deg_s=tuple(self.joint_speed_deg_s),
             dwell_s=self.dwell_s,
             anchor_ids=None if self.anchor_ids is None else tuple(self.anchor_ids),
-        )  # fmt: skip
+        )
 
 
 # ===================================================================== response models

@@ -94,10 +94,17 @@ def _health_only(app: Any) -> Any:
         ):
             await app(scope, receive, send)
             return
-        body = json.dumps({"detail": f"server busy: over {MAX_CONNECTIONS} connections; "
-                                     "only the health check is served"}).encode()  # fmt: skip
-        headers = [(b"content-type", b"application/json"), (b"connection", b"close"),
-                   (b"content-length", str(len(body)).encode())]  # fmt: skip
+        body = json.dumps(
+            {
+                "detail": f"server busy: over {MAX_CONNECTIONS} connections; "
+                "only the health check is served"
+            }
+        ).encode()
+        headers = [
+            (b"content-type", b"application/json"),
+            (b"connection", b"close"),
+            (b"content-length", str(len(body)).encode()),
+        ]
         await send({"type": "http.response.start", "status": 503, "headers": headers})
         await send({"type": "http.response.body", "body": body})
 

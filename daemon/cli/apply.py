@@ -88,8 +88,9 @@ def compensation_summary(out: "CompensateResult", con: Console) -> None:
     for flag, count in sorted(s["flag_counts"].items()):
         table.add_row(f"  {flag}", str(count))
     table.add_row(escape("max residual [mm]"), f"{s['max_residual_mm']:.4f}")
-    table.add_row(escape("error without correction, RMS [mm]"),
-                  f"{s['rms_uncompensated_error_mm']:.4f}")  # fmt: skip
+    table.add_row(
+        escape("error without correction, RMS [mm]"), f"{s['rms_uncompensated_error_mm']:.4f}"
+    )
     table.add_row(escape("largest joint correction [deg]"), f"{s['max_correction_deg']:.4f}")
     con.print(table)
     flagged = [r for r in out.csv_rows() if r["flags"]][:10]
@@ -98,8 +99,12 @@ def compensation_summary(out: "CompensateResult", con: Console) -> None:
         for col in ("index", "residual [mm]", "iter", "flags"):
             rows.add_column(escape(col), justify="right" if col != "flags" else "left")
         for r in flagged:
-            rows.add_row(str(r["index"]), f"{r['residual_mm']:.4f}", str(r["iterations"]),
-                         r["flags"].replace(";", ", "))  # fmt: skip
+            rows.add_row(
+                str(r["index"]),
+                f"{r['residual_mm']:.4f}",
+                str(r["iterations"]),
+                r["flags"].replace(";", ", "),
+            )
         con.print(rows)
     con.print(f"[bold]note:[/] {out.note}", highlight=False)
 
@@ -112,8 +117,9 @@ def verify_tables(out: "VerifyResult", con: Console) -> None:
     for col in ("n", "RMSE [mm]", "MAE [mm]", "MAX [mm]", "at identification [mm]"):
         table.add_column(escape(col), justify="right")
     ref = "-" if out.reference_rmse_mm is None else f"{out.reference_rmse_mm:.4f}"
-    table.add_row(str(int(m["n"])), f"{m['rmse_mm']:.4f}", f"{m['mae_mm']:.4f}",
-                  f"{m['max_mm']:.4f}", ref)  # fmt: skip
+    table.add_row(
+        str(int(m["n"])), f"{m['rmse_mm']:.4f}", f"{m['mae_mm']:.4f}", f"{m['max_mm']:.4f}", ref
+    )
     con.print(table)
     n = out.residual_mm.shape[0]
     order = list(range(n))
@@ -126,8 +132,13 @@ def verify_tables(out: "VerifyResult", con: Console) -> None:
     for col in ("index", "anchor", "measured [mm]", "predicted [mm]", "residual [mm]"):
         rows.add_column(escape(col), justify="right")
     for i in order:
-        rows.add_row(str(i), out.anchor[i], f"{out.measured_mm[i]:.3f}",
-                     f"{out.predicted_mm[i]:.3f}", f"{out.residual_mm[i]:+.4f}")  # fmt: skip
+        rows.add_row(
+            str(i),
+            out.anchor[i],
+            f"{out.measured_mm[i]:.3f}",
+            f"{out.predicted_mm[i]:.3f}",
+            f"{out.residual_mm[i]:+.4f}",
+        )
     con.print(rows)
     for note in out.notes:
         con.print(note, highlight=False)

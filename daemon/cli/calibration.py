@@ -116,8 +116,12 @@ def _summary(result: "IdentifyResult") -> None:
     for row in data["dh_error"]:
         j = row["joint"]
         cells = []
-        for key, name in (("alpha_deg", "alpha"), ("a_mm", "a"), ("d_mm", "d"),
-                          ("theta_deg", "theta")):  # fmt: skip
+        for key, name in (
+            ("alpha_deg", "alpha"),
+            ("a_mm", "a"),
+            ("d_mm", "d"),
+            ("theta_deg", "theta"),
+        ):
             sig = unc.get(f"{name}{j}")
             cells.append(f"{row[key]:+.4f}" + (f" ±{sig:.4f}" if sig else " (fixed)"))
         dh.add_row(str(j), *cells)
@@ -190,12 +194,23 @@ def identify_cmd(
         model = load_robot(robot)
         samples = read_samples(data)
         opts = options_from_mapping(
-            {"method": method, "test_fraction": test_fraction, "seed": seed,
-             "holdout": holdout, "robust": robust, "prior": prior, "prior_mm": prior_mm,
-             "prior_deg": prior_deg, "prior_weight": prior_weight, "noise_mm": noise_mm,
-             "noise_rank": noise_rank, "drift": drift, "fix": _split_names(fix),
-             "free": _split_names(free)}
-        )  # fmt: skip
+            {
+                "method": method,
+                "test_fraction": test_fraction,
+                "seed": seed,
+                "holdout": holdout,
+                "robust": robust,
+                "prior": prior,
+                "prior_mm": prior_mm,
+                "prior_deg": prior_deg,
+                "prior_weight": prior_weight,
+                "noise_mm": noise_mm,
+                "noise_rank": noise_rank,
+                "drift": drift,
+                "fix": _split_names(fix),
+                "free": _split_names(free),
+            }
+        )
         result = _run_identify(model, samples, opts)
     except (SampleError, ModelError, ValueError) as exc:
         raise _fail(f"{data if isinstance(exc, SampleError) else 'input'}: {exc}") from None
@@ -249,17 +264,32 @@ def compare_cmd(
     except (SampleError, ModelError, ValueError) as exc:
         raise _fail(str(exc)) from None
     rows = compare(model, samples, chosen, train, test, seed, seeds, prior)
-    table = Table(title=f"{len(samples)} samples, {train} train / {test} test, "
-                  f"{seeds} seed(s) from {seed}, mean over seeds")  # fmt: skip
-    for col in ("method", "before RMSE", "RMSE", "MAE", "MAX", "iterations", "time [s]",
-                "plausible"):  # fmt: skip
+    table = Table(
+        title=f"{len(samples)} samples, {train} train / {test} test, "
+        f"{seeds} seed(s) from {seed}, mean over seeds"
+    )
+    for col in (
+        "method",
+        "before RMSE",
+        "RMSE",
+        "MAE",
+        "MAX",
+        "iterations",
+        "time [s]",
+        "plausible",
+    ):
         table.add_column(col, justify="right")
     for r in rows:
         table.add_row(
-            r["method"], f"{r['before_rmse_mm']:.3f}", f"{r['rmse_mm']:.3f}",
-            f"{r['mae_mm']:.3f}", f"{r['max_mm']:.3f}", f"{r['iterations']:.1f}",
-            f"{r['time_s']:.3f}", f"{r['plausible']}/{seeds}",
-        )  # fmt: skip
+            r["method"],
+            f"{r['before_rmse_mm']:.3f}",
+            f"{r['rmse_mm']:.3f}",
+            f"{r['mae_mm']:.3f}",
+            f"{r['max_mm']:.3f}",
+            f"{r['iterations']:.1f}",
+            f"{r['time_s']:.3f}",
+            f"{r['plausible']}/{seeds}",
+        )
     console.print(table)
     if out is not None:
         out.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
@@ -288,17 +318,30 @@ def compare(
     acc: dict[str, list[dict[str, float]]] = {m: [] for m in methods}
     with _progress() as bar:
         task = bar.add_task("compare", total=len(methods) * seeds)
-        runs = run_protocol(model, samples, methods, range(seed, seed + seeds), n_train, n_test,
-                            prior, clock=time.perf_counter)  # fmt: skip
+        runs = run_protocol(
+            model,
+            samples,
+            methods,
+            range(seed, seed + seeds),
+            n_train,
+            n_test,
+            prior,
+            clock=time.perf_counter,
+        )
         for run in runs:
             res = run.result
             fig = res.metrics["after"]["test"]
-            acc[run.method].append({
-                "rmse_mm": fig["rmse_mm"], "mae_mm": fig["mae_mm"], "max_mm": fig["max_mm"],
-                "before_rmse_mm": res.metrics["before"]["test"]["rmse_mm"],
-                "iterations": float(res.solver.iterations), "time_s": res.elapsed_s,
-                "plausible": float(res.plausibility["plausible"]),
-            })  # fmt: skip
+            acc[run.method].append(
+                {
+                    "rmse_mm": fig["rmse_mm"],
+                    "mae_mm": fig["mae_mm"],
+                    "max_mm": fig["max_mm"],
+                    "before_rmse_mm": res.metrics["before"]["test"]["rmse_mm"],
+                    "iterations": float(res.solver.iterations),
+                    "time_s": res.elapsed_s,
+                    "plausible": float(res.plausibility["plausible"]),
+                }
+            )
             bar.update(task, description=f"seed {run.seed} {run.method}")
             bar.advance(task)
     rows = []

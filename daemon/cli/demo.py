@@ -161,8 +161,9 @@ def campaign_cmd(
             q_seen = [[float(s[f"q{j}"]) for j in range(1, 7)] for s in samples]
             all_poses = cell.sim.control("poses")["poses_deg"]
             # A pose is new when no sample lies within 0.05 deg of it on every joint.
-            seen = match_poses(all_poses, ["A"] * len(all_poses), q_seen, ["A"] * len(q_seen),
-                               tol_deg=0.05)  # fmt: skip
+            seen = match_poses(
+                all_poses, ["A"] * len(all_poses), q_seen, ["A"] * len(q_seen), tol_deg=0.05
+            )
             new = [p for p, k in zip(all_poses, seen, strict=True) if k < 0]
             if new:
                 truth = cell.sim.control("true_lengths", joints_deg=new)["lengths_mm"]

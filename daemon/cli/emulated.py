@@ -172,12 +172,25 @@ class DaemonProcess(Process):
     ) -> None:
         self.token = token
         super().__init__(
-            [sys.executable, "-m", "daemon", "serve", "--simulated-cell", str(ready_path),
-             "--port", str(port), *(extra_args or [])],
+            [
+                sys.executable,
+                "-m",
+                "daemon",
+                "serve",
+                "--simulated-cell",
+                str(ready_path),
+                "--port",
+                str(port),
+                *(extra_args or []),
+            ],
             state_dir / "daemon.log",
-            env={"CABLECAL_STATE_DIR": str(state_dir), "CABLECAL_API_TOKEN": token,
-                 "CABLECAL_LOG_JSON": "true", **(env or {})},
-        )  # fmt: skip
+            env={
+                "CABLECAL_STATE_DIR": str(state_dir),
+                "CABLECAL_API_TOKEN": token,
+                "CABLECAL_LOG_JSON": "true",
+                **(env or {}),
+            },
+        )
         self.serving: dict[str, Any] = json.loads(self.wait_line("SERVING ", timeout_s=90))
         self.url: str = self.serving["url"]
 

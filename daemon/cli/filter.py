@@ -57,28 +57,50 @@ def summary_table(run: FilterRun, con: Console) -> None:
     title = "Filtered targets"
     if len(rows) > MAX_PRINTED_ROWS:
         shown = [r for r in rows if r["status"] != "corrected"][:MAX_PRINTED_ROWS]
-        title = (f"Targets left unchanged ({len(shown)} shown of {len(rows)} targets; "
-                 f"all in {SUMMARY_NAME})")  # fmt: skip
+        title = (
+            f"Targets left unchanged ({len(shown)} shown of {len(rows)} targets; "
+            f"all in {SUMMARY_NAME})"
+        )
     table = Table(title=title)
-    for col, just in (("file", "left"), ("line", "right"), ("name", "left"),
-                      ("status", "left"), ("mm", "right"), ("deg", "right"),
-                      ("conf", "left"), ("σ mm", "right")):  # fmt: skip
+    for col, just in (
+        ("file", "left"),
+        ("line", "right"),
+        ("name", "left"),
+        ("status", "left"),
+        ("mm", "right"),
+        ("deg", "right"),
+        ("conf", "left"),
+        ("σ mm", "right"),
+    ):
         fold = col in ("file", "name")
         table.add_column(escape(col), justify=just, overflow="fold" if fold else "ellipsis")  # type: ignore[arg-type]
     for r in shown:
         conf = {True: "kept", False: "changed", None: "-"}[r["configuration_kept"]]
-        table.add_row(escape(r["file"]), str(r["line"]), escape(r["name"]), r["status"],
-                      _num(r["shift_mm"], ".3f"), _num(r["shift_deg"], ".4f"), conf,
-                      _num(r["sigma_at_tool_mm"], ".3f"))  # fmt: skip
+        table.add_row(
+            escape(r["file"]),
+            str(r["line"]),
+            escape(r["name"]),
+            r["status"],
+            _num(r["shift_mm"], ".3f"),
+            _num(r["shift_deg"], ".4f"),
+            conf,
+            _num(r["sigma_at_tool_mm"], ".3f"),
+        )
     if shown:
         con.print(table)
     for r in rows:
         if r["status"] != "corrected":
-            con.print(f"{escape(r['file'])}:{r['line']} {escape(r['name'])}: {r['status']}: "
-                      f"{escape(r['reason'])}", highlight=False)  # fmt: skip
+            con.print(
+                f"{escape(r['file'])}:{r['line']} {escape(r['name'])}: {r['status']}: "
+                f"{escape(r['reason'])}",
+                highlight=False,
+            )
     counts = run.summary()["counts"]
-    con.print(f"{counts['targets']} targets: {counts.get('corrected', 0)} corrected, "
-              f"{counts['left']} left unchanged", highlight=False)  # fmt: skip
+    con.print(
+        f"{counts['targets']} targets: {counts.get('corrected', 0)} corrected, "
+        f"{counts['left']} left unchanged",
+        highlight=False,
+    )
 
 
 def filter_cmd(
@@ -135,8 +157,9 @@ def filter_cmd(
     names = [f.name for f in files]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise _fail(f"two input files share the name {dup[0]!r}; they would overwrite each "
-                    "other in --out")  # fmt: skip
+        raise _fail(
+            f"two input files share the name {dup[0]!r}; they would overwrite each other in --out"
+        )
     out_dir = out.resolve()
     for f in files:
         if f.resolve().parent == out_dir:
@@ -148,8 +171,9 @@ def filter_cmd(
         except OSError as exc:
             raise _fail(f"{f}: cannot read: {exc.strerror}") from None
     wanted = [s.strip() for s in only.split(",") if s.strip()] if only is not None else None
-    run = filter_files(cal, data, frames=frame_tables, keep_joint_targets=keep_joint_targets,
-                       only=wanted)  # fmt: skip
+    run = filter_files(
+        cal, data, frames=frame_tables, keep_joint_targets=keep_joint_targets, only=wanted
+    )
     try:
         out.mkdir(parents=True, exist_ok=True)
         for name, body in run.outputs.items():
@@ -162,8 +186,11 @@ def filter_cmd(
     console = Console()  # created here so COLUMNS is read at run time
     summary_table(run, console)
     for err in run.errors:
-        Console(stderr=True).print(f"[bold red]error:[/] {escape(str(err))} (not written)",
-                                   highlight=False, soft_wrap=True)  # fmt: skip
-    console.print(f"wrote {len(run.outputs)} file(s) and {SUMMARY_NAME} to {escape(str(out))}",
-                  highlight=False)  # fmt: skip
+        Console(stderr=True).print(
+            f"[bold red]error:[/] {escape(str(err))} (not written)", highlight=False, soft_wrap=True
+        )
+    console.print(
+        f"wrote {len(run.outputs)} file(s) and {SUMMARY_NAME} to {escape(str(out))}",
+        highlight=False,
+    )
     raise typer.Exit(run.exit_code)

@@ -91,8 +91,10 @@ def summary_renderables(data: dict[str, Any], has_start: bool = False) -> list[R
         quality.add_row("cond., start data", f"{start:.3g}" if start else "inf", "-")
     out.append(quality)
     # σ 0 is the engine's mark of a direction with no information (an anchor without poses).
-    cells = [(p["name"], f"{_fmt(p['sigma'])} {p['unit']}" if p["sigma"] > 0 else "no data")
-             for p in data["parameters"]]  # fmt: skip
+    cells = [
+        (p["name"], f"{_fmt(p['sigma'])} {p['unit']}" if p["sigma"] > 0 else "no data")
+        for p in data["parameters"]
+    ]
     # As many name/σ pairs per row as 80 columns hold (each cell has 1 space of padding on
     # each side and a border).
     pair_w = max(len(c[0]) for c in cells) + max(len(c[1]) for c in cells) + 6
@@ -113,10 +115,14 @@ def summary_renderables(data: dict[str, Any], has_start: bool = False) -> list[R
         for col in ("anchors", "log det / kin. param", escape("TCP 1σ RMS [mm]")):
             table.add_column(col, justify="right")
         for aid, row in gain["single_anchor"].items():
-            table.add_row(f"{aid} only", f"{row['kinematic_log_det']:.3f}",
-                          _fmt(row["tcp_sigma_mm"]["rms"]))  # fmt: skip
-        table.add_row("all", f"{gain['all_anchors']['kinematic_log_det']:.3f}",
-                      _fmt(gain["all_anchors"]["tcp_sigma_mm"]["rms"]))  # fmt: skip
+            table.add_row(
+                f"{aid} only", f"{row['kinematic_log_det']:.3f}", _fmt(row["tcp_sigma_mm"]["rms"])
+            )
+        table.add_row(
+            "all",
+            f"{gain['all_anchors']['kinematic_log_det']:.3f}",
+            _fmt(gain["all_anchors"]["tcp_sigma_mm"]["rms"]),
+        )
         out.append(table)
         gains = (
             f"gain over {gain['best_single_anchor']} alone: D-efficiency "
@@ -208,15 +214,20 @@ def plan_cmd(
         model = load_robot(robot)
         kw: dict[str, Any] = {
             k: v
-            for k, v in (("n", n), ("min_z_mm", min_z_mm), ("candidates", candidates),
-                         ("seed", seed), ("anchor_uncertainty_mm", anchor_uncertainty_mm),
-                         ("noise_mm", noise_mm), ("dwell_s", dwell_s),
-                         ("criterion", criterion))
+            for k, v in (
+                ("n", n),
+                ("min_z_mm", min_z_mm),
+                ("candidates", candidates),
+                ("seed", seed),
+                ("anchor_uncertainty_mm", anchor_uncertainty_mm),
+                ("noise_mm", noise_mm),
+                ("dwell_s", dwell_s),
+                ("criterion", criterion),
+            )
             if v is not None
-        }  # fmt: skip
+        }
         if extension_mm is not None:
-            kw["extension_mm"] = parse_floats(extension_mm, "--extension-mm", 2,
-                                              "MIN,MAX in mm")  # fmt: skip
+            kw["extension_mm"] = parse_floats(extension_mm, "--extension-mm", 2, "MIN,MAX in mm")
         if joint_speed_deg_s is not None:
             kw["joint_speed_deg_s"] = parse_floats(
                 joint_speed_deg_s, "--joint-speed-deg-s", 6, "six speeds in deg/s"

@@ -67,9 +67,15 @@ class CampaignStore(RobotStore):
         with self._write():
             self._require("robots", "robot", robot_id)
             table = self._table("campaigns").insert(
-                {"name": name.strip(), "robot_id": robot_id, "notes": notes or "",
-                 "auto_capture": False, "auto_anchor": "A", "created_at": now()}
-            )  # fmt: skip
+                {
+                    "name": name.strip(),
+                    "robot_id": robot_id,
+                    "notes": notes or "",
+                    "auto_capture": False,
+                    "auto_anchor": "A",
+                    "created_at": now(),
+                }
+            )
             return self.campaign(last_id(table))
 
     def campaign(self, campaign_id: int) -> CampaignRow:

@@ -105,12 +105,14 @@ class CheckStore(StoreDB):
         with self._write():
             self._require("robots", "robot", robot_id)
             self._table("check_poses").upsert(
-                {"robot_id": robot_id, "poses_json": to_json(poses, "poses_deg"),
-                 "updated_at": now()},
+                {
+                    "robot_id": robot_id,
+                    "poses_json": to_json(poses, "poses_deg"),
+                    "updated_at": now(),
+                },
                 pk="robot_id",
-            )  # fmt: skip
-        return {"robot_id": robot_id, "source": "user", "poses_deg": poses,
-                "updated_at": now()}  # fmt: skip
+            )
+        return {"robot_id": robot_id, "source": "user", "poses_deg": poses, "updated_at": now()}
 
     def user_check_poses(self, robot_id: int) -> CheckPoses | None:
         """The user's check poses, or None when none are set."""
@@ -118,8 +120,12 @@ class CheckStore(StoreDB):
         if row is None:
             return None
         poses = json.loads(row["poses_json"])
-        return {"robot_id": robot_id, "source": "user", "poses_deg": poses,
-                "updated_at": row["updated_at"]}  # fmt: skip
+        return {
+            "robot_id": robot_id,
+            "source": "user",
+            "poses_deg": poses,
+            "updated_at": row["updated_at"],
+        }
 
     def clear_check_poses(self, robot_id: int) -> None:
         """Forget the user's check poses (the default applies again)."""
@@ -157,13 +163,25 @@ class CheckStore(StoreDB):
             self._require("campaigns", "campaign", campaign_id)
             self._require("results", "result", result_id)
             table = self._table("checks").insert(
-                {"robot_id": robot_id, "campaign_id": campaign_id, "result_id": result_id,
-                 "trigger": trigger, "status": "running", "refit_anchor": bool(refit_anchor),
-                 "threshold_mm": float(threshold_mm), "rms_mm": None, "mae_mm": None,
-                 "max_mm": None, "n": None, "error": None, "started_at": now(),
-                 "finished_at": None, "poses_json": to_json(poses, "poses_deg"),
-                 "detail_json": None}
-            )  # fmt: skip
+                {
+                    "robot_id": robot_id,
+                    "campaign_id": campaign_id,
+                    "result_id": result_id,
+                    "trigger": trigger,
+                    "status": "running",
+                    "refit_anchor": bool(refit_anchor),
+                    "threshold_mm": float(threshold_mm),
+                    "rms_mm": None,
+                    "mae_mm": None,
+                    "max_mm": None,
+                    "n": None,
+                    "error": None,
+                    "started_at": now(),
+                    "finished_at": None,
+                    "poses_json": to_json(poses, "poses_deg"),
+                    "detail_json": None,
+                }
+            )
             return self.check(last_id(table))
 
     def finish_check(
@@ -187,10 +205,15 @@ class CheckStore(StoreDB):
         if status not in CHECK_STATUSES or status == "running":
             raise StoreInvalid(f"status: must be ok, drift or failed, got {status!r}")
         m = metrics or {}
-        updates: Row = {"status": status, "finished_at": now(), "error": error,
-                        "rms_mm": m.get("rmse_mm"), "mae_mm": m.get("mae_mm"),
-                        "max_mm": m.get("max_mm"),
-                        "n": None if m.get("n") is None else int(m["n"])}  # fmt: skip
+        updates: Row = {
+            "status": status,
+            "finished_at": now(),
+            "error": error,
+            "rms_mm": m.get("rmse_mm"),
+            "mae_mm": m.get("mae_mm"),
+            "max_mm": m.get("max_mm"),
+            "n": None if m.get("n") is None else int(m["n"]),
+        }
         if detail is not None:
             updates["detail_json"] = to_json(detail, "detail")
         with self._write():

@@ -39,9 +39,15 @@ class EventStore(StoreDB):
         )
         with self._write():
             self._table("events").insert(
-                {"t_wall": now(), "kind": kind, "device": device, "campaign_id": campaign_id,
-                 "message": message, "detail_json": detail_json}
-            )  # fmt: skip
+                {
+                    "t_wall": now(),
+                    "kind": kind,
+                    "device": device,
+                    "campaign_id": campaign_id,
+                    "message": message,
+                    "detail_json": detail_json,
+                }
+            )
 
     def record_rejection(
         self,

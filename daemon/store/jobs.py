@@ -22,9 +22,19 @@ INTERRUPTED_ERROR: Final = "interrupted by daemon restart"
 NO_CALIBRATION: Final = "no accepted calibration yet"
 
 _JOB_FIELDS = frozenset(
-    {"status", "progress", "message", "error", "started_at", "finished_at", "interrupted",
-     "options", "iteration", "cost_rms_mm"}
-)  # fmt: skip
+    {
+        "status",
+        "progress",
+        "message",
+        "error",
+        "started_at",
+        "finished_at",
+        "interrupted",
+        "options",
+        "iteration",
+        "cost_rms_mm",
+    }
+)
 #: The job row with ``current``: whether its result is its robot's current calibration.
 _JOB_SELECT = (
     "SELECT jobs.*, coalesce(robots.current_identification_id = jobs.id, 0) AS current "
@@ -98,11 +108,21 @@ class JobStore(StoreDB):
             self._require("campaigns", "campaign", campaign_id)
             self._require("robots", "robot", robot_id)
             table = self._table("jobs").insert(
-                {"campaign_id": campaign_id, "robot_id": robot_id, "method": method,
-                 "options_json": options_json, "status": "queued", "progress": 0.0,
-                 "message": "", "error": None, "created_at": now(), "started_at": None,
-                 "finished_at": None, "interrupted": False}
-            )  # fmt: skip
+                {
+                    "campaign_id": campaign_id,
+                    "robot_id": robot_id,
+                    "method": method,
+                    "options_json": options_json,
+                    "status": "queued",
+                    "progress": 0.0,
+                    "message": "",
+                    "error": None,
+                    "created_at": now(),
+                    "started_at": None,
+                    "finished_at": None,
+                    "interrupted": False,
+                }
+            )
             return self.job(last_id(table))
 
     def job(self, job_id: int) -> JobRow:
@@ -162,9 +182,11 @@ class JobStore(StoreDB):
             ``limit`` outside 1..10000.
         """
         rows = self._page(
-            _JOB_SELECT, [("jobs.id > ?", after_id), ("jobs.campaign_id = ?", campaign_id)],
-            limit=limit, id_column="jobs.id",
-        )  # fmt: skip
+            _JOB_SELECT,
+            [("jobs.id > ?", after_id), ("jobs.campaign_id = ?", campaign_id)],
+            limit=limit,
+            id_column="jobs.id",
+        )
         return [_job_row(r) for r in rows]
 
     def mark_interrupted(self) -> int:
@@ -199,10 +221,15 @@ class JobStore(StoreDB):
             if self._one("SELECT id FROM results WHERE job_id = ?", [job_id]) is not None:
                 raise StoreError(f"job {job_id} already has a result")
             table = self._table("results").insert(
-                {"job_id": job_id, "campaign_id": job["campaign_id"],
-                 "robot_id": job["robot_id"], "result_json": text, "accepted": bool(accepted),
-                 "created_at": now()}
-            )  # fmt: skip
+                {
+                    "job_id": job_id,
+                    "campaign_id": job["campaign_id"],
+                    "robot_id": job["robot_id"],
+                    "result_json": text,
+                    "accepted": bool(accepted),
+                    "created_at": now(),
+                }
+            )
             if accepted:
                 self._set_current(int(job["robot_id"]), job_id)
             return self._result(last_id(table))

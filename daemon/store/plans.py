@@ -90,11 +90,15 @@ class PlanStore(StoreDB):
         with self._write():
             campaign = self._require("campaigns", "campaign", campaign_id)
             table = self._table("plans").insert(
-                {"campaign_id": campaign_id, "robot_id": int(campaign["robot_id"]),
-                 "options_json": to_json(options, "options"),
-                 "summary_json": to_json(summary, "summary"),
-                 "poses_json": to_json(poses, "poses"), "created_at": now()}
-            )  # fmt: skip
+                {
+                    "campaign_id": campaign_id,
+                    "robot_id": int(campaign["robot_id"]),
+                    "options_json": to_json(options, "options"),
+                    "summary_json": to_json(summary, "summary"),
+                    "poses_json": to_json(poses, "poses"),
+                    "created_at": now(),
+                }
+            )
             row = self._get("plans", last_id(table))
         assert row is not None
         return _plan_out(row)

@@ -79,8 +79,16 @@ def _raw_records(capture: Capture) -> list[Row]:
 
 
 #: Columns of an imported sample, in the order of :func:`_import_batches`' tuples.
-_IMPORT_COLUMNS = ("campaign_id", *_Q, "length_mm", "anchor", "excluded", "source",
-                   "pose_group", "created_at")  # fmt: skip
+_IMPORT_COLUMNS = (
+    "campaign_id",
+    *_Q,
+    "length_mm",
+    "anchor",
+    "excluded",
+    "source",
+    "pose_group",
+    "created_at",
+)
 #: Rows per ``executemany`` of an import (all batches run in one transaction).
 IMPORT_BATCH_ROWS: Final = 5000
 
@@ -100,10 +108,18 @@ def _import_batches(campaign_id: int, samples: SampleSet) -> Iterator[Iterator[t
         q = samples.joints_deg[start:stop].tolist()
         lengths = samples.length_mm[start:stop].tolist()
         yield (
-            (campaign_id, *q[i - start], lengths[i - start], anchors[i], 0, "import",
-             (groups[i] or None) if groups is not None else None, created_at)
+            (
+                campaign_id,
+                *q[i - start],
+                lengths[i - start],
+                anchors[i],
+                0,
+                "import",
+                (groups[i] or None) if groups is not None else None,
+                created_at,
+            )
             for i in range(start, stop)
-        )  # fmt: skip
+        )
 
 
 class SampleStore(CampaignStore):
@@ -214,8 +230,11 @@ class SampleStore(CampaignStore):
         StoreInvalid
             ``limit`` outside 1..10000.
         """
-        filters = [("campaign_id = ?", campaign_id), ("id > ?", after_id),
-                   ("excluded = ?", None if include_excluded else 0)]  # fmt: skip
+        filters = [
+            ("campaign_id = ?", campaign_id),
+            ("id > ?", after_id),
+            ("excluded = ?", None if include_excluded else 0),
+        ]
         with self._lock:
             self._require("campaigns", "campaign", campaign_id)
             rows = self._page("SELECT * FROM samples", filters, limit=limit)
@@ -231,9 +250,11 @@ class SampleStore(CampaignStore):
         with self._lock:
             self._require("samples", "sample", sample_id)
             rows = self._table("raw_readings").rows_where(
-                "sample_id = ?", [sample_id], order_by="id",
+                "sample_id = ?",
+                [sample_id],
+                order_by="id",
                 select="t_wall, q1, q2, q3, q4, q5, q6, length_mm",
-            )  # fmt: skip
+            )
             return [cast(RawReading, r) for r in rows]
 
     def set_excluded(self, sample_id: int, excluded: bool, reason: str | None = None) -> SampleRow:
@@ -276,8 +297,9 @@ class SampleStore(CampaignStore):
                     (campaign_id, *chunk),
                 ).fetchone()[0]
                 if found != len(set(chunk)):
-                    raise StoreInvalid(f"sample_ids: not all of {chunk} belong to campaign "
-                                       f"{campaign_id}")  # fmt: skip
+                    raise StoreInvalid(
+                        f"sample_ids: not all of {chunk} belong to campaign {campaign_id}"
+                    )
                 self.conn.execute(
                     f"UPDATE samples SET anchor = ? WHERE campaign_id = ? AND id IN ({marks})",
                     (anchor, campaign_id, *chunk),

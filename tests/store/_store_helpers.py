@@ -93,12 +93,19 @@ def import_csv(store: Store, campaign_id: int, text: str) -> list[int]:
 def fake_result(offset_mm: float) -> dict[str, Any]:
     """The parts of :meth:`IdentifyResult.to_json` the store reads, plus a NaN metric
     (what ``to_json`` gives for the test figures of a run with ``test_fraction=0``)."""
-    dh = [{"joint": j + 1, "alpha_deg": 0.0, "a_mm": 100.0 + offset_mm, "d_mm": 0.0,
-           "theta_deg": 0.0} for j in range(6)]  # fmt: skip
+    dh = [
+        {"joint": j + 1, "alpha_deg": 0.0, "a_mm": 100.0 + offset_mm, "d_mm": 0.0, "theta_deg": 0.0}
+        for j in range(6)
+    ]
     figures = {"rmse_mm": 0.1 + offset_mm, "mae_mm": 0.08, "std_mm": 0.1, "max_mm": 0.3}
     return {
-        "robot": ROBOT, "method": "ukf-vslm", "convention": "dh", "dh": dh,
+        "robot": ROBOT,
+        "method": "ukf-vslm",
+        "convention": "dh",
+        "dh": dh,
         "tool_mm": [0.0, 0.0, 50.0 + offset_mm],
-        "metrics": {"before": {"train": figures, "test": {**figures, "rmse_mm": math.nan}},
-                    "after": {"train": figures, "test": figures}},
-    }  # fmt: skip
+        "metrics": {
+            "before": {"train": figures, "test": {**figures, "rmse_mm": math.nan}},
+            "after": {"train": figures, "test": figures},
+        },
+    }

@@ -12,8 +12,10 @@ from daemon.store import Store, StoreInvalid, StoreNotFound
 
 def test_samples_move_to_another_anchor_and_back(store: Store, campaign: dict[str, Any]) -> None:
     cid = campaign["id"]
-    ids = [int(store.store_capture(cid, make_capture((0, -10 * k, 10, 0, 20, 0), 800.0 + k))["id"])
-           for k in range(4)]  # fmt: skip
+    ids = [
+        int(store.store_capture(cid, make_capture((0, -10 * k, 10, 0, 20, 0), 800.0 + k))["id"])
+        for k in range(4)
+    ]
     assert store.move_samples_to_anchor(cid, ids[2:], "A2") == 2
     assert [s["anchor"] for s in store.list_samples(cid)] == ["A", "A", "A2", "A2"]
     assert store.campaign(cid)["anchors"] == ["A", "A2"]

@@ -40,14 +40,17 @@ def test_campaigns_with_counts_and_auto_capture(store: Store, campaign: dict[str
     assert campaign["name"] == "cell 1" and campaign["robot_name"] == ROBOT
     assert campaign["auto_capture"] is False and campaign["n_samples"] == 0
     cid = campaign["id"]
-    ids = [store.store_capture(cid, make_capture((0, 0, 90, 0, 0, k), 500.0))["id"]
-           for k in range(3)]  # fmt: skip
+    ids = [
+        store.store_capture(cid, make_capture((0, 0, 90, 0, 0, k), 500.0))["id"] for k in range(3)
+    ]
     store.set_excluded(ids[0], True, "outlier")
     other = store.create_campaign("cell 2", campaign["robot_id"])
     listed = {c["id"]: c for c in store.list_campaigns()}
     assert (listed[cid]["n_samples"], listed[cid]["n_included"], listed[cid]["n_excluded"]) == (
-        3, 2, 1,
-    )  # fmt: skip
+        3,
+        2,
+        1,
+    )
     assert listed[other["id"]]["n_samples"] == 0
 
     on = store.set_auto_capture(cid, True, anchor="B")
@@ -77,8 +80,10 @@ def test_campaign_anchors_are_those_of_the_included_samples(
 ) -> None:
     cid = campaign["id"]
     assert store.campaign(cid)["anchors"] == []
-    ids = {a: store.store_capture(cid, make_capture((0, 0, 90, 0, 0, k), 500.0, anchor=a))["id"]
-           for k, a in enumerate(("C", "A", "B,x"))}  # fmt: skip
+    ids = {
+        a: store.store_capture(cid, make_capture((0, 0, 90, 0, 0, k), 500.0, anchor=a))["id"]
+        for k, a in enumerate(("C", "A", "B,x"))
+    }
     store.store_capture(cid, make_capture((0, 0, 90, 0, 0, 9), 500.0, anchor="A"))
     assert store.campaign(cid)["anchors"] == ["A", "B,x", "C"]  # sorted, each once
     store.set_excluded(ids["C"], True, "moved the sensor")

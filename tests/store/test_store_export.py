@@ -84,8 +84,9 @@ def test_import_samples_is_all_or_nothing(
 
 
 def test_import_of_a_sample_set_checks_values(store: Store, campaign: dict[str, Any]) -> None:
-    samples = make_samples(np.array([[0, 0, 90, 0, 0, 0], [0, 0, 400, 0, 0, 0]], float),
-                           np.array([500.0, 600.0]))  # fmt: skip
+    samples = make_samples(
+        np.array([[0, 0, 90, 0, 0, 0], [0, 0, 400, 0, 0, 0]], float), np.array([500.0, 600.0])
+    )
     with pytest.raises(SampleError) as err:
         store.import_samples(campaign["id"], samples)
     assert (err.value.row, err.value.column) == (3, "q3")
@@ -101,8 +102,10 @@ def test_export_csv_round_trips_through_parse_samples_csv(
     ids = import_csv(store, cid, text)
     rng = np.random.default_rng(4)
     captured = random_joints(rng, 3)
-    cap_rows = [store.store_capture(cid, make_capture(q, 700.0 + np.pi * k, anchor="B"))
-                for k, q in enumerate(captured)]  # fmt: skip
+    cap_rows = [
+        store.store_capture(cid, make_capture(q, 700.0 + np.pi * k, anchor="B"))
+        for k, q in enumerate(captured)
+    ]
     store.set_excluded(ids[5], True, "outlier")
 
     samples, sample_ids = store.sample_set(cid)
@@ -172,9 +175,10 @@ def test_cli_db_export_csv_and_json(
     out = tmp_path / "out" / "c.json"
     out.parent.mkdir()
     result = runner.invoke(
-        cli, ["db", "export", "line 3", "--format", "json", "--out", str(out), "--raw"],
+        cli,
+        ["db", "export", "line 3", "--format", "json", "--out", str(out), "--raw"],
         env={"CABLECAL_DB_PATH": str(path)},
-    )  # fmt: skip
+    )
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text(encoding="utf-8"))
     assert data["campaign"]["name"] == "line 3" and len(data["samples"]) == 13

@@ -25,8 +25,12 @@ def test_jobs_lifecycle_and_mark_interrupted(tmp_path: Path) -> None:
         assert queued["status"] == "queued" and queued["progress"]["fraction"] == 0.0
         assert queued["interrupted"] is False
         assert queued["options"] == {"seed": 1, "fix": ["a1"]}
-        running = s.update_job(s.create_job(cid, rid, "lm", {})["id"], status="running",
-                               progress=0.4, message="epoch 1")  # fmt: skip
+        running = s.update_job(
+            s.create_job(cid, rid, "lm", {})["id"],
+            status="running",
+            progress=0.4,
+            message="epoch 1",
+        )
         assert running["started_at"] is not None and running["progress"]["fraction"] == 0.4
         done = s.create_job(cid, rid, "lm", {})["id"]
         s.update_job(done, status="running")
@@ -86,8 +90,10 @@ def test_results_and_latest_calibrated_model(store: Store, campaign: dict[str, A
     latest = store.latest_calibrated_model(rid)
     assert latest is not None
     assert (latest["job_id"], latest["result_id"], latest["campaign_id"]) == (
-        jobs[1], second["id"], cid,
-    )  # fmt: skip
+        jobs[1],
+        second["id"],
+        cid,
+    )
     assert latest["robot"] == ROBOT and latest["convention"] == "dh"
     assert latest["dh"][0]["a_mm"] == 102.0 and latest["tool_mm"] == [0.0, 0.0, 52.0]
     assert latest["metrics"]["test"]["rmse_mm"] == pytest.approx(2.1)
@@ -139,14 +145,20 @@ def test_a_real_identify_result_is_stored_as_strict_json(
 # ----------------------------------------------------------------------------- events
 def test_events_record_filter_and_follow(store: Store, campaign: dict[str, Any]) -> None:
     store.record_event("sampler_started", None, "sampler up")
-    store.record_event("link_down", "indicator", "timeout", {"frames_hex": ["01 03"],
-                                                            "raw": b"\x01"})  # fmt: skip
+    store.record_event(
+        "link_down", "indicator", "timeout", {"frames_hex": ["01 03"], "raw": b"\x01"}
+    )
     store.record_rejection(campaign["id"], "moving", "q2 moved 0.3 deg", "robot")
     store.record_rejection(999, "stale", "indicator reading 2.1 s old", "indicator")
     store.record_event("link_up", "indicator", "reconnected", {"age_s": math.inf})
     events = store.list_events()
-    assert [e["kind"] for e in events] == ["sampler_started", "link_down", "capture_rejected",
-                                           "capture_rejected", "link_up"]  # fmt: skip
+    assert [e["kind"] for e in events] == [
+        "sampler_started",
+        "link_down",
+        "capture_rejected",
+        "capture_rejected",
+        "link_up",
+    ]
     assert events[1]["detail"] == {"frames_hex": ["01 03"], "raw": str(b"\x01")}
     assert events[4]["detail"] == {"age_s": None}
     rejected = store.list_events(kind="capture_rejected")

@@ -37,10 +37,23 @@ def test_open_creates_file_in_wal_mode_with_full_sync(tmp_path: Path) -> None:
         assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
         tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
         indexes = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='index'")}
-    assert {"robots", "campaigns", "samples", "raw_readings", "jobs", "results", "events",
-            "schema_version"} <= tables  # fmt: skip
-    assert {"samples_campaign_id", "raw_readings_sample_id", "events_kind",
-            "jobs_campaign_id", "results_robot_id"} <= indexes  # fmt: skip
+    assert {
+        "robots",
+        "campaigns",
+        "samples",
+        "raw_readings",
+        "jobs",
+        "results",
+        "events",
+        "schema_version",
+    } <= tables
+    assert {
+        "samples_campaign_id",
+        "raw_readings_sample_id",
+        "events_kind",
+        "jobs_campaign_id",
+        "results_robot_id",
+    } <= indexes
 
 
 def test_closed_store_raises_store_error(tmp_path: Path) -> None:
@@ -89,8 +102,11 @@ def test_newer_file_is_refused(tmp_path: Path) -> None:
     Store(path).close()
     with sqlite3.connect(path) as conn:
         conn.execute("INSERT INTO schema_version VALUES (99, 'from the future', 0)")
-    with pytest.raises(StoreError, match=r"schema version 99 is newer than this cablecal "
-                       rf"supports \({SCHEMA_VERSION}\)"):  # fmt: skip
+    with pytest.raises(
+        StoreError,
+        match=r"schema version 99 is newer than this cablecal "
+        rf"supports \({SCHEMA_VERSION}\)",
+    ):
         Store(path)
     with pytest.raises(StoreError, match="99 is newer"):
         Store(path, readonly=True)

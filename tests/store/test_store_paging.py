@@ -54,7 +54,10 @@ def test_sample_pages_and_the_excluded_filter(store: Store, campaign: dict[str, 
     store.set_excluded(ids[1], True, "bump")
     assert [s["id"] for s in store.list_samples(cid)] == ids
     assert [s["id"] for s in store.list_samples(cid, include_excluded=False)] == [
-        ids[0], ids[2], ids[3]]  # fmt: skip
+        ids[0],
+        ids[2],
+        ids[3],
+    ]
     assert [s["id"] for s in store.list_samples(cid, after_id=ids[0], limit=2)] == ids[1:3]
     page = store.list_samples(cid, include_excluded=False, after_id=ids[0], limit=1)
     assert [s["id"] for s in page] == [ids[2]]
@@ -81,10 +84,17 @@ def test_checks_newest_first_page_filtered_by_robot_and_status(
         "id"
     ]
     ids = [
-        store.create_check(rid, cid, result_id, trigger="manual", threshold_mm=0.5,
-                           refit_anchor=False, poses_deg=[POSE_DEG])["id"]
+        store.create_check(
+            rid,
+            cid,
+            result_id,
+            trigger="manual",
+            threshold_mm=0.5,
+            refit_anchor=False,
+            poses_deg=[POSE_DEG],
+        )["id"]
         for _ in range(4)
-    ]  # fmt: skip
+    ]
     store.finish_check(ids[0], "ok", metrics={"n": 1, "rmse_mm": 0.1})
     store.finish_check(ids[2], "drift", metrics={"n": 1, "rmse_mm": 0.9})
     assert [c["id"] for c in store.list_checks()] == ids
@@ -98,8 +108,12 @@ def test_checks_newest_first_page_filtered_by_robot_and_status(
 
 def test_events_follow_after_since_id_or_give_the_newest(store: Store) -> None:
     for k in range(5):
-        store.record_event("link_down" if k % 2 else "link_up", "indicator", f"e{k}",
-                           campaign_id=7 if k >= 3 else None)  # fmt: skip
+        store.record_event(
+            "link_down" if k % 2 else "link_up",
+            "indicator",
+            f"e{k}",
+            campaign_id=7 if k >= 3 else None,
+        )
     ids = [e["id"] for e in store.list_events()]
     assert len(ids) == 5
     assert [e["message"] for e in store.list_events(limit=2)] == ["e3", "e4"]

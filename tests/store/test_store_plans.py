@@ -60,8 +60,10 @@ def test_a_result_off_the_plan_says_so_and_what_it_cost(
     base = np.array([0.0, -30.0, 150.0, 0.0, 20.0, 0.0])
     step = np.array([2.0, 1.0, 1.0, 1.0, 0.5, -1.0])
     plan_q = np.array([base + i * step for i in range(1, 41)])
-    poses = [{"pose": i + 1, **{f"q{j + 1}": float(v) for j, v in enumerate(q)}, "anchor": "A"}
-             for i, q in enumerate(plan_q)]  # fmt: skip
+    poses = [
+        {"pose": i + 1, **{f"q{j + 1}": float(v) for j, v in enumerate(q)}, "anchor": "A"}
+        for i, q in enumerate(plan_q)
+    ]
     summary = {"tcp_sigma_mm": {"plan": {"rms": 0.063, "max": 0.1}}, "noise_mm": 0.05}
     store.save_plan(cid, {}, summary, poses)
     own = plan_q[:31] + 3.0  # the robot's own poses, 3 deg off the plan

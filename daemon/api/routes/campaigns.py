@@ -183,9 +183,11 @@ def _refuse_a_repeat(state: State, campaign_id: int, joints_deg: list[float] | N
         return
     rows = state.store.list_samples(campaign_id, limit=min(index + 1, 10_000))
     which = f"sample {rows[index]['id']}" if index < len(rows) else "a sample"
-    detail = (f"the robot stands at the pose of {which} (every joint within "
-              f"{state.settings.sampler.auto_new_pose_deg:g} deg); move it to a new pose, or "
-              "confirm the repeat (repeat: true)")  # fmt: skip
+    detail = (
+        f"the robot stands at the pose of {which} (every joint within "
+        f"{state.settings.sampler.auto_new_pose_deg:g} deg); move it to a new pose, or "
+        "confirm the repeat (repeat: true)"
+    )
     raise HTTPException(409, {"reason": "not_new_pose", "detail": detail, "device": None})
 
 

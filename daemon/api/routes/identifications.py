@@ -89,12 +89,17 @@ def readiness(
     except JobError as exc:
         reason = str(exc)
     return {
-        "test_fraction": test_fraction, "n_included": n, "n_train": n - n_test,
-        "n_test": n_test, "min_training_samples": need,
+        "test_fraction": test_fraction,
+        "n_included": n,
+        "n_train": n - n_test,
+        "n_test": n_test,
+        "min_training_samples": need,
         "min_samples": samples_for_training_rows(need, test_fraction)
-        if need / (1.0 - test_fraction) <= MAX_READINESS_SAMPLES else None,
-        "ready": reason is None, "reason": reason,
-    }  # fmt: skip
+        if need / (1.0 - test_fraction) <= MAX_READINESS_SAMPLES
+        else None,
+        "ready": reason is None,
+        "reason": reason,
+    }
 
 
 @router.post(
@@ -193,5 +198,6 @@ def compare(state: State, job_id: JobId) -> Comparison:
     current_id = state.store.current_job_id(int(job["robot_id"]))
     old = None if current_id is None else state.store.get_result_for_job(current_id)
     samples, sample_ids = state.store.sample_set(int(job["campaign_id"]))
-    return compare_results(job_id, new["result"], current_id, old and old["result"],
-                           samples, sample_ids)  # fmt: skip
+    return compare_results(
+        job_id, new["result"], current_id, old and old["result"], samples, sample_ids
+    )

@@ -75,17 +75,21 @@ def _view(state: State, stored: PlanRow, tol_deg: float) -> PlanView:
         status: Literal["done", "pending", "not_capturable"] = (
             "done" if done else "not_capturable" if w else "pending"
         )
-        out.append({**pose, "status": status, "sample_id": sample_ids[k] if done else None,
-                    "why": w})  # fmt: skip
+        out.append(
+            {**pose, "status": status, "sample_id": sample_ids[k] if done else None, "why": w}
+        )
     n_done = sum(1 for k in match if k >= 0)
     n_not = sum(1 for w in why if w)
     pending = [p["pose"] for p in out if p["status"] == "pending"]
     progress: PlanProgress = {
-        "n_planned": len(out), "n_done": n_done, "n_pending": len(pending),
+        "n_planned": len(out),
+        "n_done": n_done,
+        "n_pending": len(pending),
         "n_not_capturable": n_not,
-        "fraction_done": n_done / len(out), "tol_deg": tol_deg,
+        "fraction_done": n_done / len(out),
+        "tol_deg": tol_deg,
         "next_pose": int(pending[0]) if pending else None,
-    }  # fmt: skip
+    }
     return {**stored, "poses": out, "progress": progress}
 
 
@@ -116,9 +120,12 @@ def known_offsets(state: State, campaign_id: int, robot_id: int) -> dict[str, Of
 
 
 def _compute(
-    model: RobotModel, body: PlanRequest, start: SampleSet | None, noise: NoiseEstimate,
+    model: RobotModel,
+    body: PlanRequest,
+    start: SampleSet | None,
+    noise: NoiseEstimate,
     known: dict[str, Offset] | None = None,
-) -> tuple[dict[str, Any], list[dict[str, Any]]]:  # fmt: skip
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Run the planning (in a worker thread): the summary (with ``noise_source`` and
     ``noise_detail``: where its ``noise_mm`` came from; ``reading_mm.offset_source``: where
     the zero offsets came from) and the poses. ``known``: zero offsets per anchor id
@@ -193,10 +200,14 @@ async def make_plan(
             NoiseEstimate(body.noise_mm, "request", "given in the plan request")
             if body.noise_mm is not None
             else await asyncio.to_thread(
-                cell_noise, state.store, state.sampler, state.settings.sampler, campaign_id,
+                cell_noise,
+                state.store,
+                state.sampler,
+                state.settings.sampler,
+                campaign_id,
                 int(campaign["robot_id"]),
             )
-        )  # fmt: skip
+        )
         known = known_offsets(state, campaign_id, int(campaign["robot_id"]))
         summary, poses = await asyncio.to_thread(_compute, model, body, start, noise, known)
     except (ValueError, SampleError) as exc:  # numpy's LinAlgError is a ValueError

@@ -78,8 +78,9 @@ def _parts(raw: bytes, content_type: str) -> tuple[list[tuple[str, bytes]], str 
             except UnicodeDecodeError:
                 raise unprocessable(("body", "frames"), "frames: not UTF-8 text") from None
         else:
-            raise unprocessable(("body", str(name)), f"{name}: unknown part (expected files, "
-                                "frames)")  # fmt: skip
+            raise unprocessable(
+                ("body", str(name)), f"{name}: unknown part (expected files, frames)"
+            )
     if not files:
         raise unprocessable(("body", "files"), "files: at least one program file is required")
     if len(files) > MAX_FILES:
@@ -87,8 +88,9 @@ def _parts(raw: bytes, content_type: str) -> tuple[list[tuple[str, bytes]], str 
     return files, frames
 
 
-def _filter(state: State, robot_id: int, raw: bytes, content_type: str, keep: bool,
-            only: list[str] | None) -> tuple[Any, dict[str, Any]]:  # fmt: skip
+def _filter(
+    state: State, robot_id: int, raw: bytes, content_type: str, keep: bool, only: list[str] | None
+) -> tuple[Any, dict[str, Any]]:
     """Parse, filter (worker thread): the run and its summary."""
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import filter_files
@@ -170,22 +172,32 @@ async def filter_programs(
         state.store.accepted_result(robot_id)
     except StoreNotFound as exc:
         if exc.reason == NO_CALIBRATION:
-            raise HTTPException(409, f"robot {robot_id}: no current calibration; accept an "
-                                "identification first") from None  # fmt: skip
+            raise HTTPException(
+                409, f"robot {robot_id}: no current calibration; accept an identification first"
+            ) from None
         raise
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     wanted = [s.strip() for s in only.split(",") if s.strip()] if only is not None else None
     run, summary = await asyncio.to_thread(
-        _filter, state, robot_id, b"".join(chunks), request.headers.get("content-type", ""),
-        keep_joint_targets, wanted)  # fmt: skip
+        _filter,
+        state,
+        robot_id,
+        b"".join(chunks),
+        request.headers.get("content-type", ""),
+        keep_joint_targets,
+        wanted,
+    )
     if dry_run:
         return summary
     counts = json.dumps(summary["counts"], separators=(",", ":"))
     headers = {"X-Filter-Counts": counts, "X-Filter-Exit-Code": str(summary["exit_code"])}
     if len(run.outputs) == 1:
         ((name, body),) = run.outputs.items()
-        return Response(body, media_type="application/octet-stream",
-                        headers={**download_headers(name), **headers})  # fmt: skip
+        return Response(
+            body,
+            media_type="application/octet-stream",
+            headers={**download_headers(name), **headers},
+        )
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
         for name, body in run.outputs.items():

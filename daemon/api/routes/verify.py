@@ -39,8 +39,9 @@ async def verify_result(state: State, job_id: JobId, body: VerifyRequest) -> dic
             409, f"campaign_id: campaign {body.campaign_id} has no included samples to verify"
         )
     try:
-        out = await asyncio.to_thread(verify, result["result"], samples,
-                                      VerifyOptions(refit_anchor=body.refit_anchor))  # fmt: skip
+        out = await asyncio.to_thread(
+            verify, result["result"], samples, VerifyOptions(refit_anchor=body.refit_anchor)
+        )
     except (ValueError, KeyError) as exc:  # the campaign's samples against the result: 409
         raise HTTPException(409, f"campaign {body.campaign_id}: {exc}") from exc
     return out.to_json()
