@@ -13,7 +13,11 @@ from text with :func:`parse_model_text`), validated field by field; every error 
     a_mm = 250.0
     d_mm = 653.5
     theta_deg = 0.0              # joint offset added to the controller's joint angle
-    limits_deg = [-180, 180]     # optional [min, max]
+    limits_deg = [-180, 180]     # optional [min, max], in the controller's angles
+
+    [controller]                 # optional: how the controller counts its joints
+    maker = "abb"                # (calib.conventions; without it the angles are the table's)
+    direction = [1, 1, 1, 1, 1, 1]
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.conventions import IDENTITY, ConventionError, JointConvention, convention_from_mapping
 from calib.kinematics import N_JOINTS, Convention, FloatArray
 
 
@@ -52,6 +57,8 @@ class RobotModel:
         ``[min, max]`` per joint [deg]; None when unknown.
     tool_mm : ndarray, shape (3,)
         Nominal cable attachment point in the flange frame [mm].
+    controller : JointConvention
+        How the controller counts its joints against ``dh_table`` (identity by default).
     """
 
     name: str
@@ -59,6 +66,7 @@ class RobotModel:
     dh_table: FloatArray
     joint_limits_deg: FloatArray | None = None
     tool_mm: FloatArray = field(default_factory=lambda: np.zeros(3))
+    controller: JointConvention = IDENTITY
 
     def dh_internal(self) -> FloatArray:
         """The DH table in internal units, shape (6, 4): ``(alpha_rad, a_mm, d_mm, theta_rad)``."""
@@ -80,6 +88,7 @@ class RobotModel:
             "convention": self.convention,
             "tool_mm": [float(v) for v in self.tool_mm],
             "joints": joints,
+            **({} if self.controller == IDENTITY else {"controller": self.controller.to_dict()}),
         }
 
 
@@ -108,7 +117,7 @@ def model_from_mapping(data: Mapping[str, Any]) -> RobotModel:
     """
     if not isinstance(data, Mapping):
         raise ModelError("<root>", "a model must be a table/object")
-    known = {"name", "convention", "tool_mm", "joints"}
+    known = {"name", "convention", "tool_mm", "joints", "controller"}
     for key in data:
         if key not in known:
             raise ModelError(str(key), f"unknown field (expected one of {sorted(known)})")
@@ -149,12 +158,17 @@ def model_from_mapping(data: Mapping[str, Any]) -> RobotModel:
         raise ModelError("joints", "limits_deg must be given for all six joints or for none")
     if np.any(np.abs(table[:, [0, 3]]) > 360.0):
         raise ModelError("joints", "alpha_deg and theta_deg must lie within ±360")
+    try:
+        controller = convention_from_mapping(data.get("controller"))
+    except ConventionError as exc:
+        raise ModelError(exc.field, exc.message) from exc
     return RobotModel(
         name=name.strip(),
         convention=convention,
         dh_table=table,
         joint_limits_deg=limits if n_limits else None,
         tool_mm=np.asarray(tool, dtype=float),
+        controller=controller,
     )
 
 

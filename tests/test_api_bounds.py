@@ -125,7 +125,7 @@ def test_import_over_20_mib_is_413_before_it_is_all_in_memory(client: TestClient
 
 
 def test_notes_and_names_have_length_limits(client: TestClient) -> None:
-    from daemon.api.schemas import MAX_NAME_CHARS, MAX_NOTES_CHARS
+    from daemon.api.text_rules import MAX_NAME_CHARS, MAX_NOTES_CHARS
 
     r = client.post("/api/v1/campaigns", json={"name": "n", "notes": "x" * 200_000}, headers=AUTH)
     assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "notes"], r.text

@@ -13,15 +13,16 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from calib.planning.options import PlanOptions
-    from calib.planning.planner import evaluate_poses, plan, start_anchors_mm
+    from calib.planning.planner import evaluate_poses, plan
     from calib.planning.result import CSV_COLUMNS, PlanResult
+    from calib.planning.start import start_anchors_mm
 
 #: Where each exported name lives.
 _HOMES = {
     "PlanOptions": "calib.planning.options",
     "evaluate_poses": "calib.planning.planner",
     "plan": "calib.planning.planner",
-    "start_anchors_mm": "calib.planning.planner",
+    "start_anchors_mm": "calib.planning.start",
     "CSV_COLUMNS": "calib.planning.result",
     "PlanResult": "calib.planning.result",
 }

@@ -45,16 +45,17 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
 
-from calib.cable import N_KIN, ParamLayout, length_jacobian, multilaterate
+from calib.cable import N_KIN, ParamLayout, length_jacobian
 from calib.dataset import SampleSet, validate_joint_limits
 from calib.identifiability import analyse
-from calib.kinematics import FloatArray, IndexArray, forward_position
+from calib.kinematics import FloatArray, IndexArray
 from calib.models import RobotModel
 from calib.planning import design
 from calib.planning.candidates import draw_candidates, flange_and_tool_mm, reading_window_mm
 from calib.planning.options import PlanOptions
 from calib.planning.order import campaign_time_s, order_poses
 from calib.planning.result import PlanResult
+from calib.planning.start import plan_anchor_ids, start_anchors_mm
 from calib.problem import BoolArray
 from calib.tcp import (
     TcpUncertainty,
@@ -79,41 +80,6 @@ class _Setup:
     start_jac: FloatArray  # (s, k) unscaled start rows
     plan_anchor_index: IndexArray  # (m,) layout index of each plan anchor
     nuisance: IndexArray | None  # columns of rows that are anchor parameters (Ds), or None
-
-
-def plan_anchor_ids(anchor_ids: tuple[str, ...] | None, n_anchors: int) -> tuple[str, ...]:
-    """The ids of a plan's anchors: ``anchor_ids`` as given, else ``A, B, …``."""
-    return anchor_ids or tuple(chr(ord("A") + k) for k in range(n_anchors))
-
-
-def start_offsets_mm(
-    model: RobotModel, start: SampleSet, ids: tuple[str, ...]
-) -> tuple[float | None, ...] | None:
-    """The zero offset [mm] of each of the plan's anchors ``ids`` that the start samples
-    measured (multilateration, :func:`start_anchor_fits`), None for the others; None when
-    they measured none (:attr:`PlanOptions.offsets_mm`)."""
-    fits = start_anchor_fits(model, start)
-    out = tuple(float(fits[a][1]) if a in fits else None for a in ids)
-    return out if any(c is not None for c in out) else None
-
-
-def start_anchors_mm(model: RobotModel, start: SampleSet) -> dict[str, FloatArray]:
-    """P0 of each start anchor by multilateration with the nominal model, each (3,) [mm]
-    (the anchor guess for planning more poses at a sensor that has not moved)."""
-    return {aid: p0 for aid, (p0, _) in start_anchor_fits(model, start).items()}
-
-
-def start_anchor_fits(model: RobotModel, start: SampleSet) -> dict[str, tuple[FloatArray, float]]:
-    """P0 (3,) [mm] and the indicator's zero offset [mm] of each start anchor, by
-    multilateration with the nominal model."""
-    pos = forward_position(
-        model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm, model.convention
-    )
-    idx = start.anchor_index()
-    return {
-        aid: multilaterate(pos[idx == k], start.length_mm[idx == k])
-        for k, aid in enumerate(start.anchor_ids)
-    }
 
 
 def _setup(

@@ -5,14 +5,11 @@ Every request body lives here and derives from the one strict body class, :class
 
 from __future__ import annotations
 
-import re
 from typing import Annotated, Any, Literal
 
 from pydantic import (
-    AfterValidator,
     AliasChoices,
     BaseModel,
-    BeforeValidator,
     ConfigDict,
     Field,
     StringConstraints,
@@ -27,104 +24,16 @@ from calib.models import BUILTIN_MODELS
 from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
 from calib.planning import PlanOptions
 from daemon.api.deps import MAX_ID
-from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
-
-#: Longest campaign name, anchor id, exclusion reason and campaign notes [characters].
-MAX_NAME_CHARS = 200
-MAX_ANCHOR_CHARS = 32
-MAX_REASON_CHARS = 500
-MAX_NOTES_CHARS = 10_000
-
-
-def _no_surrogates(value: Any, where: str = "body") -> None:
-    """Raise ValueError if any string in ``value`` (recursively) cannot be UTF-8 (an unpaired
-    surrogate such as ``"\\ud800"``, which JSON can spell but SQLite cannot store)."""
-    if isinstance(value, str):
-        try:
-            value.encode("utf-8")
-        except UnicodeEncodeError as exc:
-            raise ValueError(f"{where}: not valid Unicode text ({exc.reason})") from None
-    elif isinstance(value, dict):
-        for k, v in value.items():
-            _no_surrogates(k, where)
-            _no_surrogates(v, f"{where}.{k}")
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            _no_surrogates(v, f"{where}[{i}]")
-
-
-def _not_blank(value: str) -> str:
-    if not value:
-        raise ValueError("must not be empty or blank")
-    return value
-
-
-#: C0 and C1 control characters (and DEL): never in a name, an anchor, a reason or notes
-#: (ESC, BEL, CR, ... would act on a terminal or break a line of an exported file).
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
-#: The same, except the line feed and the tab that notes may hold.
-_CONTROL_BUT_LINES = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
-#: The schema's patterns of the same rules (ECMA-262 and Python read them alike).
-_PRINTABLE = "[^\\x00-\\x1f\\x7f-\\x9f]"
-_PRINTABLE_NOTES = "[^\\x00-\\x08\\x0b-\\x1f\\x7f-\\x9f]"
-
-
-def not_printable(text: str, pattern: re.Pattern[str] = _CONTROL) -> str | None:
-    """Why ``text`` is not printable text (its first control character and position), or
-    None; also the rule of a CSV import's ``anchor`` and ``group`` cells."""
-    found = pattern.search(text)
-    if found is None:
-        return None
-    return f"control character U+{ord(found.group()):04X} at position {found.start()}"
-
-
-def _printable(pattern: re.Pattern[str], allowed: str) -> Any:
-    """A validator (run on the value as sent, before stripping) refusing what ``pattern``
-    finds, naming the character and its position."""
-
-    def check(value: Any) -> Any:
-        if isinstance(value, str) and (why := not_printable(value, pattern)):
-            raise ValueError(f"{why}: {allowed}")
-        return value
-
-    return BeforeValidator(check)
-
-
-_NO_CONTROL = _printable(_CONTROL, "only printable text is allowed")
-_NO_CONTROL_BUT_LINES = _printable(
-    _CONTROL_BUT_LINES, "only printable text, line feeds and tabs are allowed"
+from daemon.api.text_rules import (
+    MAX_NAME_CHARS,
+    MAX_NOTES_CHARS,
+    Anchor,
+    Name,
+    Notes,
+    Reason,
+    no_surrogates,
 )
-_Stripped = StringConstraints(strip_whitespace=True)
-#: The "not blank" and "printable" rules as the schema states them (at least one non-space
-#: character, no control character); the server's checks are :func:`_not_blank` after
-#: stripping and :data:`_NO_CONTROL` before it, with their own messages.
-NOT_BLANK_SCHEMA: dict[str, Any] = {
-    "minLength": 1,
-    "pattern": f"^{_PRINTABLE}*[^\\s\\x00-\\x1f\\x7f-\\x9f]{_PRINTABLE}*$",
-}
-Name = Annotated[
-    str,
-    _Stripped,
-    Field(max_length=MAX_NAME_CHARS, json_schema_extra=NOT_BLANK_SCHEMA),
-    AfterValidator(_not_blank),
-    _NO_CONTROL,
-]
-Anchor = Annotated[
-    str,
-    _Stripped,
-    Field(max_length=MAX_ANCHOR_CHARS, json_schema_extra=NOT_BLANK_SCHEMA),
-    AfterValidator(_not_blank),
-    _NO_CONTROL,
-]
-Notes = Annotated[
-    str,
-    _Stripped,
-    Field(max_length=MAX_NOTES_CHARS, pattern=f"^{_PRINTABLE_NOTES}*$"),
-    _NO_CONTROL_BUT_LINES,
-]
-Reason = Annotated[
-    str, _Stripped, Field(max_length=MAX_REASON_CHARS, pattern=f"^{_PRINTABLE}*$"), _NO_CONTROL
-]
+from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
 
 
 class _Body(BaseModel):
@@ -137,7 +46,7 @@ class _Body(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _unicode(cls, value: Any, info: ValidationInfo) -> Any:
-        _no_surrogates(value, "text")
+        no_surrogates(value, "text")
         # JSON Schema's "integer" includes 2.0: a whole float is taken for an int field
         # (strict mode refuses it otherwise; 2.5 and "2" stay errors).
         field = cls.model_fields.get(info.field_name or "")

@@ -206,7 +206,7 @@ def plan_cmd(
     from calib.dataset import SampleError
     from calib.models import ModelError
     from calib.planning import PlanOptions, plan, start_anchors_mm
-    from calib.planning.planner import plan_anchor_ids, start_offsets_mm
+    from calib.planning.start import plan_anchor_ids, start_offsets_mm
     from daemon.datafiles import load_robot, read_samples
 
     console = Console()  # created here so COLUMNS is read at run time

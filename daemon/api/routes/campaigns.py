@@ -38,8 +38,8 @@ from daemon.api.schemas import (
     ImportResult,
     SampleOut,
     SamplePatch,
-    not_printable,
 )
+from daemon.api.text_rules import not_printable
 from daemon.autocapture import SamplerRefused, SamplerUnavailable
 from daemon.capture import CaptureRejected
 from daemon.store import CampaignRow
@@ -324,7 +324,7 @@ def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
 
 def _check_printable(samples: SampleSet) -> None:
     """The text columns hold printable text, as a name or an anchor sent as JSON must
-    (:func:`daemon.api.schemas.not_printable`); else a :class:`SampleError` naming the row."""
+    (:func:`daemon.api.text_rules.not_printable`); else a :class:`SampleError` naming the row."""
     for column, cells in (("anchor", samples.anchor), ("group", samples.group or ())):
         for text in set(cells):
             if why := not_printable(text):

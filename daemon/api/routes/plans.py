@@ -18,13 +18,14 @@ from calib.csvtext import write_csv
 from calib.dataset import SampleError, SampleSet
 from calib.models import RobotModel
 from calib.planning import CSV_COLUMNS, PlanOptions, plan
-from calib.planning.planner import plan_anchor_ids, start_anchor_fits
 from calib.planning.progress import MATCH_TOL_DEG, match_plan, not_capturable
+from calib.planning.start import plan_anchor_ids, start_anchor_fits
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
-from daemon.api.schemas import MAX_ANCHOR_CHARS, PlanRequest
+from daemon.api.schemas import PlanRequest
+from daemon.api.text_rules import MAX_ANCHOR_CHARS
 from daemon.plan_check import rejections
 from daemon.plan_noise import NoiseEstimate, cell_noise
 from daemon.store import StoreNotFound
