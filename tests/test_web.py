@@ -4,9 +4,8 @@ the EMULATED cell (``cablecal simulate``) and ``cablecal serve``, as in tests/te
 One test walks the whole operator flow: token → campaign → plan → auto capture → identify →
 result plots → accept → download the report → compensate → filter programs (drop, summary,
 download), with no console error and no
-request to another host; a screenshot of each step goes to the test's tmp dir. Steps whose
-REST route this daemon does not have yet (plan, compensate) end the test as xfail after every
-other step passed.
+request to another host; a screenshot of each step goes to the test's tmp dir. A route the walk
+needs that the daemon lacks fails the test (it used to be an xfail, which could hide a loss).
 """
 
 from __future__ import annotations
@@ -65,7 +64,8 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
     url = cell.daemon.url
     api = cell.daemon.client()
     routes = _routes(url)
-    missing: list[str] = []
+    for method, suffix in (("POST", "/plan"), ("POST", "/compensate"), ("POST", "/filter")):
+        assert _has(routes, method, suffix), f"the page's {method} ...{suffix} route is missing"
     with offline_page(VIEWPORT, allowed_origin=url) as (page, log):
         page.on("dialog", lambda d: d.accept())
         failed: list[str] = []
@@ -105,24 +105,21 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         )
 
         # plan (when the daemon has the route)
-        if _has(routes, "POST", "/plan"):
-            # the fewest poses the form takes: the API's count (issue 27 item 3)
-            n_plan = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
-            page.fill("#plan-form input[name=n]", str(n_plan))
-            for axis, value in zip("xyz", (1400, 300, 200), strict=True):  # the cell's sensor
-                page.fill(f"#plan-form input[name=a{axis}]", str(value))
-            page.click("#plan-form button")
-            page.wait_for_function(
-                f"document.querySelectorAll('#plan-poses tbody tr').length >= {n_plan}",
-                timeout=120000,
-            )
-            summary = page.inner_text("#plan-summary")
-            assert "Predicted tool-point accuracy" in summary
-            # the noise the prediction assumes, and where it came from (not asked of the user)
-            noise = api.get(f"/campaigns/{cid}/plan").json()["summary"]
-            assert noise["noise_source"] != "request" and noise["noise_detail"] in summary
-        else:
-            missing.append("plan")
+        # the fewest poses the form takes: the API's count (issue 27 item 3)
+        n_plan = api.get(f"/campaigns/{cid}").json()["min_samples_to_identify"]
+        page.fill("#plan-form input[name=n]", str(n_plan))
+        for axis, value in zip("xyz", (1400, 300, 200), strict=True):  # the cell's sensor
+            page.fill(f"#plan-form input[name=a{axis}]", str(value))
+        page.click("#plan-form button")
+        page.wait_for_function(
+            f"document.querySelectorAll('#plan-poses tbody tr').length >= {n_plan}",
+            timeout=120000,
+        )
+        summary = page.inner_text("#plan-summary")
+        assert "Predicted tool-point accuracy" in summary
+        # the noise the prediction assumes, and where it came from (not asked of the user)
+        noise = api.get(f"/campaigns/{cid}/plan").json()["summary"]
+        assert noise["noise_source"] != "request" and noise["noise_detail"] in summary
         _shot(page, tmp_path, "2-campaign-plan")
 
         # auto capture to N
@@ -247,67 +244,59 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         example = page.get_attribute("#compensate-form textarea", "placeholder") or ""
         q_example = [float(v) for v in example.splitlines()[1].split(",")]
         assert all(lo <= q <= hi for q, (lo, hi) in zip(q_example, limits, strict=True))
-        if _has(routes, "POST", "/compensate"):
-            seed = [
-                float(v) for v in page.input_value("#compensate-form input[name=seed]").split(",")
-            ]
-            xyz = tool_pose(builtin_model("hsr-jr680"), np.array([seed]), np.zeros(3))[0][0]
-            page.fill("#compensate-form textarea", "x,y,z\n" + ",".join(f"{v:.3f}" for v in xyz))
-            page.click("#compensate-form button[type=submit]")
-            page.wait_for_function(
-                "document.querySelectorAll('#compensate-result tbody tr').length === 1",
-                timeout=30000,
-            )
-            assert "seed" not in page.inner_text("#compensate-state")
-            poses = [s for s in api.get(f"/campaigns/{cid}/samples").json()][:5]
-            csv = "q1,q2,q3,q4,q5,q6\n" + "\n".join(
-                ",".join(f"{s[f'q{j}']:.3f}" for j in range(1, 7)) for s in poses
-            )
-            page.fill("#compensate-form textarea", csv)
-            page.click("#compensate-form button[type=submit]")
-            page.wait_for_function(
-                "document.querySelectorAll('#compensate-result tbody tr').length >= 5",
-                timeout=30000,
-            )
-        else:
-            missing.append("compensate")
+        seed = [float(v) for v in page.input_value("#compensate-form input[name=seed]").split(",")]
+        xyz = tool_pose(builtin_model("hsr-jr680"), np.array([seed]), np.zeros(3))[0][0]
+        page.fill("#compensate-form textarea", "x,y,z\n" + ",".join(f"{v:.3f}" for v in xyz))
+        page.click("#compensate-form button[type=submit]")
+        page.wait_for_function(
+            "document.querySelectorAll('#compensate-result tbody tr').length === 1",
+            timeout=30000,
+        )
+        assert "seed" not in page.inner_text("#compensate-state")
+        poses = [s for s in api.get(f"/campaigns/{cid}/samples").json()][:5]
+        csv = "q1,q2,q3,q4,q5,q6\n" + "\n".join(
+            ",".join(f"{s[f'q{j}']:.3f}" for j in range(1, 7)) for s in poses
+        )
+        page.fill("#compensate-form textarea", csv)
+        page.click("#compensate-form button[type=submit]")
+        page.wait_for_function(
+            "document.querySelectorAll('#compensate-result tbody tr').length >= 5",
+            timeout=30000,
+        )
         _shot(page, tmp_path, "6-apply")
 
         # filter programs: drop two program files on the robot's view, read the summary
         # table, download the zip of the filtered files
-        if _has(routes, "POST", "/filter"):
-            programs = Path(__file__).parent / "fixtures" / "programs"
-            dropped = {
-                n: base64.b64encode((programs / n).read_bytes()).decode()
-                for n in ("cell_a.mod", "notes_e.mod")
-            }
-            page.evaluate(
-                """(files) => {
-                  const dt = new DataTransfer();
-                  for (const [name, b64] of Object.entries(files)) {
-                    const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
-                    dt.items.add(new File([bytes], name));
-                  }
-                  document.getElementById("filter-drop").dispatchEvent(
-                    new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
-                }""",
-                dropped,
-            )
-            page.wait_for_function(
-                "document.querySelectorAll('#filter-result tbody tr').length === 7",
-                timeout=30000,
-            )
-            assert "7 corrected" in page.inner_text("#filter-state")
-            assert "pEdge" in page.inner_text("#filter-result")
-            with page.expect_download() as got:
-                page.click("#filter-download")
-            with zipfile.ZipFile(got.value.path()) as zf:
-                assert sorted(zf.namelist()) == ["cell_a.mod", "filter-summary.json", "notes_e.mod"]
-                assert zf.read("notes_e.mod") == (programs / "notes_e.mod").read_bytes()
-                assert zf.read("cell_a.mod") != (programs / "cell_a.mod").read_bytes()
-            _shot(page, tmp_path, "6b-filter")
-        else:
-            missing.append("filter")
+        programs = Path(__file__).parent / "fixtures" / "programs"
+        dropped = {
+            n: base64.b64encode((programs / n).read_bytes()).decode()
+            for n in ("cell_a.mod", "notes_e.mod")
+        }
+        page.evaluate(
+            """(files) => {
+              const dt = new DataTransfer();
+              for (const [name, b64] of Object.entries(files)) {
+                const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+                dt.items.add(new File([bytes], name));
+              }
+              document.getElementById("filter-drop").dispatchEvent(
+                new DragEvent("drop", { dataTransfer: dt, bubbles: true, cancelable: true }));
+            }""",
+            dropped,
+        )
+        page.wait_for_function(
+            "document.querySelectorAll('#filter-result tbody tr').length === 7",
+            timeout=30000,
+        )
+        assert "7 corrected" in page.inner_text("#filter-state")
+        assert "pEdge" in page.inner_text("#filter-result")
+        with page.expect_download() as got:
+            page.click("#filter-download")
+        with zipfile.ZipFile(got.value.path()) as zf:
+            assert sorted(zf.namelist()) == ["cell_a.mod", "filter-summary.json", "notes_e.mod"]
+            assert zf.read("notes_e.mod") == (programs / "notes_e.mod").read_bytes()
+            assert zf.read("cell_a.mod") != (programs / "cell_a.mod").read_bytes()
+        _shot(page, tmp_path, "6b-filter")
 
         # item 3: the drift check lists its poses and counts them while it runs; the page
         # stays on the operator's campaign, and a fresh tab opens it too
@@ -332,8 +321,6 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
         assert log.console_errors == [], failed
         assert log.blocked_requests == []
         assert page.locator(".message.error").count() == 0, page.inner_text("#messages")
-    if missing:
-        pytest.xfail(f"route not merged yet: {', '.join(missing)} (every other step passed)")
 
 
 def test_wrong_token_says_401_and_asks_again(cell: Cell, tmp_path: Path) -> None:
