@@ -1,8 +1,13 @@
-"""Helpers shared by the tests (not installed): emulated-cell configurations."""
+"""Helpers shared by the tests (not installed): emulated-cell configurations, the truth a
+reading is checked against, and a real uvicorn server on loopback."""
 
 from __future__ import annotations
 
 import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from simulator.config import SimConfig
@@ -83,3 +88,24 @@ def closed_by_server(s: socket.socket, timeout_s: float) -> bytes | None:
     except ConnectionResetError:
         pass
     return got
+
+
+@contextmanager
+def served_app(app: Any, **options: Any) -> Iterator[tuple[str, int]]:
+    """A real uvicorn server on loopback running ``app`` in a thread with ``options``
+    (:func:`daemon.api.server.uvicorn_options`); yields its (host, port) and stops it after."""
+    import uvicorn
+
+    config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, **options)
+    srv = uvicorn.Server(config)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 60
+    while not srv.started:
+        assert time.monotonic() < deadline and thread.is_alive()
+        time.sleep(0.02)
+    try:
+        yield "127.0.0.1", srv.servers[0].sockets[0].getsockname()[1]
+    finally:
+        srv.should_exit = True
+        thread.join(15)

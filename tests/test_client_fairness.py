@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import select
 import socket
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -18,8 +17,7 @@ from typing import Any
 
 import httpx
 import pytest
-import uvicorn
-from helpers import closed_by_server
+from helpers import closed_by_server, served_app
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api import server as server_module
@@ -33,17 +31,8 @@ HEAD_TIMEOUT_S = 2.0
 
 def _serve(tmp_path: Path, options: dict[str, Any]) -> Iterator[tuple[str, int]]:
     app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
-    config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, **options)
-    srv = uvicorn.Server(config)
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not srv.started:
-        assert time.monotonic() < deadline and thread.is_alive()
-        time.sleep(0.02)
-    yield "127.0.0.1", srv.servers[0].sockets[0].getsockname()[1]
-    srv.should_exit = True
-    thread.join(15)
+    with served_app(app, **options) as addr:
+        yield addr
 
 
 @pytest.fixture

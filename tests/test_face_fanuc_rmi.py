@@ -13,9 +13,7 @@ user of that client must on a real controller whose session port is not 16002.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,9 +22,14 @@ import pytest
 from expected_protocol import expected_protocol_tcp
 from fanuc_rmi import RobotClient
 from helpers import host_port, start_emulated_cell
-from robot_faces import deviation_from_truth_deg, last_tx_s
+from robot_faces import (
+    drops_and_late_replies,
+    frozen_joints_raise_stale,
+    late_replies_never_taken,
+    link_down_then_back,
+)
 
-from drivers.errors import RobotError, RobotLinkDown, RobotProtocolError, RobotStale
+from drivers.errors import RobotLinkDown, RobotProtocolError
 from drivers.fanuc_rmi import (
     RMIT_ALREADY_CONNECTED,
     FanucRmiConfig,
@@ -148,82 +151,26 @@ async def test_one_session_at_a_time(fanuc: Fanuc) -> None:
 
 
 async def test_driver_reads_the_truth_through_drops_and_late_replies(fanuc: Fanuc) -> None:
-    """10 % dropped and 10 % late replies: every value returned is the truth; failures are
-    typed RobotErrors; single drops cost no reconnect (the marker re-synchronises)."""
     sim, face = fanuc
-    truth = np.asarray(sim.control("state")["joints_deg"])
-    sim.control("fault", robot_drop_rate=0.1, robot_late_rate=0.1, robot_late_delay_s=0.3)
-    robot = _driver(face)
-    good: list[tuple[float, ...]] = []
-    errors: list[RobotError] = []
-    try:
-        for _ in range(40):
-            try:
-                good.append((await robot.read_joints()).joints_deg)
-            except RobotError as exc:
-                errors.append(exc)
-    finally:
-        await robot.close()
-    assert robot.attempts.silent_total >= 4, robot.attempts.silent_total  # faults exercised
-    assert len(good) >= 37, [str(e) for e in errors]
-    assert np.abs(np.asarray(good) - truth).max() <= RESOLUTION_DEG
-    assert robot.late_discarded >= 2  # late replies came and were not taken
+    await drops_and_late_replies(sim, _driver(face), RESOLUTION_DEG)
 
 
 async def test_late_replies_are_never_taken_for_the_retry(fanuc_moving: Fanuc) -> None:
-    """Robot always moving, 20 % of replies 0.3 s late (after the 0.2 s first wait): each
-    reading is the truth at an instant between its request and its stamp."""
     sim, face = fanuc_moving
-    sim.control("fault", robot_late_rate=0.2, robot_late_delay_s=0.3)
     robot = _driver(face)
-    checked = []
-    try:
-        for _ in range(30):
-            reading = await robot.read_joints()
-            checked.append((reading, last_tx_s(robot.frames.snapshot())))
-    finally:
-        await robot.close()
-    assert robot.attempts.recovered_total >= 2  # late replies were in flight
+    await late_replies_never_taken(sim, robot, RESOLUTION_DEG)
     assert robot.late_discarded >= 2
-    for reading, t_tx_s in checked:
-        dev = deviation_from_truth_deg(sim, reading.joints_deg, t_tx_s, reading.t_monotonic_s)
-        assert dev <= RESOLUTION_DEG + 0.01, f"{reading} is {dev:.3f} deg from the truth"
 
 
 async def test_link_down_then_back(fanuc: Fanuc) -> None:
     sim, face = fanuc
     robot = _driver(face, timeout_s=0.2, fast_reply_timeout_s=0.1)
-    try:
-        await robot.read_joints()
-        sim.control("link_down", target="robot_fanuc_rmi", duration_s=0.5)
-        with pytest.raises(RobotLinkDown):
-            await robot.read_joints()
-        t0 = time.monotonic()
-        while True:
-            with contextlib.suppress(RobotLinkDown):
-                reading = await robot.read_joints()
-                break
-            assert time.monotonic() - t0 < 5, robot.frames.snapshot()
-            await asyncio.sleep(0.05)
-    finally:
-        await robot.close()
-    truth = np.asarray(sim.control("state")["joints_deg"])
-    assert np.abs(np.asarray(reading.joints_deg) - truth).max() <= RESOLUTION_DEG
-    assert robot.connects == 2
+    await link_down_then_back(sim, robot, "robot_fanuc_rmi", RESOLUTION_DEG)
 
 
 async def test_frozen_joints_raise_stale(fanuc: Fanuc) -> None:
     sim, face = fanuc
-    sim.control("hold", on=False)
-    sim.control("fault", robot_frozen=True)
-    robot = _driver(face, max_unchanged_s=0.2)
-    try:
-        await robot.read_joints()
-        await asyncio.sleep(0.3)
-        with pytest.raises(RobotStale, match="unchanged"):
-            await robot.read_joints()
-    finally:
-        await robot.close()
+    await frozen_joints_raise_stale(sim, _driver(face, max_unchanged_s=0.2))
 
 
 async def test_invalid_group_is_a_protocol_error_with_its_code(fanuc: Fanuc) -> None:

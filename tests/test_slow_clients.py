@@ -6,15 +6,13 @@ app with the bounds shortened to 1-2 s, as ``cablecal serve`` configures it."""
 from __future__ import annotations
 
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
-import uvicorn
-from helpers import closed_by_server
+from helpers import closed_by_server, served_app
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api import guard
@@ -29,19 +27,8 @@ def server(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
     monkeypatch.setattr(guard, "BODY_GAP_TIMEOUT_S", 1.0)
     monkeypatch.setattr(guard, "BODY_TIMEOUT_S", 2.0)
     app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
-    options = uvicorn_options(2 * HELD + 10, head_timeout_s=1.0)
-    config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, **options)
-    srv = uvicorn.Server(config)
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not srv.started:
-        assert time.monotonic() < deadline and thread.is_alive()
-        time.sleep(0.02)
-    port = srv.servers[0].sockets[0].getsockname()[1]
-    yield f"127.0.0.1:{port}"
-    srv.should_exit = True
-    thread.join(15)
+    with served_app(app, **uvicorn_options(2 * HELD + 10, head_timeout_s=1.0)) as (host, port):
+        yield f"{host}:{port}"
 
 
 def _open(addr: str, data: bytes) -> socket.socket:
