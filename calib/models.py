@@ -31,8 +31,17 @@ from typing import Any
 
 import numpy as np
 
-from calib.conventions import IDENTITY, ConventionError, JointConvention, convention_from_mapping
+from calib.conventions import (
+    IDENTITY,
+    ConventionError,
+    JointConvention,
+    controller_block,
+    convention_from_mapping,
+)
 from calib.kinematics import N_JOINTS, Convention, FloatArray
+
+#: Limits used for a model without ``limits_deg`` [deg], in the controller's angles.
+DEFAULT_LIMITS_DEG = (-170.0, 170.0)
 
 
 class ModelError(ValueError):
@@ -74,6 +83,29 @@ class RobotModel:
         out[:, [0, 3]] = np.deg2rad(out[:, [0, 3]])
         return out
 
+    def table_rad(self, q_ctrl_deg: Any) -> FloatArray:
+        """Table angles [rad] of controller joint angles [deg], shape (6,) or (n, 6) kept.
+
+        The one door from the controller's angles into the kinematics
+        (:mod:`calib.conventions`); the table's ``theta_deg`` is added by the kinematics.
+        With an identity convention this is ``np.deg2rad(q)``, bit for bit.
+        """
+        out: FloatArray = np.deg2rad(self.controller.to_table_deg(q_ctrl_deg))
+        return out
+
+    def controller_deg(self, q_table_rad: Any) -> FloatArray:
+        """Controller joint angles [deg] of table angles [rad] (e.g. an IK solution), shape
+        kept; the inverse of :meth:`table_rad`."""
+        out: FloatArray = self.controller.to_controller_deg(np.rad2deg(q_table_rad))
+        return out
+
+    def limits_deg(self) -> FloatArray:
+        """Joint limits, shape (6, 2) [deg] in the controller's angles; ±170 deg
+        (:data:`DEFAULT_LIMITS_DEG`) for a model without them."""
+        if self.joint_limits_deg is None:
+            return np.tile(DEFAULT_LIMITS_DEG, (N_JOINTS, 1))
+        return np.asarray(self.joint_limits_deg, dtype=float)
+
     def to_dict(self) -> dict[str, Any]:
         """The model as a JSON-able mapping in the file format above."""
         joints: list[dict[str, Any]] = []
@@ -88,7 +120,7 @@ class RobotModel:
             "convention": self.convention,
             "tool_mm": [float(v) for v in self.tool_mm],
             "joints": joints,
-            **({} if self.controller == IDENTITY else {"controller": self.controller.to_dict()}),
+            **controller_block(self.controller),
         }
 
 

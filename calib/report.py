@@ -15,6 +15,7 @@ import numpy as np
 
 from calib import metrics
 from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
+from calib.conventions import controller_block
 from calib.drift import DriftModel, Selection
 from calib.identifiability import Identifiability
 from calib.kinematics import N_JOINTS, FloatArray
@@ -92,6 +93,7 @@ class IdentifyResult:
             dh_table=self.dh_table_deg_mm(),
             joint_limits_deg=self.model.joint_limits_deg,
             tool_mm=self.tool_mm(),
+            controller=self.model.controller,
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -170,6 +172,7 @@ class IdentifyResult:
             },
             "plausibility": self.plausibility,
             "notes": list(self.notes),
+            **controller_block(self.model.controller),
         }
 
 
