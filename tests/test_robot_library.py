@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -138,3 +139,43 @@ def test_robots_show_an_unknown_name_exits_2_naming_the_known_ones() -> None:
 def test_the_example_jr680_is_the_library_arm() -> None:
     example = parse_model_text((REPO / "examples" / "hsr-jr680.toml").read_text(), "toml")
     assert example.to_dict() == library_model("hsr-jr680").to_dict()
+
+
+# --- the ABB arms against what the world writes of them (bench/robots_check.py) -------------
+
+
+def test_abb_arms_give_the_robtargets_their_controllers_wrote() -> None:
+    from bench.robots_check import pair_checks
+
+    checks = pair_checks()
+    assert {c.arm for c in checks} >= {n for n in NAMES if n.startswith("abb-")} - {
+        "abb-irb6700-200-260"
+    }
+    for c in checks:
+        assert c.position_error_mm <= 0.01, c
+        assert c.rotation_error_deg <= 1e-4, c
+
+
+def test_the_previous_irb120_example_was_turned_180_deg_about_joint_6() -> None:
+    from bench.robots_check import old_irb120_check
+
+    old = old_irb120_check()
+    assert old.position_error_mm <= 0.01  # tool0's origin lies on axis 6 ...
+    assert old.rotation_error_deg == pytest.approx(180.0, abs=1e-6)  # ... its frame did not
+
+
+def test_abb_chains_are_ros_industrials_and_a_reversed_axis_would_show() -> None:
+    from bench.robots_check import chain_checks
+    from calib.conventions import JointConvention
+
+    for c in chain_checks(poses=60):
+        assert c.max_position_mm <= 1e-6 and c.max_rotation_deg <= 1e-6, c
+    arm = library_model("abb-irb2600-20-165")
+    for j in range(6):
+        direction = [1] * 6
+        direction[j] = -1
+        flipped = dataclasses.replace(arm, controller=JointConvention("abb", tuple(direction)))
+        (bad,) = [
+            c for c in chain_checks(poses=60, model_of={arm.name: flipped}) if c.arm == arm.name
+        ]
+        assert bad.max_rotation_deg > 10.0, (j, bad)
