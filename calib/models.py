@@ -39,7 +39,7 @@ from calib.conventions import (
     convention_from_mapping,
 )
 from calib.kinematics import N_JOINTS, Convention, FloatArray
-from calib.robots import LibraryError, library_mapping, library_names
+from calib.robots.files import LibraryError, library_mapping, library_names
 
 #: Limits used for a model without ``limits_deg`` [deg], in the controller's angles.
 DEFAULT_LIMITS_DEG = (-170.0, 170.0)
@@ -107,6 +107,11 @@ class RobotModel:
             return np.tile(DEFAULT_LIMITS_DEG, (N_JOINTS, 1))
         return np.asarray(self.joint_limits_deg, dtype=float)
 
+    def controller_fields(self) -> dict[str, Any]:
+        """``{"controller": …}`` when the controller does not count as the table, else empty
+        (model files and result.json alike: :func:`calib.conventions.controller_block`)."""
+        return controller_block(self.controller)
+
     def to_dict(self) -> dict[str, Any]:
         """The model as a JSON-able mapping in the file format above."""
         joints: list[dict[str, Any]] = []
@@ -121,7 +126,7 @@ class RobotModel:
             "convention": self.convention,
             "tool_mm": [float(v) for v in self.tool_mm],
             "joints": joints,
-            **controller_block(self.controller),
+            **self.controller_fields(),
         }
 
 

@@ -8,14 +8,13 @@ millimetres.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from calib import metrics
 from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
-from calib.conventions import controller_block
 from calib.drift import DriftModel, Selection
 from calib.identifiability import Identifiability
 from calib.kinematics import N_JOINTS, FloatArray
@@ -87,13 +86,11 @@ class IdentifyResult:
 
     def calibrated_model(self) -> RobotModel:
         """The calibrated robot as a model (same convention, joint limits kept)."""
-        return RobotModel(
+        return replace(
+            self.model,
             name=f"{self.model.name}-calibrated",
-            convention=self.model.convention,
             dh_table=self.dh_table_deg_mm(),
-            joint_limits_deg=self.model.joint_limits_deg,
             tool_mm=self.tool_mm(),
-            controller=self.model.controller,
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -172,7 +169,7 @@ class IdentifyResult:
             },
             "plausibility": self.plausibility,
             "notes": list(self.notes),
-            **controller_block(self.model.controller),
+            **self.model.controller_fields(),
         }
 
 
