@@ -167,3 +167,22 @@ def test_a_result_keeps_the_convention_and_predicts_with_it() -> None:
     assert "joint_3 = J3 - 1 * J2" in urdf
     plain_result = identify(plain, make_samples(q_table, samples.length_mm)).to_json()
     assert "controller" not in plain_result
+
+
+def test_compensate_takes_and_writes_the_controllers_joints() -> None:
+    from calib.compensate import CompensateOptions, JointTargets, compensate
+
+    plain, twin = _coupled_twin()
+    error = np.zeros((6, 4))
+    error[1, 1], error[2, 3], error[4, 3] = 1.5, 0.2, -0.3  # mm, deg, deg
+    plain_cal = dataclasses.replace(plain, dh_table=plain.dh_table + error)
+    twin_cal = dataclasses.replace(twin, dh_table=twin.dh_table + error)
+    q_table = np.random.default_rng(9).uniform(-40, 40, (20, 6)) + np.array([0, -30, 200, 0, 60, 0])
+    q_ctrl = twin.controller.to_controller_deg(q_table)
+    opts = CompensateOptions(mode="pose", tool_mm=(0.0, 0.0, 100.0))
+    want = compensate(plain, plain_cal, JointTargets(q_table), opts)
+    got = compensate(twin, twin_cal, JointTargets(q_ctrl), opts)
+    assert np.all(want.position_residual_mm < 1e-3) and np.all(got.position_residual_mm < 1e-3)
+    assert np.max(np.abs(want.corrected_joints_deg - q_table)) > 0.05  # something to correct
+    expected = twin.controller.to_controller_deg(want.corrected_joints_deg)
+    assert np.allclose(got.corrected_joints_deg, expected, atol=1e-4)
