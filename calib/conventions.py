@@ -107,6 +107,12 @@ class JointConvention:
 IDENTITY = JointConvention()
 
 
+def controller_block(convention: JointConvention) -> dict[str, Any]:
+    """``{"controller": …}`` for a model file or ``result.json``; empty for :data:`IDENTITY`
+    (so files of robots whose controller counts as the table stay as they were)."""
+    return {} if convention == IDENTITY else {"controller": convention.to_dict()}
+
+
 def _number(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
         raise ConventionError(where, f"must be a finite number, got {value!r}")

@@ -82,6 +82,8 @@ def model_from_result(
         "tool_mm": result.get("tool_mm", [0.0, 0.0, 0.0]),
         "joints": joints,
     }
+    if "controller" in result:
+        mapping["controller"] = result["controller"]
     return model_from_mapping(mapping)
 
 
@@ -149,6 +151,28 @@ def _joint_origins(model: RobotModel) -> list[dict[str, str]]:
     return out
 
 
+def _axis(model: RobotModel, j: int) -> str:
+    """URDF ``axis`` of joint ``j`` (0-based): ``z``, or ``-z`` where the controller counts
+    the joint opposite to the table (so the URDF joint value is the controller's angle)."""
+    return "0 0 -1" if model.controller.direction[j] == -1 else "0 0 1"
+
+
+def _joint_values_note(model: RobotModel) -> str:
+    """What a URDF joint value is: the controller's angle, unless the controller couples
+    joints (URDF has no coupling: then the value is the table angle, and the rule is said)."""
+    if not model.controller.couplings:
+        return "joint values are the controller's joint angles"
+    direction = model.controller.direction
+    terms = "; ".join(
+        f"joint_{j + 1} = J{j + 1} {'+' if direction[j] * f >= 0 else '-'} {abs(f):g} * J{k + 1}"
+        for j, k, f in model.controller.couplings
+    )
+    return (
+        "joint values are the controller's joint angles J1..J6 except where the controller "
+        f"couples joints, which URDF cannot: {terms}; the limits are the controller's"
+    )
+
+
 def model_to_urdf(model: RobotModel) -> str:
     """The model as URDF text: links ``base_link, link_1 … link_6, flange, tool_point``,
     revolute joints ``joint_1 … joint_6`` about ``z``, fixed ``flange`` and ``tool_point``."""
@@ -172,14 +196,14 @@ def model_to_urdf(model: RobotModel) -> str:
             tool_m = " ".join(_num(v / 1000.0) for v in model.tool_mm)
             ET.SubElement(joint, "origin", xyz=tool_m, rpy="0.0 0.0 0.0")
         if j < N_JOINTS:
-            ET.SubElement(joint, "axis", xyz="0 0 1")
+            ET.SubElement(joint, "axis", xyz=_axis(model, j))
             if limits is not None:
                 lo, hi = (_num(math.radians(v)) for v in limits[j])
                 ET.SubElement(joint, "limit", lower=lo, upper=hi, effort="0", velocity="0")
     ET.indent(robot)
     comment = (
         f"<!-- {xml_comment(model.name)}: {model.convention} chain exported by cablecal; "
-        "lengths in m, angles in rad; joint values are the controller's joint angles -->\n"
+        f"lengths in m, angles in rad; {_joint_values_note(model)} -->\n"
     )
     return '<?xml version="1.0"?>\n' + comment + ET.tostring(robot, encoding="unicode") + "\n"
 

@@ -347,7 +347,7 @@ def generic_jacobian(model: RobotModel, layout: ParamLayout, theta: FloatArray) 
     lo = np.full(N_JOINTS, -170.0) if limits is None else np.maximum(limits[:, 0], -170.0)
     hi = np.full(N_JOINTS, 170.0) if limits is None else np.minimum(limits[:, 1], 170.0)
     hi = np.where(hi > lo, hi, lo + 1.0)
-    q = np.deg2rad(rng.uniform(lo, hi, size=(GENERIC_POSES, N_JOINTS)))
+    q = model.table_rad(rng.uniform(lo, hi, size=(GENERIC_POSES, N_JOINTS)))
     aidx = np.arange(GENERIC_POSES) % len(layout.anchors)
     _, jac = length_jacobian(model, theta, q, aidx)
     return jac
@@ -415,6 +415,7 @@ def max_solved(
         np.asarray(model.dh_table, dtype=float).tobytes(),
         None if limits is None else np.asarray(limits, dtype=float).tobytes(),
         np.asarray(model.tool_mm, dtype=float).tobytes(),
+        model.controller,
         layout.anchors,
         np.asarray(candidates, dtype=bool).tobytes(),
         free,

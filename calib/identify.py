@@ -154,7 +154,7 @@ def _prepare(
         model,
         layout,
         samples,
-        np.deg2rad(samples.joints_deg),
+        model.table_rad(samples.joints_deg),
         samples.anchor_index(),
         train_rows,
         test_rows,

@@ -117,7 +117,7 @@ def tool_pose(
     model: RobotModel, joints_deg: FloatArray, tool_mm: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Tool point ``(n, 3)`` [mm] and flange orientation ``(n, 3, 3)`` of ``model``."""
-    rot, origin = forward_frames(model.dh_internal(), np.deg2rad(joints_deg), model.convention)
+    rot, origin = forward_frames(model.dh_internal(), model.table_rad(joints_deg), model.convention)
     return origin[:, N_JOINTS] + rot[:, N_JOINTS] @ tool_mm, rot[:, N_JOINTS]
 
 
@@ -133,7 +133,7 @@ def wrist_bend(model: RobotModel, joints_deg: FloatArray) -> FloatArray:
     Zero at the wrist singularity (axes 4 and 6 aligned); its sign tells the two wrist
     branches apart (a "wrist flip" changes it).
     """
-    rot, origin = forward_frames(model.dh_internal(), np.deg2rad(joints_deg), model.convention)
+    rot, origin = forward_frames(model.dh_internal(), model.table_rad(joints_deg), model.convention)
     axes, _ = _joint_axes(model, rot, origin)
     out: FloatArray = np.einsum("ni,ni->n", np.cross(axes[:, 3], axes[:, 5]), axes[:, 4])
     return out
@@ -207,7 +207,7 @@ def solve_ik(
     """
     dh = model.dh_internal()
     tool = np.asarray(tool_mm, dtype=float)
-    q = np.deg2rad(np.array(seed_deg, dtype=float))
+    q = model.table_rad(np.array(seed_deg, dtype=float))
     n = q.shape[0]
     iterations = np.zeros(n, dtype=int)
     weight = options.rotation_weight_mm_per_rad
@@ -258,7 +258,7 @@ def solve_ik(
         np.full(n, np.nan) if target_rot is None else np.rad2deg(np.linalg.norm(e_rot, axis=1))
     )
     converged = (pos_err <= options.tol_mm) & (np.nan_to_num(rot_err) <= options.tol_deg)
-    return IKSolution(np.rad2deg(q), iterations, pos_err, rot_err, converged)
+    return IKSolution(model.controller_deg(q), iterations, pos_err, rot_err, converged)
 
 
 def wrist_flipped(

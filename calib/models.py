@@ -31,8 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from calib.conventions import IDENTITY, ConventionError, JointConvention, convention_from_mapping
+from calib.conventions import (
+    IDENTITY,
+    ConventionError,
+    JointConvention,
+    controller_block,
+    convention_from_mapping,
+)
 from calib.kinematics import N_JOINTS, Convention, FloatArray
+from calib.robots.files import LibraryError, library_mapping, library_names
+
+#: Limits used for a model without ``limits_deg`` [deg], in the controller's angles.
+DEFAULT_LIMITS_DEG = (-170.0, 170.0)
 
 
 class ModelError(ValueError):
@@ -74,6 +84,34 @@ class RobotModel:
         out[:, [0, 3]] = np.deg2rad(out[:, [0, 3]])
         return out
 
+    def table_rad(self, q_ctrl_deg: Any) -> FloatArray:
+        """Table angles [rad] of controller joint angles [deg], shape (6,) or (n, 6) kept.
+
+        The one door from the controller's angles into the kinematics
+        (:mod:`calib.conventions`); the table's ``theta_deg`` is added by the kinematics.
+        With an identity convention this is ``np.deg2rad(q)``, bit for bit.
+        """
+        out: FloatArray = np.deg2rad(self.controller.to_table_deg(q_ctrl_deg))
+        return out
+
+    def controller_deg(self, q_table_rad: Any) -> FloatArray:
+        """Controller joint angles [deg] of table angles [rad] (e.g. an IK solution), shape
+        kept; the inverse of :meth:`table_rad`."""
+        out: FloatArray = self.controller.to_controller_deg(np.rad2deg(q_table_rad))
+        return out
+
+    def limits_deg(self) -> FloatArray:
+        """Joint limits, shape (6, 2) [deg] in the controller's angles; ±170 deg
+        (:data:`DEFAULT_LIMITS_DEG`) for a model without them."""
+        if self.joint_limits_deg is None:
+            return np.tile(DEFAULT_LIMITS_DEG, (N_JOINTS, 1))
+        return np.asarray(self.joint_limits_deg, dtype=float)
+
+    def controller_fields(self) -> dict[str, Any]:
+        """``{"controller": …}`` when the controller does not count as the table, else empty
+        (model files and result.json alike: :func:`calib.conventions.controller_block`)."""
+        return controller_block(self.controller)
+
     def to_dict(self) -> dict[str, Any]:
         """The model as a JSON-able mapping in the file format above."""
         joints: list[dict[str, Any]] = []
@@ -88,7 +126,7 @@ class RobotModel:
             "convention": self.convention,
             "tool_mm": [float(v) for v in self.tool_mm],
             "joints": joints,
-            **({} if self.controller == IDENTITY else {"controller": self.controller.to_dict()}),
+            **self.controller_fields(),
         }
 
 
@@ -193,70 +231,18 @@ def parse_model_text(text: str, fmt: str) -> RobotModel:
     return model_from_mapping(data)
 
 
-#: The paper's Table I: alpha, a and d as printed. Its theta column is the joint angle at the
-#: drawn (home) pose, not an offset to add: in eq. (1) theta_i is the joint variable itself, and
-#: the HSR-RobotCali angles (q3 about 215 deg) are those DH angles: on the bundled rows, zero
-#: offsets fit far better than Table I's theta added (bench/design_figures.md; the joint-5
-#: offset alone trades with the hook point). So the controller offsets are 0. The joint limits are
-#: assumptions (the paper gives none) wide enough for every pose of the dataset; see
-#: examples/hsr-jr680.toml.
-HSR_JR680: dict[str, Any] = {
-    "name": "hsr-jr680",
-    "convention": "dh",
-    "tool_mm": [0.0, 0.0, 0.0],
-    "joints": [
-        {
-            "alpha_deg": -90.0,
-            "a_mm": 250.0,
-            "d_mm": 653.5,
-            "theta_deg": 0.0,
-            "limits_deg": [-180.0, 180.0],
-        },
-        {
-            "alpha_deg": 0.0,
-            "a_mm": 900.0,
-            "d_mm": 0.0,
-            "theta_deg": 0.0,
-            "limits_deg": [-155.0, 90.0],
-        },
-        {
-            "alpha_deg": 90.0,
-            "a_mm": -205.0,
-            "d_mm": 0.0,
-            "theta_deg": 0.0,
-            "limits_deg": [60.0, 300.0],
-        },
-        {
-            "alpha_deg": -90.0,
-            "a_mm": 0.0,
-            "d_mm": 1030.2,
-            "theta_deg": 0.0,
-            "limits_deg": [-360.0, 360.0],
-        },
-        {
-            "alpha_deg": 90.0,
-            "a_mm": 0.0,
-            "d_mm": 0.0,
-            "theta_deg": 0.0,
-            "limits_deg": [-125.0, 125.0],
-        },
-        {
-            "alpha_deg": 0.0,
-            "a_mm": 0.0,
-            "d_mm": 200.6,
-            "theta_deg": 0.0,
-            "limits_deg": [-360.0, 360.0],
-        },
-    ],
-}
+#: The paper's Table I (the library's ``hsr-jr680``, where its leading comment says why every
+#: theta_deg offset is 0 and where the joint limits come from).
+HSR_JR680: dict[str, Any] = library_mapping("hsr-jr680")
 
-BUILTIN_MODELS: dict[str, dict[str, Any]] = {"hsr-jr680": HSR_JR680}
+#: Every built-in arm's model mapping by name: the robot library (:mod:`calib.robots`).
+BUILTIN_MODELS: dict[str, dict[str, Any]] = {
+    name: library_mapping(name) for name in library_names()
+}
 
 
 def builtin_model(name: str) -> RobotModel:
-    """A built-in model by name (currently ``hsr-jr680``)."""
+    """A built-in model by name (``cablecal robots`` lists them)."""
     if name not in BUILTIN_MODELS:
-        raise ModelError(
-            "robot", f"unknown built-in model {name!r}; known: {sorted(BUILTIN_MODELS)}"
-        )
+        raise ModelError("robot", str(LibraryError(name)))
     return model_from_mapping(BUILTIN_MODELS[name])

@@ -9,7 +9,16 @@ from typing import Any
 
 import numpy as np
 
+from calib.conventions import convention_from_mapping
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
+
+
+def result_table_rad(result: Mapping[str, Any], joints_deg: FloatArray) -> FloatArray:
+    """Table angles [rad] of controller joint angles [deg] (shape kept) under the result's
+    ``controller`` block (identity when absent; :mod:`calib.conventions`)."""
+    convention = convention_from_mapping(result.get("controller"))
+    out: FloatArray = np.deg2rad(convention.to_table_deg(joints_deg))
+    return out
 
 
 def calibrated_dh_internal(result: Mapping[str, Any]) -> FloatArray:
@@ -70,7 +79,7 @@ def predict_lengths_from_result(
         p0, c = others[anchor]["anchor_mm"], others[anchor]["length_offset_mm"]
     pos = forward_position(
         calibrated_dh_internal(result),
-        np.deg2rad(q),
+        result_table_rad(result, q),
         np.asarray(result["tool_mm"], dtype=float),
         result.get("convention", "dh"),
     )

@@ -8,7 +8,7 @@ millimetres.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -86,11 +86,10 @@ class IdentifyResult:
 
     def calibrated_model(self) -> RobotModel:
         """The calibrated robot as a model (same convention, joint limits kept)."""
-        return RobotModel(
+        return replace(
+            self.model,
             name=f"{self.model.name}-calibrated",
-            convention=self.model.convention,
             dh_table=self.dh_table_deg_mm(),
-            joint_limits_deg=self.model.joint_limits_deg,
             tool_mm=self.tool_mm(),
         )
 
@@ -170,6 +169,7 @@ class IdentifyResult:
             },
             "plausibility": self.plausibility,
             "notes": list(self.notes),
+            **self.model.controller_fields(),
         }
 
 

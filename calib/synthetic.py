@@ -60,13 +60,13 @@ class TrueCell:
         """True (noise-free) indicator readings, shape (n,) [mm], for poses ``(n, 6)`` [deg]."""
         q = np.atleast_2d(np.asarray(q_deg, dtype=float))
         idx = np.zeros(q.shape[0], dtype=int) if anchor_index is None else anchor_index
-        return predict_lengths(self.model, self.theta, np.deg2rad(q), idx)
+        return predict_lengths(self.model, self.theta, self.model.table_rad(q), idx)
 
     def tool_positions_mm(self, q_deg: FloatArray) -> FloatArray:
         """True positions of the cable hook point, shape (n, 3) [mm]."""
         dh = self.model.dh_internal() + self.theta[:N_DH].reshape(N_JOINTS, 4)
         tool = self.model.tool_mm + self.theta[N_DH:N_KIN]
-        q = np.deg2rad(np.atleast_2d(np.asarray(q_deg, dtype=float)))
+        q = self.model.table_rad(np.atleast_2d(np.asarray(q_deg, dtype=float)))
         return forward_position(dh, q, tool, self.model.convention)
 
 

@@ -34,8 +34,6 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_position, position_ja
 from calib.models import RobotModel
 from calib.problem import BoolArray, Problem
 
-#: Limits used for a model without ``limits_deg`` [deg].
-DEFAULT_LIMITS_DEG = (-170.0, 170.0)
 #: Default size of the workspace sample.
 WORKSPACE_POSES = 500
 
@@ -62,10 +60,8 @@ class TcpUncertainty:
 
 
 def joint_limits_deg(model: RobotModel) -> FloatArray:
-    """The model's joint limits, shape (6, 2) [deg], or ±170 deg when it has none."""
-    if model.joint_limits_deg is None:
-        return np.tile(DEFAULT_LIMITS_DEG, (N_JOINTS, 1))
-    return np.asarray(model.joint_limits_deg, dtype=float)
+    """The model's joint limits, shape (6, 2) [deg] (:meth:`RobotModel.limits_deg`)."""
+    return model.limits_deg()
 
 
 def workspace_sample_deg(
@@ -82,7 +78,7 @@ def workspace_sample_deg(
         q = rng.uniform(limits[:, 0], limits[:, 1], size=(2 * n, N_JOINTS))
         if min_z_mm is not None:
             pos = forward_position(
-                model.dh_internal(), np.deg2rad(q), model.tool_mm, model.convention
+                model.dh_internal(), model.table_rad(q), model.tool_mm, model.convention
             )
             q = q[pos[:, 2] >= min_z_mm]
         out = np.vstack([out, q])
@@ -128,7 +124,7 @@ def aligned_tcp_jacobian(
     a pose's three rows is its aligned TCP variance for a parameter covariance ``C``.
     """
     dh, tool = kinematic_parts(model, theta)
-    pos, jac = position_jacobian(dh, np.deg2rad(q_deg), tool, model.convention)  # (m,3,27)
+    pos, jac = position_jacobian(dh, model.table_rad(q_deg), tool, model.convention)  # (m,3,27)
     m = np.asarray(q_deg).shape[0]
     a_full = np.zeros((3 * m, layout.size))
     a_full[:, :N_KIN] = jac.reshape(3 * m, N_KIN)

@@ -177,9 +177,9 @@ def verify(
         model = model_from_result(result)
         layout = ParamLayout(ids)
         theta = fit_anchors(
-            model, layout, np.zeros(layout.size), np.deg2rad(q), aidx, samples.length_mm
+            model, layout, np.zeros(layout.size), model.table_rad(q), aidx, samples.length_mm
         )
-        predicted[:] = predict_lengths(model, theta, np.deg2rad(q), aidx)
+        predicted[:] = predict_lengths(model, theta, model.table_rad(q), aidx)
         fitted = theta[N_KIN:].reshape(-1, 4)
         anchors = {
             aid: {

@@ -308,7 +308,9 @@ class EmulatedCell:
     def tcp_pose(self, q_deg: FloatArray) -> tuple[float, ...]:
         """True X, Y, Z [mm] of the hook point and A, B, C [deg] of the flange."""
         dh = self.truth.model.dh_internal() + self.truth.theta[:24].reshape(6, 4)
-        rot, _ = forward_frames(dh, np.deg2rad(q_deg[None, :]), self.truth.model.convention)
+        rot, _ = forward_frames(
+            dh, self.truth.model.table_rad(q_deg[None, :]), self.truth.model.convention
+        )
         xyz = self.truth.tool_positions_mm(q_deg)[0]
         return (*map(float, xyz), *rpy_deg(rot[0, 6]))
 

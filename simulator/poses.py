@@ -153,7 +153,7 @@ def flange_and_hook_z_mm(truth: TrueCell, q_deg: FloatArray) -> tuple[FloatArray
     """True heights [mm] of the flange origin and the hook point, each shape (n,),
     for poses ``(n, 6)`` [deg]."""
     dh = truth.model.dh_internal() + truth.theta[: 4 * N_JOINTS].reshape(N_JOINTS, 4)
-    _, origin = forward_frames(dh, np.deg2rad(q_deg), truth.model.convention)
+    _, origin = forward_frames(dh, truth.model.table_rad(q_deg), truth.model.convention)
     return origin[:, -1, 2], truth.tool_positions_mm(q_deg)[:, 2]
 
 

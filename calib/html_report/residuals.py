@@ -113,14 +113,19 @@ def sample_residuals(
         )
     convention = result.get("convention", model.convention)
     model = RobotModel(
-        model.name, convention, _nominal_dh_deg_mm(result), model.joint_limits_deg, model.tool_mm
+        model.name,
+        convention,
+        _nominal_dh_deg_mm(result),
+        model.joint_limits_deg,
+        model.tool_mm,
+        model.controller,
     )
     layout = ParamLayout(samples.anchor_ids)
     theta = fit_anchors(
         model,
         layout,
         np.zeros(layout.size),
-        np.deg2rad(samples.joints_deg),
+        model.table_rad(samples.joints_deg),
         samples.anchor_index(),
         samples.length_mm,
     )

@@ -118,12 +118,12 @@ def change_jacobians(
     import copy
 
     from calib.kinematics import forward_position
-    from calib.predict import calibrated_dh_internal, predict_lengths_from_result
+    from calib.predict import calibrated_dh_internal, predict_lengths_from_result, result_table_rad
 
     q = np.asarray(joints_deg, dtype=float)
     pos = forward_position(
         calibrated_dh_internal(result),
-        np.deg2rad(q),
+        result_table_rad(result, q),
         np.asarray(result["tool_mm"], dtype=float),
         result.get("convention", "dh"),
     )

@@ -102,7 +102,7 @@ class RunningFit:
 
         if anchor not in self.layout.anchors:
             return None
-        q = np.deg2rad(np.asarray(joints_deg, dtype=float).reshape(-1, 6))
+        q = self.model.table_rad(np.asarray(joints_deg, dtype=float).reshape(-1, 6))
         dh, tool = kinematic_parts(self.model, self.theta)
         hook = forward_position(dh, q, tool, self.model.convention)
         start = N_KIN + 4 * self.layout.anchors.index(anchor)
@@ -117,7 +117,7 @@ class RunningFit:
 
         if anchor not in self.layout.anchors:
             return None
-        q = np.deg2rad(np.asarray(joints_deg, dtype=float).reshape(1, 6))
+        q = self.model.table_rad(np.asarray(joints_deg, dtype=float).reshape(1, 6))
         index = np.array([self.layout.anchors.index(anchor)])
         return float(predict_lengths(self.model, self.theta, q, index)[0])
 
@@ -156,9 +156,9 @@ def fit_campaign(
         kind = "nominal" if calibration is None else "calibration"
         n_params = 4 * len(layout.anchors)
         theta = fit_anchors(
-            model, layout, np.zeros(layout.size), np.deg2rad(q), sub.anchor_index(), length
+            model, layout, np.zeros(layout.size), model.table_rad(q), sub.anchor_index(), length
         )
-    fitted = predict_lengths(model, theta, np.deg2rad(q), sub.anchor_index())
+    fitted = predict_lengths(model, theta, model.table_rad(q), sub.anchor_index())
     rmse = float(np.sqrt(np.mean((length - fitted) ** 2)))
     return RunningFit(kind, model, layout, theta, rmse, len(sub), n_params)
 
@@ -179,7 +179,7 @@ def map_fit(model: RobotModel, samples: SampleSet) -> tuple[ParamLayout, FloatAr
 
     opts = dataclasses.replace(IdentifyOptions(), prior_tool_mm=MAP_TOOL_PRIOR_MM)
     layout = ParamLayout(samples.anchor_ids)
-    q, idx, length = np.deg2rad(samples.joints_deg), samples.anchor_index(), samples.length_mm
+    q, idx, length = model.table_rad(samples.joints_deg), samples.anchor_index(), samples.length_mm
     start = fit_anchors(model, layout, np.zeros(layout.size), q, idx, length)
     problem = Problem(model, layout, q, length, idx, np.ones(layout.size, dtype=bool), start)
     problem = with_prior(problem, opts)
@@ -217,7 +217,7 @@ def scan_for_step(
     n = len(samples)
     if len(samples.anchor_ids) != 1 or n < 2 * MIN_ANCHOR_SAMPLES:
         return None
-    q = np.deg2rad(samples.joints_deg)
+    q = model.table_rad(samples.joints_deg)
 
     def rms(layout: Any, theta: FloatArray, anchors: tuple[str, ...]) -> float:
         index = np.array([layout.anchors.index(a) for a in anchors])

@@ -28,7 +28,7 @@ from calib.tcp import joint_limits_deg
 
 def flange_and_tool_mm(model: RobotModel, q_deg: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Flange origin and tool point of the nominal model, each shape (n, 3) [mm]."""
-    rot, origin = forward_frames(model.dh_internal(), np.deg2rad(q_deg), model.convention)
+    rot, origin = forward_frames(model.dh_internal(), model.table_rad(q_deg), model.convention)
     return origin[:, -1], tool_position(rot, origin, model.tool_mm)
 
 

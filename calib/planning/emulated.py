@@ -86,7 +86,7 @@ def emulated_trial(
     def error_mm(q_deg: FloatArray) -> float:
         samples = make_samples(q_deg, noisy_lengths(cell, q_deg, rng, noise_mm=noise_mm))
         dh, tool = kinematic_parts(model, identify(model, samples, fit_opts).theta)
-        p_fit = forward_position(dh, np.deg2rad(ws), tool, model.convention)
+        p_fit = forward_position(dh, model.table_rad(ws), tool, model.convention)
         return float(np.sqrt(np.mean(aligned_position_error_mm(p_fit, p_true) ** 2)))
 
     planned = error_mm(res.q_deg)

@@ -112,11 +112,13 @@ def _setup(
         offsets_mm=opts.offsets_mm,
     )
     cand_anchor = plan_index[a_c]
-    q_rad = np.deg2rad(q_c)
+    q_rad = model.table_rad(q_c)
     _, jac0 = length_jacobian(model, theta, q_rad, cand_anchor)
     if start is not None:
         start_idx = np.array([ids.index(a) for a in start.anchor])
-        _, start_full = length_jacobian(model, start_theta, np.deg2rad(start.joints_deg), start_idx)
+        _, start_full = length_jacobian(
+            model, start_theta, model.table_rad(start.joints_deg), start_idx
+        )
     else:
         start_full = np.zeros((0, layout.size))
     ident = analyse(
@@ -458,7 +460,7 @@ def evaluate_poses(
     with threadpool_limits(limits=1, user_api="blas"):
         s = _setup(model, anchors, opts, start)
         layout_idx = s.plan_anchor_index[idx]
-        jac = length_jacobian(model, s.theta, np.deg2rad(q), layout_idx)[1][:, s.free]
+        jac = length_jacobian(model, s.theta, model.table_rad(q), layout_idx)[1][:, s.free]
         full = np.vstack([jac, s.start_jac])
         ws = workspace_sample_deg(model, opts.workspace_poses, opts.seed, opts.min_z_mm)
         tcp = tcp_uncertainty(

@@ -3,8 +3,6 @@ already measured (multilateration with the nominal model)."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from calib.cable import multilaterate
 from calib.dataset import SampleSet
 from calib.kinematics import FloatArray, forward_position
@@ -37,7 +35,7 @@ def start_anchor_fits(model: RobotModel, start: SampleSet) -> dict[str, tuple[Fl
     """P0 (3,) [mm] and the indicator's zero offset [mm] of each start anchor, by
     multilateration with the nominal model."""
     pos = forward_position(
-        model.dh_internal(), np.deg2rad(start.joints_deg), model.tool_mm, model.convention
+        model.dh_internal(), model.table_rad(start.joints_deg), model.tool_mm, model.convention
     )
     idx = start.anchor_index()
     return {

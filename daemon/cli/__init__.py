@@ -24,7 +24,18 @@ app = typer.Typer(
 
 
 def _register_all() -> None:
-    from daemon.cli import apply, calibration, db, filter, plan, program, report, serve, simulate
+    from daemon.cli import (
+        apply,
+        calibration,
+        db,
+        filter,
+        plan,
+        program,
+        report,
+        robots,
+        serve,
+        simulate,
+    )
 
     calibration.register(app)
     plan.register(app)
@@ -35,6 +46,7 @@ def _register_all() -> None:
     serve.register(app)
     db.register(app)
     simulate.register(app)
+    robots.register(app)
 
 
 _register_all()
