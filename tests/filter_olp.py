@@ -16,7 +16,6 @@ from filter_cells import Cell, planned_targets
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.fanuc_ls import turn_number
 from calib.filter.krl import turn_of
-from calib.filter.krl_data import FLANGE_IN_TABLE
 from calib.filter.rotations import invert, matrix_to_zyx_deg, rotation_angle_deg
 from calib.filter.run import FilterRun
 from calib.filter.select import choose
@@ -78,9 +77,7 @@ def krl_program(
         ";FOLD TOOL_DATA",
         "DECL FRAME TOOL_DATA[16]",
         "TOOL_DATA[1]={X 0.0,Y 0.0,Z 150.0,A 0.0,B 0.0,C 0.0}",
-        # TOOL_DATA is in KUKA's $FLANGE (X out of the flange), not the model's last frame.
-        f"TOOL_DATA[{tool_no}]={_frame_text(invert(FLANGE_IN_TABLE) @ tool)}"
-        " ; Schweißbrenner (EMULATED)",
+        f"TOOL_DATA[{tool_no}]={_frame_text(tool)} ; Schweißbrenner (EMULATED)",
         'TOOL_NAME[3,]="Brenner"',
         "TOOL_TYPE[3]=#NONE",
         ";ENDFOLD (TOOL_DATA)",

@@ -190,7 +190,7 @@ def test_branches_and_loops_merge_the_frames_of_their_paths() -> None:
 def test_an_aggregate_over_several_lines_keeps_its_layout(cell: Cell) -> None:
     dat = (
         b"DEFDAT p\r\nDECL E6POS XP1={X 1200.0,Y 10.0,Z 900.0,\r\n"
-        b"   A 0.0,B 180.0,C 0.0, S 2,T 2}\r\nENDDAT\r\n"
+        b"   A 0.0,B 90.0,C 0.0, S 2,T 2}\r\nENDDAT\r\n"
     )
     src = b"DEF p( )\r\n$TOOL=$NULLFRAME\r\n$BASE=$WORLD\r\nPTP XP1\r\nEND\r\n"
     files = [("p.dat", dat), ("p.src", src)]

@@ -33,13 +33,23 @@ Frames (per move, in program order within each ``DEF``; unknown at its start)
     with its ``FDAT``, else its move is refused with both. An external TCP (``IPO_FRAME
     #TCP``, ``BASE_TYPE[n]=#TCP``) is not supported: its targets are named.
 
-Configuration (``S`` status, ``T`` turn)
-    ``T`` bit ``j`` set: axis ``j+1`` < 0, clear: ≥ 0 (the joint ranges). ``S`` bit 0 set:
-    wrist centre behind axis 1 (overhead area; shoulder −1); bit 1 set: ``A3 ≥ φ``, axis 3
-    above the line from axis 2 to the wrist centre (elbow +1); bit 2 set: ``A5 < 0``
-    (wrist −1). ``S`` is written back as it was, ``T`` from the corrected joints (its
-    ``'B…'`` or decimal form and digit count kept). A ``POS``/``FRAME`` without ``S`` and
-    ``T`` takes the branch nearest the previous move's target, as the controller does.
+Configuration (``S`` status, ``T`` turn), in KUKA's own joint angles
+    ``T`` bit ``j`` set: axis ``j+1`` < 0, clear: >= 0. ``S`` bit 0 (:data:`S_OVERHEAD`) set:
+    the wrist root point is behind axis 1 (overhead area; shoulder -1); bit 1
+    (:data:`S_ELBOW_UP`) set: axis 3 above the line from axis 2 to the wrist root point (elbow
+    +1); bit 2 (:data:`S_A5_NEGATIVE`) set: A5 < 0 (wrist -1). Higher bits are not read.
+    Proven on real backups (docs/robots-kuka.md). ``S`` and ``T`` are never rewritten: a
+    correction whose joints would have another ``T`` writes nothing. A ``POS``/``FRAME``
+    without ``S`` and ``T`` takes the branch nearest the previous move's target, as the
+    controller does. A joint target with ``|A5|`` < :data:`WRIST_SINGULARITY_DEG` is left
+    as :data:`WRIST_SINGULARITY`; a Cartesian target with ``E1 … E6`` not 0 is left named.
+
+Data files
+    ``$config.dat`` is read (``TOOL_DATA``, ``BASE_DATA``, their types, global points such
+    as ``XHOME``) and never written: its targets are left as :data:`CONFIG_DAT_READ_ONLY`.
+    A ``.dat`` point that no move of the given ``.src`` files uses takes its tool and base
+    from its own ``FDAT`` (``XP1`` → ``FP1``); without one it is left as :data:`UNUSED`.
+    Both reasons are in :data:`NOT_LEFT_REASONS`: targets left on purpose.
 
 Precision: positions to at least 3 decimals, ``A, B, C`` and joints to at least 4 (KRL
 keeps a REAL: about 7 significant digits).
@@ -58,7 +68,6 @@ import numpy as np
 from calib.filter.krl_data import (
     AXIS_TYPES,
     CARTESIAN_KEYS,
-    FLANGE_IN_TABLE,
     Aggregate,
     Program,
     blank,
@@ -330,9 +339,8 @@ def _own_frames(prog: Program, t: Target) -> None:
         return
     tool = prog.table("TOOL_DATA", int(tool_no.num))
     base = prog.table("BASE_DATA", int(base_no.num))
-    tcp = None if tool.value is None else FLANGE_IN_TABLE @ tool.value
     problem = "; ".join(dict.fromkeys(p for p in (tool.problem, base.problem) if p))
-    t.uses.append(Use(t.file, fdat.line, tool.name, base.name, tcp, base.value, problem))
+    t.uses.append(Use(t.file, fdat.line, tool.name, base.name, tool.value, base.value, problem))
 
 
 def _fill_poses(targets: list[Target]) -> None:

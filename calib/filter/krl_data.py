@@ -50,11 +50,6 @@ _DECL = re.compile(
 _ELEMENT = re.compile(
     r"^[ \t]*([A-Za-z_$][\w$]*)[ \t]*\[([^\]\r\n]*)\][ \t]*=[ \t]*(?=\{)", re.MULTILINE
 )
-#: KUKA's flange frame (``$FLANGE``: X out of the flange) in a model's last frame, whose z is
-#: A6's positive sense (KUKA's flange -X) and x KUKA's flange Z (how the KUKA model files of
-#: calib/robots/library are built; docs/robots-kuka.md): ``Ry(90 deg)``. A KRL tool
-#: (``TOOL_DATA[n]``, in ``$FLANGE``) is the TCP ``FLANGE_IN_TABLE · TOOL`` of the model.
-FLANGE_IN_TABLE: FloatArray = frame(np.zeros(3), zyx_deg_to_matrix(0.0, 90.0, 0.0))
 _TYPE_OF = re.compile(
     r"^[ \t]*(TOOL_TYPE|BASE_TYPE)[ \t]*\[[ \t]*(\d+)[ \t]*\][ \t]*=[ \t]*#(\w+)",
     re.IGNORECASE | re.MULTILINE,

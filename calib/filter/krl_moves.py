@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.filter.krl_data import (
-    FLANGE_IN_TABLE,
     Aggregate,
     Decl,
     KrlFrame,
@@ -252,8 +251,7 @@ class Moves:
         problem = "; ".join(
             dict.fromkeys(p for p in (tool.problem, base.problem, fold_problem) if p)
         )
-        tcp = None if tool.value is None else FLANGE_IN_TABLE @ tool.value
-        use = Use(self.src.name, no, tool.name, base.name, tcp, base.value, problem)
+        use = Use(self.src.name, no, tool.name, base.name, tool.value, base.value, problem)
         for a, b in _top_level_spans(rest)[:n_targets]:
             part = rest[a:b]
             lead = len(part) - len(part.lstrip())
