@@ -12,7 +12,7 @@ from filter_olp import accuracy, krl_program, rms
 
 from calib.filter.correct import Calibration, calibration_from_result
 from calib.filter.krl import DIALECT as KRL
-from calib.filter.krl import CartSite, configuration, turn_of
+from calib.filter.krl import UNUSED, CartSite, configuration, turn_of
 from calib.filter.rotations import frame, zyx_deg_to_matrix
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, filter_files
 from calib.filter.sites import Correction, FrameTables, Num, Source, Target
@@ -139,7 +139,7 @@ def test_targets_frames_and_reasons(cell: Cell) -> None:
         reason["XMIS"] == "line 97: the FOLD at line 92 says Tool[2] but TOOL_DATA[1] is in force"
     )
     assert "used in the expression 'XOFS:F_OFS'" in reason["XOFS"]
-    assert reason["XUNUSED"].startswith("not used by any move")
+    assert reason["XUNUSED"] == UNUSED  # no FDAT of its own names its tool and base
     assert reason["inline@64"].startswith("X, Y, A, B, C not given")
 
 
@@ -277,14 +277,18 @@ def test_status_and_turn_mapping() -> None:
 
 
 @pytest.mark.parametrize(
-    ("old", "joints", "new"),
+    ("old", "joints", "written"),
     [
-        ("'B000010'", [-10, -30, 200, 5, 40, 10], "'B000011'"),
-        ("'B10'", [10, 30, 200, -5, 40, -10], "'B101000'"),
-        ("2", [-10, -30, 200, 5, 40, 10], "3"),
+        ("'B000010'", [-10, -30, 200, 5, 40, 10], False),  # A1 < 0: T would become 'B000011'
+        ("'B10'", [10, 30, 200, -5, 40, -10], False),  # T would become 'B101000'
+        ("2", [-10, -30, 200, 5, 40, 10], False),
+        ("'B000010'", [10, -30, 200, 5, 40, 10], True),  # T stays 2
+        ("2", [10, -30, 200, 5, 40, 10], True),
     ],
 )
-def test_turn_follows_the_corrected_joints(old: str, joints: list[float], new: str) -> None:
+def test_a_correction_that_would_change_t_writes_nothing(
+    old: str, joints: list[float], written: bool
+) -> None:
     text = "X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,T " + old
     nums = [
         Num("a.dat", m.start(1), m.end(1), m.group(1), float(m.group(1)))
@@ -295,9 +299,10 @@ def test_turn_follows_the_corrected_joints(old: str, joints: list[float], new: s
     target = Target(
         "a.dat", 1, "XP", "cartesian", pose=np.eye(4), site=CartSite(nums[:3], nums[3:], turn)
     )
-    pose = frame(np.array([1.0, 2.0, 3.0]), zyx_deg_to_matrix(0.0, 0.0, 0.0))
+    pose = frame(np.array([1.5, 2.0, 3.0]), zyx_deg_to_matrix(0.0, 0.0, 0.0))
     edits = KRL.render(target, Correction("corrected", pose=pose, joints_deg=np.array(joints)))
-    assert [(e.start, e.new) for e in edits] == [(start, new)]
+    # Never T itself; the X only when T stays.
+    assert [(e.start, e.new) for e in edits] == ([(nums[0].start, "1.500")] if written else [])
 
 
 @pytest.mark.parametrize(

@@ -33,13 +33,23 @@ Frames (per move, in program order within each ``DEF``; unknown at its start)
     with its ``FDAT``, else its move is refused with both. An external TCP (``IPO_FRAME
     #TCP``, ``BASE_TYPE[n]=#TCP``) is not supported: its targets are named.
 
-Configuration (``S`` status, ``T`` turn)
-    ``T`` bit ``j`` set: axis ``j+1`` < 0, clear: ≥ 0 (the joint ranges). ``S`` bit 0 set:
-    wrist centre behind axis 1 (overhead area; shoulder −1); bit 1 set: ``A3 ≥ φ``, axis 3
-    above the line from axis 2 to the wrist centre (elbow +1); bit 2 set: ``A5 < 0``
-    (wrist −1). ``S`` is written back as it was, ``T`` from the corrected joints (its
-    ``'B…'`` or decimal form and digit count kept). A ``POS``/``FRAME`` without ``S`` and
-    ``T`` takes the branch nearest the previous move's target, as the controller does.
+Configuration (``S`` status, ``T`` turn), in KUKA's own joint angles
+    ``T`` bit ``j`` set: axis ``j+1`` < 0, clear: >= 0. ``S`` bit 0 (:data:`S_OVERHEAD`) set:
+    the wrist root point is behind axis 1 (overhead area; shoulder -1); bit 1
+    (:data:`S_ELBOW_UP`) set: axis 3 above the line from axis 2 to the wrist root point (elbow
+    +1); bit 2 (:data:`S_A5_NEGATIVE`) set: A5 < 0 (wrist -1). Higher bits are not read.
+    Proven on real backups (docs/robots-kuka.md). ``S`` and ``T`` are never rewritten: a
+    correction whose joints would have another ``T`` writes nothing. A ``POS``/``FRAME``
+    without ``S`` and ``T`` takes the branch nearest the previous move's target, as the
+    controller does. A joint target with ``|A5|`` < :data:`WRIST_SINGULARITY_DEG` is left
+    as :data:`WRIST_SINGULARITY`; a Cartesian target with ``E1 … E6`` not 0 is left named.
+
+Data files
+    ``$config.dat`` is read (``TOOL_DATA``, ``BASE_DATA``, their types, global points such
+    as ``XHOME``) and never written: its targets are left as :data:`CONFIG_DAT_READ_ONLY`.
+    A ``.dat`` point that no move of the given ``.src`` files uses takes its tool and base
+    from its own ``FDAT`` (``XP1`` → ``FP1``); without one it is left as :data:`UNUSED`.
+    Both reasons are in :data:`NOT_LEFT_REASONS`: targets left on purpose.
 
 Precision: positions to at least 3 decimals, ``A, B, C`` and joints to at least 4 (KRL
 keeps a REAL: about 7 significant digits).
@@ -75,6 +85,7 @@ from calib.filter.sites import (
     Num,
     Source,
     Target,
+    Use,
     edits_for,
 )
 from calib.kinematics import N_JOINTS, FloatArray
@@ -87,6 +98,31 @@ JOINT_DECIMALS = 4
 #: Characters of a file's beginning that must hold its ``&`` header and ``DEF``/``DEFDAT``.
 HEADER_CHARS = 65536
 JOINT_KEYS = tuple(f"A{j}" for j in range(1, N_JOINTS + 1))
+
+#: ``S`` (status) bits, in KUKA's own joint angles (docs/robots-kuka.md has the sources and
+#: the check on real programs). Bit 0 set: the wrist root point is behind axis 1 (negative x
+#: in the A1 frame: KUKA's "overhead area"; shoulder -1).
+S_OVERHEAD = 1
+#: Bit 1 set: axis 3 above the line from axis 2 to the wrist root point (elbow +1).
+S_ELBOW_UP = 2
+#: Bit 2 set: A5 < 0 (wrist -1).
+S_A5_NEGATIVE = 4
+#: A joint target with ``|A5|`` below this [deg] is at the wrist singularity: A4 and A6 turn
+#: about one line there, and a correction of a few hundredths of a millimetre would turn them
+#: by degrees; it is left, named.
+WRIST_SINGULARITY_DEG = 1.0
+WRIST_SINGULARITY = "wrist singularity (A5 = 0)"
+#: The controller's own data file: read (TOOL_DATA, BASE_DATA, XHOME …), never written.
+CONFIG_DAT = "$config.dat"
+#: Reasons of targets left on purpose (the summary need not count them as left).
+CONFIG_DAT_READ_ONLY = (
+    "in $config.dat, which is read and never written (its XHOME is the home position "
+    "behind $IN_HOME)"
+)
+UNUSED = "unused: no move of the given .src files uses it and no FDAT of it names tool and base"
+#: The reasons above, for the summary: a target left with one of them is not "left".
+NOT_LEFT_REASONS = (CONFIG_DAT_READ_ONLY, UNUSED)
+EXTERNAL_AXES = tuple(f"E{j}" for j in range(1, 7))
 
 _HEADER = re.compile(r"^(?:\s*&[^\n]*\n|\s*\n)*\s*(GLOBAL\s+)?(DEF|DEFFCT|DEFDAT)\b", re.I)
 
@@ -118,10 +154,19 @@ def configuration(s: float | None, t: float | None, text: str) -> Configuration:
     si = int(s)
     return Configuration(
         ranges,
-        shoulder=-1 if si & 1 else 1,
-        elbow=1 if si & 2 else -1,
-        wrist=-1 if si & 4 else 1,
+        shoulder=-1 if si & S_OVERHEAD else 1,
+        elbow=1 if si & S_ELBOW_UP else -1,
+        wrist=-1 if si & S_A5_NEGATIVE else 1,
         text=text,
+    )
+
+
+def status_of(shoulder: int, elbow: int, wrist: int) -> int:
+    """KUKA ``S`` (bits 0..2) of branch signs (see :func:`configuration`)."""
+    return (
+        (S_OVERHEAD if shoulder < 0 else 0)
+        | (S_ELBOW_UP if elbow > 0 else 0)
+        | (S_A5_NEGATIVE if wrist < 0 else 0)
     )
 
 
@@ -173,7 +218,20 @@ class KrlDialect:
             order.extend(Moves(self._target, prog, src, targets).run())
         _fill_poses(order)
         # A FRAME declaration is a target only when a move uses it.
-        return [t for t in order if t.uses or id(t) not in frame_decls]
+        out = [t for t in order if t.uses or id(t) not in frame_decls]
+        for t in out:
+            if is_config_dat(t.file):
+                t.problem = CONFIG_DAT_READ_ONLY
+            elif t.problem:
+                continue
+            elif (
+                t.kind == "joint"
+                and abs(float(np.asarray(t.joints_deg)[4])) < WRIST_SINGULARITY_DEG
+            ):
+                t.problem = WRIST_SINGULARITY
+            elif not t.uses and t.kind == "cartesian":
+                _own_frames(prog, t)
+        return out
 
     @staticmethod
     def _frame_names(prog: Program) -> set[str]:
@@ -205,12 +263,13 @@ class KrlDialect:
                     site=None,
                 )
             joints = [n for n in nums if n is not None]
+            q = np.array([n.value for n in joints])
             return Target(
                 src.name,
                 line,
                 name,
                 "joint",
-                joints_deg=np.array([n.value for n in joints]),
+                joints_deg=q,
                 site=JointSite(joints),
             )
         if not (kind or any(k in items for k in CARTESIAN_KEYS)):
@@ -228,23 +287,60 @@ class KrlDialect:
             )
             return t
         t.site = CartSite([n for n in nums[:3] if n], [n for n in nums[3:] if n], t_num)
+        moved = [k for k in EXTERNAL_AXES if (e := agg.num(src, k)) is not None and e.value != 0]
+        if moved:
+            t.problem = (
+                f"external axes {', '.join(moved)} not 0: the robot's base or the work may "
+                "move with them (not modelled)"
+            )
         return t
 
     def render(self, target: Target, correction: Correction) -> list[Edit]:
+        if is_config_dat(target.file):
+            return []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
             return edits_for(target.site.joints, correction.joints_deg.tolist(), JOINT_DECIMALS)
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
+        if site.turn is not None and turn_of(correction.joints_deg) != int(site.turn.value):
+            # The correction would change T: the target is left as it is (never written).
+            return []
         old = [n.value for n in site.angles]
         abc = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
-        edits = [
+        return [
             *edits_for(site.position, correction.pose[:3, 3].tolist(), POSITION_DECIMALS),
             *edits_for(site.angles, abc, ANGLE_DECIMALS),
         ]
-        if site.turn is not None and (turn := _turn_edit(site.turn, correction.joints_deg)):
-            edits.append(turn)
-        return edits
+
+
+def is_config_dat(name: str) -> bool:
+    """True for the controller's ``$config.dat`` (any folder, any case)."""
+    return PurePath(name.replace("\\", "/")).name.lower() == CONFIG_DAT.lower()
+
+
+def _own_frames(prog: Program, t: Target) -> None:
+    """An unused ``.dat`` point: its tool and base from its own ``FDAT`` (``XP1`` → ``FP1``,
+    the inline forms' naming), else named :data:`UNUSED`."""
+    df = prog.data.get(t.file)
+    fdat = df.decls.get("F" + t.name.upper()[1:]) if df is not None and t.name[:1] in "Xx" else None
+    items = fdat.value.items if fdat is not None and fdat.value is not None else {}
+    tool_no, base_no = items.get("TOOL_NO"), items.get("BASE_NO")
+    ipo = items.get("IPO_FRAME")
+    if (
+        fdat is None
+        or tool_no is None
+        or tool_no.num is None
+        or base_no is None
+        or base_no.num is None
+        or (ipo is not None and ipo.text.upper() == "#TCP")
+    ):
+        t.problem = UNUSED
+        return
+    tool = prog.table("TOOL_DATA", int(tool_no.num))
+    base = prog.table("BASE_DATA", int(base_no.num))
+    problem = "; ".join(dict.fromkeys(p for p in (tool.problem, base.problem) if p))
+    t.uses.append(Use(t.file, fdat.line, tool.name, base.name, tool.value, base.value, problem))
 
 
 def _fill_poses(targets: list[Target]) -> None:
@@ -264,21 +360,20 @@ def turn_of(joints_deg: FloatArray) -> int:
     return sum(1 << j for j in range(N_JOINTS) if joints_deg[j] < 0)
 
 
-def _turn_edit(num: Num, joints_deg: FloatArray) -> Edit | None:
-    """``T`` from the corrected joints, written as the file wrote it."""
-    new = turn_of(joints_deg)
-    if int(num.value) == new:
-        return None
-    m = re.fullmatch(r"'([Bb])([01]*)'", num.text)
-    if m:
-        text = f"'{m.group(1)}{format(new, 'b').zfill(len(m.group(2)))}'"
-    elif re.fullmatch(r"'[Hh][0-9A-Fa-f]*'", num.text):
-        text = f"'{num.text[1]}{format(new, 'X').zfill(len(num.text) - 3)}'"
-    else:
-        text = str(new)
-    return Edit(num.file, num.start, num.end, text)
-
-
 DIALECT = KrlDialect()
 
-__all__ = ["DIALECT", "KrlDialect", "configuration", "turn_of"]
+__all__ = [
+    "CONFIG_DAT_READ_ONLY",
+    "DIALECT",
+    "NOT_LEFT_REASONS",
+    "S_A5_NEGATIVE",
+    "S_ELBOW_UP",
+    "S_OVERHEAD",
+    "UNUSED",
+    "WRIST_SINGULARITY",
+    "KrlDialect",
+    "configuration",
+    "is_config_dat",
+    "status_of",
+    "turn_of",
+]
