@@ -174,7 +174,7 @@ def test_configuration_and_turn_numbers() -> None:
     ]
     cfg = configuration("F D B, 1, 0, -1", (1, 0, -1))
     assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (1, -1, -1)  # F: J5 > 0
-    edge = np.array([-TURN_EDGE_DEG, TURN_EDGE_DEG])
+    edge = np.array([-TURN_EDGE_DEG, -TURN_EDGE_DEG])  # read shifted down
     ranges = cfg.joint_ranges_deg
     windows = np.array([[180, 540], [-180, 180], [-540, -180]])
     np.testing.assert_allclose(ranges[[0, 3, 5]], windows + edge)

@@ -34,8 +34,9 @@ from calib.kinematics import N_JOINTS, FloatArray
 TURN_JOINTS = (0, 3, 5)
 #: The flip joint (0-based): J5.
 FLIP_JOINT = 4
-#: A written joint lies within this of a turn window's edge [deg]: both sides are read as
-#: inside (the controller's value behind a written 180.000 may be 179.9999).
+#: Turn windows are read shifted down by this [deg], ``[-180 + 360k - e, 180 + 360k - e)``: the
+#: nominal solution of a position at J4 = 180.000 (turn 1) may come out as 179.99999, and one
+#: at -180.000 (turn 0) as -180.00001; each still lies in its own window, and never in two.
 TURN_EDGE_DEG = 0.001
 #: The words a controller writes before the string (English, German).
 KEYWORDS = ("CONFIG", "KONFIG")
@@ -57,8 +58,9 @@ def turn_number(angle_deg: float) -> int:
 
 
 def turn_window_deg(turn: int, edge_deg: float = TURN_EDGE_DEG) -> tuple[float, float]:
-    """The half-open window ``[lo, hi)`` [deg] of a turn number, widened by ``edge_deg``."""
-    return (-180.0 + 360.0 * turn - edge_deg, 180.0 + 360.0 * turn + edge_deg)
+    """The half-open window ``[lo, hi)`` [deg] a nominal solution of turn number ``turn`` is
+    read in: the turn's window shifted down by ``edge_deg`` (see :data:`TURN_EDGE_DEG`)."""
+    return (-180.0 + 360.0 * turn - edge_deg, 180.0 + 360.0 * turn - edge_deg)
 
 
 def flip_letter(j5_deg: float) -> str:
