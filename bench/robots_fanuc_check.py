@@ -140,6 +140,7 @@ def main(root: Path) -> None:
             same = np.allclose(sol.joints_deg[i, new[0]], sol.joints_deg[i, old[0]])
             count["old rule: another solution than the new"] += not same
     print(f"backups of the {ARM}: {len(backups)}")
+    print("CONFIG written:", Counter(r[0] for r in rows).most_common(6))
     for k, v in count.items():
         print(f"{k}: {v}")
 
