@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.filter.branches import nominal_solutions
-from calib.filter.fanuc_config import TURN_JOINTS, turn_window_deg
+from calib.filter.fanuc_config import TURN_JOINTS, elbow_letter, turn_window_deg
 from calib.filter.rotations import frame, zyx_deg_to_matrix
 from calib.kinematics import FloatArray
 from calib.models import parse_model_text
@@ -83,11 +83,11 @@ def _positions(backup: Path) -> list[tuple[str, FloatArray, list[float]]]:
 
 def _fits(q: FloatArray, sh: int, el: int, config: str, old: bool) -> bool:
     letters, *turns = (s.strip() for s in config.split(","))
-    if old:
-        flip, joints = ("N" if q[4] >= 0 else "F"), (3, 4, 5)
+    if old:  # and U/D as the branch sign seen towards the wrist centre
+        flip, joints, up = ("N" if q[4] >= 0 else "F"), (3, 4, 5), "U" if el > 0 else "D"
     else:
-        flip, joints = ("F" if q[4] > 0 else "N"), TURN_JOINTS
-    mine = flip + ("U" if el > 0 else "D") + ("T" if sh > 0 else "B")
+        flip, joints, up = ("F" if q[4] > 0 else "N"), TURN_JOINTS, elbow_letter(sh, el)
+    mine = flip + up + ("T" if sh > 0 else "B")
     return mine == letters.replace(" ", "") and all(
         turn_window_deg(int(t))[0] <= q[j] < turn_window_deg(int(t))[1]
         for j, t in zip(joints, turns, strict=False)
@@ -114,10 +114,20 @@ def main(root: Path) -> None:
     rows = [r for b in backups for r in _positions(b)]
     sol = nominal_solutions(wide, np.array([r[1] for r in rows]))
     count: Counter[str] = Counter()
+    limits = np.asarray(model.joint_limits_deg)
     for i, (config, _, _) in enumerate(rows):
         ks = np.flatnonzero(sol.valid[i])
         q_ctrl = model.controller.to_controller_deg(sol.joints_deg[i, ks])
         signs = list(zip(sol.shoulder[i, ks], sol.elbow[i, ks], strict=True))
+        if "B" in config.split(",")[0]:  # U/D behind axis 1, within the limits (_fits: e x s)
+            inside = np.all((q_ctrl >= limits[:, 0]) & (q_ctrl <= limits[:, 1]), axis=1)
+            for how, flip in (("elbow x shoulder", False), ("elbow towards the wrist", True)):
+                n = sum(
+                    _fits(q, s, e * s if flip else e, config, False)
+                    for q, (s, e), ok in zip(q_ctrl, signs, inside, strict=True)
+                    if ok
+                )
+                count[f"{config.split(',')[0]} within the limits, U/D as {how}: {n} fit"] += 1
         new = [
             k
             for k, q, (s, e) in zip(ks, q_ctrl, signs, strict=True)

@@ -173,7 +173,7 @@ def test_configuration_and_turn_numbers() -> None:
         2,
     ]
     cfg = configuration("F D B, 1, 0, -1", (1, 0, -1))
-    assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (1, -1, -1)  # F: J5 > 0
+    assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (1, 1, -1)  # F: J5 > 0; D behind: +1
     edge = np.array([-TURN_EDGE_DEG, -TURN_EDGE_DEG])  # read shifted down
     ranges = cfg.joint_ranges_deg
     windows = np.array([[180, 540], [-180, 180], [-540, -180]])

@@ -22,7 +22,7 @@ import pytest
 from calib.conventions import IDENTITY
 from calib.filter.branches import nominal_solutions
 from calib.filter.correct import Calibration
-from calib.filter.fanuc_config import TURN_JOINTS, config_text, turn_number
+from calib.filter.fanuc_config import TURN_JOINTS, config_text, configuration, turn_number
 from calib.filter.fanuc_ls import DIALECT as LS
 from calib.filter.fanuc_ls import REGISTER_REASON
 from calib.filter.rotations import frame, rotation_angle_deg, zyx_deg_to_matrix
@@ -349,5 +349,7 @@ def test_a_german_controller_writes_konfig(frames: FrameTables) -> None:
 def test_the_rule_reads_the_flip_from_j5_and_the_turns_of_j1_j4_j6() -> None:
     q = np.array([-200.0, 0.0, 0.0, 190.0, 0.5, -181.0])
     assert config_text(q, 1, 1) == "F U T, -1, 1, -1"
-    assert config_text(q * [1, 1, 1, 1, -1, 1], -1, -1) == "N D B, -1, 1, -1"
+    assert config_text(q * [1, 1, 1, 1, -1, 1], -1, -1) == "N U B, -1, 1, -1"
+    assert config_text(q, -1, 1) == "F D B, -1, 1, -1"  # elbow up towards the wrist, behind
+    assert configuration("N U B", ()).elbow == -1 and configuration("N D T", ()).elbow == -1
     assert TURN_JOINTS == (0, 3, 5)

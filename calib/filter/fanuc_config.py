@@ -6,8 +6,12 @@ own joint angles (what the pendant shows; the J2/J3 coupling and the joint direc
 the model's ``[controller]`` table, :mod:`calib.conventions`).
 
 * **Flip** ``F``/``N``: ``F`` when J5 > 0, ``N`` when J5 ≤ 0 (:func:`flip_letter`).
-* **Elbow** ``U``/``D`` and **front/back** ``T``/``B``: the branch signs ``elbow`` and
-  ``shoulder`` of :class:`calib.filter.sites.Configuration` (+1 is ``U``, ``T``).
+* **Front/back** ``T``/``B``: the branch sign ``shoulder`` of
+  :class:`calib.filter.sites.Configuration` (+1 is ``T``: the wrist centre in front of
+  axis 1).
+* **Elbow** ``U``/``D``: up or down as seen along the arm's own forward direction (frame
+  1's x axis), so in front (``T``) ``U`` is the branch sign ``elbow`` +1 and behind (``B``)
+  it is ``elbow`` -1 (:func:`elbow_letter`; the branch sign looks towards the wrist centre).
 * **Turn numbers**: those of J1, J4 and J6 (:data:`TURN_JOINTS`), in that order; turn ``k``
   is the window ``[-180 + 360k, 180 + 360k)`` deg (:func:`turn_number`), so J4 = 180.000
   is turn 1 (a real backup's typed position says so).
@@ -40,7 +44,7 @@ FLIP_JOINT = 4
 TURN_EDGE_DEG = 0.001
 #: The words a controller writes before the string (English, German).
 KEYWORDS = ("CONFIG", "KONFIG")
-#: Letter → (branch sign's name, value), see the module docstring.
+#: Letter → (field, sign); the elbow's becomes the branch sign ``elbow`` times ``shoulder``.
 LETTERS = {
     "F": ("wrist", 1),
     "N": ("wrist", -1),
@@ -68,10 +72,16 @@ def flip_letter(j5_deg: float) -> str:
     return "F" if j5_deg > 0 else "N"
 
 
+def elbow_letter(shoulder: int, elbow: int) -> str:
+    """``U`` or ``D`` of the branch signs ``shoulder`` and ``elbow``: ``U`` when their product
+    is +1 (see the module docstring)."""
+    return "U" if shoulder * elbow > 0 else "D"
+
+
 def config_text(q_deg: Sequence[float], shoulder: int, elbow: int) -> str:
     """``'F U T, t1, t4, t6'`` (without quotes) of Fanuc joint angles (6,) [deg] and the
     branch signs of :class:`calib.filter.sites.Configuration`."""
-    letters = f"{flip_letter(q_deg[FLIP_JOINT])} {'U' if elbow > 0 else 'D'} "
+    letters = f"{flip_letter(q_deg[FLIP_JOINT])} {elbow_letter(shoulder, elbow)} "
     letters += "T" if shoulder > 0 else "B"
     return ", ".join([letters, *(str(turn_number(q_deg[j])) for j in TURN_JOINTS)])
 
@@ -97,10 +107,11 @@ def configuration(text: str, turns: tuple[int, ...]) -> Configuration:
     ranges = np.tile([-np.inf, np.inf], (N_JOINTS, 1))
     for j, k in zip(TURN_JOINTS, turns, strict=False):
         ranges[j] = turn_window_deg(k)
+    shoulder, up = signs.get("shoulder"), signs.get("elbow")
     return Configuration(
         ranges,
-        shoulder=signs.get("shoulder"),
-        elbow=signs.get("elbow"),
+        shoulder=shoulder,
+        elbow=None if up is None or shoulder is None else up * shoulder,
         wrist=signs.get("wrist"),
         text=f"'{text}'",
     )

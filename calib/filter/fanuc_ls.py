@@ -37,7 +37,7 @@ import numpy as np
 
 from calib.filter.fanuc_config import KEYWORDS, TURN_JOINTS, configuration, refusal
 from calib.filter.rotations import frames as make_frames
-from calib.filter.rotations import matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.filter.rotations import matrix_to_zyx_deg, rotation_angle_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
     Correction,
     Edit,
@@ -49,7 +49,7 @@ from calib.filter.sites import (
     Use,
     edits_for,
 )
-from calib.kinematics import N_JOINTS
+from calib.kinematics import N_JOINTS, FloatArray
 
 NAME = "fanuc-ls"
 EXTENSIONS = (".ls",)
@@ -57,6 +57,10 @@ DECIMALS = 3
 #: Joint angles to at least 4 decimals: a third decimal alone costs up to 0.0005 deg a joint,
 #: about 0.02 mm at 2 m reach.
 JOINT_DECIMALS = 4
+#: Rotations closer than this are the same [deg]; W, P, R within this of P = ±90 [deg] are
+#: at the Euler angles' lock.
+_SAME_DEG = 1e-7
+_LOCK_DEG = 0.01
 #: Why a position register named in a move is left.
 REGISTER_REASON = (
     "a position register: its value is on the controller (POSREG.VA), not in this program"
@@ -74,6 +78,7 @@ _GROUP = re.compile(r"GP(\d+)\s*:")
 _FIELD = re.compile(r"\b([A-Z]\w*)\s*=\s*(" + _NUM + r")\s*(mm|deg)?", re.IGNORECASE)
 _FRAME_NO = re.compile(r"\b(UF|UT)\s*:\s*([^,\s]+)\s*,?")
 _CONFIG = re.compile(r"\b(?:" + "|".join(KEYWORDS) + r")\s*:\s*'([^'\r\n]*)'")
+_UNRECORDED = re.compile(r"=\s*\*{3,}")
 _REGISTER_MOVE = re.compile(r"^\s*\d*\s*:\s*[JLCA]\s+PR\[\s*(\d+)", re.MULTILINE)
 _CARTESIAN = ("X", "Y", "Z", "W", "P", "R")
 _JOINTS = tuple(f"J{j}" for j in range(1, N_JOINTS + 1))
@@ -236,9 +241,11 @@ class FanucLsDialect:
                 f"{name}: GP1 has neither J1..J6 nor X..R (missing {', '.join(missing)})",
                 line,
             )
-        if missing:  # another representation (a real backup's RX .. RR): named
-            held = ", ".join(fields) or "nothing"
-            why = f"GP1 holds {held}: neither J1..J6 nor X..R, not supported"
+        if missing:  # never recorded (********), or another representation (RX .. RR)
+            if _UNRECORDED.search(body):
+                why = "never recorded (its values are ********): nothing to correct"
+            else:
+                why = f"GP1 holds {', '.join(fields)}: neither J1..J6 nor X..R, not supported"
             return Target(src.name, line, name, "cartesian", problem=why)
         numbers = {m.group(1): m.group(2) for m in _FRAME_NO.finditer(body)}
         cfg = _CONFIG.search(body)
@@ -309,11 +316,10 @@ class FanucLsDialect:
             return edits_for(target.site.joints, correction.joints_deg.tolist(), JOINT_DECIMALS)
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
-        old = [n.value for n in site.wpr][::-1]  # R, P, W
-        rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
+        wpr = _wpr_near(correction.pose[:3, :3], [n.value for n in site.wpr])
         edits = [
             *edits_for(site.position, correction.pose[:3, 3].tolist(), DECIMALS),
-            *edits_for(site.wpr, rpw[::-1], DECIMALS),
+            *edits_for(site.wpr, wpr, DECIMALS),
         ]
         return edits
 
@@ -325,6 +331,25 @@ class FanucLsDialect:
         if target.configuration is None or correction.joints_deg is None:
             return ""
         return refusal(target.configuration, correction.joints_deg)
+
+
+def _wpr_near(rot: FloatArray, old_wpr: list[float]) -> list[float]:
+    """``W, P, R`` [deg] of a rotation (3, 3), nearest the written ``old_wpr``.
+
+    At ``P = ±90`` only ``R ∓ W`` is defined (a real backup writes ``W = -120.304, P =
+    -90.000, R = 90.000``): the written ``R`` is kept there and ``W`` solved, when that gives
+    the rotation to 1e-7 deg; the rotation the position already had keeps its numbers."""
+    old = np.array(old_wpr)
+    if rotation_angle_deg(zyx_deg_to_matrix(old[2], old[1], old[0]), rot) < _SAME_DEG:
+        return [float(v) for v in old]
+    r, p, w = matrix_to_zyx_deg(rot, near_deg=old[::-1]).tolist()
+    if abs(abs(p) - 90.0) < _LOCK_DEG:
+        sign = 1.0 if p > 0 else -1.0  # Rz(R) Ry(±90) Rx(W) depends on R ∓ W only
+        w_kept = w + sign * (old[2] - r)
+        w_kept += 360.0 * round((old[0] - w_kept) / 360.0)
+        if rotation_angle_deg(zyx_deg_to_matrix(old[2], p, w_kept), rot) < _SAME_DEG:
+            return [w_kept, p, float(old[2])]
+    return [w, p, r]
 
 
 def _registers(src: Source, start: int, end: int) -> list[Target]:
