@@ -353,3 +353,56 @@ def test_the_rule_reads_the_flip_from_j5_and_the_turns_of_j1_j4_j6() -> None:
     assert config_text(q, -1, 1) == "F D B, -1, 1, -1"  # elbow up towards the wrist, behind
     assert configuration("N U B", ()).elbow == -1 and configuration("N D T", ()).elbow == -1
     assert TURN_JOINTS == (0, 3, 5)
+
+
+def _entry(n: int, body: str) -> str:
+    return f"P[{n}]{{\r\n   GP1:\r\n{body}\r\n}};\r\n"
+
+
+def test_w_and_r_at_p_90_keep_their_written_split(frames: FrameTables) -> None:
+    model = replace(_library(), controller=IDENTITY)
+    wpr = (-120.304, -90.0, 90.0)  # only R + W is defined at P = -90 (a real backup's)
+    pose = frame(np.array([200.0, -1600.0, 300.0]), zyx_deg_to_matrix(wpr[2], wpr[1], wpr[0]))
+    sol = nominal_solutions(model, pose[None])
+    k = int(np.flatnonzero(sol.valid[0])[0])
+    config = config_text(sol.joints_deg[0, k], int(sol.shoulder[0, k]), int(sol.elbow[0, k]))
+    body = (
+        f"\tUF : 0, UT : 0,\t\tCONFIG : '{config}',\r\n"
+        "\tX =   200.000  mm,\tY = -1600.000  mm,\tZ =   300.000  mm,\r\n"
+        "\tW =  -120.304 deg,\tP =   -90.000 deg,\tR =    90.000 deg"
+    )
+    mn = "/PROG  LOCK\r\n/MN\r\n   1:L P[1] 100mm/sec FINE    ;\r\n"
+    files = [("LOCK.LS", f"{mn}/POS\r\n{_entry(1, body)}/END\r\n".encode())]
+    run = filter_files(_calibration(model, 0, 2, 0.0), files, frames=frames)
+    assert run.outputs == dict(files) and run.rows()[0]["status"] == "corrected"
+    shifted = filter_files(_calibration(model, 0, 2, 0.3), files, frames=frames)
+    out = shifted.outputs["LOCK.LS"].decode()
+    assert "Z =   299.700  mm" in out, out
+    assert "W =  -120.304 deg" in out and "R =    90.000 deg" in out
+
+
+def test_unrecorded_positions_and_other_representations_are_named(frames: FrameTables) -> None:
+    unrecorded = (
+        "\tUF : F, UT : F,\t\tCONFIG : 'N D B, 0, 0, 0',\r\n"
+        "\tX = ********  mm,\tY = ********  mm,\tZ = ********  mm,\r\n"
+        "\tW = ******** deg,\tP = ******** deg,\tR = ******** deg"
+    )
+    remote = (
+        "\tUF : 1, UT : 1,\t\tCONFIG : 'N U T, 0, 0, 1',\r\n"
+        "\tRX =  1179.616  mm,\tRY =    -2.375  mm,\tRZ = -1173.937  mm,\r\n"
+        "\tRW =  -172.372 deg,\tRP =   -49.712 deg,\tRR =  -101.703 deg"
+    )
+    data = (
+        "/PROG  ODD\r\n/MN\r\n   1:L P[1] 10mm/sec CNT0    ;\r\n   2:L P[2] 10mm/sec FINE    ;\r\n"
+        f"/POS\r\n{_entry(1, unrecorded)}{_entry(2, remote)}/END\r\n"
+    ).encode()
+    run = filter_files(_calibration(_library(), 0, 2, 0.3), [("ODD.LS", data)], frames=frames)
+    assert run.errors == [] and run.outputs == {"ODD.LS": data}
+    assert [(r["name"], r["status"], r["reason"]) for r in run.rows()] == [
+        ("P[1]", "skipped", "never recorded (its values are ********): nothing to correct"),
+        (
+            "P[2]",
+            "skipped",
+            "GP1 holds RX, RY, RZ, RW, RP, RR: neither J1..J6 nor X..R, not supported",
+        ),
+    ]
