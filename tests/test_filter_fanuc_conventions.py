@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from calib.conventions import IDENTITY
-from calib.filter.branches import nominal_solutions
+from calib.filter.branches import nominal_solutions, wrist_geometry
 from calib.filter.correct import Calibration
 from calib.filter.fanuc_config import TURN_JOINTS, config_text, configuration, turn_number
 from calib.filter.fanuc_ls import DIALECT as LS
@@ -406,3 +406,17 @@ def test_unrecorded_positions_and_other_representations_are_named(frames: FrameT
             "GP1 holds RX, RY, RZ, RW, RP, RR: neither J1..J6 nor X..R, not supported",
         ),
     ]
+
+
+@pytest.mark.parametrize("path", sorted(LIBRARY.glob("fanuc-*.toml")), ids=lambda p: p.stem)
+def test_every_fanuc_arm_of_the_library_reads_with_fanuc_conventions(path: Path) -> None:
+    model = parse_model_text(path.read_text(), "toml")
+    assert model.name == path.stem and path.read_text().startswith("# Fanuc ")
+    assert model.controller == _library().controller and model.controller.maker == "fanuc"
+    assert wrist_geometry(model) is not None  # the closed-form wrist applies
+    assert model.joint_limits_deg is not None
+    # All-zero joints: faceplate forward (z along +x) with its x axis up, on axis 1's plane.
+    home = _flange(model, np.zeros(6))[0]
+    np.testing.assert_allclose(home[:3, 2], [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(home[:3, 0], [0, 0, 1], atol=1e-12)
+    assert abs(home[1, 3]) < 1e-9 and home[0, 3] > 0
