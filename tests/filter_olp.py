@@ -14,7 +14,7 @@ import numpy as np
 from filter_cells import Cell, planned_targets
 
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
-from calib.filter.fanuc_ls import turn_number
+from calib.filter.fanuc_config import config_text
 from calib.filter.krl import turn_of
 from calib.filter.rotations import invert, matrix_to_zyx_deg, rotation_angle_deg
 from calib.filter.run import FilterRun
@@ -31,19 +31,9 @@ def kuka_status(nominal: RobotModel, q_deg: FloatArray) -> list[int]:
 
 
 def fanuc_config(nominal: RobotModel, q_deg: FloatArray) -> list[str]:
-    """``'N U T, t4, t5, t6'`` of joints (n, 6) [deg]."""
-    sh, el, wr = branch_signs(nominal, q_deg)
-    out = []
-    for i, q in enumerate(q_deg):
-        letters = (
-            ("N" if wr[i] > 0 else "F")
-            + " "
-            + ("U" if el[i] > 0 else "D")
-            + " "
-            + ("T" if sh[i] > 0 else "B")
-        )
-        out.append(f"{letters}, " + ", ".join(str(turn_number(q[j])) for j in (3, 4, 5)))
-    return out
+    """``'F U T, t1, t4, t6'`` of joints (n, 6) [deg] (the rule of calib.filter.fanuc_config)."""
+    sh, el, _wr = branch_signs(nominal, q_deg)
+    return [config_text(q, int(sh[i]), int(el[i])) for i, q in enumerate(q_deg)]
 
 
 def _frame_text(f: FloatArray) -> str:

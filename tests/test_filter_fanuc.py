@@ -12,8 +12,9 @@ from filter_cells import Cell, make_cell, regular_poses, tool_frame, work_frame
 from filter_olp import accuracy, frames_toml, ls_program, rms
 
 from calib.filter.correct import Calibration, calibration_from_result
+from calib.filter.fanuc_config import TURN_EDGE_DEG, TURN_JOINTS, configuration, turn_number
 from calib.filter.fanuc_ls import DIALECT as LS
-from calib.filter.fanuc_ls import configuration, turn_number
+from calib.filter.fanuc_ls import REGISTER_REASON
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, filter_files
 from calib.filter.sites import FrameTables, Source, parse_frames_toml
 
@@ -58,6 +59,7 @@ def test_calibration_equal_to_nominal_changes_no_byte(cell: Cell, frames: FrameT
         "P[5]": "skipped",
         "P[6]": "corrected",
         "P[8]": "skipped",
+        "PR[1]": "skipped",
     }
     assert all(c.shift_mm < 1e-6 for c in run.corrections if c.status == "corrected")
 
@@ -80,7 +82,7 @@ def test_a_real_calibration_changes_only_position_numbers(cell: Cell, frames: Fr
     for k, cfg in zip((1, 2, 3), _CONFIG.findall(out)[:3], strict=True):
         q = by_name[f"P[{k}]"].joints_deg
         assert q is not None
-        assert [int(v) for v in cfg[1].split(b",")] == [turn_number(q[j]) for j in (3, 4, 5)]
+        assert [int(v) for v in cfg[1].split(b",")] == [turn_number(q[j]) for j in TURN_JOINTS]
     # Left unchanged: P[5] (UF 7 unknown) and P[8] (E1) keep every byte.
     for k in (5, 8):
         entry = re.search(rb"P\[%d\]\{.*?\};" % k, data, re.DOTALL)
@@ -90,7 +92,7 @@ def test_a_real_calibration_changes_only_position_numbers(cell: Cell, frames: Fr
 def test_frames_and_their_absence(cell: Cell, frames: FrameTables) -> None:
     sources = [Source.from_bytes(n, d) for n, d in _files()]
     targets = {t.name: t for t in LS.parse(sources, frames)}
-    assert set(targets) == {"P[1]", "P[2]", "P[3]", "P[4]", "P[5]", "P[6]", "P[8]"}
+    assert set(targets) == {"P[1]", "P[2]", "P[3]", "P[4]", "P[5]", "P[6]", "P[8]", "PR[1]"}
     use = targets["P[2]"].uses[0]
     assert (use.line, use.tool_name, use.work_name, use.problem) == (44, "UT:2", "UF:1", "")
     assert use.tool is not None and use.work is not None
@@ -99,7 +101,8 @@ def test_frames_and_their_absence(cell: Cell, frames: FrameTables) -> None:
     np.testing.assert_allclose(targets["P[6]"].uses[0].work, np.eye(4))  # UF 0
     assert targets["P[4]"].kind == "joint" and targets["P[4]"].uses == []
     cfg = targets["P[1]"].configuration
-    assert cfg is not None and (cfg.wrist, cfg.elbow, cfg.shoulder) == (-1, 1, 1)
+    assert cfg is not None and (cfg.wrist, cfg.elbow, cfg.shoulder) == (1, 1, 1)  # 'F U T'
+    assert (targets["PR[1]"].line, targets["PR[1]"].problem) == (30, REGISTER_REASON)
     run = filter_files(_identity(cell), _files())  # no --frames
     reason = {r["name"]: r["reason"] for r in run.rows()}
     assert reason["P[1]"] == (
@@ -107,7 +110,8 @@ def test_frames_and_their_absence(cell: Cell, frames: FrameTables) -> None:
     )
     assert reason["P[6]"] == "line 74: UT 2 is not in --frames ([utool.2])"
     assert reason["P[8]"] == "GP1 has extended axes E1: not supported"
-    assert run.rows()[3]["status"] == "corrected"  # the joint form needs no frame
+    status = {r["name"]: r["status"] for r in run.rows()}
+    assert status["P[4]"] == "corrected"  # the joint form needs no frame
 
 
 def test_an_unreachable_position_is_left_as_it_is_and_named(cell: Cell) -> None:
@@ -169,10 +173,13 @@ def test_configuration_and_turn_numbers() -> None:
         2,
     ]
     cfg = configuration("F D B, 1, 0, -1", (1, 0, -1))
-    assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (-1, -1, -1)
-    np.testing.assert_allclose(cfg.joint_ranges_deg[3:], [[180, 540], [-180, 180], [-540, -180]])
-    assert np.all(np.isinf(cfg.joint_ranges_deg[:3]))
-    assert configuration("NUT, 0, 0, 0", (0, 0, 0)).wrist == 1
+    assert (cfg.wrist, cfg.elbow, cfg.shoulder) == (1, 1, -1)  # F: J5 > 0; D behind: +1
+    edge = np.array([-TURN_EDGE_DEG, -TURN_EDGE_DEG])  # read shifted down
+    ranges = cfg.joint_ranges_deg
+    windows = np.array([[180, 540], [-180, 180], [-540, -180]])
+    np.testing.assert_allclose(ranges[[0, 3, 5]], windows + edge)
+    assert np.all(np.isinf(ranges[[1, 2, 4]]))  # J1, J4, J6 carry the turns
+    assert configuration("NUT, 0, 0, 0", (0, 0, 0)).wrist == -1
 
 
 _GOOD = (

@@ -3,12 +3,14 @@
 Targets
     Every ``P[n]`` (also ``P[n:"comment"]``) of the ``/POS`` section, group ``GP1`` only:
     Cartesian (``X, Y, Z`` [mm], ``W, P, R`` [deg] with ``R = Rz(R)·Ry(P)·Rx(W)``, and
-    ``CONFIG``) or joint form (``J1 … J6`` [deg]). ``GP2`` and the other groups (a
-    positioner, a rail) are never touched; a ``GP1`` with extended axes ``E1 …`` (an
-    integrated rail moves the robot's base) is left unchanged and named, as is a position
-    that a ``/MN`` move reaches with ``INC`` (an increment) or an offset (``Offset``,
-    ``Tool_Offset``, ``VOFFSET``): the robot does not go to the position itself. Position
-    registers ``PR[n]`` live on the controller, not in the program: never touched.
+    ``CONFIG``) or joint form (``J1 … J6`` [deg], Fanuc's own angles: J3 is the forearm's
+    angle from the horizontal; the model's ``[controller]`` table says so). ``GP2`` and the
+    other groups (a servo gun, a positioner, a rail) are never touched; a ``GP1`` with
+    extended axes ``E1 …`` (an integrated rail moves the robot's base), a ``GP1`` in another
+    representation (``RX … RR``) and a position that a ``/MN`` move reaches with ``INC`` (an
+    increment) or an offset (``Offset``, ``Tool_Offset``, ``VOFFSET``) are left unchanged and
+    named: the robot does not go to the position itself. A position register ``PR[n]`` that a
+    move goes to lives on the controller, not in the program: named, never touched.
 
 Frames
     A position carries its own user frame and tool numbers (``UF : n, UT : m``; the
@@ -16,12 +18,10 @@ Frames
     (``[uframe.n]``, ``[utool.n]``; 0 is the identity). A number not given there leaves the
     position unchanged and named.
 
-Configuration ``'F U T, t4, t5, t6'``
-    ``N``/``F``: wrist +1 (``J5 ≥ 0``) / −1; ``U``/``D``: elbow up / down; ``T``/``B``:
-    wrist centre in front of / behind axis 1 (the branch signs of
-    :class:`calib.filter.sites.Configuration`). The turn numbers are those of ``J4, J5, J6``:
-    turn ``k`` is the window ``[−180 + 360k, 180 + 360k)`` [deg]. The letters are written
-    back as they were, the turn numbers from the corrected joints.
+Configuration ``'F U T, t1, t4, t6'``
+    The rules are :mod:`calib.filter.fanuc_config` (flip ``F`` when J5 > 0; the turn numbers
+    of J1, J4, J6). The string is written back as it was: a correction that would change the
+    flip or a turn number is refused (:meth:`FanucLsDialect.check`).
 
 Precision: the file's own decimals, at least 3 for positions and ``W, P, R`` (what the
 controller shows) and 4 for joint angles (it keeps a 32-bit REAL: about 7 significant digits).
@@ -29,18 +29,16 @@ controller shows) and 4 for joint angles (it keeps a 32-bit REAL: about 7 signif
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
+from calib.filter.fanuc_config import KEYWORDS, TURN_JOINTS, configuration, refusal
 from calib.filter.rotations import frames as make_frames
-from calib.filter.rotations import matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.filter.rotations import matrix_to_zyx_deg, rotation_angle_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
-    Configuration,
     Correction,
     Edit,
     FilterInputError,
@@ -51,7 +49,7 @@ from calib.filter.sites import (
     Use,
     edits_for,
 )
-from calib.kinematics import N_JOINTS
+from calib.kinematics import N_JOINTS, FloatArray
 
 NAME = "fanuc-ls"
 EXTENSIONS = (".ls",)
@@ -59,8 +57,14 @@ DECIMALS = 3
 #: Joint angles to at least 4 decimals: a third decimal alone costs up to 0.0005 deg a joint,
 #: about 0.02 mm at 2 m reach.
 JOINT_DECIMALS = 4
-#: Joints (0-based) the CONFIG's turn numbers belong to.
-TURN_JOINTS = (3, 4, 5)
+#: Rotations closer than this are the same [deg]; W, P, R within this of P = ±90 [deg] are
+#: at the Euler angles' lock.
+_SAME_DEG = 1e-7
+_LOCK_DEG = 0.01
+#: Why a position register named in a move is left.
+REGISTER_REASON = (
+    "a position register: its value is on the controller (POSREG.VA), not in this program"
+)
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _PROG = re.compile(r"^\ufeff?\s*/PROG\b")
@@ -73,17 +77,11 @@ _REF = re.compile(r"(?<![A-Za-z_])P\[\s*(\d+)")
 _GROUP = re.compile(r"GP(\d+)\s*:")
 _FIELD = re.compile(r"\b([A-Z]\w*)\s*=\s*(" + _NUM + r")\s*(mm|deg)?", re.IGNORECASE)
 _FRAME_NO = re.compile(r"\b(UF|UT)\s*:\s*([^,\s]+)\s*,?")
-_CONFIG = re.compile(r"\bCONFIG\s*:\s*'([^'\r\n]*)'")
+_CONFIG = re.compile(r"\b(?:" + "|".join(KEYWORDS) + r")\s*:\s*'([^'\r\n]*)'")
+_UNRECORDED = re.compile(r"=\s*\*{3,}")
+_REGISTER_MOVE = re.compile(r"^\s*\d*\s*:\s*[JLCA]\s+PR\[\s*(\d+)", re.MULTILINE)
 _CARTESIAN = ("X", "Y", "Z", "W", "P", "R")
 _JOINTS = tuple(f"J{j}" for j in range(1, N_JOINTS + 1))
-_LETTERS = {
-    "N": ("wrist", 1),
-    "F": ("wrist", -1),
-    "U": ("elbow", 1),
-    "D": ("elbow", -1),
-    "T": ("shoulder", 1),
-    "B": ("shoulder", -1),
-}
 
 
 @dataclass
@@ -98,39 +96,6 @@ class CartSite:
 @dataclass
 class JointSite:
     joints: list[Num]
-
-
-def turn_number(angle_deg: float) -> int:
-    """The Fanuc turn number of a joint angle [deg]: ``k`` with the angle in
-    ``[−180 + 360k, 180 + 360k)``."""
-    return math.floor((angle_deg + 180.0) / 360.0)
-
-
-@lru_cache(maxsize=1024)
-def configuration(text: str, turns: tuple[float, ...]) -> Configuration:
-    """The branch a Fanuc controller takes for a CONFIG string (see the module docstring).
-
-    Raises
-    ------
-    ValueError
-        An unknown or repeated letter.
-    """
-    letters = text.split(",")[0]
-    signs: dict[str, int] = {}
-    for ch in re.sub(r"\s+", "", letters).upper():
-        if ch not in _LETTERS or _LETTERS[ch][0] in signs:
-            raise ValueError(f"CONFIG '{text}': unexpected letter {ch!r}")
-        signs[_LETTERS[ch][0]] = _LETTERS[ch][1]
-    ranges = np.tile([-np.inf, np.inf], (N_JOINTS, 1))
-    for j, k in zip(TURN_JOINTS, turns, strict=False):
-        ranges[j] = (-180.0 + 360.0 * k, 180.0 + 360.0 * k)
-    return Configuration(
-        ranges,
-        shoulder=signs.get("shoulder"),
-        elbow=signs.get("elbow"),
-        wrist=signs.get("wrist"),
-        text=f"'{text}'",
-    )
 
 
 def _sections(src: Source) -> dict[str, tuple[int, int]]:
@@ -200,6 +165,7 @@ class FanucLsDialect:
                 if not t.problem and t.name in used:
                     t.problem = used[t.name]
             out.extend(positions)
+            out.extend(_registers(src, *sections.get("MN", (0, 0))))
         cart = [t for t in out if isinstance(t.site, CartSite)]
         if cart:  # every pose at once: R = Rz(R)·Ry(P)·Rx(W)
             xyz = np.array([[n.value for n in t.site.position] for t in cart])
@@ -269,12 +235,18 @@ class FanucLsDialect:
                 t.problem = f"GP1 has extended axes {', '.join(extra)}: not supported"
             return t
         missing = [k for k in _CARTESIAN if k not in fields]
-        if missing:
+        if missing and len(missing) < len(_CARTESIAN):
             raise FilterInputError(
                 src.name,
                 f"{name}: GP1 has neither J1..J6 nor X..R (missing {', '.join(missing)})",
                 line,
             )
+        if missing:  # never recorded (********), or another representation (RX .. RR)
+            if _UNRECORDED.search(body):
+                why = "never recorded (its values are ********): nothing to correct"
+            else:
+                why = f"GP1 holds {', '.join(fields)}: neither J1..J6 nor X..R, not supported"
+            return Target(src.name, line, name, "cartesian", problem=why)
         numbers = {m.group(1): m.group(2) for m in _FRAME_NO.finditer(body)}
         cfg = _CONFIG.search(body)
         if not cfg or set(numbers) != {"UF", "UT"}:
@@ -285,7 +257,7 @@ class FanucLsDialect:
             raise FilterInputError(src.name, f"{name}: UF and UT must be numbers", line)
         turn_nums = self._turns(src, g.end() + cfg.start(1), cfg.group(1))
         try:
-            conf = configuration(cfg.group(1), tuple(n.value for n in turn_nums))
+            conf = configuration(cfg.group(1), tuple(int(n.value) for n in turn_nums))
         except ValueError as exc:
             raise FilterInputError(src.name, f"{name}: {exc}", line) from None
         uf, ut = int(numbers["UF"]), int(numbers["UT"])
@@ -335,22 +307,61 @@ class FanucLsDialect:
         return out
 
     def render(self, target: Target, correction: Correction) -> list[Edit]:
+        """The corrected numbers; none where :meth:`check` refuses (the CONFIG string is
+        never rewritten)."""
+        if self.check(target, correction):
+            return []
         if isinstance(target.site, JointSite):
             assert correction.joints_deg is not None
             return edits_for(target.site.joints, correction.joints_deg.tolist(), JOINT_DECIMALS)
         site: CartSite = target.site
         assert correction.pose is not None and correction.joints_deg is not None
-        old = [n.value for n in site.wpr][::-1]  # R, P, W
-        rpw = matrix_to_zyx_deg(correction.pose[:3, :3], near_deg=old).tolist()
+        wpr = _wpr_near(correction.pose[:3, :3], [n.value for n in site.wpr])
         edits = [
             *edits_for(site.position, correction.pose[:3, 3].tolist(), DECIMALS),
-            *edits_for(site.wpr, rpw[::-1], DECIMALS),
+            *edits_for(site.wpr, wpr, DECIMALS),
         ]
-        for num, j in zip(site.turns, TURN_JOINTS, strict=False):
-            new = turn_number(float(correction.joints_deg[j]))
-            if new != int(num.value):
-                edits.append(Edit(num.file, num.start, num.end, str(new)))
         return edits
+
+    def check(self, target: Target, correction: Correction) -> str:
+        """Why a corrected target cannot be written: its CONFIG's flip or a turn number would
+        change (:func:`calib.filter.fanuc_config.refusal`); empty when it can.
+
+        ``correction.joints_deg`` are Fanuc's angles (the core's controller angles)."""
+        if target.configuration is None or correction.joints_deg is None:
+            return ""
+        return refusal(target.configuration, correction.joints_deg)
+
+
+def _wpr_near(rot: FloatArray, old_wpr: list[float]) -> list[float]:
+    """``W, P, R`` [deg] of a rotation (3, 3), nearest the written ``old_wpr``.
+
+    At ``P = ±90`` only ``R ∓ W`` is defined (a real backup writes ``W = -120.304, P =
+    -90.000, R = 90.000``): the written ``R`` is kept there and ``W`` solved, when that gives
+    the rotation to 1e-7 deg; the rotation the position already had keeps its numbers."""
+    old = np.array(old_wpr)
+    if rotation_angle_deg(zyx_deg_to_matrix(old[2], old[1], old[0]), rot) < _SAME_DEG:
+        return [float(v) for v in old]
+    r, p, w = matrix_to_zyx_deg(rot, near_deg=old[::-1]).tolist()
+    if abs(abs(p) - 90.0) < _LOCK_DEG:
+        sign = 1.0 if p > 0 else -1.0  # Rz(R) Ry(±90) Rx(W) depends on R ∓ W only
+        w_kept = w + sign * (old[2] - r)
+        w_kept += 360.0 * round((old[0] - w_kept) / 360.0)
+        if rotation_angle_deg(zyx_deg_to_matrix(old[2], p, w_kept), rot) < _SAME_DEG:
+            return [w_kept, p, float(old[2])]
+    return [w, p, r]
+
+
+def _registers(src: Source, start: int, end: int) -> list[Target]:
+    """One target per position register a ``/MN`` move goes to (``J PR[2] …``), at its
+    first use: named, never corrected (:data:`REGISTER_REASON`)."""
+    out: dict[str, Target] = {}
+    for m in _REGISTER_MOVE.finditer(src.text, start, end):
+        name = f"PR[{m.group(1)}]"
+        if name not in out:
+            line = src.line_of(m.start(1))
+            out[name] = Target(src.name, line, name, "cartesian", problem=REGISTER_REASON)
+    return list(out.values())
 
 
 DIALECT = FanucLsDialect()
