@@ -13,8 +13,8 @@ the DH angles, ``o_i, z_i`` the origin and z axis of DH frame ``i`` (axis ``i+1`
    in the plane ``n·(p − o1) = D``, ``D = d2 + d3 + d4`` (axis 5 is normal to ``n``). With
    ``w = o5 − o1`` and ``v = Rx(α1)e_z``: ``A cos φ1 + B sin φ1 = D − v_z w_z`` (``A = v_x w_x
    + v_y w_y``, ``B = v_x w_y − v_y w_x``), two solutions (shoulder left/right).
-2. **Wrist (φ5).** ``n·z5 = cos α4 cos α5 − sin α4 sin α5 cos φ5``: two solutions (the wrist
-   flip, the sign of ``sin φ5``).
+2. **Wrist (φ5).** ``n·z5 = −sin α4 sin α5 cos φ5`` and ``|sin φ5| = |n × z5|`` (``α4, α5 =
+   ±90°``): two solutions (the wrist flip, the sign of ``sin φ5``).
 3. **φ6** from ``n`` seen in ``F``: ``Rz(φ6)·(R_Fᵀ n) = Rx(α5)ᵀRz(φ5)ᵀ(0, sin α4, cos α4)``.
    At the wrist singularity (``sin φ5 = 0``: axis 6 parallel to axes 2–4) ``φ6`` is free and
    set to the reference's (or 0).
@@ -149,8 +149,10 @@ def solve_dh(dh: FloatArray, flange: FloatArray, ref_rad: FloatArray | None = No
         r1 = rz3(phi1) @ _rx(alpha[0])
         nvec = r1[:, :, 2]
         nz5 = np.einsum("ni,ni->n", nvec, r_f[:, :, 2])
-        acos5, ok5 = _acos2((ca4 * ca5 - nz5) / (sa4 * sa5))
-        phi5 = s_wr * acos5
+        # cos φ5 from n·z5; |sin φ5| = |n × z5| (axis 5 ⟂ n): atan2 keeps φ5 exact near 0, π.
+        sin5 = np.linalg.norm(np.cross(nvec, r_f[:, :, 2]), axis=1)
+        phi5 = s_wr * np.arctan2(sin5, (ca4 * ca5 - nz5) / (sa4 * sa5))
+        ok5 = np.ones(n, dtype=bool)
         # φ6: Rz(φ6) (R_Fᵀ n) = Rx(α5)ᵀ Rz(φ5)ᵀ (0, sin α4, cos α4).
         n_f = np.einsum("nji,nj->ni", r_f, nvec)
         m = np.einsum("ij,nkj,k->ni", _rx(alpha[4]).T, rz3(phi5), np.array([0.0, sa4, ca4]))
