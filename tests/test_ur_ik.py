@@ -155,3 +155,39 @@ def test_not_ur_shaped_is_refused_by_name() -> None:
     assert ur_shape(model) is None
     with pytest.raises(ValueError, match=r"robot odd: .*neither"):
         nominal_solutions(model, flange_frames(model, np.zeros((1, 6))))
+
+
+def test_a_factory_table_with_far_common_normals_is_solved() -> None:
+    """A UR10e's calibrated table as its controller reports it (KinematicsInfo): ``d`` of
+    hundreds of metres on the nearly parallel axes 2-4. Values: the real-robot example of
+    UniversalRobots/Universal_Robots_ROS2_Driver, ur_calibration/doc/algorithm.rst."""
+    theta = [-2.4147806894359e-07, 1.60233952386695, -1.68607190752171, 0.0837331147700119]
+    theta += [-1.01260355871158e-07, 3.91986209186124e-08]
+    a = [2.12234865571206e-05, 0.0193171326277006, -0.569251663611088, -4.61409023720934e-05]
+    a += [-6.39280053471802e-05, 0.0]
+    d = [0.180539811714259, 439.140974079901, -446.027059806332, 7.0603368964236]
+    d += [0.119811341150314, 0.115670917257426]
+    alpha = [1.57014608044242, 0.0013941666682559, 0.00693818880325995, 1.56998468543761]
+    alpha += [-1.57038520649543, 0.0]
+    table = np.column_stack(
+        [np.rad2deg(alpha), 1000.0 * np.array(a), 1000.0 * np.array(d), np.rad2deg(theta)]
+    )
+    model = RobotModel("ur10e-factory", "dh", table, np.tile([-360.0, 360.0], (6, 1)))
+    shape = ur_shape(model)
+    assert shape is not None and not shape.exact
+    # The neighbour is a UR10e (published a2 = -612.7, a3 = -571.55 mm) to a few tenths of mm.
+    assert abs(shape.dh[1, 1] + 612.7) < 1.0 and abs(shape.dh[2, 1] + 571.55) < 1.0
+    q = _random_q(np.random.default_rng(6), 300, margin_deg=5.0)
+    fl = flange_frames(model, q)
+    sol, ok = ur_solutions(model, fl)  # type: ignore[misc]
+    cand = np.rad2deg(np.where(ok[..., None], sol, 0.0)).reshape(-1, 6)
+    back = flange_frames(model, cand).reshape(-1, 8, 4, 4)
+    err_mm = np.linalg.norm(back[..., :3, 3] - fl[:, None, :3, 3], axis=2)
+    assert np.max(np.where(ok, err_mm, 0.0)) <= 1e-6
+    diff = np.max(np.abs(_wrapped_deg(np.rad2deg(sol) - q[:, None, :])), axis=2)
+    found = np.nanmin(np.where(ok, diff, np.inf), axis=1) < 1e-5
+    assert found.mean() > 0.97  # the rest: wrist point within ~1 mm of the shoulder cylinder
+    # The filter's nearest-q rule still finds every pose's own joints (Newton from q joins).
+    sol_n = nominal_solutions(model, fl, near_deg=q)
+    idx, _ = choose(sol_n, [Configuration(nearest_deg=r) for r in q])
+    assert np.mean(idx >= 0) > 0.97

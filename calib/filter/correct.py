@@ -192,25 +192,26 @@ def _nearest(
     nominal: RobotModel, fl: FloatArray, refs: FloatArray
 ) -> tuple[list[FloatArray], list[str]]:
     """UR's rule: per flange frame (n, 4, 4) the nominal solution nearest its joint reference
-    (n, 6) [deg] (the controller's angles), or the reason there is none. Closed form where
-    the arm has one (all solutions, then the nearest), else Newton from the reference."""
+    (n, 6) [deg] (the controller's angles), or the reason there is none: of the closed-form
+    solutions (where the arm has them) and Newton's from the reference, the nearest within
+    the joint limits (Newton covers a solution a near-UR table's seeds missed)."""
     limits = joint_limits_deg(nominal)
-    nan6 = np.full(6, np.nan)
+    got = solve_flange_ik(nominal, refs, fl, IK_OPTIONS)
+    inside = np.all((got.joints_deg >= limits[:, 0]) & (got.joints_deg <= limits[:, 1]), axis=1)
+    newton = np.where((got.converged & inside)[:, None], got.joints_deg, np.nan)
     try:
         sol = nominal_solutions(nominal, fl, near_deg=refs)
     except ValueError:
-        got = solve_flange_ik(nominal, refs, fl, IK_OPTIONS)
-        qs = list(got.joints_deg)
-        why = [
-            ""
-            if ok and np.all(q >= limits[:, 0]) and np.all(q <= limits[:, 1])
-            else "no nominal solution near its joint reference within the joint limits"
-            for q, ok in zip(qs, got.converged, strict=True)
-        ]
-        return qs, why
-    idx, _ = choose(sol, [Configuration(nearest_deg=r) for r in refs])
-    qs = [sol.joints_deg[r, k] if k >= 0 else nan6 for r, k in enumerate(idx)]
-    why = ["" if k >= 0 else "no nominal solution within the joint limits" for k in idx]
+        closed = np.full_like(newton, np.nan)
+    else:
+        idx, _ = choose(sol, [Configuration(nearest_deg=r) for r in refs])
+        closed = np.where((idx >= 0)[:, None], sol.joints_deg[np.arange(len(idx)), idx], np.nan)
+    d_closed = np.nan_to_num(np.linalg.norm(closed - refs, axis=1), nan=np.inf)
+    d_newton = np.nan_to_num(np.linalg.norm(newton - refs, axis=1), nan=np.inf)
+    qs = list(np.where((d_newton < d_closed - 1e-9)[:, None], newton, closed))
+    why = [
+        "" if np.all(np.isfinite(q)) else "no nominal solution within the joint limits" for q in qs
+    ]
     return qs, why
 
 

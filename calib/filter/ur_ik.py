@@ -25,19 +25,24 @@ the DH angles, ``o_i, z_i`` the origin and z axis of DH frame ``i`` (axis ``i+1`
 
 Every candidate is checked by forward kinematics (:data:`CHECK_TOL_MM`) and dropped (NaN)
 otherwise. A model of nearly that shape (a UR's own factory calibration: small ``a1, a4, a5``,
-twists off by millidegrees) is solved on its UR-shaped neighbour (:func:`ur_shape` with
-``snap``) and each solution refined by Newton on the model itself (:func:`calib.ik.solve_ik`),
-so the eight branches are the neighbour's. All angles here are the DH table's (the filter's
-boundary, :mod:`calib.filter.kin`, converts the controller's); arrays are batched over
-targets.
+twists off by millidegrees, and ``d`` of hundreds of metres on the nearly parallel axes 2-4)
+is solved on its UR-shaped neighbour (:func:`ur_shape`: the UR-shaped table nearest it in
+forward kinematics) and each solution refined by Newton on the model itself
+(:func:`calib.ik.solve_ik`), so the eight branches are the neighbour's. All angles here are
+the DH table's (the filter's boundary, :mod:`calib.filter.kin`, converts the controller's);
+arrays are batched over targets.
 """
 
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass, replace
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from calib.conventions import IDENTITY
 from calib.ik import IKOptions, solve_ik
@@ -49,6 +54,12 @@ CHECK_TOL_MM = 1e-7
 #: A table within these of UR's shape is solved on its UR-shaped neighbour, then refined.
 SNAP_ALPHA_DEG = 1.0
 SNAP_LENGTH_MM = 5.0
+#: Poses of the neighbour's fit, and how close it must come to the table [mm].
+FIT_POSES = 64
+FIT_TOL_MM = 20.0
+LIBRARY = Path(__file__).resolve().parent.parent / "robots" / "library"
+#: How far past its reach the neighbour still gives a seed (the cosine's excess).
+SEED_SLACK = 0.05
 #: Newton refinement of a near-UR model from the neighbour's solutions.
 REFINE = IKOptions(max_iterations=30, tol_mm=1e-8, tol_deg=1e-8, stall_iterations=6)
 #: Branch order of the 8 solutions: (shoulder, wrist, elbow) signs, shoulder slowest.
@@ -66,29 +77,89 @@ class URShape:
 
 def ur_shape(model: RobotModel, snap: bool = True) -> URShape | None:
     """The UR shape of ``model``: classic DH, ``α2 = α3 = 0``, ``|α1| = |α4| = |α5| = 90°``,
-    ``a1 = a4 = a5 = 0``; with ``snap``, a table within :data:`SNAP_ALPHA_DEG` and
-    :data:`SNAP_LENGTH_MM` of it gives its neighbour (those entries set exactly). None
+    ``a1 = a4 = a5 = 0``. With ``snap``, a table within :data:`SNAP_ALPHA_DEG` and
+    :data:`SNAP_LENGTH_MM` of that gives its UR-shaped neighbour (:func:`_neighbour`). None
     otherwise."""
     if model.convention != "dh":
         return None
     dh = model.dh_internal()
-    want = dh.copy()
-    half = math.pi / 2
-    for j, quarter in ((0, True), (1, False), (2, False), (3, True), (4, True)):
-        alpha = dh[j, 0]
-        target = math.copysign(half, alpha) if quarter else 0.0
-        want[j, 0] = target
-    for j in (0, 3, 4):
-        want[j, 1] = 0.0
+    want = _snapped(dh)
     d_alpha = float(np.max(np.abs(want[:, 0] - dh[:, 0])))
     d_len = float(np.max(np.abs(want[:, 1] - dh[:, 1])))
-    if d_alpha == 0.0 and d_len == 0.0:
-        return URShape(dh, True)
     if d_alpha < 1e-12 and d_len < 1e-9:
         return URShape(want, True)
     if snap and d_alpha <= math.radians(SNAP_ALPHA_DEG) and d_len <= SNAP_LENGTH_MM:
-        return URShape(want, False)
+        near = _neighbour(np.ascontiguousarray(dh).tobytes())
+        return None if near is None else URShape(near, False)
     return None
+
+
+def _snapped(dh: FloatArray) -> FloatArray:
+    """``dh`` with ``α1, α4, α5`` set to ±90°, ``α2 = α3 = 0`` and ``a1 = a4 = a5 = 0``."""
+    want = dh.copy()
+    for j in (0, 3, 4):
+        want[j, 0] = math.copysign(math.pi / 2, dh[j, 0])
+        want[j, 1] = 0.0
+    want[1:3, 0] = 0.0
+    return want
+
+
+def _published_starts() -> list[FloatArray]:
+    """UR's published ``(d1, a2, a3, d4, d5, d6)`` [mm] of the library's UR arms (their one
+    home: calib/robots/library/ur*.toml), fit starts for a factory-calibrated table."""
+    out = []
+    for path in sorted(LIBRARY.glob("ur*.toml")):
+        joints = tomllib.loads(path.read_text("utf-8"))["joints"]
+        out.append(
+            np.array(
+                [joints[0]["d_mm"], joints[1]["a_mm"], joints[2]["a_mm"]]
+                + [joints[k]["d_mm"] for k in (3, 4, 5)]
+            )
+        )
+    return out
+
+
+def _table(x: FloatArray, shape_of: FloatArray) -> FloatArray:
+    """The UR-shaped table of fit parameters ``x`` = (d1, a2, a3, D, d5, d6, θ1..θ6)."""
+    out = _snapped(shape_of)
+    out[:, 1] = (0.0, x[1], x[2], 0.0, 0.0, shape_of[5, 1])
+    out[:, 2] = (x[0], 0.0, 0.0, x[3], x[4], x[5])
+    out[:, 3] = x[6:12]
+    return out
+
+
+@lru_cache(maxsize=16)
+def _neighbour(raw: bytes) -> FloatArray | None:
+    """The UR-shaped table nearest a near-UR table ``raw`` ((6, 4) internal units) in forward
+    kinematics: least squares over :data:`FIT_POSES` poses from the best of the snapped
+    table and UR's published tables (a factory calibration's table can carry ``d`` of
+    hundreds of metres on the nearly parallel axes 2-4, which snapping alone would keep).
+    None when the fit stays further than :data:`FIT_TOL_MM` from the table anywhere."""
+    dh = np.frombuffer(raw, dtype=float).reshape(N_JOINTS, 4)
+    q = np.random.default_rng(0).uniform(-np.pi, np.pi, size=(FIT_POSES, N_JOINTS))
+    rot, org = forward_frames(dh, q, "dh")
+    want_p, want_r = org[:, N_JOINTS], rot[:, N_JOINTS]
+
+    def residual(x: FloatArray) -> FloatArray:
+        r, o = forward_frames(_table(x, dh), q, "dh")
+        out: FloatArray = np.concatenate(
+            [(o[:, N_JOINTS] - want_p).ravel(), 100.0 * (r[:, N_JOINTS] - want_r).ravel()]
+        )
+        return out
+
+    starts = [
+        np.concatenate(
+            [[dh[0, 2], dh[1, 1], dh[2, 1], dh[1:4, 2].sum(), dh[4, 2], dh[5, 2]], dh[:, 3]]
+        )
+    ]
+    starts += [np.concatenate([p, np.zeros(N_JOINTS)]) for p in _published_starts()]
+    best = min(starts, key=lambda x: float(np.sum(residual(x) ** 2)))
+    fit = least_squares(residual, best, method="lm", xtol=1e-12, ftol=1e-12)
+    table = _table(fit.x, dh)
+    _, o = forward_frames(table, q, "dh")
+    if float(np.max(np.linalg.norm(o[:, N_JOINTS] - want_p, axis=1))) > FIT_TOL_MM:
+        return None
+    return table
 
 
 def _wrap(q: FloatArray) -> FloatArray:
@@ -110,17 +181,20 @@ def _rx(alpha: float) -> FloatArray:
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
-def _acos2(x: FloatArray) -> tuple[FloatArray, np.ndarray]:
-    """``acos`` of ``x`` clipped to [-1, 1], and where ``|x| ≤ 1`` (within 1e-9)."""
-    ok = np.abs(x) <= 1.0 + 1e-9
+def _acos2(x: FloatArray, slack: float) -> tuple[FloatArray, np.ndarray]:
+    """``acos`` of ``x`` clipped to [-1, 1], and where ``|x| ≤ 1 + slack``."""
+    ok = np.abs(x) <= 1.0 + slack
     return np.arccos(np.clip(x, -1.0, 1.0)), ok
 
 
-def solve_dh(dh: FloatArray, flange: FloatArray, ref_rad: FloatArray | None = None) -> FloatArray:
+def solve_dh(
+    dh: FloatArray, flange: FloatArray, ref_rad: FloatArray | None = None, slack: float = 1e-9
+) -> FloatArray:
     """The 8 DH-angle solutions (n, 8, 6) [rad] (``q + θ`` wrapped to (-π, π]; NaN rows where
     a branch does not exist) of flange frames (n, 4, 4) [mm] for a table of UR's shape
     ``dh`` (6, 4). Branch ``k`` has the signs ``ORDER[k]``. ``ref_rad`` (n, 6) DH angles
-    (NaN for none) fixes ``φ6`` at the wrist singularity."""
+    (NaN for none) fixes ``φ6`` at the wrist singularity; ``slack`` lets a pose just out of
+    the table's reach (``|cos| ≤ 1 + slack``) give its boundary solution (a seed)."""
     n = flange.shape[0]
     alpha, a, d = dh[:, 0], dh[:, 1], dh[:, 2]
     tail = np.eye(4)  # Tz(d6) Tx(a6) Rx(α6)
@@ -135,7 +209,7 @@ def solve_dh(dh: FloatArray, flange: FloatArray, ref_rad: FloatArray | None = No
     lhs_b = v[0] * w[:, 1] - v[1] * w[:, 0]
     rho = np.hypot(lhs_a, lhs_b)
     base1 = np.arctan2(lhs_b, lhs_a)
-    acos1, ok1 = _acos2((big_d - v[2] * w[:, 2]) / np.maximum(rho, 1e-300))
+    acos1, ok1 = _acos2((big_d - v[2] * w[:, 2]) / np.maximum(rho, 1e-300), slack)
     ca4, sa4, ca5, sa5 = (
         math.cos(alpha[3]),
         math.sin(alpha[3]),
@@ -165,7 +239,7 @@ def solve_dh(dh: FloatArray, flange: FloatArray, ref_rad: FloatArray | None = No
         o4 = o5 - d[4] * r4[:, :, 2]
         p = np.einsum("nji,nj->ni", r1, o4 - np.array([0.0, 0.0, d[0]]))
         c3 = (p[:, 0] ** 2 + p[:, 1] ** 2 - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
-        acos3, ok3 = _acos2(c3)
+        acos3, ok3 = _acos2(c3, slack)
         phi3 = s_el * acos3
         phi2 = np.arctan2(p[:, 1], p[:, 0]) - np.arctan2(a3 * np.sin(phi3), a2 + a3 * np.cos(phi3))
         m234 = np.swapaxes(r1, 1, 2) @ r4 @ _rx(alpha[3]).T
@@ -202,7 +276,7 @@ def ur_solutions(
         return None
     theta = shape.dh[:, 3]
     ref = None if ref_table_deg is None else np.deg2rad(ref_table_deg) + theta
-    phi = solve_dh(shape.dh, flange, ref)
+    phi = solve_dh(shape.dh, flange, ref, 1e-9 if shape.exact else SEED_SLACK)
     if shape.exact:
         ok = _check(shape.dh, phi, flange)
         return _wrap(phi - theta), ok
@@ -215,6 +289,11 @@ def ur_solutions(
     )
     q = _wrap(np.deg2rad(sol.joints_deg)).reshape(n, 8, N_JOINTS)
     ok = ok & sol.converged.reshape(n, 8)
+    # Two seeds at a reach boundary (both elbows, both shoulders) may reach one solution.
+    for k in range(1, 8):
+        for r in range(k):
+            same = np.max(np.abs(_wrap(q[:, k] - q[:, r])), axis=1) < 1e-7
+            ok[:, k] &= ~(same & ok[:, r])
     return q, ok
 
 
