@@ -95,9 +95,9 @@ def ur10e() -> RobotModel:
     return _ur10e()
 
 
-def _run(cal: Calibration, text: str):  # type: ignore[no-untyped-def]
+def _run(cal: Calibration, text: str, name: str = "pick.script"):  # type: ignore[no-untyped-def]
     data = text.encode()
-    run = filter_files(cal, [("pick.script", data)])
+    run = filter_files(cal, [(name, data)])
     assert run.errors == []
     return run, data
 
@@ -213,3 +213,47 @@ def test_controller_conventions_give_the_same_corrections_in_their_own_angles() 
             assert b.pose is not None
             np.testing.assert_allclose(b.pose, a.pose, atol=1e-6)
     assert max(c.shift_mm for c in got[None]) > 0.5  # not vacuous
+
+
+HAND_WRITTEN = """\
+def draw():
+  # hand-written: a feature, relative moves, variables, inline literals
+  feature = p[.45, -.2, .05, 0.0, 0.0, 1.5707963]
+  accel_mss = 1.2
+  rapid_ms = 0.25
+  blend_radius_m = 0.001
+  start = {start}
+  movej({home_q}, a=1.4, v=1.05)
+  movel(start, a=1.2, v=0.25)
+  movel(pose_trans(feature, {local}), accel_mss, v=rapid_ms, t=0, r=blend_radius_m)
+  movel(pose_trans(get_actual_tcp_pose(), p[0.0, 0.0, -0.02, 0.0, 0.0, 0.0]), a=0.1, v=0.1)
+  movel(pose_trans(feature, pose_trans(pose_inv({local}), {local})), a=2.5, v=0.3)
+  start_pos=get_forward_kin()
+  target_pos=pose_trans(start_pos,p[0.0, 0.0, 0.1, 0.0, 0.0, 0.0])
+  movel(target_pos, a=1.2, v=0.25)
+end
+"""
+
+
+def test_hand_written_script_shapes(ur10e: RobotModel) -> None:
+    """Variables, a feature, inline literals: corrected; a move relative to the current
+    pose and computed poses: left with the reason or not targets at all; no traceback."""
+    home = np.array([[-20.0, -80.0, 100.0, -110.0, -90.0, 15.0]])
+    start = flange_frames(ur10e, np.array([[-22.0, -85.0, 105.0, -110.0, -90.0, 12.0]]))[0]
+    feature = np.eye(4)
+    feature[:3, 3] = (450.0, -200.0, 50.0)
+    c, s = np.cos(1.5707963), np.sin(1.5707963)
+    feature[:2, :2] = [[c, -s], [s, c]]
+    world = flange_frames(ur10e, np.array([[-18.0, -82.0, 98.0, -108.0, -91.0, 14.0]]))[0]
+    local = np.linalg.inv(feature) @ world
+    text = HAND_WRITTEN.format(start=_p(start), home_q=_q(home[0]), local=_p(local))
+    run, data = _run(_cal(ur10e, (0, 2, 0.3)), text, "draw.script")
+    rows = {(t.line, t.name): c for t, c in zip(run.targets, run.corrections, strict=True)}
+    by = {name: c for (_line, name), c in rows.items()}
+    assert by["start"].status == "corrected" and abs(by["start"].shift_mm - 0.3) < 0.002
+    assert by["inline@8"].status == "corrected"  # movej's joint list
+    assert by["inline@10"].status == "corrected" and abs(by["inline@10"].shift_mm - 0.3) < 0.002
+    relative = by["inline@11"]
+    assert relative.status == "skipped" and "get_actual_tcp_pose()" in relative.reason
+    assert run.exit_code == 3
+    assert len(run.outputs["draw.script"].splitlines()) == len(data.splitlines())
