@@ -22,8 +22,7 @@ Tx(a_{k-1}) Rz(θ_k)``); angles here are the table's.
    follow from ``M e_z`` and ``e_zᵀ M``. At the wrist singularity ``q_4`` is set to 0.
 3. Whole turns: :func:`calib.filter.kin.turn_variants`.
 
-Checks (else dropped): the wrist centre within :data:`ARM_TOL_MM`, the wrist rotation within
-10 × :data:`CHECK_TOL_RAD` of the target's.
+Checks (else dropped): wrist centre within :data:`ARM_TOL_MM`, rotation 10 × :data:`CHECK_TOL_RAD`.
 """
 
 from __future__ import annotations
@@ -41,7 +40,7 @@ from calib.filter.kin import (
     turn_variants,
     whole_turns,
 )
-from calib.filter.ur_ik import ORDER, ur_signs, ur_solutions
+from calib.filter.ur_ik import ORDER, ur_shape, ur_signs, ur_solutions
 from calib.filter.ur_ik import rz3 as _rz3
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel
@@ -396,6 +395,12 @@ def branch_signs(model: RobotModel, joints_deg: FloatArray) -> tuple[np.ndarray,
     return shoulder, elbow, np.where(q[:, 4] >= 0, 1, -1)
 
 
+def closed_form_is_complete(model: RobotModel) -> bool:
+    """:func:`nominal_solutions` finds every solution (spherical wrist, exact UR shape)."""
+    shape = ur_shape(model, snap=False)
+    return wrist_geometry(model) is not None or (shape is not None and shape.exact)
+
+
 def _no_solver(model: RobotModel) -> str:
     return (
         f"robot {model.name}: the filter solves a spherical wrist (axes 4, 5, 6 meeting in "
@@ -487,6 +492,7 @@ def _spherical(
 __all__ = [
     "Solutions",
     "branch_signs",
+    "closed_form_is_complete",
     "fixed_transforms",
     "flange_frames",
     "nominal_solutions",

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from calib.export import model_from_result
-from calib.filter.branches import branch_signs, nominal_solutions
+from calib.filter.branches import branch_signs, closed_form_is_complete, nominal_solutions
 from calib.filter.kin import flange_frames, solve_flange_ik, to_table_deg
 from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.select import choose
@@ -193,22 +193,29 @@ def _nearest(
 ) -> tuple[list[FloatArray], list[str]]:
     """UR's rule: per flange frame (n, 4, 4) the nominal solution nearest its joint reference
     (n, 6) [deg] (the controller's angles), or the reason there is none: of the closed-form
-    solutions (where the arm has them) and Newton's from the reference, the nearest within
-    the joint limits (Newton covers a solution a near-UR table's seeds missed)."""
+    solutions (where the arm has them) and, where those may miss one (a near-UR table solved
+    through its neighbour) or there are none, Newton's from the reference, the nearest
+    within the joint limits."""
     limits = joint_limits_deg(nominal)
-    got = solve_flange_ik(nominal, refs, fl, IK_OPTIONS)
-    inside = np.all((got.joints_deg >= limits[:, 0]) & (got.joints_deg <= limits[:, 1]), axis=1)
-    newton = np.where((got.converged & inside)[:, None], got.joints_deg, np.nan)
+    closed = np.full(refs.shape, np.nan)
     try:
         sol = nominal_solutions(nominal, fl, near_deg=refs)
     except ValueError:
-        closed = np.full_like(newton, np.nan)
+        complete = False
     else:
+        complete = closed_form_is_complete(nominal)
         idx, _ = choose(sol, [Configuration(nearest_deg=r) for r in refs])
         closed = np.where((idx >= 0)[:, None], sol.joints_deg[np.arange(len(idx)), idx], np.nan)
-    d_closed = np.nan_to_num(np.linalg.norm(closed - refs, axis=1), nan=np.inf)
-    d_newton = np.nan_to_num(np.linalg.norm(newton - refs, axis=1), nan=np.inf)
-    qs = list(np.where((d_newton < d_closed - 1e-9)[:, None], newton, closed))
+    todo = np.flatnonzero(~np.all(np.isfinite(closed), axis=1) | (not complete))
+    if todo.size:
+        got = solve_flange_ik(nominal, refs[todo], fl[todo], IK_OPTIONS)
+        q = got.joints_deg
+        ok = got.converged & np.all((q >= limits[:, 0]) & (q <= limits[:, 1]), axis=1)
+        d_new = np.where(ok, np.linalg.norm(q - refs[todo], axis=1), np.inf)
+        d_old = np.nan_to_num(np.linalg.norm(closed[todo] - refs[todo], axis=1), nan=np.inf)
+        better = d_new < d_old - 1e-9
+        closed[todo[better]] = q[better]
+    qs = list(closed)
     why = [
         "" if np.all(np.isfinite(q)) else "no nominal solution within the joint limits" for q in qs
     ]
