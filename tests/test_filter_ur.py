@@ -257,3 +257,20 @@ def test_hand_written_script_shapes(ur10e: RobotModel) -> None:
     assert relative.status == "skipped" and "get_actual_tcp_pose()" in relative.reason
     assert run.exit_code == 3
     assert len(run.outputs["draw.script"].splitlines()) == len(data.splitlines())
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "/PROG  PICK\n/ATTR\nOWNER = MNEDITOR;\n/MN\n   1:J P[1] 100% FINE    ;\n/POS\n"
+        "P[1]{\n   GP1:\n\tUF : 0, UT : 1,\t\tCONFIG : 'N U T, 0, 0, 0',\n"
+        "\tX =   500.000  mm,\tY =     0.000  mm,\tZ =   400.000  mm,\n"
+        "\tW =   180.000 deg,\tP =     0.000 deg,\tR =     0.000 deg\n};\n/END\n",
+        "&ACCESS RVP\nDEF pick( )\n  PTP XHOME\n  LIN XP1\nEND\n",
+    ],
+    ids=["fanuc-ls", "krl-src"],
+)
+def test_another_controllers_program_named_script_is_refused(ur10e: RobotModel, text: str) -> None:
+    run = filter_files(_cal(ur10e), [("job.script", text.encode())])
+    assert run.exit_code == 2 and "job.script" not in run.outputs
+    assert "the content is not urscript" in str(run.errors[0])

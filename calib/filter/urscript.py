@@ -67,8 +67,19 @@ _ASSIGN = re.compile(
 )
 _MOVE = re.compile(r"(?<![\w.])(movel|movej|movep|movec|servoj)\s*\(")
 _SET_TCP = re.compile(r"(?<![\w.])set_tcp\s*\(")
-_DEF = re.compile(
-    r"^\s*(?:def|thread|sec)\s+\w+\s*\(|^\s*(?:global|local)?\s*\w+\s*=|^\s*\w+\s*\(", re.MULTILINE
+#: URScript's own marks: a ``def``/``thread``/``sec`` header with its colon, a motion or
+#: script call, a ``p[…]`` literal, a ``global`` assignment.
+_URSCRIPT = re.compile(
+    r"^[ \t]*(?:def|thread|sec)[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*:"
+    r"|(?<![\w.])(?:movel|movej|movep|movec|servoj|set_tcp|get_inverse_kin|textmsg|popup|sync)"
+    r"[ \t]*\(|(?<![\w.])p[ \t]*\[|^[ \t]*global[ \t]+\w+[ \t]*=",
+    re.MULTILINE,
+)
+#: Another controller's language: Fanuc LS sections, KRL headers and folds, RAPID modules.
+_FOREIGN = re.compile(
+    r"^[ \t]*(?:/PROG|/MN|/POS|/ATTR|&ACCESS|DEFDAT|DEF[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*$"
+    r"|;FOLD|MODULE[ \t]|PROC[ \t])",
+    re.MULTILINE,
 )
 
 
@@ -167,8 +178,10 @@ class URScriptDialect:
     extensions = EXTENSIONS
 
     def claims(self, source: Source) -> bool:
-        """A URScript extension and some URScript: a ``def``, a move, or an assignment."""
-        return bool(_DEF.search(blank(source.text)))
+        """Some URScript (:data:`_URSCRIPT`) and no other controller's language
+        (:data:`_FOREIGN`: a Fanuc LS or KRL program named ``.script`` is refused)."""
+        code = blank(source.text)
+        return bool(_URSCRIPT.search(code)) and not _FOREIGN.search(code)
 
     def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
         del frames
