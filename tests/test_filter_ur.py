@@ -274,3 +274,13 @@ def test_another_controllers_program_named_script_is_refused(ur10e: RobotModel, 
     run = filter_files(_cal(ur10e), [("job.script", text.encode())])
     assert run.exit_code == 2 and "job.script" not in run.outputs
     assert "the content is not urscript" in str(run.errors[0])
+
+
+def test_a_first_pose_without_joint_reference_is_left_with_the_reason(ur10e: RobotModel) -> None:
+    pose = flange_frames(ur10e, np.array([[-20.0, -80.0, 100.0, -110.0, -90.0, 15.0]]))[0]
+    run, data = _run(
+        _cal(ur10e, (0, 2, 0.3)), f"def a():\n  movel({_p(pose)}, a=1.2, v=0.25)\nend\n"
+    )
+    (c,) = run.corrections
+    assert c.status == "skipped" and "no joint reference" in c.reason and "ambiguous" in c.reason
+    assert run.outputs["pick.script"] == data

@@ -59,6 +59,8 @@ from calib.kinematics import FloatArray
 NAME = "urscript"
 EXTENSIONS = (".script", ".urscript")
 POSITION_DECIMALS = 6  # metres
+#: The branch of a pose moved to first (no qnear, no move before it in the text).
+NO_REFERENCE = "(none: no joint reference; the controller starts from the current joints)"
 ANGLE_DECIMALS = 6  # radians
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
@@ -243,7 +245,7 @@ class URScriptDialect:
                     name,
                     "cartesian",
                     pose=_pose_of(v.nums),
-                    configuration=Configuration(text="(none)"),
+                    configuration=Configuration(text=NO_REFERENCE),
                     site=PoseSite(v.nums),
                 )
             else:
