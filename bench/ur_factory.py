@@ -18,6 +18,10 @@ Per file:
   picked (nearest ``NAME_q``) and ``NAME_q`` itself: the factory calibration's size in joint
   space when the rule picks the waypoint's own branch, tens of degrees when it does not.
 * **A pure shift** (``d1 + 0.3 mm``): each corrected pose moves by 0.3 mm (max error [mm]).
+* **A pure turn** (``theta1 + 0.05°``): each corrected ``NAME_q`` changes on joint 1 only, by
+  −0.05° (max error on joint 1 and max change of joints 2–6 [deg]).
+* **A realistic calibration** (every ``a, d`` of the table off by N(0, 0.3 mm), every
+  ``alpha, theta`` by N(0, 0.03°), seeded): targets corrected / targets.
 """
 
 from __future__ import annotations
@@ -66,10 +70,18 @@ def _gaps(model: RobotModel, p: np.ndarray, q_deg: np.ndarray) -> tuple[np.ndarr
     return pos, rot
 
 
-def _shifted(model: RobotModel, mm: float) -> RobotModel:
+def _changed(model: RobotModel, row: int, col: int, delta: float) -> RobotModel:
     table = model.dh_table.copy()
-    table[0, 2] += mm
-    return RobotModel("shifted", "dh", table, model.joint_limits_deg)
+    table[row, col] += delta
+    return RobotModel("changed", "dh", table, model.joint_limits_deg)
+
+
+def _realistic(model: RobotModel) -> RobotModel:
+    rng = np.random.default_rng(34)
+    table = model.dh_table.copy()
+    table[:, 1:3] += rng.normal(0.0, 0.3, (6, 2))
+    table[:, [0, 3]] += rng.normal(0.0, 0.03, (6, 2))
+    return RobotModel("realistic", "dh", table, model.joint_limits_deg)
 
 
 def main(paths: list[str]) -> None:
@@ -81,9 +93,10 @@ def main(paths: list[str]) -> None:
     arms = _library()
     print(
         "| file | pairs | arm | pos gap max / median [mm] | rot gap max / median [deg] "
-        "| bytes kept | corrected / left | nearest-q gap max [deg] | d1+0.3: max error [mm] |"
+        "| bytes kept | corrected / left | nearest-q gap max [deg] | d1+0.3: max error [mm] "
+        "| theta1+0.05: J1 error / J2-6 change [deg] | realistic: corrected |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for path in files:
         data = path.read_bytes()
         names, p, q = _pairs(data.decode("utf-8", "replace"))
@@ -105,8 +118,19 @@ def main(paths: list[str]) -> None:
             if f"{n}_p" in by and by[f"{n}_p"].nominal_joints_deg is not None
         ]
         shift = filter_files(
-            Calibration(model, _shifted(model, 0.3), None, zero), [(path.name, data)]
+            Calibration(model, _changed(model, 0, 2, 0.3), None, zero), [(path.name, data)]
         )
+        turn = filter_files(
+            Calibration(model, _changed(model, 0, 3, 0.05), None, zero), [(path.name, data)]
+        )
+        j1, rest = 0.0, 0.0
+        for t, c in zip(turn.targets, turn.corrections, strict=True):
+            if t.kind == "joint" and c.status == "corrected" and t.joints_deg is not None:
+                delta = c.joints_deg - t.joints_deg  # type: ignore[operator]
+                j1 = max(j1, abs(float(delta[0]) + 0.05))
+                rest = max(rest, float(np.max(np.abs(delta[1:]))))
+        real = filter_files(Calibration(model, _realistic(model), None, zero), [(path.name, data)])
+        n_real = sum(c.status == "corrected" for c in real.corrections)
         errs = [
             abs(c.shift_mm - 0.3)
             for t, c in zip(shift.targets, shift.corrections, strict=True)
@@ -118,7 +142,8 @@ def main(paths: list[str]) -> None:
             f"| {corrected} / {len(run.corrections) - corrected}"
             f"{' (' + '; '.join(sorted(left)) + ')' if left else ''} "
             f"| {max(near) if near else float('nan'):.3f} "
-            f"| {max(errs) if errs else float('nan'):.4f} ({len(errs)} poses) |"
+            f"| {max(errs) if errs else float('nan'):.4f} ({len(errs)} poses) "
+            f"| {j1:.6f} / {rest:.6f} | {n_real} / {len(real.corrections)} |"
         )
 
 
