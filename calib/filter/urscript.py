@@ -20,11 +20,14 @@ Tool
     named one leaves the tool unresolved, and the targets moved with it are skipped.
 
 Configuration (the branch)
-    The UR controller takes the IK solution nearest a joint reference: for
-    ``get_inverse_kin(P, qnear=Q)`` and PolyScope's ``Waypoint_n_q`` beside
-    ``Waypoint_n_p``, that ``Q``; otherwise the joints of the previous move in the text.
-    ``Q`` itself *follows* ``P``: it is rewritten to the corrected pose's joints, so the
-    pair stays consistent.
+    UR programs have no configuration field: the controller takes the IK solution nearest
+    a joint reference: for ``get_inverse_kin(P, qnear=Q)`` and PolyScope's ``NAME_q``
+    beside ``NAME_p``, that ``Q``; otherwise (``movel``, ``movep``, ``movej`` of a pose) the
+    joints of the previous move in the text; the first pose with neither is left
+    (:data:`NO_REFERENCE`). ``Q`` itself *follows* ``P``: it is moved by the correction of
+    the pose's joints, so the pair stays consistent. The solutions are UR's closed form
+    (:mod:`calib.filter.ur_ik`); a correction the controller would solve to another one
+    from the same reference is left (:mod:`calib.filter.correct`).
 
 Precision: positions to at least 6 decimals of a metre (rounding ≤ 0.0005 mm per axis),
 rotation vectors and joints to at least 6 decimals of a radian (≤ 0.00003°); a number keeps
