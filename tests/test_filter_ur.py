@@ -284,3 +284,15 @@ def test_a_first_pose_without_joint_reference_is_left_with_the_reason(ur10e: Rob
     (c,) = run.corrections
     assert c.status == "skipped" and "no joint reference" in c.reason and "ambiguous" in c.reason
     assert run.outputs["pick.script"] == data
+
+
+def test_joint_conventions_are_converted_at_the_kinematics_boundary_only() -> None:
+    """calib/filter/kin.py is the one place the filter converts joint angles: no dialect,
+    no other module of the filter reads the model's convention."""
+    root = Path(__file__).resolve().parent.parent / "calib" / "filter"
+    for path in sorted(root.glob("*.py")):
+        if path.name in ("kin.py",):
+            continue
+        text = path.read_text("utf-8")
+        for word in (".controller", "JointConvention", "conventions import"):
+            assert word not in text, f"{path.name} converts joint angles itself ({word})"

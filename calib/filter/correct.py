@@ -37,14 +37,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from calib.export import model_from_result
 from calib.filter.branches import branch_signs, closed_form_is_complete, nominal_solutions
-from calib.filter.kin import flange_frames, solve_flange_ik, to_table_deg
+from calib.filter.kin import counted_as, flange_frames, solve_flange_ik, to_table_deg
 from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.select import choose
 from calib.filter.sites import Configuration, Correction, Target
@@ -279,8 +279,7 @@ def correct_targets(
                 tools[i], works[i] = tool, work
                 cart.append(i)
     nominal = cal.nominal
-    # One controller counts the joints of both models (a result stores no convention).
-    calibrated = replace(cal.calibrated, controller=nominal.controller)
+    calibrated = counted_as(cal.calibrated, nominal)
     # Nominal solutions: Cartesian targets on the controller's branch.
     seeds: dict[int, FloatArray] = {}
     flanges: dict[int, FloatArray] = {}

@@ -40,6 +40,12 @@ def table_model(model: RobotModel) -> RobotModel:
     return model if model.controller.is_identity else replace(model, controller=IDENTITY)
 
 
+def counted_as(model: RobotModel, like: RobotModel) -> RobotModel:
+    """``model`` with ``like``'s convention: one controller counts the joints of the nominal
+    and the calibrated model (a result stores no convention)."""
+    return replace(model, controller=like.controller)
+
+
 def whole_turns(model: RobotModel) -> np.ndarray:
     """Per joint (6,) bool: a whole turn of the controller's angle is whole turns of the table
     angles (every coupling factor from it an integer), so ``q ± 360°`` is the same pose."""
@@ -113,6 +119,7 @@ def turn_variants(
 
 
 __all__ = [
+    "counted_as",
     "flange_frames",
     "solve_flange_ik",
     "table_model",

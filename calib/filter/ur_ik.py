@@ -37,14 +37,14 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from calib.conventions import IDENTITY
+from calib.filter.kin import table_model
 from calib.ik import IKOptions, solve_ik
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel
@@ -284,9 +284,7 @@ def ur_solutions(
     ok = np.all(np.isfinite(phi), axis=2)
     seeds = np.rad2deg(_wrap(np.nan_to_num(phi) - theta)).reshape(-1, N_JOINTS)
     fl = np.repeat(flange, 8, axis=0)
-    sol = solve_ik(
-        replace(model, controller=IDENTITY), seeds, fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), REFINE
-    )
+    sol = solve_ik(table_model(model), seeds, fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), REFINE)
     q = _wrap(np.deg2rad(sol.joints_deg)).reshape(n, 8, N_JOINTS)
     ok = ok & sol.converged.reshape(n, 8)
     # Two seeds at a reach boundary (both elbows, both shoulders) may reach one solution.
