@@ -191,3 +191,26 @@ def test_a_factory_table_with_far_common_normals_is_solved() -> None:
     sol_n = nominal_solutions(model, fl, near_deg=q)
     idx, _ = choose(sol_n, [Configuration(nearest_deg=r) for r in q])
     assert np.mean(idx >= 0) > 0.97
+
+
+def test_any_ur_shaped_table_twist_signs_offsets_and_a_tilted_last_frame() -> None:
+    """The closed form holds for every table of UR's shape, not only UR's own signs: twists
+    -90/-90/+90, joint offsets, d2 and d3, and a last frame with a6 and alpha6."""
+    table = np.array(
+        [
+            [-90.0, 0.0, 150.0, 10.0],
+            [0.0, -400.0, 30.0, -20.0],
+            [0.0, -350.0, -20.0, 5.0],
+            [-90.0, 0.0, 120.0, 30.0],
+            [90.0, 0.0, 100.0, -15.0],
+            [25.0, 12.0, 90.0, 40.0],
+        ]
+    )
+    model = RobotModel("ur-like", "dh", table, np.tile([-360.0, 360.0], (6, 1)))
+    shape = ur_shape(model)
+    assert shape is not None and shape.exact
+    q = _random_q(np.random.default_rng(9), 400, margin_deg=2.0)
+    fl = flange_frames(model, q)
+    sol, ok = ur_solutions(model, fl)  # type: ignore[misc]
+    diff = np.max(np.abs(_wrapped_deg(np.rad2deg(sol) - q[:, None, :])), axis=2)
+    assert np.all(np.nanmin(np.where(ok, diff, np.inf), axis=1) < 1e-7)
