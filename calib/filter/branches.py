@@ -2,30 +2,27 @@
 
 A controller turns a Cartesian target into joints with its nominal model, on the branch its
 configuration fields name. To correct a target on that branch the filter needs the nominal
-solution itself: :func:`nominal_solutions` finds all of them at once for many targets, and
-:func:`choose` picks the controller's.
-
-**Solver** (6R arms with a spherical wrist: axes 4, 5, 6 meet in one point, the wrist
-centre ``c``; checked numerically per model by :func:`wrist_geometry`). The chain is written
-as ``T = G_0 Rz(q_1) G_1 Rz(q_2) … Rz(q_6) G_6`` with fixed transforms ``G_k`` (classic DH:
-``G_0 = I``, ``G_k = Rz(θ_k) Tz(d_k) Tx(a_k) Rx(α_k)``; modified DH: ``G_0 = D_1``,
-``G_k = Tz(d_k) D_{k+1}``, ``G_6 = Tz(d_6)`` with ``D_k = Rx(α_{k-1}) Tx(a_{k-1}) Rz(θ_k)``).
+solution itself: :func:`nominal_solutions` finds all of them at once for many targets (in the
+controller's joint angles, :mod:`calib.filter.kin`), and :func:`calib.filter.select.choose`
+picks the controller's. A UR's offset wrist has its own closed form
+(:mod:`calib.filter.ur_ik`); the rest of this module solves a **spherical wrist** (axes 4, 5,
+6 meet in one point, the wrist centre ``c``; checked numerically per model by
+:func:`wrist_geometry`). The chain is ``T = G_0 Rz(q_1) G_1 Rz(q_2) … Rz(q_6) G_6`` with
+fixed ``G_k`` (classic DH: ``G_0 = I``, ``G_k = Rz(θ_k) Tz(d_k) Tx(a_k) Rx(α_k)``; modified
+DH: ``G_0 = D_1``, ``G_k = Tz(d_k) D_{k+1}``, ``G_6 = Tz(d_6)``, ``D_k = Rx(α_{k-1})
+Tx(a_{k-1}) Rz(θ_k)``); angles here are the table's.
 
 1. The arm (q1..q3) places ``c``: damped Newton on the three joints from four seeds per
    target, the two shoulder sides (``q1`` towards ``c`` and opposite) times the two elbow
    sides (``q3`` a quarter turn either side of the stretched arm), ``q2`` aimed at ``c``
-   by the rotation about axis 2 that brings the seed's ``c`` closest. Converged solutions
-   closer than 1e-6 rad are merged.
+   by the rotation about axis 2 that brings the seed's ``c`` closest (duplicates merged).
 2. The wrist (q4..q6) in closed form: with ``M = (G_0 Rz(q_1) … G_3)ᵀ R G_6ᵀ =
    Rz(q_4) A Rz(q_5) B Rz(q_6)`` (``A, B`` the rotations of ``G_4, G_5``),
    ``e_zᵀ M e_z = (Aᵀe_z)ᵀ Rz(q_5) (B e_z)`` gives the two ``q_5``; ``q_4`` and ``q_6``
    follow from ``M e_z`` and ``e_zᵀ M``. At the wrist singularity ``q_4`` is set to 0.
-3. Whole turns: a joint whose limits span more than a turn gives one candidate per value
-   ``q + k·360°`` within its limits (or, with a reference, the value nearest it).
+3. Whole turns: :func:`calib.filter.kin.turn_variants`.
 
-Every candidate is checked (else dropped): its wrist centre within :data:`ARM_TOL_MM` of the
-target's, its wrist rotation rebuilt within 10 × :data:`CHECK_TOL_RAD` of the target's. All
-arrays are batched over targets.
+Checks (else dropped): wrist centre within :data:`ARM_TOL_MM`, rotation 10 × :data:`CHECK_TOL_RAD`.
 """
 
 from __future__ import annotations
@@ -36,6 +33,15 @@ from functools import lru_cache
 
 import numpy as np
 
+from calib.filter.kin import (
+    flange_frames,
+    to_controller_deg,
+    to_table_deg,
+    turn_variants,
+    whole_turns,
+)
+from calib.filter.ur_ik import ORDER, ur_shape, ur_signs, ur_solutions
+from calib.filter.ur_ik import rz3 as _rz3
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel
 from calib.tcp import joint_limits_deg
@@ -56,18 +62,6 @@ def _rz(q: FloatArray) -> FloatArray:
     out[..., 1, 1] = c
     out[..., 2, 2] = 1.0
     out[..., 3, 3] = 1.0
-    return out
-
-
-def _rz3(q: FloatArray) -> FloatArray:
-    """Rotations about z, (…, 3, 3), for angles (…) [rad]."""
-    c, s = np.cos(q), np.sin(q)
-    out = np.zeros((*np.shape(q), 3, 3))
-    out[..., 0, 0] = c
-    out[..., 0, 1] = -s
-    out[..., 1, 0] = s
-    out[..., 1, 1] = c
-    out[..., 2, 2] = 1.0
     return out
 
 
@@ -357,16 +351,6 @@ class Solutions:
     wrist: np.ndarray
 
 
-def flange_frames(model: RobotModel, joints_deg: FloatArray) -> FloatArray:
-    """Flange frames (n, 4, 4) [mm] of the model at joints (n, 6) [deg]."""
-    rot, origin = forward_frames(model.dh_internal(), np.deg2rad(joints_deg), model.convention)
-    out = np.zeros((joints_deg.shape[0], 4, 4))
-    out[:, :3, :3] = rot[:, N_JOINTS]
-    out[:, :3, 3] = origin[:, N_JOINTS]
-    out[:, 3, 3] = 1.0
-    return out
-
-
 def _arm_signs(geo: WristGeometry, convention: str, arm: FloatArray) -> tuple[np.ndarray, ...]:
     """``shoulder, elbow`` (each (m,) int) of arm joints (m, 3) [rad]."""
     g = geo.g
@@ -388,48 +372,89 @@ def _arm_signs(geo: WristGeometry, convention: str, arm: FloatArray) -> tuple[np
 
 
 def branch_signs(model: RobotModel, joints_deg: FloatArray) -> tuple[np.ndarray, ...]:
-    """``shoulder, elbow, wrist`` signs (each (n,) int) of joints (n, 6) [deg] on ``model``
-    (definitions: :class:`calib.filter.sites.Configuration`; ``o_2``, ``o_3`` are the origins
-    of the transforms just before ``Rz(q_2)`` and ``Rz(q_3)``).
+    """``shoulder, elbow, wrist`` signs (each (n,) int) of the controller's joints (n, 6)
+    [deg] on ``model`` (definitions: :class:`calib.filter.sites.Configuration`; ``o_2``,
+    ``o_3`` are the origins of the transforms just before ``Rz(q_2)`` and ``Rz(q_3)``; on a
+    UR-shaped arm the shoulder and elbow are :func:`calib.filter.ur_ik.ur_signs`').
 
     Raises
     ------
     ValueError
-        The model's wrist is not spherical.
+        The model has no closed-form solver (neither a spherical wrist nor UR's shape).
     """
-    geo = _require(model)
     q = np.asarray(joints_deg, dtype=float)
-    shoulder, elbow = _arm_signs(geo, model.convention, np.deg2rad(q[:, :3]))
+    table = to_table_deg(model, q)
+    geo = wrist_geometry(model)
+    if geo is not None:
+        shoulder, elbow = _arm_signs(geo, model.convention, np.deg2rad(table[:, :3]))
+    else:
+        ur = ur_signs(model, table)
+        if ur is None:
+            raise ValueError(_no_solver(model))
+        shoulder, elbow, _ = ur
     return shoulder, elbow, np.where(q[:, 4] >= 0, 1, -1)
 
 
-def _require(model: RobotModel) -> WristGeometry:
-    geo = wrist_geometry(model)
-    if geo is None:
-        raise ValueError(
-            f"robot {model.name}: the wrist axes 4, 5, 6 do not meet in one "
-            "point; the filter needs a spherical wrist"
-        )
-    return geo
+def closed_form_is_complete(model: RobotModel) -> bool:
+    """:func:`nominal_solutions` finds every solution (spherical wrist, exact UR shape)."""
+    shape = ur_shape(model, snap=False)
+    return wrist_geometry(model) is not None or (shape is not None and shape.exact)
+
+
+def _no_solver(model: RobotModel) -> str:
+    return (
+        f"robot {model.name}: the filter solves a spherical wrist (axes 4, 5, 6 meeting in "
+        "one point) or UR's offset wrist, and this model has neither"
+    )
 
 
 def nominal_solutions(
     model: RobotModel, flange: FloatArray, near_deg: FloatArray | None = None
 ) -> Solutions:
-    """All nominal IK solutions within the joint limits of flange frames (n, 4, 4) [mm].
+    """All nominal IK solutions within the joint limits of flange frames (n, 4, 4) [mm], in
+    the controller's joint angles (:mod:`calib.filter.kin`).
 
-    ``near_deg`` (n, 6) (NaN rows for none): per joint, of the whole-turn variants within
-    the limits, only the one nearest it is kept (UR's "nearest q"); without it every
-    variant is a candidate.
+    ``near_deg`` (n, 6) (NaN rows for none), the controller's: per joint, of the whole-turn
+    variants within the limits, only the one nearest it is kept (UR's "nearest q"); without
+    it every variant is a candidate.
 
     Raises
     ------
     ValueError
-        The model's wrist is not spherical (no closed-form wrist).
+        The model has neither a spherical wrist nor UR's shape (no closed form).
     """
-    geo = _require(model)
     n = flange.shape[0]
     limits = np.deg2rad(joint_limits_deg(model))
+    geo = wrist_geometry(model)
+    if geo is not None:
+        base, base_ok, sh, el = _spherical(geo, model, flange)
+    else:
+        ref = None if near_deg is None else to_table_deg(model, np.asarray(near_deg, float))
+        got = ur_solutions(model, flange, ref)
+        if got is None:
+            raise ValueError(_no_solver(model))
+        base, base_ok = got
+        sh = np.tile([s for s, _w, _e in ORDER], (n, 1))
+        el = np.tile([e for _s, _w, e in ORDER], (n, 1))
+    base = np.deg2rad(to_controller_deg(model, np.rad2deg(base)))
+    base = np.where(whole_turns(model), _wrap(base), base)
+    base = np.where(base_ok[..., None], base, 0.0)
+    cand, valid, per_base = turn_variants(base, base_ok, limits, near_deg)
+    k = cand.shape[1]
+    joints = np.rad2deg(np.where(valid[..., None], cand, np.nan))
+    shoulder = np.repeat(sh, per_base, axis=1)
+    elbow = np.repeat(el, per_base, axis=1)
+    wr = np.where(np.nan_to_num(joints[..., 4]) >= 0, 1, -1)
+    assert shoulder.shape == (n, k)
+    return Solutions(joints, valid, shoulder, elbow, wr)
+
+
+def _spherical(
+    geo: WristGeometry, model: RobotModel, flange: FloatArray
+) -> tuple[FloatArray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 8 base solutions of a spherical wrist (module docstring): table angles (n, 8, 6)
+    [rad], validity (n, 8), shoulder and elbow signs (n, 8)."""
+    n = flange.shape[0]
     centre = flange[:, :3, 3] + np.einsum("nij,j->ni", flange[:, :3, :3], geo.centre_flange)
     # Four arm seeds per target.
     az = np.arctan2(centre[:, 1], centre[:, 0]) - geo.forward_azimuth_rad
@@ -461,53 +486,15 @@ def nominal_solutions(
     for s in range(1, 8, 2):
         same = np.max(np.abs(_wrap(base[:, s] - base[:, s - 1])), axis=1) < 1e-9
         base_ok[:, s] &= ~(same & base_ok[:, s - 1])
-    base = np.where(base_ok[..., None], base, 0.0)
-    cand, valid, per_base = _turns(base, base_ok, limits, near_deg)
-    k = cand.shape[1]
-    joints = np.rad2deg(np.where(valid[..., None], cand, np.nan))
-    shoulder = np.repeat(np.repeat(sh, 2, axis=1), per_base, axis=1)
-    elbow = np.repeat(np.repeat(el, 2, axis=1), per_base, axis=1)
-    wr = np.where(np.nan_to_num(joints[..., 4]) >= 0, 1, -1)
-    assert shoulder.shape == (n, k)
-    return Solutions(joints, valid, shoulder, elbow, wr)
+    return base, base_ok, np.repeat(sh, 2, axis=1), np.repeat(el, 2, axis=1)
 
 
-def _turns(
-    base: FloatArray, ok: np.ndarray, limits: FloatArray, near_deg: FloatArray | None
-) -> tuple[FloatArray, np.ndarray, int]:
-    """Whole-turn variants of base solutions (n, b, 6) [rad] within ``limits`` (6, 2) [rad]:
-    candidates (n, b·c, 6), their validity (n, b·c) and c, the variants per base solution
-    (candidates are grouped by base solution)."""
-    n = base.shape[0]
-    two_pi = 2 * np.pi
-    k_lo = np.ceil((limits[:, 0] - base) / two_pi - 1e-12)
-    k_hi = np.floor((limits[:, 1] - base) / two_pi + 1e-12)
-    count = (k_hi - k_lo + 1).astype(int)  # (n, b, 6)
-    inside = ok & np.all(count >= 1, axis=2)
-    if near_deg is not None:
-        near = np.deg2rad(np.asarray(near_deg, dtype=float))[:, None, :]
-        has = np.isfinite(near)
-        k_near = np.clip(np.round((np.nan_to_num(near) - base) / two_pi), k_lo, k_hi)
-        k_use = np.where(has, k_near, k_lo)
-        single = base + two_pi * k_use
-        multi_joint = np.any((count > 1) & ~has, axis=(0, 1))
-        if not np.any(multi_joint):
-            return single, inside, 1
-    per_joint = [int(min(np.max(np.where(inside, count[..., j], 1)), 3)) for j in range(N_JOINTS)]
-    combos = (
-        np.array(np.meshgrid(*[np.arange(c) for c in per_joint], indexing="ij"))
-        .reshape(N_JOINTS, -1)
-        .T
-    )  # (c, 6)
-    cand = base[:, :, None, :] + two_pi * (k_lo[:, :, None, :] + combos[None, None])
-    valid = inside[:, :, None] & np.all(combos[None, None] < count[:, :, None, :], axis=3)
-    if near_deg is not None:
-        near = np.deg2rad(np.asarray(near_deg, dtype=float))[:, None, None, :]
-        has = np.isfinite(near)
-        k_near = np.clip(
-            np.round((np.nan_to_num(near) - base[:, :, None, :]) / two_pi),
-            k_lo[:, :, None, :],
-            k_hi[:, :, None, :],
-        )
-        cand = np.where(has, base[:, :, None, :] + two_pi * k_near, cand)
-    return cand.reshape(n, -1, N_JOINTS), valid.reshape(n, -1), combos.shape[0]
+__all__ = [
+    "Solutions",
+    "branch_signs",
+    "closed_form_is_complete",
+    "fixed_transforms",
+    "flange_frames",
+    "nominal_solutions",
+    "wrist_geometry",
+]

@@ -43,11 +43,12 @@ from typing import Any
 import numpy as np
 
 from calib.export import model_from_result
-from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
+from calib.filter.branches import branch_signs, closed_form_is_complete, nominal_solutions
+from calib.filter.kin import counted_as, flange_frames, solve_flange_ik, to_table_deg
 from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.select import choose
 from calib.filter.sites import Configuration, Correction, Target
-from calib.ik import IKOptions, solve_ik
+from calib.ik import IKOptions
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
@@ -167,7 +168,7 @@ def sigma_at_tools(
     model = cal.calibrated
     dh = model.dh_internal()
     sample = workspace_sample_deg(cal.nominal, SIGMA_WORKSPACE_POSES, seed=0)
-    qs = np.vstack([joints_deg, sample])
+    qs = to_table_deg(cal.nominal, np.vstack([joints_deg, sample]))
     m = qs.shape[0]
     tools = np.vstack([tool_points_mm, np.tile(model.tool_mm, (sample.shape[0], 1))])
     k = cal.columns.size
@@ -184,6 +185,61 @@ def sigma_at_tools(
     b = remove_rigid(pos, a.reshape(3 * m, k)).reshape(m, 3, k)[:n]
     var = np.einsum("nij,jk,nik->n", b, cal.covariance, b)
     out: FloatArray = np.sqrt(np.clip(var, 0.0, None))
+    return out
+
+
+def _nearest(
+    nominal: RobotModel, fl: FloatArray, refs: FloatArray
+) -> tuple[list[FloatArray], list[str]]:
+    """UR's rule: per flange frame (n, 4, 4) the nominal solution nearest its joint reference
+    (n, 6) [deg] (the controller's angles), or the reason there is none: of the closed-form
+    solutions (where the arm has them) and, where those may miss one (a near-UR table solved
+    through its neighbour) or there are none, Newton's from the reference, the nearest
+    within the joint limits."""
+    limits = joint_limits_deg(nominal)
+    closed = np.full(refs.shape, np.nan)
+    try:
+        sol = nominal_solutions(nominal, fl, near_deg=refs)
+    except ValueError:
+        complete = False
+    else:
+        complete = closed_form_is_complete(nominal)
+        idx, _ = choose(sol, [Configuration(nearest_deg=r) for r in refs])
+        closed = np.where((idx >= 0)[:, None], sol.joints_deg[np.arange(len(idx)), idx], np.nan)
+    todo = np.flatnonzero(~np.all(np.isfinite(closed), axis=1) | (not complete))
+    if todo.size:
+        got = solve_flange_ik(nominal, refs[todo], fl[todo], IK_OPTIONS)
+        q = got.joints_deg
+        ok = got.converged & np.all((q >= limits[:, 0]) & (q <= limits[:, 1]), axis=1)
+        d_new = np.where(ok, np.linalg.norm(q - refs[todo], axis=1), np.inf)
+        d_old = np.nan_to_num(np.linalg.norm(closed[todo] - refs[todo], axis=1), nan=np.inf)
+        better = d_new < d_old - 1e-9
+        closed[todo[better]] = q[better]
+    qs = list(closed)
+    why = [
+        "" if np.all(np.isfinite(q)) else "no nominal solution within the joint limits" for q in qs
+    ]
+    return qs, why
+
+
+def _keeps_nearest(
+    nominal: RobotModel,
+    rows: list[int],
+    ref_of: Mapping[int, FloatArray],
+    fk_star: FloatArray,
+    q_star: FloatArray,
+) -> np.ndarray:
+    """Per row (bool): a UR-rule target's corrected pose is still solved, from its joint
+    reference, to ``q*`` (the controller would not take another solution); True for the
+    other targets."""
+    out = np.ones(len(rows), dtype=bool)
+    sel = [r for r, i in enumerate(rows) if i in ref_of]
+    if not sel:
+        return out
+    refs = np.array([ref_of[rows[r]] for r in sel])
+    qs, why = _nearest(nominal, fk_star[sel], refs)
+    for r, q, w in zip(sel, qs, why, strict=True):
+        out[r] = not w and float(np.max(np.abs(q - q_star[r]))) < 1e-3
     return out
 
 
@@ -222,7 +278,8 @@ def correct_targets(
                 assert tool is not None and work is not None
                 tools[i], works[i] = tool, work
                 cart.append(i)
-    nominal, calibrated = cal.nominal, cal.calibrated
+    nominal = cal.nominal
+    calibrated = counted_as(cal.calibrated, nominal)
     # Nominal solutions: Cartesian targets on the controller's branch.
     seeds: dict[int, FloatArray] = {}
     flanges: dict[int, FloatArray] = {}
@@ -244,9 +301,9 @@ def correct_targets(
         configs: list[Configuration | None] = [targets[i].configuration for i in analytic]
         try:
             sol = nominal_solutions(nominal, fl)
-        except ValueError as exc:  # not a spherical wrist
+        except ValueError as exc:  # no closed form for this arm
             for i in analytic:
-                out[i] = Correction("skipped", f"{exc}, or a joint reference (UR's q)")
+                out[i] = Correction("skipped", f"{exc}, and the target has no joint reference")
         else:
             idx, reasons = choose(sol, configs)
             for r, i in enumerate(analytic):
@@ -262,6 +319,7 @@ def correct_targets(
     for i in joint:
         seeds[i] = np.asarray(targets[i].joints_deg, dtype=float)
     by_name = {(t.file, t.name): k for k, t in enumerate(targets)}
+    ref_of: dict[int, FloatArray] = {}  # the joint reference of a UR-rule target
     analytic_set = set(analytic)
     todo = [i for i in cart if i not in analytic_set]
     while todo:
@@ -291,35 +349,28 @@ def correct_targets(
                 out[i] = Correction("skipped", "no joint reference for the branch")
             break
         fl = np.stack([fl_of[i] for i in ready])
-        sol_n = solve_ik(
-            nominal, np.array(refs), fl[:, :3, 3], fl[:, :3, :3], np.zeros(3), IK_OPTIONS
-        )
-        limits_n = joint_limits_deg(nominal)
-        for r, i in enumerate(ready):
-            q = sol_n.joints_deg[r]
-            if not sol_n.converged[r]:
-                out[i] = Correction("unreachable", "no nominal solution near its joint reference")
-            elif np.any(q < limits_n[:, 0]) or np.any(q > limits_n[:, 1]):
-                out[i] = Correction(
-                    "unreachable",
-                    "the nominal solution nearest its joint reference is outside the joint limits",
-                )
+        for r, (i, q, why) in enumerate(
+            zip(ready, *_nearest(nominal, fl, np.array(refs)), strict=True)
+        ):
+            if why:
+                out[i] = Correction("unreachable", why)
             else:
-                seeds[i] = q
-                flanges[i] = fl[r]
+                seeds[i], flanges[i], ref_of[i] = q, fl[r], refs[r]
     rows = list(seeds)
     if rows:
         q_nom = np.array([seeds[i] for i in rows])
         fk_nom = flange_frames(nominal, q_nom)
         target_fl = np.array([flanges.get(i, fk_nom[r]) for r, i in enumerate(rows)])
-        sol_c = solve_ik(
-            calibrated, q_nom, target_fl[:, :3, 3], target_fl[:, :3, :3], np.zeros(3), IK_OPTIONS
-        )
+        sol_c = solve_flange_ik(calibrated, q_nom, target_fl, IK_OPTIONS)
         q_star = sol_c.joints_deg
         limits = joint_limits_deg(nominal)
-        s_nom = np.stack(branch_signs(nominal, q_nom), axis=1)
-        s_cal = np.stack(branch_signs(nominal, q_star), axis=1)
+        try:
+            s_nom = np.stack(branch_signs(nominal, q_nom), axis=1)
+            s_cal = np.stack(branch_signs(nominal, q_star), axis=1)
+        except ValueError:  # no closed form: the joint jump alone tells the branch
+            s_nom = s_cal = np.zeros((len(rows), 3))
         fk_star = flange_frames(nominal, q_star)
+        kept = _keeps_nearest(nominal, rows, ref_of, fk_star, q_star)
         tool_pts = np.array([tools[i][:3, 3] if i in tools else np.zeros(3) for i in rows])
         sigma = sigma_at_tools(cal, q_star, tool_pts)
         # Shifts, all at once: the TCP for Cartesian targets, the flange for joint targets.
@@ -337,7 +388,7 @@ def correct_targets(
         shift_deg_all = rotation_angle_deg(old_all[:, :3, :3], new_all[:, :3, :3])
         jump_all = np.max(np.abs(q_star - q_nom), axis=1)
         outside = np.any((q_star < limits[:, 0]) | (q_star > limits[:, 1]), axis=1)
-        left_branch = (jump_all > BRANCH_JUMP_DEG) | np.any(s_nom != s_cal, axis=1)
+        left_branch = (jump_all > BRANCH_JUMP_DEG) | np.any(s_nom != s_cal, axis=1) | ~kept
         converged = sol_c.converged.tolist()
         outside_l, left_l = outside.tolist(), left_branch.tolist()
         shifts_mm, shifts_deg = shift_mm_all.tolist(), shift_deg_all.tolist()
@@ -362,11 +413,16 @@ def correct_targets(
                 continue
             jump = jumps[r]
             if left_l[r]:
-                out[i] = Correction(
-                    "skipped",
+                why = (
                     "would need another configuration (the "
-                    f"calibrated solution leaves the branch; {jump:.2f} deg)",
+                    f"calibrated solution leaves the branch; {jump:.2f} deg)"
                 )
+                if not kept[r]:
+                    why = (
+                        "the controller would solve the corrected pose from its joint "
+                        "reference to another solution (nearest q)"
+                    )
+                out[i] = Correction("skipped", why)
                 continue
             shift_mm, shift_deg = shifts_mm[r], shifts_deg[r]
             if t.kind == "joint":

@@ -229,8 +229,11 @@ def matrix_to_rotvec(rot: FloatArray, near: FloatArray | None = None) -> FloatAr
     vector ``v (1 − 2π/|v|)`` is taken when it lies closer to ``near`` (a pose near a half
     turn may be written either way)."""
     rot = np.asarray(rot, dtype=float)
-    out: FloatArray = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_rotvec()
-    out = out.reshape(*rot.shape[:-2], 3)
+    if rot.shape == (3, 3):  # one target (a dialect's render): no scipy call per target
+        out: FloatArray = np.array(_rotvec_one(rot.tolist()))
+    else:
+        out = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_rotvec()
+        out = out.reshape(*rot.shape[:-2], 3)
     if near is not None:
         ang = np.linalg.norm(out, axis=-1, keepdims=True)
         alt = np.where(ang > 1e-9, out * (1.0 - 2.0 * np.pi / np.maximum(ang, 1e-12)), out)
@@ -238,6 +241,33 @@ def matrix_to_rotvec(rot: FloatArray, near: FloatArray | None = None) -> FloatAr
         use_alt = np.linalg.norm(alt - near, axis=-1) < np.linalg.norm(out - near, axis=-1)
         out = np.where(use_alt[..., None], alt, out)
     return out
+
+
+def _rotvec_one(r: list[list[float]]) -> list[float]:
+    """The rotation vector of one rotation matrix: its unit quaternion by Shepperd's method
+    (from the largest of ``w, x, y, z``, so no division by a small number), ``w ≥ 0``, then
+    ``angle = 2 atan2(|xyz|, w)`` in [0, π]."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r
+    tr = r00 + r11 + r22
+    big = max(tr, r00, r11, r22)
+    if big == tr:
+        w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
+        x, y, z = (r21 - r12) / (4 * w), (r02 - r20) / (4 * w), (r10 - r01) / (4 * w)
+    elif big == r00:
+        x = 0.5 * math.sqrt(max(1.0 + r00 - r11 - r22, 0.0))
+        w, y, z = (r21 - r12) / (4 * x), (r01 + r10) / (4 * x), (r02 + r20) / (4 * x)
+    elif big == r11:
+        y = 0.5 * math.sqrt(max(1.0 - r00 + r11 - r22, 0.0))
+        w, x, z = (r02 - r20) / (4 * y), (r01 + r10) / (4 * y), (r12 + r21) / (4 * y)
+    else:
+        z = 0.5 * math.sqrt(max(1.0 - r00 - r11 + r22, 0.0))
+        w, x, y = (r10 - r01) / (4 * z), (r02 + r20) / (4 * z), (r12 + r21) / (4 * z)
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(x * x + y * y + z * z)
+    norm = math.sqrt(w * w + n * n)
+    factor = 2.0 * math.atan2(n, w) / n if n > 1e-300 else 2.0 / norm
+    return [x * factor, y * factor, z * factor]
 
 
 def rotation_angle_deg(a: FloatArray, b: FloatArray) -> FloatArray:

@@ -20,11 +20,14 @@ Tool
     named one leaves the tool unresolved, and the targets moved with it are skipped.
 
 Configuration (the branch)
-    The UR controller takes the IK solution nearest a joint reference: for
-    ``get_inverse_kin(P, qnear=Q)`` and PolyScope's ``Waypoint_n_q`` beside
-    ``Waypoint_n_p``, that ``Q``; otherwise the joints of the previous move in the text.
-    ``Q`` itself *follows* ``P``: it is rewritten to the corrected pose's joints, so the
-    pair stays consistent.
+    UR programs have no configuration field: the controller takes the IK solution nearest
+    a joint reference: for ``get_inverse_kin(P, qnear=Q)`` and PolyScope's ``NAME_q``
+    beside ``NAME_p``, that ``Q``; otherwise (``movel``, ``movep``, ``movej`` of a pose) the
+    joints of the previous move in the text; the first pose with neither is left
+    (:data:`NO_REFERENCE`). ``Q`` itself *follows* ``P``: it is moved by the correction of
+    the pose's joints, so the pair stays consistent. The solutions are UR's closed form
+    (:mod:`calib.filter.ur_ik`); a correction the controller would solve to another one
+    from the same reference is left (:mod:`calib.filter.correct`).
 
 Precision: positions to at least 6 decimals of a metre (rounding ≤ 0.0005 mm per axis),
 rotation vectors and joints to at least 6 decimals of a radian (≤ 0.00003°); a number keeps
@@ -59,6 +62,8 @@ from calib.kinematics import FloatArray
 NAME = "urscript"
 EXTENSIONS = (".script", ".urscript")
 POSITION_DECIMALS = 6  # metres
+#: The branch of a pose moved to first (no qnear, no move before it in the text).
+NO_REFERENCE = "(none: no joint reference; the controller starts from the current joints)"
 ANGLE_DECIMALS = 6  # radians
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
@@ -67,8 +72,19 @@ _ASSIGN = re.compile(
 )
 _MOVE = re.compile(r"(?<![\w.])(movel|movej|movep|movec|servoj)\s*\(")
 _SET_TCP = re.compile(r"(?<![\w.])set_tcp\s*\(")
-_DEF = re.compile(
-    r"^\s*(?:def|thread|sec)\s+\w+\s*\(|^\s*(?:global|local)?\s*\w+\s*=|^\s*\w+\s*\(", re.MULTILINE
+#: URScript's own marks: a ``def``/``thread``/``sec`` header with its colon, a motion or
+#: script call, a ``p[…]`` literal, a ``global`` assignment.
+_URSCRIPT = re.compile(
+    r"^[ \t]*(?:def|thread|sec)[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*:"
+    r"|(?<![\w.])(?:movel|movej|movep|movec|servoj|set_tcp|get_inverse_kin|textmsg|popup|sync)"
+    r"[ \t]*\(|(?<![\w.])p[ \t]*\[|^[ \t]*global[ \t]+\w+[ \t]*=",
+    re.MULTILINE,
+)
+#: Another controller's language: Fanuc LS sections, KRL headers and folds, RAPID modules.
+_FOREIGN = re.compile(
+    r"^[ \t]*(?:/PROG|/MN|/POS|/ATTR|&ACCESS|DEFDAT|DEF[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*$"
+    r"|;FOLD|MODULE[ \t]|PROC[ \t])",
+    re.MULTILINE,
 )
 
 
@@ -167,8 +183,10 @@ class URScriptDialect:
     extensions = EXTENSIONS
 
     def claims(self, source: Source) -> bool:
-        """A URScript extension and some URScript: a ``def``, a move, or an assignment."""
-        return bool(_DEF.search(blank(source.text)))
+        """Some URScript (:data:`_URSCRIPT`) and no other controller's language
+        (:data:`_FOREIGN`: a Fanuc LS or KRL program named ``.script`` is refused)."""
+        code = blank(source.text)
+        return bool(_URSCRIPT.search(code)) and not _FOREIGN.search(code)
 
     def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
         del frames
@@ -230,7 +248,7 @@ class URScriptDialect:
                     name,
                     "cartesian",
                     pose=_pose_of(v.nums),
-                    configuration=Configuration(text="(none)"),
+                    configuration=Configuration(text=NO_REFERENCE),
                     site=PoseSite(v.nums),
                 )
             else:
