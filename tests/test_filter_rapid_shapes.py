@@ -234,6 +234,29 @@ def test_confl_off_follows_the_previous_target_and_keeps_the_dummy_confdata() ->
     assert got["Target_10"][2] == "no nominal solution in configuration [3,3,3,7]"
 
 
+def test_under_confl_off_the_first_target_needs_its_confdata_or_a_moveabsj_before_it() -> None:
+    q = smooth_path(NOMINAL, 6, seed=7)
+    text = _olp(q, "ConfJ\\Off;ConfL\\Off")
+    dummy_first = re.sub(r"\[-?\d+,-?\d+,-?\d+,\d\],\[9E", "[3,3,3,7],[9E", text, count=1)
+    got = _by_name(_run(CAL, olp_mod=dummy_first))
+    assert got["Target_0"][2].startswith(
+        "no nominal solution in configuration [3,3,3,7] (the first"
+    )
+    assert "start with a MoveAbsJ" in got["Target_0"][2]
+    assert (
+        got["Target_10"][2]
+        == "the previous move's target Target_0 has no nominal joints to start from"
+    )
+    # A MoveAbsJ to where the path starts roots the chain: every target is corrected.
+    joints = ",".join(f"{v:.4f}" for v in q[0])
+    rooted = dummy_first.replace(
+        "    PROC Path_10()\n",
+        f"    PROC Path_10()\n        MoveAbsJ [[{joints}],{NO_AXES}],v500,fine,tGrip;\n",
+    )
+    run = _run(CAL, olp_mod=rooted)
+    assert run.exit_code == EXIT_OK, [c.reason for c in run.corrections if c.reason]
+
+
 def test_monitoring_is_followed_into_called_routines_or_left_when_unknown() -> None:
     q = smooth_path(NOMINAL, 4, seed=6)
     text = _olp(q, "ConfL\\Off").replace("        Path_10;\n", "        Path_10;\n" * 1)

@@ -46,7 +46,7 @@ import math
 import re
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -384,15 +384,20 @@ def _follow(t: Target, flow: list[tuple[str, Target | None, int]]) -> None:
         return
     t.site.honoured = False
     _, before, _ = flow[0]
-    if before is None or before is t:
-        return  # the first move under \Off: its confdata as written
+    assert t.configuration is not None
+    if before is None or before is t:  # the first move under \Off: its confdata as written
+        t.configuration = replace(
+            t.configuration,
+            text=f"{t.configuration.text} (the first move under ConfL/ConfJ\\Off, where the "
+            "robot comes from is unknown: write its confdata or start with a MoveAbsJ)",
+        )
+        return
     if before.file != t.file:
         t.problem = (
             f"under ConfL/ConfJ\\Off after {before.name} of {before.file}: the filter "
             "follows the previous target only within one file"
         )
         return
-    assert t.configuration is not None
     t.configuration = Configuration(
         after=before.name, text=f"nearest {before.name} (confdata {t.configuration.text} ignored)"
     )
