@@ -255,6 +255,16 @@ def test_under_confl_off_the_first_target_needs_its_confdata_or_a_moveabsj_befor
     )
     run = _run(CAL, olp_mod=rooted)
     assert run.exit_code == EXIT_OK, [c.reason for c in run.corrections if c.reason]
+    # So does one in main before the call (Path_10 is called from there only).
+    in_main = dummy_first.replace(
+        "        Path_10;\n",
+        f"        MoveAbsJ [[{joints}],{NO_AXES}],v500,fine,tGrip;\n        Path_10;\n",
+    )
+    run = _run(CAL, olp_mod=in_main)
+    assert run.exit_code == EXIT_OK, [c.reason for c in run.corrections if c.reason]
+    # Called from two places: where the robot comes from is not one place; confdata again.
+    twice = in_main.replace("        Path_10;\n", "        Path_10;\n        Path_10;\n")
+    assert _by_name(_run(CAL, olp_mod=twice))["Target_0"][1] == "skipped"
 
 
 def test_monitoring_is_followed_into_called_routines_or_left_when_unknown() -> None:

@@ -209,8 +209,8 @@ class RapidDialect:
                     )
                 order.extend(decl.targets.values())
         moves = [mv for mod in modules for mv in read_moves(mod, modules)]
-        monitoring(modules, moves)
-        order.extend(self._uses(moves, modules))
+        entries = monitoring(modules, moves)
+        order.extend(self._uses(moves, modules, entries))
         return order
 
     # -- targets -----------------------------------------------------------------------
@@ -292,17 +292,18 @@ class RapidDialect:
         problem = "; ".join(w for w in (why_t, why_w) if w)
         return Use(mod.source.name, mv.line, mv.tool or "?", mv.work, tool, work, problem)
 
-    def _uses(self, moves: list[Move], modules: list[Module]) -> list[Target]:
+    def _uses(
+        self, moves: list[Move], modules: list[Module], entries: dict[str, Move]
+    ) -> list[Target]:
         """Record every move's use of its targets and each Cartesian target's configuration
-        rule; returns the inline targets."""
+        rule (:func:`_follow`); returns the inline targets."""
         inline: list[Target] = []
         seen: dict[tuple[str, int], int] = defaultdict(int)
-        flows: dict[int, list[tuple[str, Target | None, int]]] = defaultdict(list)
-        last: dict[tuple[str, str], Target | None] = {}
+        got: dict[int, tuple[list[Target], bool]] = {}  # per move: its targets, chained
         for mv in moves:
             src = mv.module.source
             use = self._use(mv, modules)
-            got: list[Target] = []
+            targets: list[Target] = []
             chain = True
             for kind, ref in mv.refs:
                 if kind == "inline":
@@ -314,7 +315,7 @@ class RapidDialect:
                     shape = "robtarget" if is_robtarget(node) else "jointtarget"
                     t = self._target(src, name, shape, node)
                     inline.append(t)
-                    got.append(t)
+                    targets.append(t)
                     continue
                 decl, index = ref
                 keys: list[tuple[int, ...]] = list(decl.targets)
@@ -323,14 +324,25 @@ class RapidDialect:
                         keys = [tuple(int(v) for v in index.split(","))]
                     except ValueError:  # a variable index: the move may use every element
                         chain = False
-                got.extend(decl.targets[k] for k in keys if k in decl.targets)
-            key = (src.name, mv.routine)
-            before = last.get(key) if chain else None
-            for t in got:
+                targets.extend(decl.targets[k] for k in keys if k in decl.targets)
+            for t in targets:
                 t.uses.append(use)
-                flows[id(t)].append((mv.conf, before, mv.line))
+            got[id(mv)] = (targets, chain)
+        flows: dict[int, list[tuple[str, Target | None, int]]] = defaultdict(list)
+        last: dict[tuple[str, str], Target | None] = {}
+        for mv in moves:
+            targets, chain = got[id(mv)]
+            key = (mv.module.source.name, mv.routine)
+            if key in last:
+                before = last[key]
+            else:  # the routine's first move: where its one caller leaves the robot
+                entry = entries.get(mv.routine)
+                lead = got[id(entry)] if entry is not None else ([], False)
+                before = lead[0][-1] if lead[0] and lead[1] else None
+            for t in targets:
+                flows[id(t)].append((mv.conf, before if chain else None, mv.line))
                 before = t if chain else None
-            if got:
+            if targets:
                 last[key] = before
         for mod in modules:
             for decl in mod.decls.values():
@@ -385,17 +397,13 @@ def _follow(t: Target, flow: list[tuple[str, Target | None, int]]) -> None:
     t.site.honoured = False
     _, before, _ = flow[0]
     assert t.configuration is not None
-    if before is None or before is t:  # the first move under \Off: its confdata as written
+    if before is None or before is t or before.file != t.file:
+        # The first move under \Off (or one after a target of another file, which the core
+        # cannot follow): its confdata as written.
         t.configuration = replace(
             t.configuration,
             text=f"{t.configuration.text} (the first move under ConfL/ConfJ\\Off, where the "
             "robot comes from is unknown: write its confdata or start with a MoveAbsJ)",
-        )
-        return
-    if before.file != t.file:
-        t.problem = (
-            f"under ConfL/ConfJ\\Off after {before.name} of {before.file}: the filter "
-            "follows the previous target only within one file"
         )
         return
     t.configuration = Configuration(

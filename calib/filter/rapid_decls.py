@@ -101,6 +101,7 @@ class Module:
     source: Source
     code: str
     routines: list[Routine] = field(default_factory=list)
+    starts: list[int] = field(default_factory=list)  # of the routines, for routine_at
     decls: dict[tuple[str, str], Decl] = field(default_factory=dict)
     frames: dict[tuple[str, str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
     lookups: dict[tuple[str, str, tuple[str, ...]], tuple[Decl | None, str]] = field(
@@ -109,7 +110,9 @@ class Module:
 
     def routine_at(self, offset: int) -> Routine | None:
         """The routine whose text holds ``offset``, None at module level."""
-        k = bisect.bisect_right([r.start for r in self.routines], offset) - 1
+        if len(self.starts) != len(self.routines):
+            self.starts = [r.start for r in self.routines]
+        k = bisect.bisect_right(self.starts, offset) - 1
         if k >= 0 and offset < self.routines[k].end:
             return self.routines[k]
         return None

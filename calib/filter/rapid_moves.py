@@ -23,7 +23,8 @@ configuration", and the instructions ``ConfL``/``ConfJ``)
     routine in program order, into the routines it calls (``Path_10;``), and is ``\\On`` at
     the start of ``main`` (PP to main resets it). A routine that the given files never call
     starts ``\\On`` when no file switches monitoring off anywhere, else unknown; a routine
-    called with different settings starts unknown.
+    called with different settings starts unknown. The previous target of a routine's first
+    move is the last one before the routine's call, where it is called from one place only.
 """
 
 from __future__ import annotations
@@ -194,8 +195,10 @@ def _join(states: set[tuple[str, str]]) -> tuple[str, str]:
     return (ls.pop() if len(ls) == 1 else UNKNOWN, js.pop() if len(js) == 1 else UNKNOWN)
 
 
-def monitoring(modules: list[Module], moves: list[Move]) -> None:
-    """Set every move's ``conf`` (see the module docstring)."""
+def monitoring(modules: list[Module], moves: list[Move]) -> dict[str, Move]:
+    """Set every move's ``conf`` (see the module docstring); returns, for each routine
+    called from exactly one place, the last move before that call (in its caller, or
+    before the caller's own single call): where the robot comes from into the routine."""
     routines = {r.name.lower() for mod in modules for r in mod.routines}
     events: dict[str, list[tuple[int, str, Any]]] = defaultdict(list)
     any_off = False
@@ -251,3 +254,27 @@ def monitoring(modules: list[Module], moves: list[Move]) -> None:
         entry = new
     for routine in routines:
         walk(routine, start(routine) or (UNKNOWN, UNKNOWN), None)
+    return _entries(events)
+
+
+def _entries(events: dict[str, list[tuple[int, str, Any]]]) -> dict[str, Move]:
+    sites: dict[str, list[tuple[str, int]]] = defaultdict(list)
+    for caller, evs in events.items():
+        for offset, kind, data in evs:
+            if kind == "call":
+                sites[data].append((caller, offset))
+    out: dict[str, Move] = {}
+    for routine in sites:
+        seen = {routine}
+        callee = routine
+        while len(sites.get(callee, ())) == 1:
+            caller, offset = sites[callee][0]
+            before = [d for o, k, d in events[caller] if k == "move" and o < offset]
+            if before:
+                out[routine] = max(before, key=lambda mv: mv.start)
+                break
+            if caller in seen:
+                break
+            seen.add(caller)
+            callee = caller
+    return out
