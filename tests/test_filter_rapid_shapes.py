@@ -288,6 +288,7 @@ def test_a_target_on_an_external_axis_is_left_with_that_reason() -> None:
         f"MODULE Track\n    PERS tooldata tGrip:={TOOL_TEXT};\n    PROC main()\n"
         f"        MoveAbsJ [[10,-20,160,0,40,0],[1250.5,9E9,9E9,9E9,9E9,9E9]],v100,fine,tGrip;\n"
         f"        MoveJ {track}\\ID:=1,v100,fine,tGrip;\n        MoveJ {lits[0]},v100,fine,tGrip;\n"
+        "        MoveExtJ [[9E9,9E9,9E9,9E9,9E9,9E9],[1300,9E9,9E9,9E9,9E9,9E9]],v100,fine;\n"
         "    ENDPROC\nENDMODULE\n"
     )
     got = _by_name(_run(CAL, track_mod=text))
@@ -296,6 +297,7 @@ def test_a_target_on_an_external_axis_is_left_with_that_reason() -> None:
     assert reason == "on an external axis (track/positioner) not in the model (eax_a = 1250.5)"
     assert got["inline@4"][1] == "corrected"  # a jointtarget's robot axes are the robot's
     assert got["inline@6"][1] == "corrected"
+    assert "inline@7" not in got  # MoveExtJ moves the track only
 
 
 # -- refused ------------------------------------------------------------------------------

@@ -77,6 +77,8 @@ TARGET_ARGUMENTS = {
     **dict.fromkeys(("searchl", "searchj"), (2,)),
     "searchc": (2, 3),
 }
+#: Moves that leave the robot where it is (external axes only).
+ROBOT_STILL = {"moveextj"}
 PREDEFINED_TOOLS = {"tool0"}
 PREDEFINED_WOBJS = {"wobj0"}
 #: Monitoring states: programmed configuration honoured, ignored, not known.
@@ -136,8 +138,8 @@ def read_moves(mod: Module, modules: list[Module]) -> list[Move]:
     out: list[Move] = []
     for m in MOVE.finditer(code):
         routine = mod.routine_at(m.start())
-        if routine is None:
-            continue  # a name in a declaration, not an instruction
+        if routine is None or m.group(1).lower() in ROBOT_STILL:
+            continue  # a name in a declaration, or a move of the external axes only
         end = statement_end(code, m.end())
         line = src.line_of(m.start())
         if end >= routine.end:
