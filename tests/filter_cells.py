@@ -20,6 +20,7 @@ import numpy as np
 
 from calib.dataset import make_samples
 from calib.filter.branches import branch_signs, flange_frames
+from calib.filter.rapid import cfx_of
 from calib.filter.rotations import frame, invert, matrix_to_quat_wxyz, matrix_to_rotvec
 from calib.identify import IdentifyOptions, identify
 from calib.ik import _errors_and_jacobian
@@ -133,7 +134,7 @@ def rapid_confdata(nominal: RobotModel, q_deg: FloatArray) -> list[tuple[int, in
     sh, el, wr = branch_signs(nominal, q_deg)
     out = []
     for i, q in enumerate(q_deg):
-        cfx = (0 if sh[i] > 0 else 4) + (0 if el[i] > 0 else 2) + (0 if wr[i] > 0 else 1)
+        cfx = cfx_of(sh[i], el[i], wr[i])
         out.append((math.floor(q[0] / 90), math.floor(q[3] / 90), math.floor(q[5] / 90), cfx))
     return out
 

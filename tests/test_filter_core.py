@@ -11,7 +11,7 @@ from filter_cells import make_cell, regular_poses
 
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.correct import calibration_from_result, sigma_at_tools
-from calib.filter.rapid import configuration
+from calib.filter.rapid import cfx_of, configuration
 from calib.filter.rotations import (
     matrix_to_quat_wxyz,
     matrix_to_rotvec,
@@ -106,7 +106,7 @@ def test_the_rapid_configuration_picks_the_planned_branch() -> None:
     sh, el, wr = branch_signs(model, q)
     confs = []
     for i, qi in enumerate(q):
-        cfx = (0 if sh[i] > 0 else 4) + (0 if el[i] > 0 else 2) + (0 if wr[i] > 0 else 1)
+        cfx = cfx_of(sh[i], el[i], wr[i])
         confs.append(
             configuration(
                 [math.floor(qi[0] / 90), math.floor(qi[3] / 90), math.floor(qi[5] / 90), cfx]

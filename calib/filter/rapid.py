@@ -1,39 +1,40 @@
-"""ABB RAPID dialect of the filter (``.mod``, ``.modx``, ``.prg``, ``.sys``).
+r"""ABB RAPID dialect of the filter (``.mod``, ``.modx``, ``.prg``, ``.sys``).
+
+Modules, routines, declarations and their scope: :mod:`calib.filter.rapid_decls`; moves,
+their tools and work objects, and ``ConfL``/``ConfJ`` along the flow:
+:mod:`calib.filter.rapid_moves`.
 
 Targets
-    ``robtarget`` and ``jointtarget`` declared ``CONST``, ``PERS`` or ``VAR`` (optionally
-    ``LOCAL`` / ``TASK``), on one line or over several, single or arrays (``{n}``,
-    ``{n,m}``: one target per element, named ``p{2}``, ``p{1,3}``), and inline literals
-    ``[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[eax…]]`` inside move instructions.
-    A robtarget's value: position [mm], quaternion ``w, x, y, z``, configuration, external
-    axes (never touched). A jointtarget: six robot axes [deg], external axes (untouched).
-    A declaration whose value is not a literal (``:= Offs(p1, …)``, a PERS without value) is
-    no target site: it has no numbers to correct.
-
-Moves
-    Every instruction whose name starts with ``Move``, ``Trigg``, ``Search``, ``Arc`` or
-    ``Cap`` (``MoveL``, ``MoveJ``, ``MoveC``, ``MoveAbsJ``, ``MoveLDO``, ``TriggL``,
-    ``SearchL``, ``ArcL``…). Its targets are the positional arguments that name a declared
-    robtarget/jointtarget (``p10``, ``p10{3}``; a variable index ``p{i}`` uses every element),
-    inline literals, and the first argument of ``Offs(…)`` / ``RelTool(…)`` (the target is
-    corrected at its own pose). Its tool is the positional argument naming a tooldata
-    (``tool0`` or declared in the given files), its work object the ``\\WObj:=`` option
-    (``wobj0``, the base frame, without it).
+    ``robtarget`` and ``jointtarget`` declarations with a literal value, one target per array
+    element (named ``p{2}``, ``p{1,3}``; a routine's own data ``Path_10/p10``), and inline
+    literals ``[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[eax_a..eax_f]]`` inside moves
+    (``inline@<line>``). A robtarget's value: position [mm], quaternion ``w, x, y, z``,
+    configuration, external axes (never written). A jointtarget: six robot axes [deg],
+    external axes (never written). A declaration whose value is not a literal
+    (``:= Offs(p1, …)``, a PERS without value) is no target site: it has no numbers.
+    A robtarget with an external axis value (any ``eax`` other than ``9E9``: a track, a
+    positioner) is left with that reason: the model has no external axes.
 
 Frames
     tooldata ``[robhold, [[x,y,z],[q1..q4]], load]``: the TCP in the flange frame.
     wobjdata ``[robhold, ufprog, ufmec, uframe, oframe]``: the work object is
     ``uframe · oframe``. A stationary tool (tooldata ``robhold`` FALSE, wobjdata ``robhold``
     TRUE) or a work object moved by a mechanical unit (``ufprog`` FALSE) is not supported:
-    its targets are skipped and named.
-    Names are looked up in the target's own file first, then in the other given files;
-    RAPID is case-insensitive.
+    its targets are left and named. A tool or work object declared in none of the given
+    files is named, with the advice to add the module that declares it.
 
-Configuration (ABB confdata ``[cf1, cf4, cf6, cfx]``)
-    ``cf1, cf4, cf6``: the quadrants of axes 1, 4, 6 (``floor(q / 90°)``); ``cfx`` 0..7:
-    wrist centre in front of / behind axis 1 (``cfx < 4`` front), above / below the lower
-    arm (``cfx`` in 0, 1, 4, 5 above), axis 5 positive / negative (even = positive). The
-    quadrants are written back from the corrected joints, ``cfx`` as it was.
+Configuration (ABB confdata ``[cf1, cf4, cf6, cfx]``, "Technical reference manual – RAPID
+Instructions, Functions and Data types", confdata)
+    ``cf1, cf4, cf6``: the quadrants of axes 1, 4, 6, ``floor(q / 90°)`` (0 for 0..90°,
+    -1 for -90..0°). ``cfx`` 0..7 for the serial six-axis arms (the manual's table): wrist
+    centre in front of (0-3) or behind (4-7) axis 1; in front of (0, 1, 4, 5) or behind
+    (2, 3, 6, 7) the lower arm; axis 5 positive (even) or negative (odd). "The lower arm"
+    is the arm's own side, fixed to it: the same elbow bend is "in front" with the wrist on
+    either side of axis 1 (:func:`cfx_of`; docs/compensation.md names the sources). Where
+    the confdata is honoured (``ConfL\On``/``ConfJ\On``) the quadrants are written from the
+    corrected joints; under ``\Off`` the controller ignores confdata: the filter seeds each
+    target from the previous one along the routine (the first from its confdata) and
+    leaves the confdata text as it is.
 
 Precision: positions to at least 3 decimals (rounding ≤ 0.0005 mm per axis), quaternion
 components to at least 6 (≤ 1e-4°), joint angles to at least 4 (≤ 0.00005°).
@@ -43,25 +44,30 @@ from __future__ import annotations
 
 import math
 import re
+from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from calib.filter.rapid_decls import HEADER, Module, index_text, lookup, read_module
+from calib.filter.rapid_moves import (
+    ON,
+    PREDEFINED_TOOLS,
+    PREDEFINED_WOBJS,
+    UNKNOWN,
+    Move,
+    monitoring,
+    read_moves,
+)
 from calib.filter.rapid_syntax import (
-    ROBTARGET,
     Node,
     blank,
-    is_jointtarget,
     is_pose,
     is_robtarget,
+    number,
     nums,
-    parse_literal,
     pose,
-    skip_space,
-    split_options,
-    statement_end,
 )
 from calib.filter.rotations import (
     frame,
@@ -79,7 +85,6 @@ from calib.filter.sites import (
     Target,
     Use,
     edits_for,
-    split_args,
 )
 from calib.kinematics import FloatArray
 
@@ -88,26 +93,20 @@ EXTENSIONS = (".mod", ".modx", ".prg", ".sys")
 POSITION_DECIMALS = 3
 QUATERNION_DECIMALS = 6
 JOINT_DECIMALS = 4
-
-_DECL = re.compile(
-    r"\b(?:(?:LOCAL|TASK)\s+)?(?:CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata)"
-    r"\s+([A-Za-z]\w*)\s*(\{[^}]*\})?\s*(:=)?",
-    re.IGNORECASE,
-)
-_MOVE = re.compile(r"(?<![\w.])((?:Move|Trigg|Search|Arc|Cap)\w*)(?=[ \t\r\n\\])", re.IGNORECASE)
-_MODULE = re.compile(r"^\s*(?:%%%[\s\S]*?%%%\s*)?MODULE\s+\w+", re.IGNORECASE)
-#: Values RAPID predefines.
-PREDEFINED_TOOLS = {"tool0"}
-PREDEFINED_WOBJS = {"wobj0"}
+#: An external axis that is not there (RAPID writes 9E9 or 9E+09).
+NO_AXIS = 9e9
+_EAX = "abcdef"
 
 
 @dataclass
 class RobSite:
-    """Where a robtarget's numbers are: position (3), quaternion (4), confdata (4)."""
+    """Where a robtarget's numbers are: position (3), quaternion (4), confdata (4); whether
+    the controller honours the confdata (False under ``ConfL\\Off``/``ConfJ\\Off``)."""
 
     position: list[Num]
     quaternion: list[Num]
     conf: list[Num]
+    honoured: bool = True
 
 
 @dataclass
@@ -120,8 +119,17 @@ class JointSite:
 _OPEN = np.tile([-np.inf, np.inf], (6, 1))
 
 
+def cfx_of(shoulder: int, elbow: int, wrist: int) -> int:
+    """ABB's ``cfx`` (0..7) of branch signs (:class:`calib.filter.sites.Configuration`):
+    wrist centre behind axis 1 adds 4, behind the lower arm adds 2, axis 5 negative adds 1.
+    "Lower arm" is the arm's own side, so in the shared signs (``elbow`` is measured towards
+    the wrist centre) it is ``elbow · shoulder``."""
+    return (0 if shoulder > 0 else 4) + (0 if elbow * shoulder > 0 else 2) + (wrist < 0)
+
+
 def configuration(conf: Sequence[float]) -> Configuration:
-    """The branch an ABB controller takes for confdata ``[cf1, cf4, cf6, cfx]``."""
+    """The branch an ABB controller takes for confdata ``[cf1, cf4, cf6, cfx]`` (integers);
+    the inverse of :func:`cfx_of` and ``floor(q / 90°)``."""
     ranges = _OPEN.copy()
     for j, cf in zip((0, 3, 5), conf[:3], strict=True):
         ranges[j] = (90.0 * cf, 90.0 * cf + 90.0)
@@ -129,102 +137,48 @@ def configuration(conf: Sequence[float]) -> Configuration:
     text = "[" + ",".join(f"{int(c)}" for c in conf) + "]"
     if not 0 <= cfx <= 7:
         return Configuration(ranges, text=text)
+    shoulder = 1 if cfx < 4 else -1
     return Configuration(
         ranges,
-        shoulder=1 if cfx < 4 else -1,
-        elbow=1 if cfx in (0, 1, 4, 5) else -1,
+        shoulder=shoulder,
+        elbow=(1 if cfx % 4 < 2 else -1) * shoulder,
         wrist=1 if cfx % 2 == 0 else -1,
         text=text,
     )
 
 
-@dataclass
-class _Decl:
-    kind: str  # robtarget, jointtarget, tooldata, wobjdata (lower case)
-    name: str
-    file: str
-    line: int
-    value: Node | None
-    dims: tuple[int, ...]
-    elements: dict[tuple[int, ...], Node] = field(default_factory=dict)
-    fast: re.Match[str] | None = None  # a plain robtarget literal read by ROBTARGET
-
-
-def _dims(text: str | None) -> tuple[int, ...]:
-    if not text:
-        return ()
+def _robtarget(
+    src: Source,
+    name: str,
+    line: int,
+    pos: list[Num],
+    quat: list[Num],
+    conf: list[Num],
+    eax: list[Num],
+) -> Target:
+    """A Cartesian target from its numbers (checked: a quaternion of nonzero norm, integer
+    confdata); left with the reason when it is on an external axis."""
     try:
-        return tuple(int(v) for v in text.strip("{} \t").split(","))
+        rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
     except ValueError:
-        return (-1,)  # a dimension given by a constant name: elements still read by shape
-
-
-def _elements(
-    node: Node, depth: int, index: tuple[int, ...], out: dict[tuple[int, ...], Node]
-) -> None:
-    if depth == 0:
-        out[index] = node
-        return
-    for k, item in enumerate(node.items or []):
-        _elements(item, depth - 1, (*index, k + 1), out)
-
-
-@dataclass
-class _Module:
-    source: Source
-    code: str
-    decls: dict[str, _Decl] = field(default_factory=dict)  # lower-case name
-    frames: dict[tuple[str, str], tuple[FloatArray | None, str]] = field(default_factory=dict)
-    lookups: dict[tuple[str, tuple[str, ...]], tuple[_Decl | None, str]] = field(
-        default_factory=dict
+        raise FilterInputError(src.name, f"{name}: quaternion of zero norm", line) from None
+    values = [n.value for n in conf]
+    if any(v != round(v) for v in values):
+        raise FilterInputError(src.name, f"{name}: confdata must be integers", line)
+    on_axis = [f"eax_{_EAX[k]} = {n.text}" for k, n in enumerate(eax) if n.value != NO_AXIS]
+    problem = ""
+    if on_axis:
+        problem = f"on an external axis (track/positioner) not in the model ({', '.join(on_axis)})"
+    return Target(
+        src.name,
+        line,
+        name,
+        "cartesian",
+        pose=frame(np.array([n.value for n in pos]), rot),
+        configuration=configuration(values),
+        problem=problem,
+        site=RobSite(pos, quat, conf),
     )
-
-
-def _read_decls(mod: _Module) -> None:
-    src, code = mod.source, mod.code
-    for m in _DECL.finditer(code):
-        kind, name, dims_text, assign = m.group(1).lower(), m.group(2), m.group(3), m.group(4)
-        line = src.line_of(m.start())
-        dims = _dims(dims_text)
-        value = None
-        fast = None
-        if assign:
-            i = skip_space(code, m.end())
-            if kind == "robtarget" and not dims:
-                fast = ROBTARGET.match(code, i)  # the common case: no Node tree needed
-            if fast is None and i < len(code) and code[i] == "[":
-                value = parse_literal(code, i, src)
-        decl = _Decl(kind, name, src.name, line, value, dims, fast=fast)
-        if value is not None:
-            _elements(value, len(dims), (), decl.elements)
-            check = {"robtarget": is_robtarget, "jointtarget": is_jointtarget}.get(kind)
-            for index, node in decl.elements.items():
-                if check is not None and not check(node):
-                    raise FilterInputError(
-                        src.name,
-                        f"{kind} {name}{_index_text(index)}: not a {kind} literal",
-                        src.line_of(node.start),
-                    )
-        key = name.lower()
-        if key in mod.decls:
-            raise FilterInputError(
-                src.name, f"{name} declared twice (also line {mod.decls[key].line})", line
-            )
-        mod.decls[key] = decl
-
-
-def _index_text(index: tuple[int, ...]) -> str:
-    return "{" + ",".join(str(i) for i in index) + "}" if index else ""
-
-
-_REF = re.compile(r"([A-Za-z]\w*)\s*(?:\{([^}]*)\})?\s*$")
-_WRAP = re.compile(r"(?:Offs|RelTool)\s*\(", re.IGNORECASE)
-#: The common move: a target name (with an index), speed, zone and tool, and \WObj.
-_SIMPLE_MOVE = re.compile(
-    r"\s+([A-Za-z]\w*(?:\{[^{}\[\]()]*\})?)\s*,\s*([A-Za-z]\w*)\s*,\s*([A-Za-z]\w*)\s*,"
-    r"\s*([A-Za-z]\w*)\s*(?:\\\s*WObj\s*:=\s*([A-Za-z]\w*)\s*)?",
-    re.IGNORECASE,
-)
 
 
 class RapidDialect:
@@ -236,60 +190,39 @@ class RapidDialect:
     def claims(self, source: Source) -> bool:
         """A RAPID extension and a ``MODULE`` statement as the first code."""
         head = source.text[:65536]  # the header: comments and %%% blocks come first
-        return bool(_MODULE.match(blank(head).lstrip("\ufeff")))
+        return bool(HEADER.match(blank(head).lstrip("\ufeff")))
 
     def parse(self, sources: Sequence[Source], frames: FrameTables) -> list[Target]:
         del frames  # RAPID declares its frames in the program
-        modules = []
-        for src in sources:
-            mod = _Module(src, blank(src.text))
-            if not _MODULE.match(mod.code.lstrip("\ufeff")):
-                raise FilterInputError(src.name, "not a RAPID module (no MODULE statement)", 1)
-            _read_decls(mod)
-            modules.append(mod)
-        targets: dict[tuple[str, str], Target] = {}
+        modules = [read_module(src) for src in sources]
         order: list[Target] = []
         for mod in modules:
             for decl in mod.decls.values():
                 if decl.kind not in ("robtarget", "jointtarget"):
                     continue
+                name = f"{decl.scope}/{decl.name}" if decl.scope else decl.name
                 if decl.fast is not None:
-                    t = self._target_fast(mod.source, decl.name, decl.fast)
-                    targets[(mod.source.name, t.name.lower())] = t
-                    order.append(t)
+                    decl.targets[()] = self._target_fast(mod.source, name, decl.fast)
                 for index, node in decl.elements.items():
-                    t = self._target(
-                        mod.source, f"{decl.name}{_index_text(index)}", decl.kind, node
+                    decl.targets[index] = self._target(
+                        mod.source, f"{name}{index_text(index)}", decl.kind, node
                     )
-                    targets[(mod.source.name, t.name.lower())] = t
-                    order.append(t)
-        for mod in modules:
-            order.extend(self._moves(mod, modules, targets))
+                order.extend(decl.targets.values())
+        moves = [mv for mod in modules for mv in read_moves(mod, modules)]
+        entries = monitoring(modules, moves)
+        order.extend(self._uses(moves, modules, entries))
         return order
 
     # -- targets -----------------------------------------------------------------------
     def _target_fast(self, src: Source, name: str, m: re.Match[str]) -> Target:
         """A robtarget from :data:`ROBTARGET`'s groups (1-3 position, 4-7 quaternion, 8-11
-        configuration; the external axes are never written)."""
-        fname = src.name
+        configuration, 12-17 external axes)."""
         got = [
-            Num(fname, m.start(g), m.end(g), m.group(g), float(m.group(g))) for g in range(1, 12)
+            Num(src.name, m.start(g), m.end(g), m.group(g), number(m.group(g), src, m.start(g)))
+            for g in range(1, 18)
         ]
-        pos, quat, conf = got[:3], got[3:7], got[7:11]
         line = src.line_of(m.start())
-        try:
-            rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
-        except ValueError:
-            raise FilterInputError(fname, f"{name}: quaternion of zero norm", line) from None
-        return Target(
-            fname,
-            line,
-            name,
-            "cartesian",
-            pose=frame(np.array([n.value for n in pos]), rot),
-            configuration=configuration([n.value for n in conf]),
-            site=RobSite(pos, quat, conf),
-        )
+        return _robtarget(src, name, line, got[:3], got[3:7], got[7:11], got[11:])
 
     def _target(self, src: Source, name: str, kind: str, node: Node) -> Target:
         assert node.items is not None
@@ -304,82 +237,43 @@ class RapidDialect:
                 joints_deg=np.array([n.value for n in joints]),
                 site=JointSite(joints),
             )
-        pos, quat, conf = (nums(node.items[k], src) for k in range(3))
-        try:
-            rot = quat_wxyz_to_matrix(np.array([n.value for n in quat]))
-        except ValueError:
-            raise FilterInputError(src.name, f"{name}: quaternion of zero norm", line) from None
-        return Target(
-            src.name,
-            line,
-            name,
-            "cartesian",
-            pose=frame(np.array([n.value for n in pos]), rot),
-            configuration=configuration([n.value for n in conf]),
-            site=RobSite(pos, quat, conf),
-        )
+        pos, quat, conf, eax = (nums(node.items[k], src) for k in range(4))
+        return _robtarget(src, name, line, pos, quat, conf, eax)
 
-    # -- moves -------------------------------------------------------------------------
-    def _lookup(
-        self, name: str, mod: _Module, modules: list[_Module], kinds: tuple[str, ...]
-    ) -> tuple[_Decl | None, str]:
-        memo = (name, kinds)
-        if memo not in mod.lookups:
-            mod.lookups[memo] = self._find(name, mod, modules, kinds)
-        return mod.lookups[memo]
-
-    def _find(
-        self, name: str, mod: _Module, modules: list[_Module], kinds: tuple[str, ...]
-    ) -> tuple[_Decl | None, str]:
-        key = name.lower()
-        d = mod.decls.get(key)
-        if d is not None and d.kind in kinds:
-            return d, ""
-        found = [
-            m.decls[key]
-            for m in modules
-            if m is not mod and key in m.decls and m.decls[key].kind in kinds
-        ]
-        if len(found) == 1:
-            return found[0], ""
-        if len(found) > 1:
-            where = ", ".join(f"{d.file}:{d.line}" for d in found)
-            return None, f"{name} is declared in several files ({where})"
-        return None, ""
-
+    # -- frames ------------------------------------------------------------------------
     def _frame_of(
-        self, name: str, kind: str, mod: _Module, modules: list[_Module]
+        self, name: str, kind: str, mod: Module, scope: str, modules: list[Module]
     ) -> tuple[FloatArray | None, str]:
-        key = (name.lower(), kind)
+        key = (scope, name.lower(), kind)
         if key not in mod.frames:
-            mod.frames[key] = self._resolve_frame(name, kind, mod, modules)
+            mod.frames[key] = self._resolve_frame(name, kind, mod, scope, modules)
         return mod.frames[key]
 
     def _resolve_frame(
-        self, name: str, kind: str, mod: _Module, modules: list[_Module]
+        self, name: str, kind: str, mod: Module, scope: str, modules: list[Module]
     ) -> tuple[FloatArray | None, str]:
         if kind == "tooldata" and name.lower() in PREDEFINED_TOOLS:
             return np.eye(4), ""
         if kind == "wobjdata" and name.lower() in PREDEFINED_WOBJS:
             return np.eye(4), ""
-        decl, why = self._lookup(name, mod, modules, (kind,))
+        decl, why = lookup(name, scope, mod, modules, (kind,))
         if decl is None:
-            return None, why or f"{kind} {name} is not declared in the given files"
+            return None, why or (
+                f"{kind} {name} is not declared in the given files: add the module that declares it"
+            )
         node = decl.value
         if node is None or decl.dims:
-            return None, f"{kind} {name} ({decl.file}:{decl.line}) has no literal value"
+            return None, f"{kind} {name} ({decl.where}) has no literal value"
         items = node.items or []
         if kind == "tooldata":
             if len(items) != 3 or not is_pose(items[1]):
-                where = f"{decl.file}:{decl.line}"
-                return None, f"tooldata {name} ({where}) is not [robhold,tframe,load]"
+                return None, f"tooldata {name} ({decl.where}) is not [robhold,tframe,load]"
             if items[0].word.upper() != "TRUE":
                 return None, f"tooldata {name}: stationary tool (robhold FALSE) is not supported"
             return pose(items[1]), ""
         if len(items) != 5 or not (is_pose(items[3]) and is_pose(items[4])):
             return None, (
-                f"wobjdata {name} ({decl.file}:{decl.line}) is not "
-                "[robhold,ufprog,ufmec,uframe,oframe]"
+                f"wobjdata {name} ({decl.where}) is not [robhold,ufprog,ufmec,uframe,oframe]"
             )
         if items[0].word.upper() != "FALSE":
             return None, f"wobjdata {name}: robot-held work object (robhold TRUE): not supported"
@@ -387,103 +281,75 @@ class RapidDialect:
             return None, f"wobjdata {name}: moved by a unit (ufprog FALSE): not supported"
         return pose(items[3]) @ pose(items[4]), ""
 
-    def _moves(
-        self, mod: _Module, modules: list[_Module], targets: dict[tuple[str, str], Target]
+    # -- moves -------------------------------------------------------------------------
+    def _use(self, mv: Move, modules: list[Module]) -> Use:
+        mod, scope = mv.module, mv.routine
+        if mv.tool:
+            tool, why_t = self._frame_of(mv.tool, "tooldata", mod, scope, modules)
+        else:
+            tool, why_t = None, f"{mv.name}: no tool argument found"
+        work, why_w = self._frame_of(mv.work, "wobjdata", mod, scope, modules)
+        problem = "; ".join(w for w in (why_t, why_w) if w)
+        return Use(mod.source.name, mv.line, mv.tool or "?", mv.work, tool, work, problem)
+
+    def _uses(
+        self, moves: list[Move], modules: list[Module], entries: dict[str, Move]
     ) -> list[Target]:
-        """Record the uses of every move of ``mod``; returns its inline targets."""
-        src, code = mod.source, mod.code
+        """Record every move's use of its targets and each Cartesian target's configuration
+        rule (:func:`_follow`); returns the inline targets."""
         inline: list[Target] = []
-        for m in _MOVE.finditer(code):
-            end = statement_end(code, m.end())
-            line = src.line_of(m.start())
-            tool_name, work_name = "", "wobj0"
-            refs: list[tuple[str, Any]] = []  # ("name", (name, index)) or ("inline", Node)
-            simple = _SIMPLE_MOVE.fullmatch(code, m.end(), end)
-            args: list[tuple[str, int]] = []  # positional arguments and their offsets
-            if simple is not None:  # "p, speed, zone, tool[\WObj:=w]": no splitting needed
-                args = [(simple.group(g), simple.start(g)) for g in range(1, 5)]
-                work_name = simple.group(5) or work_name
-            else:
-                for a, b in split_args(code, m.end(), end):
-                    (pa, pb), opts = split_options(code, a, b)
-                    for opt in opts:
-                        key, _, val = opt.partition(":=")
-                        if key.strip().lower() == "wobj":
-                            work_name = val.strip()
-                    raw = code[pa:pb]
-                    arg = raw.strip()
-                    if arg:
-                        args.append((arg, pa + raw.find(arg[0])))
-            for arg, astart in args:
-                wrap = _WRAP.match(arg)
-                if wrap:
-                    inner = split_args(code, astart + wrap.end(), astart + len(arg) - 1)[0]
-                    arg = code[inner[0] : inner[1]].strip()
-                    astart = inner[0] + (
-                        len(code[inner[0] : inner[1]]) - len(code[inner[0] : inner[1]].lstrip())
-                    )
-                if arg.startswith("["):
-                    refs.append(("inline", parse_literal(code, astart, src)))
-                    continue
-                r = _REF.match(arg)
-                if not r:
-                    continue
-                name, index = r.group(1), r.group(2)
-                decl, _ = self._lookup(name, mod, modules, ("tooldata",))
-                if decl is not None or name.lower() in PREDEFINED_TOOLS:
-                    tool_name = name
-                    continue
-                refs.append(("name", (name, index)))
-            if not refs:
-                continue
-            if tool_name:
-                tool, why_t = self._frame_of(tool_name, "tooldata", mod, modules)
-            else:
-                tool, why_t = None, "no tooldata argument found"
-            work, why_w = self._frame_of(work_name, "wobjdata", mod, modules)
-            problem = "; ".join(w for w in (why_t, why_w) if w)
-            use = Use(src.name, line, tool_name or "?", work_name, tool, work, problem)
-            for kind, ref in refs:
+        seen: dict[tuple[str, int], int] = defaultdict(int)
+        got: dict[int, tuple[list[Target], bool]] = {}  # per move: its targets, chained
+        for mv in moves:
+            src = mv.module.source
+            use = self._use(mv, modules)
+            targets: list[Target] = []
+            chain = True
+            for kind, ref in mv.refs:
                 if kind == "inline":
-                    node = ref
-                    if is_robtarget(node):
-                        t = self._target(
-                            src, f"inline@{src.line_of(node.start)}", "robtarget", node
-                        )
-                    elif is_jointtarget(node):
-                        t = self._target(
-                            src, f"inline@{src.line_of(node.start)}", "jointtarget", node
-                        )
-                    else:
-                        raise FilterInputError(
-                            src.name,
-                            "inline value is neither a robtarget nor a jointtarget",
-                            src.line_of(node.start),
-                        )
-                    t.uses.append(use)
+                    node: Node = ref
+                    line = src.line_of(node.start)
+                    seen[(src.name, line)] += 1
+                    n = seen[(src.name, line)]
+                    name = f"inline@{line}" + (f"#{n}" if n > 1 else "")
+                    shape = "robtarget" if is_robtarget(node) else "jointtarget"
+                    t = self._target(src, name, shape, node)
                     inline.append(t)
+                    targets.append(t)
                     continue
-                name, index = ref
-                decl, _why = self._lookup(name, mod, modules, ("robtarget", "jointtarget"))
-                if decl is None:
-                    continue  # a speed, zone, signal, or a target declared elsewhere
-                owner = decl.file
-                if index is None or decl.dims == ():
-                    keys = (
-                        [name.lower()]
-                        if not decl.dims
-                        else [f"{decl.name}{_index_text(i)}".lower() for i in decl.elements]
-                    )
-                else:
+                decl, index = ref
+                keys: list[tuple[int, ...]] = list(decl.targets)
+                if index is not None and decl.dims:
                     try:
-                        idx = tuple(int(v) for v in index.split(","))
-                        keys = [f"{decl.name}{_index_text(idx)}".lower()]
+                        keys = [tuple(int(v) for v in index.split(","))]
                     except ValueError:  # a variable index: the move may use every element
-                        keys = [f"{decl.name}{_index_text(i)}".lower() for i in decl.elements]
-                for key in keys:
-                    found = targets.get((owner, key))
-                    if found is not None:
-                        found.uses.append(use)
+                        chain = False
+                targets.extend(decl.targets[k] for k in keys if k in decl.targets)
+            for t in targets:
+                t.uses.append(use)
+            got[id(mv)] = (targets, chain)
+        flows: dict[int, list[tuple[str, Target | None, int]]] = defaultdict(list)
+        last: dict[tuple[str, str], Target | None] = {}
+        for mv in moves:
+            targets, chain = got[id(mv)]
+            key = (mv.module.source.name, mv.routine)
+            if key in last:
+                before = last[key]
+            else:  # the routine's first move: where its one caller leaves the robot
+                entry = entries.get(mv.routine)
+                lead = got[id(entry)] if entry is not None else ([], False)
+                before = lead[0][-1] if lead[0] and lead[1] else None
+            for t in targets:
+                flows[id(t)].append((mv.conf, before if chain else None, mv.line))
+                before = t if chain else None
+            if targets:
+                last[key] = before
+        for mod in modules:
+            for decl in mod.decls.values():
+                for t in decl.targets.values():
+                    _follow(t, flows[id(t)])
+        for t in inline:
+            _follow(t, flows[id(t)])
         return inline
 
     # -- writing -----------------------------------------------------------------------
@@ -503,11 +369,46 @@ class RapidDialect:
             *edits_for(site.position, correction.pose[:3, 3], POSITION_DECIMALS),
             *edits_for(site.quaternion, quat, QUATERNION_DECIMALS),
         ]
+        if not site.honoured:
+            return edits  # the controller ignores this confdata: its text stays
         for num, j in zip(site.conf[:3], (0, 3, 5), strict=True):
             cf = math.floor(float(correction.joints_deg[j]) / 90.0)
             if cf != num.value:  # a quadrant that did not change keeps its text
                 edits.extend(edits_for([num], [cf], 0))
         return edits
+
+
+def _follow(t: Target, flow: list[tuple[str, Target | None, int]]) -> None:
+    """Set a Cartesian target's configuration rule from the monitoring at its uses: any use
+    with confdata honoured → its confdata; all ignoring it → nearest the previous target
+    along the routine (the first target of a routine: its confdata)."""
+    if t.kind != "cartesian" or t.problem or not flow:
+        return
+    states = {s for s, _, _ in flow}
+    if ON in states:
+        return
+    if UNKNOWN in states:
+        line = next(n for s, _, n in flow if s == UNKNOWN)
+        t.problem = (
+            f"line {line}: ConfL/ConfJ unknown here (its routine is called with monitoring "
+            "on and off, or by no given module: add the module that calls it)"
+        )
+        return
+    t.site.honoured = False
+    _, before, _ = flow[0]
+    assert t.configuration is not None
+    if before is None or before is t or before.file != t.file:
+        # The first move under \Off (or one after a target of another file, which the core
+        # cannot follow): its confdata as written.
+        t.configuration = replace(
+            t.configuration,
+            text=f"{t.configuration.text} (the first move under ConfL/ConfJ\\Off, where the "
+            "robot comes from is unknown: write its confdata or start with a MoveAbsJ)",
+        )
+        return
+    t.configuration = Configuration(
+        after=before.name, text=f"nearest {before.name} (confdata {t.configuration.text} ignored)"
+    )
 
 
 DIALECT = RapidDialect()

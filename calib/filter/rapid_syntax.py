@@ -8,6 +8,7 @@ the file's text.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -18,6 +19,10 @@ from calib.filter.sites import BRACKETS, FilterInputError, Num, Source
 from calib.kinematics import FloatArray
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+#: Bounds of every number the filter reads: its length in characters and its magnitude (a
+#: RAPID ``num`` is a 32-bit float; ``9E+09`` marks an external axis that is not there).
+MAX_NUMBER_CHARS = 40
+MAX_NUMBER_ABS = 1e15
 _WORD = re.compile(r"[A-Za-z_]\w*")
 
 _HIDDEN = re.compile(r'"[^"\n]*"?|![^\n]*')
@@ -64,11 +69,34 @@ ROBTARGET = re.compile(
 )
 
 
-def _fast_robtarget(code: str, i: int) -> Node | None:
+def number(text: str, source: Source, offset: int) -> float:
+    """The value of a number's text at ``offset``, bounded (:data:`MAX_NUMBER_CHARS`,
+    :data:`MAX_NUMBER_ABS`).
+
+    Raises
+    ------
+    FilterInputError
+        Naming the file and line of a number too long, too large or not finite.
+    """
+    value = float(text) if len(text) <= MAX_NUMBER_CHARS else math.inf
+    if not abs(value) <= MAX_NUMBER_ABS:
+        shown = text if len(text) <= 24 else f"{text[:12]}…({len(text)} characters)"
+        raise FilterInputError(
+            source.name,
+            f"number {shown} is out of range (at most {MAX_NUMBER_CHARS} characters and "
+            f"{MAX_NUMBER_ABS:g} in magnitude)",
+            source.line_of(offset),
+        )
+    return value
+
+
+def _fast_robtarget(code: str, i: int, source: Source) -> Node | None:
     m = ROBTARGET.match(code, i)
     if m is None:
         return None
-    leaves = [Node(m.start(g), m.end(g), num=float(m.group(g))) for g in range(1, 18)]
+    leaves = [
+        Node(m.start(g), m.end(g), num=number(m.group(g), source, m.start(g))) for g in range(1, 18)
+    ]
     items, k = [], 0
     for n in _SHAPE:
         group = leaves[k : k + n]
@@ -88,7 +116,7 @@ def parse_literal(code: str, i: int, source: Source) -> Node:
     i = skip_space(code, i)
     if i >= len(code) or code[i] != "[":
         raise FilterInputError(source.name, "expected '[' (a literal value)", source.line_of(i))
-    fast = _fast_robtarget(code, i)
+    fast = _fast_robtarget(code, i, source)
     if fast is not None:
         return fast
     start = i
@@ -103,7 +131,7 @@ def parse_literal(code: str, i: int, source: Source) -> Node:
         else:
             m = _NUMBER.match(code, i)
             if m:
-                node = Node(i, m.end(), num=float(m.group()))
+                node = Node(i, m.end(), num=number(m.group(), source, i))
             else:
                 w = _WORD.match(code, i)
                 if w:

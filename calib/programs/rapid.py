@@ -28,6 +28,7 @@ the module, ``CONST``/``PERS``/``VAR`` ``jointtarget`` and ``speeddata`` declara
 
 from __future__ import annotations
 
+import math
 import re
 
 from calib.programs.common import (
@@ -49,6 +50,18 @@ SPEED_NAME = "vCablecal"
 NO_AXIS = "9E+09"
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+#: Longest number text read [characters]: longer is no number a controller writes.
+MAX_NUMBER_CHARS = 40
+
+
+def _number(text: str, line: int) -> float:
+    """A number's value; ``ProgramError`` naming the line when it is absurdly long or not
+    finite (``9E+999``)."""
+    value = float(text) if len(text) <= MAX_NUMBER_CHARS else math.inf
+    if not math.isfinite(value):
+        shown = text if len(text) <= 24 else f"{text[:12]}…({len(text)} characters)"
+        raise ProgramError(f"line {line}: number {shown} is out of range")
+    return value
 
 
 def write(program: JointProgram) -> str:
@@ -78,7 +91,9 @@ def _jointtarget(text: str, line: int) -> Joints:
     extax = [v.strip() for v in m.group(2).split(",")]
     if len(robax) != 6 or len(extax) != 6 or not all(re.fullmatch(_NUM, v) for v in robax + extax):
         raise ProgramError(f"line {line}: a jointtarget needs 6 robot and 6 external axis numbers")
-    q = [float(v) for v in robax]
+    q = [_number(v, line) for v in robax]
+    for v in extax:
+        _number(v, line)
     return (q[0], q[1], q[2], q[3], q[4], q[5])
 
 
@@ -125,7 +140,7 @@ def parse(text: str) -> JointProgram:
             )
             if not sm:
                 raise ProgramError(f"line {line_no}: speeddata needs 4 numbers, got {value!r}")
-            speeds[var] = float(sm.group(1))
+            speeds[var] = _number(sm.group(1), line_no)
         return "module"
 
     def main(stmt: str, line_no: int) -> str:
@@ -138,7 +153,7 @@ def parse(text: str) -> JointProgram:
             return "main"
         m = re.fullmatch(r"waittime\s*(\\\s*inpos\s*)?,?\s*(" + _NUM + r")", body, re.IGNORECASE)
         if m:
-            got.dwell(float(m.group(2)), line_no, "WaitTime", "MoveAbsJ")
+            got.dwell(_number(m.group(2), line_no), line_no, "WaitTime", "MoveAbsJ")
             return "main"
         m = re.fullmatch(r"moveabsj\s+(.+)", body, re.IGNORECASE | re.DOTALL)
         if not m:
