@@ -41,8 +41,9 @@ from filter_cells import (
 from filter_olp import _executed, frames_toml, krl_program, ls_program, rms
 
 from calib.filter.branches import flange_frames
-from calib.filter.correct import IK_OPTIONS, calibration_from_result
+from calib.filter.correct import calibration_from_result
 from calib.filter.dialects import dialect_for
+from calib.filter.nearest import IK_OPTIONS
 from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.run import EXIT_LEFT
 from calib.filter.sites import FrameTables, Num, Source, Target, parse_frames_toml

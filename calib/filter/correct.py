@@ -43,21 +43,18 @@ from typing import Any
 import numpy as np
 
 from calib.export import model_from_result
-from calib.filter.branches import branch_signs, closed_form_is_complete, nominal_solutions
+from calib.filter.branches import branch_signs, nominal_solutions
 from calib.filter.kin import counted_as, flange_frames, solve_flange_ik, to_table_deg
+from calib.filter.nearest import IK_OPTIONS, keeps_nearest, nearest_solutions
 from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.select import choose
 from calib.filter.sites import Configuration, Correction, Target
-from calib.ik import IKOptions
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
 
 #: A corrected joint further than this from the nominal solution is another branch [deg].
 BRANCH_JUMP_DEG = 5.0
-#: IK of the calibrated model: tight tolerances (the rounding of the written numbers, not the
-#: IK, should limit the result).
-IK_OPTIONS = IKOptions(max_iterations=60, tol_mm=1e-6, tol_deg=1e-6, stall_iterations=8)
 #: A correction smaller than this (TCP position [mm] and orientation [deg]; joints [deg]) is
 #: below anything a controller resolves: the target keeps its numbers exactly (so a
 #: calibration equal to the nominal model changes no byte, whatever the IK's last digits).
@@ -188,59 +185,22 @@ def sigma_at_tools(
     return out
 
 
-def _nearest(
-    nominal: RobotModel, fl: FloatArray, refs: FloatArray
-) -> tuple[list[FloatArray], list[str]]:
-    """UR's rule: per flange frame (n, 4, 4) the nominal solution nearest its joint reference
-    (n, 6) [deg] (the controller's angles), or the reason there is none: of the closed-form
-    solutions (where the arm has them) and, where those may miss one (a near-UR table solved
-    through its neighbour) or there are none, Newton's from the reference, the nearest
-    within the joint limits."""
-    limits = joint_limits_deg(nominal)
-    closed = np.full(refs.shape, np.nan)
-    try:
-        sol = nominal_solutions(nominal, fl, near_deg=refs)
-    except ValueError:
-        complete = False
-    else:
-        complete = closed_form_is_complete(nominal)
-        idx, _ = choose(sol, [Configuration(nearest_deg=r) for r in refs])
-        closed = np.where((idx >= 0)[:, None], sol.joints_deg[np.arange(len(idx)), idx], np.nan)
-    todo = np.flatnonzero(~np.all(np.isfinite(closed), axis=1) | (not complete))
-    if todo.size:
-        got = solve_flange_ik(nominal, refs[todo], fl[todo], IK_OPTIONS)
-        q = got.joints_deg
-        ok = got.converged & np.all((q >= limits[:, 0]) & (q <= limits[:, 1]), axis=1)
-        d_new = np.where(ok, np.linalg.norm(q - refs[todo], axis=1), np.inf)
-        d_old = np.nan_to_num(np.linalg.norm(closed[todo] - refs[todo], axis=1), nan=np.inf)
-        better = d_new < d_old - 1e-9
-        closed[todo[better]] = q[better]
-    qs = list(closed)
-    why = [
-        "" if np.all(np.isfinite(q)) else "no nominal solution within the joint limits" for q in qs
-    ]
-    return qs, why
-
-
-def _keeps_nearest(
-    nominal: RobotModel,
-    rows: list[int],
-    ref_of: Mapping[int, FloatArray],
-    fk_star: FloatArray,
-    q_star: FloatArray,
-) -> np.ndarray:
-    """Per row (bool): a UR-rule target's corrected pose is still solved, from its joint
-    reference, to ``q*`` (the controller would not take another solution); True for the
-    other targets."""
-    out = np.ones(len(rows), dtype=bool)
-    sel = [r for r, i in enumerate(rows) if i in ref_of]
-    if not sel:
-        return out
-    refs = np.array([ref_of[rows[r]] for r in sel])
-    qs, why = _nearest(nominal, fk_star[sel], refs)
-    for r, q, w in zip(sel, qs, why, strict=True):
-        out[r] = not w and float(np.max(np.abs(q - q_star[r]))) < 1e-3
-    return out
+def _leaves_ranges(c: Configuration | None, q_deg: FloatArray) -> str | None:
+    """Why a Cartesian target whose written configuration the controller honours must be
+    left: its corrected joints ``q_deg`` (6,) [deg] leave a joint range that configuration
+    fixes (an ABB quadrant, a KUKA T sign, a Fanuc turn number), so writing it would change
+    that field (or make the controller refuse it); None when they stay inside."""
+    if c is None or c.ranges_rewritten or c.after is not None or c.nearest_deg is not None:
+        return None
+    lo, hi = c.joint_ranges_deg[:, 0], c.joint_ranges_deg[:, 1]
+    out = (q_deg < lo) | (q_deg >= hi)
+    if not np.any(out):
+        return None
+    j = int(np.argmax(out))
+    return (
+        f"the correction would change the configuration {c.text or ''}: J{j + 1} would be "
+        f"{q_deg[j]:.3f} deg, outside [{lo[j]:g}, {hi[j]:g}) that it fixes"
+    ).replace("configuration :", "configuration:")
 
 
 def correct_targets(
@@ -350,7 +310,7 @@ def correct_targets(
             break
         fl = np.stack([fl_of[i] for i in ready])
         for r, (i, q, why) in enumerate(
-            zip(ready, *_nearest(nominal, fl, np.array(refs)), strict=True)
+            zip(ready, *nearest_solutions(nominal, fl, np.array(refs)), strict=True)
         ):
             if why:
                 out[i] = Correction("unreachable", why)
@@ -370,7 +330,7 @@ def correct_targets(
         except ValueError:  # no closed form: the joint jump alone tells the branch
             s_nom = s_cal = np.zeros((len(rows), 3))
         fk_star = flange_frames(nominal, q_star)
-        kept = _keeps_nearest(nominal, rows, ref_of, fk_star, q_star)
+        kept = keeps_nearest(nominal, rows, ref_of, fk_star, q_star)
         tool_pts = np.array([tools[i][:3, 3] if i in tools else np.zeros(3) for i in rows])
         sigma = sigma_at_tools(cal, q_star, tool_pts)
         # Shifts, all at once: the TCP for Cartesian targets, the flange for joint targets.
@@ -423,6 +383,9 @@ def correct_targets(
                         "reference to another solution (nearest q)"
                     )
                 out[i] = Correction("skipped", why)
+                continue
+            if (changed := _leaves_ranges(t.configuration, qs)) is not None:
+                out[i] = Correction("skipped", changed)
                 continue
             shift_mm, shift_deg = shifts_mm[r], shifts_deg[r]
             if t.kind == "joint":

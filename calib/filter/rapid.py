@@ -136,7 +136,7 @@ def configuration(conf: Sequence[float]) -> Configuration:
     cfx = int(conf[3])
     text = "[" + ",".join(f"{int(c)}" for c in conf) + "]"
     if not 0 <= cfx <= 7:
-        return Configuration(ranges, text=text)
+        return Configuration(ranges, text=text, ranges_rewritten=True)
     shoulder = 1 if cfx < 4 else -1
     return Configuration(
         ranges,
@@ -144,6 +144,7 @@ def configuration(conf: Sequence[float]) -> Configuration:
         elbow=(1 if cfx % 4 < 2 else -1) * shoulder,
         wrist=1 if cfx % 2 == 0 else -1,
         text=text,
+        ranges_rewritten=True,
     )
 
 

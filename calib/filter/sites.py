@@ -204,6 +204,12 @@ class Configuration:
         (UR without a ``q``: the previous move's target).
     text : str
         The configuration as the program writes it, for messages.
+    ranges_rewritten : bool
+        True where the dialect writes the corrected joints' ranges back (RAPID's quadrants
+        ``cf1/cf4/cf6`` say where a joint is, not which branch: a correction that moves a
+        joint across a 90° line keeps the branch and gets the new quadrant). Else a
+        correction that leaves ``joint_ranges_deg`` (a KUKA ``T`` sign, a Fanuc turn number)
+        is refused with the reason: those fields are never rewritten.
     """
 
     joint_ranges_deg: FloatArray = field(
@@ -215,6 +221,7 @@ class Configuration:
     nearest_deg: FloatArray | None = None
     after: str | None = None
     text: str = ""
+    ranges_rewritten: bool = False
 
 
 @dataclass
