@@ -191,7 +191,16 @@ class JobManager:
         self._stopping.clear()
         ctx = multiprocessing.get_context("forkserver")
         # daemon.forkserver_guard: the forkserver kills and reaps its children if we die.
-        ctx.set_forkserver_preload(["calib.identify", "daemon.jobs", "daemon.forkserver_guard"])
+        # The program filter's worker processes (daemon.workers.run_in_child) fork from it too.
+        ctx.set_forkserver_preload(
+            [
+                "calib.identify",
+                "daemon.jobs",
+                "daemon.forkserver_guard",
+                "calib.filter.run",
+                "daemon.api.routes.program_filter",
+            ]
+        )
         child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)
         manager = SyncManager(ctx=ctx)
         manager.start(initializer=init_child, initargs=child_args)

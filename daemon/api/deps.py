@@ -15,6 +15,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
 from daemon.api.min_samples import MinSamplesCache
+from daemon.api.offload import WorkGate
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store
@@ -43,6 +44,8 @@ class AppState:
         lifespan has started the sampler.
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
+    gates : dict of str to WorkGate
+        The bounds of heavy request work by kind (:func:`daemon.api.offload.gates_of`).
     """
 
     settings: Settings
@@ -55,6 +58,7 @@ class AppState:
     watch: Any = None  # daemon.watch.SensorWatch, None until the lifespan has started it
     auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
+    gates: dict[str, WorkGate] = field(default_factory=dict)
 
 
 def get_state(request: Request) -> AppState:
