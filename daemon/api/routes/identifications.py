@@ -3,6 +3,7 @@ and the option spec the page builds its form from."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Mapping
 from typing import Annotated, Any, cast
 
@@ -10,12 +11,13 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from typing_extensions import TypedDict
 
 from calib.compare import Comparison, compare_results
-from calib.options import default, held_out, samples_for_training_rows, spec
+from calib.options import Holdout, default, held_out, samples_for_training_rows, spec
 from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
 from daemon.api.errors import error_responses
+from daemon.api.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
-from daemon.jobs import JobError
+from daemon.jobs import JobError, JobsFull
 from daemon.store import JobState
 
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
@@ -68,23 +70,37 @@ class Readiness(TypedDict):
     "/campaigns/{campaign_id}/identification-readiness",
     summary="Enough samples to identify at a test fraction?",
     dependencies=[ReadAuth],
+    responses=error_responses(429, 503),
 )
-def readiness(
+async def readiness(
     state: State,
+    request: Request,
     campaign_id: CampaignId,
     test_fraction: Annotated[
         float, Query(ge=spec("test_fraction").ge, lt=spec("test_fraction").lt, allow_inf_nan=False)
     ] = default("test_fraction"),
+    holdout: Annotated[Holdout, Query(description=spec("holdout").help)] = default("holdout"),
+    seed: Annotated[
+        int, Query(ge=spec("seed").ge, le=spec("seed").le, description=spec("seed").help)
+    ] = default("seed"),
 ) -> Readiness:
     """The minimum-samples rule applied for the page (which keeps no copy of it): the split
-    of the campaign's included samples at ``test_fraction`` and the counts identify needs
-    (``min_samples`` null when it would exceed :data:`MAX_READINESS_SAMPLES`)."""
+    of the campaign's included samples at ``test_fraction`` (with the ``holdout`` and
+    ``seed`` of the POST: a grouped hold-out may leave an anchor short where a random one
+    does not) and the counts identify needs (``min_samples`` null when it would exceed
+    :data:`MAX_READINESS_SAMPLES`). The check runs in a worker thread, as the POST's (429
+    when too many wait)."""
     row = state.store.campaign(campaign_id)
     need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
     n = int(row["n_included"])
     n_test = held_out(n, test_fraction)
+    options = {"test_fraction": test_fraction, "holdout": holdout, "seed": seed}
+
+    async def check() -> None:
+        await asyncio.to_thread(state.jobs.check, campaign_id, options)
+
     try:  # the rule POST applies (the job manager's check), per anchor included
-        state.jobs.check(campaign_id, {"test_fraction": test_fraction})
+        await offload(request, state.gates["check"], check, cancel_on_leave=False)
         reason = None
     except JobError as exc:
         reason = str(exc)
@@ -107,19 +123,35 @@ def readiness(
     status_code=status.HTTP_202_ACCEPTED,
     summary="Start an identification job",
     dependencies=[WriteAuth],
-    responses=error_responses(409),
+    responses=error_responses(409, 429, 503),
 )
-async def start(state: State, campaign_id: CampaignId, body: IdentificationRequest) -> JobView:
+async def start(
+    state: State, request: Request, campaign_id: CampaignId, body: IdentificationRequest
+) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
     (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``. 422 for a body
     the schema refuses; 409, naming the option or the count, for what the campaign's robot
     and samples refuse: a parameter name the model lacks in ``fixed``/``free``, or too few
     samples left for training (after ``test_fraction``) for the parameters this robot and
-    these anchors solve for (25 training rows for the built-in model with one anchor)."""
+    these anchors solve for (25 training rows for the built-in model with one anchor). The
+    check and the samples' snapshot run in a worker thread, not on the event loop; 429 with
+    ``Retry-After`` when ``[jobs] max_pending`` jobs are queued or running, or too many
+    checks wait."""
+    retry = {"Retry-After": str(state.settings.requests.retry_after_s)}
+    if why := state.jobs.full():
+        raise HTTPException(429, why, headers=retry)
+    options = body.to_options()
+
+    async def prepare() -> Any:
+        return await asyncio.to_thread(state.jobs.prepare, campaign_id, options)
+
     try:
-        job = state.jobs.submit(campaign_id, body.to_options())
+        prepared = await offload(request, state.gates["check"], prepare, cancel_on_leave=False)
+        job = state.jobs.enqueue(prepared)
     except JobError as exc:  # the request is well formed; the campaign's state refuses it
         raise HTTPException(409, str(exc)) from exc
+    except JobsFull as exc:
+        raise HTTPException(429, str(exc), headers=retry) from exc
     return _job_view(state, job)
 
 
