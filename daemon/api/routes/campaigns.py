@@ -22,14 +22,17 @@ from daemon.api.deps import (
     AppState,
     CampaignId,
     Paged,
+    PagedLarge,
     ReadAuth,
     SampleId,
     State,
     WriteAuth,
     link_next,
+    require_space,
 )
 from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
+from daemon.api.guard import MAX_IMPORT_BYTES
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
@@ -57,10 +60,12 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
     status_code=status.HTTP_201_CREATED,
     summary="Create a campaign",
     dependencies=[WriteAuth],
+    responses=error_responses(507),
 )
-def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
+def create_campaign(state: State, request: Request, body: CampaignCreate) -> CampaignOut:
     """``robot_model`` is a built-in name or an uploaded model mapping; returns the campaign
-    with its ``id`` and ``robot_id``."""
+    with its ``id`` and ``robot_id``. 507 when the disk is at its free-space reserve."""
+    require_space(state, int(request.headers.get("content-length") or 0) + 4096, "campaign")
     if isinstance(body.robot_model, str):
         try:
             builtin_model(body.robot_model)
@@ -97,9 +102,9 @@ def _out(state: AppState, row: CampaignRow) -> CampaignOut:
 
 @router.get("/campaigns", summary="List campaigns (paginated)", dependencies=[ReadAuth])
 def list_campaigns(
-    state: State, request: Request, response: Response, page: Paged
+    state: State, request: Request, response: Response, page: PagedLarge
 ) -> list[CampaignOut]:
-    """By id, ``limit`` per page (default 1000) after ``after_id``; a full page has a
+    """By id, ``limit`` per page (default and most 500) after ``after_id``; a full page has a
     ``Link: <…>; rel="next"`` header."""
     rows = state.store.list_campaigns(after_id=page.after_id, limit=page.limit)
     link_next(request, response, rows, page.limit)
@@ -273,7 +278,7 @@ def list_samples(
     status_code=status.HTTP_201_CREATED,
     summary="Import samples from CSV",
     dependencies=[WriteAuth],
-    responses=error_responses(400, 404, 415),
+    responses=error_responses(400, 404, 415, 507),
     response_model=ImportResult,
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
@@ -294,8 +299,12 @@ async def import_samples(state: State, campaign_id: CampaignId, request: Request
             if media_type
             else "Content-Type: expected text/csv (the CSV text as the body)",
         )
+    declared = request.headers.get("content-length")
+    require_space(state, int(declared) if declared else MAX_IMPORT_BYTES, "import")
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
-    body = await run_in_threadpool(_import_csv, state, campaign_id, b"".join(chunks))
+    raw = b"".join(chunks)
+    require_space(state, len(raw), "import")
+    body = await run_in_threadpool(_import_csv, state, campaign_id, raw)
     return Response(body, status_code=201, media_type="application/json")
 
 

@@ -12,7 +12,16 @@ from typing_extensions import TypedDict
 
 from calib.compare import Comparison, compare_results
 from calib.options import Holdout, default, held_out, samples_for_training_rows, spec
-from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
+from daemon.api.deps import (
+    CampaignId,
+    JobId,
+    PagedLarge,
+    ReadAuth,
+    State,
+    WriteAuth,
+    link_next,
+    require_space,
+)
 from daemon.api.errors import error_responses
 from daemon.api.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
@@ -23,6 +32,9 @@ from daemon.store import JobState
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
 #: many samples: the answer is then null, not a long search).
 MAX_READINESS_SAMPLES = 10_000_000
+
+#: Room kept for a job's stored result [bytes] (its JSON: parameters, covariance, residuals).
+RESULT_BYTES = 4 * 1024 * 1024
 
 router = APIRouter(tags=["identifications"], responses=error_responses(400, 401, 404, 413, 422))
 
@@ -123,7 +135,7 @@ async def readiness(
     status_code=status.HTTP_202_ACCEPTED,
     summary="Start an identification job",
     dependencies=[WriteAuth],
-    responses=error_responses(409, 429, 503),
+    responses=error_responses(409, 429, 503, 507),
 )
 async def start(
     state: State, request: Request, campaign_id: CampaignId, body: IdentificationRequest
@@ -137,6 +149,7 @@ async def start(
     check and the samples' snapshot run in a worker thread, not on the event loop; 429 with
     ``Retry-After`` when ``[jobs] max_pending`` jobs are queued or running, or too many
     checks wait."""
+    require_space(state, RESULT_BYTES, "identification")  # its result is stored at the end
     retry = {"Retry-After": str(state.settings.requests.retry_after_s)}
     if why := state.jobs.full():
         raise HTTPException(429, why, headers=retry)
@@ -161,9 +174,9 @@ async def start(
     dependencies=[ReadAuth],
 )
 def list_for_campaign(
-    state: State, request: Request, response: Response, campaign_id: CampaignId, page: Paged
+    state: State, request: Request, response: Response, campaign_id: CampaignId, page: PagedLarge
 ) -> list[JobOut]:
-    """By id, ``limit`` per page (default 1000) after ``after_id``; a full page has a
+    """By id, ``limit`` per page (default and most 500) after ``after_id``; a full page has a
     ``Link: <…>; rel="next"`` header."""
     state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list
     rows = state.store.list_jobs(campaign_id, after_id=page.after_id, limit=page.limit)
