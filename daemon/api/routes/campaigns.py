@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from typing import cast
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from calib.dataset import (
@@ -33,6 +35,7 @@ from daemon.api.deps import (
 from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
 from daemon.api.guard import MAX_IMPORT_BYTES
+from daemon.api.offload import offload
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
@@ -247,10 +250,10 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
     "/campaigns/{campaign_id}/samples",
     summary="Samples as JSON (paginated), or CSV with ?format=csv",
     dependencies=[ReadAuth],
-    responses={200: {"content": {"text/csv": {}}}, **error_responses(404)},
+    responses={200: {"content": {"text/csv": {}}}, **error_responses(404, 429, 503)},
     response_model=list[SampleOut],
 )
-def list_samples(
+async def list_samples(
     state: State,
     request: Request,
     response: Response,
@@ -261,16 +264,32 @@ def list_samples(
     """JSON: the samples with their std, count, timestamps and excluded flag, by id,
     ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
     rel="next"`` header. CSV: every included sample (not paginated) in the format
-    ``cablecal identify`` reads."""
+    ``cablecal identify`` reads, built in a worker thread behind the export gate (``[requests]
+    max_checks`` at once, 429 beyond the queue) and sent in pieces as the client reads."""
     if format == "csv":
-        return Response(
-            state.store.export_csv(campaign_id),
+        state.store.campaign(campaign_id)  # 404 before the gate
+
+        async def export() -> str:
+            return await run_in_threadpool(state.store.export_csv, campaign_id)
+
+        text = await offload(request, state.gates["check"], export, cancel_on_leave=False)
+        return StreamingResponse(
+            _pieces(text),
             media_type="text/csv",
             headers=download_headers(f"campaign-{campaign_id}.csv"),
         )
-    rows = state.store.list_samples(campaign_id, after_id=page.after_id, limit=page.limit)
+    rows = await run_in_threadpool(
+        state.store.list_samples, campaign_id, after_id=page.after_id, limit=page.limit
+    )
     link_next(request, response, rows, page.limit)
     return rows
+
+
+def _pieces(text: str, piece_chars: int = 1 << 16) -> Iterator[bytes]:
+    """``text`` as UTF-8 in pieces of ``piece_chars`` characters: a slow reader holds one
+    piece in the socket's buffer, not the whole export twice."""
+    for k in range(0, len(text), piece_chars):
+        yield text[k : k + piece_chars].encode()
 
 
 @router.post(
