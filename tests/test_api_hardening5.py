@@ -482,3 +482,28 @@ def test_a_slow_reader_is_disconnected_after_the_send_timeout(server: str) -> No
     fields = dict(line.split(b": ", 1) for line in head.split(b"\r\n")[1:])
     length = int(fields[b"content-length"])
     assert len(body) < length, "the whole response was delivered to a client that did not read"
+
+
+def test_a_program_of_targets_outside_the_limits_is_a_409(
+    client: TestClient, calibrated: dict[str, int]
+) -> None:
+    """The README's conflicts: joints outside the robot model's limits are a 409 naming the
+    target, not a 422 on ``query.format``."""
+    from calib.models import builtin_model
+
+    limits = builtin_model("hsr-jr680").joint_limits_deg.tolist()
+    mid = [(lo + hi) / 2 for lo, hi in limits]
+    rows = [{f"q{j + 1}": v for j, v in enumerate(mid)}]
+    for j in range(6):  # every joint at each of its limits: a correction crosses some
+        for bound in limits[j]:
+            q = list(mid)
+            q[j] = float(bound)
+            rows.append({f"q{k + 1}": v for k, v in enumerate(q)})
+    url = f"{API}/robots/{calibrated['robot_id']}/compensate"
+    r = client.post(url, json=rows, headers=AUTH)
+    assert r.status_code == 200, r.text
+    flagged = [k for k, row in enumerate(r.json()["rows"]) if "outside_limits" in row["flags"]]
+    assert flagged, r.json()["rows"]
+    r = client.post(url + "?format=fanuc-ls", json=rows, headers=AUTH)
+    assert r.status_code == 409, r.text
+    assert f"target {flagged[0] + 1}" in r.json()["detail"]

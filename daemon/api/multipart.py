@@ -21,6 +21,7 @@ browser or HTTP client sends it) is refused rather than decoded.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, field
 from typing import Final
@@ -41,6 +42,10 @@ MAX_PARAMS: Final = 8
 #: Longest ``Content-Type`` of the request [characters] (type, boundary and parameters).
 MAX_CONTENT_TYPE_CHARS: Final = 1024
 _IDENTITY_ENCODINGS = frozenset({"", "7bit", "8bit", "binary"})
+
+# The parser logs a warning for each malformed body before it raises; the refusal is the
+# API's answer (and its access log), so a flood of hostile bodies writes no second log line.
+logging.getLogger("python_multipart").setLevel(logging.ERROR)
 
 
 @dataclass

@@ -86,6 +86,21 @@ def _json_targets_csv(raw: bytes) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _refuse_outside_limits(rows: list[dict[str, Any]]) -> None:
+    """A corrected target outside the robot model's joint limits cannot go into a program: a
+    409 naming it (a rule of the robot, as for a capture's joints; the README's conflicts),
+    before the program writer's 422 for any other flag."""
+    for k, row in enumerate(rows):
+        flags = str(row.get("flags") or "").split(";")  # the CSV row's ;-joined flags
+        limits = [f for f in flags if f.startswith("outside_limits")]
+        if limits:
+            raise HTTPException(
+                409,
+                f"format: target {k + 1}: the corrected joints are outside the robot's joint "
+                f"limits ({', '.join(map(str, limits))}); fix or remove it first",
+            )
+
+
 def _compensate(
     state: State, robot_id: int, raw: bytes, is_csv: bool, mode: str, tool: Any, seed: Any
 ) -> dict[str, Any]:
@@ -178,6 +193,8 @@ async def compensate_targets(
         _compensate, state, robot_id, b"".join(chunks), is_csv, mode, tool, seed
     )
     csv_text = out.pop("csv")
+    if format is not None and format.value != "csv":
+        _refuse_outside_limits(out["rows"])
     if format is not None:
         return download(
             csv_text,
