@@ -105,9 +105,9 @@ class RequestSettings(BaseModel):
     """Filters waiting for a free worker; a further one is a 429 with Retry-After."""
     max_checks: Annotated[int, Field(ge=1, le=16)] = 1
     """Identification checks and submissions (``POST .../identifications``, the readiness
-    route) and CSV exports running at once, each in a thread of its own."""
+    route), CSV imports and exports and compensations running at once, each in a thread."""
     max_queued_checks: Annotated[int, Field(ge=0, le=256)] = 8
-    """Checks and exports waiting for their turn; a further one is a 429 with Retry-After."""
+    """Such work waiting for its turn; a further request is a 429 with Retry-After."""
     retry_after_s: Annotated[int, Field(ge=1, le=3600)] = 5
     """The ``Retry-After`` of a 429 for work that is full [s]."""
     disk_reserve_mb: Annotated[float, Field(ge=0, le=1_000_000)] = 512.0

@@ -1,14 +1,14 @@
 """Heavy request work kept off the event loop, bounded, and dropped when its client leaves.
 
 The event loop polls the indicator (the sampler); nothing a client sends may hold it. So the
-CPU-heavy work of a request (a program filter, an identification's check and submission, a
-CSV export) runs elsewhere, through a :class:`WorkGate` of its kind:
+CPU-heavy work of a request (a program filter; an identification's check and submission, a
+CSV import or export, a compensation) runs elsewhere, through a :class:`WorkGate` of its kind:
 
 - **Bounded**: at most ``running`` at once and ``queued`` waiting; a further request is a
   429 with ``Retry-After`` (the ``[requests]`` settings, :class:`daemon.config.RequestSettings`).
   After shutdown began a request is a 503.
 - **Off the loop**: a filter runs in a process of its own (:func:`daemon.workers.run_in_child`,
-  lower priority, no shared GIL, its memory returned when it ends); a check in a thread.
+  lower priority, no shared GIL, its memory returned when it ends); the rest in a thread.
 - **Dropped when the client leaves**: :func:`offload` watches the connection while the work
   waits or runs; a client that disconnects stops a queued request, and kills a process.
 
@@ -184,6 +184,9 @@ def gates_of(settings: Any) -> dict[str, WorkGate]:
     return {
         "filter": WorkGate("program filters", r.max_filters, r.max_queued_filters, r.retry_after_s),
         "check": WorkGate(
-            "identification checks and exports", r.max_checks, r.max_queued_checks, r.retry_after_s
+            "identification checks, imports, exports and compensations",
+            r.max_checks,
+            r.max_queued_checks,
+            r.retry_after_s,
         ),
     }

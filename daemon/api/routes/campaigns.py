@@ -297,7 +297,7 @@ def _pieces(text: str, piece_chars: int = 1 << 16) -> Iterator[bytes]:
     status_code=status.HTTP_201_CREATED,
     summary="Import samples from CSV",
     dependencies=[WriteAuth],
-    responses=error_responses(400, 404, 415, 507),
+    responses=error_responses(400, 404, 415, 429, 503, 507),
     response_model=ImportResult,
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
@@ -323,7 +323,12 @@ async def import_samples(state: State, campaign_id: CampaignId, request: Request
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     raw = b"".join(chunks)
     require_space(state, len(raw), "import")
-    body = await run_in_threadpool(_import_csv, state, campaign_id, raw)
+
+    async def parse_and_store() -> bytes:
+        return await run_in_threadpool(_import_csv, state, campaign_id, raw)
+
+    # Behind the check gate (a 20 MiB import is seconds of work): 429 beyond its queue.
+    body = await offload(request, state.gates["check"], parse_and_store, cancel_on_leave=False)
     return Response(body, status_code=201, media_type="application/json")
 
 

@@ -18,6 +18,7 @@ from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import RobotId, State, WriteAuth
 from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.offload import offload
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import (
     ANY_TARGETS,
@@ -142,7 +143,10 @@ def _compensate(
     "/robots/{robot_id}/compensate",
     summary="Correct a program with the robot's accepted calibration",
     dependencies=[WriteAuth],
-    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(400, 409)},
+    responses={
+        200: {"content": {"text/csv": {}, "text/plain": {}}},
+        **error_responses(400, 409, 429, 503),
+    },
     openapi_extra={
         "requestBody": {
             "required": True,
@@ -189,9 +193,12 @@ async def compensate_targets(
     state.store.accepted_result(robot_id)  # 404 before the body is read
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     is_csv = request.headers.get("content-type", "").split(";")[0].strip() == "text/csv"
-    out = await asyncio.to_thread(
-        _compensate, state, robot_id, b"".join(chunks), is_csv, mode, tool, seed
-    )
+    raw = b"".join(chunks)
+
+    async def work() -> dict[str, Any]:
+        return await asyncio.to_thread(_compensate, state, robot_id, raw, is_csv, mode, tool, seed)
+
+    out = await offload(request, state.gates["check"], work, cancel_on_leave=False)
     csv_text = out.pop("csv")
     if format is not None and format.value != "csv":
         _refuse_outside_limits(out["rows"])
