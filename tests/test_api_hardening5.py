@@ -30,7 +30,7 @@ from test_service import AUTH, TOKEN, FakeSampler
 
 from daemon.api.main import create_app
 from daemon.api.multipart import MAX_PART_HEADER_BYTES, FormReader
-from daemon.api.offload import CancelledIs503, WorkGate
+from daemon.api.offload import CancelledIs503, WorkGate, offload
 from daemon.api.server import MAX_HEAD_BYTES, uvicorn_options
 from daemon.api.text_rules import not_portable_file_name, not_printable
 from daemon.config import Settings
@@ -245,6 +245,43 @@ def test_work_in_a_child_returns_and_a_cancel_kills_the_process() -> None:
     asyncio.run(scenario())
 
 
+class _LeavingClient:
+    """A request whose client disconnects when :attr:`gone` is set."""
+
+    def __init__(self) -> None:
+        self.gone = asyncio.Event()
+
+    async def receive(self) -> dict[str, Any]:
+        await self.gone.wait()
+        return {"type": "http.disconnect"}
+
+
+def test_work_is_cancelled_when_its_client_leaves_and_the_place_freed() -> None:
+    async def scenario() -> None:
+        gate = WorkGate("filters", running=1, queued=0, retry_after_s=1)
+        request = _LeavingClient()
+        started, cancelled = asyncio.Event(), asyncio.Event()
+
+        async def work() -> None:
+            started.set()
+            try:
+                await asyncio.Event().wait()
+            except asyncio.CancelledError:
+                cancelled.set()
+                raise
+
+        call = asyncio.create_task(offload(request, gate, work))  # type: ignore[arg-type]
+        await started.wait()
+        assert gate.active == 1
+        request.gone.set()
+        with pytest.raises(HTTPException) as info:
+            await call
+        assert info.value.status_code == 503 and "client disconnected" in str(info.value.detail)
+        assert cancelled.is_set() and gate.active == 0
+
+    asyncio.run(scenario())
+
+
 def test_an_exception_of_the_child_is_raised_in_the_daemon() -> None:
     with pytest.raises(ValueError, match="invalid literal"):
         asyncio.run(run_in_child(int, "x"))
@@ -450,6 +487,21 @@ def test_a_head_padded_with_whitespace_counts_every_byte(server: str) -> None:
         s.sendall(head)  # one write: h11's bound on an incomplete head never applies
         answer = closed_by_server(s, 5.0) or b""
         assert answer.startswith(b"HTTP/1.1 " + status), (pad, answer[:120])
+
+
+def test_a_body_refused_before_it_is_read_closes_the_connection(server: str) -> None:
+    """A 404 sent after 1 KiB of a declared 300 KiB body: the answer says ``connection:
+    close`` and the server closes without waiting for the rest."""
+    s = _connect(server)
+    s.sendall(
+        b"POST /api/v1/robots/999/filter HTTP/1.1\r\nHost: x\r\nAuthorization: "
+        + AUTH["Authorization"].encode()
+        + b"\r\nContent-Type: multipart/form-data; boundary=Bnd7\r\n"
+        b"Content-Length: 307200\r\n\r\n" + b"x" * 1024
+    )
+    answer = closed_by_server(s, 5.0) or b""
+    assert answer.startswith(b"HTTP/1.1 404"), answer[:200]
+    assert b"connection: close" in answer.lower()
 
 
 def test_a_slow_reader_is_disconnected_after_the_send_timeout(server: str) -> None:
