@@ -37,18 +37,23 @@ from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any
 
 from calib.options import default as default_option
 from daemon import metrics
 from daemon.config import JobSettings
-from daemon.job_worker import FINAL_PROGRESS, noop, run_identification
+from daemon.job_worker import (
+    FINAL_PROGRESS,
+    Checked,
+    JobsFull,
+    Prepared,
+    check_job,
+    noop,
+    prepare_job,
+    run_identification,
+)
 from daemon.store import JOB_FINISHED, JobState, StoreNotFound
 from daemon.workers import init_child
-
-if TYPE_CHECKING:
-    from calib.dataset import SampleSet
-    from calib.models import RobotModel
 
 log = logging.getLogger("cablecal.jobs")
 
@@ -56,36 +61,6 @@ log = logging.getLogger("cablecal.jobs")
 PROGRESS_STORE_INTERVAL_S = 0.5
 #: The error of a job whose worker process died under it (killed, out of memory).
 WORKER_DIED = "the worker process died (killed or out of memory); the job can be started again"
-
-
-class JobError(ValueError):
-    """A job request cannot run (names the field)."""
-
-
-class _Checked(NamedTuple):
-    """A checked job request: the samples and their ids, the robot and the options."""
-
-    samples: SampleSet
-    sample_ids: list[int]
-    robot_id: int
-    model: RobotModel
-    options: dict[str, Any]
-
-
-class JobsFull(RuntimeError):
-    """``max_pending`` jobs are queued or running (a 429)."""
-
-
-class _Prepared(NamedTuple):
-    """A checked job with its inputs as plain lists: the campaign and robot, the options, the
-    samples' ids, and the model mapping, joints [deg] (n x 6), lengths [mm] (n), anchors (n)
-    and capture times [s] (n, or None) of :func:`run_identification`."""
-
-    campaign_id: int
-    robot_id: int
-    options: dict[str, Any]
-    sample_ids: list[int]
-    inputs: tuple[Any, ...]
 
 
 class JobManager:
@@ -182,11 +157,12 @@ class JobManager:
                 self._manager.shutdown()
 
     # ------------------------------------------------------------------ submit / cancel
-    def check(self, campaign_id: int, options: Mapping[str, Any]) -> _Checked:
-        """What an identification of the campaign's included samples with ``options`` would
-        run on, after the one rule of what can run (:func:`calib.options.validate`: options,
-        training rows, each anchor's training rows). ``submit`` and the readiness route both
-        ask it, so what is called ready is what is accepted.
+    def check(self, campaign_id: int, options: Mapping[str, Any]) -> Checked:
+        """:func:`daemon.job_worker.check_job` on this daemon's store and settings: what an
+        identification of the campaign's included samples would run on, after the one rule
+        of what can run. The POST and the readiness route both ask it (in a worker thread,
+        or a worker process for a large campaign: :func:`daemon.job_worker.prepare_in_child`),
+        so what is called ready is what is accepted.
 
         Raises
         ------
@@ -195,56 +171,17 @@ class JobManager:
         daemon.store.StoreNotFound
             No such campaign.
         """
-        from calib.options import OptionError, options_from_mapping, validate
-        from calib.split import split_rows
+        return check_job(self.store, self.settings.noise_mm, campaign_id, options)
 
-        campaign = self.store.get_campaign(campaign_id)
-        if campaign is None:
-            raise StoreNotFound("campaign", campaign_id)
-        opts = dict(options)
-        if self.settings.noise_mm is not None:
-            opts.setdefault("noise_mm", self.settings.noise_mm)
-        samples, sample_ids = self.store.sample_set(campaign_id)
-        robot_id = int(campaign["robot_id"])
-        model = self.store.robot_model(robot_id)
-        try:
-            parsed = options_from_mapping(opts)
-            # The rows identify will train on (its own split), so each anchor's count is the
-            # one the job would see.
-            train_rows = split_rows(
-                samples, parsed.test_fraction, parsed.seed, parsed.holdout, parsed.n_groups
-            )[0]
-            validate(samples, parsed, train_rows, model=model)
-        except OptionError as exc:
-            raise JobError(str(exc)) from exc
-        except (TypeError, ValueError) as exc:
-            raise JobError(f"campaign {campaign_id}: {exc}") from exc
-        return _Checked(samples, sample_ids, robot_id, model, opts)
-
-    def prepare(self, campaign_id: int, options: Mapping[str, Any]) -> _Prepared:
-        """:meth:`check` and the job's inputs as plain lists, ready for :meth:`enqueue`; the
-        CPU-heavy half of a submission (a large campaign takes seconds), so it runs in a
-        worker thread, never on the event loop.
+    def prepare(self, campaign_id: int, options: Mapping[str, Any]) -> Prepared:
+        """:meth:`check` and the job's inputs, ready for :meth:`enqueue` (in a worker thread).
 
         Raises
         ------
         JobError, daemon.store.StoreNotFound
             As :meth:`check`.
         """
-        samples, sample_ids, robot_id, model, opts = self.check(campaign_id, options)
-        return _Prepared(
-            campaign_id,
-            robot_id,
-            opts,
-            sample_ids,
-            (
-                model.to_dict(),
-                samples.joints_deg.tolist(),
-                samples.length_mm.tolist(),
-                list(samples.anchor),
-                None if samples.t_s is None else samples.t_s.tolist(),
-            ),
-        )
+        return prepare_job(self.store, self.settings.noise_mm, campaign_id, options)
 
     def full(self) -> str | None:
         """Why no further job may be queued (``max_pending`` jobs queued or running), or None."""
@@ -255,7 +192,7 @@ class JobManager:
             )
         return None
 
-    def enqueue(self, prepared: _Prepared) -> dict[str, Any]:
+    def enqueue(self, prepared: Prepared) -> dict[str, Any]:
         """Record a prepared job and queue it in the pool (on the event loop: quick).
 
         Raises

@@ -559,3 +559,34 @@ def test_a_program_of_targets_outside_the_limits_is_a_409(
     r = client.post(url + "?format=fanuc-ls", json=rows, headers=AUTH)
     assert r.status_code == 409, r.text
     assert f"target {flagged[0] + 1}" in r.json()["detail"]
+
+
+def test_a_large_campaign_is_checked_and_submitted_in_a_worker_process(
+    client: TestClient, calibrated: dict[str, int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Above CHILD_CHECK_SAMPLES (set to 0 here) the check and the snapshot run in a worker
+    process on the store opened read-only: readiness and the POST agree, the job runs."""
+    from daemon.api.routes import identifications
+
+    monkeypatch.setattr(identifications, "CHILD_CHECK_SAMPLES", 0)
+    cid = calibrated["campaign_id"]
+    url = f"{API}/campaigns/{cid}/identification-readiness"
+    assert client.get(url, headers=AUTH).json()["ready"] is True
+    r = client.get(url, params={"test_fraction": 0.99}, headers=AUTH)
+    assert r.status_code == 200 and r.json()["ready"] is False and r.json()["reason"]
+    r = client.post(
+        f"{API}/campaigns/{cid}/identifications",
+        json={"method": "lm", "test_fraction": 0.99},
+        headers=AUTH,
+    )
+    assert r.status_code == 409, r.text
+    r = client.post(f"{API}/campaigns/{cid}/identifications", json={"method": "lm"}, headers=AUTH)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    deadline = time.monotonic() + 120
+    while (job := client.get(f"{API}/identifications/{job_id}", headers=AUTH).json())[
+        "status"
+    ] not in ("succeeded", "failed", "cancelled"):
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    assert job["status"] == "succeeded", job

@@ -26,8 +26,9 @@ from daemon.api.errors import error_responses
 from daemon.api.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
-from daemon.jobs import JobError, JobsFull
+from daemon.job_worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
 from daemon.store import JobState
+from daemon.workers import run_in_child
 
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
 #: many samples: the answer is then null, not a long search).
@@ -107,12 +108,8 @@ async def readiness(
     n = int(row["n_included"])
     n_test = held_out(n, test_fraction)
     options = {"test_fraction": test_fraction, "holdout": holdout, "seed": seed}
-
-    async def check() -> None:
-        await asyncio.to_thread(state.jobs.check, campaign_id, options)
-
     try:  # the rule POST applies (the job manager's check), per anchor included
-        await offload(request, state.gates["check"], check, cancel_on_leave=False)
+        await _checked(state, request, campaign_id, options, n, check_only=True)
         reason = None
     except JobError as exc:
         reason = str(exc)
@@ -128,6 +125,35 @@ async def readiness(
         "ready": reason is None,
         "reason": reason,
     }
+
+
+async def _checked(
+    state: State,
+    request: Request,
+    campaign_id: int,
+    options: dict[str, Any],
+    n_samples: int,
+    check_only: bool,
+) -> Any:
+    """The job manager's check (``check_only``: None) or prepared job, behind the check gate:
+    in a worker thread for a campaign of at most :data:`CHILD_CHECK_SAMPLES` samples, else in
+    a worker process (killed when the client leaves), so the event loop keeps the GIL."""
+    if n_samples <= CHILD_CHECK_SAMPLES:
+        run = state.jobs.check if check_only else state.jobs.prepare
+
+        async def in_thread() -> Any:
+            return await asyncio.to_thread(run, campaign_id, options)
+
+        return await offload(request, state.gates["check"], in_thread, cancel_on_leave=False)
+    s, path = state.settings.jobs, str(state.settings.database_path)
+    args = (path, s.noise_mm, campaign_id, options, check_only)
+
+    async def in_child() -> Any:
+        return await run_in_child(
+            prepare_in_child, *args, nice=s.worker_nice, blas_threads=s.worker_blas_threads
+        )
+
+    return await offload(request, state.gates["check"], in_child)
 
 
 @router.post(
@@ -154,12 +180,9 @@ async def start(
     if why := state.jobs.full():
         raise HTTPException(429, why, headers=retry)
     options = body.to_options()
-
-    async def prepare() -> Any:
-        return await asyncio.to_thread(state.jobs.prepare, campaign_id, options)
-
+    n = int(state.store.campaign(campaign_id)["n_included"])  # 404 first
     try:
-        prepared = await offload(request, state.gates["check"], prepare, cancel_on_leave=False)
+        prepared = await _checked(state, request, campaign_id, options, n, check_only=False)
         job = state.jobs.enqueue(prepared)
     except JobError as exc:  # the request is well formed; the campaign's state refuses it
         raise HTTPException(409, str(exc)) from exc
