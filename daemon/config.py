@@ -87,6 +87,35 @@ class JobSettings(BaseModel):
     auto_accept: bool = True
     """Accept a succeeded job's model as the robot's calibrated model when its parameters
     are physically plausible; otherwise it waits for ``POST /identifications/{id}/accept``."""
+    max_pending: Annotated[int, Field(ge=1, le=1000)] = 8
+    """Jobs queued or running at once; a further ``POST .../identifications`` is a 429 (each
+    pending job holds its campaign's samples)."""
+
+
+class RequestSettings(BaseModel):
+    """Bounds of the work requests cause, the ``[requests]`` section (:mod:`daemon.api.offload`,
+    :mod:`daemon.store.space`): the sampler's poll loop shares the machine with them."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_filters: Annotated[int, Field(ge=1, le=16)] = 1
+    """Program filters (``POST /robots/{id}/filter``) running at once, each in a worker process
+    of its own (a 16 MiB upload needs up to about 1 GiB while it runs)."""
+    max_queued_filters: Annotated[int, Field(ge=0, le=64)] = 2
+    """Filters waiting for a free worker; a further one is a 429 with Retry-After."""
+    max_checks: Annotated[int, Field(ge=1, le=16)] = 1
+    """Identification checks and submissions (``POST .../identifications``, the readiness
+    route), CSV imports and exports and compensations running at once, each in a thread."""
+    max_queued_checks: Annotated[int, Field(ge=0, le=256)] = 8
+    """Such work waiting for its turn; a further request is a 429 with Retry-After."""
+    retry_after_s: Annotated[int, Field(ge=1, le=3600)] = 5
+    """The ``Retry-After`` of a 429 for work that is full [s]."""
+    disk_reserve_mb: Annotated[float, Field(ge=0, le=1_000_000)] = 512.0
+    """Free space [MiB] kept on the state directory's file system: a write that would leave
+    less is refused with 507 before anything is written (0: no reserve)."""
+    send_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 30.0
+    """A client that reads none of a response for this long [s] is disconnected (its
+    buffered response freed)."""
 
 
 class HoldCheckSettings(BaseModel):
@@ -189,6 +218,7 @@ class Settings(BaseSettings):
     """The joint-angle source; ``kind`` manual (default) or a key of :data:`drivers.ROBOT_KINDS`
     (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
+    requests: RequestSettings = RequestSettings()
     drift: HoldCheckSettings = HoldCheckSettings()
     watch: WatchSettings = WatchSettings()
     debug_routes: bool = False

@@ -37,122 +37,30 @@ from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any
 
 from calib.options import default as default_option
 from daemon import metrics
 from daemon.config import JobSettings
+from daemon.job_worker import (
+    FINAL_PROGRESS,
+    Checked,
+    JobsFull,
+    Prepared,
+    check_job,
+    noop,
+    prepare_job,
+    run_identification,
+)
 from daemon.store import JOB_FINISHED, JobState, StoreNotFound
 from daemon.workers import init_child
 
-if TYPE_CHECKING:
-    from calib.dataset import SampleSet
-    from calib.models import RobotModel
-
 log = logging.getLogger("cablecal.jobs")
 
-#: Seconds between progress messages a worker sends (the last one is always sent).
-PROGRESS_INTERVAL_S = 0.2
 #: Seconds between two commits of progress to the store (the newest message of each job).
 PROGRESS_STORE_INTERVAL_S = 0.5
 #: The error of a job whose worker process died under it (killed, out of memory).
 WORKER_DIED = "the worker process died (killed or out of memory); the job can be started again"
-#: Key of the worker's result that carries its final ``[iteration, cost_rms_mm]``.
-_FINAL_PROGRESS = "_final_progress"
-
-
-class JobError(ValueError):
-    """A job request cannot run (names the field)."""
-
-
-class _Checked(NamedTuple):
-    """A checked job request: the samples and their ids, the robot and the options."""
-
-    samples: SampleSet
-    sample_ids: list[int]
-    robot_id: int
-    model: RobotModel
-    options: dict[str, Any]
-
-
-def _noop() -> int:
-    return 0
-
-
-def run_identification(
-    job_id: int,
-    model_mapping: dict[str, Any],
-    joints_deg: list[list[float]],
-    length_mm: list[float],
-    anchors: list[str],
-    options: dict[str, Any],
-    progress_queue: Any,
-    cancel_flags: Any,
-    t_s: list[float] | None = None,
-) -> dict[str, Any]:
-    """Worker-side body of a job (runs in a pool process).
-
-    Parameters
-    ----------
-    job_id : int
-    model_mapping : dict
-        Nominal model, as :func:`calib.models.model_from_mapping` reads it.
-    joints_deg : list of n lists of 6 floats
-        Joint angles [deg].
-    length_mm : list of n floats
-        Cable lengths [mm].
-    anchors : list of n str
-        Anchor id per sample.
-    options : dict
-        Keyword arguments of :class:`calib.options.IdentifyOptions`.
-    progress_queue, cancel_flags
-        Manager proxies: ``(job_id, fraction, message, iteration, cost_rms_mm)`` tuples go
-        out (the last two None until the solver finishes its first iteration);
-        ``cancel_flags[job_id]`` set true asks the job to stop.
-    t_s : list of n floats, optional
-        Capture time of each sample [s] (:meth:`daemon.store.Store.sample_set`), for the
-        drift model; None: the row order.
-
-    Returns
-    -------
-    dict
-        The ``result.json`` contract of :meth:`calib.identify.IdentifyResult.to_json`.
-    """
-    from calib.dataset import make_samples
-    from calib.identify import identify
-    from calib.models import model_from_mapping
-    from calib.options import options_from_mapping
-    from calib.solvers.common import Cancelled
-
-    model = model_from_mapping(model_mapping)
-    samples = make_samples(joints_deg, length_mm, anchors, t_s=t_s)  # t_s: for the drift model
-    opts = options_from_mapping(options)
-    progress_queue.put((job_id, 0.0, "started", None, None))
-    last = [time.monotonic()]
-    newest: list[Any] = [None, None]  # the newest (iteration, cost_rms_mm), kept between sends
-
-    def progress(
-        fraction: float,
-        message: str,
-        /,
-        *,
-        cost_rms_mm: float | None = None,
-        iteration: int | None = None,
-    ) -> None:
-        if cancel_flags.get(job_id):
-            raise Cancelled(f"job {job_id} cancelled")
-        if cost_rms_mm is not None and iteration is not None:
-            newest[:] = [int(iteration), float(cost_rms_mm)]
-        now = time.monotonic()
-        if now - last[0] >= PROGRESS_INTERVAL_S or fraction >= 1.0:
-            last[0] = now
-            progress_queue.put((job_id, float(fraction), message, *newest))
-
-    out = identify(model, samples, opts, progress=progress, clock=time.perf_counter).to_json()
-    # The newest iteration and cost, for the job row (the last queued message may arrive
-    # after the job is marked finished and is then dropped).
-    out[_FINAL_PROGRESS] = list(newest)
-    return out
 
 
 class JobManager:
@@ -191,7 +99,17 @@ class JobManager:
         self._stopping.clear()
         ctx = multiprocessing.get_context("forkserver")
         # daemon.forkserver_guard: the forkserver kills and reaps its children if we die.
-        ctx.set_forkserver_preload(["calib.identify", "daemon.jobs", "daemon.forkserver_guard"])
+        # The program filter's worker processes (daemon.workers.run_in_child) fork from it too.
+        ctx.set_forkserver_preload(
+            [
+                "calib.identify",
+                "daemon.jobs",
+                "daemon.job_worker",
+                "daemon.forkserver_guard",
+                "calib.filter.run",
+                "daemon.api.routes.program_filter",
+            ]
+        )
         child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)
         manager = SyncManager(ctx=ctx)
         manager.start(initializer=init_child, initargs=child_args)
@@ -200,7 +118,7 @@ class JobManager:
         self._cancel = manager.dict()
         self._pool = self._new_pool()
         # Warm the workers up now rather than in the first job.
-        await asyncio.wrap_future(self._pool.submit(_noop))
+        await asyncio.wrap_future(self._pool.submit(noop))
         self._pump = asyncio.create_task(self._pump_progress(), name="job-progress")
 
     def _new_pool(self) -> ProcessPoolExecutor:
@@ -239,11 +157,12 @@ class JobManager:
                 self._manager.shutdown()
 
     # ------------------------------------------------------------------ submit / cancel
-    def check(self, campaign_id: int, options: Mapping[str, Any]) -> _Checked:
-        """What an identification of the campaign's included samples with ``options`` would
-        run on, after the one rule of what can run (:func:`calib.options.validate`: options,
-        training rows, each anchor's training rows). ``submit`` and the readiness route both
-        ask it, so what is called ready is what is accepted.
+    def check(self, campaign_id: int, options: Mapping[str, Any]) -> Checked:
+        """:func:`daemon.job_worker.check_job` on this daemon's store and settings: what an
+        identification of the campaign's included samples would run on, after the one rule
+        of what can run. The POST and the readiness route both ask it (in a worker thread,
+        or a worker process for a large campaign: :func:`daemon.job_worker.prepare_in_child`),
+        so what is called ready is what is accepted.
 
         Raises
         ------
@@ -252,64 +171,65 @@ class JobManager:
         daemon.store.StoreNotFound
             No such campaign.
         """
-        from calib.options import OptionError, options_from_mapping, validate
-        from calib.split import split_rows
+        return check_job(self.store, self.settings.noise_mm, campaign_id, options)
 
-        campaign = self.store.get_campaign(campaign_id)
-        if campaign is None:
-            raise StoreNotFound("campaign", campaign_id)
-        opts = dict(options)
-        if self.settings.noise_mm is not None:
-            opts.setdefault("noise_mm", self.settings.noise_mm)
-        samples, sample_ids = self.store.sample_set(campaign_id)
-        robot_id = int(campaign["robot_id"])
-        model = self.store.robot_model(robot_id)
-        try:
-            parsed = options_from_mapping(opts)
-            # The rows identify will train on (its own split), so each anchor's count is the
-            # one the job would see.
-            train_rows = split_rows(
-                samples, parsed.test_fraction, parsed.seed, parsed.holdout, parsed.n_groups
-            )[0]
-            validate(samples, parsed, train_rows, model=model)
-        except OptionError as exc:
-            raise JobError(str(exc)) from exc
-        except (TypeError, ValueError) as exc:
-            raise JobError(f"campaign {campaign_id}: {exc}") from exc
-        return _Checked(samples, sample_ids, robot_id, model, opts)
-
-    def submit(self, campaign_id: int, options: Mapping[str, Any]) -> dict[str, Any]:
-        """Queue an identification of the campaign's included samples (:meth:`check` first).
+    def prepare(self, campaign_id: int, options: Mapping[str, Any]) -> Prepared:
+        """:meth:`check` and the job's inputs, ready for :meth:`enqueue` (in a worker thread).
 
         Raises
         ------
-        JobError
-            Bad options (the message names the option) or too few samples.
-        daemon.store.StoreNotFound
-            No such campaign.
+        JobError, daemon.store.StoreNotFound
+            As :meth:`check`.
         """
-        samples, sample_ids, robot_id, model, opts = self.check(campaign_id, options)
-        job = self.store.create_job(
-            campaign_id, robot_id, str(opts.get("method", default_option("method"))), opts
-        )
-        job_id = int(job["id"])
+        return prepare_job(self.store, self.settings.noise_mm, campaign_id, options)
+
+    def full(self) -> str | None:
+        """Why no further job may be queued (``max_pending`` jobs queued or running), or None."""
+        if self.active >= self.settings.max_pending:
+            return (
+                f"{self.active} identification jobs queued or running, the most [jobs] "
+                "max_pending allows; retry once one has finished"
+            )
+        return None
+
+    def enqueue(self, prepared: Prepared) -> dict[str, Any]:
+        """Record a prepared job and queue it in the pool (on the event loop: quick).
+
+        Raises
+        ------
+        JobsFull
+            ``max_pending`` jobs are already queued or running.
+        """
+        if why := self.full():
+            raise JobsFull(why)
         if self._pool is None:
             raise RuntimeError("job manager not started")
+        opts = prepared.options
+        job = self.store.create_job(
+            prepared.campaign_id,
+            prepared.robot_id,
+            str(opts.get("method", default_option("method"))),
+            opts,
+        )
+        job_id = int(job["id"])
         self._renew_broken_pool()
+        model, joints, lengths, anchors, t_s = prepared.inputs
         future = self._pool.submit(
             run_identification,
             job_id,
-            model.to_dict(),
-            samples.joints_deg.tolist(),
-            samples.length_mm.tolist(),
-            list(samples.anchor),
+            model,
+            joints,
+            lengths,
+            anchors,
             opts,
             self._progress,
             self._cancel,
-            None if samples.t_s is None else samples.t_s.tolist(),
+            t_s,
         )
         self._futures[job_id] = future
-        self._tasks[job_id] = asyncio.create_task(self._watch(job_id, future, sample_ids, opts))
+        self._tasks[job_id] = asyncio.create_task(
+            self._watch(job_id, future, prepared.sample_ids, opts)
+        )
         return dict(job)
 
     def cancel(self, job_id: int) -> dict[str, Any]:
@@ -388,7 +308,7 @@ class JobManager:
         when it is plausible and the robot has none yet (runs in a thread). With
         ``sample_ids`` (the samples identified), the result says whether they followed the
         campaign's plan (:mod:`daemon.plan_check`)."""
-        iteration, cost = result.pop(_FINAL_PROGRESS, None) or (None, None)
+        iteration, cost = result.pop(FINAL_PROGRESS, None) or (None, None)
         if iteration is not None and cost is not None:
             with self._row_lock:
                 self.store.update_job(job_id, iteration=int(iteration), cost_rms_mm=float(cost))

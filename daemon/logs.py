@@ -122,7 +122,9 @@ class JsonLinesFormatter(logging.Formatter):
             line["exc_info"] = self.formatException(record.exc_info)
         if record.stack_info:
             line["stack_info"] = self.formatStack(record.stack_info)
-        text = json.dumps(line, ensure_ascii=False, default=str)
+        # ASCII only: a name or a note with a bidi override or a line separator cannot
+        # reorder or split a log line on a terminal or in the journal.
+        text = json.dumps(line, ensure_ascii=True, default=str)
         return f"<{_syslog_priority(record.levelno)}>{text}" if self.syslog_prefix else text
 
 
@@ -144,7 +146,8 @@ class HumanFormatter(logging.Formatter):
             text += "\n" + self.formatException(record.exc_info)
         if record.stack_info:
             text += "\n" + self.formatStack(record.stack_info)
-        return text
+        # ASCII only, as the JSON lines: any other character as a backslash escape.
+        return text.encode("ascii", "backslashreplace").decode("ascii")
 
 
 def setup_logging(

@@ -270,3 +270,90 @@ def child_state() -> dict[str, Any]:
         "threads": {str(i.get("internal_api")): int(i["num_threads"]) for i in threadpool_info()},
         "watchdog": any(t.name == "cablecal-parent-watch" for t in threading.enumerate()),
     }
+
+
+class ChildFailed(RuntimeError):
+    """The work of :func:`run_in_child` raised something that is not an answer to the client
+    (a bug, or memory exhausted); the message names its type."""
+
+
+def _child_main(conn: Any, fn: Any, args: tuple[Any, ...], nice: int, blas_threads: int) -> None:
+    """Body of a :func:`run_in_child` process: the set-up of :func:`init_child`, then
+    ``fn(*args)``; sends ``("ok", value)``, ``("raise", exception)`` for an exception that
+    pickles (an HTTP error of the request), else ``("error", message)``."""
+    import pickle
+
+    init_child(nice, blas_threads)
+    try:
+        reply: tuple[str, Any] = ("ok", fn(*args))
+    except BaseException as exc:  # the daemon decides; this process only reports
+        try:
+            pickle.loads(pickle.dumps(exc))
+            reply = ("raise", exc)
+        except Exception:
+            reply = ("error", f"{type(exc).__name__}: {exc}")
+    try:
+        conn.send(reply)
+    except Exception as exc:  # a result that cannot be pickled or is too large
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    conn.close()
+
+
+async def run_in_child(fn: Any, *args: Any, nice: int = 10, blas_threads: int = 1) -> Any:
+    """``fn(*args)`` in a process of its own, forked by the ``forkserver`` (the one of the
+    identification pool, with its preloaded modules), set up as :func:`init_child` (dies with
+    the daemon, ``nice``, BLAS threads): the daemon's event loop, which polls the indicator,
+    neither waits for the work nor shares its GIL, and the memory the work used is returned
+    to the system when it ends. ``fn`` must be importable by name (a module-level function).
+
+    Cancelled (the client left, shutdown): the process is killed at once (SIGKILL) and
+    reaped, and the cancel is raised on.
+
+    Raises
+    ------
+    Exception
+        What ``fn`` raised, when it pickles (e.g. an HTTP error naming the field).
+    ChildFailed
+        Anything else: an exception that does not pickle, or the process died (killed, out of
+        memory).
+    """
+    import asyncio
+
+    ctx = multiprocessing.get_context("forkserver")
+    receiver, sender = ctx.Pipe(duplex=False)
+    proc = ctx.Process(
+        target=_child_main, args=(sender, fn, args, nice, blas_threads), name="cablecal-work"
+    )
+    # Started (which pickles the arguments) and waited for in a worker thread.
+    work = asyncio.ensure_future(asyncio.to_thread(_start_and_receive, proc, sender, receiver))
+    try:
+        kind, value = await asyncio.shield(work)
+    except asyncio.CancelledError:
+        while not work.done():  # kill it (once started); the thread then reads EOF and ends
+            if proc.pid is not None and proc.exitcode is None:
+                proc.kill()
+            await asyncio.wait({work}, timeout=0.05)
+        raise
+    finally:
+        if proc.pid is not None:
+            await asyncio.to_thread(proc.join, REAP_TIMEOUT_S)
+    if kind == "ok":
+        return value
+    if kind == "raise":
+        raise value
+    raise ChildFailed(str(value))
+
+
+def _start_and_receive(proc: Any, sender: Any, receiver: Any) -> tuple[str, Any]:
+    """Start ``proc`` and wait for its reply (in a worker thread, not the event loop)."""
+    try:
+        proc.start()
+        sender.close()  # the child holds the only write end: its death is an EOF here
+        reply: tuple[str, Any] = receiver.recv()
+        return reply
+    except EOFError:
+        proc.join(REAP_TIMEOUT_S)
+        return "error", f"the worker process died (exit status {proc.exitcode})"
+    finally:
+        sender.close()
+        receiver.close()

@@ -18,7 +18,13 @@ from typing import Any
 import pytest
 from pydantic import BaseModel
 
-from daemon.config import HoldCheckSettings, JobSettings, Settings, WatchSettings
+from daemon.config import (
+    HoldCheckSettings,
+    JobSettings,
+    RequestSettings,
+    Settings,
+    WatchSettings,
+)
 from daemon.sampler import SamplerConfig
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig
 from drivers.indicator import RegisterMap
@@ -103,6 +109,27 @@ def test_unit_has_the_required_settings() -> None:
     assert sorted(d["Service.DeviceAllow"]) == ["char-ttyACM rw", "char-ttyUSB rw"]
     assert "Service.PrivateDevices" not in d
     assert one("Install.WantedBy") == "multi-user.target"
+
+
+def _bytes(value: str) -> int:
+    """A systemd memory size (``2G``, ``512M``, bytes) in bytes."""
+    units = {"K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
+    if value[-1:].upper() in units:
+        return int(float(value[:-1]) * units[value[-1].upper()])
+    return int(value)
+
+
+def test_unit_bounds_the_memory_with_its_reason() -> None:
+    """MemoryHigh= (throttle) below MemoryMax= (the OOM killer), both above what the daemon
+    and its workers need at the default [requests] and [jobs] settings, and the reason
+    written beside them."""
+    d = directives(UNIT)
+    high, top = _bytes(d["Service.MemoryHigh"][0]), _bytes(d["Service.MemoryMax"][0])
+    assert len(d["Service.MemoryHigh"]) == len(d["Service.MemoryMax"]) == 1
+    assert 1024**3 <= high < top <= 8 * 1024**3
+    text = UNIT.read_text()
+    comment = text[: text.index("\nMemoryHigh=")].rsplit("\n\n", 1)[-1]
+    assert "OOM" in comment and "max_filters" in comment, comment
 
 
 @needs_systemd_analyze
@@ -405,7 +432,7 @@ def block_models(block: Block, defaults: Settings) -> dict[str, BaseModel]:
     kind = block.kind
     if block.section == "":
         return {"": defaults}
-    if block.section in ("sampler", "jobs", "drift", "watch"):
+    if block.section in ("sampler", "jobs", "requests", "drift", "watch"):
         return {"": getattr(defaults, block.section)}
     if block.section == "indicator":
         main: BaseModel = {
@@ -463,11 +490,12 @@ def test_example_mentions_every_setting() -> None:
     def keys(model: type[BaseModel]) -> set[str]:
         return set(model.model_fields)
 
-    tables = {"sampler", "jobs", "drift", "watch", "indicator", "robot"}
+    tables = {"sampler", "jobs", "requests", "drift", "watch", "indicator", "robot"}
     expected = {
         ("", ""): keys(Settings) - tables,
         ("sampler", ""): keys(SamplerConfig),
         ("jobs", ""): keys(JobSettings),
+        ("requests", ""): keys(RequestSettings),
         ("drift", ""): keys(HoldCheckSettings),
         ("watch", ""): keys(WatchSettings),
         ("indicator", ""): (keys(IndicatorConfig) | keys(AsciiIndicatorConfig)) - {"registers"},

@@ -15,10 +15,12 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
 from daemon.api.min_samples import MinSamplesCache
+from daemon.api.offload import WorkGate
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store
 from daemon.store.db import MAX_PAGE_ROWS
+from daemon.store.space import MIB, check_space
 
 
 @dataclass
@@ -43,6 +45,8 @@ class AppState:
         lifespan has started the sampler.
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
+    gates : dict of str to WorkGate
+        The bounds of heavy request work by kind (:func:`daemon.api.offload.gates_of`).
     """
 
     settings: Settings
@@ -55,6 +59,14 @@ class AppState:
     watch: Any = None  # daemon.watch.SensorWatch, None until the lifespan has started it
     auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
+    gates: dict[str, WorkGate] = field(default_factory=dict)
+
+
+def require_space(state: AppState, payload_bytes: int, what: str) -> None:
+    """Refuse (507) a write of about ``payload_bytes`` to the store that would leave less free
+    space than the ``[requests] disk_reserve_mb`` reserve (:mod:`daemon.store.space`)."""
+    reserve = int(state.settings.requests.disk_reserve_mb * MIB)
+    check_space(state.settings.database_path.parent, reserve, payload_bytes, what)
 
 
 def get_state(request: Request) -> AppState:
@@ -209,6 +221,29 @@ def page(
 
 
 Paged = Annotated[Page, Depends(page)]
+
+#: Rows of a list page of large rows (campaigns with their notes, jobs with their options):
+#: the most a client may ask for, and the default. 500 campaigns with the longest notes are
+#: about 20 MB.
+LARGE_PAGE_MAX: Final = 500
+
+
+def large_page(
+    after_id: int = Query(
+        0, ge=0, le=MAX_ID, description="Only rows with a larger id (the cursor of the next page)"
+    ),
+    limit: int = Query(
+        LARGE_PAGE_MAX,
+        ge=1,
+        le=LARGE_PAGE_MAX,
+        description=f"Rows per page (at most {LARGE_PAGE_MAX})",
+    ),
+) -> Page:
+    """The ``after_id`` and ``limit`` of a list route of large rows."""
+    return Page(after_id, limit)
+
+
+PagedLarge = Annotated[Page, Depends(large_page)]
 
 
 def link_next(

@@ -28,6 +28,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from daemon.api.methods import allow_header
 from daemon.store import StoreInvalid, StoreNotFound
+from daemon.store.space import NoSpace
 
 #: REST names of the store's row kinds where they differ (a job is an "identification").
 API_KINDS = {"job": "identification"}
@@ -81,7 +82,9 @@ _DESCRIPTIONS = {
     413: "Request body over the limit",
     415: "Request body of a Content-Type the route does not read (names the one expected)",
     422: "Validation error: the list of problems, each with its location",
-    503: "A device or the sampler is not available",
+    429: "Too much of this work running or waiting; retry after Retry-After seconds",
+    503: "A device or the sampler is not available, or the daemon is shutting down",
+    507: "Refused before anything was written: the disk's free space is at the reserve",
 }
 
 
@@ -150,6 +153,11 @@ def install(app: FastAPI) -> None:
         """The one not-found path: whatever the store (or the job manager) cannot find is a
         404 ``{"detail": "<kind> <id>: not found"}``; the routes do not check first."""
         return JSONResponse({"detail": _text(not_found_detail(exc))}, status_code=404)
+
+    @app.exception_handler(NoSpace)
+    async def _no_space(request: Request, exc: NoSpace) -> JSONResponse:
+        """The free-space guard refused a write before it began: 507 with the reason."""
+        return JSONResponse({"detail": _text(exc)}, status_code=507)
 
     @app.exception_handler(StoreInvalid)
     async def _store_invalid(request: Request, exc: StoreInvalid) -> JSONResponse:

@@ -11,6 +11,8 @@ decided:
 - **Body time.** A body that pauses for :data:`BODY_GAP_TIMEOUT_S` or is not complete
   within :data:`BODY_TIMEOUT_S` is a 408, and the connection closes (a client holding partial
   bodies open cannot pile up connections; :mod:`daemon.api.server` bounds the request head).
+- **Unread bodies.** A response sent before the body was read to its end (a refusal after
+  the body's first bytes) closes the connection: the rest is neither parsed nor waited for.
 - **Body limits while streaming.** A ``Content-Length`` over the limit is refused at once; a
   body without one (chunked) is counted as it arrives and refused with 413 as soon as the
   count passes the limit, so at most one chunk beyond the limit is ever held.
@@ -58,6 +60,9 @@ _FILTER_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/filter/?")
 HEALTH_PATH: Final = API_PREFIX + "/health"
 _OPEN_PATHS = frozenset({HEALTH_PATH})
 _READ_METHODS = frozenset({"GET", "HEAD"})
+
+#: The header that ends a connection after its response.
+CLOSE: Final = (b"connection", b"close")
 
 UNAUTHORIZED_DETAIL: Final = (
     "missing or wrong bearer token (Authorization: Bearer <CABLECAL_API_TOKEN>)"
@@ -180,7 +185,19 @@ class RequestGuard:
                 body_done = True
             return message
 
-        await self.app(scope, counted, send)
+        # A body the route answered before reading all of it (a refusal after its first
+        # bytes) is not read on: the answer closes the connection, so the server neither
+        # parses nor waits for the rest.
+        has_body = (declared is not None and int(declared) > 0) or (
+            "chunked" in headers.get("transfer-encoding", "").lower()
+        )
+
+        async def closing(message: Message) -> None:
+            if message["type"] == "http.response.start" and has_body and not body_done:
+                message = {**message, "headers": [*message.get("headers", ()), CLOSE]}
+            await send(message)
+
+        await self.app(scope, counted, closing)
 
 
 async def _reply(send: Send, status: int, detail: str, extra: dict[str, str] | None = None) -> None:

@@ -17,6 +17,7 @@ from fastapi import FastAPI
 
 from daemon.api.deps import AppState
 from daemon.api.min_samples import MinSamplesCache
+from daemon.api.offload import gates_of
 from daemon.autocapture import AutoCapture
 from daemon.config import Settings
 from daemon.holdcheck import HoldCheckMonitor
@@ -44,6 +45,7 @@ def build_state(settings: Settings, token: str) -> AppState:
         store=store,
         jobs=JobManager(store, settings.jobs),
         min_samples=MinSamplesCache(store),
+        gates=gates_of(settings),
     )
 
 
@@ -106,6 +108,8 @@ def make_lifespan(
             sys.setswitchinterval(SWITCH_INTERVAL_S)
             yield
         finally:
+            for gate in state.gates.values():
+                gate.close()  # from now on heavy work is a 503
             if state.drift is not None:
                 await state.drift.stop()
             if state.watch is not None:

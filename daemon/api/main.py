@@ -17,6 +17,7 @@ from daemon.api.guard import API_PREFIX, RequestGuard
 from daemon.api.latency import LatencyMiddleware
 from daemon.api.lifespan import make_lifespan
 from daemon.api.methods import OptionsMiddleware
+from daemon.api.offload import CancelledIs503
 from daemon.api.routes import (
     campaigns,
     check_poses,
@@ -63,6 +64,7 @@ def create_app(
     )
     app.add_middleware(LatencyMiddleware, prefix=API_PREFIX)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token
+    app.add_middleware(CancelledIs503)  # cancelled at shutdown: 503, not uvicorn's 500
     for module in (
         system,
         live,

@@ -12,6 +12,8 @@ and a file descriptor each. The bounds, each at the layer that sees it:
 - **Request body**: :class:`daemon.api.guard.RequestGuard` answers 408 when a started body
   stalls for :data:`daemon.api.guard.BODY_GAP_TIMEOUT_S` or is not complete within
   :data:`daemon.api.guard.BODY_TIMEOUT_S`.
+- **Slow readers**: a client that reads none of a response for ``send_timeout_s`` (the
+  ``[requests]`` setting) is disconnected, and the response's buffer freed.
 - **Connections per client**: one peer address holds at most ``max_connections_per_client``
   connections at once (the setting in :mod:`daemon.config`); a further one is answered 503
   and closed at once, so a few clients cannot take every connection.
@@ -36,6 +38,7 @@ import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from daemon.api.guard import HEALTH_PATH
+from daemon.config import RequestSettings
 
 #: Time for a request line and headers to arrive, from the connection's start or its previous
 #: response [s].
@@ -68,17 +71,24 @@ def is_loopback(host: str | None) -> bool:
 
 class _HeadBoundConnection(h11.Connection):
     """h11's connection that also refuses a complete head over the limit (h11 bounds only an
-    incomplete one) and remembers the status a protocol error asks for."""
+    incomplete one) and remembers the status a protocol error asks for. The head's size is
+    every byte it took from the receive buffer, whitespace and line folding included (the
+    parsed fields alone would let a head padded with spaces through)."""
 
     error_status = 400
 
     def next_event(self) -> Any:
+        buffer = getattr(self, "_receive_buffer", None)  # h11's own (0.14 .. 0.16)
+        before = len(buffer) if buffer is not None else 0
         try:
             event = super().next_event()
         except h11.RemoteProtocolError as exc:
             self.error_status = exc.error_status_hint
             raise
-        if isinstance(event, h11.Request) and head_bytes(event) > MAX_HEAD_BYTES:
+        if not isinstance(event, h11.Request):
+            return event
+        taken = before - len(buffer) if buffer is not None else 0
+        if max(taken, head_bytes(event)) > MAX_HEAD_BYTES:
             self.error_status = 431
             raise h11.RemoteProtocolError("request head too large", error_status_hint=431)
         return event
@@ -116,6 +126,8 @@ class BoundedH11Protocol(H11Protocol):
     the connection caps (see the module). :func:`bounded_protocol` sets the per-client cap."""
 
     head_timeout_s: float = HEAD_TIMEOUT_S
+    # The setting's default; `cablecal serve` passes the configured one (uvicorn_options).
+    send_timeout_s: float = RequestSettings.model_fields["send_timeout_s"].default
     max_per_client: int = MAX_CONNECTIONS
     max_connections: int = MAX_CONNECTIONS
     reserve_connections: int = RESERVE_CONNECTIONS
@@ -184,12 +196,37 @@ class BoundedH11Protocol(H11Protocol):
         self.transport.write(self.conn.send(h11.EndOfMessage()) or b"")
         self.transport.close()
 
+    def pause_writing(self) -> None:
+        """The client stopped reading (the socket's buffer is full): it has ``send_timeout_s``
+        to read on before the connection is aborted and the response's buffer freed."""
+        super().pause_writing()
+        self._cancel_send_timer()
+        self._send_timer: asyncio.TimerHandle | None = self.loop.call_later(
+            self.send_timeout_s, self._send_timeout
+        )
+
+    def resume_writing(self) -> None:
+        super().resume_writing()
+        self._cancel_send_timer()
+
+    def _cancel_send_timer(self) -> None:
+        timer = getattr(self, "_send_timer", None)
+        if timer is not None:
+            timer.cancel()
+            self._send_timer = None
+
+    def _send_timeout(self) -> None:
+        self._send_timer = None
+        if self.flow is not None and self.flow.write_paused:
+            self.transport.abort()  # drops what is buffered; the app's send returns
+
     def on_response_complete(self) -> None:
         super().on_response_complete()
         self._arm_head_timer()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._cancel_head_timer()
+        self._cancel_send_timer()
         if getattr(self, "_counted", False):
             peers = self._peers()
             peers[self._peer] -= 1

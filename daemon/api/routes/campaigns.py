@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from typing import cast
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from calib.dataset import (
@@ -22,14 +24,18 @@ from daemon.api.deps import (
     AppState,
     CampaignId,
     Paged,
+    PagedLarge,
     ReadAuth,
     SampleId,
     State,
     WriteAuth,
     link_next,
+    require_space,
 )
 from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
+from daemon.api.guard import MAX_IMPORT_BYTES
+from daemon.api.offload import offload
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
@@ -57,10 +63,12 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
     status_code=status.HTTP_201_CREATED,
     summary="Create a campaign",
     dependencies=[WriteAuth],
+    responses=error_responses(507),
 )
-def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
+def create_campaign(state: State, request: Request, body: CampaignCreate) -> CampaignOut:
     """``robot_model`` is a built-in name or an uploaded model mapping; returns the campaign
-    with its ``id`` and ``robot_id``."""
+    with its ``id`` and ``robot_id``. 507 when the disk is at its free-space reserve."""
+    require_space(state, int(request.headers.get("content-length") or 0) + 4096, "campaign")
     if isinstance(body.robot_model, str):
         try:
             builtin_model(body.robot_model)
@@ -97,9 +105,9 @@ def _out(state: AppState, row: CampaignRow) -> CampaignOut:
 
 @router.get("/campaigns", summary="List campaigns (paginated)", dependencies=[ReadAuth])
 def list_campaigns(
-    state: State, request: Request, response: Response, page: Paged
+    state: State, request: Request, response: Response, page: PagedLarge
 ) -> list[CampaignOut]:
-    """By id, ``limit`` per page (default 1000) after ``after_id``; a full page has a
+    """By id, ``limit`` per page (default and most 500) after ``after_id``; a full page has a
     ``Link: <…>; rel="next"`` header."""
     rows = state.store.list_campaigns(after_id=page.after_id, limit=page.limit)
     link_next(request, response, rows, page.limit)
@@ -242,10 +250,10 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
     "/campaigns/{campaign_id}/samples",
     summary="Samples as JSON (paginated), or CSV with ?format=csv",
     dependencies=[ReadAuth],
-    responses={200: {"content": {"text/csv": {}}}, **error_responses(404)},
+    responses={200: {"content": {"text/csv": {}}}, **error_responses(404, 429, 503)},
     response_model=list[SampleOut],
 )
-def list_samples(
+async def list_samples(
     state: State,
     request: Request,
     response: Response,
@@ -256,16 +264,32 @@ def list_samples(
     """JSON: the samples with their std, count, timestamps and excluded flag, by id,
     ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
     rel="next"`` header. CSV: every included sample (not paginated) in the format
-    ``cablecal identify`` reads."""
+    ``cablecal identify`` reads, built in a worker thread behind the export gate (``[requests]
+    max_checks`` at once, 429 beyond the queue) and sent in pieces as the client reads."""
     if format == "csv":
-        return Response(
-            state.store.export_csv(campaign_id),
+        state.store.campaign(campaign_id)  # 404 before the gate
+
+        async def export() -> str:
+            return await run_in_threadpool(state.store.export_csv, campaign_id)
+
+        text = await offload(request, state.gates["check"], export, cancel_on_leave=False)
+        return StreamingResponse(
+            _pieces(text),
             media_type="text/csv",
             headers=download_headers(f"campaign-{campaign_id}.csv"),
         )
-    rows = state.store.list_samples(campaign_id, after_id=page.after_id, limit=page.limit)
+    rows = await run_in_threadpool(
+        state.store.list_samples, campaign_id, after_id=page.after_id, limit=page.limit
+    )
     link_next(request, response, rows, page.limit)
     return rows
+
+
+def _pieces(text: str, piece_chars: int = 1 << 16) -> Iterator[bytes]:
+    """``text`` as UTF-8 in pieces of ``piece_chars`` characters: a slow reader holds one
+    piece in the socket's buffer, not the whole export twice."""
+    for k in range(0, len(text), piece_chars):
+        yield text[k : k + piece_chars].encode()
 
 
 @router.post(
@@ -273,7 +297,7 @@ def list_samples(
     status_code=status.HTTP_201_CREATED,
     summary="Import samples from CSV",
     dependencies=[WriteAuth],
-    responses=error_responses(400, 404, 415),
+    responses=error_responses(400, 404, 415, 429, 503, 507),
     response_model=ImportResult,
     openapi_extra={
         "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
@@ -294,8 +318,17 @@ async def import_samples(state: State, campaign_id: CampaignId, request: Request
             if media_type
             else "Content-Type: expected text/csv (the CSV text as the body)",
         )
+    declared = request.headers.get("content-length")
+    require_space(state, int(declared) if declared else MAX_IMPORT_BYTES, "import")
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
-    body = await run_in_threadpool(_import_csv, state, campaign_id, b"".join(chunks))
+    raw = b"".join(chunks)
+    require_space(state, len(raw), "import")
+
+    async def parse_and_store() -> bytes:
+        return await run_in_threadpool(_import_csv, state, campaign_id, raw)
+
+    # Behind the check gate (a 20 MiB import is seconds of work): 429 beyond its queue.
+    body = await offload(request, state.gates["check"], parse_and_store, cancel_on_leave=False)
     return Response(body, status_code=201, media_type="application/json")
 
 

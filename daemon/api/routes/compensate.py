@@ -18,6 +18,7 @@ from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import RobotId, State, WriteAuth
 from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.offload import offload
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import (
     ANY_TARGETS,
@@ -86,6 +87,21 @@ def _json_targets_csv(raw: bytes) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _refuse_outside_limits(rows: list[dict[str, Any]]) -> None:
+    """A corrected target outside the robot model's joint limits cannot go into a program: a
+    409 naming it (a rule of the robot, as for a capture's joints; the README's conflicts),
+    before the program writer's 422 for any other flag."""
+    for k, row in enumerate(rows):
+        flags = str(row.get("flags") or "").split(";")  # the CSV row's ;-joined flags
+        limits = [f for f in flags if f.startswith("outside_limits")]
+        if limits:
+            raise HTTPException(
+                409,
+                f"format: target {k + 1}: the corrected joints are outside the robot's joint "
+                f"limits ({', '.join(map(str, limits))}); fix or remove it first",
+            )
+
+
 def _compensate(
     state: State, robot_id: int, raw: bytes, is_csv: bool, mode: str, tool: Any, seed: Any
 ) -> dict[str, Any]:
@@ -127,7 +143,10 @@ def _compensate(
     "/robots/{robot_id}/compensate",
     summary="Correct a program with the robot's accepted calibration",
     dependencies=[WriteAuth],
-    responses={200: {"content": {"text/csv": {}, "text/plain": {}}}, **error_responses(400, 409)},
+    responses={
+        200: {"content": {"text/csv": {}, "text/plain": {}}},
+        **error_responses(400, 409, 429, 503),
+    },
     openapi_extra={
         "requestBody": {
             "required": True,
@@ -174,10 +193,15 @@ async def compensate_targets(
     state.store.accepted_result(robot_id)  # 404 before the body is read
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     is_csv = request.headers.get("content-type", "").split(";")[0].strip() == "text/csv"
-    out = await asyncio.to_thread(
-        _compensate, state, robot_id, b"".join(chunks), is_csv, mode, tool, seed
-    )
+    raw = b"".join(chunks)
+
+    async def work() -> dict[str, Any]:
+        return await asyncio.to_thread(_compensate, state, robot_id, raw, is_csv, mode, tool, seed)
+
+    out = await offload(request, state.gates["check"], work, cancel_on_leave=False)
     csv_text = out.pop("csv")
+    if format is not None and format.value != "csv":
+        _refuse_outside_limits(out["rows"])
     if format is not None:
         return download(
             csv_text,

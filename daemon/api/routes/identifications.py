@@ -3,6 +3,7 @@ and the option spec the page builds its form from."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Mapping
 from typing import Annotated, Any, cast
 
@@ -10,17 +11,31 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from typing_extensions import TypedDict
 
 from calib.compare import Comparison, compare_results
-from calib.options import default, held_out, samples_for_training_rows, spec
-from daemon.api.deps import CampaignId, JobId, Paged, ReadAuth, State, WriteAuth, link_next
+from calib.options import Holdout, default, held_out, samples_for_training_rows, spec
+from daemon.api.deps import (
+    CampaignId,
+    JobId,
+    PagedLarge,
+    ReadAuth,
+    State,
+    WriteAuth,
+    link_next,
+    require_space,
+)
 from daemon.api.errors import error_responses
+from daemon.api.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
-from daemon.jobs import JobError
+from daemon.job_worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
 from daemon.store import JobState
+from daemon.workers import run_in_child
 
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
 #: many samples: the answer is then null, not a long search).
 MAX_READINESS_SAMPLES = 10_000_000
+
+#: Room kept for a job's stored result [bytes] (its JSON: parameters, covariance, residuals).
+RESULT_BYTES = 4 * 1024 * 1024
 
 router = APIRouter(tags=["identifications"], responses=error_responses(400, 401, 404, 413, 422))
 
@@ -68,23 +83,33 @@ class Readiness(TypedDict):
     "/campaigns/{campaign_id}/identification-readiness",
     summary="Enough samples to identify at a test fraction?",
     dependencies=[ReadAuth],
+    responses=error_responses(429, 503),
 )
-def readiness(
+async def readiness(
     state: State,
+    request: Request,
     campaign_id: CampaignId,
     test_fraction: Annotated[
         float, Query(ge=spec("test_fraction").ge, lt=spec("test_fraction").lt, allow_inf_nan=False)
     ] = default("test_fraction"),
+    holdout: Annotated[Holdout, Query(description=spec("holdout").help)] = default("holdout"),
+    seed: Annotated[
+        int, Query(ge=spec("seed").ge, le=spec("seed").le, description=spec("seed").help)
+    ] = default("seed"),
 ) -> Readiness:
     """The minimum-samples rule applied for the page (which keeps no copy of it): the split
-    of the campaign's included samples at ``test_fraction`` and the counts identify needs
-    (``min_samples`` null when it would exceed :data:`MAX_READINESS_SAMPLES`)."""
+    of the campaign's included samples at ``test_fraction`` (with the ``holdout`` and
+    ``seed`` of the POST: a grouped hold-out may leave an anchor short where a random one
+    does not) and the counts identify needs (``min_samples`` null when it would exceed
+    :data:`MAX_READINESS_SAMPLES`). The check runs in a worker thread, as the POST's (429
+    when too many wait)."""
     row = state.store.campaign(campaign_id)
     need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
     n = int(row["n_included"])
     n_test = held_out(n, test_fraction)
+    options = {"test_fraction": test_fraction, "holdout": holdout, "seed": seed}
     try:  # the rule POST applies (the job manager's check), per anchor included
-        state.jobs.check(campaign_id, {"test_fraction": test_fraction})
+        await _checked(state, request, campaign_id, options, n, check_only=True)
         reason = None
     except JobError as exc:
         reason = str(exc)
@@ -102,24 +127,70 @@ def readiness(
     }
 
 
+async def _checked(
+    state: State,
+    request: Request,
+    campaign_id: int,
+    options: dict[str, Any],
+    n_samples: int,
+    check_only: bool,
+) -> Any:
+    """The job manager's check (``check_only``: None) or prepared job, behind the check gate:
+    in a worker thread for a campaign of at most :data:`CHILD_CHECK_SAMPLES` samples, else in
+    a worker process (killed when the client leaves), so the event loop keeps the GIL."""
+    if n_samples <= CHILD_CHECK_SAMPLES:
+        run = state.jobs.check if check_only else state.jobs.prepare
+
+        async def in_thread() -> Any:
+            return await asyncio.to_thread(run, campaign_id, options)
+
+        return await offload(request, state.gates["check"], in_thread, cancel_on_leave=False)
+    s, path = state.settings.jobs, str(state.settings.database_path)
+    args = (path, s.noise_mm, campaign_id, options, check_only)
+
+    async def in_child() -> Any:
+        # At the daemon's own priority: a request waits on it (at worker_nice 10 on a machine
+        # busy with other work, a 350k-row check took 80 s instead of 11 s), and in a process
+        # of its own it shares no GIL with the event loop (bench/hardening5_identify.md).
+        return await run_in_child(
+            prepare_in_child, *args, nice=0, blas_threads=s.worker_blas_threads
+        )
+
+    return await offload(request, state.gates["check"], in_child)
+
+
 @router.post(
     "/campaigns/{campaign_id}/identifications",
     status_code=status.HTTP_202_ACCEPTED,
     summary="Start an identification job",
     dependencies=[WriteAuth],
-    responses=error_responses(409),
+    responses=error_responses(409, 429, 503, 507),
 )
-async def start(state: State, campaign_id: CampaignId, body: IdentificationRequest) -> JobView:
+async def start(
+    state: State, request: Request, campaign_id: CampaignId, body: IdentificationRequest
+) -> JobView:
     """Queues an identification of the campaign's included samples. Returns 202 with the job
     (``id``, ``status`` = queued); follow it at ``GET /identifications/{id}``. 422 for a body
     the schema refuses; 409, naming the option or the count, for what the campaign's robot
     and samples refuse: a parameter name the model lacks in ``fixed``/``free``, or too few
     samples left for training (after ``test_fraction``) for the parameters this robot and
-    these anchors solve for (25 training rows for the built-in model with one anchor)."""
+    these anchors solve for (25 training rows for the built-in model with one anchor). The
+    check and the samples' snapshot run in a worker thread, not on the event loop; 429 with
+    ``Retry-After`` when ``[jobs] max_pending`` jobs are queued or running, or too many
+    checks wait."""
+    require_space(state, RESULT_BYTES, "identification")  # its result is stored at the end
+    retry = {"Retry-After": str(state.settings.requests.retry_after_s)}
+    if why := state.jobs.full():
+        raise HTTPException(429, why, headers=retry)
+    options = body.to_options()
+    n = int(state.store.campaign(campaign_id)["n_included"])  # 404 first
     try:
-        job = state.jobs.submit(campaign_id, body.to_options())
+        prepared = await _checked(state, request, campaign_id, options, n, check_only=False)
+        job = state.jobs.enqueue(prepared)
     except JobError as exc:  # the request is well formed; the campaign's state refuses it
         raise HTTPException(409, str(exc)) from exc
+    except JobsFull as exc:
+        raise HTTPException(429, str(exc), headers=retry) from exc
     return _job_view(state, job)
 
 
@@ -129,9 +200,9 @@ async def start(state: State, campaign_id: CampaignId, body: IdentificationReque
     dependencies=[ReadAuth],
 )
 def list_for_campaign(
-    state: State, request: Request, response: Response, campaign_id: CampaignId, page: Paged
+    state: State, request: Request, response: Response, campaign_id: CampaignId, page: PagedLarge
 ) -> list[JobOut]:
-    """By id, ``limit`` per page (default 1000) after ``after_id``; a full page has a
+    """By id, ``limit`` per page (default and most 500) after ``after_id``; a full page has a
     ``Link: <…>; rel="next"`` header."""
     state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list
     rows = state.store.list_jobs(campaign_id, after_id=page.after_id, limit=page.limit)

@@ -2,20 +2,17 @@
 
 ``POST /robots/{id}/filter`` takes ``multipart/form-data``: one or more ``files`` parts (each
 with its ``filename``) and an optional ``frames`` part (the ``--frames`` TOML). The multipart
-body is split with the standard library's MIME parser (the bytes of each part exactly as
-sent), the filter runs in a worker thread (:func:`calib.filter.run.filter_files`), never on
-the event loop.
+body is read as it streams under its limits (:mod:`daemon.api.multipart`: the bytes of each
+part exactly as sent); the filter (:func:`calib.filter.run.filter_files`) runs in a worker
+process of its own, at most ``[requests] max_filters`` at once (:mod:`daemon.api.offload`),
+never on the event loop, and is killed when the client leaves.
 """
 
 from __future__ import annotations
 
-import asyncio
 import io
 import json
-import re
 import zipfile
-from email import policy
-from email.parser import BytesParser
 from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
@@ -23,82 +20,64 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response
 from daemon.api.deps import RobotId, State, WriteAuth
 from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.guard import MAX_FILTER_BYTES
+from daemon.api.multipart import FormPart, read_form
+from daemon.api.offload import offload
+from daemon.api.text_rules import not_portable_file_name
 from daemon.store import NO_CALIBRATION, StoreNotFound
+from daemon.workers import run_in_child
 
-router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 409, 413, 422))
+router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 409, 413, 422, 429, 503))
 
 #: Most program files in one request.
 MAX_FILES = 50
 #: Longest ``only`` query value [characters].
 MAX_ONLY_CHARS = 2000
-#: A file name: no directory, no control characters, at most 128 characters.
-_FILE_NAME = re.compile(r"[^/\\\x00-\x1f]{1,128}")
 SUMMARY_NAME = "filter-summary.json"
 
 
-def _parts(raw: bytes, content_type: str) -> tuple[list[tuple[str, bytes]], str | None]:
-    """The ``files`` (name, bytes) and the ``frames`` text of a multipart body.
+def _files_and_frames(parts: list[FormPart]) -> tuple[list[tuple[str, bytes]], str | None]:
+    """The ``files`` (name, bytes) and the ``frames`` text of the parts read.
 
     Raises
     ------
-    HTTPException
+    RequestValidationError
         422 naming the part that is wrong.
     """
-    if (
-        not content_type.lower().startswith("multipart/form-data")
-        or "boundary=" not in content_type
-    ):
-        raise unprocessable(("body",), "body: expected multipart/form-data with files parts")
-    head = f"Content-Type: {content_type}\r\nMIME-Version: 1.0\r\n\r\n"
-    msg = BytesParser(policy=policy.HTTP).parsebytes(head.encode("latin-1", "replace") + raw)
-    if not msg.is_multipart():
-        raise unprocessable(("body",), "body: not a multipart body")
     files: list[tuple[str, bytes]] = []
     frames: str | None = None
-    for k, part in enumerate(msg.iter_parts()):
-        name = part.get_param("name", header="content-disposition")
-        payload = part.get_payload(decode=True)
-        data = payload if isinstance(payload, bytes) else b""
-        if name == "files":
-            filename = part.get_filename() or ""
-            if not _FILE_NAME.fullmatch(filename) or filename in (".", ".."):
-                raise unprocessable(
-                    ("body", "files", k),
-                    f"files[{k}]: file name {filename!r} "
-                    "must be a plain name (no directory), 1..128 characters",
-                )
-            if any(filename == f for f, _ in files):
-                raise unprocessable(("body", "files", k), f"files: {filename} given twice")
-            files.append((filename, data))
-        elif name == "frames":
-            if frames is not None:
-                raise unprocessable(("body", "frames"), "frames: given twice")
+    for part in parts:
+        if part.name == "files":
+            k = len(files)
+            why = not_portable_file_name(part.filename or "", [f for f, _ in files])
+            if why:
+                raise unprocessable(("body", "files", k), f"files[{k}]: {why}")
+            files.append((part.filename or "", bytes(part.data)))
+        else:  # frames (the reader reads no other name, and at most one of it)
             try:
-                frames = data.decode("utf-8")
+                frames = part.data.decode("utf-8")
             except UnicodeDecodeError:
                 raise unprocessable(("body", "frames"), "frames: not UTF-8 text") from None
-        else:
-            raise unprocessable(
-                ("body", str(name)), f"{name}: unknown part (expected files, frames)"
-            )
     if not files:
         raise unprocessable(("body", "files"), "files: at least one program file is required")
-    if len(files) > MAX_FILES:
-        raise unprocessable(("body", "files"), f"files: {len(files)} files, at most {MAX_FILES}")
     return files, frames
 
 
 def _filter(
-    state: State, robot_id: int, raw: bytes, content_type: str, keep: bool, only: list[str] | None
+    result: dict[str, Any],
+    nominal: Any,
+    files: list[tuple[str, bytes]],
+    frames_text: str | None,
+    keep: bool,
+    only: list[str] | None,
+    about: dict[str, Any],
 ) -> tuple[Any, dict[str, Any]]:
-    """Parse, filter (worker thread): the run and its summary."""
+    """Filter (in a worker process, :func:`daemon.workers.run_in_child`): the run (its
+    outputs only) and its summary."""
     from calib.filter.correct import calibration_from_result
-    from calib.filter.run import filter_files
+    from calib.filter.run import FilterRun, filter_files
     from calib.filter.sites import FilterInputError, parse_frames_toml
 
-    files, frames_text = _parts(raw, content_type)
-    result = state.store.accepted_result(robot_id)["result"]
-    nominal = state.store.robot_model(robot_id)
     try:
         frames = None if frames_text is None else parse_frames_toml(frames_text, "frames")
     except FilterInputError as exc:
@@ -106,11 +85,13 @@ def _filter(
     try:
         cal = calibration_from_result(result, nominal)
     except ValueError as exc:
-        raise HTTPException(409, f"robot {robot_id}: calibration unusable: {exc}") from None
+        raise HTTPException(
+            409, f"robot {about['robot_id']}: calibration unusable: {exc}"
+        ) from None
     run = filter_files(cal, files, frames=frames, keep_joint_targets=keep, only=only)
     if run.errors:
         raise unprocessable(("body", "files"), "; ".join(str(e) for e in run.errors))
-    return run, run.summary({"robot_id": robot_id, "robot": nominal.name})
+    return FilterRun(outputs=run.outputs), run.summary(about)
 
 
 @router.post(
@@ -176,16 +157,23 @@ async def filter_programs(
                 409, f"robot {robot_id}: no current calibration; accept an identification first"
             ) from None
         raise
-    chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
-    wanted = [s.strip() for s in only.split(",") if s.strip()] if only is not None else None
-    run, summary = await asyncio.to_thread(
-        _filter,
-        state,
-        robot_id,
-        b"".join(chunks),
+    parts = await read_form(
+        request.stream(),
         request.headers.get("content-type", ""),
-        keep_joint_targets,
-        wanted,
+        {"files": MAX_FILES, "frames": 1},
+        MAX_FILTER_BYTES,
+    )
+    files, frames_text = _files_and_frames(parts)
+    wanted = [s.strip() for s in only.split(",") if s.strip()] if only is not None else None
+    result = state.store.accepted_result(robot_id)["result"]
+    nominal = state.store.robot_model(robot_id)
+    about = {"robot_id": robot_id, "robot": nominal.name}
+    args = (result, nominal, files, frames_text, keep_joint_targets, wanted, about)
+    nice, blas = state.settings.jobs.worker_nice, state.settings.jobs.worker_blas_threads
+    run, summary = await offload(
+        request,
+        state.gates["filter"],
+        lambda: run_in_child(_filter, *args, nice=nice, blas_threads=blas),
     )
     if dry_run:
         return summary
