@@ -52,7 +52,7 @@ import numpy as np
 
 from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
 from calib.kinematics import N_JOINTS, FloatArray
-from calib.models import RobotModel
+from calib.models import POSE_CLIP_DEG, RobotModel
 
 
 @dataclass
@@ -343,9 +343,9 @@ def generic_jacobian(model: RobotModel, layout: ParamLayout, theta: FloatArray) 
     seed; the anchors take turns.
     """
     rng = np.random.default_rng(GENERIC_SEED)
-    limits = model.joint_limits_deg
-    lo = np.full(N_JOINTS, -170.0) if limits is None else np.maximum(limits[:, 0], -170.0)
-    hi = np.full(N_JOINTS, 170.0) if limits is None else np.minimum(limits[:, 1], 170.0)
+    limits = model.limits_deg()
+    lo = np.maximum(limits[:, 0], -POSE_CLIP_DEG)
+    hi = np.minimum(limits[:, 1], POSE_CLIP_DEG)
     hi = np.where(hi > lo, hi, lo + 1.0)
     q = model.table_rad(rng.uniform(lo, hi, size=(GENERIC_POSES, N_JOINTS)))
     aidx = np.arange(GENERIC_POSES) % len(layout.anchors)

@@ -43,6 +43,9 @@ from calib.robots.files import LibraryError, library_mapping, library_names
 
 #: Limits used for a model without ``limits_deg`` [deg], in the controller's angles.
 DEFAULT_LIMITS_DEG = (-170.0, 170.0)
+#: Sampled poses (synthetic cells, the generic identifiability check) stay within ±this [deg]
+#: of zero where a joint's range allows: realistic calibration poses avoid full-turn angles.
+POSE_CLIP_DEG = 170.0
 
 
 class ModelError(ValueError):

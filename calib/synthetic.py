@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.cable import N_DH, N_KIN, ParamLayout, predict_lengths
 from calib.kinematics import N_JOINTS, FloatArray, IndexArray, forward_position
-from calib.models import RobotModel
+from calib.models import POSE_CLIP_DEG, RobotModel
 
 #: The paper's Table XII, dataset D1: deviations identified by UKF-VSLM on the HSR JR680.
 #: Shape (6, 4), per joint ``(dalpha_deg, da_mm, dd_mm, dtheta_deg)``.
@@ -137,13 +137,12 @@ def random_poses_deg(
         Joint angles [deg] whose true reading is within 50..1950 mm and whose hook point is
         300..1950 mm from the anchor (the cable's extension stays within the stroke).
     """
-    limits = cell.model.joint_limits_deg
-    if limits is None:
-        limits = np.tile([-170.0, 170.0], (N_JOINTS, 1))
-    # Realistic calibration poses avoid full-turn wrist angles: clip to ±170 deg, except
+    limits = cell.model.limits_deg()
+    # Realistic calibration poses avoid full-turn wrist angles: clip to ±POSE_CLIP_DEG, except
     # joints whose whole range lies outside it (the JR680's q3 reads 60..300 deg).
-    lo = np.where(limits[:, 0] < -170.0, -170.0, limits[:, 0])
-    hi = np.where(limits[:, 1] > 170.0, np.maximum(170.0, lo + 1.0), limits[:, 1])
+    clip = POSE_CLIP_DEG
+    lo = np.where(limits[:, 0] < -clip, -clip, limits[:, 0])
+    hi = np.where(limits[:, 1] > clip, np.maximum(clip, lo + 1.0), limits[:, 1])
     hi = np.where(limits[:, 0] > 0.0, limits[:, 1], hi)
     if spread_deg is not None:
         centre = (lo + hi) / 2 if centre_deg is None else np.asarray(centre_deg, dtype=float)

@@ -28,6 +28,7 @@ from pydantic_settings import (
 )
 
 from calib.monitor.stepwatch import StepSettings
+from daemon.defaults import API_PORT
 from daemon.sampler import SamplerConfig
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
@@ -190,7 +191,7 @@ class Settings(BaseSettings):
 
     host: str = "127.0.0.1"
     """Address the REST API binds to. Anything but loopback requires ``api_token``."""
-    port: Annotated[int, Field(ge=0, le=65535)] = 8080
+    port: Annotated[int, Field(ge=0, le=65535)] = API_PORT
     """TCP port of the REST API (0: any free port)."""
     api_token: SecretStr | None = None
     """Bearer token required on every write route (``CABLECAL_API_TOKEN``), at least

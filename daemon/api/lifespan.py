@@ -22,7 +22,7 @@ from daemon.autocapture import AutoCapture
 from daemon.config import Settings
 from daemon.holdcheck import HoldCheckMonitor
 from daemon.jobs import JobManager
-from daemon.lifecycle import record_start
+from daemon.lifecycle import STOPPED, record_start
 from daemon.store import Store
 from daemon.watch import SensorWatch
 
@@ -117,7 +117,7 @@ def make_lifespan(
             if state.sampler is not None:
                 await state.sampler.stop()
             await state.jobs.stop()
-            state.store.record_event("daemon_stopped", None, "cablecal serve stopped")
+            state.store.record_event(STOPPED, None, "cablecal serve stopped")
             state.store.close()
 
     return lifespan

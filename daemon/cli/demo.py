@@ -36,6 +36,7 @@ from daemon.cli.emulated import (
     fast_cell_toml,
     wait_for,
 )
+from daemon.defaults import API_PORT
 from daemon.store.rows import JOB_FINISHED, JobState
 
 #: ``--help``: one paragraph, one string (typer's rich help would keep the docstring's line
@@ -55,7 +56,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def serve_cmd(
     sim_config: Path = typer.Option(ROOT / "examples" / "sim.toml", help="Emulated cell."),
     state_dir: Path = typer.Option(ROOT / ".state", help="SQLite store and logs."),
-    port: int = typer.Option(8080, help="API port (0: any free port)."),
+    port: int = typer.Option(API_PORT, help="API port (0: any free port)."),
 ) -> None:
     """Emulated cell + daemon in the foreground until Ctrl-C (``make run``)."""
     import os

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from daemon.defaults import API_PORT
+
 if TYPE_CHECKING:
     import uvicorn
 
@@ -168,7 +170,7 @@ def register(app: typer.Typer) -> None:
             help="JSON of the READY line of `cablecal simulate`: use its emulated devices.",
         ),
         host: str | None = typer.Option(None, help="Bind address (default 127.0.0.1)."),
-        port: int | None = typer.Option(None, help="TCP port (default 8080, 0 = any free)."),
+        port: int | None = typer.Option(None, help=f"TCP port (default {API_PORT}, 0 = any free)."),
         robot_kind: str | None = typer.Option(
             None,
             "--robot-kind",
