@@ -19,10 +19,11 @@ here as a bug to report, never shown blank.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import re
 from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -78,15 +79,6 @@ def is_unused(reason: str) -> bool:
     return reason.startswith(UNUSED_REASON)
 
 
-@dataclass(frozen=True, slots=True)
-class Written:
-    """One number a correction rewrote: its line, the text before and after."""
-
-    line: int
-    old: str
-    new: str
-
-
 @dataclass
 class FilterRun:
     """The outcome of :func:`filter_files`.
@@ -102,8 +94,13 @@ class FilterRun:
     targets : list of Target
     corrections : list of Correction
         One per target.
-    written : list of list of Written
-        One per target: the numbers its correction rewrote (empty when none).
+    edits : dict of str to list of Edit
+        Per file, the edits written into it, target by target.
+    written : list of tuple of (str, int, int)
+        Per target, where its edits are: ``edits[file][first:last]`` for each ``(file,
+        first, last)`` (exact tuples of atoms, which the garbage collector stops tracking).
+    sources : dict of str to Source
+        The readable files, for the text and line of each edit in the summary.
     dialects : dict of str to str
         File name → dialect name.
     unknown_only : list of str
@@ -114,12 +111,19 @@ class FilterRun:
     errors: list[FilterInputError] = field(default_factory=list)
     targets: list[Target] = field(default_factory=list)
     corrections: list[Correction] = field(default_factory=list)
-    written: list[list[Written]] = field(default_factory=list)
+    edits: dict[str, list[Edit]] = field(default_factory=dict)
+    written: list[tuple[tuple[str, int, int], ...]] = field(default_factory=list)
+    sources: dict[str, Source] = field(default_factory=dict)
     dialects: dict[str, str] = field(default_factory=dict)
     unknown_only: list[str] = field(default_factory=list)
 
     def rows(self) -> list[dict[str, Any]]:
-        """One summary row per target, by file and line (JSON-able; NaN → None).
+        """One summary row per target, by file and line (:meth:`iter_rows`)."""
+        return list(self.iter_rows())
+
+    def iter_rows(self) -> Iterator[dict[str, Any]]:
+        """One summary row per target, by file and line, made as they are taken (JSON-able;
+        NaN → None).
 
         A corrected target's row adds ``values`` (each rewritten number: line, old and new
         text), ``joints_deg`` (the joints the controller reaches the corrected target at, on
@@ -135,9 +139,15 @@ class FilterRun:
                 return None
             return [round(float(v), SUMMARY_JOINT_DECIMALS) for v in q]
 
-        out: list[dict[str, Any]] = []
-        written = self.written or [[] for _ in self.targets]
-        for t, c, w in zip(self.targets, self.corrections, written, strict=True):
+        written = self.written or [()] * len(self.targets)
+        order = {name: k for k, name in enumerate(self.dialects)}
+        targets = self.targets
+        by_place = sorted(
+            range(len(targets)),
+            key=lambda i: (order.get(targets[i].file, len(order)), targets[i].line),
+        )
+        for i in by_place:
+            t, c = targets[i], self.corrections[i]
             tool = sorted({u.tool_name for u in t.uses})
             work = sorted({u.work_name for u in t.uses})
             row: dict[str, Any] = {
@@ -155,15 +165,22 @@ class FilterRun:
                 "work_object": ",".join(work),
             }
             if c.status == "corrected":
-                row["values"] = [{"line": x.line, "old": x.old, "new": x.new} for x in w]
+                row["values"] = [v for span in written[i] for v in self._values(*span)]
                 row["joints_deg"] = joints(c.joints_deg)
                 row["nominal_joints_deg"] = joints(c.nominal_joints_deg)
             else:
                 row["group"] = reason_group(c.status, c.reason)
-            out.append(row)
-        order = {name: k for k, name in enumerate(self.dialects)}
-        out.sort(key=lambda r: (order.get(str(r["file"]), len(order)), int(r["line"])))
-        return out
+            yield row
+
+    def _values(self, file: str, first: int, last: int) -> list[dict[str, Any]]:
+        """The numbers a target's correction rewrote: line, old and new text."""
+        if first == last:
+            return []
+        src = self.sources[file]
+        return [
+            {"line": src.line_of(e.start), "old": src.text[e.start : e.end], "new": e.new}
+            for e in self.edits[file][first:last]
+        ]
 
     @property
     def unused(self) -> int:
@@ -185,11 +202,17 @@ class FilterRun:
             return EXIT_BAD_INPUT
         return EXIT_LEFT if self.left else EXIT_OK
 
-    def summary(self, extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
-        """The ``filter-summary.json`` mapping."""
+    def summary(
+        self, extra: Mapping[str, Any] | None = None, *, targets: bool = True
+    ) -> dict[str, Any]:
+        """The ``filter-summary.json`` mapping (without ``targets`` unless asked: then
+        :meth:`iter_rows` gives them one by one, and :func:`summary_text` writes them)."""
         counts: dict[str, int] = defaultdict(int)
+        groups: dict[str, int] = defaultdict(int)
         for c in self.corrections:
             counts[c.status] += 1
+            if c.status != "corrected":
+                groups[reason_group(c.status, c.reason)] += 1
         per_file: dict[str, int] = defaultdict(int)
         for t in self.targets:
             per_file[t.file] += 1
@@ -202,12 +225,7 @@ class FilterRun:
             }
             for name, dialect in self.dialects.items()
         ]
-        rows = self.rows()
-        groups: dict[str, int] = defaultdict(int)
-        for r in rows:
-            if "group" in r:
-                groups[r["group"]] += 1
-        return {
+        out = {
             **(dict(extra) if extra else {}),
             "exit_code": self.exit_code,
             "counts": {
@@ -219,8 +237,10 @@ class FilterRun:
             "left_by_reason": dict(sorted(groups.items(), key=lambda kv: (-kv[1], kv[0]))),
             "files": files,
             "errors": [{"file": e.file, "line": e.line, "message": str(e)} for e in self.errors],
-            "targets": rows,
         }
+        if targets:
+            out["targets"] = self.rows()
+        return out
 
 
 def _parse_group(
@@ -311,17 +331,23 @@ def filter_files(
         cal, run.targets, keep_joint_targets=keep_joint_targets, only=only
     )
     run.corrections = _with_reasons(corrections, parsed)
-    by_name = {src.name: src for src in readable}
+    run.sources = {src.name: src for src in readable}
     edits: dict[str, list[Edit]] = defaultdict(list)
-    run.written = []
+    written = run.written
     for (d, t), c in zip(parsed, run.corrections, strict=True):
-        done: list[Written] = []
-        if c.status == "corrected":
-            for e in d.render(t, c):
-                edits[e.file].append(e)
-                src = by_name[e.file]
-                done.append(Written(src.line_of(e.start), src.text[e.start : e.end], e.new))
-        run.written.append(done)
+        if c.status != "corrected":
+            written.append(())
+            continue
+        spans = []
+        by_file: dict[str, list[Edit]] = {}
+        for e in d.render(t, c):
+            by_file.setdefault(e.file, []).append(e)
+        for file, new in by_file.items():
+            mine = edits[file]
+            spans.append((file, len(mine), len(mine) + len(new)))
+            mine.extend(new)
+        written.append(tuple(spans))
+    run.edits = dict(edits)
     for src in readable:
         text = apply_edits(src.text, edits.get(src.name, []))
         try:
@@ -370,3 +396,15 @@ def robot_check(result: Mapping[str, Any], nominal: RobotModel) -> tuple[str, st
                     "own robot with --robot"
                 )
     return warning, ""
+
+
+def summary_text(head: Mapping[str, Any], rows: Iterable[Mapping[str, Any]]) -> str:
+    """``filter-summary.json``'s text: ``head`` (:meth:`FilterRun.summary` without targets)
+    indented, then ``"targets"``, one line per row (JSON's C encoder on each row: an
+    indented dump of 10,000 rows goes through the pure-Python encoder and holds every piece
+    of the text at once)."""
+    lines = ["    " + json.dumps(r) for r in rows]
+    text = json.dumps({**head, "targets": []}, indent=2)  # ends with '"targets": []\n}'
+    if not lines:
+        return text + "\n"
+    return text[: -len("[]\n}")] + "[\n" + ",\n".join(lines) + "\n  ]\n}\n"

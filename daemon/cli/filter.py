@@ -6,9 +6,9 @@ pay for them. The table fits 80 columns; the summary file has every row.
 
 from __future__ import annotations
 
-import json
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -17,13 +17,22 @@ from rich.table import Table
 
 from daemon.cli.errors import fail as _fail
 
-if TYPE_CHECKING:
-    from calib.filter.run import FilterRun
-
 SUMMARY_NAME = "filter-summary.json"
 #: Exit codes: calib.filter.run's (0 all corrected, 3 some left, 2 bad input).
 #: Targets of each group of left targets the table names (all with --verbose).
 FIRST_OF_GROUP = 3
+#: The fields of a summary row the console shows.
+_SHOWN = (
+    "file",
+    "line",
+    "name",
+    "status",
+    "reason",
+    "group",
+    "shift_mm",
+    "shift_deg",
+    "sigma_at_tool_mm",
+)
 FRAMES_HELP = escape("TOML of [uframe.N] / [utool.N] (xyz_mm, wpr_deg).")
 
 
@@ -87,18 +96,28 @@ def corrected_line(rows: list[dict[str, Any]]) -> str:
     return text
 
 
-def summary_table(run: FilterRun, con: Console, verbose: bool = False) -> None:
-    """The left targets grouped by reason, the corrected ones in a sentence, the counts."""
-    rows = run.rows()
+def summary_table(summary: dict[str, Any], con: Console, verbose: bool = False) -> None:
+    """The left targets grouped by reason, the corrected ones in a sentence, the counts (of
+    a ``filter-summary.json`` mapping, :meth:`calib.filter.run.FilterRun.summary`)."""
+    rows = summary["targets"]
     left_table(rows, con, verbose)
     con.print(escape(corrected_line(rows)), highlight=False)
-    counts = run.summary()["counts"]
+    counts = summary["counts"]
     unused = f", {counts['unused']} not used by any move" if counts["unused"] else ""
     con.print(
         f"{counts['targets']} targets: {counts.get('corrected', 0)} corrected, "
         f"{counts['left']} left unchanged{unused}",
         highlight=False,
     )
+
+
+def _keep_shown(
+    rows: Iterator[dict[str, Any]], shown: list[dict[str, Any]]
+) -> Iterator[dict[str, Any]]:
+    """``rows``, keeping in ``shown`` the fields of each that the console shows."""
+    for r in rows:
+        shown.append({k: r[k] for k in _SHOWN if k in r})
+        yield r
 
 
 def filter_cmd(
@@ -138,7 +157,7 @@ def filter_cmd(
     2 bad input (a file that cannot be read is not written)
     """
     from calib.filter.correct import calibration_from_result
-    from calib.filter.run import filter_files, robot_check
+    from calib.filter.run import filter_files, robot_check, summary_text
     from calib.filter.sites import FilterInputError, parse_frames_toml
     from daemon.cli.apply import nominal_model, read_result
     from daemon.cli.errors import printable
@@ -204,9 +223,14 @@ def filter_cmd(
     extra = {"result": str(result), "robot": nominal.name}
     if warning:
         extra["warning"] = warning
-    text = json.dumps(run.summary(extra), indent=2) + "\n"
+    head = run.summary(extra, targets=False)
     outputs = {name: (body, modes[name]) for name, body in run.outputs.items()}
+    errors, exit_code = list(run.errors), run.exit_code
+    shown: list[dict[str, Any]] = []  # what the console needs of each row
+    text = summary_text(head, _keep_shown(run.iter_rows(), shown))
+    del run  # the summary's text has all of it now
     outputs[SUMMARY_NAME] = (text.encode("utf-8"), default_file_mode())
+    del text
     try:
         write_set(out, outputs, SUMMARY_NAME)
     except OutDirError as exc:
@@ -214,15 +238,15 @@ def filter_cmd(
     except OSError as exc:
         raise _fail(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     console = Console()  # created here so COLUMNS is read at run time
-    summary_table(run, console, verbose)
-    for e in run.errors:
+    summary_table({**head, "targets": shown}, console, verbose)
+    for e in errors:
         err.print(
             f"[bold red]error:[/] {escape(printable(str(e)))} (not written)",
             highlight=False,
             soft_wrap=True,
         )
     console.print(
-        f"wrote {len(run.outputs)} file(s) and {SUMMARY_NAME} to {escape(str(out))}",
+        f"wrote {len(outputs) - 1} file(s) and {SUMMARY_NAME} to {escape(str(out))}",
         highlight=False,
     )
-    raise typer.Exit(run.exit_code)
+    raise typer.Exit(exit_code)
