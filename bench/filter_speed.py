@@ -42,8 +42,12 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _child(directory: Path, dialect: str) -> None:
-    """Run once and print the figures as JSON (in the measured checkout's code)."""
+def _child(directory: Path, dialect: str, gc_off: bool = False) -> None:
+    """Run once and print the figures as JSON (in the measured checkout's code); with
+    ``gc_off`` the cyclic garbage collector is off during the run (what ``gc.disable()``
+    in the library bought, measured in the same run)."""
+    import gc
+
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import filter_files
     from calib.filter.sites import parse_frames_toml
@@ -59,9 +63,12 @@ def _child(directory: Path, dialect: str) -> None:
         frames = parse_frames_toml((d / "frames.toml").read_text())
     files = [(name, (d / "files" / name).read_bytes()) for name in spec["files"]]
     rss_before = peak_rss_mb()
+    if gc_off:
+        gc.disable()
     t, c = time.perf_counter(), time.process_time()
     run = filter_files(cal, files, frames=frames)
     wall, cpu = time.perf_counter() - t, time.process_time() - c
+    gc.enable()
     print(
         json.dumps(
             {
@@ -115,10 +122,11 @@ def checkout(rev: str, into: Path) -> Path:
     return out
 
 
-def _one(code: Path, directory: Path, dialect: str) -> dict[str, Any]:
+def _one(code: Path, directory: Path, dialect: str, gc_off: bool) -> dict[str, Any]:
     env = {**os.environ, "PYTHONPATH": str(code)}
+    argv = ["--child", str(directory), dialect, *(["gc-off"] if gc_off else [])]
     proc = subprocess.run(
-        [sys.executable, str(Path(__file__).resolve()), "--child", str(directory), dialect],
+        [sys.executable, str(Path(__file__).resolve()), *argv],
         env=env,
         capture_output=True,
         text=True,
@@ -132,16 +140,17 @@ def _one(code: Path, directory: Path, dialect: str) -> dict[str, Any]:
 
 
 def measure(
-    directory: Path, codes: dict[str, Path], dialects: list[str], rounds: int
+    directory: Path, codes: dict[str, tuple[Path, bool]], dialects: list[str], rounds: int
 ) -> dict[str, dict[str, dict[str, Any]]]:
-    """Per checkout label and dialect: the runs and their medians (time) and maxima (RSS)."""
+    """Per label (a checkout, and whether the GC is off in the run) and dialect: the runs
+    and their medians (time) and maxima (RSS)."""
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {k: {d: [] for d in dialects} for k in codes}
     loads: dict[str, list[float]] = {}
     for dialect in dialects:
         loads[dialect] = [round(v, 2) for v in os.getloadavg()]
         for _ in range(rounds):
-            for label, code in codes.items():
-                runs[label][dialect].append(_one(code, directory, dialect))
+            for label, (code, gc_off) in codes.items():
+                runs[label][dialect].append(_one(code, directory, dialect, gc_off))
     out: dict[str, dict[str, dict[str, Any]]] = {}
     for label in codes:
         out[label] = {}
@@ -188,5 +197,5 @@ def temporary() -> tempfile.TemporaryDirectory[str]:
     return tempfile.TemporaryDirectory(prefix="cablecal-filter-speed-")
 
 
-if __name__ == "__main__" and len(sys.argv) == 4 and sys.argv[1] == "--child":
-    _child(Path(sys.argv[2]), sys.argv[3])
+if __name__ == "__main__" and len(sys.argv) in (4, 5) and sys.argv[1] == "--child":
+    _child(Path(sys.argv[2]), sys.argv[3], sys.argv[4:] == ["gc-off"])

@@ -384,9 +384,9 @@ def edits_for(nums: Sequence[Num], values: Iterable[float], min_decimals: int) -
     ``min_decimals``; a number whose text stays is left out (:func:`edit`)."""
     out = []
     for num, value in zip(nums, values, strict=True):
-        e = edit(num, float(value), min_decimals)
-        if e is not None:
-            out.append(e)
+        new = format_number(num, float(value), min_decimals)
+        if new != num.text:
+            out.append(Edit(num.file, num.start, num.end, new))
     return out
 
 
