@@ -20,10 +20,20 @@ from filter_cells import Cell, make_cell, rapid_module, regular_poses, tool_fram
 from typer.testing import CliRunner
 
 from calib.export import model_to_toml
+from calib.filter.correct import calibration_from_result
 from calib.filter.dialects import dialect_for
-from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, EXIT_OK, _with_reasons, reason_group
+from calib.filter.run import (
+    EXIT_BAD_INPUT,
+    EXIT_LEFT,
+    EXIT_OK,
+    _with_reasons,
+    filter_files,
+    reason_group,
+    summary_text,
+)
 from calib.filter.sites import Correction, FrameTables, Source
 from daemon.cli import app, filter_out
+from daemon.datafiles import load_robot
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs"
 runner = CliRunner()
@@ -270,3 +280,16 @@ def test_reasons_group_without_their_figures_and_none_is_empty() -> None:
     fixed = _with_reasons([Correction("skipped", " "), Correction("corrected")], [(d, t), (d, t)])
     assert "without a reason (a bug of the filter's rapid dialect" in fixed[0].reason
     assert fixed[1].reason == ""
+
+
+def test_summary_text_is_the_summary_one_target_a_line(setup: dict[str, Path]) -> None:
+    cell_files = [("cell_a.mod", (FIXTURES / "cell_a.mod").read_bytes())]
+    result = json.loads(setup["result"].read_text())
+    nominal = load_robot(str(setup["robot"]))
+    run = filter_files(calibration_from_result(result, nominal), cell_files)
+    text = summary_text(run.summary(targets=False), run.iter_rows())
+    assert json.loads(text) == run.summary()
+    lines = text.splitlines()
+    rows = [line for line in lines if line.startswith('    {"file": ')]
+    assert len(rows) == len(run.targets)  # one line per target
+    assert json.loads(summary_text({"a": 1}, [])) == {"a": 1, "targets": []}

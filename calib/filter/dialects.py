@@ -92,7 +92,7 @@ def looks_like(source: Source) -> list[tuple[str, int]]:
     for name, sig in SIGNATURES.items():
         m = sig.pattern.search(head)
         if m:
-            out.append((name, source.line_of(m.end())))
+            out.append((name, head.count("\n", 0, m.end()) + 1))  # the head's lines only
     return out
 
 
