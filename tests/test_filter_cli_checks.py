@@ -20,6 +20,7 @@ from filter_cells import Cell, make_cell, rapid_module, regular_poses, tool_fram
 from typer.testing import CliRunner
 
 from calib.export import model_to_toml
+from calib.filter import run as run_module
 from calib.filter.correct import calibration_from_result
 from calib.filter.dialects import dialect_for
 from calib.filter.run import (
@@ -293,3 +294,32 @@ def test_summary_text_is_the_summary_one_target_a_line(setup: dict[str, Path]) -
     rows = [line for line in lines if line.startswith('    {"file": ')]
     assert len(rows) == len(run.targets)  # one line per target
     assert json.loads(summary_text({"a": 1}, [])) == {"a": 1, "targets": []}
+
+
+def test_batches_keep_targets_that_refer_to_each_other_together(
+    setup: dict[str, Path], cell: Cell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    names = ["cell_a.mod", "polyscope_c.script", "plain_d.urscript", "station_b.prg"]
+    files = [(n, (FIXTURES / n).read_bytes()) for n in [*names, "tools_b.sys"]]
+    cal = calibration_from_result(cell.result, cell.nominal)
+    whole = filter_files(cal, files)
+    monkeypatch.setattr(run_module, "CORRECT_BATCH", 3)
+    parts = run_module.batches(whole.targets)
+    assert len(parts) > 3
+    assert sorted(i for b in parts for i in b) == list(range(len(whole.targets)))
+    for b in parts:
+        assert b == sorted(b)
+        keys = {(whole.targets[i].file, whole.targets[i].name) for i in b}
+        for i in b:  # what a target refers to is in its batch
+            t = whole.targets[i]
+            after = t.configuration.after if t.configuration is not None else None
+            for other in (t.follows, after):
+                if other is not None and any(
+                    (u.file, u.name) == (t.file, other) for u in whole.targets
+                ):
+                    assert (t.file, other) in keys, (t.name, other)
+    batched = filter_files(cal, files)
+    assert batched.outputs == whole.outputs
+    assert [(c.status, c.reason) for c in batched.corrections] == [
+        (c.status, c.reason) for c in whole.corrections
+    ]

@@ -50,6 +50,10 @@ EXIT_BAD_INPUT = 2
 EXIT_LEFT = 3
 #: Reasons that mean "left out on purpose" (not counted against the exit code).
 DELIBERATE = ("not selected (--only)", "joint target kept (--keep-joint-targets)")
+#: Targets the core corrects in one batch: its arrays grow with the batch (bench/filter.md),
+#: so a long program goes in batches of targets that do not refer to each other
+#: (:func:`batches`).
+CORRECT_BATCH = 2000
 #: Decimals of the joints [deg] and of the written values' neighbours in the summary.
 SUMMARY_JOINT_DECIMALS = 4
 
@@ -261,6 +265,49 @@ def _parse_group(
     return [], []
 
 
+def batches(targets: Sequence[Target], size: int | None = None) -> list[list[int]]:
+    """The targets' indices in batches of at most ``size`` (default :data:`CORRECT_BATCH`)
+    that the core can correct apart: targets that refer to each other (one follows another,
+    one starts from another's joints, two share a name in a file) stay in one batch, in
+    their order; a group larger than ``size`` is a batch of its own."""
+    size = CORRECT_BATCH if size is None else size
+    n = len(targets)
+    if n <= size:
+        return [list(range(n))] if n else []
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    first: dict[tuple[str, str], int] = {}
+    for i, t in enumerate(targets):
+        k = first.setdefault((t.file, t.name), i)
+        if k != i:
+            parent[root(i)] = root(k)
+    for i, t in enumerate(targets):
+        after = t.configuration.after if t.configuration is not None else None
+        for other in (t.follows, after):
+            linked = first.get((t.file, other)) if other is not None else None
+            if linked is not None:
+                parent[root(i)] = root(linked)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    out: list[list[int]] = []
+    current: list[int] = []
+    for group in sorted(groups.values(), key=lambda g: g[0]):
+        if current and len(current) + len(group) > size:
+            out.append(sorted(current))
+            current = []
+        current.extend(group)
+    if current:
+        out.append(sorted(current))
+    return out
+
+
 def _with_reasons(
     corrections: list[Correction], parsed: list[tuple[Dialect, Target]]
 ) -> list[Correction]:
@@ -327,10 +374,17 @@ def filter_files(
                     "(names match without regard to case)",
                 )
             )
-    corrections = correct_targets(
-        cal, run.targets, keep_joint_targets=keep_joint_targets, only=only
-    )
-    run.corrections = _with_reasons(corrections, parsed)
+    corrections: list[Correction | None] = [None] * len(run.targets)
+    for batch in batches(run.targets):
+        done = correct_targets(
+            cal,
+            [run.targets[i] for i in batch],
+            keep_joint_targets=keep_joint_targets,
+            only=only,
+        )
+        for i, c in zip(batch, done, strict=True):
+            corrections[i] = c
+    run.corrections = _with_reasons([c for c in corrections if c is not None], parsed)
     run.sources = {src.name: src for src in readable}
     edits: dict[str, list[Edit]] = defaultdict(list)
     written = run.written
