@@ -34,8 +34,6 @@ Writes ``bench/filter.json`` and ``bench/filter.md``.
 from __future__ import annotations
 
 import json
-import os
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -43,7 +41,11 @@ from typing import Any
 
 import numpy as np
 
+from bench.filter_shapes import rapid_shapes
+from bench.filter_speed import ROOT, checkout, measure, temporary, write_programs
+from bench.filter_speed import markdown as speed_table
 from bench.run import environment
+from calib.export import model_to_toml
 from calib.filter.branches import flange_frames, nominal_solutions
 from calib.filter.correct import IK_OPTIONS, calibration_from_result
 from calib.filter.fanuc_ls import DIALECT as LS
@@ -62,6 +64,7 @@ from filter_cells import (
     Cell,
     make_cell,
     planned_targets,
+    rapid_confdata,
     rapid_module,
     regular_poses,
     smooth_path,
@@ -106,47 +109,39 @@ def _program(
 
 #: Planned joints per target of each dialect's program (a PolyScope waypoint is two targets).
 _PER_TARGET = {"RAPID": 1.0, "URScript": 0.5, "KRL": 1.0, "Fanuc LS": 1.0}
+SHAPES = "RAPID, shapes"
 
 
-def speed(cell: Cell, dialect: str) -> dict[str, Any]:
-    cal = calibration_from_result(cell.result, cell.nominal)
-    n_plan = int(N_TARGETS * _PER_TARGET[dialect])
-    q = regular_poses(cell.nominal, n_plan, seed=1)
-    files, frames = _program(dialect, cell, q)
-    load = [round(v, 2) for v in os.getloadavg()]
-    times, cpu, probes = [], [], []
-    for _ in range(REPEATS):
-        probes.append(_probe_s())
-        t, c = time.perf_counter(), time.process_time()
-        run = filter_files(cal, files, frames=frames)
-        times.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-    corrected = sum(c.status == "corrected" for c in run.corrections)
-    n_loop = int(N_LOOP * _PER_TARGET[dialect])
-    singles = [_program(dialect, cell, q[i : i + 1]) for i in range(n_loop)]
-    t = time.perf_counter()
-    n_single = 0
-    for body, fr in singles:
-        n_single += len(filter_files(cal, body, frames=fr).targets)
-    loop_s = time.perf_counter() - t
-    return {
-        "targets": len(run.targets),
-        "corrected": corrected,
-        "bytes": sum(len(b) for _, b in files),
-        "load_average_1_5_15": load,
-        "vectorised_s": statistics.median(times),
-        "runs_s": times,
-        "vectorised_cpu_s": statistics.median(cpu),
-        "runs_cpu_s": cpu,
-        "loop_targets": n_single,
-        "loop_s": loop_s,
-        "loop_scaled_s": loop_s * len(run.targets) / n_single,
-        "probe_1e6_additions_s": statistics.median(probes),
-    }
+def programs(cell: Cell) -> dict[str, tuple[list[tuple[str, bytes]], str | None]]:
+    """Each dialect's program of 10,000 targets (files, frames TOML or None)."""
+    out: dict[str, tuple[list[tuple[str, bytes]], str | None]] = {}
+    for dialect, per in _PER_TARGET.items():
+        q = regular_poses(cell.nominal, int(N_TARGETS * per), seed=1)
+        files, _ = _program(dialect, cell, q)
+        frames = frames_toml(tool_frame(220.0), work_frame()) if dialect == "Fanuc LS" else None
+        out[dialect] = (files, frames)
+    q = regular_poses(cell.nominal, N_TARGETS, seed=2)
+    tools = [tool_frame(185.0), tool_frame(220.0, 10.0), tool_frame(240.0, 30.0)]
+    text = rapid_shapes(cell.nominal, q, tools, work_frame(), rapid_confdata(cell.nominal, q))
+    out[SHAPES] = ([("SHAPES.mod", text.encode())], None)
+    return out
 
 
-def speeds(cell: Cell) -> dict[str, dict[str, Any]]:
-    return {d: speed(cell, d) for d in _PER_TARGET}
+def speeds(
+    cell: Cell, against: str | None, rounds: int = REPEATS
+) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, str]]:
+    """Per checkout ("this", and "before" = ``against``) and dialect, the figures of
+    :func:`bench.filter_speed.measure`; and the checkouts' labels."""
+    labels = {"this": "this", "this-gc-off": "this, GC off in the run"}
+    with temporary() as tmp:
+        d = Path(tmp)
+        write_programs(d / "data", cell.result, model_to_toml(cell.nominal), programs(cell))
+        codes = {"this": (ROOT, False), "this-gc-off": (ROOT, True)}
+        if against:
+            codes["before"] = (checkout(against, d), False)
+            labels["before"] = f"before ({against})"
+        sp = measure(d / "data", codes, [*_PER_TARGET, SHAPES], rounds)
+    return sp, labels
 
 
 def _rms(v: FloatArray) -> float:
@@ -298,66 +293,42 @@ def _krl_ls_rows(cell: Cell, noisy: Cell) -> dict[str, dict[str, float]]:
 
 def markdown(
     env: dict[str, Any],
-    sp: dict[str, dict[str, Any]],
+    sp: dict[str, dict[str, dict[str, Any]]],
+    labels: dict[str, str],
     acc: dict[str, dict[str, float]],
-    before: dict[str, dict[str, Any]] | None = None,
 ) -> str:
     lines = [
         "# cablecal filter: speed and accuracy",
         "",
         f"Machine: {env['machine']}, {env['cpus']} CPUs (shared), Python {env['python']}, "
         f"numpy {env['numpy']}; load average at the start {env['load_average_1_5_15']}. "
-        "Setup and method: `bench/filter_bench.py`.",
+        "Setup and method: `bench/filter_bench.py` and `bench/filter_speed.py`.",
         "",
-        "## Speed",
+        "## Speed and memory",
         "",
         "The whole `filter_files` on one program of each dialect (parse, nominal IK on the "
         "written configuration, calibrated IK seeded from it, σ at the tool, numbers written "
-        "back); the per-target loop is the same work one target a call, scaled. The issue's "
-        "target: 10,000 targets in ≤ 2 s.",
+        "back), each run in a fresh process; the checkouts take turns, "
+        f"{len(next(iter(sp.values()))['RAPID']['runs_s'])} runs each. Peak RSS is the "
+        "process's whole peak (imports, data and run: what a `cablecal filter` process "
+        "costs); RSS before the run is what the imports and the data took before it. The "
+        "issue's target: 10,000 targets in ≤ 2 s and ≤ 200 MB per dialect.",
         "",
-        "| dialect | targets | MB | vectorised [s] (median of runs) | runs [s] | CPU [s] "
-        "(median) | per-target loop [s] | load average 1/5/15 | probe [s] |",
-        "|---|---:|---:|---:|---|---:|---:|---|---:|",
-    ]
-    for name, r in sp.items():
-        lines.append(
-            f"| {name} | {r['targets']:,} | {r['bytes'] / 1e6:.1f} | "
-            f"{r['vectorised_s']:.2f} | {', '.join(f'{t:.2f}' for t in r['runs_s'])} | "
-            f"{r.get('vectorised_cpu_s', float('nan')):.2f} | "
-            f"{r['loop_scaled_s']:.1f} | {r['load_average_1_5_15']} | "
-            f"{r['probe_1e6_additions_s']:.3f} |"
-        )
-    if before:
-        lines += [
-            "",
-            "Before the parse was reworked (the same script on the previous "
-            "checkout, same machine, just before):",
-            "",
-            "| dialect | vectorised [s] | runs [s] | CPU [s] | load average 1/5/15 | probe [s] |",
-            "|---|---:|---|---:|---|---:|",
-        ]
-        for name, r in before.items():
-            runs = ", ".join(f"{t:.2f}" for t in r["runs_s"])
-            lines.append(
-                f"| {name} | {r['vectorised_s']:.2f} | {runs} | "
-                f"{r.get('vectorised_cpu_s', float('nan')):.2f} | "
-                f"{r['load_average_1_5_15']} | "
-                f"{r['probe_1e6_additions_s']:.3f} |"
-            )
-        lines += [
-            "",
-            "Only the KRL and Fanuc LS code (and the rotation helper they render "
-            "with) differs between the two checkouts: RAPID's and URScript's differences "
-            "are the shared machine's.",
-        ]
-    lines += [
+        *speed_table(sp, labels),
         "",
-        "URScript's 10,000 targets are 5,000 PolyScope waypoints (`Waypoint_n_p` and the "
-        "`Waypoint_n_q` that follows it). The probe is a Python loop of 10⁶ additions timed "
-        "beside the runs (median): the times scale with it on the shared machine. CPU is the "
-        "process's own time (`time.process_time`): what the run costs without the time the "
-        "other processes of the shared machine take from it.",
+        "`RAPID, shapes` is one module of 10,000 targets in the shapes real modules hold "
+        "(`bench/filter_shapes.py`: one-line and multi-line CONST/PERS/VAR robtargets, arrays "
+        "used by index, inline targets, MoveC, MoveAbsJ joint targets, three tools, two work "
+        "objects, 0 to 8 decimals, routines of 400 moves). URScript's 10,000 targets are 5,000 "
+        "PolyScope waypoints (`Waypoint_n_p` and the `Waypoint_n_q` that follows it). CPU is "
+        "the process's own time (`time.process_time`): what the run costs without the time "
+        "the other processes of the shared machine take from it.",
+        "",
+        "`this, GC off in the run` is this checkout with the cyclic garbage collector off "
+        "around the run, as the previous checkout's `filter_files` did itself with "
+        "`gc.disable()`: the row measures what that bought. The library leaves the collector "
+        "alone now (the service filters requests concurrently, and the switch is the "
+        "process's).",
         "",
         "## Accuracy on an EMULATED truth",
         "",
@@ -388,21 +359,19 @@ def markdown(
 def main() -> None:
     env = environment()
     cell = make_cell()
+    against = None
+    if "--against" in sys.argv:  # the previous checkout: a git revision
+        against = sys.argv[sys.argv.index("--against") + 1]
+    sp, labels = speeds(cell, against)
     if "--speed-only" in sys.argv:
-        print(json.dumps({"environment": env, "speed": speeds(cell)}, indent=2))
+        print(json.dumps({"environment": env, "speed": sp}, indent=2))
         return
-    before = None
-    if "--before" in sys.argv:  # a --speed-only JSON of the previous checkout
-        before = json.loads(Path(sys.argv[sys.argv.index("--before") + 1]).read_text())["speed"]
-    sp = speeds(cell)
     acc = accuracy(cell, make_cell(noise_mm=NOISE_MM))
     (OUT / "filter.json").write_text(
-        json.dumps(
-            {"environment": env, "speed": sp, "speed_before": before, "accuracy": acc}, indent=2
-        )
+        json.dumps({"environment": env, "speed": sp, "labels": labels, "accuracy": acc}, indent=2)
         + "\n"
     )
-    (OUT / "filter.md").write_text(markdown(env, sp, acc, before))
+    (OUT / "filter.md").write_text(markdown(env, sp, labels, acc))
     print((OUT / "filter.md").read_text())
 
 

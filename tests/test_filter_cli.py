@@ -4,6 +4,7 @@ file, the table at 80 columns, the exit codes, errors naming the file and line."
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -62,10 +63,20 @@ def test_all_corrected_exit_0_files_and_summary(setup: dict[str, Path], tmp_path
     assert row["file"] == "cell_a.mod" and row["line"] == 13 and row["status"] == "corrected"
     assert row["configuration_kept"] is True and row["tool"] == "tSpindle"
     assert 0 < row["sigma_at_tool_mm"] < 1 and row["shift_mm"] > 0.1
+    # The old and new values as written, and the joints to check on the pendant.
+    text = (p / "cell_a.mod").read_text()
+    filtered = (out / "cell_a.mod").read_text()
+    assert row["values"] and len(row["joints_deg"]) == 6 and len(row["nominal_joints_deg"]) == 6
+    for v in row["values"]:
+        assert v["old"] in text.splitlines()[v["line"] - 1]
+        assert v["new"] in filtered.splitlines()[v["line"] - 1] and v["new"] != v["old"]
     lines = r.output.splitlines()
     assert max(len(line) for line in lines) <= 80
-    assert any("pEdge" in line and "corrected" in line and "kept" in line for line in lines)
+    big = max(summary["targets"], key=lambda t: t["shift_mm"])
+    flat = " ".join(r.output.split())
+    assert f"16 corrected: shift up to {big['shift_mm']:.3f} mm ({big['file']}:" in flat
     assert "16 targets: 16 corrected, 0 left unchanged" in r.output
+    assert "Targets left unchanged" not in r.output  # no table when none is left
 
 
 def test_targets_left_exit_3_and_are_named(setup: dict[str, Path], tmp_path: Path) -> None:
@@ -81,12 +92,34 @@ def test_targets_left_exit_3_and_are_named(setup: dict[str, Path], tmp_path: Pat
         out,
     )
     assert r.exit_code == EXIT_LEFT, r.output
-    text = " ".join(r.output.split())
+    table = [line.strip("│ ") for line in r.output.splitlines()]
+    # One row per reason, its count and its targets; the unused point not counted as left.
+    assert any(re.match(r"1 │ skipped: used with two tools/work objects; .*pB3", t) for t in table)
+    assert any(re.match(r"1 │ skipped: wobjdata wMissing is not declared .*pB4", t) for t in table)
+    assert any(re.match(r"1 │ unused: not used by any move .*pB5", t) for t in table)
+    assert "6 targets: 3 corrected, 2 left unchanged, 1 not used by any move" in r.output
+    assert "pB4: skipped: line 26" not in r.output  # the full reasons with --verbose
+    assert (out / "station_b.prg").read_bytes() != (p / "station_b.prg").read_bytes()
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["out"]  # no temporary left
+    summary = json.loads((out / "filter-summary.json").read_text())
+    assert summary["counts"]["left"] == 2 and summary["counts"]["unused"] == 1
+    assert all(t["reason"] for t in summary["targets"] if t["status"] != "corrected")
+    verbose = _run(
+        setup["result"],
+        p / "station_b.prg",
+        p / "tools_b.sys",
+        "--robot",
+        setup["robot"],
+        "--out",
+        out,
+        "--verbose",
+    )
+    assert verbose.exit_code == EXIT_LEFT
+    text = " ".join(verbose.output.split())
     assert "station_b.prg:14 pB3: skipped: used with two tools/work objects" in text
     assert "station_b.prg:15 pB4: skipped: line 26: wobjdata wMissing is not declared" in text
     assert "station_b.prg:16 pB5: skipped: not used by any move" in text
-    assert (out / "station_b.prg").read_bytes() != (p / "station_b.prg").read_bytes()
-    assert not [f for f in out.iterdir() if f.name.endswith(".tmp")]  # temporaries renamed
+    assert max(len(line) for line in verbose.output.splitlines()) <= 80
 
 
 def test_an_unparseable_file_exit_2_named_and_not_written(

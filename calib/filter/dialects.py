@@ -2,12 +2,17 @@
 
 A dialect module exposes ``DIALECT`` (an object implementing
 :class:`calib.filter.sites.Dialect`) and is listed in :data:`DIALECT_MODULES`; nothing else
-(CLI, service) names dialects.
+(CLI, service) names dialects. :data:`SIGNATURES` is a cheap sniff of each dialect's text,
+so that a file whose content is another dialect's than its extension says (a Fanuc ``.ls``
+saved as ``.script``) is refused, saying what it looks like, instead of being read as a
+program without targets.
 """
 
 from __future__ import annotations
 
 import importlib
+import re
+from dataclasses import dataclass
 from functools import cache
 from pathlib import PurePath
 
@@ -21,6 +26,53 @@ DIALECT_MODULES = (
     "calib.filter.fanuc_ls",
 )
 
+#: Characters of a file's start a signature looks at (headers and comments come first).
+SNIFF_CHARS = 65536
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What a dialect's text starts with: ``label`` (for messages), ``what`` (the feature
+    found), and ``pattern`` (searched in the first :data:`SNIFF_CHARS` characters)."""
+
+    label: str
+    what: str
+    pattern: re.Pattern[str]
+
+
+_LEAD_KRL = r"\A\ufeff?(?:\s*(?:&[^\n]*|;[^\n]*))*\s*"
+#: Per dialect name, the signature of its text.
+SIGNATURES = {
+    "fanuc-ls": Signature(
+        "a Fanuc LS program",
+        "a /PROG line and /ATTR, /MN or /POS sections",
+        re.compile(r"\A\ufeff?\s*/PROG\b[\s\S]*?^[ \t]*/(?:ATTR|MN|POS)\b", re.MULTILINE),
+    ),
+    "rapid": Signature(
+        "an ABB RAPID module",
+        "a MODULE statement",
+        re.compile(r"\A\ufeff?(?:\s*(?:%%%[\s\S]*?%%%|![^\n]*))*\s*MODULE\s+\w+", re.IGNORECASE),
+    ),
+    "krl": Signature(
+        "a KUKA KRL program",
+        "a &ACCESS header, DEF or DEFDAT",
+        re.compile(
+            _LEAD_KRL + r"(?:&\w+|DEFDAT\s+\w+|(?:GLOBAL\s+)?DEF(?:FCT\s+\w+)?\s+\w+\s*"
+            r"\([^)\n]*\)(?![ \t]*:))",
+            re.IGNORECASE,
+        ),
+    ),
+    "urscript": Signature(
+        "a URScript program",
+        "a def NAME(): or a move to a pose",
+        re.compile(
+            r"^[ \t]*def[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*:"
+            r"|\b(?:movej|movel|movep|movec)\s*\(\s*p?\[",
+            re.MULTILINE,
+        ),
+    ),
+}
+
 
 @cache
 def dialects() -> tuple[Dialect, ...]:
@@ -33,14 +85,34 @@ def extension(name: str) -> str:
     return PurePath(name).suffix.lower()
 
 
+def looks_like(source: Source) -> list[tuple[str, int]]:
+    """The dialects whose signature the file's start matches: (dialect name, line)."""
+    head = source.text[:SNIFF_CHARS]
+    out = []
+    for name, sig in SIGNATURES.items():
+        m = sig.pattern.search(head)
+        if m:
+            out.append((name, head.count("\n", 0, m.end()) + 1))  # the head's lines only
+    return out
+
+
+def is_empty(source: Source) -> bool:
+    """No program text at all: no byte, or only white space (and a byte-order mark)."""
+    return not source.text.strip(" \t\r\n\f\v\ufeff\x00\x1a")
+
+
 def dialect_for(source: Source) -> Dialect:
     """The dialect of a file, by extension and then content.
 
     Raises
     ------
     FilterInputError
-        No dialect takes the extension, or none of those that do recognises the content.
+        An empty file; no dialect takes the extension; the content is another dialect's
+        (the message says which); or none of those that take it recognises the content.
     """
+    if is_empty(source):
+        what = "0 bytes" if not source.text else "only white space"
+        raise FilterInputError(source.name, f"empty file ({what}): no program to filter")
     ext = extension(source.name)
     by_ext = [d for d in dialects() if ext in d.extensions]
     if not by_ext:
@@ -49,8 +121,19 @@ def dialect_for(source: Source) -> Dialect:
             source.name,
             f"unknown program dialect (extension {ext or 'none'!r}; known: {', '.join(known)})",
         )
+    names = ", ".join(d.name for d in by_ext)
+    looks = looks_like(source)
+    if looks and not any(name == d.name for name, _ in looks for d in by_ext):
+        other, line = looks[0]
+        sig = SIGNATURES[other]
+        exts = next(d.extensions for d in dialects() if d.name == other)
+        raise FilterInputError(
+            source.name,
+            f"the content is not {names} (extension {ext}): it looks like {sig.label} "
+            f"({sig.what}); give it its own extension ({', '.join(exts)})",
+            line,
+        )
     for d in by_ext:
         if d.claims(source):
             return d
-    names = ", ".join(d.name for d in by_ext)
     raise FilterInputError(source.name, f"the content is not {names} (extension {ext})", 1)

@@ -34,15 +34,16 @@ from __future__ import annotations
 import bisect
 import math
 import re
-import tomllib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 
-from calib.filter.rotations import frame, zyx_deg_to_matrix
+from calib.filter.inputs import FilterInputError as FilterInputError
+from calib.filter.inputs import FrameTables as FrameTables
+from calib.filter.inputs import parse_frames_toml as parse_frames_toml
 from calib.kinematics import N_JOINTS, FloatArray
 
 Kind = Literal["cartesian", "joint"]
@@ -51,20 +52,14 @@ Kind = Literal["cartesian", "joint"]
 #: limits), or skipped (with the reason: frame not resolved, used with two tools, ...).
 Status = Literal["corrected", "unreachable", "skipped"]
 
+#: The reason of a target that no move of the given files uses (a point a data file declares
+#: for programs not given), or its start (a dialect may add ": " and a detail). Reported,
+#: never counted as left: it alone never makes exit 3 (:mod:`calib.filter.run`).
+UNUSED_REASON = "not used by any move in the given files"
+
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
 ORIENTATION_ROUNDING_DEG = 0.0005
-
-
-class FilterInputError(ValueError):
-    """A file cannot be filtered (unparseable, unknown dialect, bad frames); the message
-    names the file and, where there is one, the line."""
-
-    def __init__(self, file: str, message: str, line: int | None = None) -> None:
-        where = f"{file}:{line}" if line is not None else file
-        super().__init__(f"{where}: {message}")
-        self.file = file
-        self.line = line
 
 
 @dataclass(frozen=True)
@@ -116,12 +111,13 @@ class Source:
         return bisect.bisect_right(self._line_starts, offset) + 1
 
 
-@dataclass(frozen=True, slots=True)
-class Num:
+class Num(NamedTuple):
     """One number of a target as it stands in its file.
 
     ``start, end`` are character offsets into :attr:`Source.text`; ``text`` the original
-    characters; ``value`` what they mean (as the controller reads them).
+    characters; ``value`` what they mean (as the controller reads them). A tuple of atoms:
+    the cyclic garbage collector stops tracking it after its first pass, so the hundreds
+    of thousands of numbers of a long program cost no collection time after that.
     """
 
     file: str
@@ -131,9 +127,9 @@ class Num:
     value: float
 
 
-@dataclass(frozen=True)
-class Edit:
-    """Replace ``text[start:end]`` of ``file`` by ``new``."""
+class Edit(NamedTuple):
+    """Replace ``text[start:end]`` of ``file`` by ``new`` (a tuple: a program has one per
+    rewritten number)."""
 
     file: str
     start: int
@@ -306,68 +302,6 @@ class Correction:
     sigma_mm: float = math.nan
 
 
-@dataclass(frozen=True)
-class FrameTables:
-    """User frames and tools given with ``--frames`` (Fanuc ``UF``/``UT``), numbered.
-
-    ``uframe[n]`` is a work object in the base frame, ``utool[n]`` a TCP in the flange
-    frame, both (4, 4) [mm]. Number 0 is the identity in both (and cannot be redefined).
-    """
-
-    uframe: Mapping[int, FloatArray] = field(default_factory=dict)
-    utool: Mapping[int, FloatArray] = field(default_factory=dict)
-
-    def get(self, kind: Literal["uframe", "utool"], number: int) -> FloatArray | None:
-        """The frame, the identity for 0, None when not given."""
-        if number == 0:
-            return np.eye(4)
-        table = self.uframe if kind == "uframe" else self.utool
-        return table.get(number)
-
-
-def parse_frames_toml(text: str, name: str = "frames") -> FrameTables:
-    """``[uframe.N]`` and ``[utool.N]`` tables, each ``xyz_mm = [x, y, z]`` and ``wpr_deg =
-    [w, p, r]`` (Fanuc: ``R = Rz(r) Ry(p) Rx(w)``), N = 1..99.
-
-    Raises
-    ------
-    FilterInputError
-        Naming the table and field.
-    """
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise FilterInputError(name, f"not TOML: {exc}") from None
-    out: dict[str, dict[int, FloatArray]] = {"uframe": {}, "utool": {}}
-    for key, tables in data.items():
-        if key not in out:
-            raise FilterInputError(name, f"[{key}]: unknown table; expected uframe.N or utool.N")
-        if not isinstance(tables, dict):
-            raise FilterInputError(name, f"{key}: expected tables [{key}.N]")
-        for num, body in tables.items():
-            where = f"[{key}.{num}]"
-            if not re.fullmatch(r"[1-9]\d?", str(num)):
-                raise FilterInputError(name, f"{where}: the number must be 1..99")
-            if not isinstance(body, dict) or set(body) != {"xyz_mm", "wpr_deg"}:
-                raise FilterInputError(name, f"{where}: needs exactly xyz_mm and wpr_deg")
-            vals = []
-            for fld in ("xyz_mm", "wpr_deg"):
-                v = body[fld]
-                if (
-                    not isinstance(v, list)
-                    or len(v) != 3
-                    or not all(
-                        isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-                        for x in v
-                    )
-                ):
-                    raise FilterInputError(name, f"{where}.{fld}: expected 3 finite numbers")
-                vals.append([float(x) for x in v])
-            w, p, r = vals[1]
-            out[key][int(num)] = frame(np.array(vals[0]), zyx_deg_to_matrix(r, p, w))
-    return FrameTables(out["uframe"], out["utool"])
-
-
 class Dialect(Protocol):
     """What a controller language module provides (see the module docstring).
 
@@ -411,6 +345,10 @@ def decimals_of(text: str) -> int:
     return len(frac) if exp < 0 else exp
 
 
+#: Half a unit of the last written decimal, by decimals.
+_HALF_UNIT = tuple(0.5 * 10.0**-d for d in range(40))
+
+
 def format_number(original: Num, value: float, min_decimals: int) -> str:
     """``value`` written like ``original``: with ``max(its decimals, min_decimals)`` decimals
     (fixed point). When ``value`` equals the original at that precision (or to floating-point
@@ -423,15 +361,16 @@ def format_number(original: Num, value: float, min_decimals: int) -> str:
     # Equal at the written precision, or up to floating-point round-off (a PolyScope joint
     # written with 16 decimals, converted to degrees and back).
     diff = abs(value - original.value)
-    if diff < 0.5 * 10.0**-dec or diff < 1e-12 * max(1.0, abs(value)):
+    half = _HALF_UNIT[dec] if dec < 40 else 0.5 * 10.0**-dec
+    if diff < half or diff < 1e-12 * max(1.0, abs(value)):
         return otext
     text = f"{value:.{dec}f}"
+    first = otext[0]
     if text[0] == "-" and float(text) == 0.0:
         text = text[1:]
-    first = otext[0]
     if first == "+" and text[0] != "-":
         text = "+" + text
-    if dec and (first == "." or otext[1:2] == ".") and first in ".+-":
+    if dec and first in ".+-" and (first == "." or otext[1:2] == "."):
         sign = "-" if text[0] == "-" else ""
         body = text.lstrip("+-")
         if body.startswith("0."):
@@ -452,9 +391,9 @@ def edits_for(nums: Sequence[Num], values: Iterable[float], min_decimals: int) -
     ``min_decimals``; a number whose text stays is left out (:func:`edit`)."""
     out = []
     for num, value in zip(nums, values, strict=True):
-        e = edit(num, float(value), min_decimals)
-        if e is not None:
-            out.append(e)
+        new = format_number(num, float(value), min_decimals)
+        if new != num.text:
+            out.append(Edit(num.file, num.start, num.end, new))
     return out
 
 

@@ -6,11 +6,9 @@ pay for them. The table fits 80 columns; the summary file has every row.
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -19,13 +17,23 @@ from rich.table import Table
 
 from daemon.cli.errors import fail as _fail
 
-if TYPE_CHECKING:
-    from calib.filter.run import FilterRun
-
 SUMMARY_NAME = "filter-summary.json"
 #: Exit codes: calib.filter.run's (0 all corrected, 3 some left, 2 bad input).
-#: Rows the table prints before it shows only the targets left unchanged.
-MAX_PRINTED_ROWS = 40
+#: Targets of each group of left targets the table names (all with --verbose).
+FIRST_OF_GROUP = 3
+#: The fields of a summary row the console shows.
+_SHOWN = (
+    "file",
+    "line",
+    "name",
+    "status",
+    "reason",
+    "group",
+    "shift_mm",
+    "shift_deg",
+    "sigma_at_tool_mm",
+)
+FRAMES_HELP = escape("TOML of [uframe.N] / [utool.N] (xyz_mm, wpr_deg).")
 
 
 def register(app: typer.Typer) -> None:
@@ -33,74 +41,83 @@ def register(app: typer.Typer) -> None:
     app.command(name="filter")(filter_cmd)
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same directory and a
-    rename: a reader never sees half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def _where(r: dict[str, Any]) -> str:
+    return f"{r['file']}:{r['line']} {r['name']}"
 
 
-def _num(v: Any, fmt: str) -> str:
-    return "-" if v is None else format(v, fmt)
-
-
-def summary_table(run: FilterRun, con: Console) -> None:
-    """Per target: file, line, name, status, shift, configuration kept, σ at the tool."""
-    rows = run.rows()
-    shown = rows
-    title = "Filtered targets"
-    if len(rows) > MAX_PRINTED_ROWS:
-        shown = [r for r in rows if r["status"] != "corrected"][:MAX_PRINTED_ROWS]
-        title = (
-            f"Targets left unchanged ({len(shown)} shown of {len(rows)} targets; "
-            f"all in {SUMMARY_NAME})"
-        )
-    table = Table(title=title)
-    for col, just in (
-        ("file", "left"),
-        ("line", "right"),
-        ("name", "left"),
-        ("status", "left"),
-        ("mm", "right"),
-        ("deg", "right"),
-        ("conf", "left"),
-        ("σ mm", "right"),
-    ):
-        fold = col in ("file", "name")
-        table.add_column(escape(col), justify=just, overflow="fold" if fold else "ellipsis")  # type: ignore[arg-type]
-    for r in shown:
-        conf = {True: "kept", False: "changed", None: "-"}[r["configuration_kept"]]
-        table.add_row(
-            escape(r["file"]),
-            str(r["line"]),
-            escape(r["name"]),
-            r["status"],
-            _num(r["shift_mm"], ".3f"),
-            _num(r["shift_deg"], ".4f"),
-            conf,
-            _num(r["sigma_at_tool_mm"], ".3f"),
-        )
-    if shown:
-        con.print(table)
+def left_table(rows: list[dict[str, Any]], con: Console, verbose: bool) -> None:
+    """The targets left unchanged, one line per reason: how many, and the first
+    :data:`FIRST_OF_GROUP` of them (all with ``verbose``, then each with its full reason)."""
+    groups: dict[str, list[dict[str, Any]]] = {}
     for r in rows:
-        if r["status"] != "corrected":
-            con.print(
-                f"{escape(r['file'])}:{r['line']} {escape(r['name'])}: {r['status']}: "
-                f"{escape(r['reason'])}",
-                highlight=False,
-            )
-    counts = run.summary()["counts"]
+        if "group" in r:
+            groups.setdefault(r["group"], []).append(r)
+    if not groups:
+        return
+    title = "Targets left unchanged, by reason"
+    if not verbose:
+        title += f" (the first {FIRST_OF_GROUP} of each; all with --verbose)"
+    table = Table(title=title)
+    table.add_column("n", justify="right")
+    table.add_column("reason", overflow="fold", ratio=1)
+    table.add_column("targets", overflow="fold", ratio=1)
+    for group, members in sorted(groups.items(), key=lambda kv: (-len(kv[1]), kv[0])):
+        shown = members if verbose else members[:FIRST_OF_GROUP]
+        names = [escape(_where(r)) for r in shown]
+        if len(members) > len(shown):
+            names.append(f"… {len(members) - len(shown)} more")
+        table.add_row(str(len(members)), escape(group), "\n".join(names))
+    con.print(table)
+    if verbose:
+        for r in rows:
+            if "group" in r:
+                con.print(
+                    f"{escape(_where(r))}: {r['status']}: {escape(r['reason'])}", highlight=False
+                )
+
+
+def corrected_line(rows: list[dict[str, Any]]) -> str:
+    """The corrected targets in one sentence: how many, the largest shift and where, the
+    largest σ at the tool."""
+    done = [r for r in rows if r["status"] == "corrected"]
+    if not done:
+        return "no target corrected"
+    shifts = [r for r in done if r["shift_mm"] is not None]
+    text = f"{len(done)} corrected"
+    if shifts:
+        big = max(shifts, key=lambda r: r["shift_mm"])
+        text += (
+            f": shift up to {big['shift_mm']:.3f} mm ({_where(big)}), "
+            f"{max(r['shift_deg'] or 0.0 for r in shifts):.4f} deg"
+        )
+    sig = [r["sigma_at_tool_mm"] for r in done if r["sigma_at_tool_mm"] is not None]
+    if sig:
+        text += f"; σ at the tool up to {max(sig):.3f} mm"
+    return text
+
+
+def summary_table(summary: dict[str, Any], con: Console, verbose: bool = False) -> None:
+    """The left targets grouped by reason, the corrected ones in a sentence, the counts (of
+    a ``filter-summary.json`` mapping, :meth:`calib.filter.run.FilterRun.summary`)."""
+    rows = summary["targets"]
+    left_table(rows, con, verbose)
+    con.print(escape(corrected_line(rows)), highlight=False)
+    counts = summary["counts"]
+    unused = f", {counts['unused']} not used by any move" if counts["unused"] else ""
     con.print(
         f"{counts['targets']} targets: {counts.get('corrected', 0)} corrected, "
-        f"{counts['left']} left unchanged",
+        f"{counts['left']} left unchanged{unused}",
         highlight=False,
     )
+
+
+def _keep_shown(
+    rows: Iterator[dict[str, Any]], shown: list[dict[str, Any]]
+) -> Iterator[dict[str, Any]]:
+    """``rows``, keeping in ``shown`` the fields of each that the console shows."""
+    for r in rows:
+        shown.append({k: r[k] for k in _SHOWN if k in r})
+        yield r
 
 
 def filter_cmd(
@@ -109,15 +126,17 @@ def filter_cmd(
         list[Path],
         typer.Argument(help="Program files (RAPID, KRL .src/.dat, URScript, Fanuc .ls)."),
     ],
-    out: Annotated[Path, typer.Option("--out", help="Directory for the filtered files.")],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out", help="Directory for the filtered files (new, empty, or a previous --out)."
+        ),
+    ],
     robot: Annotated[
         str | None,
         typer.Option(help="Nominal model (built-in name or model file); default: the result's."),
     ] = None,
-    frames: Annotated[
-        Path | None,
-        typer.Option("--frames", help="TOML of [uframe.N] / [utool.N] (xyz_mm, wpr_deg)."),
-    ] = None,
+    frames: Annotated[Path | None, typer.Option("--frames", help=FRAMES_HELP)] = None,
     keep_joint_targets: Annotated[
         bool,
         typer.Option("--keep-joint-targets", help="Leave joint targets (taught points) alone."),
@@ -125,6 +144,10 @@ def filter_cmd(
     only: Annotated[
         str | None, typer.Option("--only", help="Correct only these targets: NAME,NAME,…")
     ] = None,
+    verbose: Annotated[
+        bool,
+        typer.Option("--verbose", "-v", help="Name every target left unchanged, with its reason."),
+    ] = False,
 ) -> None:
     """Correct every target of robot programs for the calibrated robot, in place.
 
@@ -134,12 +157,24 @@ def filter_cmd(
     2 bad input (a file that cannot be read is not written)
     """
     from calib.filter.correct import calibration_from_result
-    from calib.filter.run import filter_files
+    from calib.filter.run import filter_files, robot_check, summary_text
     from calib.filter.sites import FilterInputError, parse_frames_toml
     from daemon.cli.apply import nominal_model, read_result
+    from daemon.cli.errors import printable
+    from daemon.cli.filter_out import OutDirError, default_file_mode, write_set
 
+    err = Console(stderr=True)
     res = read_result(result)
     nominal = nominal_model(res, robot, result)
+    warning, mismatch = robot_check(res, nominal)
+    if mismatch:
+        raise _fail(f"{result}: {mismatch}")
+    if warning:
+        err.print(
+            f"[bold yellow]warning:[/] {escape(printable(f'{result}: {warning}'))}",
+            highlight=False,
+            soft_wrap=True,
+        )
     try:
         cal = calibration_from_result(res, nominal)
     except ValueError as exc:
@@ -160,37 +195,58 @@ def filter_cmd(
         raise _fail(
             f"two input files share the name {dup[0]!r}; they would overwrite each other in --out"
         )
+    if SUMMARY_NAME in names:
+        raise _fail(f"{SUMMARY_NAME} is the summary's name in --out; it is no program")
     out_dir = out.resolve()
     for f in files:
         if f.resolve().parent == out_dir:
             raise _fail(f"--out {out}: holds the input {f}; filter into another directory")
     data: list[tuple[str, bytes]] = []
+    modes: dict[str, int] = {}
     for f in files:
         try:
             data.append((f.name, f.read_bytes()))
+            modes[f.name] = f.stat().st_mode & 0o777
         except OSError as exc:
             raise _fail(f"{f}: cannot read: {exc.strerror}") from None
     wanted = [s.strip() for s in only.split(",") if s.strip()] if only is not None else None
+    if wanted is not None and not wanted:
+        raise _fail("--only: no target name given")
     run = filter_files(
         cal, data, frames=frame_tables, keep_joint_targets=keep_joint_targets, only=wanted
     )
+    if run.unknown_only:
+        raise _fail(
+            f"--only: no target named {', '.join(run.unknown_only)} in the given files "
+            "(names match without regard to case); nothing written"
+        )
+    extra = {"result": str(result), "robot": nominal.name}
+    if warning:
+        extra["warning"] = warning
+    head = run.summary(extra, targets=False)
+    outputs = {name: (body, modes[name]) for name, body in run.outputs.items()}
+    errors, exit_code = list(run.errors), run.exit_code
+    shown: list[dict[str, Any]] = []  # what the console needs of each row
+    text = summary_text(head, _keep_shown(run.iter_rows(), shown))
+    del run  # the summary's text has all of it now
+    outputs[SUMMARY_NAME] = (text.encode("utf-8"), default_file_mode())
+    del text
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        for name, body in run.outputs.items():
-            write_atomic(out / name, body)
-        extra = {"result": str(result), "robot": nominal.name}
-        text = json.dumps(run.summary(extra), indent=2) + "\n"
-        write_atomic(out / SUMMARY_NAME, text.encode("utf-8"))
+        write_set(out, outputs, SUMMARY_NAME)
+    except OutDirError as exc:
+        raise _fail(f"--out {exc}") from None
     except OSError as exc:
-        raise _fail(f"--out {out}: cannot write: {exc.strerror}") from None
+        raise _fail(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     console = Console()  # created here so COLUMNS is read at run time
-    summary_table(run, console)
-    for err in run.errors:
-        Console(stderr=True).print(
-            f"[bold red]error:[/] {escape(str(err))} (not written)", highlight=False, soft_wrap=True
+    summary_table({**head, "targets": shown}, console, verbose)
+    for e in errors:
+        err.print(
+            f"[bold red]error:[/] {escape(printable(str(e)))} (not written)",
+            highlight=False,
+            soft_wrap=True,
         )
     console.print(
-        f"wrote {len(run.outputs)} file(s) and {SUMMARY_NAME} to {escape(str(out))}",
+        f"wrote {len(outputs) - 1} file(s) and {SUMMARY_NAME} to {escape(str(out))}",
         highlight=False,
     )
-    raise typer.Exit(run.exit_code)
+    raise typer.Exit(exit_code)
