@@ -260,7 +260,6 @@ def test_nominal_calibration_changes_no_byte_and_names_every_left_target(
     assert {r["name"] for r in left} == {"XORPHAN", "XHOMELOCAL", "XHOME", "XOFS"}
 
 
-@pytest.mark.xfail(strict=True, reason="run.py must not count NOT_LEFT_REASONS as left")
 def test_unused_points_and_config_dat_do_not_make_exit_3(model: RobotModel) -> None:
     files = [f for f in _program(model)]
     # Only the unused point and $config.dat's XHOME are left.

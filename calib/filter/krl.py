@@ -77,6 +77,8 @@ from calib.filter.krl_data import (
 from calib.filter.krl_moves import NAME_REF, SET_FRAME, Moves
 from calib.filter.rotations import frames, matrix_to_zyx_deg, zyx_deg_to_matrix
 from calib.filter.sites import (
+    READ_ONLY_REASON,
+    UNUSED_REASON,
     Configuration,
     Correction,
     Edit,
@@ -116,10 +118,9 @@ WRIST_SINGULARITY = "wrist singularity (A5 = 0)"
 CONFIG_DAT = "$config.dat"
 #: Reasons of targets left on purpose (the summary need not count them as left).
 CONFIG_DAT_READ_ONLY = (
-    "in $config.dat, which is read and never written (its XHOME is the home position "
-    "behind $IN_HOME)"
+    f"{READ_ONLY_REASON}: $config.dat (its XHOME is the home position behind $IN_HOME)"
 )
-UNUSED = "unused: no move of the given .src files uses it and no FDAT of it names tool and base"
+UNUSED = f"{UNUSED_REASON}: no FDAT of it names tool and base"
 #: The reasons above, for the summary: a target left with one of them is not "left".
 NOT_LEFT_REASONS = (CONFIG_DAT_READ_ONLY, UNUSED)
 EXTERNAL_AXES = tuple(f"E{j}" for j in range(1, 7))

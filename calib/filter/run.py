@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING, Any
 
 from calib.filter.correct import Calibration, correct_targets
 from calib.filter.dialects import dialect_for
-from calib.filter.sites import UNUSED_REASON as UNUSED_REASON
 from calib.filter.sites import (
+    READ_ONLY_REASON,
     Correction,
     Dialect,
     Edit,
@@ -40,6 +40,7 @@ from calib.filter.sites import (
     Target,
     apply_edits,
 )
+from calib.filter.sites import UNUSED_REASON as UNUSED_REASON
 
 if TYPE_CHECKING:
     from calib.models import RobotModel
@@ -197,7 +198,10 @@ class FilterRun:
         return sum(
             1
             for c in self.corrections
-            if c.status != "corrected" and c.reason not in DELIBERATE and not is_unused(c.reason)
+            if c.status != "corrected"
+            and c.reason not in DELIBERATE
+            and not is_unused(c.reason)
+            and not c.reason.startswith(READ_ONLY_REASON)
         )
 
     @property

@@ -56,6 +56,9 @@ Status = Literal["corrected", "unreachable", "skipped"]
 #: for programs not given), or its start (a dialect may add ": " and a detail). Reported,
 #: never counted as left: it alone never makes exit 3 (:mod:`calib.filter.run`).
 UNUSED_REASON = "not used by any move in the given files"
+#: The reason (or its start) of a target in a file the filter reads and never writes (KUKA's
+#: ``$config.dat``): left on purpose, never counted as left.
+READ_ONLY_REASON = "in a file that is read and never written"
 
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
