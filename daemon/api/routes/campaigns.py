@@ -17,7 +17,6 @@ from calib.dataset import (
     parse_samples_csv,
     validate_joint_limits,
 )
-from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import (
     AppState,
     CampaignId,
@@ -30,6 +29,7 @@ from daemon.api.deps import (
 )
 from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
+from daemon.api.routes.robots import robot_for_campaign
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
@@ -59,27 +59,11 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
     dependencies=[WriteAuth],
 )
 def create_campaign(state: State, body: CampaignCreate) -> CampaignOut:
-    """``robot_model`` is a built-in name or an uploaded model mapping; returns the campaign
-    with its ``id`` and ``robot_id``."""
-    if isinstance(body.robot_model, str):
-        try:
-            builtin_model(body.robot_model)
-        except (KeyError, ValueError) as exc:
-            raise unprocessable(
-                ("body", "robot_model"), f"unknown built-in model {body.robot_model!r} ({exc})"
-            ) from exc
-        robot = state.store.ensure_builtin_robot(body.robot_model)
-    else:
-        try:
-            model = model_from_mapping(body.robot_model)
-        except ModelError as exc:
-            raise unprocessable(("body", "robot_model"), f"robot_model.{exc}") from exc
-        if why := not_printable(model.name):  # a name, printable as every name
-            raise unprocessable(
-                ("body", "robot_model", "name"),
-                f"robot_model.name: {why}: only printable text is allowed",
-            )
-        robot = state.store.add_robot(model, source="uploaded")
+    """The robot: ``robot_id`` (an existing one), or ``robot`` (its own name; default: the
+    model's name) with ``robot_model`` (a built-in name or a model mapping) or
+    ``robot_model_file`` (TOML or JSON text). The same robot name and model is the same robot
+    again; returns the campaign with its ``id`` and ``robot_id``."""
+    robot = robot_for_campaign(state, body)
     return _out(state, state.store.create_campaign(body.name, int(robot["id"]), body.notes))
 
 

@@ -34,12 +34,12 @@ async function loadCampaigns() {
   const items = Array.isArray(list) ? list : list.items || [];
   const selected = state.campaign?.id;
   fillTable($("campaign-list"), [
-    { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "samples", num: true },
+    { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "model" }, { label: "samples", num: true },
     { label: "excluded", num: true }, { label: "auto" }, { label: "created" },
   ], items.slice().reverse().map((c) => ({
     class: c.id === selected ? "selected" : "",
     onclick: () => select(c),
-    cells: [String(c.id), c.name, c.robot_name, String(c.n_samples), String(c.n_excluded),
+    cells: [String(c.id), c.name, c.robot_name, c.robot_model_name, String(c.n_samples), String(c.n_excluded),
       c.auto_capture ? "on" : "", clock(c.created_at)],
   })), JSON.stringify([selected, items]));
   if (selected) {
@@ -86,7 +86,7 @@ function renderCounts() {
   const included = samples.filter((s) => !s.excluded).length;
   const need = samplesNeeded();
   setText("campaign-title", `Campaign #${c.id}: ${c.name}`);
-  setText("campaign-counts", `robot ${c.robot_name} · ${samples.length} samples, ${included} included, ${samples.length - included} excluded`);
+  setText("campaign-counts", `robot ${c.robot_name} (model ${c.robot_model_name}) · ${samples.length} samples, ${included} included, ${samples.length - included} excluded`);
   const bar = $("campaign-need-bar");
   bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
   bar.className = included >= need ? "done" : "";
@@ -396,31 +396,66 @@ async function startPlan(ev) {
 }
 
 // ------------------------------------------------------------------ create
+const MODEL_FILE = "__file__";
+
+/** The robot picker: every robot (GET /robots: its own name and model) and "a new robot";
+ * the model picker: the built-in models (GET /robots/models, the default first) and a file.
+ * Kept as the operator left them while the lists are the same. */
+async function loadRobots() {
+  const [robots, models] = await Promise.all([api("GET", "/robots"), api("GET", "/robots/models")]);
+  const pick = $("robot-pick");
+  const key = JSON.stringify(robots.map((r) => [r.id, r.name, r.model_name]));
+  if (pick.dataset.key !== key) {
+    const kept = pick.value;
+    pick.replaceChildren(el("option", { value: "" }, "A new robot …"),
+      ...robots.map((r) => el("option", { value: String(r.id) }, r.name === r.model_name ? r.name : `${r.name} (${r.model_name})`)));
+    pick.value = [...pick.options].some((o) => o.value === kept) ? kept : "";
+    pick.dataset.key = key;
+  }
+  const model = $("robot-model");
+  if (!model.options.length) {
+    const sorted = models.slice().sort((a, b) => Number(b.default) - Number(a.default));
+    model.replaceChildren(...sorted.map((m) => el("option", { value: m.name }, `${m.name} (built-in)`)),
+      el("option", { value: MODEL_FILE }, "From a model file (.toml or .json) …"));
+  }
+  showRobotFields();
+}
+
+function showRobotFields() {
+  const f = $("campaign-form").elements;
+  $("new-robot").hidden = f.robot_id.value !== "";
+  const file = f.robot_model.value === MODEL_FILE;
+  $("robot-file-label").hidden = !file;
+  $("robot-file-note").hidden = !file;
+}
+
 async function createCampaign(ev) {
   ev.preventDefault();
   const f = ev.target.elements;
-  let model = f.robot_model.value;
-  if (model === "__file__") {
-    const file = f.robot_file.files[0];
-    if (!file) { showMessage("error", "The campaign was not created: choose the robot's .json model file.", "campaign-form"); return; }
-    try { model = JSON.parse(await file.text()); } catch (exc) {
-      showMessage("error", `The campaign was not created: the model file ${file.name} is not JSON.`, "campaign-form", exc.message);
-      return;
+  const body = { name: f.name.value.trim(), notes: f.notes.value };
+  if (f.robot_id.value !== "") {
+    body.robot_id = Number(f.robot_id.value);
+  } else {
+    if (f.robot.value.trim()) body.robot = f.robot.value.trim();
+    if (f.robot_model.value === MODEL_FILE) {
+      const file = f.robot_file.files[0];
+      if (!file) { showMessage("error", "The campaign was not created: choose the robot's model file (.toml or .json).", "campaign-form"); return; }
+      body.robot_model_file = { filename: file.name, text: await file.text() };
+    } else {
+      body.robot_model = f.robot_model.value;
     }
   }
-  // The built-in option's value is empty: the body then leaves robot_model out and the API
-  // takes its default (calib.default_robot.DEFAULT_ROBOT_MODEL), so the page keeps no copy.
-  const body = { name: f.name.value.trim(), notes: f.notes.value };
-  if (model !== "") body.robot_model = model;
   const c = await api("POST", "/campaigns", { json: body });
   dismiss("campaign-form");
   ev.target.reset();
+  await loadRobots();
   await loadCampaigns();
   await select(c);
-  showMessage("info", `Campaign #${c.id} "${c.name}" created. Plan poses or start capturing.`, "created");
+  showMessage("info", `Campaign #${c.id} "${c.name}" created on robot ${c.robot_name}. Plan poses or start capturing.`, "created");
 }
 
 export async function restoreCampaign() {
+  await loadRobots();
   const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
   const items = await loadCampaigns();
   // A fresh tab opens the newest operator campaign, not a drift check's own campaign
@@ -432,7 +467,9 @@ export async function restoreCampaign() {
 
 export function initCampaign() {
   $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
-  $("robot-model").addEventListener("change", (ev) => { $("robot-file-label").hidden = ev.target.value !== "__file__"; });
+  $("robot-pick").addEventListener("change", showRobotFields);
+  $("robot-model").addEventListener("change", showRobotFields);
+  $("campaign-form").addEventListener("reset", () => setTimeout(() => { loadRobots().catch(() => {}); }));
   $("plan-form").addEventListener("submit", (ev) => startPlan(ev).catch(() => {}));
   $("plan-form").addEventListener("input", (ev) => {
     if (ev.target.name === "n") ev.target.dataset.typed = "1";
