@@ -105,12 +105,15 @@ def _model_of(value: str | dict[str, Any], loc: tuple[str, ...]) -> tuple[RobotM
         raise unprocessable(loc, f"{loc[-1]}.{exc}") from exc
 
 
-def _ensure(state: AppState, name: str | None, model: RobotModel, builtin: bool) -> RobotRow:
+def _ensure(
+    state: AppState, name: str | None, model: RobotModel, builtin: bool, field: str
+) -> RobotRow:
     """The robot called ``name`` (None: the model's name) with ``model``; 409 if that name is
-    another model's robot, 422 if the model's name is not printable."""
+    another model's robot, 422 naming ``field`` (the body's model field) if the model's name
+    is not printable."""
     if why := not_printable(model.name):
         raise unprocessable(
-            ("body", "model", "name"), f"model name: {why}: only printable text is allowed"
+            ("body", field, "name"), f"{field}.name: {why}: only printable text is allowed"
         )
     try:
         return state.store.ensure_robot(name, model, "builtin" if builtin else "uploaded")[0]
@@ -136,9 +139,9 @@ def robot_for_campaign(state: AppState, body: CampaignCreate) -> RobotRow:
                 ("body", "robot_model_file"), "robot_model_file: give it or robot_model, not both"
             )
         model = model_of_file(body.robot_model_file, ("body", "robot_model_file"))
-        return _ensure(state, body.robot, model, False)
+        return _ensure(state, body.robot, model, False, "robot_model_file")
     model, builtin = _model_of(body.robot_model, ("body", "robot_model"))
-    return _ensure(state, body.robot, model, builtin)
+    return _ensure(state, body.robot, model, builtin, "robot_model")
 
 
 @router.get("", summary="Every robot (each a physical robot with its own name)")
@@ -175,7 +178,7 @@ def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOu
         assert body.model is not None
         model, builtin = _model_of(body.model, ("body", "model"))
     before = state.store.robot_named(body.name)
-    row = _ensure(state, body.name, model, builtin)
+    row = _ensure(state, body.name, model, builtin, "model" if body.model else "model_file")
     if before is not None:
         response.status_code = status.HTTP_200_OK
     return row

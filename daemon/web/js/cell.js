@@ -18,6 +18,7 @@ const SETTLE_WORDS = {
   stale: "The readings are late (a device is slow or down).",
   over_range: "The indicator is over range (cable outside the sensor's stroke).",
   no_data: "No readings yet.",
+  frozen: "NOT ready: the robot controller's joint angles stopped changing while the cable moved, so a sample would pair the wrong pose with the length. No sample is taken until the controller reports new joints.",
 };
 
 export function isManualRobot() {
