@@ -97,6 +97,7 @@ const FIELDS = {
   anchors_mm: "the sensor position", n: "the number of poses", min_z_mm: "the lowest flange z",
   seed: "the seed", name: "the name", notes: "the notes", anchor: "the anchor",
   joints_deg: "the joint angles", test_fraction: "the test fraction", method: "the method",
+  robot: "the robot name", robot_model: "the robot model", robot_model_file: "the model file",
 };
 
 /** A 422 issue's location in words: ``["body", "anchors_mm", 0, 1]`` → "the sensor position

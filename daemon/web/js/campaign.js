@@ -1,7 +1,7 @@
 // View 2, Campaign: create and pick a campaign, plan poses, capture (manual with a joint form
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
 import { api, download, saveBlob } from "./api.js";
-import { isManualRobot } from "./cell.js";
+import { isManualRobot, readinessWords } from "./cell.js";
 import { $, changed, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, requestSchema, setText, showMessage, state } from "./ui.js";
 
 const CAMPAIGN_KEY = "cablecal-campaign";
@@ -63,6 +63,7 @@ export async function select(c) {
   delete $("capture-anchor").dataset.typed; // the anchor field follows the new campaign
   delete $("plan-form").elements.n.dataset.typed;
   changed("campaign");
+  await loadCampaigns(); // the list marks the new selection at once
   await refreshDetail();
 }
 
@@ -193,7 +194,10 @@ function renderCaptureState() {
   if (inUse && (on || !field.dataset.typed) && document.activeElement !== field) field.value = inUse;
   field.disabled = on;
   const session = `Anchor session in use: ${field.value || "A"}.`;
-  setText("capture-state", (on
+  // A frozen controller is said here at once, where the operator presses Capture.
+  const frozen = s?.settle_state === "frozen";
+  $("capture-state").classList.toggle("bad", frozen);
+  setText("capture-state", (frozen ? `${readinessWords(s)} ` : "") + (on
     ? `Auto capture is on: ${samples.length} samples so far. Move the robot through the poses; each new still pose is captured once.`
     : manual ? "Manual robot: enter the six joint angles, then Capture now." : "Press Capture now when the robot stands still at a pose.") + ` ${session}`);
 }

@@ -21,6 +21,12 @@ const SETTLE_WORDS = {
   frozen: "NOT ready: the robot controller's joint angles stopped changing while the cable moved, so a sample would pair the wrong pose with the length. No sample is taken until the controller reports new joints.",
 };
 
+/** The sampler's readiness in words (``settle_state`` of GET /status), one home for views. */
+export function readinessWords(sampler) {
+  const key = sampler?.settle_state;
+  return SETTLE_WORDS[key] || `Not settled: ${String(key).replaceAll("_", " ")}.`;
+}
+
 export function isManualRobot() {
   return state.status?.devices?.robot?.driver === "ManualRobot";
 }
@@ -68,7 +74,7 @@ function samplerWords(s) {
   } else {
     mode = "Manual mode: a sample is taken when you press Capture (tab 2).";
   }
-  const settle = SETTLE_WORDS[s.settle_state] || `Not settled: ${String(s.settle_state).replaceAll("_", " ")}.`;
+  const settle = readinessWords(s);
   return [`${mode} ${settle}`, s.settled ? "" : s.settle_detail || ""];
 }
 
@@ -181,6 +187,7 @@ async function pollStatus() {
   renderJoints(devices.robot);
   const [words, detail] = samplerWords(s.sampler);
   setText("cell-sampler", words);
+  $("cell-sampler").classList.toggle("bad", s.sampler?.settle_state === "frozen");
   setText("cell-sampler-detail", detail);
 }
 

@@ -87,7 +87,11 @@ export function fillTable(table, columns, rows, key) {
       spec.cells.map((cell, i) => el("td", { class: columns[i]?.num ? "num" : columns[i]?.class }, cell)));
   }));
   if (selectable) table.setAttribute("role", "grid"); else table.removeAttribute("role");
+  // A redraw keeps the keyboard where it was: the row with the same first cell gets the focus.
+  const focused = document.activeElement;
+  const focusKey = focused?.tagName === "TR" && table.contains(focused) ? focused.cells[0]?.textContent : null;
   table.replaceChildren(head, body);
+  if (focusKey != null) [...body.rows].find((tr) => tr.cells[0]?.textContent === focusKey)?.focus();
 }
 
 // ------------------------------------------------------------------ messages

@@ -1,0 +1,219 @@
+"""Issue 32, the operator's third walk, page side: each silently wrong path walked in chromium
+(Playwright on Debian's /usr/bin/chromium) against the real processes (the EMULATED cell and
+``cablecal serve``): the state before, the operator's action, the state after, with axe-core
+at 1366, 800 and 390 px and screenshots.
+
+- item 1: a robot is a physical robot: the page makes robots with their own names, picks one
+  again for its next campaign (one robot, one calibration), takes a TOML model file, and two
+  arms of one model are two robots;
+- item 2: a frozen controller (control port ``fault robot_frozen:true``): the page says NOT
+  ready at once, Capture is refused in words, nothing is stored; captures go on after;
+- item 12: campaign rows are focusable grid rows that Enter selects.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from browser import offline_page, require_chromium
+from test_web_walk import _axe_serious, _fits
+
+from calib.default_robot import DEFAULT_ROBOT_MODEL
+from calib.models import builtin_model
+from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+
+TOKEN = "web-walk3-token-0123"
+SIZES = {"1366": (1366, 768), "800": (800, 1280), "390": (390, 844)}
+SHOTS = Path(__file__).resolve().parent.parent / "bench" / "walk3"
+LONG_ROBOT = "Cell 7 south line, ABB IRB 4600-60/2.05 serial 4600-501234 (taught 2026)"
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
+    require_chromium()
+    pytest.importorskip("axe_playwright_python", reason="the walk checks axe-core")
+    work = tmp_path_factory.mktemp("web-walk3")
+    toml = fast_cell_toml(n_poses=60, seed=11, move_s=0.4, dwell_s=0.8)
+    with Cell(work, toml, TOKEN, FAST_DAEMON_ENV) as c:
+        yield c
+
+
+def _shot(page: Any, tmp_path: Path, name: str) -> None:
+    """A full-page screenshot in the test's folder (and in bench/walk3/ when it exists, for
+    a person to look at)."""
+    for folder in (tmp_path, SHOTS):
+        if folder.is_dir():
+            page.screenshot(path=str(folder / f"{name}.png"), full_page=True)
+
+
+def _open(page: Any, url: str, view: str) -> None:
+    page.goto(f"{url}/#token={TOKEN}")
+    page.wait_for_function("window.__cablecal && window.__cablecal.trace.updates > 0")
+    page.click(f"#tabs button[data-view={view}]")
+
+
+def _toml_model(path: Path, name: str) -> Path:
+    data = builtin_model(DEFAULT_ROBOT_MODEL).to_dict()
+    lines = [f'name = "{name}"', f'convention = "{data["convention"]}"']
+    lines.append("tool_mm = [0.0, 0.0, 0.0]")
+    for joint in data["joints"]:
+        lines.append("[[joints]]")
+        lines += [f"{k} = {json.dumps(v)}" for k, v in joint.items()]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _create(page: Any, name: str, **robot: str) -> None:
+    """Fill and send the new-campaign form: ``pick`` (an existing robot's option label), or
+    ``robot`` (a new robot's name) with ``model`` (a built-in name) or ``file`` (a path)."""
+    form = "#campaign-form"
+    page.fill(f"{form} input[name=name]", name)
+    if "pick" in robot:
+        page.select_option("#robot-pick", label=robot["pick"])
+        assert page.locator("#new-robot").is_hidden()
+    else:
+        page.select_option("#robot-pick", value="")
+        page.fill(f"{form} input[name=robot]", robot.get("robot", ""))
+        if "file" in robot:
+            page.select_option("#robot-model", value="__file__")
+            assert "TOML or JSON" in page.inner_text("#robot-file-note")
+            page.set_input_files(f"{form} input[name=robot_file]", robot["file"])
+        else:
+            page.select_option("#robot-model", value=robot.get("model", DEFAULT_ROBOT_MODEL))
+    page.click(f"{form} button[type=submit]")
+    page.wait_for_function(
+        "(n) => document.getElementById('campaign-title').textContent.endsWith(': ' + n)", arg=name
+    )
+
+
+def _campaign(api: httpx.Client, name: str) -> dict[str, Any]:
+    rows = [c for c in api.get("/campaigns").json() if c["name"] == name]
+    assert len(rows) == 1, rows
+    return dict(rows[0])
+
+
+def test_a_robot_is_a_physical_robot_on_the_page(cell: Cell, tmp_path: Path) -> None:
+    """Item 1 (and 14: a TOML model file) and item 12 (keyboard rows)."""
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    robots_before = len(api.get("/robots").json())
+    toml = _toml_model(tmp_path / "irb4600.toml", "abb-irb4600-60-205")
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        _open(page, url, "campaign")
+        # before: the model picker offers the built-in models and a TOML or JSON file
+        page.wait_for_function("document.getElementById('robot-model').options.length > 1")
+        options = page.locator("#robot-model option").all_inner_texts()
+        assert f"{DEFAULT_ROBOT_MODEL} (built-in)" in options
+        assert "From a model file (.toml or .json) …" in options
+        # action: two arms of one model, then the first one again for its next campaign
+        _create(page, "walk3 first", robot="cell 4 / SN 61-0042", model=DEFAULT_ROBOT_MODEL)
+        assert "robot cell 4 / SN 61-0042 (model hsr-jr680)" in page.inner_text("#campaign-counts")
+        _create(page, "walk3 second arm", robot="cell 5 / SN 61-0077", model=DEFAULT_ROBOT_MODEL)
+        page.wait_for_function(
+            "[...document.querySelectorAll('#robot-pick option')]"
+            ".some(o => o.text.startsWith('cell 5'))"
+        )
+        _create(page, "walk3 first again", pick=f"cell 4 / SN 61-0042 ({DEFAULT_ROBOT_MODEL})")
+        # a TOML model file, twice under one robot name: one robot
+        _create(page, "walk3 irb", robot=LONG_ROBOT, file=str(toml))
+        _create(page, "walk3 irb again", robot=LONG_ROBOT, file=str(toml))
+        _fits(page)  # a long robot name in the picker widened the page before
+        _shot(page, tmp_path, "walk3-robots-1366")
+        # after: the API agrees
+        first, second = _campaign(api, "walk3 first"), _campaign(api, "walk3 second arm")
+        again = _campaign(api, "walk3 first again")
+        irb, irb_again = _campaign(api, "walk3 irb"), _campaign(api, "walk3 irb again")
+        assert first["robot_id"] != second["robot_id"]
+        assert again["robot_id"] == first["robot_id"] and irb_again["robot_id"] == irb["robot_id"]
+        assert irb["robot_model_name"] == "abb-irb4600-60-205" and irb["robot_name"] == LONG_ROBOT
+        assert len(api.get("/robots").json()) == robots_before + 3
+        # item 12: the campaign rows are grid rows a keyboard selects
+        assert page.get_attribute("#campaign-list", "role") == "grid"
+        row = page.locator("#campaign-list tbody tr", has_text="walk3 second arm")
+        assert row.get_attribute("tabindex") == "0"
+        row.focus()
+        page.keyboard.press("Enter")
+        page.wait_for_function(
+            "document.getElementById('campaign-title').textContent.endsWith(': walk3 second arm')"
+        )
+        assert row.get_attribute("aria-selected") == "true"
+        assert _axe_serious(page) == []
+        assert not log.page_errors, log.page_errors
+    # long names at 800 and 390 px: no sideways scroll, axe clean
+    for size in ("800", "390"):
+        with offline_page(SIZES[size], allowed_origin=url) as (page, log):
+            _open(page, url, "campaign")
+            page.wait_for_function("document.getElementById('robot-pick').options.length > 3")
+            page.click("#campaign-list tbody tr:has-text('walk3 irb again')")
+            page.wait_for_function(
+                "document.getElementById('campaign-title').textContent.endsWith('walk3 irb again')"
+            )
+            _fits(page)
+            assert _axe_serious(page) == [], size
+            _shot(page, tmp_path, f"walk3-robots-{size}")
+            assert not log.page_errors, log.page_errors
+
+
+def _sampler(api: httpx.Client) -> dict[str, Any]:
+    return dict(api.get("/status").json()["sampler"])
+
+
+def test_a_frozen_controller_gives_no_sample(cell: Cell, tmp_path: Path) -> None:
+    """Item 2 on the emulated cell: frozen joints while the robot moves."""
+    assert cell.daemon is not None and cell.sim is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    cid = api.post(
+        "/campaigns", json={"name": "walk3 frozen", "robot": "cell 9", "robot_model": "hsr-jr680"}
+    ).json()["id"]
+    cell.sim.control("hold", on=True)
+    wait_for(lambda: _sampler(api)["settled"], 20, 0.2, "a settled robot")
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        _open(page, url, "campaign")
+        page.click("#campaign-list tbody tr:has-text('walk3 frozen')")
+        page.wait_for_function(
+            "document.getElementById('campaign-title').textContent.endsWith('walk3 frozen')"
+        )
+        # before: ready, no warning where Capture is pressed
+        assert "NOT ready" not in page.inner_text("#capture-state")
+        # action: the controller freezes, the robot goes on to its next poses
+        cell.sim.control("fault", robot_frozen=True)
+        cell.sim.control("hold", on=False)
+        wait_for(lambda: _sampler(api)["settle_state"] == "frozen", 30, 0.1, "the frozen verdict")
+        page.wait_for_function(
+            "document.getElementById('capture-state').textContent.includes('NOT ready')",
+            timeout=5000,
+        )
+        assert "bad" in (page.get_attribute("#capture-state", "class") or "")
+        cell.sim.control("hold", on=True)  # the robot stops at a pose: the old wrong sample
+        n_before = len(api.get(f"/campaigns/{cid}/samples").json())
+        page.click("#capture-now")
+        page.wait_for_selector(".message.error", timeout=15000)
+        message = page.inner_text(".message.error")
+        assert "not updating its joints" in message, message
+        r = api.post(f"/campaigns/{cid}/captures", json={"anchor": "A"})
+        assert r.status_code == 503 and r.json()["detail"]["reason"] == "frozen", r.text
+        assert len(api.get(f"/campaigns/{cid}/samples").json()) == n_before  # nothing stored
+        _shot(page, tmp_path, "walk3-frozen-1366")
+        assert _axe_serious(page) == []
+        page.click("#tabs button[data-view=cell]")
+        page.wait_for_function(
+            "document.getElementById('cell-sampler').textContent.includes('stopped changing')"
+        )
+        _shot(page, tmp_path, "walk3-frozen-cell-1366")
+        # after: the controller answers again; the page says ready, a capture is stored
+        cell.sim.control("fault", robot_frozen=False)
+        wait_for(lambda: _sampler(api)["settled"], 20, 0.2, "settled again")
+        page.wait_for_function(
+            "!document.getElementById('cell-sampler').textContent.includes('stopped changing')"
+        )
+        r = api.post(f"/campaigns/{cid}/captures", json={"anchor": "A"})
+        assert r.status_code == 201, r.text
+        assert not log.page_errors, log.page_errors
+    cell.sim.control("hold", on=False)
