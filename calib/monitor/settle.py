@@ -179,7 +179,7 @@ class FrozenWatch:
             return None
         return Verdict(
             "frozen",
-            f"the cable length changed by {self._moved_mm:.1f} mm while the robot's joint "
+            f"the cable length changed by up to {self._moved_mm:.1f} mm while the robot's joint "
             "angles stayed exactly the same: the robot controller is not updating its joints "
             "(frozen), or the cable was moved by hand. No sample is taken until the controller "
             "reports new joint angles: check the controller's connection and move the robot",

@@ -197,7 +197,7 @@ function renderCaptureState() {
   // A frozen controller is said here at once, where the operator presses Capture.
   const frozen = s?.settle_state === "frozen";
   $("capture-state").classList.toggle("bad", frozen);
-  setText("capture-state", (frozen ? `${readinessWords(s)} ` : "") + (on
+  setText("capture-state", frozen ? `${readinessWords(s)} ${session}` : (on
     ? `Auto capture is on: ${samples.length} samples so far. Move the robot through the poses; each new still pose is captured once.`
     : manual ? "Manual robot: enter the six joint angles, then Capture now." : "Press Capture now when the robot stands still at a pose.") + ` ${session}`);
 }
