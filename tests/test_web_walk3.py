@@ -8,6 +8,8 @@ at 1366, 800 and 390 px and screenshots.
   arms of one model are two robots;
 - item 2: a frozen controller (control port ``fault robot_frozen:true``): the page says NOT
   ready at once, Capture is refused in words, nothing is stored; captures go on after;
+- items 5, 6: a check says what moved: a bumped stand is the sensor's, with its figure, and
+  the check's own campaign is no sensor-move case;
 - item 12: campaign rows are focusable grid rows that Enter selects.
 """
 
@@ -19,13 +21,15 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from browser import offline_page, require_chromium
 from test_web_walk import _axe_serious, _fits
 
+from calib.dataset import make_samples, samples_to_csv
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import builtin_model
-from daemon.cli.emulated import FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
+from daemon.cli.emulated import FAST_CELL_NOISE_MM, FAST_DAEMON_ENV, Cell, fast_cell_toml, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -217,3 +221,73 @@ def test_a_frozen_controller_gives_no_sample(cell: Cell, tmp_path: Path) -> None
         assert r.status_code == 201, r.text
         assert not log.page_errors, log.page_errors
     cell.sim.control("hold", on=False)
+
+
+def _calibrate(api: httpx.Client, sim: Any, robot: str) -> int:
+    """A calibrated robot: the cell's true lengths at its poses (+ seeded noise) imported,
+    identified with lm and accepted; its robot id."""
+    q = np.array(sim.control("poses")["poses_deg"])
+    truth = np.array(sim.control("true_lengths", joints_deg=q.tolist())["lengths_mm"])
+    lengths = truth + np.random.default_rng(5).normal(0.0, FAST_CELL_NOISE_MM, truth.shape)
+    body = {"name": "walk3 calibration", "robot": robot, "robot_model": DEFAULT_ROBOT_MODEL}
+    c = api.post("/campaigns", json=body).json()
+    csv = samples_to_csv(make_samples(q, lengths))
+    r = api.post(
+        f"/campaigns/{c['id']}/samples/import",
+        content=csv,
+        headers={"Content-Type": "text/csv"},
+    )
+    assert r.is_success, r.text
+    job = api.post(f"/campaigns/{c['id']}/identifications", json={"method": "lm"}).json()["id"]
+    wait_for(
+        lambda: api.get(f"/identifications/{job}").json()["status"] == "succeeded", 120, 0.5, "lm"
+    )
+    if not api.get(f"/identifications/{job}").json()["current"]:
+        assert api.post(f"/identifications/{job}/accept").is_success
+    return int(c["robot_id"])
+
+
+def test_a_check_says_the_sensor_stand_moved(cell: Cell, tmp_path: Path) -> None:
+    """Items 5 and 6: a bumped stand (30 mm) is reported as the sensor's, with its figure,
+    never as robot drift; the check's own campaign gets no sensor-moved case of its own."""
+    assert cell.daemon is not None and cell.sim is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    robot_id = _calibrate(api, cell.sim, "cell 3 / SN 61-0101")
+    poses = api.get(f"/robots/{robot_id}/check-poses").json()["poses_deg"]
+    # action: the stand is bumped by 30 mm, then a check runs
+    shift = [24.5, -15.0, 10.2]
+    cell.sim.control("move_anchor", delta_mm=shift)
+    cell.sim.control("load_poses", poses_deg=poses, loop=True)
+    r = api.post(f"/robots/{robot_id}/checks")
+    assert r.status_code == 202, r.text
+    check_id, check_cid = r.json()["id"], r.json()["campaign_id"]
+
+    def finished() -> dict[str, Any] | None:
+        row = next(c for c in api.get(f"/robots/{robot_id}/checks").json() if c["id"] == check_id)
+        return None if row["status"] == "running" else dict(row)
+
+    check = wait_for(finished, 120, 0.5, f"check {check_id}")
+    assert check["status"] == "drift" and check["error"] is None, check
+    cause = api.get("/status").json()["drift"]["cause"]
+    size = float(np.linalg.norm(shift))
+    assert cause["kind"] == "sensor" and cause["shift_mm"] == pytest.approx(size, abs=3.0)
+    assert cause["text"].startswith("the sensor stand moved by")
+    # the check's campaign is no sensor-move case (item 5): no move, no anchor split
+    watch = api.get("/status").json()["watch"]
+    assert all(m["campaign_id"] != check_cid for m in watch["moves"]), watch
+    assert api.get(f"/campaigns/{check_cid}").json()["anchors"] == ["A"]
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        _open(page, url, "campaign")
+        page.click("#campaign-list tbody tr:has-text('walk3 calibration')")
+        page.click("#tabs button[data-view=apply]")
+        page.wait_for_function(
+            "document.getElementById('drift-state').textContent.startsWith('SENSOR MOVED')"
+        )
+        words = page.inner_text("#drift-state")
+        assert "The sensor stand moved by" in words and "check the stand" in words, words
+        assert "Calibrate the robot again" not in words
+        assert "bad" in (page.get_attribute("#drift-state", "class") or "")
+        _shot(page, tmp_path, "walk3-check-sensor-1366")
+        assert _axe_serious(page) == []
+        assert not log.page_errors, log.page_errors
+    cell.sim.control("move_anchor", delta_mm=[-v for v in shift])

@@ -159,10 +159,23 @@ function flagWords(flags) {
 
 const DRIFT_WORDS = {
   ok: "Last drift check OK: the robot still matches its calibration.",
-  drift: "DRIFT: the last check is above the threshold. Calibrate the robot again.",
-  failed: "The last drift check failed (see its error below).",
+  drift: "DRIFT: the last check is above the threshold.",
+  failed: "The last drift check failed.",
   none: "No drift check yet.",
 };
+
+/** The drift block's headline: what moved (the API's own explanation, ``cause.text``, with
+ * its figure) at a drift, the reason at a failure. */
+function driftHeadline(drift) {
+  const words = DRIFT_WORDS[drift.state] || drift.state;
+  if (drift.state === "drift" && drift.cause) {
+    const who = { sensor: "SENSOR MOVED", robot: "ROBOT DRIFT", unclear: "DRIFT" }[drift.cause.kind] || "DRIFT";
+    return `${who}: ${drift.cause.text.replace(/^./, (c) => c.toUpperCase())}.`;
+  }
+  if (drift.state === "drift") return `${words} Calibrate the robot again.`;
+  if (drift.state === "failed" && drift.error) return `${words} Why: ${drift.error}.`;
+  return words;
+}
 
 async function renderDrift() {
   const drift = state.status?.drift;
@@ -176,18 +189,19 @@ async function renderDrift() {
   const last = drift.last_check_at ? ` Check #${drift.check_id} at ${clock(drift.last_check_at)}: ${fix(drift.rms_mm, 3)} mm RMS against a threshold of ${fix(drift.threshold_mm, 3)} mm.` : "";
   const running = drift.running ? ` Check #${drift.running} is running: move the robot through the check poses.` : "";
   const every = drift.check_interval_h ? ` Scheduled every ${drift.check_interval_h} h.` : " No scheduled checks.";
-  setText(node, `${DRIFT_WORDS[drift.state] || drift.state}${last}${running}${every}`);
+  setText(node, `${driftHeadline(drift)}${last}${running}${every}`);
   const c = state.campaign;
   if (!c || !hasRoute("GET", "/robots/{}/checks")) return;
   const list = await api("GET", `/robots/${c.robot_id}/checks`);
   const items = (Array.isArray(list) ? list : list.items || []).slice().reverse();
   fillTable($("drift-history"), [{ label: "#", num: true }, { label: "started" }, { label: "trigger" }, { label: "status" },
     { label: "RMS [mm]", num: true }, { label: "max [mm]", num: true }, { label: "threshold [mm]", num: true },
-    { label: "poses", num: true }, { label: "samples used", num: true }],
+    { label: "poses", num: true }, { label: "samples used", num: true }, { label: "why", class: "keep" }],
   items.map((k) => [String(k.id), clock(k.started_at), k.trigger,
-    el("span", { class: k.status === "ok" ? "ok" : k.status === "running" ? "" : "bad", title: k.error || "" }, k.status),
-    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), String((k.poses_deg || []).length), k.n == null ? "–" : String(k.n)]),
-  JSON.stringify(items.map((k) => [k.id, k.status])));
+    el("span", { class: k.status === "ok" ? "ok" : k.status === "running" ? "" : "bad" }, k.status),
+    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), String((k.poses_deg || []).length), k.n == null ? "–" : String(k.n),
+    k.error || ""]),
+  JSON.stringify(items.map((k) => [k.id, k.status, k.error])));
   await renderCheckPoses(c, items.find((k) => k.status === "running"));
 }
 
