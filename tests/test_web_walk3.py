@@ -36,6 +36,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 TOKEN = "web-walk3-token-0123"
 SIZES = {"1366": (1366, 768), "800": (800, 1280), "390": (390, 844)}
 SHOTS = Path(__file__).resolve().parent.parent / "bench" / "walk3"
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "programs"
 LONG_ROBOT = "Cell 7 south line, ABB IRB 4600-60/2.05 serial 4600-501234 (taught 2026)"
 
 
@@ -247,12 +248,19 @@ def _calibrate(api: httpx.Client, sim: Any, robot: str) -> int:
     return int(c["robot_id"])
 
 
-def test_a_check_says_the_sensor_stand_moved(cell: Cell, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def calibrated(cell: Cell) -> int:
+    """The robot "cell 3 / SN 61-0101", calibrated (a fixture: each test runs alone too)."""
+    assert cell.daemon is not None and cell.sim is not None
+    return _calibrate(cell.daemon.client(), cell.sim, "cell 3 / SN 61-0101")
+
+
+def test_a_check_says_the_sensor_stand_moved(cell: Cell, calibrated: int, tmp_path: Path) -> None:
     """Items 5 and 6: a bumped stand (30 mm) is reported as the sensor's, with its figure,
     never as robot drift; the check's own campaign gets no sensor-moved case of its own."""
     assert cell.daemon is not None and cell.sim is not None
     url, api = cell.daemon.url, cell.daemon.client()
-    robot_id = _calibrate(api, cell.sim, "cell 3 / SN 61-0101")
+    robot_id = calibrated
     poses = api.get(f"/robots/{robot_id}/check-poses").json()["poses_deg"]
     # action: the stand is bumped by 30 mm, then a check runs
     shift = [24.5, -15.0, 10.2]
@@ -291,3 +299,76 @@ def test_a_check_says_the_sensor_stand_moved(cell: Cell, tmp_path: Path) -> None
         assert _axe_serious(page) == []
         assert not log.page_errors, log.page_errors
     cell.sim.control("move_anchor", delta_mm=[-v for v in shift])
+
+
+def test_the_filter_download_is_what_was_shown(cell: Cell, calibrated: int, tmp_path: Path) -> None:
+    """Items 3, 4 (the robot and calibration named before the drop, joint targets kept by
+    default), 10 (a bad file does not block the good one), 16 (per-file result, reasons
+    grouped): tab A previews with calibration #1, tab B accepts #2, tab A's Download is
+    refused in words instead of returning other numbers."""
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    program = FIXTURES / "cell_a.mod"
+    bad = tmp_path / "bad.mod"
+    bad.write_text("MODULE B\n  CONST robtarget p:=[[1,2],[1,0,0,0]];\nENDMODULE\n")
+    first = api.get(f"/robots/{calibrated}/calibrated-model").json()["job_id"]
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        _open(page, url, "campaign")
+        page.click("#campaign-list tbody tr:has-text('walk3 calibration')")
+        page.click("#tabs button[data-view=apply]")
+        # before: whose programs, with which calibration, said before the drop
+        page.wait_for_function(
+            "document.getElementById('filter-target').textContent.includes('identification #')"
+        )
+        target = page.inner_text("#filter-target")
+        assert "robot cell 3 / SN 61-0101 (model hsr-jr680)" in target
+        assert f"identification #{first} of" in target
+        assert page.is_checked("#filter-keep-joints")  # taught points stay by default
+        # action: a good and a bad file dropped together
+        page.set_input_files("#filter-files", [str(program), str(bad)])
+        page.wait_for_function(
+            "document.getElementById('filter-state').textContent.includes('calibration #')"
+        )
+        state = page.inner_text("#filter-state")
+        assert f"calibration #{first}" in state and "1 file(s) not read" in state, state
+        files = page.inner_text("#filter-files-result")
+        assert "cell_a.mod" in files and "not read: bad.mod:2" in files
+        assert files.count("bad.mod") == 2  # one row: its name and its reason
+        assert "joint target kept" in page.inner_text("#filter-reasons")
+        assert page.is_visible("#filter-download")
+        _shot(page, tmp_path, "walk3-filter-preview-1366")
+        assert _axe_serious(page) == []
+        # tab B accepts another calibration of the robot
+        campaign = next(c for c in api.get("/campaigns").json() if c["name"] == "walk3 calibration")
+        job = api.post(
+            f"/campaigns/{campaign['id']}/identifications", json={"method": "lm", "seed": 4}
+        ).json()["id"]
+        wait_for(
+            lambda: api.get(f"/identifications/{job}").json()["status"] == "succeeded",
+            120,
+            0.5,
+            "the second identification",
+        )
+        if not api.get(f"/identifications/{job}").json()["current"]:
+            assert api.post(f"/identifications/{job}/accept").is_success
+        # after: tab A's Download is refused, in words, and offered no more
+        page.click("#filter-download")
+        page.wait_for_function(
+            "document.getElementById('filter-state').textContent.startsWith('Not downloaded')"
+        )
+        words = page.inner_text("#filter-state")
+        assert f"#{first} was shown, #{job} of" in words and "preview the files again" in words
+        assert page.is_hidden("#filter-download")
+        page.wait_for_function(
+            f"document.getElementById('filter-target').textContent.includes('#{job} of')"
+        )
+        _shot(page, tmp_path, "walk3-filter-refused-1366")
+        # the preview again names the new calibration; its download is the shown files
+        page.set_input_files("#filter-files", [str(program)])
+        page.wait_for_function(
+            f"document.getElementById('filter-state').textContent.includes('calibration #{job}')"
+        )
+        with page.expect_download() as info:
+            page.click("#filter-download")
+        assert info.value.suggested_filename == "cell_a.mod"
+        assert not log.page_errors, log.page_errors
