@@ -61,6 +61,7 @@ export async function select(c) {
   plan = null;
   $("campaign-list").dataset.key = "";
   delete $("capture-anchor").dataset.typed; // the anchor field follows the new campaign
+  $("capture-anchor").value = "A"; // not the anchor of the campaign selected before (item 8)
   delete $("plan-form").elements.n.dataset.typed;
   changed("campaign");
   await loadCampaigns(); // the list marks the new selection at once
@@ -384,6 +385,10 @@ async function startPlan(ev) {
   if (f.ax.value !== "" || f.ay.value !== "" || f.az.value !== "") {
     body.anchors_mm = [[Number(f.ax.value), Number(f.ay.value), Number(f.az.value)]];
   }
+  // New poses go to the anchor in use (after a sensor move: the new one, where captures go),
+  // not to the campaign's first anchor (item 7).
+  const current = $("capture-anchor").value || "A";
+  if (body.anchors_mm || state.campaign.anchors.includes(current)) body.anchor_ids = [current];
   const button = ev.target.querySelector("button");
   button.disabled = true;
   $("plan-progress").hidden = false;
