@@ -372,3 +372,42 @@ def test_the_filter_download_is_what_was_shown(cell: Cell, calibrated: int, tmp_
             page.click("#filter-download")
         assert info.value.suggested_filename == "cell_a.mod"
         assert not log.page_errors, log.page_errors
+
+
+def test_an_acceptance_is_undone_with_one_button(
+    cell: Cell, calibrated: int, tmp_path: Path
+) -> None:
+    """Item 13: Accept replaces the robot's calibration; one Undo button makes the replaced
+    one current again, and the undone result stays listed."""
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    before = api.get(f"/robots/{calibrated}/calibrated-model").json()["job_id"]
+    campaign = next(c for c in api.get("/campaigns").json() if c["name"] == "walk3 calibration")
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        page.on("dialog", lambda d: d.accept())
+        _open(page, url, "campaign")
+        page.click("#campaign-list tbody tr:has-text('walk3 calibration')")
+        page.click("#tab-identify")
+        page.wait_for_selector("#identify-start:not([disabled])", timeout=20000)
+        page.select_option("#identify-form select[name=method]", "lm")
+        page.click("#identify-start")
+        page.wait_for_selector("#compare:not([hidden])", timeout=120000)
+        new = api.get(f"/campaigns/{campaign['id']}/identifications").json()[-1]["id"]
+        assert page.is_hidden("#accept-undo")
+        # action: Accept, then Undo
+        page.click("#accept")
+        page.wait_for_selector("#accept-undo:not([hidden])")
+        assert f"#{new} replaced calibration #{before}" in page.inner_text("#accept-undo")
+        assert api.get(f"/robots/{calibrated}/calibrated-model").json()["job_id"] == new
+        _shot(page, tmp_path, "walk3-undo-offered-1366")
+        assert _axe_serious(page) == []
+        page.click("#accept-undo-button")
+        page.wait_for_selector("#accept-undo", state="hidden")
+        # after: the replaced calibration is current again, the undone one stays listed
+        assert api.get(f"/robots/{calibrated}/calibrated-model").json()["job_id"] == before
+        listed = {
+            j["id"]: j for j in api.get(f"/campaigns/{campaign['id']}/identifications").json()
+        }
+        assert new in listed and not listed[new]["current"]
+        page.wait_for_selector("#accept:not([hidden])")  # it can be accepted again
+        assert not log.page_errors, log.page_errors
