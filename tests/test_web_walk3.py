@@ -411,3 +411,38 @@ def test_an_acceptance_is_undone_with_one_button(
         assert new in listed and not listed[new]["current"]
         page.wait_for_selector("#accept:not([hidden])")  # it can be accepted again
         assert not log.page_errors, log.page_errors
+
+
+def _escape_every_ask(page: Any) -> None:
+    """Press Escape on the token dialog until it stays closed (a 401 may ask once more)."""
+    for _ in range(4):
+        page.wait_for_timeout(800)
+        if page.evaluate("document.getElementById('token-dialog').open"):
+            page.keyboard.press("Escape")
+    assert not page.evaluate("document.getElementById('token-dialog').open")
+
+
+def test_the_token_dialog_never_strands_the_page(cell: Cell, tmp_path: Path) -> None:
+    """Item 11: Escape on the token dialog, and a 401, leave the "token" button working; the
+    right token then brings the page back without a reload."""
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    api.post("/campaigns", json={"name": "walk3 token", "robot_model": DEFAULT_ROBOT_MODEL})
+    for start in (f"{url}/", f"{url}/#token=wrong-token-0000"):
+        with offline_page(SIZES["390"], allowed_origin=url) as (page, log):
+            # before: no token (or a refused one): the dialog asks
+            page.goto(start)
+            page.wait_for_selector("#token-dialog[open]")
+            # action: Escape (every time it asks), then the "token" button
+            _escape_every_ask(page)
+            page.click("#token-button")
+            page.wait_for_selector("#token-dialog[open]")
+            _shot(page, tmp_path, "walk3-token-dialog-390")
+            page.fill("#token-input", TOKEN)
+            page.keyboard.press("Enter")
+            # after: the page runs: readings arrive, the campaigns are listed
+            page.wait_for_function("window.__cablecal.trace.updates > 0", timeout=15000)
+            page.click("#tabs button[data-view=campaign]")
+            page.wait_for_selector("#campaign-list tbody tr:has-text('walk3 token')", timeout=15000)
+            assert not page.evaluate("document.getElementById('token-dialog').open")
+            assert not log.page_errors, log.page_errors

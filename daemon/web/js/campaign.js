@@ -450,8 +450,8 @@ async function createCampaign(ev) {
       const file = f.robot_file.files[0];
       if (!file) { showMessage("error", "The campaign was not created: choose the robot's model file (.toml or .json).", "campaign-form"); return; }
       body.robot_model_file = { filename: file.name, text: await file.text() };
-    } else {
-      body.robot_model = f.robot_model.value;
+    } else if (f.robot_model.value) {
+      body.robot_model = f.robot_model.value; // else (list not loaded yet) the API's default
     }
   }
   const c = await api("POST", "/campaigns", { json: body });
