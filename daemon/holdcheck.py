@@ -179,7 +179,7 @@ class HoldCheckMonitor:
         poses = check_poses(self.store, robot_id, self.settings.n_poses)["poses_deg"]
         n = len(self.store.list_checks(robot_id, limit=10_000)) + 1
         campaign = self.store.create_campaign(
-            f"check {n} of robot {robot_id}",
+            f"check {n} of robot {self.store.robot(robot_id)['name']}",
             robot_id,
             f"drift check ({trigger}) against result {result_row['id']}",
         )
