@@ -163,7 +163,10 @@ def builtin_models() -> list[BuiltinModelOut]:
     status_code=status.HTTP_201_CREATED,
     summary="Add a robot, or find it again by its name",
     dependencies=[WriteAuth],
-    responses=error_responses(409),
+    responses={
+        200: {"model": RobotOut, "description": "The robot of that name and model, found again"},
+        **error_responses(409),
+    },
 )
 def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOut:
     """A new robot called ``name`` with a built-in ``model``, a model mapping, or a
