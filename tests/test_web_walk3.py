@@ -196,6 +196,9 @@ def test_a_frozen_controller_gives_no_sample(cell: Cell, tmp_path: Path) -> None
             timeout=5000,
         )
         assert "bad" in (page.get_attribute("#capture-state", "class") or "")
+        page.wait_for_function(
+            "document.getElementById('top-devices').textContent.includes('joints frozen')"
+        )
         cell.sim.control("hold", on=True)  # the robot stops at a pose: the old wrong sample
         n_before = len(api.get(f"/campaigns/{cid}/samples").json())
         page.click("#capture-now")
@@ -295,6 +298,7 @@ def test_a_check_says_the_sensor_stand_moved(cell: Cell, calibrated: int, tmp_pa
         assert "The sensor stand moved by" in words and "check the stand" in words, words
         assert "Calibrate the robot again" not in words
         assert "bad" in (page.get_attribute("#drift-state", "class") or "")
+        assert page.inner_text("#top-drift").startswith("sensor moved (check #")  # item 22
         _shot(page, tmp_path, "walk3-check-sensor-1366")
         assert _axe_serious(page) == []
         assert not log.page_errors, log.page_errors

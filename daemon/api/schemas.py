@@ -69,7 +69,7 @@ class ModelFileText(_Body):
     decides the format) and its text."""
 
     filename: Annotated[str, StringConstraints(min_length=1, max_length=255)]
-    text: Annotated[str, StringConstraints(max_length=1_000_000)]
+    text: Annotated[str, StringConstraints(max_length=100_000)]  # a model file: a few kB
 
 
 class RobotCreate(_Body):

@@ -178,8 +178,12 @@ async function pollStatus() {
   const devices = s.devices || {};
   const down = Object.values(devices).filter((d) => d.state !== "ok");
   const pill = $("top-devices");
-  pill.className = `pill ${down.length ? "bad" : "ok"}`;
-  setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}` : "devices connected");
+  // a frozen controller answers, yet is not ready: the header says so on every view (item 2)
+  const frozen = s.sampler?.settle_state === "frozen";
+  pill.className = `pill ${down.length || frozen ? "bad" : "ok"}`;
+  setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}`
+    : frozen ? `robot ${devices.robot?.name ?? ""}: joints frozen, no capture` : "devices connected");
+  renderDriftPill(s.drift);
   changed("status");
   collectErrors(devices);
   if (state.view !== "cell") return;
@@ -189,6 +193,16 @@ async function pollStatus() {
   setText("cell-sampler", words);
   $("cell-sampler").classList.toggle("bad", s.sampler?.settle_state === "frozen");
   setText("cell-sampler-detail", detail);
+}
+
+/** The header's drift state (item 22): hidden while the last check is OK or absent. */
+function renderDriftPill(drift) {
+  const pill = $("top-drift");
+  const bad = drift && (drift.state === "drift" || drift.state === "failed");
+  pill.hidden = !bad;
+  if (!bad) return;
+  const kind = drift.state === "failed" ? "drift check failed" : { sensor: "sensor moved", robot: "robot drift" }[drift.cause?.kind] || "drift";
+  setText(pill, `${kind} (check #${drift.check_id}, tab 4)`);
 }
 
 export function initCell() {
