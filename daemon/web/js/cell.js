@@ -182,7 +182,7 @@ async function pollStatus() {
   const frozen = s.sampler?.settle_state === "frozen";
   pill.className = `pill ${down.length || frozen ? "bad" : "ok"}`;
   setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}`
-    : frozen ? `robot ${devices.robot?.name ?? ""}: joints frozen, no capture` : "devices connected");
+    : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture` : "devices connected");
   renderDriftPill(s.drift);
   changed("status");
   collectErrors(devices);
