@@ -265,7 +265,8 @@ def _spread(window: Sequence[PairedReading], cfg: SettleConfig, device: str) -> 
     if any(r.over_range for r in window):
         return Verdict(
             "over_range",
-            f"indicator {device} reports over/under-range",
+            f"the indicator ({device}) reads over or under its range: move the robot so the "
+            "cable stays within the sensor's stroke",
             final=still,
             joints_still=still,
         )

@@ -92,6 +92,11 @@ function renderCounts() {
   const bar = $("campaign-need-bar");
   bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
   bar.className = included >= need ? "done" : "";
+  if (String(c.notes || "").startsWith("drift check")) {
+    // a drift check's own campaign: compared with the calibration, never identified (item 15)
+    setText("campaign-need", `A drift check's own campaign (${c.notes}): its ${included} samples are compared with the robot's calibration in tab 4, not identified.`);
+    return;
+  }
   const anchors = c.anchors.length > 1 ? `, ${c.anchors.length} anchors` : "";
   const counts = `${need} minimum, ${c.recommended_samples} recommended for this robot and ${c.anchors.length > 1 ? `${c.anchors.length} anchors` : "anchor"}: from ${c.recommended_samples} the fit can also screen outliers`;
   setText("campaign-need", included >= need
