@@ -191,7 +191,8 @@ function renderCaptureState() {
   const s = state.status?.sampler;
   const auto = $("auto-capture");
   const on = !!state.campaign && s?.mode === "auto" && s.auto_campaign_id === state.campaign.id;
-  if (document.activeElement !== auto) auto.checked = on;
+  const wanted = autoWanted && Date.now() < autoWanted.until && autoWanted.enabled !== on;
+  if (!wanted) { autoWanted = null; auto.checked = on; }
   $("capture-now").disabled = on;
   // The anchor field follows the session in use until the operator types one of their own
   // (a new sensor position); auto capture's anchor is the daemon's, not the field's.
@@ -246,10 +247,17 @@ async function captureNow() {
   await loadCampaigns();
 }
 
+// The operator's last switch of auto capture, kept on the box until the daemon's status says
+// so (or 3 s pass); otherwise the box shows the daemon's state, focused or not: another tab
+// may have switched it (item 20).
+let autoWanted = null;
+
 async function setAuto(enabled) {
+  autoWanted = { enabled, until: Date.now() + 3000 };
   try {
     await api("PUT", `/campaigns/${state.campaign.id}/auto-capture`, { json: { enabled, anchor: $("capture-anchor").value || "A" } });
   } catch {
+    autoWanted = null;
     $("auto-capture").checked = !enabled;
   }
   await loadCampaigns();
