@@ -10,7 +10,8 @@ at 1366, 800 and 390 px and screenshots.
   ready at once, Capture is refused in words, nothing is stored; captures go on after;
 - items 5, 6: a check says what moved: a bumped stand is the sensor's, with its figure, and
   the check's own campaign is no sensor-move case;
-- item 12: campaign rows are focusable grid rows that Enter selects.
+- item 12: campaign rows are focusable grid rows that Enter selects;
+- item 26: in forced colours the selected row, the progress bar and the active tab still show.
 """
 
 from __future__ import annotations
@@ -450,3 +451,26 @@ def test_the_token_dialog_never_strands_the_page(cell: Cell, tmp_path: Path) -> 
             page.wait_for_selector("#campaign-list tbody tr:has-text('walk3 token')", timeout=15000)
             assert not page.evaluate("document.getElementById('token-dialog').open")
             assert not log.page_errors, log.page_errors
+
+
+def test_forced_colours_keep_the_selection_visible(cell: Cell, tmp_path: Path) -> None:
+    """Item 26: with forced colours (high contrast) backgrounds go; the selected campaign row,
+    the progress bar and the active tab keep a system colour of their own."""
+    assert cell.daemon is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    api.post("/campaigns", json={"name": "walk3 contrast", "robot_model": DEFAULT_ROBOT_MODEL})
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        page.emulate_media(forced_colors="active")
+        _open(page, url, "campaign")
+        page.click("#campaign-list tbody tr:has-text('walk3 contrast')")
+        page.wait_for_selector("#campaign-list tbody tr[aria-selected=true]")
+        outline = page.eval_on_selector(
+            "#campaign-list tbody tr[aria-selected=true]", "e => getComputedStyle(e).outlineStyle"
+        )
+        assert outline == "solid"
+        bar = page.eval_on_selector(".progress", "e => getComputedStyle(e).borderTopStyle")
+        assert bar == "solid"
+        tab = page.eval_on_selector("#tab-campaign", "e => getComputedStyle(e).textDecorationLine")
+        assert tab == "underline"
+        _shot(page, tmp_path, "walk3-forced-colours-1366")
+        assert not log.page_errors, log.page_errors
