@@ -311,7 +311,7 @@ function renderCheckDownloads(c) {
     saveBlob(await r.blob(), m ? m[1] : `robot-${c.robot_id}-check-poses.${fmt}`);
   };
   box.replaceChildren("Download the check poses for the robot: ", ...state.downloadFormats.map((fmt) => {
-    const b = el("button", { type: "button", class: "secondary small", "data-format": fmt }, fmt);
+    const b = el("button", { type: "button", class: "secondary small", "data-format": fmt, "aria-label": `Download the check poses as ${fmt}` }, fmt);
     b.addEventListener("click", () => fetchOne(fmt).catch(() => {}));
     return b;
   }));

@@ -107,8 +107,8 @@ function renderCounts() {
 function renderSamples() {
   const rows = samples.slice().reverse().map((s) => {
     const action = s.excluded
-      ? el("button", { class: "secondary small", onclick: () => setExcluded(s, false) }, "Include")
-      : el("button", { class: "secondary small", onclick: () => setExcluded(s, true) }, "Exclude");
+      ? el("button", { class: "secondary small", "aria-label": `Include sample #${s.id}`, onclick: () => setExcluded(s, false) }, "Include")
+      : el("button", { class: "secondary small", "aria-label": `Exclude sample #${s.id}`, onclick: () => setExcluded(s, true) }, "Exclude");
     return {
       class: s.excluded ? "excluded" : "",
       cells: [String(s.id), clock(s.t_end ?? s.created_at), ...JOINTS.map((q) => fix(s[q], 3)),
@@ -285,7 +285,8 @@ function renderPlanDownloads() {
   const choices = state.downloadFormats.flatMap((fmt) => (fmt === "csv" || anchors.length < 2
     ? [[fmt, null]] : anchors.map((a) => [fmt, a])));
   box.replaceChildren("Download the plan for the robot: ", ...choices.map(([fmt, anchor]) => {
-    const b = el("button", { type: "button", "data-format": fmt, "data-anchor": anchor }, anchor == null ? fmt : `${fmt} (sensor at ${anchor})`);
+    const label = anchor == null ? fmt : `${fmt} (sensor at ${anchor})`;
+    const b = el("button", { type: "button", "data-format": fmt, "data-anchor": anchor, "aria-label": `Download the plan as ${label}` }, label);
     b.addEventListener("click", () => fetchOne(fmt, anchor).catch(() => {}));
     return b;
   }));
