@@ -28,10 +28,18 @@ REJECTION_STATUS: dict[str, int] = {
     "indicator_error": 503,  # the indicator raised a DeviceError (timeout, CRC, link down)
     "robot_error": 503,  # the robot controller raised a DeviceError
     "no_data": 503,  # no reading yet (sampler just started, manual robot without angles)
+    "frozen": 503,  # the robot's joints stayed bit-identical while the cable length moved
 }
 
 RejectionReason = Literal[
-    "moving", "over_range", "not_new_pose", "stale", "indicator_error", "robot_error", "no_data"
+    "moving",
+    "over_range",
+    "not_new_pose",
+    "stale",
+    "indicator_error",
+    "robot_error",
+    "no_data",
+    "frozen",
 ]
 
 

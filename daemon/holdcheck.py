@@ -179,7 +179,7 @@ class HoldCheckMonitor:
         poses = check_poses(self.store, robot_id, self.settings.n_poses)["poses_deg"]
         n = len(self.store.list_checks(robot_id, limit=10_000)) + 1
         campaign = self.store.create_campaign(
-            f"check {n} of robot {robot_id}",
+            f"check {n} of robot {self.store.robot(robot_id)['name']}",
             robot_id,
             f"drift check ({trigger}) against result {result_row['id']}",
         )
@@ -315,7 +315,8 @@ class HoldCheckMonitor:
         """The ``drift`` block of ``GET /status``: the last finished check (any robot)
         ``last_check_at`` [s epoch], ``rms_mm``, ``threshold_mm``, ``state`` (ok, drift,
         failed, or none before the first check), ``robot_id``, ``check_id``, and
-        ``running`` (the running check's id or None), ``check_interval_h``.
+        ``running`` (the running check's id or None), ``check_interval_h``, ``error`` (why
+        the last check failed) and ``cause`` (what moved at a drift: :func:`_cause`).
 
         From memory: the last check is read from the store once (in :meth:`start`, or here on
         the first call without it) and replaced when :meth:`_finish` stores one, so a busy
@@ -332,4 +333,30 @@ class HoldCheckMonitor:
             "check_id": last["id"] if last else None,
             "running": self._running["id"] if self._running else None,
             "check_interval_h": self.settings.check_interval_h,
+            "error": last["error"] if last else None,
+            "cause": _cause(last),
         }
+
+
+def _cause(check: CheckRow | None) -> dict[str, Any] | None:
+    """What moved, for a check judged ``drift`` with an explanation: ``kind`` (sensor, robot,
+    unclear), its figure (``shift_mm``: the stand's move [mm]; ``joint`` and
+    ``joint_offset_deg``) and ``text`` (:func:`calib.monitor.holdcheck.explanation_text`,
+    the one wording the event, the log and the page share); None otherwise."""
+    if check is None or check["status"] != "drift":
+        return None
+    explained = (check["detail"] or {}).get("explanation")
+    if not explained:
+        return None
+    import math
+
+    from calib.monitor.holdcheck import explanation_text
+
+    shift = [float(v) for v in explained.get("anchor_shift_mm") or []]
+    return {
+        "kind": explained["kind"],
+        "shift_mm": math.sqrt(sum(v * v for v in shift)) if shift else None,
+        "joint": explained.get("joint"),
+        "joint_offset_deg": explained.get("joint_offset_deg"),
+        "text": explanation_text(explained),
+    }

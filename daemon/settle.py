@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 from calib.monitor.settle import (
     NOT_SETTLED,
+    FrozenWatch,
     PairedReading,
     SettleConfig,
     Verdict,
@@ -47,6 +48,7 @@ def make_capture(window: Sequence[PairedReading], anchor: str, mode: Mode) -> Ca
 
 __all__ = [
     "NOT_SETTLED",
+    "FrozenWatch",
     "Mode",
     "PairedReading",
     "SettleConfig",

@@ -116,6 +116,8 @@ class SensorWatch:
         self.auto = auto
         self.enabled = enabled
         self._campaigns: dict[int, CampaignWatch] = {}
+        #: Campaigns of drift checks: not watched (see :meth:`saw_sample`).
+        self._check_campaigns: set[int] = set()
         #: Newest unacknowledged move per campaign (the page's banner): the event detail.
         self._moves: dict[int, dict[str, Any]] = {}
         #: The robot's latest joints [deg] (6) or None; set by the lifespan from the sampler.
@@ -143,10 +145,18 @@ class SensorWatch:
         """A sample was stored (called on the event loop, from the sink): queue it."""
         if not self.enabled:
             return
+        if campaign_id in self._check_campaigns:
+            return
         cw = self._campaigns.get(campaign_id)
         if cw is None:
             try:
                 robot_id = int(self.store.campaign(campaign_id)["robot_id"])
+                # A drift check's own campaign is never a sensor-move case of its own: its
+                # few poses are compared with the calibration by the check, which says
+                # whether the sensor or the robot moved (daemon.holdcheck).
+                if self.store.check_of_campaign(campaign_id) is not None:
+                    self._check_campaigns.add(campaign_id)
+                    return
             except Exception:
                 log.exception("watch: campaign %d unreadable", campaign_id)
                 return

@@ -72,7 +72,8 @@ class FakeIndicator:
 
 class FakeRobot:
     """Scripted robot: at ``joints`` unless moving towards a target (:meth:`move_to`), or
-    drifting at ``drift_deg_s`` on joint 1."""
+    drifting at ``drift_deg_s`` on joint 1. ``freeze()``: the controller goes on answering
+    with fresh stamps but bit-identical joints (the ones of that moment) until ``thaw()``."""
 
     def __init__(self, name: str = "rob", joints: Sequence[float] = HOME) -> None:
         self.name = name
@@ -84,6 +85,13 @@ class FakeRobot:
         self._to = self._from.copy()
         self._t0 = time.monotonic()
         self._move_s = 0.0
+        self.frozen: NDArray[np.float64] | None = None
+
+    def freeze(self) -> None:
+        self.frozen = self.joints_now()
+
+    def thaw(self) -> None:
+        self.frozen = None
 
     def move_to(self, joints: Sequence[float], move_s: float = 0.15) -> None:
         self._from = self.joints_now()
@@ -104,7 +112,7 @@ class FakeRobot:
         await asyncio.sleep(0.003)
         if self.error is not None:
             raise self.error
-        q = self.joints_now()
+        q = self.joints_now() if self.frozen is None else self.frozen
         return JointReading(
             (q[0], q[1], q[2], q[3], q[4], q[5]),
             time.monotonic() - self.lag_s,

@@ -85,8 +85,10 @@ def calibrated(client: TestClient, cell: TrueCell) -> dict[str, int]:
 
 
 def _uncalibrated_robot(client: TestClient) -> int:
-    model = builtin_model("hsr-jr680").to_dict()
-    r = client.post(f"{API}/campaigns", json={"name": "u", "robot_model": model}, headers=AUTH)
+    """A new robot of the model (its own name: the same name would be the calibrated one)."""
+    n = len(client.get(f"{API}/robots", headers=AUTH).json())
+    body = {"name": "u", "robot": f"uncalibrated {n + 1}", "robot_model": "hsr-jr680"}
+    r = client.post(f"{API}/campaigns", json=body, headers=AUTH)
     return int(r.json()["robot_id"])
 
 

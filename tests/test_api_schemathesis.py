@@ -137,8 +137,14 @@ def _file_format_body(case: Any) -> bool:
     ):  # program files
         return True
     body = case.body if isinstance(case.body, dict) else {}
-    return case.operation.label == "POST /api/v1/campaigns" and isinstance(
-        body.get("robot_model"), dict
+    if case.operation.label == "POST /api/v1/robots":  # a model file; one of model, model_file
+        return True
+    # A campaign's robot: a model mapping or file (the model file format), an existing robot
+    # (robot_id takes no model), or a robot name another model's robot may hold (a 409):
+    # rules of the stored robots and of the file format, not of the schema.
+    return case.operation.label == "POST /api/v1/campaigns" and (
+        isinstance(body.get("robot_model"), dict)
+        or any(k in body for k in ("robot_model_file", "robot_id", "robot"))
     )
 
 

@@ -535,8 +535,9 @@ def test_not_found_is_one_404_path_naming_the_resource(client: TestClient) -> No
     """Every missing row comes from the store's StoreNotFound through one handler, with the
     REST name of the resource (a job is an identification)."""
     model = builtin_model("hsr-jr680").to_dict()
-    r = client.post("/api/v1/campaigns", json={"name": "nf", "robot_model": model}, headers=AUTH)
-    rid = r.json()["robot_id"]  # a new uploaded robot: no calibration accepted yet
+    body = {"name": "nf", "robot": "nf arm", "robot_model": model}
+    r = client.post("/api/v1/campaigns", json=body, headers=AUTH)
+    rid = r.json()["robot_id"]  # a new robot: no calibration accepted yet
     cases = [
         ("GET", "/api/v1/campaigns/999999", None, "campaign 999999: not found"),
         ("GET", "/api/v1/campaigns/999999/samples", None, "campaign 999999: not found"),

@@ -29,7 +29,12 @@ class FilterInputError(ValueError):
         where = f"{file}:{line}" if line is not None else file
         super().__init__(f"{where}: {message}")
         self.file = file
+        self.message = message
         self.line = line
+
+    def __reduce__(self) -> tuple[type[FilterInputError], tuple[str, str, int | None]]:
+        """Pickled by its fields (a filter run's errors come back from a worker process)."""
+        return (type(self), (self.file, self.message, self.line))
 
 
 @dataclass(frozen=True)

@@ -156,19 +156,27 @@ def change_jacobians(
 
 
 def explanation_text(explained: dict[str, Any]) -> str:
-    """One phrase naming the explanation of :func:`calib.monitor.stepwatch.explain_change`."""
+    """What moved, in the operator's words with its figure and the next step, from the
+    explanation of :func:`calib.monitor.stepwatch.explain_change`: a moved sensor stand is
+    the sensor's (check the stand), a joint's zero offset the robot's (calibrate again)."""
     if explained["kind"] == "sensor":
-        shift = ", ".join(f"{v:+.2f}" for v in explained["anchor_shift_mm"])
+        shift = [float(v) for v in explained["anchor_shift_mm"]]
+        size = math.sqrt(sum(v * v for v in shift))
+        parts = ", ".join(f"{v:+.1f}" for v in shift)
         return (
-            f"the sensor moved (P0 shift [{shift}] mm, offset "
-            f"{explained['offset_change_mm']:+.2f} mm)"
+            f"the sensor stand moved by {size:.1f} mm (P0 shift [{parts}] mm, offset "
+            f"{explained['offset_change_mm']:+.2f} mm), not the robot; check the stand and "
+            "its mounting, then check again (the robot's calibration still holds)"
         )
     if explained["kind"] == "robot":
         return (
-            f"the robot changed (joint {explained['joint']} zero offset "
-            f"{explained['joint_offset_deg']:+.4f} deg)"
+            f"the robot drifted: joint {explained['joint']} zero offset "
+            f"{explained['joint_offset_deg']:+.3f} deg; calibrate the robot again"
         )
-    return "robot or sensor: the check poses cannot tell"
+    return (
+        "robot or sensor: the check poses cannot tell which moved; check the sensor stand, "
+        "then calibrate the robot again if the next check drifts too"
+    )
 
 
 def evaluate(

@@ -24,6 +24,19 @@ settled when all of these hold:
   window mean.
 
 The checks run in that order and the first that fails gives the verdict's reason.
+
+A frozen controller
+-------------------
+A controller that stops updating its joint angles while the robot moves gives bit-identical
+joints with fresh stamps: every settle check passes once the robot stops at its next pose,
+and the sample would pair the new length with the old joints. :class:`FrozenWatch`, fed
+every paired reading, catches it: while the joints stay bit-identical, a cable length that
+differs from the run's reference (the first reading of the run, or the oldest one within
+``history_s``) by more than ``settle_tol_mm`` in ``min_readings`` readings in a row marks
+those joints frozen (verdict ``frozen``), until the controller reports other joints. The
+reference slides with ``history_s``, so a slow thermal drift at rest is not a freeze; a robot
+at rest whose cable is moved by hand is refused the same way (its joints did not follow the
+cable), which the refusal's words say.
 """
 
 from __future__ import annotations
@@ -41,7 +54,7 @@ FloatArray = NDArray[np.float64]
 Joints = tuple[float, float, float, float, float, float]
 #: Why a window is not settled (a subset of the daemon's capture rejection reasons,
 #: :data:`daemon.capture.RejectionReason`).
-SettleReason = Literal["moving", "over_range", "stale", "no_data"]
+SettleReason = Literal["moving", "over_range", "stale", "no_data", "frozen"]
 
 
 class SettleConfig(Protocol):
@@ -118,6 +131,61 @@ class Verdict:
     final: bool = False
     joints_still: bool | None = None
     window: tuple[PairedReading, ...] = ()
+
+
+class FrozenWatch:
+    """The robot's joints bit-identical while the cable length moved (see the module).
+
+    Feed every paired reading to :meth:`add`, oldest first, with the oldest reading of the
+    sampler's buffer; :meth:`verdict` is the ``frozen`` verdict while the newest joints are the
+    frozen ones, else None. O(1) per reading. A manual robot (``t_joints`` NaN: its angles are
+    typed in and repeat by design) is never frozen.
+    """
+
+    def __init__(self, tol_mm: float, min_readings: int) -> None:
+        self.tol_mm = tol_mm
+        self.min_readings = min_readings
+        self._q: Joints | None = None
+        self._t_start = math.nan  # t_mono of the run's first reading [s]
+        self._ref_start_mm = math.nan  # its length [mm]
+        self._far = 0  # readings in a row beyond tol_mm of the reference
+        self._frozen: Joints | None = None
+        self._moved_mm = 0.0  # the largest length change seen while frozen [mm]
+
+    def add(self, reading: PairedReading, oldest: PairedReading) -> None:
+        """Book ``reading`` (the newest); ``oldest``: the buffer's oldest reading."""
+        if math.isnan(reading.t_joints):
+            self._q = self._frozen = None
+            return
+        if reading.joints_deg != self._q:
+            self._q, self._frozen, self._far = reading.joints_deg, None, 0
+            self._t_start, self._ref_start_mm, self._moved_mm = reading.t_mono, math.nan, 0.0
+        if reading.over_range or not math.isfinite(reading.length_mm):
+            return
+        if math.isnan(self._ref_start_mm):
+            self._ref_start_mm = reading.length_mm
+            return
+        slid = oldest.t_mono > self._t_start and math.isfinite(oldest.length_mm)
+        ref = oldest.length_mm if slid and not oldest.over_range else self._ref_start_mm
+        change = abs(reading.length_mm - ref)
+        self._far = self._far + 1 if change > self.tol_mm else 0
+        if self._far >= self.min_readings:
+            self._frozen = self._q
+            self._moved_mm = max(self._moved_mm, change)
+
+    def verdict(self, latest: PairedReading | None) -> Verdict | None:
+        """The ``frozen`` verdict while ``latest`` carries the frozen joints, else None."""
+        if self._frozen is None or latest is None or latest.joints_deg != self._frozen:
+            return None
+        return Verdict(
+            "frozen",
+            f"the cable length changed by up to {self._moved_mm:.1f} mm while the robot's joint "
+            "angles stayed exactly the same: the robot controller is not updating its joints "
+            "(frozen), or the cable was moved by hand. No sample is taken until the controller "
+            "reports new joint angles: check the controller's connection and move the robot",
+            final=True,
+            joints_still=True,
+        )
 
 
 #: The verdict before any paired reading.
@@ -197,7 +265,8 @@ def _spread(window: Sequence[PairedReading], cfg: SettleConfig, device: str) -> 
     if any(r.over_range for r in window):
         return Verdict(
             "over_range",
-            f"indicator {device} reports over/under-range",
+            f"the indicator ({device}) reads over or under its range: move the robot so the "
+            "cable stays within the sensor's stroke",
             final=still,
             joints_still=still,
         )
@@ -302,6 +371,7 @@ def window_stats(window: Sequence[PairedReading]) -> WindowStats:
 
 __all__ = [
     "NOT_SETTLED",
+    "FrozenWatch",
     "Joints",
     "PairedReading",
     "SettleConfig",

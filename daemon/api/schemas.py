@@ -64,10 +64,52 @@ class _Body(BaseModel):
 StrictBody = _Body
 
 
+class ModelFileText(_Body):
+    """A robot model file as the operator picked it: its file name (``.toml`` or ``.json``
+    decides the format) and its text."""
+
+    filename: Annotated[str, StringConstraints(min_length=1, max_length=255)]
+    text: Annotated[str, StringConstraints(max_length=100_000)]  # a model file: a few kB
+
+
+class RobotCreate(_Body):
+    """A physical robot: its own name and its nominal model (exactly one of ``model`` and
+    ``model_file``)."""
+
+    name: Name = Field(
+        description=f"The robot's own name (cell, serial number), 1..{MAX_NAME_CHARS} "
+        "characters; the same name is the same robot again"
+    )
+    model: (
+        Annotated[
+            str,
+            StringConstraints(max_length=64),
+            Field(json_schema_extra={"enum": sorted(BUILTIN_MODELS)}),
+        ]
+        | dict[str, Any]
+        | None
+    ) = Field(None, description="A built-in model name, or a model as a mapping")
+    model_file: ModelFileText | None = Field(
+        None, description="A model file (TOML or JSON, by its extension) as text"
+    )
+
+
 class CampaignCreate(_Body):
     """A new calibration campaign."""
 
     name: Name = Field(description=f"1..{MAX_NAME_CHARS} characters, not blank")
+    robot_id: int | None = Field(
+        None, ge=1, le=MAX_ID, description="An existing robot (GET /robots); then no model"
+    )
+    robot: Name | None = Field(
+        None,
+        description="The robot's own name (cell, serial number): the same name is the same "
+        "robot (its calibration and drift history go on); a new name makes a robot of the "
+        "given model. Without it the robot is named after its model.",
+    )
+    robot_model_file: ModelFileText | None = Field(
+        None, description="The robot's model file (TOML or JSON) as text, instead of robot_model"
+    )
     robot_model: (
         Annotated[
             str,

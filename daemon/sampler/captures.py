@@ -18,7 +18,15 @@ from daemon.devices import Device
 from daemon.sampler.auto import AutoState
 from daemon.sampler.cancel import raise_if_cancelled
 from daemon.sampler.config import SamplerConfig
-from daemon.settle import Mode, PairedReading, Verdict, as_joints, evaluate, make_capture
+from daemon.settle import (
+    FrozenWatch,
+    Mode,
+    PairedReading,
+    Verdict,
+    as_joints,
+    evaluate,
+    make_capture,
+)
 from drivers import ManualRobot, RobotDriver
 
 log = logging.getLogger("cablecal.sampler")
@@ -33,6 +41,7 @@ class CapturePath:
     _ind: Device
     _rob: Device
     _buffer: deque[PairedReading]
+    _frozen: FrozenWatch
     _used_until: float
     _auto: AutoState | None
     _task: asyncio.Task[None] | None
@@ -53,8 +62,16 @@ class CapturePath:
     # ------------------------------------------------------------------ settle detection
     def _evaluate(self, now: float, not_before: float) -> Verdict:
         """Settle check of the window ending at the newest reading polled at or after
-        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`."""
-        return evaluate(self._buffer, self.config, now, not_before, self._ind.name)
+        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`. A frozen
+        controller (:class:`daemon.settle.FrozenWatch`) outranks a settled or over-range
+        window: its joints are not the robot's (a moving one stays ``moving``: it is not
+        ready either, and a noisy cable at rest is not a frozen controller)."""
+        verdict = evaluate(self._buffer, self.config, now, not_before, self._ind.name)
+        if verdict.reason in (None, "over_range"):
+            frozen = self._frozen.verdict(self._buffer[-1] if self._buffer else None)
+            if frozen is not None:
+                return frozen
+        return verdict
 
     def _device_fault(self, now: float, not_before: float) -> tuple[CaptureRejected, Device] | None:
         """A device failing for longer than ``stale_s``, or the manual robot without angles
@@ -140,7 +157,8 @@ class CapturePath:
             if verdict.reason is None:
                 return verdict.window
             if verdict.final:
-                raise CaptureRejected(verdict.reason, verdict.detail)
+                device = self._rob.name if verdict.reason == "frozen" else None
+                raise CaptureRejected(verdict.reason, verdict.detail, device=device)
             if not self.running:
                 raise CaptureRejected("no_data", "the sampler is not running")
             if now >= deadline:

@@ -24,6 +24,7 @@ from daemon.sampler.config import MAX_BUFFER, SamplerConfig
 from daemon.sampler.late import LateWatch
 from daemon.settle import (
     NOT_SETTLED,
+    FrozenWatch,
     Mode,
     PairedReading,
     Verdict,
@@ -102,6 +103,7 @@ class Sampler(CapturePath):
         self._joints: tuple[Joints, float, float] | None = None
         self._buffer: deque[PairedReading] = deque(maxlen=MAX_BUFFER)
         self._verdict: Verdict = NOT_SETTLED
+        self._frozen = FrozenWatch(config.settle_tol_mm, config.min_readings)
         self._used_until = -math.inf  # t_poll of the newest reading used by a capture
         self._auto: AutoState | None = None
         self._task: asyncio.Task[None] | None = None
@@ -302,6 +304,7 @@ class Sampler(CapturePath):
         horizon = reading.t_mono - self.config.history_s
         while buf and buf[0].t_mono < horizon:
             buf.popleft()
+        self._frozen.add(reading, buf[0])
 
     def _event(
         self, kind: str, device: str | None, message: str, detail: dict[str, Any] | None

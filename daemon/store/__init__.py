@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from daemon.store.checks import CheckPoses, CheckRow, CheckStore
 from daemon.store.db import BUSY_TIMEOUT_MS, DB_FILENAME, Row
-from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
+from daemon.store.errors import StoreConflict, StoreError, StoreInvalid, StoreNotFound
 from daemon.store.events import EventStore
 from daemon.store.export import EXPORT_FORMAT, EXPORT_FORMAT_VERSION, ExportStore
 from daemon.store.jobs import (
@@ -123,6 +123,7 @@ __all__ = [
     "Row",
     "SampleRow",
     "Store",
+    "StoreConflict",
     "StoreError",
     "StoreInvalid",
     "StoreNotFound",

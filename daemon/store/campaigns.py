@@ -18,7 +18,7 @@ from daemon.store.rows import CampaignRow
 #: scan of the index ``samples(campaign_id, excluded, anchor)``: one seek per anchor (the
 #: next larger one), not a read of every sample, so polling ``GET /campaigns`` stays cheap.
 _CAMPAIGN_SELECT = """
-    SELECT c.*, r.name AS robot_name,
+    SELECT c.*, r.name AS robot_name, r.model_name AS robot_model_name,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id) AS n_samples,
         (SELECT count(*) FROM samples s WHERE s.campaign_id = c.id AND s.excluded = 1)
             AS n_excluded,

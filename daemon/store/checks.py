@@ -230,6 +230,11 @@ class CheckStore(StoreDB):
         """
         return _check_row(self._require("checks", "check", check_id))
 
+    def check_of_campaign(self, campaign_id: int) -> CheckRow | None:
+        """The check whose own campaign ``campaign_id`` is, or None (an operator's campaign)."""
+        rows = self._query("SELECT id FROM checks WHERE campaign_id = ? LIMIT 1", [campaign_id])
+        return self.check(int(rows[0]["id"])) if rows else None
+
     def list_checks(
         self, robot_id: int | None = None, limit: int = 100, status: str | None = None
     ) -> list[CheckRow]:

@@ -35,3 +35,8 @@ class StoreNotFound(StoreError, KeyError):
 
 class StoreInvalid(StoreError, ValueError):
     """An argument is invalid (names it); nothing was written."""
+
+
+class StoreConflict(StoreError):
+    """The request contradicts what is stored (e.g. a robot name already taken by a robot of
+    another model); nothing was written. The service answers 409."""

@@ -62,10 +62,14 @@ CHECK_TRIGGERS: Final[tuple[str, ...]] = get_args(CheckTrigger)
 
 
 class RobotRow(TypedDict):
-    """A robot: its nominal model (:meth:`calib.models.RobotModel.to_dict`)."""
+    """A physical robot: its own ``name`` (cell, serial number; unique) and its nominal model
+    (:meth:`calib.models.RobotModel.to_dict`) called ``model_name``."""
 
     id: int
+    #: The robot's own name, unique among robots.
     name: str
+    #: The name of its nominal model (a built-in model's name or the model file's ``name``).
+    model_name: str
     convention: Literal["dh", "mdh"]
     model: dict[str, Any]
     source: Literal["builtin", "uploaded"]
@@ -88,6 +92,8 @@ class CampaignRow(TypedDict):
     auto_anchor: str
     created_at: float
     robot_name: str
+    #: The name of the robot's nominal model.
+    robot_model_name: str
     n_samples: int
     n_excluded: int
     n_included: int

@@ -217,6 +217,25 @@ def _migration_6(conn: sqlite3.Connection) -> None:
         conn.execute(sql)
 
 
+def _migration_7(conn: sqlite3.Connection) -> None:
+    # A robot is a physical robot (issue 32 item 1): ``name`` becomes the robot's own name
+    # (cell, serial number), unique over every robot; ``model_name`` the name of its nominal
+    # model. Before, ``name`` was the model's name and each uploaded model file made a robot,
+    # so several robots may share one name: the oldest keeps it, each later one is named
+    # "<name> (robot <id>)", and none is merged (the old store cannot tell whether two rows
+    # are one arm). Every campaign, sample, job, result, plan and check keeps its robot id.
+    statements = [
+        "ALTER TABLE robots ADD COLUMN model_name TEXT NOT NULL DEFAULT ''",
+        "UPDATE robots SET model_name = name",
+        """UPDATE robots SET name = name || ' (robot ' || id || ')'
+            WHERE id > (SELECT min(r.id) FROM robots r WHERE r.name = robots.name)""",
+        "DROP INDEX robots_builtin_name",
+        "CREATE UNIQUE INDEX robots_name ON robots(name)",
+    ]
+    for sql in statements:
+        conn.execute(sql)
+
+
 #: The schema history, oldest first; ``version`` is the position (1-based).
 MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
@@ -225,6 +244,9 @@ MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(4, "drift checks: check_poses, checks", _migration_4),
     Migration(5, "samples index (campaign_id, excluded, anchor)", _migration_5),
     Migration(6, "robots.current_identification_id; jobs progress numbers", _migration_6),
+    Migration(
+        7, "a robot is a physical robot: robots.name unique, robots.model_name", _migration_7
+    ),
 )
 SCHEMA_VERSION: Final = MIGRATIONS[-1].version
 

@@ -26,7 +26,7 @@ def test_builtin_robot_is_created_once_and_round_trips(store: Store) -> None:
     model = store.robot_model(first["id"])
     np.testing.assert_array_equal(model.dh_table, builtin_model(ROBOT).dh_table)
     assert model.joint_limits_deg is not None
-    uploaded = store.add_robot(builtin_model(ROBOT))
+    uploaded = store.add_robot(builtin_model(ROBOT), name="cell 2")
     assert uploaded["source"] == "uploaded" and uploaded["id"] != first["id"]
     assert [r["id"] for r in store.list_robots()] == [first["id"], uploaded["id"]]
     assert store.get_robot(999) is None

@@ -19,7 +19,6 @@ from calib.dataset import (
     parse_samples_csv,
     validate_joint_limits,
 )
-from calib.models import ModelError, builtin_model, model_from_mapping
 from daemon.api.deps import (
     AppState,
     CampaignId,
@@ -36,6 +35,7 @@ from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
 from daemon.api.guard import MAX_IMPORT_BYTES
 from daemon.api.offload import offload
+from daemon.api.routes.robots import robot_for_campaign
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
@@ -66,28 +66,13 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
     responses=error_responses(507),
 )
 def create_campaign(state: State, request: Request, body: CampaignCreate) -> CampaignOut:
-    """``robot_model`` is a built-in name or an uploaded model mapping; returns the campaign
-    with its ``id`` and ``robot_id``. 507 when the disk is at its free-space reserve."""
+    """The robot: ``robot_id`` (an existing one), or ``robot`` (its own name; default: the
+    model's name) with ``robot_model`` (a built-in name or a model mapping) or
+    ``robot_model_file`` (TOML or JSON text). The same robot name and model is the same robot
+    again; returns the campaign with its ``id`` and ``robot_id``. 507 when the disk is at its
+    free-space reserve."""
     require_space(state, int(request.headers.get("content-length") or 0) + 4096, "campaign")
-    if isinstance(body.robot_model, str):
-        try:
-            builtin_model(body.robot_model)
-        except (KeyError, ValueError) as exc:
-            raise unprocessable(
-                ("body", "robot_model"), f"unknown built-in model {body.robot_model!r} ({exc})"
-            ) from exc
-        robot = state.store.ensure_builtin_robot(body.robot_model)
-    else:
-        try:
-            model = model_from_mapping(body.robot_model)
-        except ModelError as exc:
-            raise unprocessable(("body", "robot_model"), f"robot_model.{exc}") from exc
-        if why := not_printable(model.name):  # a name, printable as every name
-            raise unprocessable(
-                ("body", "robot_model", "name"),
-                f"robot_model.name: {why}: only printable text is allowed",
-            )
-        robot = state.store.add_robot(model, source="uploaded")
+    robot = robot_for_campaign(state, body)
     return _out(state, state.store.create_campaign(body.name, int(robot["id"]), body.notes))
 
 

@@ -92,7 +92,8 @@ def get_check_poses(
         str(format.value),
         stem=f"robot-{robot_id}-check-poses",
         model=model,
-        what=f"drift-check poses of robot {robot_id} ({poses['source']})",
+        what=f"drift-check poses of robot {state.store.robot(robot_id)['name']} "
+        f"(robot {robot_id}, {poses['source']} poses)",
         speed_pct=speed_pct,
         dwell_s=dwell_s,
         settle_s=state.settings.sampler.settle_s,

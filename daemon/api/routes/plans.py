@@ -146,9 +146,16 @@ def _compute(
     if anchors is None:
         if start is None:
             raise ValueError("anchors_mm: required unless start_from_samples is true")
-        anchors = [[float(p[0]), float(p[1]), float(p[2])] for p in found.values()]
-        if body.anchor_ids is None:
-            opts = PlanOptions(**{**opts.__dict__, "anchor_ids": tuple(found)})
+        # With anchor_ids, new poses go to those anchors only (after a sensor move: the
+        # anchor in use, not the old one); the other anchors' samples still inform the plan.
+        wanted = tuple(found) if body.anchor_ids is None else tuple(body.anchor_ids)
+        if missing := [aid for aid in wanted if aid not in found]:
+            raise ValueError(
+                f"anchor_ids: anchor {missing[0]} has no included sample to place it; give "
+                "anchors_mm (the sensor position) for it"
+            )
+        anchors = [[float(v) for v in found[aid][:3]] for aid in wanted]
+        opts = PlanOptions(**{**opts.__dict__, "anchor_ids": wanted})
     ids = plan_anchor_ids(opts.anchor_ids, len(anchors))
     used = [offsets.get(aid) for aid in ids]
     if any(u is not None for u in used):

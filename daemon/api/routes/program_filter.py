@@ -5,15 +5,21 @@ with its ``filename``) and an optional ``frames`` part (the ``--frames`` TOML). 
 body is read as it streams under its limits (:mod:`daemon.api.multipart`: the bytes of each
 part exactly as sent); the filter (:func:`calib.filter.run.filter_files`) runs in a worker
 process of its own, at most ``[requests] max_filters`` at once (:mod:`daemon.api.offload`),
-never on the event loop, and is killed when the client leaves.
+never on the event loop, and is killed when the client leaves. A preview (``dry_run``) names
+the robot, the calibration and a digest of the filtered files; a download given them returns
+exactly those files or a 409.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import zipfile
-from typing import Any
+from collections.abc import Mapping
+from datetime import UTC, datetime
+from typing import Any, NamedTuple
+from urllib.parse import quote
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
 
@@ -63,6 +69,29 @@ def _files_and_frames(parts: list[FormPart]) -> tuple[list[tuple[str, bytes]], s
     return files, frames
 
 
+class Preview(NamedTuple):
+    """What a filter run was made with: the robot and the calibration (the current
+    identification's job id, its result id and date)."""
+
+    robot_id: int
+    robot: str
+    robot_model: str
+    calibration_id: int
+    result_id: int
+    calibration_date: str
+
+
+def outputs_digest(outputs: Mapping[str, bytes]) -> str:
+    """SHA-256 (hex) of the filtered files, names and bytes, in name order: the preview's
+    digest, which the download must match."""
+    h = hashlib.sha256()
+    for name in sorted(outputs):
+        body = outputs[name]
+        h.update(f"{len(name)}:{name}:{len(body)}:".encode())
+        h.update(body)
+    return h.hexdigest()
+
+
 def _filter(
     result: dict[str, Any],
     nominal: Any,
@@ -73,7 +102,9 @@ def _filter(
     about: dict[str, Any],
 ) -> tuple[Any, dict[str, Any]]:
     """Filter (in a worker process, :func:`daemon.workers.run_in_child`): the run (its
-    outputs only) and its summary."""
+    outputs and errors only) and its summary, naming the robot and the calibration
+    (``about``) and the outputs' digest. 422 when no file could be read (every problem
+    named); a bad file among good ones is named in the summary's ``errors``."""
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import FilterRun, filter_files
     from calib.filter.sites import FilterInputError, parse_frames_toml
@@ -89,9 +120,10 @@ def _filter(
             409, f"robot {about['robot_id']}: calibration unusable: {exc}"
         ) from None
     run = filter_files(cal, files, frames=frames, keep_joint_targets=keep, only=only)
-    if run.errors:
+    if run.errors and not run.outputs:
         raise unprocessable(("body", "files"), "; ".join(str(e) for e in run.errors))
-    return FilterRun(outputs=run.outputs), run.summary(about)
+    summary = run.summary({**about, "digest": outputs_digest(run.outputs)})
+    return FilterRun(outputs=run.outputs, errors=run.errors), summary
 
 
 @router.post(
@@ -140,14 +172,30 @@ async def filter_programs(
     only: str | None = Query(
         None, max_length=MAX_ONLY_CHARS, description="Correct only these targets: NAME,NAME,…"
     ),
+    calibration_id: int | None = Query(
+        None,
+        ge=1,
+        description="The calibration (identification id) the preview showed: 409 if the "
+        "robot's current one is another",
+    ),
+    digest: str | None = Query(
+        None,
+        pattern="^[0-9a-f]{64}$",
+        description="The preview's digest of the filtered files: 409 if the files differ",
+    ),
 ) -> Any:
     """Every target of the uploaded programs (RAPID, URScript, and the other dialects of
     ``cablecal filter``) corrected for the robot's current calibration, each file changed
     only in its targets' numbers. Returns the filtered file (one file; the counts in the
     ``X-Filter-Counts`` header) or a zip of the files and ``filter-summary.json`` (several),
-    or with ``dry_run`` the summary only. A file that cannot be read is a 422 naming it and
-    its line; 409 when the robot has no current calibration; at most :data:`MAX_FILES`
-    files and the guard's body limit."""
+    or with ``dry_run`` the summary only (with ``calibration_id``, ``calibration_date``, the
+    robot and the ``digest`` of the files). A download with the preview's ``calibration_id``
+    and ``digest`` returns exactly what the preview showed, or 409 when the calibration or
+    the files changed. Every output names the robot, the calibration and its date (the
+    summary, the zip's name and comment, the ``X-Filter-*`` headers). A file that cannot be
+    read is named in the summary's ``errors`` while the others are filtered; a 422 when no
+    file can be read; 409 when the robot has no current calibration; at most
+    :data:`MAX_FILES` files and the guard's body limit."""
     state.store.robot_model(robot_id)  # 404 for an unknown robot before the body is read
     try:
         state.store.accepted_result(robot_id)
@@ -165,9 +213,33 @@ async def filter_programs(
     )
     files, frames_text = _files_and_frames(parts)
     wanted = [s.strip() for s in only.split(",") if s.strip()] if only is not None else None
-    result = state.store.accepted_result(robot_id)["result"]
+    row = state.store.accepted_result(robot_id)
+    robot = state.store.robot(robot_id)
+    made = Preview(
+        robot_id,
+        robot["name"],
+        robot["model_name"],
+        int(row["job_id"]),
+        int(row["id"]),
+        datetime.fromtimestamp(float(row["created_at"]), UTC).isoformat(timespec="seconds"),
+    )
+    if calibration_id is not None and calibration_id != made.calibration_id:
+        raise HTTPException(
+            409,
+            f"robot {made.robot}: the calibration changed since the preview (identification "
+            f"#{calibration_id} was shown, #{made.calibration_id} of "
+            f"{made.calibration_date} is current now); preview the files again",
+        )
+    result = row["result"]
     nominal = state.store.robot_model(robot_id)
-    about = {"robot_id": robot_id, "robot": nominal.name}
+    about = {
+        "robot_id": robot_id,
+        "robot": made.robot,
+        "robot_model": made.robot_model,
+        "calibration_id": made.calibration_id,
+        "calibration_result_id": made.result_id,
+        "calibration_date": made.calibration_date,
+    }
     args = (result, nominal, files, frames_text, keep_joint_targets, wanted, about)
     nice, blas = state.settings.jobs.worker_nice, state.settings.jobs.worker_blas_threads
     run, summary = await offload(
@@ -177,9 +249,22 @@ async def filter_programs(
     )
     if dry_run:
         return summary
+    if digest is not None and digest != summary["digest"]:
+        raise HTTPException(
+            409,
+            f"robot {made.robot}: the filtered files differ from the preview (other files or "
+            "options); preview the files again",
+        )
     counts = json.dumps(summary["counts"], separators=(",", ":"))
-    headers = {"X-Filter-Counts": counts, "X-Filter-Exit-Code": str(summary["exit_code"])}
-    if len(run.outputs) == 1:
+    headers = {
+        "X-Filter-Counts": counts,
+        "X-Filter-Exit-Code": str(summary["exit_code"]),
+        "X-Filter-Robot": quote(made.robot, safe=" "),
+        "X-Filter-Calibration-Id": str(made.calibration_id),
+        "X-Filter-Calibration-Date": made.calibration_date,
+        "X-Filter-Digest": summary["digest"],
+    }
+    if len(run.outputs) == 1 and not run.errors:
         ((name, body),) = run.outputs.items()
         return Response(
             body,
@@ -188,11 +273,17 @@ async def filter_programs(
         )
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.comment = (
+            f"cablecal filter: robot {made.robot} ({made.robot_model}), calibration "
+            f"#{made.calibration_id} of {made.calibration_date}"
+        ).encode()[:65535]
         for name, body in run.outputs.items():
             zf.writestr(name, body)
         zf.writestr(SUMMARY_NAME, json.dumps(summary, indent=2) + "\n")
+    day = made.calibration_date[:10]
+    zip_name = f"robot-{robot_id}-calibration-{made.calibration_id}-{day}-filtered.zip"
     return Response(
         buf.getvalue(),
         media_type="application/zip",
-        headers={**download_headers(f"robot-{robot_id}-filtered.zip"), **headers},
+        headers={**download_headers(zip_name), **headers},
     )

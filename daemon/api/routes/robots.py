@@ -1,16 +1,35 @@
-"""Robots and their calibrated models."""
+"""Robots (each a physical robot with its own name and nominal model) and their calibrated
+models."""
 
 from __future__ import annotations
 
+from pathlib import PurePath
 from typing import Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi import APIRouter, HTTPException, Query, Response, status
 from typing_extensions import NotRequired, TypedDict  # noqa: UP035 (pydantic on 3.11)
 
-from daemon.api.deps import ReadAuth, RobotId, State
+from calib.default_robot import DEFAULT_ROBOT_MODEL
+from calib.models import (
+    BUILTIN_MODELS,
+    ModelError,
+    RobotModel,
+    builtin_model,
+    model_from_mapping,
+    parse_model_text,
+)
+from daemon.api.deps import AppState, ReadAuth, RobotId, State, WriteAuth
 from daemon.api.downloads import download_headers
-from daemon.api.errors import error_responses
-from daemon.api.schemas import CalibratedModelOut, RobotOut
+from daemon.api.errors import error_responses, unprocessable
+from daemon.api.schemas import (
+    CalibratedModelOut,
+    CampaignCreate,
+    ModelFileText,
+    RobotCreate,
+    RobotOut,
+)
+from daemon.api.text_rules import not_printable
+from daemon.store import RobotRow, StoreConflict
 
 router = APIRouter(
     prefix="/robots",
@@ -46,6 +65,126 @@ EXPORT_MEDIA_TYPES = {
     "urdf": "application/xml",
     "json": "application/json",
 }
+
+
+class BuiltinModelOut(TypedDict):
+    """A built-in nominal model the page offers for a new robot."""
+
+    name: str
+    #: Whether a campaign without a model gets it (:data:`calib.default_robot.DEFAULT_ROBOT_MODEL`).
+    default: bool
+
+
+def model_of_file(file: ModelFileText, loc: tuple[str, ...]) -> RobotModel:
+    """The model of a picked file: TOML or JSON by its extension; a 422 naming the file and
+    what is wrong (unknown extension, syntax with its line, a missing field)."""
+    suffix = PurePath(file.filename).suffix.lower().lstrip(".")
+    if suffix not in ("toml", "json"):
+        raise unprocessable(
+            (*loc, "filename"),
+            f"model file {file.filename!r}: a robot model is a .toml or .json file "
+            "(name, convention, tool_mm, joints: see examples/hsr-jr680.toml)",
+        )
+    try:
+        return parse_model_text(file.text, suffix)
+    except ModelError as exc:
+        raise unprocessable((*loc, "text"), f"model file {file.filename!r}: {exc}") from exc
+
+
+def _model_of(value: str | dict[str, Any], loc: tuple[str, ...]) -> tuple[RobotModel, bool]:
+    """A built-in model by name or a model mapping, and whether it is built in (422 naming
+    ``loc`` otherwise)."""
+    if isinstance(value, str):
+        try:
+            return builtin_model(value), True
+        except (KeyError, ValueError) as exc:
+            raise unprocessable(loc, f"unknown built-in model {value!r} ({exc})") from exc
+    try:
+        return model_from_mapping(value), False
+    except ModelError as exc:
+        raise unprocessable(loc, f"{loc[-1]}.{exc}") from exc
+
+
+def _ensure(
+    state: AppState, name: str | None, model: RobotModel, builtin: bool, field: str
+) -> RobotRow:
+    """The robot called ``name`` (None: the model's name) with ``model``; 409 if that name is
+    another model's robot, 422 naming ``field`` (the body's model field) if the model's name
+    is not printable."""
+    if why := not_printable(model.name):
+        raise unprocessable(
+            ("body", field, "name"), f"{field}.name: {why}: only printable text is allowed"
+        )
+    try:
+        return state.store.ensure_robot(name, model, "builtin" if builtin else "uploaded")[0]
+    except StoreConflict as exc:
+        raise HTTPException(409, str(exc)) from exc
+
+
+def robot_for_campaign(state: AppState, body: CampaignCreate) -> RobotRow:
+    """The robot a new campaign is captured on: ``robot_id`` (an existing robot), or the robot
+    called ``robot`` (default: the model's name) with ``robot_model`` or
+    ``robot_model_file``; the same name and model is the same robot again."""
+    given = body.model_fields_set
+    if body.robot_id is not None:
+        if given & {"robot", "robot_model", "robot_model_file"}:
+            raise unprocessable(
+                ("body", "robot_id"),
+                "robot_id: an existing robot takes no robot, robot_model or robot_model_file",
+            )
+        return state.store.robot(body.robot_id)
+    if body.robot_model_file is not None:
+        if "robot_model" in given:
+            raise unprocessable(
+                ("body", "robot_model_file"), "robot_model_file: give it or robot_model, not both"
+            )
+        model = model_of_file(body.robot_model_file, ("body", "robot_model_file"))
+        return _ensure(state, body.robot, model, False, "robot_model_file")
+    model, builtin = _model_of(body.robot_model, ("body", "robot_model"))
+    return _ensure(state, body.robot, model, builtin, "robot_model")
+
+
+@router.get("", summary="Every robot (each a physical robot with its own name)")
+def list_robots(state: State) -> list[RobotOut]:
+    """By id: each robot's own ``name``, its ``model_name``, its nominal model and its current
+    calibration's job id (None: not calibrated yet)."""
+    return state.store.list_robots()
+
+
+@router.get("/models", summary="The built-in nominal models")
+def builtin_models() -> list[BuiltinModelOut]:
+    """The names of :data:`calib.models.BUILTIN_MODELS`, sorted; ``default`` marks the one a
+    campaign without a model gets."""
+    return [{"name": n, "default": n == DEFAULT_ROBOT_MODEL} for n in sorted(BUILTIN_MODELS)]
+
+
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    summary="Add a robot, or find it again by its name",
+    dependencies=[WriteAuth],
+    responses={
+        200: {"model": RobotOut, "description": "The robot of that name and model, found again"},
+        **error_responses(409),
+    },
+)
+def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOut:
+    """A new robot called ``name`` with a built-in ``model``, a model mapping, or a
+    ``model_file`` (TOML or JSON): 201. The same name with the same model is the same robot:
+    200 with its record (calibration and drift history kept). The name of another model's
+    robot: 409."""
+    if (body.model is None) == (body.model_file is None):
+        raise unprocessable(("body", "model"), "model: give a model or a model_file (one of them)")
+    if body.model_file is not None:
+        model, builtin = model_of_file(body.model_file, ("body", "model_file")), False
+    else:
+        assert body.model is not None
+        model, builtin = _model_of(body.model, ("body", "model"))
+    before = state.store.robot_named(body.name)
+    row = _ensure(state, body.name, model, builtin, "model" if body.model else "model_file")
+    if before is not None:
+        response.status_code = status.HTTP_200_OK
+    return row
 
 
 @router.get("/{robot_id}", summary="One robot and its nominal model")

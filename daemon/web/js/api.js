@@ -35,13 +35,21 @@ export function askToken(why) {
   input.value = "";
   asking = new Promise((resolve) => {
     const form = document.getElementById("token-form");
-    form.onsubmit = () => {
-      const value = input.value.trim();
-      if (value) sessionStorage.setItem(TOKEN_KEY, value);
+    let entered = null;
+    form.onsubmit = () => { entered = input.value.trim(); };
+    // Whatever closes the dialog (Use token, or Escape) ends this ask: the "token" button
+    // opens it again, and the page goes on with the token it has (item 11).
+    dialog.onclose = () => {
+      dialog.onclose = null;
       asking = null;
-      // A new token: polling resumes and the 401 banner goes (a new 401 brings it back).
-      if (value) { state.authRefused = false; dismiss("token"); changed("auth"); }
-      resolve(value);
+      if (entered) {
+        sessionStorage.setItem(TOKEN_KEY, entered);
+        // A new token: polling resumes and the 401 banner goes (a new 401 brings it back).
+        state.authRefused = false;
+        dismiss("token");
+        changed("auth");
+      }
+      resolve(entered || getToken());
     };
   });
   if (!dialog.open) dialog.showModal();
@@ -97,6 +105,7 @@ const FIELDS = {
   anchors_mm: "the sensor position", n: "the number of poses", min_z_mm: "the lowest flange z",
   seed: "the seed", name: "the name", notes: "the notes", anchor: "the anchor",
   joints_deg: "the joint angles", test_fraction: "the test fraction", method: "the method",
+  robot: "the robot name", robot_model: "the robot model", robot_model_file: "the model file",
 };
 
 /** A 422 issue's location in words: ``["body", "anchors_mm", 0, 1]`` → "the sensor position

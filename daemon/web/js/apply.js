@@ -78,6 +78,7 @@ async function compensate(ev) {
 
 // ------------------------------------------------------------------ filter programs
 let filterFiles = [];
+let preview = null; // the shown dry run: its calibration_id and digest go with the download
 
 function filterForm() {
   const form = new FormData();
@@ -89,11 +90,39 @@ function filterQuery(dryRun) {
   const q = [];
   if (dryRun) q.push("dry_run=true");
   if ($("filter-keep-joints").checked) q.push("keep_joint_targets=true");
+  // the download must be what the preview showed: the API refuses (409) otherwise
+  if (!dryRun && preview) q.push(`calibration_id=${preview.calibration_id}`, `digest=${preview.digest}`);
   return q.length ? `?${q.join("&")}` : "";
 }
 
-/** Filter the chosen files with a dry run: the summary table; the download then fetches the
- * filtered files (one file, or a zip of several with filter-summary.json). */
+/** Whose programs these are, said before the drop: the robot (its own name and model) and
+ * its current calibration (identification id and date), from GET /robots/{id}/calibrated-model. */
+let filterFor = null;
+async function renderFilterTarget() {
+  const c = state.campaign;
+  if (!c) { setText("filter-target", "Select the campaign of the robot first (tab 2)."); return; }
+  const key = `${c.robot_id}`;
+  try {
+    const m = await api("GET", `/robots/${c.robot_id}/calibrated-model`, { quiet: true });
+    filterFor = key;
+    setText("filter-target", `Programs of robot ${c.robot_name} (model ${c.robot_model_name}), corrected with its current calibration: identification #${m.job_id} of ${new Date(m.created_at * 1000).toLocaleString()}.`);
+  } catch (exc) {
+    if (exc.status !== 404) throw exc;
+    filterFor = key;
+    setText("filter-target", `Robot ${c.robot_name} (model ${c.robot_model_name}) has no accepted calibration yet: accept one in tab 3 before filtering its programs.`);
+  }
+}
+
+/** A filter reason in the operator's words, with the next step (the API's words kept). */
+function reasonWords(reason) {
+  const r = String(reason || "");
+  if (/keep-joint-targets|keep_joint_targets/.test(r)) return "joint target kept (taught on the robot; untick \"Keep joint targets\" to correct it)";
+  if (/^ambiguous/.test(r)) return "left: several arm configurations reach it; give the target its configuration (cf data)";
+  return r.replaceAll("_", " ");
+}
+
+/** Filter the chosen files with a dry run: per file what happened, the reasons grouped with
+ * counts, every target below; the download then fetches exactly that (or the API refuses). */
 async function filterPrograms(files) {
   const c = state.campaign;
   if (!hasRoute("POST", "/robots/{}/filter")) {
@@ -104,7 +133,11 @@ async function filterPrograms(files) {
   filterFiles = Array.from(files);
   if (!filterFiles.length) return;
   $("filter-download").hidden = true;
-  setText("filter-state", `Filtering ${filterFiles.length} file(s) …`);
+  preview = null;
+  fillTable($("filter-files-result"), [], []);
+  fillTable($("filter-result"), [], []);
+  setText("filter-reasons", "");
+  setText("filter-state", `Filtering ${filterFiles.length} file(s) for robot ${c.robot_name} …`);
   let summary;
   try {
     summary = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(true)}`, { form: filterForm(), quiet: true });
@@ -115,23 +148,56 @@ async function filterPrograms(files) {
     return;
   }
   dismiss("filter");
+  preview = summary;
   const rows = summary.targets || [];
+  const errors = summary.errors || [];
+  const notRead = new Map(errors.map((e) => [e.file, e.message]));
+  const perFile = (summary.files || []).map((f) => {
+    const mine = rows.filter((r) => r.file === f.file);
+    const done = mine.filter((r) => r.status === "corrected").length;
+    const why = notRead.get(f.file);
+    notRead.delete(f.file);
+    return [f.file, f.dialect || "–", why ? "–" : String(f.targets), why ? "–" : String(done), why ? "–" : String(mine.length - done),
+      why ? el("span", { class: "bad" }, `not read: ${why}`) : f.written ? "filtered" : "not written"];
+  });
+  for (const [file, why] of notRead) perFile.push([file, "–", "–", "–", "–", el("span", { class: "bad" }, `not read: ${why}`)]);
+  fillTable($("filter-files-result"), [{ label: "file" }, { label: "language" }, { label: "targets", num: true },
+    { label: "corrected", num: true }, { label: "left", num: true }, { label: "result", class: "keep" }], perFile);
+  const groups = new Map();
+  for (const r of rows.filter((x) => x.status !== "corrected")) {
+    const words = reasonWords(r.reason || r.status);
+    groups.set(words, (groups.get(words) || 0) + 1);
+  }
+  setText("filter-reasons", groups.size ? `Left unchanged: ${[...groups].map(([w, n]) => `${n} × ${w}`).join("; ")}.` : "");
   fillTable($("filter-result"), [{ label: "file" }, { label: "line", num: true }, { label: "target" }, { label: "status" },
     { label: "shift [mm]", num: true }, { label: "shift [deg]", num: true }, { label: "configuration" },
     { label: "σ at the tool [mm]", num: true }, { label: "reason" }],
   rows.map((r) => [r.file, String(r.line), r.name,
-    el("span", { class: r.status === "corrected" ? "ok" : "bad" }, r.status),
+    el("span", { class: r.status === "corrected" ? "ok" : r.status === "skipped" ? "" : "bad" }, r.status),
     fix(r.shift_mm, 3), fix(r.shift_deg, 4), r.configuration_kept == null ? "–" : r.configuration_kept ? "kept" : "changed",
-    fix(r.sigma_at_tool_mm, 3), r.reason || ""]));
+    fix(r.sigma_at_tool_mm, 3), r.status === "corrected" ? "" : reasonWords(r.reason)]));
   const n = summary.counts || {};
   setText("filter-state", `${n.targets ?? rows.length} targets in ${filterFiles.length} file(s): ${n.corrected ?? 0} corrected, ` +
-    `${n.left ?? 0} left unchanged${n.left ? " (see the reasons below)" : ""}, with the accepted calibration of ${c.robot_name}.`);
-  $("filter-download").hidden = false;
+    `${(n.targets ?? rows.length) - (n.corrected ?? 0)} left unchanged${errors.length ? `, ${errors.length} file(s) not read (named below)` : ""}; ` +
+    `robot ${summary.robot}, calibration #${summary.calibration_id} of ${summary.calibration_date}.`);
+  $("filter-download").hidden = !(n.corrected > 0);
 }
 
 async function downloadFiltered() {
   const c = state.campaign;
-  const response = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(false)}`, { form: filterForm(), raw: true });
+  let response;
+  try {
+    response = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(false)}`, { form: filterForm(), raw: true, quiet: true });
+  } catch (exc) {
+    if (exc.status === 409) {
+      $("filter-download").hidden = true;
+      setText("filter-state", `Not downloaded: ${exc.body?.detail || exc.message}`);
+      showMessage("error", `Filter: not downloaded: ${exc.body?.detail || exc.message}`, "filter");
+      await renderFilterTarget(); // the calibration the next preview uses
+      return;
+    }
+    throw exc;
+  }
   const disposition = response.headers.get("Content-Disposition") || "";
   const m = /filename="?([^";]+)"?/.exec(disposition);
   saveBlob(await response.blob(), m ? m[1] : `robot-${c.robot_id}-filtered.zip`);
@@ -159,10 +225,23 @@ function flagWords(flags) {
 
 const DRIFT_WORDS = {
   ok: "Last drift check OK: the robot still matches its calibration.",
-  drift: "DRIFT: the last check is above the threshold. Calibrate the robot again.",
-  failed: "The last drift check failed (see its error below).",
+  drift: "DRIFT: the last check is above the threshold.",
+  failed: "The last drift check failed.",
   none: "No drift check yet.",
 };
+
+/** The drift block's headline: what moved (the API's own explanation, ``cause.text``, with
+ * its figure) at a drift, the reason at a failure. */
+function driftHeadline(drift) {
+  const words = DRIFT_WORDS[drift.state] || drift.state;
+  if (drift.state === "drift" && drift.cause) {
+    const who = { sensor: "SENSOR MOVED", robot: "ROBOT DRIFT", unclear: "DRIFT" }[drift.cause.kind] || "DRIFT";
+    return `${who}: ${drift.cause.text.replace(/^./, (c) => c.toUpperCase())}.`;
+  }
+  if (drift.state === "drift") return `${words} Calibrate the robot again.`;
+  if (drift.state === "failed" && drift.error) return `${words} Why: ${drift.error}.`;
+  return words;
+}
 
 async function renderDrift() {
   const drift = state.status?.drift;
@@ -176,18 +255,19 @@ async function renderDrift() {
   const last = drift.last_check_at ? ` Check #${drift.check_id} at ${clock(drift.last_check_at)}: ${fix(drift.rms_mm, 3)} mm RMS against a threshold of ${fix(drift.threshold_mm, 3)} mm.` : "";
   const running = drift.running ? ` Check #${drift.running} is running: move the robot through the check poses.` : "";
   const every = drift.check_interval_h ? ` Scheduled every ${drift.check_interval_h} h.` : " No scheduled checks.";
-  setText(node, `${DRIFT_WORDS[drift.state] || drift.state}${last}${running}${every}`);
+  setText(node, `${driftHeadline(drift)}${last}${running}${every}`);
   const c = state.campaign;
   if (!c || !hasRoute("GET", "/robots/{}/checks")) return;
   const list = await api("GET", `/robots/${c.robot_id}/checks`);
   const items = (Array.isArray(list) ? list : list.items || []).slice().reverse();
   fillTable($("drift-history"), [{ label: "#", num: true }, { label: "started" }, { label: "trigger" }, { label: "status" },
     { label: "RMS [mm]", num: true }, { label: "max [mm]", num: true }, { label: "threshold [mm]", num: true },
-    { label: "poses", num: true }, { label: "samples used", num: true }],
+    { label: "poses", num: true }, { label: "samples used", num: true }, { label: "why", class: "keep" }],
   items.map((k) => [String(k.id), clock(k.started_at), k.trigger,
-    el("span", { class: k.status === "ok" ? "ok" : k.status === "running" ? "" : "bad", title: k.error || "" }, k.status),
-    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), String((k.poses_deg || []).length), k.n == null ? "–" : String(k.n)]),
-  JSON.stringify(items.map((k) => [k.id, k.status])));
+    el("span", { class: k.status === "ok" ? "ok" : k.status === "running" ? "" : "bad" }, k.status),
+    fix(k.rms_mm, 3), fix(k.max_mm, 3), fix(k.threshold_mm, 3), String((k.poses_deg || []).length), k.n == null ? "–" : String(k.n),
+    k.error || ""]),
+  JSON.stringify(items.map((k) => [k.id, k.status, k.error])));
   await renderCheckPoses(c, items.find((k) => k.status === "running"));
 }
 
@@ -231,7 +311,7 @@ function renderCheckDownloads(c) {
     saveBlob(await r.blob(), m ? m[1] : `robot-${c.robot_id}-check-poses.${fmt}`);
   };
   box.replaceChildren("Download the check poses for the robot: ", ...state.downloadFormats.map((fmt) => {
-    const b = el("button", { type: "button", class: "secondary small", "data-format": fmt }, fmt);
+    const b = el("button", { type: "button", class: "secondary small", "data-format": fmt, "aria-label": `Download the check poses as ${fmt}` }, fmt);
     b.addEventListener("click", () => fetchOne(fmt).catch(() => {}));
     return b;
   }));
@@ -267,9 +347,11 @@ export function initApply() {
   onChange((kind) => {
     // the "auto capture is still on" warning goes once auto capture is off (its cause)
     if (kind === "status" && state.status?.sampler?.mode !== "auto") dismiss("drift-auto");
+    if (kind === "campaign" && state.view === "apply") renderFilterTarget().catch(() => {});
     if (kind === "view" && state.view === "apply") {
       renderDrift().catch(() => {});
       loadExample().catch(() => {});
+      renderFilterTarget().catch(() => {});
     }
   });
 }

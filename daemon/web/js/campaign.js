@@ -1,7 +1,7 @@
 // View 2, Campaign: create and pick a campaign, plan poses, capture (manual with a joint form
 // for the manual robot, or auto), the samples with exclude/include, the joint coverage.
 import { api, download, saveBlob } from "./api.js";
-import { isManualRobot } from "./cell.js";
+import { isManualRobot, readinessWords } from "./cell.js";
 import { $, changed, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, requestSchema, setText, showMessage, state } from "./ui.js";
 
 const CAMPAIGN_KEY = "cablecal-campaign";
@@ -34,12 +34,12 @@ async function loadCampaigns() {
   const items = Array.isArray(list) ? list : list.items || [];
   const selected = state.campaign?.id;
   fillTable($("campaign-list"), [
-    { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "samples", num: true },
+    { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "model" }, { label: "samples", num: true },
     { label: "excluded", num: true }, { label: "auto" }, { label: "created" },
   ], items.slice().reverse().map((c) => ({
     class: c.id === selected ? "selected" : "",
     onclick: () => select(c),
-    cells: [String(c.id), c.name, c.robot_name, String(c.n_samples), String(c.n_excluded),
+    cells: [String(c.id), c.name, c.robot_name, c.robot_model_name, String(c.n_samples), String(c.n_excluded),
       c.auto_capture ? "on" : "", clock(c.created_at)],
   })), JSON.stringify([selected, items]));
   if (selected) {
@@ -61,8 +61,10 @@ export async function select(c) {
   plan = null;
   $("campaign-list").dataset.key = "";
   delete $("capture-anchor").dataset.typed; // the anchor field follows the new campaign
+  $("capture-anchor").value = "A"; // not the anchor of the campaign selected before (item 8)
   delete $("plan-form").elements.n.dataset.typed;
   changed("campaign");
+  await loadCampaigns(); // the list marks the new selection at once
   await refreshDetail();
 }
 
@@ -86,10 +88,15 @@ function renderCounts() {
   const included = samples.filter((s) => !s.excluded).length;
   const need = samplesNeeded();
   setText("campaign-title", `Campaign #${c.id}: ${c.name}`);
-  setText("campaign-counts", `robot ${c.robot_name} · ${samples.length} samples, ${included} included, ${samples.length - included} excluded`);
+  setText("campaign-counts", `robot ${c.robot_name} (model ${c.robot_model_name}) · ${samples.length} samples, ${included} included, ${samples.length - included} excluded`);
   const bar = $("campaign-need-bar");
   bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
   bar.className = included >= need ? "done" : "";
+  if (String(c.notes || "").startsWith("drift check")) {
+    // a drift check's own campaign: compared with the calibration, never identified (item 15)
+    setText("campaign-need", `A drift check's own campaign (${c.notes}): its ${included} samples are compared with the robot's calibration in tab 4, not identified.`);
+    return;
+  }
   const anchors = c.anchors.length > 1 ? `, ${c.anchors.length} anchors` : "";
   const counts = `${need} minimum, ${c.recommended_samples} recommended for this robot and ${c.anchors.length > 1 ? `${c.anchors.length} anchors` : "anchor"}: from ${c.recommended_samples} the fit can also screen outliers`;
   setText("campaign-need", included >= need
@@ -100,8 +107,8 @@ function renderCounts() {
 function renderSamples() {
   const rows = samples.slice().reverse().map((s) => {
     const action = s.excluded
-      ? el("button", { class: "secondary small", onclick: () => setExcluded(s, false) }, "Include")
-      : el("button", { class: "secondary small", onclick: () => setExcluded(s, true) }, "Exclude");
+      ? el("button", { class: "secondary small", "aria-label": `Include sample #${s.id}`, onclick: () => setExcluded(s, false) }, "Include")
+      : el("button", { class: "secondary small", "aria-label": `Exclude sample #${s.id}`, onclick: () => setExcluded(s, true) }, "Exclude");
     return {
       class: s.excluded ? "excluded" : "",
       cells: [String(s.id), clock(s.t_end ?? s.created_at), ...JOINTS.map((q) => fix(s[q], 3)),
@@ -184,7 +191,8 @@ function renderCaptureState() {
   const s = state.status?.sampler;
   const auto = $("auto-capture");
   const on = !!state.campaign && s?.mode === "auto" && s.auto_campaign_id === state.campaign.id;
-  if (document.activeElement !== auto) auto.checked = on;
+  const wanted = autoWanted && Date.now() < autoWanted.until && autoWanted.enabled !== on;
+  if (!wanted) { autoWanted = null; auto.checked = on; }
   $("capture-now").disabled = on;
   // The anchor field follows the session in use until the operator types one of their own
   // (a new sensor position); auto capture's anchor is the daemon's, not the field's.
@@ -193,7 +201,10 @@ function renderCaptureState() {
   if (inUse && (on || !field.dataset.typed) && document.activeElement !== field) field.value = inUse;
   field.disabled = on;
   const session = `Anchor session in use: ${field.value || "A"}.`;
-  setText("capture-state", (on
+  // A frozen controller is said here at once, where the operator presses Capture.
+  const frozen = s?.settle_state === "frozen";
+  $("capture-state").classList.toggle("bad", frozen);
+  setText("capture-state", frozen ? `${readinessWords(s)} ${session}` : (on
     ? `Auto capture is on: ${samples.length} samples so far. Move the robot through the poses; each new still pose is captured once.`
     : manual ? "Manual robot: enter the six joint angles, then Capture now." : "Press Capture now when the robot stands still at a pose.") + ` ${session}`);
 }
@@ -236,10 +247,17 @@ async function captureNow() {
   await loadCampaigns();
 }
 
+// The operator's last switch of auto capture, kept on the box until the daemon's status says
+// so (or 3 s pass); otherwise the box shows the daemon's state, focused or not: another tab
+// may have switched it (item 20).
+let autoWanted = null;
+
 async function setAuto(enabled) {
+  autoWanted = { enabled, until: Date.now() + 3000 };
   try {
     await api("PUT", `/campaigns/${state.campaign.id}/auto-capture`, { json: { enabled, anchor: $("capture-anchor").value || "A" } });
   } catch {
+    autoWanted = null;
     $("auto-capture").checked = !enabled;
   }
   await loadCampaigns();
@@ -267,7 +285,8 @@ function renderPlanDownloads() {
   const choices = state.downloadFormats.flatMap((fmt) => (fmt === "csv" || anchors.length < 2
     ? [[fmt, null]] : anchors.map((a) => [fmt, a])));
   box.replaceChildren("Download the plan for the robot: ", ...choices.map(([fmt, anchor]) => {
-    const b = el("button", { type: "button", "data-format": fmt, "data-anchor": anchor }, anchor == null ? fmt : `${fmt} (sensor at ${anchor})`);
+    const label = anchor == null ? fmt : `${fmt} (sensor at ${anchor})`;
+    const b = el("button", { type: "button", "data-format": fmt, "data-anchor": anchor, "aria-label": `Download the plan as ${label}` }, label);
     b.addEventListener("click", () => fetchOne(fmt, anchor).catch(() => {}));
     return b;
   }));
@@ -380,6 +399,10 @@ async function startPlan(ev) {
   if (f.ax.value !== "" || f.ay.value !== "" || f.az.value !== "") {
     body.anchors_mm = [[Number(f.ax.value), Number(f.ay.value), Number(f.az.value)]];
   }
+  // New poses go to the anchor in use (after a sensor move: the new one, where captures go),
+  // not to the campaign's first anchor (item 7).
+  const current = $("capture-anchor").value || "A";
+  if (body.anchors_mm || state.campaign.anchors.includes(current)) body.anchor_ids = [current];
   const button = ev.target.querySelector("button");
   button.disabled = true;
   $("plan-progress").hidden = false;
@@ -396,31 +419,66 @@ async function startPlan(ev) {
 }
 
 // ------------------------------------------------------------------ create
+const MODEL_FILE = "__file__";
+
+/** The robot picker: every robot (GET /robots: its own name and model) and "a new robot";
+ * the model picker: the built-in models (GET /robots/models, the default first) and a file.
+ * Kept as the operator left them while the lists are the same. */
+async function loadRobots() {
+  const [robots, models] = await Promise.all([api("GET", "/robots"), api("GET", "/robots/models")]);
+  const pick = $("robot-pick");
+  const key = JSON.stringify(robots.map((r) => [r.id, r.name, r.model_name]));
+  if (pick.dataset.key !== key) {
+    const kept = pick.value;
+    pick.replaceChildren(el("option", { value: "" }, "A new robot …"),
+      ...robots.map((r) => el("option", { value: String(r.id) }, r.name === r.model_name ? r.name : `${r.name} (${r.model_name})`)));
+    pick.value = [...pick.options].some((o) => o.value === kept) ? kept : "";
+    pick.dataset.key = key;
+  }
+  const model = $("robot-model");
+  if (!model.options.length) {
+    const sorted = models.slice().sort((a, b) => Number(b.default) - Number(a.default));
+    model.replaceChildren(...sorted.map((m) => el("option", { value: m.name }, `${m.name} (built-in)`)),
+      el("option", { value: MODEL_FILE }, "From a model file (.toml or .json) …"));
+  }
+  showRobotFields();
+}
+
+function showRobotFields() {
+  const f = $("campaign-form").elements;
+  $("new-robot").hidden = f.robot_id.value !== "";
+  const file = f.robot_model.value === MODEL_FILE;
+  $("robot-file-label").hidden = !file;
+  $("robot-file-note").hidden = !file;
+}
+
 async function createCampaign(ev) {
   ev.preventDefault();
   const f = ev.target.elements;
-  let model = f.robot_model.value;
-  if (model === "__file__") {
-    const file = f.robot_file.files[0];
-    if (!file) { showMessage("error", "The campaign was not created: choose the robot's .json model file.", "campaign-form"); return; }
-    try { model = JSON.parse(await file.text()); } catch (exc) {
-      showMessage("error", `The campaign was not created: the model file ${file.name} is not JSON.`, "campaign-form", exc.message);
-      return;
+  const body = { name: f.name.value.trim(), notes: f.notes.value };
+  if (f.robot_id.value !== "") {
+    body.robot_id = Number(f.robot_id.value);
+  } else {
+    if (f.robot.value.trim()) body.robot = f.robot.value.trim();
+    if (f.robot_model.value === MODEL_FILE) {
+      const file = f.robot_file.files[0];
+      if (!file) { showMessage("error", "The campaign was not created: choose the robot's model file (.toml or .json).", "campaign-form"); return; }
+      body.robot_model_file = { filename: file.name, text: await file.text() };
+    } else if (f.robot_model.value) {
+      body.robot_model = f.robot_model.value; // else (list not loaded yet) the API's default
     }
   }
-  // The built-in option's value is empty: the body then leaves robot_model out and the API
-  // takes its default (calib.default_robot.DEFAULT_ROBOT_MODEL), so the page keeps no copy.
-  const body = { name: f.name.value.trim(), notes: f.notes.value };
-  if (model !== "") body.robot_model = model;
   const c = await api("POST", "/campaigns", { json: body });
   dismiss("campaign-form");
   ev.target.reset();
+  await loadRobots();
   await loadCampaigns();
   await select(c);
-  showMessage("info", `Campaign #${c.id} "${c.name}" created. Plan poses or start capturing.`, "created");
+  showMessage("info", `Campaign #${c.id} "${c.name}" created on robot ${c.robot_name}. Plan poses or start capturing.`, "created");
 }
 
 export async function restoreCampaign() {
+  await loadRobots();
   const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
   const items = await loadCampaigns();
   // A fresh tab opens the newest operator campaign, not a drift check's own campaign
@@ -446,7 +504,9 @@ function offerBuiltinRobots() {
 export function initCampaign() {
   offerBuiltinRobots();
   $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
-  $("robot-model").addEventListener("change", (ev) => { $("robot-file-label").hidden = ev.target.value !== "__file__"; });
+  $("robot-pick").addEventListener("change", showRobotFields);
+  $("robot-model").addEventListener("change", showRobotFields);
+  $("campaign-form").addEventListener("reset", () => setTimeout(() => { loadRobots().catch(() => {}); }));
   $("plan-form").addEventListener("submit", (ev) => startPlan(ev).catch(() => {}));
   $("plan-form").addEventListener("input", (ev) => {
     if (ev.target.name === "n") ev.target.dataset.typed = "1";

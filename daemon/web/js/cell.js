@@ -18,7 +18,14 @@ const SETTLE_WORDS = {
   stale: "The readings are late (a device is slow or down).",
   over_range: "The indicator is over range (cable outside the sensor's stroke).",
   no_data: "No readings yet.",
+  frozen: "NOT ready: the robot controller's joint angles stopped changing while the cable moved, so a sample would pair the wrong pose with the length. No sample is taken until the controller reports new joints.",
 };
+
+/** The sampler's readiness in words (``settle_state`` of GET /status), one home for views. */
+export function readinessWords(sampler) {
+  const key = sampler?.settle_state;
+  return SETTLE_WORDS[key] || `Not settled: ${String(key).replaceAll("_", " ")}.`;
+}
 
 export function isManualRobot() {
   return state.status?.devices?.robot?.driver === "ManualRobot";
@@ -67,7 +74,7 @@ function samplerWords(s) {
   } else {
     mode = "Manual mode: a sample is taken when you press Capture (tab 2).";
   }
-  const settle = SETTLE_WORDS[s.settle_state] || `Not settled: ${String(s.settle_state).replaceAll("_", " ")}.`;
+  const settle = readinessWords(s);
   return [`${mode} ${settle}`, s.settled ? "" : s.settle_detail || ""];
 }
 
@@ -171,8 +178,12 @@ async function pollStatus() {
   const devices = s.devices || {};
   const down = Object.values(devices).filter((d) => d.state !== "ok");
   const pill = $("top-devices");
-  pill.className = `pill ${down.length ? "bad" : "ok"}`;
-  setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}` : "devices connected");
+  // a frozen controller answers, yet is not ready: the header says so on every view (item 2)
+  const frozen = s.sampler?.settle_state === "frozen";
+  pill.className = `pill ${down.length || frozen ? "bad" : "ok"}`;
+  setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}`
+    : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture` : "devices connected");
+  renderDriftPill(s.drift);
   changed("status");
   collectErrors(devices);
   if (state.view !== "cell") return;
@@ -180,7 +191,18 @@ async function pollStatus() {
   renderJoints(devices.robot);
   const [words, detail] = samplerWords(s.sampler);
   setText("cell-sampler", words);
+  $("cell-sampler").classList.toggle("bad", s.sampler?.settle_state === "frozen");
   setText("cell-sampler-detail", detail);
+}
+
+/** The header's drift state (item 22): hidden while the last check is OK or absent. */
+function renderDriftPill(drift) {
+  const pill = $("top-drift");
+  const bad = drift && (drift.state === "drift" || drift.state === "failed");
+  pill.hidden = !bad;
+  if (!bad) return;
+  const kind = drift.state === "failed" ? "drift check failed" : { sensor: "sensor moved", robot: "robot drift" }[drift.cause?.kind] || "drift";
+  setText(pill, `${kind} (check #${drift.check_id}, tab 4)`);
 }
 
 export function initCell() {

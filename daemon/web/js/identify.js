@@ -234,7 +234,9 @@ async function renderResult(j) {
   shownJob = j;
   $("result").hidden = false;
   const plaus = r.plausibility || {};
-  setText("result-title", `Result of identification #${j.id} — ${r.method} on ${r.robot}`);
+  // the robot is the physical one (its own name), the result's robot its model
+  const robotName = state.campaign && state.campaign.robot_id === j.robot_id ? `robot ${state.campaign.robot_name} (${r.robot})` : r.robot;
+  setText("result-title", `Result of identification #${j.id} — ${r.method} on ${robotName}`);
   const verdict = $("result-verdict");
   verdict.className = `pill ${j.current ? "ok" : plaus.plausible ? "warn" : "bad"}`;
   setText(verdict, j.current ? "current: this is the robot's calibration"
@@ -394,6 +396,13 @@ async function accept() {
   const j = shownJob;
   const plaus = j.result?.plausibility || {};
   if (!plaus.plausible && !confirm(`These parameters are outside the plausible bounds (${(plaus.outside_bounds || []).join(", ")}).\nAccept them as the robot's calibration anyway?`)) return;
+  // The calibration it replaces, for the Undo (item 13): none before the first acceptance.
+  let replaced = null;
+  try {
+    replaced = (await api("GET", `/robots/${j.robot_id}/calibrated-model`, { quiet: true })).job_id;
+  } catch (exc) {
+    if (exc.status !== 404) throw exc;
+  }
   job = await api("POST", `/identifications/${j.id}/accept`);
   shownResult = null;
   $("accept").textContent = "Accept as the robot's calibration";
@@ -401,6 +410,35 @@ async function accept() {
   $("job-list").dataset.key = "";
   await loadJobs();
   showMessage("info", `Identification #${job.id} accepted: it is now the current calibration of robot ${state.campaign.robot_name}.`, "accepted");
+  showUndo(job, replaced);
+}
+
+/** One button back: the calibration an acceptance replaced becomes current again (it is
+ * accepted again; the replaced one stays listed, accepted earlier). */
+function showUndo(accepted, replaced) {
+  const box = $("accept-undo");
+  if (replaced == null || replaced === accepted.id) { box.hidden = true; return; }
+  box.hidden = false;
+  box.dataset.accepted = String(accepted.id);
+  box.dataset.replaced = String(replaced);
+  setText("accept-undo-text", `Identification #${accepted.id} replaced calibration #${replaced} of robot ${state.campaign.robot_name}.`);
+  $("accept-undo-button").textContent = `Undo: make #${replaced} current again`;
+}
+
+async function undoAccept() {
+  const box = $("accept-undo");
+  const back = Number(box.dataset.replaced);
+  const undone = Number(box.dataset.accepted);
+  await api("POST", `/identifications/${back}/accept`, { what: "The acceptance was not undone" });
+  box.hidden = true;
+  $("job-list").dataset.key = "";
+  await loadJobs();
+  if (job?.id === undone) {
+    job = await api("GET", `/identifications/${undone}`);
+    shownResult = null;
+    renderJob();
+  }
+  showMessage("info", `Undone: calibration #${back} is the current calibration of robot ${state.campaign.robot_name} again; #${undone} stays listed.`, "accepted");
 }
 
 async function downloadKind(kind) {
@@ -428,6 +466,7 @@ export function initIdentify() {
   $("identify-form").addEventListener("submit", start);
   $("identify-form").addEventListener("input", () => updateReadiness().catch(() => {}));
   $("accept").addEventListener("click", () => accept().catch(() => {}));
+  $("accept-undo-button").addEventListener("click", () => undoAccept().catch(() => {}));
   $("job-cancel").addEventListener("click", () => cancelJob().catch(() => {}));
   buildForm().then(() => updateReadiness()).catch(() => {});
   for (const b of document.querySelectorAll("[data-download]")) {

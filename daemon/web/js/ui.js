@@ -72,12 +72,26 @@ export function fillTable(table, columns, rows, key) {
   if (key !== undefined && table.dataset.key === key) return;
   if (key !== undefined) table.dataset.key = key;
   const head = el("thead", {}, el("tr", {}, columns.map((c) => el("th", { class: c.num ? "num" : "" }, c.label))));
+  // A row that can be selected (it has an onclick) is a row of a grid: focusable, Enter or
+  // Space selects it, and the selected one says so (aria-selected), for the keyboard and a
+  // screen reader as for the mouse.
+  const selectable = rows.some((r) => !Array.isArray(r) && r.onclick);
   const body = el("tbody", {}, rows.map((r) => {
     const spec = Array.isArray(r) ? { cells: r } : r;
-    return el("tr", { class: spec.class, onclick: spec.onclick, dataset: spec.dataset },
+    const attrs = { class: spec.class, onclick: spec.onclick, dataset: spec.dataset };
+    if (spec.onclick) {
+      Object.assign(attrs, { tabindex: "0", "aria-selected": String(/\bselected\b/.test(spec.class || "")),
+        onkeydown: (ev) => { if (ev.target === ev.currentTarget && (ev.key === "Enter" || ev.key === " ")) { ev.preventDefault(); spec.onclick(ev); } } });
+    }
+    return el("tr", attrs,
       spec.cells.map((cell, i) => el("td", { class: columns[i]?.num ? "num" : columns[i]?.class }, cell)));
   }));
+  if (selectable) table.setAttribute("role", "grid"); else table.removeAttribute("role");
+  // A redraw keeps the keyboard where it was: the row with the same first cell gets the focus.
+  const focused = document.activeElement;
+  const focusKey = focused?.tagName === "TR" && table.contains(focused) ? focused.cells[0]?.textContent : null;
   table.replaceChildren(head, body);
+  if (focusKey != null) [...body.rows].find((tr) => tr.cells[0]?.textContent === focusKey)?.focus();
 }
 
 // ------------------------------------------------------------------ messages
