@@ -13,17 +13,15 @@ import io
 import logging
 import multiprocessing
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import uvicorn
 from fastapi.exceptions import RequestValidationError
 from fastapi.testclient import TestClient
-from helpers import closed_by_server
+from helpers import closed_by_server, served_app
 from starlette.exceptions import HTTPException
 from test_api_apply import calibrated, cell  # noqa: F401
 from test_service import AUTH, TOKEN, FakeSampler
@@ -455,20 +453,9 @@ def server(tmp_path: Path) -> Iterator[str]:
     app = _app = create_app(
         Settings(state_dir=tmp_path, api_token=TOKEN), TOKEN, sampler_factory=FakeSampler
     )
-    config = uvicorn.Config(
-        app, host="127.0.0.1", port=0, log_config=None, **uvicorn_options(16, send_timeout_s=1.0)
-    )
-    srv = uvicorn.Server(config)
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 60
-    while not srv.started:
-        assert time.monotonic() < deadline and thread.is_alive()
-        time.sleep(0.02)
     _SERVED["app"] = _app
-    yield f"127.0.0.1:{srv.servers[0].sockets[0].getsockname()[1]}"
-    srv.should_exit = True
-    thread.join(15)
+    with served_app(app, **uvicorn_options(16, send_timeout_s=1.0)) as (host, port):
+        yield f"{host}:{port}"
 
 
 _SERVED: dict[str, Any] = {}

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import math
 
+import numpy as np
 import pytest
 from sampler_fakes import HOME, FakeIndicator, FakeRobot, FakeSink, running, wait_until
 
@@ -114,3 +115,25 @@ async def test_the_sampler_refuses_a_frozen_controller_and_says_so_at_once() -> 
 
 def test_frozen_is_a_rejection_reason_with_its_status() -> None:
     assert REJECTION_STATUS["frozen"] == 503
+
+
+def test_noise_at_rest_and_a_late_joint_report_as_a_move_starts_are_not_frozen() -> None:
+    """The emulated cell's noise (0.35 mm a reading) at rest, and a controller whose joints
+    lag the cable by 50 ms as a move starts, gave false ``frozen`` verdicts (4 of 40 plan
+    poses lost in the plan end-to-end test): neither is a frozen controller."""
+    rng = np.random.default_rng(3)
+    watch = FrozenWatch(TOL_MM, N, min_duration_s=0.3)
+    rest = [_reading(0.005 * k, A, 500.0 + rng.normal(0.0, 0.35)) for k in range(2000)]
+    _feed(watch, rest)
+    assert watch.verdict(rest[-1]) is None
+    # a move starts: the cable runs at 300 mm/s, the joints follow 50 ms later
+    watch = FrozenWatch(TOL_MM, N, min_duration_s=0.3)
+    late = [_reading(0.005 * k, A, 500.0 + 1.5 * k) for k in range(10)]
+    moving = [_reading(0.05 + 0.005 * k, (k * 0.2, *A[1:]), 515.0 + 1.5 * k) for k in range(100)]
+    _feed(watch, late + moving)
+    assert all(watch.verdict(r) is None for r in (late[-1], moving[-1]))
+    # while a frozen controller still is, after the settle window
+    watch = FrozenWatch(TOL_MM, N, min_duration_s=0.3)
+    frozen = [_reading(0.005 * k, A, 500.0 + 1.5 * min(k, 60)) for k in range(200)]
+    _feed(watch, frozen)
+    assert watch.verdict(frozen[-1]) is not None

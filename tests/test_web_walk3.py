@@ -464,10 +464,15 @@ def test_forced_colours_keep_the_selection_visible(cell: Cell, tmp_path: Path) -
         _open(page, url, "campaign")
         page.click("#campaign-list tbody tr:has-text('walk3 contrast')")
         page.wait_for_selector("#campaign-list tbody tr[aria-selected=true]")
-        outline = page.eval_on_selector(
-            "#campaign-list tbody tr[aria-selected=true]", "e => getComputedStyle(e).outlineStyle"
+        # the list redraws every few seconds: read the style of the row selected at that moment
+        # (a row read as it is replaced has no computed style)
+        page.wait_for_function(
+            """() => {
+              const e = document.querySelector('#campaign-list tbody tr[aria-selected=true]');
+              return e !== null && e.isConnected && getComputedStyle(e).outlineStyle === 'solid';
+            }""",
+            timeout=5000,
         )
-        assert outline == "solid"
         bar = page.eval_on_selector(".progress", "e => getComputedStyle(e).borderTopStyle")
         assert bar == "solid"
         tab = page.eval_on_selector("#tab-campaign", "e => getComputedStyle(e).textDecorationLine")

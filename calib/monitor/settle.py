@@ -133,8 +133,19 @@ class Verdict:
     window: tuple[PairedReading, ...] = ()
 
 
+#: Smallest change of the cable length [mm] that can say a controller is frozen: well above a
+#: real indicator's noise (hundredths of a mm) and the emulated cell's (tenths), so noise at rest
+#: never trips it; a frozen controller during a move between calibration poses changes the
+#: length by tens of millimetres.
+FROZEN_MIN_CHANGE_MM = 1.0
+
+
 class FrozenWatch:
     """The robot's joints bit-identical while the cable length moved (see the module).
+
+    Evidence is counted in distinct controller replies (``t_joints``), not in indicator
+    readings: under load the robot's poll lags, and many indicator readings are paired with one
+    old reply while the robot moves, which is no frozen controller.
 
     Feed every paired reading to :meth:`add`, oldest first, with the oldest reading of the
     sampler's buffer; :meth:`verdict` is the ``frozen`` verdict while the newest joints are the
@@ -142,13 +153,19 @@ class FrozenWatch:
     typed in and repeat by design) is never frozen.
     """
 
-    def __init__(self, tol_mm: float, min_readings: int) -> None:
-        self.tol_mm = tol_mm
+    def __init__(self, tol_mm: float, min_readings: int, min_duration_s: float = 0.0) -> None:
+        self.tol_mm = max(tol_mm, FROZEN_MIN_CHANGE_MM)
         self.min_readings = min_readings
+        #: The change must last this long [s] (the sampler's settle window): a controller
+        #: reports its joints some milliseconds late, so as a move starts the cable moves
+        #: before the joints do; that is latency, not a frozen controller.
+        self.min_duration_s = min_duration_s
+        self._t_far = math.nan  # t_mono of the first reading of the current far run [s]
         self._q: Joints | None = None
         self._t_start = math.nan  # t_mono of the run's first reading [s]
         self._ref_start_mm = math.nan  # its length [mm]
-        self._far = 0  # readings in a row beyond tol_mm of the reference
+        self._far = 0  # distinct robot replies in a row beyond tol_mm of the reference
+        self._t_reply = math.nan  # t_joints of the last reply counted in _far [s]
         self._frozen: Joints | None = None
         self._moved_mm = 0.0  # the largest length change seen while frozen [mm]
 
@@ -159,6 +176,7 @@ class FrozenWatch:
             return
         if reading.joints_deg != self._q:
             self._q, self._frozen, self._far = reading.joints_deg, None, 0
+            self._t_reply = math.nan
             self._t_start, self._ref_start_mm, self._moved_mm = reading.t_mono, math.nan, 0.0
         if reading.over_range or not math.isfinite(reading.length_mm):
             return
@@ -168,8 +186,17 @@ class FrozenWatch:
         slid = oldest.t_mono > self._t_start and math.isfinite(oldest.length_mm)
         ref = oldest.length_mm if slid and not oldest.over_range else self._ref_start_mm
         change = abs(reading.length_mm - ref)
-        self._far = self._far + 1 if change > self.tol_mm else 0
-        if self._far >= self.min_readings:
+        if change <= self.tol_mm:
+            self._far = 0
+        elif not reading.t_joints <= self._t_reply:
+            # Only a new reply of the controller counts: indicator readings paired with the
+            # same (late) robot reply are no evidence that the controller stopped updating.
+            if self._far == 0:
+                self._t_far = reading.t_mono
+            self._far += 1
+            self._t_reply = reading.t_joints
+        lasted = reading.t_mono - self._t_far >= self.min_duration_s
+        if self._far >= self.min_readings and lasted:
             self._frozen = self._q
             self._moved_mm = max(self._moved_mm, change)
 

@@ -103,7 +103,7 @@ class Sampler(CapturePath):
         self._joints: tuple[Joints, float, float] | None = None
         self._buffer: deque[PairedReading] = deque(maxlen=MAX_BUFFER)
         self._verdict: Verdict = NOT_SETTLED
-        self._frozen = FrozenWatch(config.settle_tol_mm, config.min_readings)
+        self._frozen = FrozenWatch(config.settle_tol_mm, config.min_readings, config.settle_s)
         self._used_until = -math.inf  # t_poll of the newest reading used by a capture
         self._auto: AutoState | None = None
         self._task: asyncio.Task[None] | None = None

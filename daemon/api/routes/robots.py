@@ -165,7 +165,7 @@ def builtin_models() -> list[BuiltinModelOut]:
     dependencies=[WriteAuth],
     responses={
         200: {"model": RobotOut, "description": "The robot of that name and model, found again"},
-        **error_responses(409),
+        **error_responses(400, 409),
     },
 )
 def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOut:

@@ -488,21 +488,7 @@ export async function restoreCampaign() {
   if (c) await select(c);
 }
 
-/** The robot library (`cablecal robots`): every built-in name of the API's robot_model enum
- * after the default option (whose empty value leaves the API's default), so the page keeps
- * no list of its own. */
-function offerBuiltinRobots() {
-  const field = requestSchema("CampaignCreate")?.properties?.robot_model;
-  const names = (field?.anyOf || []).flatMap((s) => s.enum || []);
-  const select = $("robot-model");
-  const fileOption = select.querySelector('option[value="__file__"]');
-  for (const name of names) {
-    if (name !== field.default) select.insertBefore(el("option", { value: name }, name), fileOption);
-  }
-}
-
 export function initCampaign() {
-  offerBuiltinRobots();
   $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
   $("robot-pick").addEventListener("change", showRobotFields);
   $("robot-model").addEventListener("change", showRobotFields);
