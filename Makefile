@@ -45,7 +45,10 @@ demo: $(STAMP) bytecode
 # bench/solver_real_reference.json: `python -m bench.solver_real --recompute` redoes them),
 # identification speed and the indicator poll rate (bench/results.*), API latency under load
 # while the sampler runs (bench/api_results.*), and the poll rate while identification jobs run
-# against idle (bench/sampler_priority.*).
+# against idle (bench/sampler_priority.*), and the built-in arms against their makers' data
+# (bench/robots.*). Benches that need another checkout or files fetched from public
+# repositories (filter speed, hardening5, the KUKA/Fanuc/UR/RAPID real-program checks) say
+# how to run them at the top of their bench/*.md.
 bench: $(STAMP) bytecode
 	$(BIN)/python -m bench.solver_real
 	$(BIN)/python -m bench.min_n
@@ -56,6 +59,7 @@ bench: $(STAMP) bytecode
 	$(BIN)/python -m bench.web_bench
 	$(BIN)/python -m bench.cli_speed
 	$(BIN)/python -m bench.drift_watch
+	$(BIN)/python -m bench.robots_check
 
 # The README's screenshots of the operator page (docs/img/web-*.png), on a fresh emulated cell.
 screenshots: $(STAMP)
