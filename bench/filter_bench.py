@@ -48,16 +48,16 @@ from bench.run import environment
 from calib.export import model_to_toml
 from calib.filter.branches import flange_frames, nominal_solutions
 from calib.filter.correct import IK_OPTIONS, calibration_from_result
-from calib.filter.fanuc_ls import DIALECT as LS
-from calib.filter.krl import DIALECT as KRL
-from calib.filter.rapid import DIALECT as RAPID
-from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.run import filter_files
 from calib.filter.select import choose
-from calib.filter.sites import FrameTables, Source, parse_frames_toml
-from calib.filter.urscript import DIALECT as URSCRIPT
 from calib.ik import solve_ik
 from calib.kinematics import FloatArray
+from calib.programs.fanuc.filter import DIALECT as LS
+from calib.programs.krl.filter import DIALECT as KRL
+from calib.programs.rapid.filter import DIALECT as RAPID
+from calib.programs.rotations import invert, rotation_angle_deg
+from calib.programs.sites import FrameTables, Source, parse_frames_toml
+from calib.programs.urscript.filter import DIALECT as URSCRIPT
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
 from filter_cells import (

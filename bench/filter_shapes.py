@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.filter.rotations import matrix_to_quat_wxyz
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
+from calib.programs.rotations import matrix_to_quat_wxyz
 
 #: Targets per routine.
 PER_PROC = 400
@@ -51,7 +51,7 @@ def rapid_shapes(
     [mm]; ``work`` the work object (4, 4) [mm]; ``confdata`` RAPID's per target), in the
     shapes of the module docstring, cycling through them."""
     from calib.filter.branches import flange_frames
-    from calib.filter.rotations import invert
+    from calib.programs.rotations import invert
 
     n = len(q_plan)
     flanges = flange_frames(nominal, q_plan)

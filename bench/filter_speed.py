@@ -50,7 +50,7 @@ def _child(directory: Path, dialect: str, gc_off: bool = False) -> None:
 
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import filter_files
-    from calib.filter.sites import parse_frames_toml
+    from calib.programs.sites import parse_frames_toml
     from daemon.datafiles import load_robot
 
     d = directory / dialect

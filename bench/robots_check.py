@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.filter.rapid_syntax import blank, is_jointtarget, is_robtarget, parse_literal
-from calib.filter.rotations import quat_wxyz_to_matrix, rotation_angle_deg
-from calib.filter.sites import Source
 from calib.ik import tool_pose
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
+from calib.programs.rapid.syntax import blank, is_jointtarget, is_robtarget, parse_literal
+from calib.programs.rotations import quat_wxyz_to_matrix, rotation_angle_deg
+from calib.programs.sites import Source
 from calib.robots import library_model
 
 ROOT = Path(__file__).resolve().parent.parent

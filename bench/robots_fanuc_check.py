@@ -10,7 +10,7 @@ read: the user frames and tools of group 1 (``SYSFRAME.VA``) and every ``/POS`` 
 ``.LS`` files. For each Cartesian position without extended axes, whose UF and UT are known,
 all nominal solutions of ``calib/robots/library/fanuc-r2000ib-210f.toml`` are found (joint
 limits widened to every branch and turns -1..1 of J4, J6: the rule is checked, not the
-limits) and counted against its CONFIG under the rule of :mod:`calib.filter.fanuc_config`
+limits) and counted against its CONFIG under the rule of :mod:`calib.programs.fanuc.config`
 and under the rule the filter used before (flip ``N`` when J5 >= 0, turns of J4, J5, J6).
 """
 
@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from calib.filter.branches import nominal_solutions
-from calib.filter.fanuc_config import TURN_JOINTS, elbow_letter, turn_window_deg
-from calib.filter.rotations import frame, zyx_deg_to_matrix
 from calib.kinematics import FloatArray
 from calib.models import parse_model_text
+from calib.programs.fanuc.config import TURN_JOINTS, elbow_letter, turn_window_deg
+from calib.programs.rotations import frame, zyx_deg_to_matrix
 
 ARM = "R-2000iB/210F"
 MODEL = Path(__file__).parents[1] / "calib" / "robots" / "library" / "fanuc-r2000ib-210f.toml"

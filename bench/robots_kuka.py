@@ -7,7 +7,7 @@ into this repository), the arm's model is built from its own ``R1/Mada/$machine.
 ``.dat`` files with an ``FDAT`` of the same name (``X…`` → ``F…``, ``IPO_FRAME #BASE``) is
 taken to the flange with ``$config.dat``'s ``TOOL_DATA``/``BASE_DATA`` and solved on the
 model. A point *fits* when one nominal solution within the limits has the written ``T``
-(bit k: axis k+1 < 0) and the written ``S`` bits 0..2 (calib.filter.krl.status_of of its
+(bit k: axis k+1 < 0) and the written ``S`` bits 0..2 (calib.programs.krl.filter.status_of of its
 branch). Each entry of :data:`VARIANTS` (one element of the layout changed) is counted the
 same way, to show that the data decides it. Pairs: every E6AXIS whose FK, with an E6POS's own
 FDAT frames, is within 0.05 mm of that E6POS, with its gaps under each variant. The library
@@ -27,9 +27,9 @@ import numpy as np
 
 from calib.conventions import IDENTITY
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
-from calib.filter.krl import status_of, turn_of
-from calib.filter.rotations import frame, invert, rotation_angle_deg, zyx_deg_to_matrix
 from calib.models import RobotModel, model_from_mapping
+from calib.programs.krl.filter import status_of, turn_of
+from calib.programs.rotations import frame, invert, rotation_angle_deg, zyx_deg_to_matrix
 
 MIRROR = Path("/work/.mirror")
 BACKUPS = (

@@ -35,9 +35,9 @@ import numpy as np
 
 from calib.filter.correct import Calibration
 from calib.filter.kin import flange_frames
-from calib.filter.rotations import rotation_angle_deg, rotvec_to_matrix
 from calib.filter.run import filter_files
 from calib.models import RobotModel, model_from_mapping
+from calib.programs.rotations import rotation_angle_deg, rotvec_to_matrix
 
 LIBRARY = Path(__file__).resolve().parent.parent / "calib" / "robots" / "library"
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"

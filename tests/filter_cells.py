@@ -20,12 +20,12 @@ import numpy as np
 
 from calib.dataset import make_samples
 from calib.filter.branches import branch_signs, flange_frames
-from calib.filter.rapid import cfx_of
-from calib.filter.rotations import frame, invert, matrix_to_quat_wxyz, matrix_to_rotvec
 from calib.identify import IdentifyOptions, identify
 from calib.ik import _errors_and_jacobian
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, builtin_model
+from calib.programs.rapid.filter import cfx_of
+from calib.programs.rotations import frame, invert, matrix_to_quat_wxyz, matrix_to_rotvec
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, random_poses_deg
 
 #: The cable hook point of the emulated campaign, off the flange axis [mm].
@@ -130,7 +130,7 @@ OFRAME = frame(
 
 
 def rapid_confdata(nominal: RobotModel, q_deg: FloatArray) -> list[tuple[int, int, int, int]]:
-    """``[cf1, cf4, cf6, cfx]`` of joints (n, 6) [deg] (calib.filter.rapid's reading)."""
+    """``[cf1, cf4, cf6, cfx]`` of joints (n, 6) [deg] (calib.programs.rapid.filter's reading)."""
     sh, el, wr = branch_signs(nominal, q_deg)
     out = []
     for i, q in enumerate(q_deg):

@@ -2,7 +2,8 @@
 
 The targets come from :func:`filter_cells.planned_targets` (joints ``q_plan`` on the
 nominal model); the status/turn and CONFIG fields are those of ``q_plan`` as
-:mod:`calib.filter.krl` and :mod:`calib.filter.fanuc_ls` read them. The shapes follow what
+:mod:`calib.programs.krl.filter` and :mod:`calib.programs.fanuc.filter` read them. The shapes
+follow what
 KUKA's inline forms and Fanuc's ASCII export write: ``;FOLD`` blocks with ``FDAT_ACT``,
 ``DECL E6POS`` with ``S``/``T``, ``$config.dat`` with ``TOOL_DATA``/``BASE_DATA``; ``/POS``
 entries with ``GP1`` (Cartesian or joint form) and ``GP2``.
@@ -14,14 +15,14 @@ import numpy as np
 from filter_cells import Cell, planned_targets
 
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
-from calib.filter.fanuc_config import config_text
-from calib.filter.krl import turn_of
-from calib.filter.rotations import invert, matrix_to_zyx_deg, rotation_angle_deg
 from calib.filter.run import FilterRun
 from calib.filter.select import choose
-from calib.filter.sites import Dialect, FrameTables, Source, Target
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
+from calib.programs.fanuc.config import config_text
+from calib.programs.krl.filter import turn_of
+from calib.programs.rotations import invert, matrix_to_zyx_deg, rotation_angle_deg
+from calib.programs.sites import Dialect, FrameTables, Source, Target
 
 
 def kuka_status(nominal: RobotModel, q_deg: FloatArray) -> list[int]:
@@ -31,7 +32,7 @@ def kuka_status(nominal: RobotModel, q_deg: FloatArray) -> list[int]:
 
 
 def fanuc_config(nominal: RobotModel, q_deg: FloatArray) -> list[str]:
-    """``'F U T, t1, t4, t6'`` of joints (n, 6) [deg] (the rule of calib.filter.fanuc_config)."""
+    """``'F U T, t1, t4, t6'`` of joints (n, 6) [deg] (the rule of calib.programs.fanuc.config)."""
     sh, el, _wr = branch_signs(nominal, q_deg)
     return [config_text(q, int(sh[i]), int(el[i])) for i, q in enumerate(q_deg)]
 

@@ -30,14 +30,14 @@ from filter_cells import (
 
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.correct import IK_OPTIONS, calibration_from_result
-from calib.filter.rapid import DIALECT as RAPID
-from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.run import filter_files
 from calib.filter.select import choose
-from calib.filter.sites import FrameTables, Source, Target
-from calib.filter.urscript import DIALECT as URSCRIPT
 from calib.ik import solve_ik
 from calib.kinematics import FloatArray
+from calib.programs.rapid.filter import DIALECT as RAPID
+from calib.programs.rotations import invert, rotation_angle_deg
+from calib.programs.sites import FrameTables, Source, Target
+from calib.programs.urscript.filter import DIALECT as URSCRIPT
 
 
 @pytest.fixture(scope="module")

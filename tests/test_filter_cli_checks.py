@@ -22,7 +22,6 @@ from typer.testing import CliRunner
 from calib.export import model_to_toml
 from calib.filter import run as run_module
 from calib.filter.correct import calibration_from_result
-from calib.filter.dialects import dialect_for
 from calib.filter.run import (
     EXIT_BAD_INPUT,
     EXIT_LEFT,
@@ -32,7 +31,8 @@ from calib.filter.run import (
     reason_group,
     summary_text,
 )
-from calib.filter.sites import Correction, FrameTables, Source
+from calib.programs.dialects import dialect_for
+from calib.programs.sites import Correction, FrameTables, Source
 from daemon.cli import app, filter_out
 from daemon.datafiles import load_robot
 

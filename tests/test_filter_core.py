@@ -11,8 +11,10 @@ from filter_cells import make_cell, regular_poses
 
 from calib.filter.branches import branch_signs, flange_frames, nominal_solutions
 from calib.filter.correct import calibration_from_result, sigma_at_tools
-from calib.filter.rapid import cfx_of, configuration
-from calib.filter.rotations import (
+from calib.filter.select import choose
+from calib.models import builtin_model
+from calib.programs.rapid.filter import cfx_of, configuration
+from calib.programs.rotations import (
     matrix_to_quat_wxyz,
     matrix_to_rotvec,
     matrix_to_zyx_deg,
@@ -20,9 +22,7 @@ from calib.filter.rotations import (
     rotvec_to_matrix,
     zyx_deg_to_matrix,
 )
-from calib.filter.select import choose
-from calib.filter.sites import FilterInputError, parse_frames_toml
-from calib.models import builtin_model
+from calib.programs.sites import FilterInputError, parse_frames_toml
 
 
 def _rz(a: float) -> np.ndarray:

@@ -42,14 +42,14 @@ from filter_olp import _executed, frames_toml, krl_program, ls_program, rms
 
 from calib.filter.branches import flange_frames
 from calib.filter.correct import calibration_from_result
-from calib.filter.dialects import dialect_for
 from calib.filter.nearest import IK_OPTIONS
-from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.run import EXIT_LEFT
-from calib.filter.sites import FrameTables, Num, Source, Target, parse_frames_toml
 from calib.ik import solve_ik
 from calib.kinematics import FloatArray
 from calib.models import HSR_JR680, model_from_mapping
+from calib.programs.dialects import dialect_for
+from calib.programs.rotations import invert, rotation_angle_deg
+from calib.programs.sites import FrameTables, Num, Source, Target, parse_frames_toml
 from calib.synthetic import TABLE_XII_D1, make_true_cell, random_poses_deg
 
 #: Noise of the emulated lengths [mm] (1σ), before the display's 0.01 mm.

@@ -12,11 +12,11 @@ from filter_cells import Cell, make_cell, regular_poses, tool_frame, work_frame
 from filter_olp import accuracy, frames_toml, ls_program, rms
 
 from calib.filter.correct import Calibration, calibration_from_result
-from calib.filter.fanuc_config import TURN_EDGE_DEG, TURN_JOINTS, configuration, turn_number
-from calib.filter.fanuc_ls import DIALECT as LS
-from calib.filter.fanuc_ls import REGISTER_REASON
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, filter_files
-from calib.filter.sites import FrameTables, Source, parse_frames_toml
+from calib.programs.fanuc.config import TURN_EDGE_DEG, TURN_JOINTS, configuration, turn_number
+from calib.programs.fanuc.filter import DIALECT as LS
+from calib.programs.fanuc.filter import REGISTER_REASON
+from calib.programs.sites import FrameTables, Source, parse_frames_toml
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs" / "fanuc"
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

@@ -3,7 +3,7 @@
 The programs are written here, in the shapes of real controller backups (CRLF, Latin-1
 comments, a servo-gun group GP2, ``PR[]`` moves, ``P[n:"comment"]``, Fanuc's ``.440``
 numbers): every joint position followed by its Cartesian twin with the CONFIG string of
-:func:`calib.filter.fanuc_config.config_text`. The arm is the library's R-2000iB/210F in
+:func:`calib.programs.fanuc.config.config_text`. The arm is the library's R-2000iB/210F in
 Fanuc's own joint angles, and its twin without the ``[controller]`` table (joint angles =
 table angles), so the rules are exercised whatever the core's angles; the library arm runs
 where the filter's core takes the controller's angles.
@@ -22,14 +22,14 @@ import pytest
 from calib.conventions import IDENTITY
 from calib.filter.branches import nominal_solutions, wrist_geometry
 from calib.filter.correct import Calibration
-from calib.filter.fanuc_config import TURN_JOINTS, config_text, configuration
-from calib.filter.fanuc_ls import DIALECT as LS
-from calib.filter.fanuc_ls import REGISTER_REASON
-from calib.filter.rotations import frame, rotation_angle_deg, zyx_deg_to_matrix
 from calib.filter.run import filter_files
-from calib.filter.sites import FrameTables, Source, Target, parse_frames_toml
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.models import RobotModel, parse_model_text
+from calib.programs.fanuc.config import TURN_JOINTS, config_text, configuration
+from calib.programs.fanuc.filter import DIALECT as LS
+from calib.programs.fanuc.filter import REGISTER_REASON
+from calib.programs.rotations import frame, rotation_angle_deg, zyx_deg_to_matrix
+from calib.programs.sites import FrameTables, Source, Target, parse_frames_toml
 
 LIBRARY = Path(__file__).parents[1] / "calib" / "robots" / "library"
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

@@ -11,11 +11,11 @@ from filter_cells import Cell, make_cell, regular_poses, tool_frame, work_frame
 from filter_olp import accuracy, krl_program, rms
 
 from calib.filter.correct import Calibration, calibration_from_result
-from calib.filter.krl import DIALECT as KRL
-from calib.filter.krl import UNUSED, CartSite, configuration, turn_of
-from calib.filter.rotations import frame, zyx_deg_to_matrix
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, filter_files
-from calib.filter.sites import Correction, FrameTables, Num, Source, Target
+from calib.programs.krl.filter import DIALECT as KRL
+from calib.programs.krl.filter import UNUSED, CartSite, configuration, turn_of
+from calib.programs.rotations import frame, zyx_deg_to_matrix
+from calib.programs.sites import Correction, FrameTables, Num, Source, Target
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs" / "krl"
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

@@ -16,7 +16,10 @@ import pytest
 from calib.conventions import IDENTITY
 from calib.filter.branches import branch_signs, flange_frames
 from calib.filter.correct import Calibration
-from calib.filter.krl import (
+from calib.filter.run import EXIT_OK, filter_files
+from calib.kinematics import FloatArray
+from calib.models import RobotModel, model_from_mapping
+from calib.programs.krl.filter import (
     CONFIG_DAT_READ_ONLY,
     NOT_LEFT_REASONS,
     UNUSED,
@@ -24,16 +27,13 @@ from calib.filter.krl import (
     status_of,
     turn_of,
 )
-from calib.filter.rotations import (
+from calib.programs.rotations import (
     frame,
     invert,
     matrix_to_zyx_deg,
     rotation_angle_deg,
     zyx_deg_to_matrix,
 )
-from calib.filter.run import EXIT_OK, filter_files
-from calib.kinematics import FloatArray
-from calib.models import RobotModel, model_from_mapping
 
 LIBRARY = Path(__file__).parents[1] / "calib" / "robots" / "library"
 TOOL = frame(np.array([12.0, -8.0, 310.0]), zyx_deg_to_matrix(0.0, -30.0, 0.0))  # in $FLANGE

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from calib.filter.correct import Calibration
-from calib.filter.dialects import dialect_for
-from calib.filter.rapid import DIALECT as RAPID
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, filter_files
-from calib.filter.sites import FilterInputError, FrameTables, Num, Source, format_number
-from calib.filter.urscript import DIALECT as URSCRIPT
 from calib.models import RobotModel, builtin_model
+from calib.programs.dialects import dialect_for
+from calib.programs.rapid.filter import DIALECT as RAPID
+from calib.programs.sites import FilterInputError, FrameTables, Num, Source, format_number
+from calib.programs.urscript.filter import DIALECT as URSCRIPT
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs"
 _NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

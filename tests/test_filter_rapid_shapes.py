@@ -18,15 +18,15 @@ from filter_cells import planned_targets, rapid_confdata, regular_poses, smooth_
 
 from calib.filter.branches import branch_signs
 from calib.filter.correct import Calibration
-from calib.filter.rapid import DIALECT as RAPID
-from calib.filter.rapid import cfx_of, configuration
-from calib.filter.rotations import matrix_to_quat_wxyz
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_OK, FilterRun, filter_files
-from calib.filter.sites import FrameTables, Source, Target
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, builtin_model
 from calib.programs.common import ProgramError
-from calib.programs.rapid import parse as parse_program
+from calib.programs.rapid.filter import DIALECT as RAPID
+from calib.programs.rapid.filter import cfx_of, configuration
+from calib.programs.rapid.program import parse as parse_program
+from calib.programs.rotations import matrix_to_quat_wxyz
+from calib.programs.sites import FrameTables, Source, Target
 
 NOMINAL = builtin_model("hsr-jr680")
 NO_AXES = "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]"

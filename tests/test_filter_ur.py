@@ -21,11 +21,11 @@ from calib.conventions import JointConvention
 from calib.filter.branches import branch_signs
 from calib.filter.correct import Calibration, correct_targets
 from calib.filter.kin import flange_frames, to_controller_deg
-from calib.filter.rotations import matrix_to_rotvec
 from calib.filter.run import filter_files
-from calib.filter.sites import Configuration, Target, Use
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, builtin_model, model_from_mapping
+from calib.programs.rotations import matrix_to_rotvec
+from calib.programs.sites import Configuration, Target, Use
 
 LIBRARY = Path(__file__).resolve().parent.parent / "calib" / "robots" / "library"
 

@@ -92,7 +92,7 @@ def test_bad_calibration_conf_is_named_with_file_line_and_key(text: str, message
 
 
 def _script_of(model: RobotModel, qs: np.ndarray) -> bytes:
-    from calib.filter.rotations import matrix_to_rotvec
+    from calib.programs.rotations import matrix_to_rotvec
 
     lines = ["def prog():", "  set_tcp(p[0.0,0.0,0.0,0.0,0.0,0.0])"]
     for k, q in enumerate(qs, start=1):

@@ -12,10 +12,10 @@ import pytest
 from calib.filter.branches import branch_signs, nominal_solutions
 from calib.filter.kin import flange_frames
 from calib.filter.select import choose
-from calib.filter.sites import Configuration
 from calib.filter.ur_ik import ORDER, ur_shape, ur_signs, ur_solutions
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, model_from_mapping
+from calib.programs.sites import Configuration
 
 LIBRARY = Path(__file__).resolve().parent.parent / "calib" / "robots" / "library"
 ARMS = ("ur3e", "ur5e", "ur10e", "ur16e")

@@ -341,7 +341,7 @@ class Solutions:
         Candidates [deg] (NaN rows where fewer than k exist); all within the joint limits.
     valid : ndarray of bool, shape (n, k)
     shoulder, elbow, wrist : ndarray of int, shape (n, k)
-        Branch signs (:class:`calib.filter.sites.Configuration`).
+        Branch signs (:class:`calib.programs.sites.Configuration`).
     """
 
     joints_deg: FloatArray
@@ -373,7 +373,7 @@ def _arm_signs(geo: WristGeometry, convention: str, arm: FloatArray) -> tuple[np
 
 def branch_signs(model: RobotModel, joints_deg: FloatArray) -> tuple[np.ndarray, ...]:
     """``shoulder, elbow, wrist`` signs (each (n,) int) of the controller's joints (n, 6)
-    [deg] on ``model`` (definitions: :class:`calib.filter.sites.Configuration`; ``o_2``,
+    [deg] on ``model`` (definitions: :class:`calib.programs.sites.Configuration`; ``o_2``,
     ``o_3`` are the origins of the transforms just before ``Rz(q_2)`` and ``Rz(q_3)``; on a
     UR-shaped arm the shoulder and elbow are :func:`calib.filter.ur_ik.ur_signs`').
 

@@ -46,11 +46,11 @@ from calib.export import model_from_result
 from calib.filter.branches import branch_signs, nominal_solutions
 from calib.filter.kin import counted_as, flange_frames, solve_flange_ik, to_table_deg
 from calib.filter.nearest import IK_OPTIONS, keeps_nearest, nearest_solutions
-from calib.filter.rotations import invert, rotation_angle_deg
 from calib.filter.select import choose
-from calib.filter.sites import Configuration, Correction, Target
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
+from calib.programs.rotations import invert, rotation_angle_deg
+from calib.programs.sites import Configuration, Correction, Target
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
 
 #: A corrected joint further than this from the nominal solution is another branch [deg].

@@ -11,10 +11,10 @@ import numpy as np
 from calib.filter.branches import closed_form_is_complete, nominal_solutions
 from calib.filter.kin import solve_flange_ik
 from calib.filter.select import choose
-from calib.filter.sites import Configuration
 from calib.ik import IKOptions
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
+from calib.programs.sites import Configuration
 from calib.tcp import joint_limits_deg
 
 #: IK of the calibrated model: tight tolerances (the rounding of the written numbers, not the

@@ -1,6 +1,6 @@
 """Filter a set of program files: bytes in, bytes and a summary out (no file I/O, no clock).
 
-:func:`filter_files` groups the files by dialect (:mod:`calib.filter.dialects`), parses each
+:func:`filter_files` groups the files by dialect (:mod:`calib.programs.dialects`), parses each
 dialect's files together, corrects every target (:mod:`calib.filter.correct`), and writes the
 corrected numbers back into each file's own text. A file that cannot be parsed gets an error
 naming the file and line and no output; the others are still filtered. Files without
@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from calib.filter.correct import Calibration, correct_targets
-from calib.filter.dialects import dialect_for
-from calib.filter.sites import (
+from calib.programs.dialects import dialect_for
+from calib.programs.sites import (
     READ_ONLY_REASON,
     Correction,
     Dialect,
@@ -40,7 +40,7 @@ from calib.filter.sites import (
     Target,
     apply_edits,
 )
-from calib.filter.sites import UNUSED_REASON as UNUSED_REASON
+from calib.programs.sites import UNUSED_REASON as UNUSED_REASON
 
 if TYPE_CHECKING:
     from calib.models import RobotModel

@@ -2,7 +2,7 @@
 
 :func:`choose` applies, in order: the only solution within the joint limits; the
 configuration's joint ranges (quadrants, signs, turns); the joint reference (UR's nearest
-``q``); the branch signs as tie-breakers. See :class:`calib.filter.sites.Configuration`.
+``q``); the branch signs as tie-breakers. See :class:`calib.programs.sites.Configuration`.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.filter.branches import Solutions
-from calib.filter.sites import Configuration
+from calib.programs.sites import Configuration
 
 
 def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndarray, list[str]]:

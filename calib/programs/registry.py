@@ -7,7 +7,6 @@ import re
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
-from calib.programs import fanuc_ls, krl, rapid, urscript
 from calib.programs.common import (
     JointProgram,
     NameRule,
@@ -16,7 +15,11 @@ from calib.programs.common import (
     read_targets_csv,
     round_joints,
 )
+from calib.programs.fanuc import program as fanuc_ls
 from calib.programs.formats import PROGRAM_FORMATS
+from calib.programs.krl import program as krl
+from calib.programs.rapid import program as rapid
+from calib.programs.urscript import program as urscript
 
 _MODULES: dict[str, ModuleType] = {
     "rapid": rapid,

@@ -158,7 +158,7 @@ def filter_cmd(
     """
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import filter_files, robot_check, summary_text
-    from calib.filter.sites import FilterInputError, parse_frames_toml
+    from calib.programs.sites import FilterInputError, parse_frames_toml
     from daemon.cli.apply import nominal_model, read_result
     from daemon.cli.errors import printable
     from daemon.cli.filter_out import OutDirError, default_file_mode, write_set

@@ -107,7 +107,7 @@ def _filter(
     named); a bad file among good ones is named in the summary's ``errors``."""
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import FilterRun, filter_files
-    from calib.filter.sites import FilterInputError, parse_frames_toml
+    from calib.programs.sites import FilterInputError, parse_frames_toml
 
     try:
         frames = None if frames_text is None else parse_frames_toml(frames_text, "frames")

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.filter.rotations import frame, quat_wxyz_to_matrix
-from calib.filter.sites import BRACKETS, FilterInputError, Num, Source
 from calib.kinematics import FloatArray
+from calib.programs.rotations import frame, quat_wxyz_to_matrix
+from calib.programs.sites import BRACKETS, FilterInputError, Num, Source
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 #: Bounds of every number the filter reads: its length in characters and its magnitude (a

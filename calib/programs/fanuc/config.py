@@ -7,7 +7,7 @@ the model's ``[controller]`` table, :mod:`calib.conventions`).
 
 * **Flip** ``F``/``N``: ``F`` when J5 > 0, ``N`` when J5 ≤ 0 (:func:`flip_letter`).
 * **Front/back** ``T``/``B``: the branch sign ``shoulder`` of
-  :class:`calib.filter.sites.Configuration` (+1 is ``T``: the wrist centre in front of
+  :class:`calib.programs.sites.Configuration` (+1 is ``T``: the wrist centre in front of
   axis 1).
 * **Elbow** ``U``/``D``: up or down as seen along the arm's own forward direction (frame
   1's x axis), so in front (``T``) ``U`` is the branch sign ``elbow`` +1 and behind (``B``)
@@ -31,8 +31,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from calib.filter.sites import Configuration
 from calib.kinematics import N_JOINTS, FloatArray
+from calib.programs.sites import Configuration
 
 #: Joints (0-based) whose turn numbers the CONFIG string carries, in its order: J1, J4, J6.
 TURN_JOINTS = (0, 3, 5)
@@ -80,7 +80,7 @@ def elbow_letter(shoulder: int, elbow: int) -> str:
 
 def config_text(q_deg: Sequence[float], shoulder: int, elbow: int) -> str:
     """``'F U T, t1, t4, t6'`` (without quotes) of Fanuc joint angles (6,) [deg] and the
-    branch signs of :class:`calib.filter.sites.Configuration`."""
+    branch signs of :class:`calib.programs.sites.Configuration`."""
     letters = f"{flip_letter(q_deg[FLIP_JOINT])} {elbow_letter(shoulder, elbow)} "
     letters += "T" if shoulder > 0 else "B"
     return ", ".join([letters, *(str(turn_number(q_deg[j])) for j in TURN_JOINTS)])

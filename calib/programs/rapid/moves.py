@@ -34,15 +34,15 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
-from calib.filter.rapid_decls import Module, lookup
-from calib.filter.rapid_syntax import (
+from calib.programs.rapid.decls import Module, lookup
+from calib.programs.rapid.syntax import (
     is_jointtarget,
     is_robtarget,
     parse_literal,
     split_options,
     statement_end,
 )
-from calib.filter.sites import FilterInputError, split_args
+from calib.programs.sites import FilterInputError, split_args
 
 MOVE = re.compile(r"(?<![\w.])((?:Move|Trigg|Search|Arc|Cap)\w*)(?=[ \t\r\n\\])", re.IGNORECASE)
 _MOTION = re.compile(r"(?:Move|Trigg|Search|Arc|Cap)([LJC])", re.IGNORECASE)

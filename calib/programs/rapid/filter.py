@@ -1,8 +1,8 @@
 r"""ABB RAPID dialect of the filter (``.mod``, ``.modx``, ``.prg``, ``.sys``).
 
-Modules, routines, declarations and their scope: :mod:`calib.filter.rapid_decls`; moves,
+Modules, routines, declarations and their scope: :mod:`calib.programs.rapid.decls`; moves,
 their tools and work objects, and ``ConfL``/``ConfJ`` along the flow:
-:mod:`calib.filter.rapid_moves`.
+:mod:`calib.programs.rapid.moves`.
 
 Targets
     ``robtarget`` and ``jointtarget`` declarations with a literal value, one target per array
@@ -50,8 +50,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from calib.filter.rapid_decls import HEADER, Module, index_text, lookup, read_module
-from calib.filter.rapid_moves import (
+from calib.kinematics import FloatArray
+from calib.programs.rapid.decls import HEADER, Module, index_text, lookup, read_module
+from calib.programs.rapid.moves import (
     ON,
     PREDEFINED_TOOLS,
     PREDEFINED_WOBJS,
@@ -60,7 +61,7 @@ from calib.filter.rapid_moves import (
     monitoring,
     read_moves,
 )
-from calib.filter.rapid_syntax import (
+from calib.programs.rapid.syntax import (
     Node,
     blank,
     is_pose,
@@ -69,12 +70,12 @@ from calib.filter.rapid_syntax import (
     nums,
     pose,
 )
-from calib.filter.rotations import (
+from calib.programs.rotations import (
     frame,
     matrix_to_quat_wxyz,
     quat_wxyz_to_matrix,
 )
-from calib.filter.sites import (
+from calib.programs.sites import (
     Configuration,
     Correction,
     Edit,
@@ -86,7 +87,6 @@ from calib.filter.sites import (
     Use,
     edits_for,
 )
-from calib.kinematics import FloatArray
 
 NAME = "rapid"
 EXTENSIONS = (".mod", ".modx", ".prg", ".sys")
@@ -120,7 +120,7 @@ _OPEN = np.tile([-np.inf, np.inf], (6, 1))
 
 
 def cfx_of(shoulder: int, elbow: int, wrist: int) -> int:
-    """ABB's ``cfx`` (0..7) of branch signs (:class:`calib.filter.sites.Configuration`):
+    """ABB's ``cfx`` (0..7) of branch signs (:class:`calib.programs.sites.Configuration`):
     wrist centre behind axis 1 adds 4, behind the lower arm adds 2, axis 5 negative adds 1.
     "Lower arm" is the arm's own side, so in the shared signs (``elbow`` is measured towards
     the wrist centre) it is ``elbow · shoulder``."""

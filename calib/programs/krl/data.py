@@ -1,6 +1,7 @@
 """KRL text for the filter's KUKA dialect: comments, aggregates and ``.dat`` declarations.
 
-What :mod:`calib.filter.krl` needs of a KRL file, with every offset an offset into the file's
+What :mod:`calib.programs.krl.filter` needs of a KRL file, with every offset an offset into the
+file's
 own text (so the dialect can replace exactly one number):
 
 * :func:`blank`: the text with ``;`` comments and ``"…"`` strings replaced by spaces (line
@@ -24,9 +25,9 @@ from pathlib import PurePath
 
 import numpy as np
 
-from calib.filter.rotations import frame, zyx_deg_to_matrix
-from calib.filter.sites import FilterInputError, Num, Source
 from calib.kinematics import FloatArray
+from calib.programs.rotations import frame, zyx_deg_to_matrix
+from calib.programs.sites import FilterInputError, Num, Source
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")

@@ -19,7 +19,7 @@ Frames
     position unchanged and named.
 
 Configuration ``'F U T, t1, t4, t6'``
-    The rules are :mod:`calib.filter.fanuc_config` (flip ``F`` when J5 > 0; the turn numbers
+    The rules are :mod:`calib.programs.fanuc.config` (flip ``F`` when J5 > 0; the turn numbers
     of J1, J4, J6). The string is written back as it was: a correction that would change the
     flip or a turn number is refused (:meth:`FanucLsDialect.check`).
 
@@ -35,10 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.filter.fanuc_config import KEYWORDS, TURN_JOINTS, configuration, refusal
-from calib.filter.rotations import frames as make_frames
-from calib.filter.rotations import matrix_to_zyx_deg, rotation_angle_deg, zyx_deg_to_matrix
-from calib.filter.sites import (
+from calib.kinematics import N_JOINTS, FloatArray
+from calib.programs.fanuc.config import KEYWORDS, TURN_JOINTS, configuration, refusal
+from calib.programs.rotations import frames as make_frames
+from calib.programs.rotations import matrix_to_zyx_deg, rotation_angle_deg, zyx_deg_to_matrix
+from calib.programs.sites import (
     Correction,
     Edit,
     FilterInputError,
@@ -49,7 +50,6 @@ from calib.filter.sites import (
     Use,
     edits_for,
 )
-from calib.kinematics import N_JOINTS, FloatArray
 
 NAME = "fanuc-ls"
 EXTENSIONS = (".ls",)
@@ -325,7 +325,7 @@ class FanucLsDialect:
 
     def check(self, target: Target, correction: Correction) -> str:
         """Why a corrected target cannot be written: its CONFIG's flip or a turn number would
-        change (:func:`calib.filter.fanuc_config.refusal`); empty when it can.
+        change (:func:`calib.programs.fanuc.config.refusal`); empty when it can.
 
         ``correction.joints_deg`` are Fanuc's angles (the core's controller angles)."""
         if target.configuration is None or correction.joints_deg is None:

@@ -43,8 +43,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.filter.rotations import frame, matrix_to_rotvec, rotvec_to_matrix
-from calib.filter.sites import (
+from calib.kinematics import FloatArray
+from calib.programs.rotations import frame, matrix_to_rotvec, rotvec_to_matrix
+from calib.programs.sites import (
     Configuration,
     Correction,
     Edit,
@@ -57,7 +58,6 @@ from calib.filter.sites import (
     edits_for,
     split_args,
 )
-from calib.kinematics import FloatArray
 
 NAME = "urscript"
 EXTENSIONS = (".script", ".urscript")

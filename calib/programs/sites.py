@@ -41,10 +41,10 @@ from typing import Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 
-from calib.filter.inputs import FilterInputError as FilterInputError
-from calib.filter.inputs import FrameTables as FrameTables
-from calib.filter.inputs import parse_frames_toml as parse_frames_toml
 from calib.kinematics import N_JOINTS, FloatArray
+from calib.programs.inputs import FilterInputError as FilterInputError
+from calib.programs.inputs import FrameTables as FrameTables
+from calib.programs.inputs import parse_frames_toml as parse_frames_toml
 
 Kind = Literal["cartesian", "joint"]
 #: What became of a target: corrected (possibly by less than the written precision, then no

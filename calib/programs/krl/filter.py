@@ -65,7 +65,8 @@ from pathlib import PurePath
 
 import numpy as np
 
-from calib.filter.krl_data import (
+from calib.kinematics import N_JOINTS, FloatArray
+from calib.programs.krl.data import (
     AXIS_TYPES,
     CARTESIAN_KEYS,
     Aggregate,
@@ -74,9 +75,9 @@ from calib.filter.krl_data import (
     index_text,
     read_declarations,
 )
-from calib.filter.krl_moves import NAME_REF, SET_FRAME, Moves
-from calib.filter.rotations import frames, matrix_to_zyx_deg, zyx_deg_to_matrix
-from calib.filter.sites import (
+from calib.programs.krl.moves import NAME_REF, SET_FRAME, Moves
+from calib.programs.rotations import frames, matrix_to_zyx_deg, zyx_deg_to_matrix
+from calib.programs.sites import (
     READ_ONLY_REASON,
     UNUSED_REASON,
     Configuration,
@@ -90,7 +91,6 @@ from calib.filter.sites import (
     Use,
     edits_for,
 )
-from calib.kinematics import N_JOINTS, FloatArray
 
 NAME = "krl"
 EXTENSIONS = (".src", ".dat")

@@ -29,7 +29,8 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from calib.filter.rapid_syntax import (
+from calib.kinematics import FloatArray
+from calib.programs.rapid.syntax import (
     ROBTARGET,
     Node,
     blank,
@@ -38,8 +39,7 @@ from calib.filter.rapid_syntax import (
     parse_literal,
     skip_space,
 )
-from calib.filter.sites import FilterInputError, Source
-from calib.kinematics import FloatArray
+from calib.programs.sites import FilterInputError, Source
 
 DECL = re.compile(
     r"\b(?:(LOCAL|TASK)\s+)?(?:CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata)"

@@ -1,7 +1,7 @@
 """The registry of filter dialects: which module reads which file.
 
 A dialect module exposes ``DIALECT`` (an object implementing
-:class:`calib.filter.sites.Dialect`) and is listed in :data:`DIALECT_MODULES`; nothing else
+:class:`calib.programs.sites.Dialect`) and is listed in :data:`DIALECT_MODULES`; nothing else
 (CLI, service) names dialects. :data:`SIGNATURES` is a cheap sniff of each dialect's text,
 so that a file whose content is another dialect's than its extension says (a Fanuc ``.ls``
 saved as ``.script``) is refused, saying what it looks like, instead of being read as a
@@ -16,14 +16,14 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import PurePath
 
-from calib.filter.sites import Dialect, FilterInputError, Source
+from calib.programs.sites import Dialect, FilterInputError, Source
 
 #: Dialect modules, imported on first use.
 DIALECT_MODULES = (
-    "calib.filter.rapid",
-    "calib.filter.urscript",
-    "calib.filter.krl",
-    "calib.filter.fanuc_ls",
+    "calib.programs.rapid.filter",
+    "calib.programs.urscript.filter",
+    "calib.programs.krl.filter",
+    "calib.programs.fanuc.filter",
 )
 
 #: Characters of a file's start a signature looks at (headers and comments come first).

@@ -1,8 +1,8 @@
 """The moves of a KRL ``.src`` for the filter's KUKA dialect, with the tool and base in force.
 
 :class:`Moves` walks a ``.src`` line by line (KRL has one statement a line) and records on
-every target a move uses a :class:`~calib.filter.sites.Use` with the tool and base in force
-there; :mod:`calib.filter.krl` documents the rules (``FDAT_ACT``, ``$TOOL``/``$BASE``,
+every target a move uses a :class:`~calib.programs.sites.Use` with the tool and base in force
+there; :mod:`calib.programs.krl.filter` documents the rules (``FDAT_ACT``, ``$TOOL``/``$BASE``,
 ``BAS(#TOOL/#BASE)``, ``;FOLD`` cross-checks, branches of ``IF``/``SWITCH`` and loops).
 """
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.filter.krl_data import (
+from calib.programs.krl.data import (
     Aggregate,
     Decl,
     KrlFrame,
@@ -24,7 +24,7 @@ from calib.filter.krl_data import (
     parse_aggregate,
     unknown_frame,
 )
-from calib.filter.sites import Configuration, Source, Target, Use
+from calib.programs.sites import Configuration, Source, Target, Use
 
 #: ``(source, name, aggregate, declared type)`` → the target (None: not a position).
 MakeTarget = Callable[[Source, str, Aggregate, str], Target | None]

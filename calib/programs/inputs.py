@@ -2,7 +2,7 @@
 
 :class:`FilterInputError` is the one error of the filter's input (a program, a frame table,
 an option), naming the file and line; :class:`FrameTables` and :func:`parse_frames_toml` are
-the user frames and tools of ``--frames`` (Fanuc ``UF``/``UT``). :mod:`calib.filter.sites`
+the user frames and tools of ``--frames`` (Fanuc ``UF``/``UT``). :mod:`calib.programs.sites`
 re-exports all three, the names the dialects import.
 """
 
@@ -17,8 +17,8 @@ from typing import Literal
 
 import numpy as np
 
-from calib.filter.rotations import frame, zyx_deg_to_matrix
 from calib.kinematics import FloatArray
+from calib.programs.rotations import frame, zyx_deg_to_matrix
 
 
 class FilterInputError(ValueError):
