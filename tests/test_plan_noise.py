@@ -19,7 +19,7 @@ from calib.planning.noise import (
 )
 from daemon.plan_noise import cell_noise
 from daemon.sampler.config import SamplerConfig
-from daemon.settle import PairedReading, make_capture
+from daemon.sampler.settle import PairedReading, make_capture
 from daemon.store import Store
 
 SIGMA_MM = 0.02  # per-reading noise of the made-up indicator [mm]

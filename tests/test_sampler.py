@@ -22,8 +22,8 @@ from sampler_fakes import (
     wait_until,
 )
 
-from daemon.capture import CaptureRejected
 from daemon.sampler import Sampler, SamplerConfig, build_sampler
+from daemon.sampler.capture import CaptureRejected
 from drivers import (
     AsciiIndicator,
     HuashuSocketCmdRobot,

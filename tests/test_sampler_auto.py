@@ -19,8 +19,8 @@ from sampler_fakes import (
     wait_until,
 )
 
-from daemon.capture import Capture
 from daemon.sampler import SamplerConfig, build_sampler
+from daemon.sampler.capture import Capture
 from drivers import IndicatorLinkDown
 from simulator.runner import SimulatorThread
 

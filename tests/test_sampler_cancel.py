@@ -17,7 +17,7 @@ import pytest
 from sampler_fakes import FAST, FakeIndicator, FakeRobot, FakeSink
 
 from daemon.sampler import Sampler, SamplerConfig
-from daemon.settle import Verdict
+from daemon.sampler.settle import Verdict
 
 pytestmark = pytest.mark.anyio
 

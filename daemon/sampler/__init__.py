@@ -49,7 +49,7 @@ state and per-cycle decisions), :mod:`daemon.sampler.late` (late robot replies),
 from daemon.sampler.auto import AutoAction, AutoState, start_auto
 from daemon.sampler.config import MAX_BUFFER, SamplerConfig
 from daemon.sampler.core import Sampler, build_sampler
-from daemon.settle import (
+from daemon.sampler.settle import (
     NOT_SETTLED,
     Mode,
     PairedReading,

@@ -47,7 +47,7 @@ from daemon.api.schemas import (
 )
 from daemon.api.text_rules import not_printable
 from daemon.autocapture import SamplerRefused, SamplerUnavailable
-from daemon.capture import CaptureRejected
+from daemon.sampler.capture import CaptureRejected
 from daemon.store import CampaignRow
 
 log = logging.getLogger("cablecal.service")
