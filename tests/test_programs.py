@@ -19,7 +19,7 @@ from calib.programs.common import ProgramError
 from calib.programs.registry import detect_format, parse_program
 from calib.tcp import joint_limits_deg, workspace_sample_deg
 from daemon.cli import app
-from daemon.sampler import SamplerConfig
+from daemon.sampler.config import SamplerConfig
 
 MODEL = builtin_model("hsr-jr680")
 LIMITS = joint_limits_deg(MODEL)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from calib.monitor.settle import NOT_SETTLED, PairedReading, as_joints, evaluate, staleness_s
-from daemon.sampler import SamplerConfig
+from daemon.sampler.config import SamplerConfig
 from daemon.sampler.settle import make_capture
 
 HOME = (0.0, -30.0, 60.0, 0.0, 45.0, 10.0)

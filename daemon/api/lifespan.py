@@ -51,7 +51,7 @@ def build_state(settings: Settings, token: str) -> AppState:
 
 def default_sampler(state: AppState) -> Any:
     """The sampler of the configured drivers, given their typed settings."""
-    from daemon.sampler import Sampler
+    from daemon.sampler.core import Sampler
     from drivers import make_indicator, make_robot
 
     s = state.settings
