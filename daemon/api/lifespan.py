@@ -18,13 +18,13 @@ from fastapi import FastAPI
 from daemon.api.deps import AppState
 from daemon.api.min_samples import MinSamplesCache
 from daemon.api.offload import gates_of
-from daemon.autocapture import AutoCapture
 from daemon.config import Settings
-from daemon.holdcheck import HoldCheckMonitor
 from daemon.jobs import JobManager
 from daemon.lifecycle import STOPPED, record_start
+from daemon.monitors.autocapture import AutoCapture
+from daemon.monitors.holdcheck import HoldCheckMonitor
+from daemon.monitors.watch import SensorWatch
 from daemon.store import Store
-from daemon.watch import SensorWatch
 
 #: The interpreter's GIL switch interval while the service runs [s]: worker threads (CSV
 #: imports, plans, compensation) share the GIL with the event loop, and 1 ms (Python's

@@ -46,7 +46,7 @@ from daemon.api.schemas import (
     SamplePatch,
 )
 from daemon.api.text_rules import not_printable
-from daemon.autocapture import SamplerRefused, SamplerUnavailable
+from daemon.monitors.autocapture import SamplerRefused, SamplerUnavailable
 from daemon.sampler.capture import CaptureRejected
 from daemon.store import CampaignRow
 

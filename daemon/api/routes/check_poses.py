@@ -17,7 +17,7 @@ from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import CheckPosesBody
-from daemon.holdcheck import check_poses
+from daemon.monitors.holdcheck import check_poses
 from daemon.store import CheckPoses
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))
