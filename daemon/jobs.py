@@ -52,8 +52,8 @@ from daemon.job_worker import (
     prepare_job,
     run_identification,
 )
+from daemon.process.workers import init_child
 from daemon.store import JOB_FINISHED, JobState, StoreNotFound
-from daemon.workers import init_child
 
 log = logging.getLogger("cablecal.jobs")
 
@@ -105,7 +105,7 @@ class JobManager:
                 "calib.identify",
                 "daemon.jobs",
                 "daemon.job_worker",
-                "daemon.forkserver_guard",
+                "daemon.process.forkserver_guard",
                 "calib.filter.run",
                 "daemon.api.routes.program_filter",
             ]

@@ -32,8 +32,8 @@ from daemon.api.offload import CancelledIs503, WorkGate, offload
 from daemon.api.server import MAX_HEAD_BYTES, uvicorn_options
 from daemon.api.text_rules import not_portable_file_name, not_printable
 from daemon.config import Settings
-from daemon.logs import setup_logging
-from daemon.workers import run_in_child
+from daemon.process.logs import setup_logging
+from daemon.process.workers import run_in_child
 
 API = "/api/v1"
 B = b"Bnd7"

@@ -233,7 +233,7 @@ def test_children_exit_when_a_plain_parent_is_killed(tmp_path: Path) -> None:
         """
 import json, multiprocessing, sys, time
 from concurrent.futures import ProcessPoolExecutor
-from daemon.workers import child_state, init_child
+from daemon.process.workers import child_state, init_child
 
 def busy() -> None:
     while True:

@@ -20,10 +20,10 @@ from daemon.api.min_samples import MinSamplesCache
 from daemon.api.offload import gates_of
 from daemon.config import Settings
 from daemon.jobs import JobManager
-from daemon.lifecycle import STOPPED, record_start
 from daemon.monitors.autocapture import AutoCapture
 from daemon.monitors.holdcheck import HoldCheckMonitor
 from daemon.monitors.watch import SensorWatch
+from daemon.process.lifecycle import STOPPED, record_start
 from daemon.store import Store
 
 #: The interpreter's GIL switch interval while the service runs [s]: worker threads (CSV

@@ -30,8 +30,8 @@ from daemon.api.guard import MAX_FILTER_BYTES
 from daemon.api.multipart import FormPart, read_form
 from daemon.api.offload import offload
 from daemon.api.text_rules import not_portable_file_name
+from daemon.process.workers import run_in_child
 from daemon.store import NO_CALIBRATION, StoreNotFound
-from daemon.workers import run_in_child
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 409, 413, 422, 429, 503))
 
