@@ -287,7 +287,7 @@ if __name__ == "__main__":
 def test_a_sigkilled_worker_is_reaped_and_the_next_job_runs(tmp_path: Path) -> None:
     """Issue 21: SIGKILL the pool worker running a job. It is reaped at once (not defunct),
     the job is marked failed saying why, and the next job gets a new pool and runs."""
-    from daemon.jobs import WORKER_DIED
+    from daemon.jobs.manager import WORKER_DIED
 
     proc, url = start_daemon(tmp_path)
     try:

@@ -17,7 +17,7 @@ from daemon.api.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
 from daemon.api.min_samples import MinSamplesCache
 from daemon.api.offload import WorkGate
 from daemon.config import Settings
-from daemon.jobs import JobManager
+from daemon.jobs.manager import JobManager
 from daemon.store import Store
 from daemon.store.db import MAX_PAGE_ROWS
 from daemon.store.space import MIB, check_space

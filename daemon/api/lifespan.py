@@ -19,7 +19,7 @@ from daemon.api.deps import AppState
 from daemon.api.min_samples import MinSamplesCache
 from daemon.api.offload import gates_of
 from daemon.config import Settings
-from daemon.jobs import JobManager
+from daemon.jobs.manager import JobManager
 from daemon.monitors.autocapture import AutoCapture
 from daemon.monitors.holdcheck import HoldCheckMonitor
 from daemon.monitors.watch import SensorWatch

@@ -26,7 +26,7 @@ from daemon.api.errors import error_responses
 from daemon.api.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
-from daemon.job_worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
+from daemon.jobs.worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
 from daemon.process.workers import run_in_child
 from daemon.store import JobState
 

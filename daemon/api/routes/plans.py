@@ -26,7 +26,7 @@ from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import PlanRequest
 from daemon.api.text_rules import MAX_ANCHOR_CHARS
-from daemon.plan_check import rejections
+from daemon.jobs.plan_check import rejections
 from daemon.plan_noise import NoiseEstimate, cell_noise
 from daemon.store import StoreNotFound
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
