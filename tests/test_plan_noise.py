@@ -17,7 +17,7 @@ from calib.planning.noise import (
     still_windows,
     window_mean_se_mm,
 )
-from daemon.plan_noise import cell_noise
+from daemon.api.plan_noise import cell_noise
 from daemon.sampler.config import SamplerConfig
 from daemon.sampler.settle import PairedReading, make_capture
 from daemon.store import Store

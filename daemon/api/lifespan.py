@@ -16,8 +16,8 @@ from typing import Any
 from fastapi import FastAPI
 
 from daemon.api.deps import AppState
+from daemon.api.http.offload import gates_of
 from daemon.api.min_samples import MinSamplesCache
-from daemon.api.offload import gates_of
 from daemon.config import Settings
 from daemon.jobs.manager import JobManager
 from daemon.monitors.autocapture import AutoCapture

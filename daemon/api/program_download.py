@@ -24,8 +24,8 @@ from calib.programs.formats import (
 )
 from calib.programs.registry import build_program, name_rule
 from calib.tcp import joint_limits_deg
-from daemon.api.downloads import download_headers
 from daemon.api.errors import unprocessable
+from daemon.api.http.downloads import download_headers
 
 #: ``format``: the REST enum, from the one list of formats.
 DownloadFormat = Enum(  # type: ignore[misc]

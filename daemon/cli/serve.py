@@ -103,8 +103,8 @@ async def serve(settings: "Settings", token: str, generated: bool) -> int:
 
     import uvicorn
 
+    from daemon.api.http.server import uvicorn_options
     from daemon.api.main import create_app
-    from daemon.api.server import uvicorn_options
     from daemon.process.notify import Notifier, watchdog_loop
 
     app = create_app(settings, token)

@@ -23,7 +23,7 @@ from daemon.api.deps import (
     require_space,
 )
 from daemon.api.errors import error_responses
-from daemon.api.offload import offload
+from daemon.api.http.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
 from daemon.jobs.worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
