@@ -1,6 +1,6 @@
 """Benchmarks (``make bench``): run as ``python -m bench.NAME``; each writes its results here."""
 
-from daemon.blas import single_threaded_blas, steady_heap
+from daemon.process.blas import single_threaded_blas, steady_heap
 
 single_threaded_blas()  # measure the product as the cablecal command runs it (daemon.blas)
 steady_heap()

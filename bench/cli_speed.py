@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     bare_cmd = [sys.executable, "-c", "pass"]
     help_cmd = [str(Path(sys.executable).parent / "cablecal"), "--help"]
     load_start = os.getloadavg()
-    from daemon.blas import single_threaded_blas
+    from daemon.process.blas import single_threaded_blas
 
     single_threaded_blas()
     walls: dict[str, list[float]] = {

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from calib import metrics
+from calib.accuracy import length_metrics
 from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
 from calib.drift import DriftModel, Selection
 from calib.identifiability import Identifiability
@@ -346,7 +346,7 @@ def length_figures(
     for label, predict in predicted.items():
         out[label] = {}
         for part, rows in rows_by_part.items():
-            out[label][part] = metrics.length_metrics(measured_mm[rows], predict(rows))
+            out[label][part] = length_metrics(measured_mm[rows], predict(rows))
     return out
 
 

@@ -60,7 +60,9 @@ class TcpUncertainty:
 
 
 def joint_limits_deg(model: RobotModel) -> FloatArray:
-    """The model's joint limits, shape (6, 2) [deg] (:meth:`RobotModel.limits_deg`)."""
+    """The model's joint limits, shape (6, 2) [deg]: :meth:`RobotModel.limits_deg`, their one
+    home, which every caller reads. Kept only for ``calib/filter/`` (``correct.py``,
+    ``branches.py``, ``nearest.py``), which is being moved: remove it when they read the model."""
     return model.limits_deg()
 
 
@@ -72,7 +74,7 @@ def workspace_sample_deg(
     With ``min_z_mm``, only poses whose tool point (nominal model) is above it are kept.
     """
     rng = np.random.default_rng(seed)
-    limits = joint_limits_deg(model)
+    limits = model.limits_deg()
     out = np.empty((0, N_JOINTS))
     for _ in range(100):
         q = rng.uniform(limits[:, 0], limits[:, 1], size=(2 * n, N_JOINTS))

@@ -24,13 +24,13 @@ from typing import Any
 
 import numpy as np
 
+from calib.accuracy import length_metrics
 from calib.anchors import fit_anchors
 from calib.cable import N_KIN, ParamLayout, predict_lengths
 from calib.csvtext import write_csv
 from calib.dataset import JOINT_COLUMNS, SampleSet
 from calib.export import model_from_result
 from calib.kinematics import FloatArray
-from calib.metrics import length_metrics
 from calib.predict import predict_lengths_from_result
 from calib.tcp import aligned_position_error_mm
 

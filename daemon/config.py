@@ -29,7 +29,7 @@ from pydantic_settings import (
 
 from calib.monitor.stepwatch import StepSettings
 from daemon.defaults import API_PORT
-from daemon.sampler import SamplerConfig
+from daemon.sampler.config import SamplerConfig
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRobotConfig
 
 #: Shortest accepted ``api_token`` [characters].

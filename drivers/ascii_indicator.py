@@ -24,8 +24,8 @@ from drivers.errors import (
     IndicatorNoReply,
     IndicatorProtocolError,
 )
-from drivers.frames import FrameLog
 from drivers.indicator_reading import IndicatorReading, reading_from_status
+from drivers.wire_bytes import FrameLog
 
 STX, CRLF = b"\x02", b"\r\n"
 FRAME_SIZE = 1 + 8 + 1 + 2 + 2

@@ -47,9 +47,9 @@ from drivers.errors import (
     IndicatorProtocolError,
     IndicatorTimeout,
 )
-from drivers.frames import FrameLog, crc_ok
 from drivers.indicator_config import MAX_READ_COUNT, IndicatorConfig, RegisterMap
 from drivers.indicator_reading import IndicatorReading, decode_block, reading_from_status
+from drivers.wire_bytes import FrameLog, crc_ok
 
 
 class ModbusIndicator:

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 from drivers.errors import IndicatorOverRange
-from drivers.frames import words_to_int32
 from drivers.indicator_config import IndicatorConfig
+from drivers.wire_bytes import words_to_int32
 
 
 @dataclass(frozen=True)

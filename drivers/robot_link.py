@@ -51,8 +51,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.backoff import ReconnectBackoff, SilentAttempts
 from drivers.errors import RobotLinkDown, RobotProtocolError, RobotTimeout
-from drivers.frames import FrameLog
 from drivers.robot import JointReading, StaleGuard, joint_reading
+from drivers.wire_bytes import FrameLog
 
 T = TypeVar("T")
 

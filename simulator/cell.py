@@ -19,7 +19,6 @@ import numpy as np
 from calib.kinematics import FloatArray, forward_frames
 from calib.models import RobotModel, builtin_model, parse_model_text
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell
-from calib.tcp import joint_limits_deg
 from simulator.config import (
     MAX_ANCHOR_MOVE_MM,
     MAX_DRIFT_RATE_MM_PER_H,
@@ -219,12 +218,12 @@ class EmulatedCell:
             text = full.read_text(encoding="utf-8")
         except OSError as exc:
             raise ValueError(f"robot.poses: cannot read {full}: {exc.strerror}") from None
-        return parse_poses_file(text, str(full), joint_limits_deg(self.truth.model))
+        return parse_poses_file(text, str(full), self.truth.model.limits_deg())
 
     def parse_poses_text(self, text: str, source: str) -> FloatArray:
         """Joint angles [deg], shape (n, 6), of a plan CSV's or robot program's text, checked
         against the joint limits; errors name ``source``."""
-        return parse_poses_file(text, source, joint_limits_deg(self.truth.model))
+        return parse_poses_file(text, source, self.truth.model.limits_deg())
 
     def confined_path(self, path: str) -> Path:
         """``path`` (relative or absolute) resolved, symlinks and ``..`` included, and checked
@@ -253,7 +252,7 @@ class EmulatedCell:
         except (OSError, UnicodeDecodeError):
             raise ValueError(f"{path}: not a valid poses file (not UTF-8 text)") from None
         try:
-            return parse_poses_file(text, path, joint_limits_deg(self.truth.model))
+            return parse_poses_file(text, path, self.truth.model.limits_deg())
         except PoseCsvError as exc:
             where = [f"row {exc.row}"] if exc.row is not None else []
             where += [f"column {exc.column!r}"] if exc.column is not None else []
@@ -276,7 +275,7 @@ class EmulatedCell:
         q = np.asarray(poses_deg, dtype=float)
         if q.ndim != 2 or q.shape[1] != 6 or q.shape[0] == 0:
             raise ValueError(f"poses_deg: expected shape (n, 6) with n >= 1, got {q.shape}")
-        limits = joint_limits_deg(self.truth.model)
+        limits = self.truth.model.limits_deg()
         bad = ~np.isfinite(q) | (q < limits[:, 0]) | (q > limits[:, 1])
         if bad.any():
             row, j = (int(v) for v in np.argwhere(bad)[0])

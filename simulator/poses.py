@@ -31,7 +31,6 @@ from calib.kinematics import N_JOINTS, FloatArray, forward_frames
 from calib.programs.common import ProgramError
 from calib.programs.registry import detect_format, parse_program
 from calib.synthetic import TrueCell, random_poses_deg
-from calib.tcp import joint_limits_deg
 
 
 class PoseCsvError(SampleError):
@@ -193,7 +192,7 @@ def spread_poses_deg(
             "with the cable in range; lower robot.min_z_mm or move the anchor"
         )
     pool = pool[:want]
-    limits = joint_limits_deg(truth.model)
+    limits = truth.model.limits_deg()
     scaled = pool / (limits[:, 1] - limits[:, 0])
     chosen = [0]
     dist = np.linalg.norm(scaled - scaled[0], axis=1)

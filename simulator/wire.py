@@ -11,7 +11,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 
-from drivers.frames import add_crc, crc_ok, int32_to_words, words_to_int32
+from drivers.wire_bytes import add_crc, crc_ok, int32_to_words, words_to_int32
 from simulator.cell import EmulatedCell
 
 #: Modbus exception codes.

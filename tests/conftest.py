@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
-from daemon.blas import single_threaded_blas
+from daemon.process.blas import single_threaded_blas
 
 single_threaded_blas()  # as the cablecal command does, before the tests import numpy
 

@@ -14,8 +14,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from daemon import metrics
-from daemon.capture import Capture
-from daemon.sampler import Sampler, SamplerConfig
+from daemon.sampler.capture import Capture
+from daemon.sampler.config import SamplerConfig
+from daemon.sampler.core import Sampler
 from drivers import IndicatorReading, JointReading
 
 HOME = (0.0, -30.0, 60.0, 0.0, 45.0, 10.0)

@@ -23,8 +23,8 @@ from calib.dataset import make_samples, samples_to_csv
 from calib.models import builtin_model
 from calib.synthetic import TrueCell, make_true_cell, noisy_lengths, random_poses_deg
 from daemon.api.main import create_app
-from daemon.capture import Capture
 from daemon.config import Settings
+from daemon.sampler.capture import Capture
 
 NOISE_MM = 0.03
 API = "/api/v1"

@@ -97,7 +97,7 @@ def test_no_token_is_401_before_the_body_is_read(client: TestClient) -> None:
 
 # ----------------------------------------------------------------------- body limits
 def test_json_body_over_the_limit_is_413_while_streaming(client: TestClient) -> None:
-    from daemon.api.guard import MAX_JSON_BYTES
+    from daemon.api.http.guard import MAX_JSON_BYTES
 
     body = CountingBody(50 * MB)
     assert _asgi_post(client, "/api/v1/campaigns", body, {**AUTH, **JSON}) == 413
@@ -108,7 +108,7 @@ def test_json_body_over_the_limit_is_413_while_streaming(client: TestClient) -> 
 
 
 def test_import_over_20_mib_is_413_before_it_is_all_in_memory(client: TestClient) -> None:
-    from daemon.api.guard import MAX_IMPORT_BYTES
+    from daemon.api.http.guard import MAX_IMPORT_BYTES
 
     cid = _campaign(client, "big-import")
     body = CountingBody(200 * MB, chunk=MB, fill=b"0,")

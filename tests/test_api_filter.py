@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 from test_api_apply import _uncalibrated_robot, calibrated, cell  # noqa: F401
 from test_service import AUTH, TOKEN, FakeSampler
 
-from daemon.api.guard import MAX_FILTER_BYTES
+from daemon.api.http.guard import MAX_FILTER_BYTES
 from daemon.api.main import create_app
 from daemon.api.routes.program_filter import MAX_FILES
 from daemon.config import Settings

@@ -23,7 +23,7 @@ from calib.dataset import make_samples, parse_samples_csv, samples_to_csv
 from calib.models import builtin_model
 from calib.synthetic import make_true_cell, noisy_lengths, random_poses_deg
 from daemon.api.deps import MAX_ID
-from daemon.api.downloads import content_disposition
+from daemon.api.http.downloads import content_disposition
 from daemon.api.main import create_app
 
 API = "/api/v1"

@@ -26,14 +26,14 @@ from starlette.exceptions import HTTPException
 from test_api_apply import calibrated, cell  # noqa: F401
 from test_service import AUTH, TOKEN, FakeSampler
 
+from daemon.api.http.multipart import MAX_PART_HEADER_BYTES, FormReader
+from daemon.api.http.offload import CancelledIs503, WorkGate, offload
+from daemon.api.http.server import MAX_HEAD_BYTES, uvicorn_options
 from daemon.api.main import create_app
-from daemon.api.multipart import MAX_PART_HEADER_BYTES, FormReader
-from daemon.api.offload import CancelledIs503, WorkGate, offload
-from daemon.api.server import MAX_HEAD_BYTES, uvicorn_options
 from daemon.api.text_rules import not_portable_file_name, not_printable
 from daemon.config import Settings
-from daemon.logs import setup_logging
-from daemon.workers import run_in_child
+from daemon.process.logs import setup_logging
+from daemon.process.workers import run_in_child
 
 API = "/api/v1"
 B = b"Bnd7"

@@ -32,7 +32,7 @@ from schemathesis.specs.openapi.checks import (
 )
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
-from daemon.api.guard import UNAUTHORIZED_DETAIL
+from daemon.api.http.guard import UNAUTHORIZED_DETAIL
 from daemon.api.main import create_app
 
 #: One operation's 25 examples [s]: the plan operation computes up to 25 plans (72 s on an idle

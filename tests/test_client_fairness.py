@@ -20,9 +20,9 @@ import pytest
 from helpers import closed_by_server, served_app
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
-from daemon.api import server as server_module
+from daemon.api.http import server as server_module
+from daemon.api.http.server import MAX_HEAD_BYTES, uvicorn_options
 from daemon.api.main import create_app
-from daemon.api.server import MAX_HEAD_BYTES, uvicorn_options
 
 PER_CLIENT = 64  # the test's max_connections_per_client
 SLOW = 600  # slow sockets from one peer

@@ -233,7 +233,7 @@ def test_children_exit_when_a_plain_parent_is_killed(tmp_path: Path) -> None:
         """
 import json, multiprocessing, sys, time
 from concurrent.futures import ProcessPoolExecutor
-from daemon.workers import child_state, init_child
+from daemon.process.workers import child_state, init_child
 
 def busy() -> None:
     while True:
@@ -287,7 +287,7 @@ if __name__ == "__main__":
 def test_a_sigkilled_worker_is_reaped_and_the_next_job_runs(tmp_path: Path) -> None:
     """Issue 21: SIGKILL the pool worker running a job. It is reaped at once (not defunct),
     the job is marked failed saying why, and the next job gets a new pool and runs."""
-    from daemon.jobs import WORKER_DIED
+    from daemon.jobs.manager import WORKER_DIED
 
     proc, url = start_daemon(tmp_path)
     try:

@@ -25,7 +25,7 @@ from daemon.config import (
     Settings,
     WatchSettings,
 )
-from daemon.sampler import SamplerConfig
+from daemon.sampler.config import SamplerConfig
 from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig
 from drivers.indicator import RegisterMap
 from drivers.modbus_robot import JointRegisterMap

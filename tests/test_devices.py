@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from daemon.devices import Device
+from daemon.sampler.devices import Device
 from drivers import IndicatorCRCError, IndicatorLinkDown, RobotNoData
 
 

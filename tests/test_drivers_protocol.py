@@ -26,7 +26,9 @@ from drivers import (
     make_robot,
 )
 from drivers.ascii_indicator import parse_ascii_frame
-from drivers.frames import (
+from drivers.huashu import decode_reply, encode_request, parse_float_list
+from drivers.modbus_robot import UR_PRESET, decode_joints_deg
+from drivers.wire_bytes import (
     add_crc,
     crc16_modbus,
     int32_to_words,
@@ -37,8 +39,6 @@ from drivers.frames import (
     rtu_write_single_request,
     words_to_int32,
 )
-from drivers.huashu import decode_reply, encode_request, parse_float_list
-from drivers.modbus_robot import UR_PRESET, decode_joints_deg
 from simulator.wire import ascii_frame
 
 H = bytes.fromhex

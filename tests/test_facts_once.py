@@ -14,7 +14,7 @@ PACKAGES = ("calib", "daemon", "drivers", "simulator")
 #: fact value → (its home, why it is a fact, other modules allowed to hold it with the reason)
 FACTS: dict[object, tuple[str, str, dict[str, str]]] = {
     8080: ("daemon/defaults.py", "the API's default port", {}),
-    "daemon_stopped": ("daemon/lifecycle.py", "the clean-stop event", {}),
+    "daemon_stopped": ("daemon/process/lifecycle.py", "the clean-stop event", {}),
     -170.0: (
         "calib/models.py",
         "default joint limits and the pose clip",

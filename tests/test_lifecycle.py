@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon import workers
-from daemon.lifecycle import STOPPED, UNCLEAN, iso_utc, record_start, unclean_previous_run
+from daemon.process import workers
+from daemon.process.lifecycle import STOPPED, UNCLEAN, iso_utc, record_start, unclean_previous_run
 from daemon.store import Store
 
 

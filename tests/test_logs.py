@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from daemon.logs import setup_logging
+from daemon.process.logs import setup_logging
 from drivers.errors import IndicatorCRCError
 
 

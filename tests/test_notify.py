@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.notify import Notifier, watchdog_loop
+from daemon.process.notify import Notifier, watchdog_loop
 
 
 class NotifyServer:
@@ -136,7 +136,7 @@ def test_send_errors_are_logged_not_raised(
     socket_path: str, caplog: pytest.LogCaptureFixture
 ) -> None:
     n = Notifier(socket_path)  # nobody listens there
-    with caplog.at_level(logging.DEBUG, logger="daemon.notify"):
+    with caplog.at_level(logging.DEBUG, logger="daemon.process.notify"):
         assert not n.ready()
         assert not n.watchdog()
     levels = [r.levelno for r in caplog.records if "sd_notify" in r.getMessage()]
@@ -144,7 +144,7 @@ def test_send_errors_are_logged_not_raised(
     srv = NotifyServer(socket_path)
     try:
         caplog.clear()
-        with caplog.at_level(logging.INFO, logger="daemon.notify"):
+        with caplog.at_level(logging.INFO, logger="daemon.process.notify"):
             assert n.watchdog()
         assert "works again" in caplog.text
     finally:
@@ -237,7 +237,7 @@ def test_hung_event_loop_stops_the_pings(
         await asyncio.sleep(0)  # hang() runs before this task resumes
         await _run_for(task, 3 * interval_s)
 
-    with caplog.at_level(logging.WARNING, logger="daemon.notify"):
+    with caplog.at_level(logging.WARNING, logger="daemon.process.notify"):
         asyncio.run(main())
     server.messages()
     pings = [t for t, m in server.stamped() if m == "WATCHDOG=1"]

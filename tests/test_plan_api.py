@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
 from daemon.api.main import create_app
-from daemon.capture import Capture
 from daemon.datafiles import bundled_dataset_text
+from daemon.sampler.capture import Capture
 
 ANCHOR = [1430.0, 330.0, 230.0]
 SMALL = {"anchors_mm": [ANCHOR], "n": 8, "candidates": 200, "seed": 2}

@@ -17,9 +17,9 @@ from calib.planning.noise import (
     still_windows,
     window_mean_se_mm,
 )
-from daemon.plan_noise import cell_noise
+from daemon.api.plan_noise import cell_noise
 from daemon.sampler.config import SamplerConfig
-from daemon.settle import PairedReading, make_capture
+from daemon.sampler.settle import PairedReading, make_capture
 from daemon.store import Store
 
 SIGMA_MM = 0.02  # per-reading noise of the made-up indicator [mm]

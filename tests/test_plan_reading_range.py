@@ -163,8 +163,8 @@ def test_a_refusal_through_the_watched_sink_is_stored_with_the_robots_pose(
 ) -> None:
     from calib.monitor.stepwatch import StepSettings
     from daemon.api.lifespan import robot_joints_deg
+    from daemon.monitors.watch import SensorWatch
     from daemon.store import Store
-    from daemon.watch import SensorWatch
 
     store = Store(tmp_path / "s.sqlite3")
     try:

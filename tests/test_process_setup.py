@@ -15,7 +15,7 @@ GLIBC = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
 def test_steady_heap_takes_on_glibc_and_the_cli_sets_it_up() -> None:
     # In a child: the thresholds are process-wide, and the test process must not keep them.
     code = (
-        "import daemon.blas as b, daemon.cli, os; "
+        "import daemon.process.blas as b, daemon.cli, os; "
         "print(b.steady_heap(), os.environ['OPENBLAS_NUM_THREADS'])"
     )
     env = {"PATH": "/usr/bin:/bin"}
@@ -26,7 +26,7 @@ def test_steady_heap_takes_on_glibc_and_the_cli_sets_it_up() -> None:
 
 
 def test_steady_heap_changes_nothing_where_it_cannot_apply(monkeypatch: pytest.MonkeyPatch) -> None:
-    import daemon.blas as b
+    import daemon.process.blas as b
 
     monkeypatch.setattr(b.sys, "platform", "darwin")
     assert b.steady_heap() is False

@@ -17,12 +17,12 @@ from calib.planning import CSV_COLUMNS
 from calib.programs import PROGRAM_FORMATS, dwell_s_for_settle
 from calib.programs.common import ProgramError
 from calib.programs.registry import detect_format, parse_program
-from calib.tcp import joint_limits_deg, workspace_sample_deg
+from calib.tcp import workspace_sample_deg
 from daemon.cli import app
-from daemon.sampler import SamplerConfig
+from daemon.sampler.config import SamplerConfig
 
 MODEL = builtin_model("hsr-jr680")
-LIMITS = joint_limits_deg(MODEL)
+LIMITS = MODEL.limits_deg()
 
 
 def plan_csv(path: Path, n: int = 40, seed: int = 7) -> np.ndarray:

@@ -14,7 +14,7 @@ from test_service import AUTH, TOKEN, FakeSampler, _campaign, _settings
 
 from calib.dataset import known_pose_index
 from daemon.api.main import create_app
-from daemon.sampler import SamplerConfig
+from daemon.sampler.config import SamplerConfig
 
 POSE = [10.0, -60.0, 200.0, -170.0, 40.0, 60.0]
 

@@ -22,8 +22,9 @@ from sampler_fakes import (
     wait_until,
 )
 
-from daemon.capture import CaptureRejected
-from daemon.sampler import Sampler, SamplerConfig, build_sampler
+from daemon.sampler.capture import CaptureRejected
+from daemon.sampler.config import SamplerConfig
+from daemon.sampler.core import Sampler, build_sampler
 from drivers import (
     AsciiIndicator,
     HuashuSocketCmdRobot,

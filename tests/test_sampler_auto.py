@@ -19,8 +19,9 @@ from sampler_fakes import (
     wait_until,
 )
 
-from daemon.capture import Capture
-from daemon.sampler import SamplerConfig, build_sampler
+from daemon.sampler.capture import Capture
+from daemon.sampler.config import SamplerConfig
+from daemon.sampler.core import build_sampler
 from drivers import IndicatorLinkDown
 from simulator.runner import SimulatorThread
 

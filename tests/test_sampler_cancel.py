@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 from sampler_fakes import FAST, FakeIndicator, FakeRobot, FakeSink
 
-from daemon.sampler import Sampler, SamplerConfig
-from daemon.settle import Verdict
+from daemon.sampler.config import SamplerConfig
+from daemon.sampler.core import Sampler
+from daemon.sampler.settle import Verdict
 
 pytestmark = pytest.mark.anyio
 

@@ -17,7 +17,7 @@ import pytest
 from sampler_fakes import HOME, FakeIndicator, FakeRobot, FakeSink, running, wait_until
 
 from calib.monitor.settle import FrozenWatch, PairedReading
-from daemon.capture import REJECTION_STATUS, CaptureRejected
+from daemon.sampler.capture import REJECTION_STATUS, CaptureRejected
 
 TOL_MM = 0.1
 N = 5

@@ -19,7 +19,8 @@ import pytest
 from helpers import sim_config
 from sampler_fakes import FakeIndicator, FakeRobot, FakeSink, metric, running, wait_until
 
-from daemon.sampler import SamplerConfig, build_sampler
+from daemon.sampler.config import SamplerConfig
+from daemon.sampler.core import build_sampler
 from drivers import JointReading
 from simulator.runner import SimulatorThread
 

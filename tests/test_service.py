@@ -21,9 +21,9 @@ from calib.dataset import samples_to_csv
 from calib.models import builtin_model
 from daemon.api.deps import AppState
 from daemon.api.main import create_app
-from daemon.capture import Capture, CaptureRejected
 from daemon.config import Settings
 from daemon.datafiles import read_samples
+from daemon.sampler.capture import Capture, CaptureRejected
 from daemon.store import JOB_FINISHED, Store
 
 TOKEN = "test-token-0123456789"

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from calib.monitor.settle import NOT_SETTLED, PairedReading, as_joints, evaluate, staleness_s
-from daemon.sampler import SamplerConfig
-from daemon.settle import make_capture
+from daemon.sampler.config import SamplerConfig
+from daemon.sampler.settle import make_capture
 
 HOME = (0.0, -30.0, 60.0, 0.0, 45.0, 10.0)
 T0 = 1000.0  # monotonic start of the synthetic series [s]

@@ -24,7 +24,7 @@ from helpers import sim_config
 
 from calib.models import builtin_model
 from calib.synthetic import make_true_cell
-from drivers.frames import add_crc, rtu_read_request
+from drivers.wire_bytes import add_crc, rtu_read_request
 from simulator.cell import EmulatedCell
 from simulator.runner import READY_KEYS, ControlClient, SimulatorThread
 from simulator.servers import ur_joint_registers

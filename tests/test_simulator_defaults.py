@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.tcp import joint_limits_deg
 from drivers import HuashuConfig, HuashuSocketCmdRobot, ModbusRobotConfig, ModbusTcpRobot
 from simulator.cell import EmulatedCell
 from simulator.config import SimConfig, load_config, with_ports
@@ -33,7 +32,7 @@ def test_default_cell_has_60_distinct_poses_within_limits_stroke_and_floor(sourc
     cell = EmulatedCell(cfg)
     q = cell.poses_deg
     assert q.shape == (60, 6) and q.shape[0] >= 2 * MIN_SAMPLES
-    limits = joint_limits_deg(cell.truth.model)
+    limits = cell.truth.model.limits_deg()
     assert np.all((q >= limits[:, 0]) & (q <= limits[:, 1]))
     extension = np.linalg.norm(cell.truth.tool_positions_mm(q) - cell.anchor_mm, axis=1)
     assert np.all((extension > STROKE_MM[0]) & (extension < STROKE_MM[1]))

@@ -15,9 +15,9 @@ import pytest
 from helpers import closed_by_server, served_app
 from test_service import AUTH, TOKEN, FakeSampler, _settings
 
-from daemon.api import guard
+from daemon.api.http import guard
+from daemon.api.http.server import uvicorn_options
 from daemon.api.main import create_app
-from daemon.api.server import uvicorn_options
 
 HELD = 150  # connections of each kind held open
 

@@ -151,8 +151,8 @@ def test_the_sample_in_flight_at_a_move_follows_to_the_new_session(tmp_path: obj
     from calib.dataset import make_samples
     from calib.monitor.running_fit import LiveTester
     from calib.monitor.stepwatch import StepSettings
+    from daemon.monitors.watch import CampaignWatch, SensorWatch
     from daemon.store import Store
-    from daemon.watch import CampaignWatch, SensorWatch
 
     store = Store(Path(str(tmp_path)) / "s.sqlite3")
     try:

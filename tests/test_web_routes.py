@@ -24,8 +24,8 @@ from calib.models import builtin_model
 from daemon.api.main import create_app
 from daemon.api.web import WEB_DIR
 from daemon.cli import app as cli_app
-from daemon.sampler import Sampler
-from daemon.settle import PairedReading
+from daemon.sampler.core import Sampler
+from daemon.sampler.settle import PairedReading
 
 NOW = 1_800_000_000.0
 

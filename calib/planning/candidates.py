@@ -23,7 +23,6 @@ import numpy as np
 from calib.dataset import CABLE_MAX_MM, CABLE_MIN_MM, READING_MARGIN_MM
 from calib.kinematics import N_JOINTS, FloatArray, forward_frames, tool_position
 from calib.models import RobotModel
-from calib.tcp import joint_limits_deg
 
 
 def flange_and_tool_mm(model: RobotModel, q_deg: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -64,7 +63,7 @@ def feasible(
     extension_mm : ndarray, shape (n,)
         ``|p − P0|`` with the nominal model [mm].
     """
-    limits = joint_limits_deg(model)
+    limits = model.limits_deg()
     ok = np.all((q_deg >= limits[:, 0]) & (q_deg <= limits[:, 1]), axis=1)
     flange, tool = flange_and_tool_mm(model, q_deg)
     ext = np.linalg.norm(tool - np.asarray(anchor_mm, dtype=float), axis=1)
@@ -108,7 +107,7 @@ def draw_candidates(
     ValueError
         When an anchor has too few feasible poses (anchor out of reach, floor too high).
     """
-    limits = joint_limits_deg(model)
+    limits = model.limits_deg()
     m = anchors_mm.shape[0]
     qs, idx = [], []
     for k in range(m):

@@ -13,11 +13,11 @@ from fastapi import Depends, HTTPException, Path, Query, Request, Response, stat
 from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from daemon.api.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
+from daemon.api.http.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
+from daemon.api.http.offload import WorkGate
 from daemon.api.min_samples import MinSamplesCache
-from daemon.api.offload import WorkGate
 from daemon.config import Settings
-from daemon.jobs import JobManager
+from daemon.jobs.manager import JobManager
 from daemon.store import Store
 from daemon.store.db import MAX_PAGE_ROWS
 from daemon.store.space import MIB, check_space
@@ -163,7 +163,7 @@ def finite_queries(request: Request) -> None:
     """Every route (an app-wide dependency): a query parameter declared as a number that
     spells NaN or ±Infinity (``nan``, ``inf``, ``-Infinity``, …) is a 422 naming it, as
     finite numbers are the rule of every body too (:class:`daemon.api.schemas.StrictBody`)."""
-    from daemon.api.latency import route_label  # the template the route matched
+    from daemon.api.http.latency import route_label  # the template the route matched
 
     method = "GET" if request.method == "HEAD" else request.method
     names = _number_queries(request.app, route_label(request.scope, API_PREFIX), method)

@@ -26,7 +26,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from daemon.api.methods import allow_header
+from daemon.api.http.allow import allow_header
 from daemon.store import StoreInvalid, StoreNotFound
 from daemon.store.space import NoSpace
 

@@ -16,15 +16,15 @@ from typing import Any
 from fastapi import FastAPI
 
 from daemon.api.deps import AppState
+from daemon.api.http.offload import gates_of
 from daemon.api.min_samples import MinSamplesCache
-from daemon.api.offload import gates_of
-from daemon.autocapture import AutoCapture
 from daemon.config import Settings
-from daemon.holdcheck import HoldCheckMonitor
-from daemon.jobs import JobManager
-from daemon.lifecycle import STOPPED, record_start
+from daemon.jobs.manager import JobManager
+from daemon.monitors.autocapture import AutoCapture
+from daemon.monitors.holdcheck import HoldCheckMonitor
+from daemon.monitors.watch import SensorWatch
+from daemon.process.lifecycle import STOPPED, record_start
 from daemon.store import Store
-from daemon.watch import SensorWatch
 
 #: The interpreter's GIL switch interval while the service runs [s]: worker threads (CSV
 #: imports, plans, compensation) share the GIL with the event loop, and 1 ms (Python's
@@ -51,7 +51,7 @@ def build_state(settings: Settings, token: str) -> AppState:
 
 def default_sampler(state: AppState) -> Any:
     """The sampler of the configured drivers, given their typed settings."""
-    from daemon.sampler import Sampler
+    from daemon.sampler.core import Sampler
     from drivers import make_indicator, make_robot
 
     s = state.settings

@@ -13,11 +13,11 @@ from fastapi import Depends, FastAPI
 from daemon.api import errors
 from daemon.api.deps import AppState, bound_path_ids, finite_queries
 from daemon.api.errors import API_KINDS, not_found_detail
-from daemon.api.guard import API_PREFIX, RequestGuard
-from daemon.api.latency import LatencyMiddleware
+from daemon.api.http.allow import OptionsMiddleware
+from daemon.api.http.guard import API_PREFIX, RequestGuard
+from daemon.api.http.latency import LatencyMiddleware
+from daemon.api.http.offload import CancelledIs503
 from daemon.api.lifespan import make_lifespan
-from daemon.api.methods import OptionsMiddleware
-from daemon.api.offload import CancelledIs503
 from daemon.api.routes import (
     campaigns,
     check_poses,

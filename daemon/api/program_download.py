@@ -23,9 +23,8 @@ from calib.programs.formats import (
     dwell_s_for_settle,
 )
 from calib.programs.registry import build_program, name_rule
-from calib.tcp import joint_limits_deg
-from daemon.api.downloads import download_headers
 from daemon.api.errors import unprocessable
+from daemon.api.http.downloads import download_headers
 
 #: ``format``: the REST enum, from the one list of formats.
 DownloadFormat = Enum(  # type: ignore[misc]
@@ -85,7 +84,7 @@ def download(
                 fmt=fmt,
                 name=name,
                 robot_name=model.name,
-                limits_deg=joint_limits_deg(model).tolist(),
+                limits_deg=model.limits_deg().tolist(),
                 speed_pct=speed_pct,
                 dwell_s=dwell,
                 what=what,

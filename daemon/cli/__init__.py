@@ -8,7 +8,7 @@ imported only for type checking are quoted.
 
 from __future__ import annotations
 
-from daemon.blas import single_threaded_blas, steady_heap
+from daemon.process.blas import single_threaded_blas, steady_heap
 
 single_threaded_blas()  # before anything imports numpy (daemon.blas says why)
 steady_heap()

@@ -23,8 +23,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from calib.accuracy import length_metrics
 from calib.default_robot import DEFAULT_ROBOT_MODEL
-from calib.metrics import length_metrics
 from calib.planning.progress import match_poses
 from calib.predict import predict_lengths_from_result
 from daemon.cli.emulated import (

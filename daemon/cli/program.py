@@ -61,7 +61,6 @@ def program_cmd(
     from calib.programs.common import ProgramError
     from calib.programs.formats import dwell_s_for_settle
     from calib.programs.registry import build_program, name_rule
-    from calib.tcp import joint_limits_deg
     from daemon.config import ConfigError, Settings
     from daemon.datafiles import load_robot
 
@@ -94,7 +93,7 @@ def program_cmd(
             fmt=fmt_name,
             name=prog_name,
             robot_name=model.name,
-            limits_deg=joint_limits_deg(model).tolist(),
+            limits_deg=model.limits_deg().tolist(),
             speed_pct=speed_pct,
             dwell_s=dwell_s,
             what=f"program of {targets.name}",

@@ -103,9 +103,9 @@ async def serve(settings: "Settings", token: str, generated: bool) -> int:
 
     import uvicorn
 
+    from daemon.api.http.server import uvicorn_options
     from daemon.api.main import create_app
-    from daemon.api.server import uvicorn_options
-    from daemon.notify import Notifier, watchdog_loop
+    from daemon.process.notify import Notifier, watchdog_loop
 
     app = create_app(settings, token)
     config = uvicorn.Config(
@@ -185,7 +185,7 @@ def register(app: typer.Typer) -> None:
         from pydantic import ValidationError
 
         from daemon.config import ConfigError
-        from daemon.logs import setup_logging
+        from daemon.process.logs import setup_logging
 
         # The watchdog kills a hung daemon with SIGABRT: dump every thread's stack first.
         faulthandler.enable()

@@ -43,37 +43,7 @@ Modules
 state and per-cycle decisions), :mod:`daemon.sampler.late` (late robot replies),
 :mod:`daemon.sampler.captures` (settle checks and the capture path),
 :mod:`daemon.sampler.core` (:class:`Sampler`: the poll loops, auto steps, status;
-:func:`build_sampler`). None of them imports numpy (:mod:`daemon.settle` does).
+:func:`build_sampler`). None of them imports numpy (:mod:`daemon.sampler.settle` does).
+This package module re-exports nothing, so that the store's import of
+:mod:`daemon.sampler.capture` loads no driver.
 """
-
-from daemon.sampler.auto import AutoAction, AutoState, start_auto
-from daemon.sampler.config import MAX_BUFFER, SamplerConfig
-from daemon.sampler.core import Sampler, build_sampler
-from daemon.settle import (
-    NOT_SETTLED,
-    Mode,
-    PairedReading,
-    Verdict,
-    as_joints,
-    evaluate,
-    make_capture,
-    staleness_s,
-)
-
-__all__ = [
-    "MAX_BUFFER",
-    "NOT_SETTLED",
-    "AutoAction",
-    "AutoState",
-    "Mode",
-    "PairedReading",
-    "Sampler",
-    "SamplerConfig",
-    "Verdict",
-    "as_joints",
-    "build_sampler",
-    "evaluate",
-    "make_capture",
-    "staleness_s",
-    "start_auto",
-]

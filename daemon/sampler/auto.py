@@ -23,10 +23,10 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 from calib.dataset import known_pose_index
-from daemon.capture import CaptureRejected, Joints
-from daemon.devices import Device
+from daemon.sampler.capture import CaptureRejected, Joints
 from daemon.sampler.config import SamplerConfig
-from daemon.settle import Verdict, as_joints
+from daemon.sampler.devices import Device
+from daemon.sampler.settle import Verdict, as_joints
 
 #: Why a pose was lost beyond a verdict's reasons: the robot's joints came late there.
 ROBOT_LATE = "robot_late"

@@ -13,12 +13,12 @@ from collections.abc import Sequence
 from typing import Any
 
 from daemon import metrics
-from daemon.capture import CaptureRejected, CaptureSink, Joints
-from daemon.devices import Device
 from daemon.sampler.auto import AutoState
 from daemon.sampler.cancel import raise_if_cancelled
+from daemon.sampler.capture import CaptureRejected, CaptureSink, Joints
 from daemon.sampler.config import SamplerConfig
-from daemon.settle import (
+from daemon.sampler.devices import Device
+from daemon.sampler.settle import (
     FrozenWatch,
     Mode,
     PairedReading,

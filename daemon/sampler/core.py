@@ -15,14 +15,14 @@ from collections.abc import Awaitable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
 from daemon import metrics
-from daemon.capture import CaptureSink, Joints
-from daemon.devices import Device
 from daemon.sampler.auto import AutoState, start_auto
 from daemon.sampler.cancel import raise_if_cancelled
+from daemon.sampler.capture import CaptureSink, Joints
 from daemon.sampler.captures import CapturePath
 from daemon.sampler.config import MAX_BUFFER, SamplerConfig
+from daemon.sampler.devices import Device
 from daemon.sampler.late import LateWatch
-from daemon.settle import (
+from daemon.sampler.settle import (
     NOT_SETTLED,
     FrozenWatch,
     Mode,

@@ -15,7 +15,7 @@ import logging
 from typing import Any
 
 from daemon import metrics
-from daemon.devices import Device, EventCallback
+from daemon.sampler.devices import Device, EventCallback
 
 log = logging.getLogger("cablecal.sampler")
 

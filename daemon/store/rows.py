@@ -23,7 +23,7 @@ from typing_extensions import TypedDict
 
 from calib.dataset import JOINT_COLUMNS
 from calib.monitor.holdcheck import CHECK_VERDICTS, CheckVerdict
-from daemon.capture import CaptureMode
+from daemon.sampler.capture import CaptureMode
 
 
 class JobState(StrEnum):

@@ -20,7 +20,7 @@ from calib.dataset import (
     validate_values,
 )
 from calib.kinematics import N_JOINTS, FloatArray
-from daemon.capture import CAPTURE_MODES, Capture
+from daemon.sampler.capture import CAPTURE_MODES, Capture
 from daemon.store.campaigns import CampaignStore, check_anchor
 from daemon.store.db import Row, decode_row, finite, last_id, now, or_none
 from daemon.store.errors import StoreError, StoreInvalid

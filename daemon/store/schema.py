@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from calib.dataset import JOINT_COLUMNS
-from daemon.capture import CAPTURE_MODES
+from daemon.sampler.capture import CAPTURE_MODES
 from daemon.store.errors import StoreError, StoreInvalid
 from daemon.store.rows import CHECK_STATUSES, CHECK_TRIGGERS, JobState
 

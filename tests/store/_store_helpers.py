@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from calib.dataset import parse_samples_csv
-from daemon.capture import Capture, RawReading
+from daemon.sampler.capture import Capture, RawReading
 from daemon.store import Store
 
 ROBOT = "hsr-jr680"

@@ -148,7 +148,7 @@ def test_read_only_store(tmp_path: Path) -> None:
 CRASH_WRITER = textwrap.dedent(
     """
     import sys
-    from daemon.capture import Capture, RawReading
+    from daemon.sampler.capture import Capture, RawReading
     from daemon.store import Store
 
     store = Store(sys.argv[1])

@@ -54,7 +54,7 @@ def test_a_result_off_the_plan_says_so_and_what_it_cost(
     """The issue's case: 40 planned poses, 31 samples at poses of the robot's own, TCP σ 0.84
     mm against 0.063 planned: the result says 0 of 40 measured and the x13 cost."""
     from calib.dataset import make_samples
-    from daemon.plan_check import add_plan_check
+    from daemon.jobs.plan_check import add_plan_check
 
     cid = campaign["id"]
     base = np.array([0.0, -30.0, 150.0, 0.0, 20.0, 0.0])

@@ -31,10 +31,10 @@ from daemon.api.deps import (
     link_next,
     require_space,
 )
-from daemon.api.downloads import download_headers
 from daemon.api.errors import Error, error_responses, unprocessable
-from daemon.api.guard import MAX_IMPORT_BYTES
-from daemon.api.offload import offload
+from daemon.api.http.downloads import download_headers
+from daemon.api.http.guard import MAX_IMPORT_BYTES
+from daemon.api.http.offload import offload
 from daemon.api.routes.robots import robot_for_campaign
 from daemon.api.schemas import (
     AutoCapture,
@@ -46,8 +46,8 @@ from daemon.api.schemas import (
     SamplePatch,
 )
 from daemon.api.text_rules import not_printable
-from daemon.autocapture import SamplerRefused, SamplerUnavailable
-from daemon.capture import CaptureRejected
+from daemon.monitors.autocapture import SamplerRefused, SamplerUnavailable
+from daemon.sampler.capture import CaptureRejected
 from daemon.store import CampaignRow
 
 log = logging.getLogger("cablecal.service")

@@ -12,12 +12,11 @@ from fastapi import APIRouter, HTTPException, Query, status
 from calib.dataset import JOINT_COLUMNS
 from calib.programs.common import ProgramError, check_limits
 from calib.programs.formats import DEFAULT_SPEED_PCT
-from calib.tcp import joint_limits_deg
 from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import CheckPosesBody
-from daemon.holdcheck import check_poses
+from daemon.monitors.holdcheck import check_poses
 from daemon.store import CheckPoses
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))
@@ -33,7 +32,7 @@ def put_check_poses(state: State, robot_id: RobotId, body: CheckPosesBody) -> Ch
     """3 to 100 joint vectors of finite numbers [deg], each within the robot model's joint
     limits (a 422 naming the pose and joint; nothing stored); they replace the default
     (spread poses of the calibration's samples)."""
-    limits = joint_limits_deg(state.store.robot_model(robot_id)).tolist()
+    limits = state.store.robot_model(robot_id).limits_deg().tolist()
     try:
         check_limits(body.poses_deg, limits)
     except ProgramError as exc:
@@ -80,7 +79,7 @@ def get_check_poses(
         return poses
     model = state.store.robot_model(robot_id)
     try:  # poses stored before PUT checked their limits: a conflict, named by pose (not CSV row)
-        check_limits(poses["poses_deg"], joint_limits_deg(model).tolist())
+        check_limits(poses["poses_deg"], model.limits_deg().tolist())
     except ProgramError as exc:
         raise HTTPException(
             status.HTTP_409_CONFLICT,

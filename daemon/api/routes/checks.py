@@ -6,7 +6,7 @@ from fastapi import APIRouter, HTTPException, Query, status
 
 from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses
-from daemon.holdcheck import CheckConflict
+from daemon.monitors.holdcheck import CheckConflict
 from daemon.store import CheckRow
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422))

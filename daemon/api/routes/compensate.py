@@ -16,9 +16,9 @@ from pydantic import ValidationError
 
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import RobotId, State, WriteAuth
-from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
-from daemon.api.offload import offload
+from daemon.api.http.downloads import download_headers
+from daemon.api.http.offload import offload
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import (
     ANY_TARGETS,

@@ -23,12 +23,12 @@ from daemon.api.deps import (
     require_space,
 )
 from daemon.api.errors import error_responses
-from daemon.api.offload import offload
+from daemon.api.http.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
 from daemon.api.schemas import IdentificationRequest, JobOut, JobView
-from daemon.job_worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
+from daemon.jobs.worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
+from daemon.process.workers import run_in_child
 from daemon.store import JobState
-from daemon.workers import run_in_child
 
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
 #: many samples: the answer is then null, not a long search).

@@ -23,11 +23,11 @@ from calib.planning.start import plan_anchor_ids, start_anchor_fits
 from calib.programs.formats import DEFAULT_SPEED_PCT
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.plan_noise import NoiseEstimate, cell_noise
 from daemon.api.program_download import FORMAT_HELP, DownloadFormat, DwellS, SpeedPct, download
 from daemon.api.schemas import PlanRequest
 from daemon.api.text_rules import MAX_ANCHOR_CHARS
-from daemon.plan_check import rejections
-from daemon.plan_noise import NoiseEstimate, cell_noise
+from daemon.jobs.plan_check import rejections
 from daemon.store import StoreNotFound
 from daemon.store.plans import PlanHeader, PlannedPoseRow, PlanRow
 

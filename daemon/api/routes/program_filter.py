@@ -24,14 +24,14 @@ from urllib.parse import quote
 from fastapi import APIRouter, HTTPException, Query, Request, Response
 
 from daemon.api.deps import RobotId, State, WriteAuth
-from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
-from daemon.api.guard import MAX_FILTER_BYTES
-from daemon.api.multipart import FormPart, read_form
-from daemon.api.offload import offload
+from daemon.api.http.downloads import download_headers
+from daemon.api.http.guard import MAX_FILTER_BYTES
+from daemon.api.http.multipart import FormPart, read_form
+from daemon.api.http.offload import offload
 from daemon.api.text_rules import not_portable_file_name
+from daemon.process.workers import run_in_child
 from daemon.store import NO_CALIBRATION, StoreNotFound
-from daemon.workers import run_in_child
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 409, 413, 422, 429, 503))
 

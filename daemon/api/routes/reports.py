@@ -10,8 +10,8 @@ from fastapi.responses import HTMLResponse
 from typing_extensions import TypedDict
 
 from daemon.api.deps import JobId, ReadAuth, State
-from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses
+from daemon.api.http.downloads import download_headers
 
 router = APIRouter(tags=["identifications"], responses=error_responses(401, 404, 409, 413, 422))
 

@@ -19,8 +19,8 @@ from calib.models import (
     parse_model_text,
 )
 from daemon.api.deps import AppState, ReadAuth, RobotId, State, WriteAuth
-from daemon.api.downloads import download_headers
 from daemon.api.errors import error_responses, unprocessable
+from daemon.api.http.downloads import download_headers
 from daemon.api.schemas import (
     CalibratedModelOut,
     CampaignCreate,

@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException
 
 from daemon.api.deps import CampaignId, State, WriteAuth
 from daemon.api.errors import error_responses
-from daemon.watch import NothingToUndo
+from daemon.monitors.watch import NothingToUndo
 
 router = APIRouter(
     prefix="/campaigns",

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 from daemon import metrics
-from daemon.capture import CaptureRejected, Joints, RejectionReason
+from daemon.sampler.capture import CaptureRejected, Joints, RejectionReason
 from drivers import DeviceError, DeviceLinkDown, RobotNoData
 
 # The device book-keeping is part of the sampler: its records keep the sampler's logger name.

@@ -26,7 +26,7 @@ from typing import Any, Final, TypeVar
 
 from fastapi import HTTPException, Request
 
-from daemon.api.guard import ASGIApp, Message, Receive, Scope, Send
+from daemon.api.http.guard import ASGIApp, Message, Receive, Scope, Send
 
 T = TypeVar("T")
 

@@ -42,7 +42,7 @@ from typing import Any
 from calib.options import default as default_option
 from daemon import metrics
 from daemon.config import JobSettings
-from daemon.job_worker import (
+from daemon.jobs.worker import (
     FINAL_PROGRESS,
     Checked,
     JobsFull,
@@ -52,8 +52,8 @@ from daemon.job_worker import (
     prepare_job,
     run_identification,
 )
+from daemon.process.workers import init_child
 from daemon.store import JOB_FINISHED, JobState, StoreNotFound
-from daemon.workers import init_child
 
 log = logging.getLogger("cablecal.jobs")
 
@@ -103,9 +103,9 @@ class JobManager:
         ctx.set_forkserver_preload(
             [
                 "calib.identify",
-                "daemon.jobs",
-                "daemon.job_worker",
-                "daemon.forkserver_guard",
+                "daemon.jobs.manager",
+                "daemon.jobs.worker",
+                "daemon.process.forkserver_guard",
                 "calib.filter.run",
                 "daemon.api.routes.program_filter",
             ]
@@ -313,7 +313,7 @@ class JobManager:
             with self._row_lock:
                 self.store.update_job(job_id, iteration=int(iteration), cost_rms_mm=float(cost))
         if sample_ids is not None:
-            from daemon.plan_check import add_plan_check
+            from daemon.jobs.plan_check import add_plan_check
 
             job = self.store.get_job(job_id)
             if job is not None:

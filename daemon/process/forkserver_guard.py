@@ -2,6 +2,6 @@
 :func:`daemon.workers.guard_forkserver`, which kills and reaps the pool's children when the
 daemon dies. Never import it in the daemon itself: the guard would watch the daemon's parent."""
 
-from daemon.workers import guard_forkserver
+from daemon.process.workers import guard_forkserver
 
 GUARD = guard_forkserver()

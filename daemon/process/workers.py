@@ -69,7 +69,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from daemon.blas import BLAS_THREAD_VARIABLES
+from daemon.process.blas import BLAS_THREAD_VARIABLES
 
 log = logging.getLogger("cablecal.workers")
 

@@ -35,7 +35,7 @@ from daemon import metrics
 if TYPE_CHECKING:
     from calib.monitor.running_fit import LiveTester
     from calib.monitor.stepwatch import StepAlarm, StepSettings
-    from daemon.capture import Capture, CaptureSink
+    from daemon.sampler.capture import Capture, CaptureSink
     from daemon.store import Store
 
 log = logging.getLogger("cablecal.watch")

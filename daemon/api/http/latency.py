@@ -16,7 +16,7 @@ from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any, Final
 
 from daemon import metrics
-from daemon.api.methods import METHODS as ROUTE_METHODS
+from daemon.api.http.allow import METHODS as ROUTE_METHODS
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]

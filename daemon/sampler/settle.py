@@ -22,7 +22,7 @@ from calib.monitor.settle import (
     staleness_s,
     window_stats,
 )
-from daemon.capture import Capture, CaptureMode, RawReading
+from daemon.sampler.capture import Capture, CaptureMode, RawReading
 
 Mode = CaptureMode  # the one home: daemon.capture
 

@@ -37,7 +37,7 @@ from typing import Any, Final
 import h11
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from daemon.api.guard import HEALTH_PATH
+from daemon.api.http.guard import HEALTH_PATH
 from daemon.config import RequestSettings
 
 #: Time for a request line and headers to arrive, from the connection's start or its previous
