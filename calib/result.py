@@ -339,6 +339,15 @@ class CalibrationResult:
             out["split"]["test_sample_ids"] = [sample_ids[i] for i in rows]
         return out
 
+    def with_plan_check(self, check: Mapping[str, Any], note: str | None) -> dict[str, Any]:
+        """The document with the daemon's ``plan_check`` and, when given, its ``note`` last
+        among the ``notes``."""
+        out = self.to_json()
+        out["plan_check"] = dict(check)
+        if note is not None:
+            out.setdefault("notes", []).append(note)
+        return out
+
 
 #: A loaded result, or a parsed ``result.json`` (a function taking it loads it on entry:
 #: :meth:`CalibrationResult.of`).

@@ -105,6 +105,10 @@ class DhRow:
             *(number(row.get(k), f"{where}.{k}") for k in DH_KEYS),
         )
 
+    def to_json(self) -> dict[str, float | int]:
+        """The row as ``result.json`` writes it."""
+        return {"joint": self.joint, **dict(zip(DH_KEYS, self.values(), strict=True))}
+
     def values(self) -> tuple[float, float, float, float]:
         """``(alpha_deg, a_mm, d_mm, theta_deg)``."""
         return self.alpha_deg, self.a_mm, self.d_mm, self.theta_deg

@@ -23,6 +23,10 @@ PACKAGES = ("calib", "daemon", "bench")
 HOMES = {"calib/result.py", "calib/result_fields.py", "calib/report.py"}
 #: Names the code gives an object holding a parsed result.json.
 RESULT_NAMES = {"result", "res", "calibration", "current", "new", "stored"}
+#: Modules allowed to read the dict, with the reason.
+ALLOWED = {
+    "bench/convention_identity.py": "compares whole documents key by key, the time left out",
+}
 READ_METHODS = {"get", "pop", "setdefault"}
 READ_HELPERS = {"get_map", "get_list"}
 
@@ -61,9 +65,12 @@ def reads(tree: ast.AST) -> list[tuple[int, str]]:
                 key = _key(node.args[0]) if _holds_result(func.value) else None
             elif isinstance(func, ast.Name) and func.id in READ_HELPERS and len(node.args) > 1:
                 key = _key(node.args[1]) if _holds_result(node.args[0]) else None
-        elif isinstance(node, ast.Compare) and len(node.ops) == 1:
-            if isinstance(node.ops[0], ast.In | ast.NotIn) and _holds_result(node.comparators[0]):
-                key = _key(node.left)
+        elif (
+            isinstance(node, ast.Compare)
+            and isinstance(node.ops[0], ast.In | ast.NotIn)
+            and _holds_result(node.comparators[0])
+        ):
+            key = _key(node.left)
         if key is not None:
             out.append((node.lineno, key))
     return out
@@ -75,7 +82,7 @@ def scan(root: Path = ROOT) -> list[str]:
     for pkg in PACKAGES:
         for path in sorted((root / pkg).rglob("*.py")):
             rel = str(path.relative_to(root))
-            if rel in HOMES:
+            if rel in HOMES or rel in ALLOWED:
                 continue
             tree = ast.parse(path.read_text(encoding="utf-8"), filename=rel)
             found += [f"{rel}:{line}: {key}" for line, key in sorted(reads(tree))]
