@@ -179,3 +179,18 @@ def test_a_theta_shift_turns_one_joint_and_keeps_the_rest() -> None:
     assert shifted.dh_rows()[2].theta_deg == result.dh_rows()[2].theta_deg + 0.5
     assert shifted.dh_rows()[:2] == result.dh_rows()[:2]
     assert shifted.to_json()["dh"][2]["theta_deg"] == shifted.dh_rows()[2].theta_deg
+
+
+def test_a_second_anchor_and_a_key_of_a_newer_release_are_kept() -> None:
+    doc = _doc("result_shape4_2026-11-25.json")
+    first = predict_lengths_from_result(doc, POSES_DEG)
+    doc["anchors"] = {"B": {"anchor_mm": doc["anchor_mm"], "length_offset_mm": 10.0}}
+    doc["from_a_newer_release"] = {"x": 1}
+    result = CalibrationResult.from_json(doc)
+    assert result.anchor_ids() == ["A", "B"] and result.anchor_fit("B").length_offset_mm == 10.0
+    at_b = predict_lengths_from_result(result, POSES_DEG, "B")
+    np.testing.assert_allclose(at_b - first, 10.0 - doc["length_offset_mm"], rtol=0, atol=1e-9)
+    with pytest.raises(ResultError, match=r"anchor: 'C' is not in the result \(\['A', 'B'\]\)"):
+        result.anchor_fit("C")
+    assert result.to_json()["from_a_newer_release"] == {"x": 1}
+    assert list(result.to_json()) == list(doc)
