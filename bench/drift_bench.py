@@ -26,6 +26,7 @@ from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel, builtin_model, parse_model_text
 from calib.predict import calibrated_dh_internal
 from calib.protocol import paper_split
+from calib.result import CalibrationResult
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, random_poses_deg
 from calib.tcp import aligned_position_error_mm
 
@@ -87,14 +88,14 @@ def campaign(case: str, n: int, seed: int, model_error: bool = False) -> tuple[T
     return cell, samples
 
 
-def tcp_error_mm(cell: TrueCell, result_json: dict[str, Any], seed: int = 7) -> float:
+def tcp_error_mm(cell: TrueCell, result: CalibrationResult, seed: int = 7) -> float:
     """RMS aligned tool-point error [mm] of the identified model against truth over 300
     random workspace poses."""
     q = random_poses_deg(cell, 300, np.random.default_rng(seed))
     est = forward_position(
-        calibrated_dh_internal(result_json),
+        calibrated_dh_internal(result),
         np.deg2rad(q),
-        np.asarray(result_json["tool_mm"], dtype=float),
+        np.asarray(result.tool(), dtype=float),
         cell.model.convention,
     )
     err: FloatArray = aligned_position_error_mm(est, cell.tool_positions_mm(q))
@@ -106,16 +107,16 @@ def run_case(case: str, n: int, seed: int, drift: str, model_error: bool = False
     t0 = time.perf_counter()
     res = identify(cell.model, samples, IdentifyOptions(drift=drift, seed=seed))  # type: ignore[arg-type]
     elapsed = time.perf_counter() - t0
-    js = res.to_json()
-    block = js.get("drift") or {}
+    loaded = CalibrationResult.from_json(res.to_json())
+    block = loaded.drift.block if loaded.drift else {}
     label = case + (" + model error" if model_error else "")
     return {
         "case": label,
         "n": n,
         "seed": seed,
         "drift": drift,
-        "test_rmse_mm": js["metrics"]["after"]["test"]["rmse_mm"],
-        "tcp_mm": tcp_error_mm(cell, js),
+        "test_rmse_mm": loaded.figures("after", "test")["rmse_mm"],
+        "tcp_mm": tcp_error_mm(cell, loaded),
         "found": block.get("model", "none"),
         "steps": [(s["row"], s["kind"], round(s["size_mm"], 2)) for s in block.get("steps", [])],
         "elapsed_s": elapsed,

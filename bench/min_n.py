@@ -41,6 +41,8 @@ from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import IdentifyOptions, identify
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel, builtin_model
+from calib.report import IdentifyResult
+from calib.result import CalibrationResult
 from calib.synthetic import TrueCell, make_true_cell, noisy_lengths, random_poses_deg
 from calib.tcp import aligned_position_error_mm, workspace_sample_deg
 
@@ -139,6 +141,13 @@ def emulated_case(seed: int, n_rows: int) -> tuple[RobotModel, FloatArray, Float
     return cell.truth.model, q, np.round(noisy / STEP_MM) * STEP_MM
 
 
+def _fit_noise_mm(fit: IdentifyResult) -> float:
+    """The noise the fit ran with [mm] (``prior.noise_mm`` of its result)."""
+    prior = CalibrationResult.from_json(fit.to_json()).prior
+    assert prior is not None and prior.noise_mm is not None
+    return prior.noise_mm
+
+
 def clean_row(n_rows: int, cells: int = N_CELLS, emulated: bool = False) -> dict[str, Any]:
     """Flags and noise estimates of the default identify over ``cells`` clean cells (the
     seeded VIRTUAL cells, or with ``emulated`` the EMULATED cells)."""
@@ -152,7 +161,7 @@ def clean_row(n_rows: int, cells: int = N_CELLS, emulated: bool = False) -> dict
             c = case(seed, n_rows)
             res = identify(MODEL, make_samples(c.q_deg, c.length_mm), IdentifyOptions())
         flagged.append(len(res.flagged_rows))
-        noise.append(float(res.to_json()["prior"]["noise_mm"]))
+        noise.append(_fit_noise_mm(res))
         notes.append(next((n for n in res.notes if n.startswith("robust")), ""))
     return {
         "rows": n_rows,

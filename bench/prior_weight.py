@@ -21,6 +21,7 @@ import numpy as np
 
 from bench.real_data import GROUPED_TEST_FRACTION, ROBOT, distinct_grouped_seeds
 from calib.identify import IdentifyOptions, identify, split_rows
+from calib.result import CalibrationResult
 from daemon.datafiles import load_robot, read_samples
 
 OUT = Path(__file__).parent
@@ -57,7 +58,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             t0 = time.perf_counter()
             res = identify(model, samples, variants[label], train_rows=train, test_rows=test)
             dh = res.dh_table_deg_mm(errors_only=True)[:, 1:3]
-            pb = res.to_json()["prior"]
+            loaded = CalibrationResult.from_json(res.to_json())
+            pb = loaded.prior.block if loaded.prior else {}
             rows.append(
                 {
                     "seed": seed,

@@ -49,7 +49,7 @@ import json
 import os
 import platform
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +70,8 @@ from calib.options import default as default_option
 from calib.prior import with_prior
 from calib.problem import Problem
 from calib.protocol import paper_split
+from calib.report import IdentifyResult
+from calib.result import CalibrationResult
 from calib.solvers.common import SolverResult
 from daemon.datafiles import load_robot, read_samples
 
@@ -85,6 +87,12 @@ PAPER_TIME_S = 1471.0
 
 
 OBJECTIVES = ("map", "ml")
+
+
+def _prior_block(fit: IdentifyResult) -> Mapping[str, Any]:
+    """The ``prior`` block of the fit's result."""
+    prior = CalibrationResult.from_json(fit.to_json()).prior
+    return prior.block if prior else {}
 
 
 def build_problem(
@@ -116,7 +124,9 @@ def build_problem(
     fitted = identify(
         model, samples, opts, train_rows=np.asarray(rows), test_rows=np.zeros(0, dtype=int)
     )
-    noise_mm = float(fitted.to_json()["prior"]["noise_mm"])
+    prior = CalibrationResult.from_json(fitted.to_json()).prior
+    assert prior is not None and prior.noise_mm is not None
+    noise_mm = prior.noise_mm
     return with_prior(problem, dataclasses.replace(opts, noise_mm=noise_mm))
 
 
@@ -289,7 +299,7 @@ def end_to_end(
         "iterations": res.solver.iterations,
         "converged": res.solver.success,
         "plausible": bool(res.plausibility["plausible"]),
-        "noise_rounds": res.to_json()["prior"].get("noise_rounds"),
+        "noise_rounds": _prior_block(res).get("noise_rounds"),
     }
 
 

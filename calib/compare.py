@@ -10,13 +10,13 @@ and the anchor that moved by more than :data:`CHANGE_TOL` (mm or deg).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 from typing_extensions import TypedDict
 
 from calib.dataset import SampleSet
+from calib.result import CalibrationResult, ResultLike
 
 #: Smallest change listed [mm or deg]: below the 0.001 the page and the CSVs round to.
 CHANGE_TOL = 1e-3
@@ -52,7 +52,7 @@ class Comparison(TypedDict):
     changed: list[ChangedParameter]
 
 
-def _rmse(result: Mapping[str, Any], samples: SampleSet, rows: np.ndarray) -> float | None:
+def _rmse(result: CalibrationResult, samples: SampleSet, rows: np.ndarray) -> float | None:
     from calib.predict import predict_lengths_from_result
 
     if rows.size == 0:
@@ -71,40 +71,35 @@ def _rmse(result: Mapping[str, Any], samples: SampleSet, rows: np.ndarray) -> fl
 
 
 def _figures(
-    job_id: int, result: Mapping[str, Any], samples: SampleSet, rows: np.ndarray
+    job_id: int, result: CalibrationResult, samples: SampleSet, rows: np.ndarray
 ) -> ModelFigures:
-    tcp = result.get("tcp_uncertainty_mm") or {}
-    sigma = tcp.get("rms") if isinstance(tcp, Mapping) else None
+    sigma = (result.tcp_uncertainty_mm or {}).get("rms")
     return {
         "job_id": job_id,
-        "method": result.get("method"),
+        "method": result.method,
         "test_rmse_mm": _rmse(result, samples, rows),
-        "tcp_sigma_mm": None if sigma is None else float(sigma),
+        "tcp_sigma_mm": sigma,
     }
 
 
-def _parameters(result: Mapping[str, Any]) -> dict[str, tuple[float, str]]:
+def _parameters(result: CalibrationResult) -> dict[str, tuple[float, str]]:
     out: dict[str, tuple[float, str]] = {}
-    for i, row in enumerate(result.get("dh") or []):
-        for key, unit in _DH_KEYS:
-            value = row.get(key)
-            if value is not None:
-                out[f"{key.split('_')[0]}{row.get('joint', i + 1)}"] = (float(value), unit)
-    for label, key in (("tool", "tool_mm"), ("anchor", "anchor_mm")):
-        for axis, value in zip("xyz", result.get(key) or [], strict=False):
-            if value is not None:
-                out[f"{label}_{axis}"] = (float(value), "mm")
-    offset = result.get("length_offset_mm")
-    if offset is not None:
-        out["length_offset"] = (float(offset), "mm")
+    for row in result.dh or ():
+        for (key, unit), value in zip(_DH_KEYS, row.values(), strict=True):
+            out[f"{key.split('_')[0]}{row.joint}"] = (value, unit)
+    for label, point in (("tool", result.tool_mm), ("anchor", result.anchor_mm)):
+        for axis, value in zip("xyz", point or (), strict=False):
+            out[f"{label}_{axis}"] = (value, "mm")
+    if result.length_offset_mm is not None:
+        out["length_offset"] = (result.length_offset_mm, "mm")
     return out
 
 
 def compare_results(
     job_id: int,
-    new: Mapping[str, Any],
+    new: ResultLike,
     current_id: int | None,
-    current: Mapping[str, Any] | None,
+    current: ResultLike | None,
     samples: SampleSet,
     sample_ids: Sequence[int],
 ) -> Comparison:
@@ -113,7 +108,9 @@ def compare_results(
     ``samples`` / ``sample_ids`` are the campaign's included samples; the rows compared are
     those whose id is in ``new``'s ``split.test_sample_ids``.
     """
-    wanted = set((new.get("split") or {}).get("test_sample_ids") or [])
+    new = CalibrationResult.of(new)
+    current = None if current is None else CalibrationResult.of(current)
+    wanted = set((new.split.test_sample_ids if new.split else None) or ())
     rows = np.array([i for i, sid in enumerate(sample_ids) if sid in wanted], dtype=int)
     changed: list[ChangedParameter] = []
     if current is not None:

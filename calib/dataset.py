@@ -22,6 +22,7 @@ from typing import NoReturn
 import numpy as np
 
 from calib.csvtext import neutralise_cell, restore_cell
+from calib.error_kinds import ErrorKind
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 
@@ -52,9 +53,19 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
 
 
 class SampleError(ValueError):
-    """Invalid sample data; ``row`` is the 1-based file line (None for header-level errors)."""
+    """Invalid sample data; ``row`` is the 1-based file line (None for header-level errors),
+    ``message`` what is wrong without the row and column, ``kind`` the kind of failure
+    (:class:`calib.error_kinds.ErrorKind`: ``CONFLICT`` for a pose outside the robot model's
+    joint limits, a rule of the robot rather than of the data's form)."""
 
-    def __init__(self, message: str, *, row: int | None = None, column: str | None = None) -> None:
+    def __init__(
+        self,
+        message: str,
+        *,
+        row: int | None = None,
+        column: str | None = None,
+        kind: ErrorKind = ErrorKind.INVALID,
+    ) -> None:
         where = []
         if row is not None:
             where.append(f"row {row}")
@@ -63,6 +74,8 @@ class SampleError(ValueError):
         super().__init__(f"{', '.join(where)}: {message}" if where else message)
         self.row = row
         self.column = column
+        self.message = message
+        self.kind = kind
 
 
 @dataclass(frozen=True)
@@ -191,6 +204,7 @@ def validate_joint_limits(samples: SampleSet, model: RobotModel) -> None:
             f"[{limits[j, 0]}, {limits[j, 1]}] of model {model.name!r}",
             row=samples.line_of(i),
             column=JOINT_COLUMNS[j],
+            kind=ErrorKind.CONFLICT,
         )
 
 

@@ -32,25 +32,26 @@ import json
 import math
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import tomli_w
 
 from calib.kinematics import N_JOINTS
 from calib.models import RobotModel, model_from_mapping
+from calib.result import DH_KEYS, CalibrationResult, ResultLike
 
 EXPORT_FORMATS = ("toml", "json", "urdf")
 
 
 def model_from_result(
-    result: Mapping[str, Any], nominal: RobotModel | None = None, name: str | None = None
+    result: ResultLike, nominal: RobotModel | None = None, name: str | None = None
 ) -> RobotModel:
-    """The calibrated robot of a ``result.json`` mapping as a :class:`RobotModel`.
+    """The calibrated robot of a result as a :class:`RobotModel`.
 
     Parameters
     ----------
-    result : mapping
+    result : CalibrationResult or mapping
         ``robot``, ``convention``, ``dh`` (six rows with ``alpha_deg, a_mm, d_mm, theta_deg``)
         and ``tool_mm`` (the calibrated cable hook point).
     nominal : RobotModel, optional
@@ -60,30 +61,25 @@ def model_from_result(
 
     Raises
     ------
-    calib.models.ModelError
+    calib.result.ResultError, calib.models.ModelError
         Naming the missing or invalid field.
     """
-    rows = result.get("dh")
-    if not isinstance(rows, list) or len(rows) != N_JOINTS:
-        raise ValueError("dh: expected a list of six joint rows")
-    keys = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
+    res = CalibrationResult.of(result)
     joints: list[dict[str, Any]] = []
-    for j, row in enumerate(rows):
-        if not isinstance(row, Mapping):
-            raise ValueError(f"dh[{j + 1}]: expected a mapping")
-        joint = {k: row.get(k) for k in keys}
+    for j, row in enumerate(res.dh_rows()):
+        joint: dict[str, Any] = dict(zip(DH_KEYS, row.values(), strict=True))
         if nominal is not None and nominal.joint_limits_deg is not None:
             joint["limits_deg"] = [float(v) for v in nominal.joint_limits_deg[j]]
         joints.append(joint)
-    robot = str(result.get("robot", "robot"))
-    mapping = {
+    robot = res.robot if res.robot is not None else "robot"
+    mapping: dict[str, Any] = {
         "name": name or f"{robot}-calibrated",
-        "convention": result.get("convention", "dh"),
-        "tool_mm": result.get("tool_mm", [0.0, 0.0, 0.0]),
+        "convention": res.convention or "dh",
+        "tool_mm": list(res.tool_mm or (0.0, 0.0, 0.0)),
         "joints": joints,
     }
-    if "controller" in result:
-        mapping["controller"] = result["controller"]
+    if res.controller is not None:
+        mapping["controller"] = res.controller
     return model_from_mapping(mapping)
 
 
@@ -223,18 +219,17 @@ def export_model(model: RobotModel, fmt: str) -> str:
     return WRITERS[fmt](model)
 
 
-def export_result(result: Mapping[str, Any], fmt: str, nominal: RobotModel | None = None) -> str:
-    """A ``result.json`` mapping's calibrated model in ``fmt``; TOML gets a header naming the
-    source (robot, method, identification RMSE) and what a model file leaves out."""
-    model = model_from_result(result, nominal)
+def export_result(result: ResultLike, fmt: str, nominal: RobotModel | None = None) -> str:
+    """A result's calibrated model in ``fmt``; TOML gets a header naming the source (robot,
+    method, identification RMSE) and what a model file leaves out."""
+    res = CalibrationResult.of(result)
+    model = model_from_result(res, nominal)
     if fmt != "toml":
         return export_model(model, fmt)
-    after = result.get("metrics", {}).get("after", {})
-    test = after.get("test", {}) if isinstance(after, Mapping) else {}
-    train = after.get("train", {}) if isinstance(after, Mapping) else {}
+    test, train = res.figures("after", "test"), res.figures("after", "train")
     rmse = test.get("rmse_mm") if test.get("n") else train.get("rmse_mm")
     comments = [
-        f"Calibrated model of {result.get('robot')!r} (method {result.get('method')!r}), "
+        f"Calibrated model of {res.robot!r} (method {res.method!r}), "
         f"identification RMSE {rmse} mm.",
         "The cable anchor and zero offset are not part of a model. tool_mm is the calibrated",
         "cable hook point. Joint limits are the nominal model's"

@@ -18,7 +18,6 @@ not observable from cable lengths.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,6 +31,7 @@ from calib.dataset import JOINT_COLUMNS, SampleSet
 from calib.export import model_from_result
 from calib.kinematics import FloatArray
 from calib.predict import predict_lengths_from_result
+from calib.result import CalibrationResult, ResultLike
 from calib.tcp import aligned_position_error_mm
 
 
@@ -124,40 +124,33 @@ class VerifyResult:
         }
 
 
-def reference_rmse_mm(result: Mapping[str, Any]) -> float | None:
+def reference_rmse_mm(result: ResultLike) -> float | None:
     """The identification's own RMSE after calibration [mm]: test rows, else train."""
-    after = (result.get("metrics") or {}).get("after") or {}
+    res = CalibrationResult.of(result)
     for part in ("test", "train"):
-        figures = after.get(part) or {}
-        if figures.get("n") and figures.get("rmse_mm") is not None:
-            return float(figures["rmse_mm"])
+        figures = res.figures("after", part)
+        rmse = figures.get("rmse_mm")
+        if figures.get("n") and rmse is not None:
+            return float(rmse)
     return None
 
 
-def _stored_anchors(result: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
-    out = {
-        str(result.get("anchor_id", "A")): {
-            "anchor_mm": list(result["anchor_mm"]),
-            "length_offset_mm": result["length_offset_mm"],
-        }
+def _stored_anchors(result: CalibrationResult) -> dict[str, dict[str, Any]]:
+    return {
+        aid: {"anchor_mm": list(fit.anchor_mm), "length_offset_mm": fit.length_offset_mm}
+        for aid, fit in result.anchor_fits().items()
     }
-    for aid, vals in (result.get("anchors") or {}).items():
-        out[str(aid)] = {
-            "anchor_mm": list(vals["anchor_mm"]),
-            "length_offset_mm": vals["length_offset_mm"],
-        }
-    return out
 
 
 def verify(
-    result: Mapping[str, Any], samples: SampleSet, options: VerifyOptions | None = None
+    result: ResultLike, samples: SampleSet, options: VerifyOptions | None = None
 ) -> VerifyResult:
     """Predict another campaign's cable lengths from a result and report the errors.
 
     Parameters
     ----------
-    result : mapping
-        A ``result.json`` mapping.
+    result : CalibrationResult or mapping
+        The calibration (a parsed ``result.json`` is loaded).
     samples : SampleSet
         The new campaign: joints (n, 6) [deg], lengths (n,) [mm], anchor ids.
     options : VerifyOptions
@@ -169,6 +162,7 @@ def verify(
         With it: an anchor with fewer than 5 samples.
     """
     opts = options or VerifyOptions()
+    result = CalibrationResult.of(result)
     q = np.asarray(samples.joints_deg, dtype=float)
     aidx = samples.anchor_index()
     ids = samples.anchor_ids

@@ -17,8 +17,9 @@ from calib.dataset import make_samples
 from calib.export import export_model, export_result, model_from_result, model_to_urdf
 from calib.identify import IdentifyOptions, identify
 from calib.kinematics import forward_frames, tool_position
-from calib.models import ModelError, RobotModel, builtin_model, parse_model_text
+from calib.models import RobotModel, builtin_model, parse_model_text
 from calib.predict import predict_lengths_from_result
+from calib.result import ResultError
 from calib.synthetic import make_true_cell, noisy_lengths, random_poses_deg
 
 
@@ -114,7 +115,7 @@ def test_bad_input_is_named(nominal: RobotModel, result: dict[str, Any]) -> None
         model_from_result({"robot": "x"})
     broken = {**result, "dh": [dict(r) for r in result["dh"]]}
     broken["dh"][1]["a_mm"] = "wide"
-    with pytest.raises(ModelError, match=r"joints\[2\].a_mm"):
+    with pytest.raises(ResultError, match=r"dh\[1\]\.a_mm: must be a number, got 'wide'"):
         model_from_result(broken)
     with pytest.raises(ValueError, match="format"):
         export_model(nominal, "step")

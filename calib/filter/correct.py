@@ -36,9 +36,8 @@ from them is not in σ either.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -51,6 +50,7 @@ from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.programs.rotations import invert, rotation_angle_deg
 from calib.programs.sites import Configuration, Correction, Target
+from calib.result import CalibrationResult, ResultLike
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
 
 #: A corrected joint further than this from the nominal solution is another branch [deg].
@@ -86,7 +86,7 @@ class Calibration:
     columns: np.ndarray
 
 
-def calibration_from_result(result: Mapping[str, Any], nominal: RobotModel) -> Calibration:
+def calibration_from_result(result: ResultLike, nominal: RobotModel) -> Calibration:
     """The calibrated model and covariance of a ``result.json`` mapping.
 
     Raises
@@ -95,23 +95,21 @@ def calibration_from_result(result: Mapping[str, Any], nominal: RobotModel) -> C
         The result's DH table is missing or invalid, or its convention differs from the
         nominal model's.
     """
-    calibrated = model_from_result(result, nominal)
+    res = CalibrationResult.of(result)
+    calibrated = model_from_result(res, nominal)
     if calibrated.convention != nominal.convention:
         raise ValueError(
             f"convention: the result is {calibrated.convention!r}, the nominal "
             f"model {nominal.convention!r}"
         )
-    corr = result.get("correlation") or {}
-    names = corr.get("names") if isinstance(corr, Mapping) else None
-    matrix = corr.get("matrix") if isinstance(corr, Mapping) else None
-    sigmas = result.get("uncertainty") or {}
+    names = list(res.correlation.names) if res.correlation else []
     dh_names = [f"{f}{j + 1}" for j in range(N_JOINTS) for f in DH_FIELDS]
-    if not isinstance(names, list) or not isinstance(matrix, list) or not names:
+    if res.correlation is None or not names:
         return Calibration(nominal, calibrated, None, np.zeros(0, dtype=int))
     try:
-        c = np.asarray(matrix, dtype=float)
-        sd = np.array([float(sigmas.get(n, 0.0)) for n in names])
-    except (TypeError, ValueError):
+        c = np.asarray(res.correlation.matrix, dtype=float)
+        sd = np.array([res.uncertainty.get(n, 0.0) for n in names])
+    except ValueError:  # a ragged matrix
         return Calibration(nominal, calibrated, None, np.zeros(0, dtype=int))
     if c.shape != (len(names), len(names)) or not np.all(np.isfinite(c)):
         return Calibration(nominal, calibrated, None, np.zeros(0, dtype=int))

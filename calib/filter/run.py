@@ -41,6 +41,7 @@ from calib.programs.sites import (
     apply_edits,
 )
 from calib.programs.sites import UNUSED_REASON as UNUSED_REASON
+from calib.result import DH_KEYS, CalibrationResult, ResultLike
 
 if TYPE_CHECKING:
     from calib.models import RobotModel
@@ -415,7 +416,7 @@ def filter_files(
     return run
 
 
-def robot_check(result: Mapping[str, Any], nominal: RobotModel) -> tuple[str, str]:
+def robot_check(result: ResultLike, nominal: RobotModel) -> tuple[str, str]:
     """Whether a ``result.json`` mapping is of the nominal model: ``(warning, error)``, each
     empty when there is none.
 
@@ -426,20 +427,14 @@ def robot_check(result: Mapping[str, Any], nominal: RobotModel) -> tuple[str, st
     """
     from calib.report import PLAUSIBLE_DH_DEG, PLAUSIBLE_DH_MM
 
-    named = result.get("robot")
+    res = CalibrationResult.of(result)
+    named = res.robot
     warning = ""
-    if isinstance(named, str) and named and named != nominal.name:
+    if named and named != nominal.name:
         warning = f"the result is of robot {named!r}, the nominal model is {nominal.name!r}"
-    rows = result.get("dh")
-    if not isinstance(rows, list):
-        return warning, ""
-    keys = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
-    for j, row in enumerate(rows[: len(nominal.dh_table)]):
-        if not isinstance(row, Mapping):
-            continue
-        for k, key in enumerate(keys):
-            v = row.get(key)
-            if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+    for j, row in enumerate((res.dh or ())[: len(nominal.dh_table)]):
+        for k, (key, v) in enumerate(zip(DH_KEYS, row.values(), strict=True)):
+            if not math.isfinite(v):
                 continue
             ref = float(nominal.dh_table[j][k])
             diff = float(v) - ref

@@ -31,7 +31,7 @@ from calib.html_report.tables import (
     plausibility_section,
     tcp_section,
 )
-from calib.report import drift_summary
+from calib.result import CalibrationResult, ResultLike, Split
 
 #: Section ids in page order, with their headings (the browser test checks each one).
 SECTIONS: tuple[tuple[str, str], ...] = (
@@ -58,23 +58,19 @@ _METHODS = {
 }
 
 
-def _summary(result: Mapping[str, Any]) -> str:
-    split = get_map(result, "split")
-    prior = get_map(result, "prior")
-    n_train, n_test = split.get("n_train"), split.get("n_test")
-    n_total = n_train + n_test if isinstance(n_train, int) and isinstance(n_test, int) else None
-    method = str(result.get("method", ""))
+def _summary(result: CalibrationResult) -> str:
+    split = result.split or Split(None, None, None, None, None, None, None)
+    prior = result.prior.block if result.prior else {}
+    n_train, n_test = split.n_train, split.n_test
+    n_total = n_train + n_test if n_train is not None and n_test is not None else None
+    method = result.method or ""
     method_long = _METHODS.get(method)
-    flagged = get_list(result, "flagged_samples")
+    flagged = list(result.flagged_samples)
     flagged_rows = ", ".join(text(r) for r in flagged[:20]) + (" …" if len(flagged) > 20 else "")
-    converged = (
-        f"{yes_no(result.get('success'))} — {text(result.get('message'))} "
-        f"(status {text(result.get('status'))})"
-    )
-    frac = split.get("test_fraction")
+    converged = f"{yes_no(result.success)} — {text(result.message)} (status {text(result.status)})"
     split_text = (
-        f"{text(split.get('holdout'))} hold-out, test fraction {num_fixed(frac, 2)}, "
-        f"seed {text(split.get('seed'))}"
+        f"{text(split.holdout)} hold-out, test fraction {num_fixed(split.test_fraction, 2)}, "
+        f"seed {text(split.seed)}"
     )
     prior_text = (
         f"yes: {num_sig(prior.get('dh_mm'))} mm / {num_sig(prior.get('dh_deg'))} deg per DH "
@@ -83,14 +79,14 @@ def _summary(result: Mapping[str, Any]) -> str:
         else "no (maximum likelihood)"
     )
     rows = [
-        ("Robot model", text(result.get("robot"))),
+        ("Robot model", text(result.robot)),
         ("Method", text(method) + (f" — {method_long}" if method_long else "")),
         ("Samples", f"{num_int(n_total)} ({num_int(n_train)} training, {num_int(n_test)} test)"),
         ("Split", split_text),
         ("Converged", converged),
-        ("Iterations", num_int(result.get("iterations"))),
-        ("Identification time [s]", num_fixed(result.get("elapsed_s"), 3)),
-        ("Robust loss", text(result.get("robust"))),
+        ("Iterations", num_int(result.iterations)),
+        ("Identification time [s]", num_fixed(result.elapsed_s, 3)),
+        ("Robust loss", text(result.robust)),
         ("Prior toward nominal", prior_text),
         ("Flagged samples", f"{len(flagged)} (rows {flagged_rows})" if flagged else "0"),
     ]
@@ -98,8 +94,8 @@ def _summary(result: Mapping[str, Any]) -> str:
     return f'<dl class="summary">{body}</dl>'
 
 
-def _accuracy(result: Mapping[str, Any]) -> str:
-    metrics = get_map(result, "metrics")
+def _accuracy(result: CalibrationResult) -> str:
+    metrics = result.metrics or {}
     before, after = get_map(metrics, "before"), get_map(metrics, "after")
     if not before and not after:
         return "<p>No metrics in this result.</p>"
@@ -141,14 +137,14 @@ def _accuracy(result: Mapping[str, Any]) -> str:
     )
 
 
-def _drift(result: Mapping[str, Any]) -> str:
+def _drift(result: CalibrationResult) -> str:
     """What :mod:`calib.drift` found: steps (row, kind, size) and the smooth offset drift."""
-    block = get_map(result, "drift")
-    if not block:
+    if result.drift is None:
         return (
             "<p>Not modelled: identified with <code>drift none</code>, or a result from "
             "before drift modelling.</p>"
         )
+    block = result.drift.block
     when = (
         "the samples' <code>t_s</code> [s]."
         if block.get("time_unit") == "s"
@@ -162,7 +158,7 @@ def _drift(result: Mapping[str, Any]) -> str:
     )
     # The one wording of what was found (calib.drift.summary, carried in the result; the
     # operator page shows the same line).
-    found = text(block.get("summary") or drift_summary(block))
+    found = text(result.drift.summary)
     if block.get("note"):  # not modelled by this method: nothing was looked for
         return f"<p>{found}.</p>"
     steps = [s for s in get_list(block, "steps") if isinstance(s, Mapping)]
@@ -258,11 +254,8 @@ def _rms(values: Any) -> float:
     return float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
 
 
-def _convergence(result: Mapping[str, Any]) -> str:
-    history = np.array(
-        [v for v in get_list(result, "cost_history_rms_mm") if isinstance(v, int | float)],
-        dtype=float,
-    )
+def _convergence(result: CalibrationResult) -> str:
+    history = np.array(result.cost_history_rms_mm or (), dtype=float)
     finite = history[np.isfinite(history) & (history > 0)]
     if finite.size < 2:
         return "<p>No cost history in this result (the method records none).</p>"
@@ -271,12 +264,7 @@ def _convergence(result: Mapping[str, Any]) -> str:
     # axis counts whole iterations over the fits, each fit's start sharing its predecessor's
     # last iteration number.
     starts = sorted(
-        {
-            int(i)
-            for i in get_list(result, "cost_history_fit_starts")
-            if isinstance(i, int) and 0 <= i < history.size
-        }
-        | {0}
+        {int(i) for i in result.cost_history_fit_starts or () if 0 <= i < history.size} | {0}
     )
     bounds = [*starts, history.size]
     series, x0 = [], 0
@@ -316,15 +304,14 @@ def _convergence(result: Mapping[str, Any]) -> str:
     )
 
 
-def _notes(result: Mapping[str, Any]) -> str:
-    notes = [n for n in get_list(result, "notes") if n is not None]
-    items = "".join(f"<li>{text(n)}</li>" for n in notes)
+def _notes(result: CalibrationResult) -> str:
+    items = "".join(f"<li>{text(n)}</li>" for n in result.notes)
     body = f'<ul class="note-list">{items}</ul>' if items else "<p>The method left no notes.</p>"
-    return body + f"<p>Solver message: {text(result.get('message'))}.</p>"
+    return body + f"<p>Solver message: {text(result.message)}.</p>"
 
 
 def render_report_html(
-    result: Mapping[str, Any],
+    result: ResultLike,
     residuals: SampleResiduals | None = None,
     *,
     source: str | None = None,
@@ -333,9 +320,9 @@ def render_report_html(
 
     Parameters
     ----------
-    result : mapping
-        A parsed ``result.json`` (README, "result.json contract"). Missing keys give a
-        sentence in their section instead of an error.
+    result : CalibrationResult or mapping
+        The result (a parsed ``result.json`` is loaded: README, "result.json contract").
+        Missing keys give a sentence in their section instead of an error.
     residuals : SampleResiduals, optional
         Per-sample residuals (:func:`calib.html_report.sample_residuals`); without them the
         residual section says how to get them.
@@ -351,9 +338,10 @@ def render_report_html(
     ------
     TypeError
         ``result`` is not a mapping.
+    calib.result.ResultError
+        A field of the wrong type (named).
     """
-    if not isinstance(result, Mapping):
-        raise TypeError(f"result: expected a mapping (parsed result.json), got {type(result)}")
+    result = CalibrationResult.of(result)
     bodies = {
         "summary": _summary(result),
         "accuracy": _accuracy(result),
@@ -371,7 +359,7 @@ def render_report_html(
         f"{bodies[sid]}</section>"
         for k, (sid, title) in enumerate(SECTIONS, start=1)
     )
-    robot, method = text(result.get("robot")), text(result.get("method"))
+    robot, method = text(result.robot), text(result.method)
     subtitle = f"Robot {robot} · method {method}" + (f" · {text(source)}" if source else "")
     return (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'

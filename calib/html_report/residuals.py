@@ -6,7 +6,7 @@
 table (``dh − dh_error``, exact from the result) with the nominal tool point and every
 anchor's P0 and offset fitted to the given samples, as :func:`calib.identify.identify` does
 on its training rows. The nominal tool point is not in ``result.json``: it comes from the
-caller's nominal model, else from the built-in model named by ``result["robot"]``; when
+caller's nominal model, else from the built-in model named by the result's ``robot``; when
 neither exists the before residuals are left out (and the report says so).
 
 Residual sign: measured minus model, ``L_meas − L_model`` [mm].
@@ -14,9 +14,7 @@ Residual sign: measured minus model, ``L_meas − L_model`` [mm].
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -26,6 +24,7 @@ from calib.dataset import SampleSet
 from calib.kinematics import FloatArray
 from calib.models import BUILTIN_MODELS, RobotModel, builtin_model
 from calib.predict import predict_lengths_from_result
+from calib.result import DH_KEYS, CalibrationResult, ResultLike
 
 
 @dataclass(frozen=True)
@@ -48,24 +47,22 @@ class SampleResiduals:
     before_note: str
 
 
-def _nominal_model(result: Mapping[str, Any], nominal: RobotModel | None) -> RobotModel | None:
+def _nominal_model(result: CalibrationResult, nominal: RobotModel | None) -> RobotModel | None:
     """The nominal model: the caller's, else the built-in one of the result's robot name."""
     if nominal is not None:
         return nominal
-    name = result.get("robot")
-    if isinstance(name, str) and name in BUILTIN_MODELS:
+    name = result.robot
+    if name is not None and name in BUILTIN_MODELS:
         return builtin_model(name)
     return None
 
 
-def _nominal_dh_deg_mm(result: Mapping[str, Any]) -> FloatArray:
+def _nominal_dh_deg_mm(result: CalibrationResult) -> FloatArray:
     """``dh − dh_error`` from the result, shape (6, 4): alpha_deg, a_mm, d_mm, theta_deg."""
-    keys = ("alpha_deg", "a_mm", "d_mm", "theta_deg")
-    try:
-        cal = np.array([[float(r[k]) for k in keys] for r in result["dh"]])
-        err = np.array([[float(r[k]) for k in keys] for r in result["dh_error"]])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"dh/dh_error: expected six rows with {keys}: {exc}") from exc
+    if result.dh is None or result.dh_error is None:
+        raise ValueError(f"dh/dh_error: expected six rows with {DH_KEYS}")
+    cal = np.array([r.values() for r in result.dh], dtype=float).reshape(-1, 4)
+    err = np.array([r.values() for r in result.dh_error], dtype=float).reshape(-1, 4)
     if cal.shape != (6, 4) or err.shape != (6, 4):
         raise ValueError(f"dh/dh_error: expected six joint rows, got {len(cal)} and {len(err)}")
     out: FloatArray = cal - err
@@ -73,34 +70,35 @@ def _nominal_dh_deg_mm(result: Mapping[str, Any]) -> FloatArray:
 
 
 def sample_residuals(
-    result: Mapping[str, Any], samples: SampleSet, nominal: RobotModel | None = None
+    result: ResultLike, samples: SampleSet, nominal: RobotModel | None = None
 ) -> SampleResiduals:
     """Before and after residuals of every sample.
 
     Parameters
     ----------
-    result : mapping
-        A parsed ``result.json``.
+    result : CalibrationResult or mapping
+        The result (a parsed ``result.json`` is loaded).
     samples : SampleSet
         ``n`` samples (joints (n, 6) [deg], lengths (n,) [mm]); every anchor id must be in
         the result.
     nominal : RobotModel, optional
         The nominal model the result was identified from (for its tool point); default the
-        built-in model named ``result["robot"]``, if any.
+        built-in model named by the result's ``robot``, if any.
 
     Raises
     ------
     ValueError
         A malformed result, or a sample anchor the result does not hold.
     """
+    result = CalibrationResult.of(result)
     predicted = np.empty(len(samples))
     ids = np.asarray(samples.anchor)
     for aid in samples.anchor_ids:
         rows = ids == aid
         predicted[rows] = predict_lengths_from_result(result, samples.joints_deg[rows], aid)
     after = samples.length_mm - predicted
-    per_sample = (result.get("drift") or {}).get("per_sample_mm")
-    if isinstance(per_sample, list) and len(per_sample) == len(samples):
+    per_sample = result.drift.per_sample_mm if result.drift else None
+    if per_sample is not None and len(per_sample) == len(samples):
         after = after - np.asarray(per_sample, dtype=float)  # the drift is not the robot's
 
     model = _nominal_model(result, nominal)
@@ -109,9 +107,9 @@ def sample_residuals(
             after,
             None,
             "No before residuals: the nominal tool point of "
-            f"{result.get('robot')!r} is unknown (not a built-in model)",
+            f"{result.robot!r} is unknown (not a built-in model)",
         )
-    convention = result.get("convention", model.convention)
+    convention = result.convention or model.convention
     model = RobotModel(
         model.name,
         convention,

@@ -1,13 +1,13 @@
 """Report sections built from tables: parameters, identifiability, plausibility, TCP.
 
-Each function takes the parsed ``result.json`` mapping and returns the inner HTML of one
-``<section>``. Older or partial results (a key missing) give a sentence saying so instead
-of an exception: a report of a bad run is still wanted.
+Each function takes the loaded result (:class:`calib.result.CalibrationResult`) and returns
+the inner HTML of one ``<section>``. Older or partial results (a key missing) give a
+sentence saying so instead of an exception: a report of a bad run is still wanted.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from calib.html_report.fmt import (
@@ -23,6 +23,7 @@ from calib.html_report.fmt import (
     text,
     yes_no,
 )
+from calib.result import CalibrationResult
 
 #: DH columns: result key, parameter-name prefix, header symbol, unit, decimals.
 _DH_COLUMNS = (
@@ -33,8 +34,8 @@ _DH_COLUMNS = (
 )
 
 
-def _plausibility_by_name(result: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
-    items = get_list(get_map(result, "plausibility"), "parameters")
+def _plausibility_by_name(result: CalibrationResult) -> dict[str, Mapping[str, Any]]:
+    items = get_list(result.plausibility or {}, "parameters")
     return {str(it.get("name")): it for it in items if isinstance(it, Mapping)}
 
 
@@ -57,12 +58,12 @@ def _value_cell(value: Any, sigma: Any, decimals: int, check: Mapping[str, Any] 
     return f'<td class="{cls}">{num_fixed(value, decimals)}{sig}{flag}</td>'
 
 
-def dh_section(result: Mapping[str, Any]) -> str:
+def dh_section(result: CalibrationResult) -> str:
     """Calibrated DH table and the identified errors with ±1σ; implausible rows highlighted."""
-    dh, err = get_list(result, "dh"), get_list(result, "dh_error")
+    dh, err = result.dh or (), result.dh_error or ()
     if len(dh) != 6 or len(err) != 6:
         return "<p>No DH table in this result.</p>"
-    sigma = get_map(result, "uncertainty")
+    sigma = result.uncertainty
     checks = _plausibility_by_name(result)
     head_cal = ["Joint", *(f"{sym} [{unit}]" for _, _, sym, unit, _ in _DH_COLUMNS)]
     head_err = ["Joint", *(f"Δ{sym} ± 1σ [{unit}]" for _, _, sym, unit, _ in _DH_COLUMNS)]
@@ -72,16 +73,16 @@ def dh_section(result: Mapping[str, Any]) -> str:
         bad = any(checks.get(n, {}).get("ok") is False for n in names)
         row_cls = ' class="implausible"' if bad else ""
         cells_cal = "".join(
-            f'<td class="num">{num_fixed(cal.get(key), dec)}</td>'
+            f'<td class="num">{num_fixed(getattr(cal, key), dec)}</td>'
             for key, _, _, _, dec in _DH_COLUMNS
         )
         rows_cal.append(f'<tr{row_cls}><th scope="row">{j}</th>{cells_cal}</tr>')
         cells_err = "".join(
-            _value_cell(dif.get(key), sigma.get(name), dec, checks.get(name))
+            _value_cell(getattr(dif, key), sigma.get(name), dec, checks.get(name))
             for (key, _, _, _, dec), name in zip(_DH_COLUMNS, names, strict=True)
         )
         rows_err.append(f'<tr{row_cls}><th scope="row">{j}</th>{cells_err}</tr>')
-    convention = "modified DH (Craig)" if result.get("convention") == "mdh" else "classic DH"
+    convention = "modified DH (Craig)" if result.convention == "mdh" else "classic DH"
     return (
         f"<p>Convention: {convention}. Rows with a ⚠ hold an error outside its plausible bound "
         "(see Plausibility).</p><h3>Calibrated DH table</h3>"
@@ -94,24 +95,19 @@ def dh_section(result: Mapping[str, Any]) -> str:
 
 
 def _other_parameters(
-    result: Mapping[str, Any], sigma: Mapping[str, Any], checks: Mapping[str, Mapping[str, Any]]
+    result: CalibrationResult, sigma: Mapping[str, Any], checks: Mapping[str, Mapping[str, Any]]
 ) -> str:
     """Tool point, anchor(s) and indicator offset with ±1σ."""
     rows: list[tuple[str, str, Any, str]] = []  # (what, param name, value, unit)
-    tool = get_list(result, "tool_mm")
-    for axis, v in zip("xyz", tool, strict=False):
+    for axis, v in zip("xyz", result.tool_mm or (), strict=False):
         rows.append((f"Cable hook point {axis} (flange frame)", f"tool_{axis}", v, "mm"))
-    anchors: list[tuple[str, Any, Any]] = [
-        (str(result.get("anchor_id", "A")), result.get("anchor_mm"), result.get("length_offset_mm"))
+    anchors: list[tuple[str, Sequence[float] | None, float | None]] = [
+        (result.first_anchor, result.anchor_mm, result.length_offset_mm)
     ]
-    anchors += [
-        (str(aid), a.get("anchor_mm"), a.get("length_offset_mm"))
-        for aid, a in get_map(result, "anchors").items()
-        if isinstance(a, Mapping)
-    ]
+    anchors += [(aid, a.anchor_mm, a.length_offset_mm) for aid, a in result.anchors.items()]
     for k, (aid, p0, offset) in enumerate(anchors):
         suffix = "" if k == 0 else f"@{aid}"
-        for axis, v in zip("xyz", p0 if isinstance(p0, list) else [], strict=False):
+        for axis, v in zip("xyz", p0 or (), strict=False):
             rows.append((f"Anchor {aid} P0 {axis} (base frame)", f"p0_{axis}{suffix}", v, "mm"))
         rows.append((f"Anchor {aid} indicator zero offset", f"offset{suffix}", offset, "mm"))
     body = []
@@ -128,9 +124,9 @@ def _other_parameters(
     )
 
 
-def identifiability_section(result: Mapping[str, Any]) -> str:
+def identifiability_section(result: CalibrationResult) -> str:
     """Rank, condition numbers, and every unidentifiable parameter with its reason."""
-    ident = get_map(result, "identifiability")
+    ident = result.identifiability or {}
     if not ident:
         return "<p>No identifiability analysis in this result.</p>"
     identifiable = get_list(ident, "identifiable")
@@ -163,10 +159,11 @@ def identifiability_section(result: Mapping[str, Any]) -> str:
     )
 
 
-def _strong_correlations(result: Mapping[str, Any], threshold: float = 0.95) -> str:
+def _strong_correlations(result: CalibrationResult, threshold: float = 0.95) -> str:
     """Pairs of solved parameters with |correlation| above ``threshold``, in words."""
-    corr = get_map(result, "correlation")
-    names, matrix = get_list(corr, "names"), get_list(corr, "matrix")
+    if result.correlation is None:
+        return ""
+    names, matrix = result.correlation.names, result.correlation.matrix
     if not names or len(matrix) != len(names):
         return ""
     pairs = []
@@ -193,9 +190,9 @@ def _strong_correlations(result: Mapping[str, Any], threshold: float = 0.95) -> 
     )
 
 
-def plausibility_section(result: Mapping[str, Any]) -> str:
+def plausibility_section(result: CalibrationResult) -> str:
     """Overall verdict, cable extension, and the parameters outside their bounds."""
-    pl = get_map(result, "plausibility")
+    pl = result.plausibility or {}
     if not pl:
         return "<p>No plausibility check in this result.</p>"
     ext = get_map(pl, "cable_extension_mm")
@@ -232,10 +229,10 @@ def plausibility_section(result: Mapping[str, Any]) -> str:
     )
 
 
-def tcp_section(result: Mapping[str, Any]) -> str:
+def tcp_section(result: CalibrationResult) -> str:
     """The TCP position uncertainty (``tcp_uncertainty_mm``) or "not computed"."""
-    tcp = result.get("tcp_uncertainty_mm")
-    if not isinstance(tcp, Mapping):
+    tcp = result.tcp_uncertainty_mm
+    if tcp is None:
         return (
             "<p>TCP position uncertainty: <strong>not computed</strong> for this result "
             "(no <code>tcp_uncertainty_mm</code> in result.json).</p>"

@@ -27,6 +27,7 @@ import numpy as np
 
 from calib.kinematics import FloatArray
 from calib.monitor.stepwatch import explain_change
+from calib.result import CalibrationResult, ResultLike
 
 #: What a finished check concludes; the store's check states
 #: (:data:`daemon.store.rows.CheckStatus`) add ``running`` and ``failed`` to these.
@@ -110,29 +111,23 @@ class Evaluation:
 
 
 def change_jacobians(
-    result: dict[str, Any], joints_deg: FloatArray, anchors: tuple[str, ...]
+    result: ResultLike, joints_deg: FloatArray, anchors: tuple[str, ...]
 ) -> tuple[FloatArray, FloatArray]:
     """At the check poses ``joints_deg`` (n, 6) [deg] with their anchor ids: the length's
     derivatives by the anchor's P0 and offset, ``(−u, 1)`` (n, 4) [mm/mm], and by each
     joint's zero offset (n, 6) [mm/deg] (central differences of the result's predictions)."""
-    import copy
-
     from calib.kinematics import forward_position
     from calib.predict import calibrated_dh_internal, predict_lengths_from_result, result_table_rad
 
+    res = CalibrationResult.of(result)
     q = np.asarray(joints_deg, dtype=float)
     pos = forward_position(
-        calibrated_dh_internal(result),
-        result_table_rad(result, q),
-        np.asarray(result["tool_mm"], dtype=float),
-        result.get("convention", "dh"),
+        calibrated_dh_internal(res),
+        result_table_rad(res, q),
+        np.asarray(res.tool(), dtype=float),
+        res.convention or "dh",
     )
-    first = str(result.get("anchor_id", "A"))
-    others = result.get("anchors") or {}
-    p0 = np.array(
-        [result["anchor_mm"] if a == first else others[a]["anchor_mm"] for a in anchors],
-        dtype=float,
-    )
+    p0 = np.array([res.anchor_fit(a).anchor_mm for a in anchors], dtype=float)
     diff = pos - p0
     unit = diff / np.linalg.norm(diff, axis=1)[:, None]
     anchor_jac = np.hstack([-unit, np.ones((q.shape[0], 1))])
@@ -141,8 +136,7 @@ def change_jacobians(
     for j in range(6):
         lengths = []
         for sign in (1.0, -1.0):
-            shifted = copy.deepcopy(result)
-            shifted["dh"][j]["theta_deg"] = float(shifted["dh"][j]["theta_deg"]) + sign * step_deg
+            shifted = res.with_theta_shift(j, sign * step_deg)
             lengths.append(
                 np.concatenate(
                     [
@@ -179,9 +173,7 @@ def explanation_text(explained: dict[str, Any]) -> str:
     )
 
 
-def evaluate(
-    result: dict[str, Any], samples: Any, limit_mm: float, refit_anchor: bool
-) -> Evaluation:
+def evaluate(result: ResultLike, samples: Any, limit_mm: float, refit_anchor: bool) -> Evaluation:
     """Compare a check campaign's samples (a :class:`calib.dataset.SampleSet`) with a
     ``result.json`` mapping's predictions (:func:`calib.verify.verify`) and judge them.
 
@@ -191,6 +183,7 @@ def evaluate(
     from calib.planning.options import PLAN_NOISE_MM
     from calib.verify import VerifyOptions, verify
 
+    result = CalibrationResult.of(result)
     out = verify(result, samples, VerifyOptions(refit_anchor=refit_anchor, max_rmse_mm=limit_mm))
     figures = {k: float(v) for k, v in out.metrics.items()}
     detail: dict[str, Any] = {

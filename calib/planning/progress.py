@@ -14,6 +14,7 @@ import numpy as np
 
 from calib.dataset import JOINT_COLUMNS
 from calib.kinematics import FloatArray, IndexArray
+from calib.result import CalibrationResult, ResultLike
 
 #: Default tolerance per joint for a sample to count as a planned pose [deg]: a robot reaches
 #: a commanded pose to a few hundredths of a degree; 0.5 deg also accepts a pose taught by
@@ -134,7 +135,7 @@ def plan_check(
     plan: Mapping[str, Any],
     joints_deg: FloatArray | Sequence[Sequence[float]],
     anchors: Sequence[str],
-    result: Mapping[str, Any],
+    result: ResultLike,
     rejections: Sequence[Mapping[str, Any]] = (),
 ) -> dict[str, Any]:
     """The plan check of a result identified from samples at ``joints_deg`` (n, 6) [deg] with
@@ -155,6 +156,7 @@ def plan_check(
         noise: σ is linear in the noise) and ``sigma_ratio_at_fit_noise`` (achieved over it),
         ``note``.
     """
+    res = CalibrationResult.of(result)
     poses = plan["poses"]
     match = match_plan(poses, joints_deg, anchors)
     n_samples = len(anchors)
@@ -169,7 +171,7 @@ def plan_check(
     n_off = n_samples - len({k for k in match if k >= 0})
     summary = plan.get("summary") or {}
     planned_tcp = ((summary.get("tcp_sigma_mm") or {}).get("plan")) or {}
-    achieved = result.get("tcp_uncertainty_mm") or {}
+    achieved = dict(res.tcp_uncertainty_mm or {})
     p_rms, a_rms = planned_tcp.get("rms"), achieved.get("rms")
     ratio = float(a_rms) / float(p_rms) if p_rms and a_rms is not None else None
     on_plan = n_measured + n_not == n_planned
@@ -183,7 +185,7 @@ def plan_check(
     # The plan assumed a length noise; the fit estimates its own (captures are window means,
     # so usually quieter). The plan's σ at the fit's noise separates design from noise.
     plan_noise = summary.get("noise_mm")
-    fit_noise = (result.get("prior") or {}).get("noise_mm")
+    fit_noise = res.prior.noise_mm if res.prior else None
     same_noise = (
         float(p_rms) * float(fit_noise) / float(plan_noise)
         if p_rms and plan_noise and fit_noise

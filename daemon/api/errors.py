@@ -26,6 +26,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from calib.error_kinds import ErrorKind
 from daemon.api.http.allow import allow_header
 from daemon.store import StoreInvalid, StoreNotFound
 from daemon.store.space import NoSpace
@@ -35,6 +36,26 @@ API_KINDS = {"job": "identification"}
 
 #: Longest ``msg`` of a validation issue [characters]; longer ones are cut (no echoed input).
 MAX_MESSAGE_CHARS = 500
+
+#: The one table from an error's kind to its HTTP status: a route raises :class:`ApiError`
+#: with the kind its error carries (or the check that failed), never a status picked from a
+#: message's words.
+STATUS_OF_KIND: dict[ErrorKind, int] = {
+    ErrorKind.INVALID: 422,
+    ErrorKind.NOT_FOUND: 404,
+    ErrorKind.CONFLICT: 409,
+}
+
+
+class ApiError(Exception):
+    """An error whose status is its ``kind``'s (:data:`STATUS_OF_KIND`): ``detail`` the
+    message; for ``INVALID``, ``loc`` where in the request (a 422 in the validation shape)."""
+
+    def __init__(self, kind: ErrorKind, detail: str, loc: Sequence[str | int] = ("body",)) -> None:
+        super().__init__(detail)
+        self.kind = kind
+        self.detail = detail
+        self.loc = tuple(loc)
 
 
 class CaptureRejection(BaseModel):
@@ -148,6 +169,15 @@ def install(app: FastAPI) -> None:
             {"detail": jsonable_encoder(detail)}, status_code=exc.status_code, headers=headers
         )
 
+    @app.exception_handler(ApiError)
+    async def _kinded(request: Request, exc: ApiError) -> JSONResponse:
+        """The status of the error's kind (:data:`STATUS_OF_KIND`), the body of that status."""
+        status = STATUS_OF_KIND[exc.kind]
+        if status == 422:
+            issue = {"loc": list(exc.loc), "msg": _text(exc.detail), "type": "value_error"}
+            return JSONResponse({"detail": [issue]}, status_code=status)
+        return JSONResponse({"detail": _text(exc.detail)}, status_code=status)
+
     @app.exception_handler(StoreNotFound)
     async def _not_found(request: Request, exc: StoreNotFound) -> JSONResponse:
         """The one not-found path: whatever the store (or the job manager) cannot find is a
@@ -170,6 +200,8 @@ def install(app: FastAPI) -> None:
 
 __all__ = [
     "API_KINDS",
+    "STATUS_OF_KIND",
+    "ApiError",
     "Error",
     "ValidationErrors",
     "error_responses",

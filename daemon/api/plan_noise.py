@@ -42,6 +42,7 @@ from calib.planning.noise import (
     repeat_estimate,
     sampler_estimate,
 )
+from calib.result import CalibrationResult
 from daemon.sampler.config import MAX_BUFFER
 from daemon.store import StoreNotFound
 
@@ -54,7 +55,8 @@ def _result_noise(store: Any, robot_id: int) -> float | None:
         result = store.accepted_result(robot_id)["result"]
     except StoreNotFound:
         return None
-    prior = result.get("prior") or {}
+    loaded = CalibrationResult.from_json(result)
+    prior = loaded.prior.block if loaded.prior else {}
     # weight "fixed": noise_mm is the option the fit was given, not what its data said.
     noise = prior.get("noise_estimated_mm" if prior.get("weight") == "fixed" else "noise_mm")
     return None if noise is None else float(noise)

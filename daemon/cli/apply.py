@@ -7,7 +7,7 @@ without the daemon. ``calib`` (numpy, scipy) is imported inside the commands, so
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -19,6 +19,7 @@ from daemon.cli.errors import fail as _fail
 if TYPE_CHECKING:
     from calib.compensate import CompensateResult
     from calib.models import RobotModel
+    from calib.result import CalibrationResult
     from calib.verify import VerifyResult
 
 console = Console()
@@ -28,25 +29,36 @@ err_console = Console(stderr=True)
 MAX_PRINTED_ROWS = 20
 
 
-def read_result(path: Path) -> dict[str, Any]:
-    """A ``result.json`` mapping; errors name the file."""
+def read_result(path: Path) -> "CalibrationResult":
+    """The result a ``result.json`` file holds (:mod:`calib.result`); errors name the file
+    and the field."""
+    from calib.result import CalibrationResult, ResultError
+
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise _fail(f"{path}: cannot read: {exc.strerror}") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise _fail(f"{path}: not a result.json (invalid JSON: {exc})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("dh"), list):
+    try:
+        result = CalibrationResult.from_json(data)
+    except TypeError:
+        result = None
+    except ResultError as exc:
+        raise _fail(f"{path}: not a valid result.json: {exc}") from None
+    if result is None or result.dh is None:
         raise _fail(f"{path}: not a result.json (no 'dh' table); write one with cablecal identify")
-    return data
+    return result
 
 
-def nominal_model(result: dict[str, Any], robot: str | None, result_path: Path) -> "RobotModel":
+def nominal_model(
+    result: "CalibrationResult", robot: str | None, result_path: Path
+) -> "RobotModel":
     """The nominal model: ``--robot`` (built-in name or model file), else the result's robot."""
     from calib.models import ModelError
     from daemon.datafiles import load_robot
 
-    spec = robot or str(result.get("robot") or "")
+    spec = robot or result.robot or ""
     try:
         return load_robot(spec)
     except (ModelError, KeyError, ValueError) as exc:

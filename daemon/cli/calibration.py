@@ -95,9 +95,11 @@ def _run_identify(model: "RobotModel", samples: Any, opts: IdentifyOptions, **kw
         return identify(model, samples, opts, progress=cb, clock=time.perf_counter, **kw)
 
 
-def _summary(result: "IdentifyResult") -> None:
-    data = result.to_json()
-    table = Table(title=f"{data['robot']}: {data['method']} ({data['message']})")
+def _summary(fit: "IdentifyResult") -> None:
+    from calib.result import DH_KEYS, CalibrationResult
+
+    result = CalibrationResult.from_json(fit.to_json())
+    table = Table(title=f"{result.robot}: {result.method} ({result.message})")
     table.add_column("figure [mm]")
     for label in ("before/train", "before/test", "after/train", "after/test"):
         table.add_column(label, justify="right")
@@ -105,34 +107,29 @@ def _summary(result: "IdentifyResult") -> None:
         cells = []
         for stage in ("before", "after"):
             for part in ("train", "test"):
-                v = data["metrics"][stage][part][key]
-                cells.append("-" if v != v else f"{v:.4f}")
+                v = result.figures(stage, part)[key]
+                cells.append("-" if v is None or v != v else f"{v:.4f}")
         table.add_row(key.removesuffix("_mm"), *cells)
     console.print(table)
     dh = Table(title="DH errors (calibrated − nominal), ±1σ")
     for col in ("joint", "dalpha [deg]", "da [mm]", "dd [mm]", "dtheta [deg]"):
         dh.add_column(col, justify="right")
-    unc = data["uncertainty"]
-    for row in data["dh_error"]:
-        j = row["joint"]
+    for row in result.dh_error or ():
+        j = row.joint
         cells = []
-        for key, name in (
-            ("alpha_deg", "alpha"),
-            ("a_mm", "a"),
-            ("d_mm", "d"),
-            ("theta_deg", "theta"),
-        ):
-            sig = unc.get(f"{name}{j}")
-            cells.append(f"{row[key]:+.4f}" + (f" ±{sig:.4f}" if sig else " (fixed)"))
+        for key, value in zip(DH_KEYS, row.values(), strict=True):
+            sig = result.uncertainty.get(f"{key.split('_')[0]}{j}")
+            cells.append(f"{value:+.4f}" + (f" ±{sig:.4f}" if sig else " (fixed)"))
         dh.add_row(str(j), *cells)
     console.print(dh)
-    ident = data["identifiability"]
+    ident = result.identifiability or {}
+    first = result.anchor_fit()
     console.print(
-        f"tool_mm = {[round(float(v), 3) for v in data['tool_mm']]}, anchor_mm = "
-        f"{[round(float(v), 2) for v in data['anchor_mm']]}, length_offset_mm = "
-        f"{data['length_offset_mm']:.3f}"
+        f"tool_mm = {[round(v, 3) for v in result.tool()]}, anchor_mm = "
+        f"{[round(v, 2) for v in first.anchor_mm]}, length_offset_mm = "
+        f"{first.length_offset_mm:.3f}"
     )
-    tcp = data.get("tcp_uncertainty_mm")
+    tcp = result.tcp_uncertainty_mm
     if tcp:
         console.print(
             f"predicted TCP position 1σ after best rigid alignment: RMS {tcp['rms']:.4f} mm, "
@@ -144,17 +141,17 @@ def _summary(result: "IdentifyResult") -> None:
         + ", ".join(ident["unidentifiable"])
     )
     console.print(
-        f"iterations {data['iterations']}, {data['elapsed_s']:.3f} s, prior "
-        f"{'on' if data['prior']['used'] else 'off'}, plausible: "
-        f"{data['plausibility']['plausible']}, flagged: {len(data['flagged_samples'])}"
+        f"iterations {result.iterations}, {result.elapsed_s:.3f} s, prior "
+        f"{'on' if result.prior and result.prior.used else 'off'}, plausible: "
+        f"{result.plausible}, flagged: {len(result.flagged_samples)}"
     )
-    if data.get("drift"):
-        console.print(data["drift"]["summary"])
-    flagged = data["flagged_samples"]
+    if result.drift:
+        console.print(result.drift.summary)
+    flagged = result.flagged_samples
     if flagged:
         shown = ", ".join(str(i) for i in flagged[:40]) + (" …" if len(flagged) > 40 else "")
         console.print(f"flagged samples (0-based data rows, excluded from the fit): {shown}")
-    for note in data["notes"]:
+    for note in result.notes:
         err_console.print(f"[yellow]note:[/] {note}")
 
 

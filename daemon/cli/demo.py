@@ -176,15 +176,16 @@ def campaign_cmd(
                 )
 
 
-def _print_result(result: dict[str, object]) -> None:
-    metrics = result["metrics"]
-    assert isinstance(metrics, dict)
-    table = Table(title=f"{result['method']} on {result['robot']}: cable-length error [mm]")
+def _print_result(doc: dict[str, object]) -> None:
+    from calib.result import CalibrationResult
+
+    result = CalibrationResult.from_json(doc)
+    table = Table(title=f"{result.method} on {result.robot}: cable-length error [mm]")
     for col in ("model", "set", "RMSE", "MAE", "STD", "MAX"):
         table.add_column(col)
     for when in ("before", "after"):
         for part in ("train", "test"):
-            m = metrics[when][part]
+            m = result.figures(when, part)
             table.add_row(
                 when,
                 part,

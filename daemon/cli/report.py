@@ -42,16 +42,21 @@ def report_cmd(
     from calib.dataset import SampleError
     from calib.html_report import render_report_html, sample_residuals
     from calib.models import ModelError
+    from calib.result import CalibrationResult, ResultError
     from daemon.datafiles import load_robot, read_samples
 
     try:
-        result = json.loads(result_path.read_text(encoding="utf-8"))
+        doc = json.loads(result_path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise _fail(f"RESULT.json: cannot read {result_path}: {exc.strerror}") from exc
     except json.JSONDecodeError as exc:
         raise _fail(f"RESULT.json: {result_path} is not JSON: {exc}") from exc
-    if not isinstance(result, dict):
-        raise _fail(f"RESULT.json: {result_path} holds {type(result).__name__}, not an object")
+    if not isinstance(doc, dict):
+        raise _fail(f"RESULT.json: {result_path} holds {type(doc).__name__}, not an object")
+    try:
+        result = CalibrationResult.from_json(doc)
+    except ResultError as exc:
+        raise _fail(f"RESULT.json: {result_path}: {exc}") from exc
     residuals = None
     try:
         nominal = load_robot(robot) if robot is not None else None

@@ -40,6 +40,7 @@ from multiprocessing.managers import SyncManager
 from typing import Any
 
 from calib.options import default as default_option
+from calib.result import CalibrationResult
 from daemon import metrics
 from daemon.config import JobSettings
 from daemon.jobs.worker import (
@@ -286,9 +287,7 @@ class JobManager:
                 self._finish(job_id, status, error=f"{type(exc).__name__}: {exc}")
         else:
             status = JobState.SUCCEEDED
-            result["flagged_sample_ids"] = [sample_ids[i] for i in result["flagged_samples"]]
-            split = result.get("split") or {}
-            split["test_sample_ids"] = [sample_ids[i] for i in split.get("test_rows", [])]
+            result = CalibrationResult.from_json(result).with_sample_ids(sample_ids)
             await asyncio.to_thread(self._succeeded, job_id, result, sample_ids)
         finally:
             metrics.JOBS.labels(method, status.value).inc()
@@ -318,10 +317,10 @@ class JobManager:
             job = self.store.get_job(job_id)
             if job is not None:
                 try:
-                    add_plan_check(self.store, int(job["campaign_id"]), sample_ids, result)
+                    result = add_plan_check(self.store, int(job["campaign_id"]), sample_ids, result)
                 except Exception:  # the check must never lose a result
                     log.exception("plan check of job %d failed", job_id)
-        plausible = bool(result.get("plausibility", {}).get("plausible", False))
+        plausible = CalibrationResult.from_json(result).plausible
         robot_id = int(self.store.job(job_id)["robot_id"])
         current = self.store.current_job_id(robot_id)
         accepted = self.settings.auto_accept and plausible and current is None

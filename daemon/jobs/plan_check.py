@@ -52,15 +52,16 @@ def rejections(store: Any, campaign_id: int) -> list[dict[str, Any]]:
 
 def add_plan_check(
     store: Any, campaign_id: int, sample_ids: list[int], result: dict[str, Any]
-) -> None:
-    """Put :func:`plan_check` into ``result`` (``plan_check``, and its note in ``notes`` when
+) -> dict[str, Any]:
+    """``result`` with :func:`plan_check` in it (``plan_check``, and its note in ``notes`` when
     the samples stray from the plan or fall short of its prediction:
-    :func:`calib.planning.progress.worth_a_note`)."""
+    :func:`calib.planning.progress.worth_a_note`); ``result`` itself when the campaign has no
+    plan."""
     from calib.planning.progress import worth_a_note
+    from calib.result import CalibrationResult
 
     check = plan_check(store, campaign_id, sample_ids, result)
     if check is None:
-        return
-    result["plan_check"] = check
-    if worth_a_note(check):
-        result.setdefault("notes", []).append(check["note"])
+        return result
+    note = str(check["note"]) if worth_a_note(check) else None
+    return CalibrationResult.from_json(result).with_plan_check(check, note)

@@ -48,6 +48,7 @@ import logging
 import time
 from typing import TYPE_CHECKING, Any
 
+from calib.result import CalibrationResult
 from daemon import metrics
 from daemon.store.rows import CHECK_JUDGED
 
@@ -194,7 +195,7 @@ class HoldCheckMonitor:
             poses_deg=poses,
         )
         if self.auto is not None:
-            self.auto.start_check(cid, anchor=str(result.get("anchor_id") or "A"))
+            self.auto.start_check(cid, anchor=CalibrationResult.from_json(result).first_anchor)
         self._running = check
         self._task = asyncio.create_task(self._follow(check, result), name="hold-check")
         log.info("drift check started", extra={"campaign_id": cid, "check_id": check["id"]})

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any, Final, cast
 
+from calib.result import CalibrationResult
 from daemon.store.db import Row, StoreDB, decode_row, finite, last_id, now, or_none, to_json
 from daemon.store.errors import StoreError, StoreInvalid, StoreNotFound
 from daemon.store.rows import JOB_FINISHED, CalibratedModel, JobRow, JobState, ResultRow
@@ -305,19 +306,20 @@ class JobStore(StoreDB):
         with self._lock:
             robot = self._require("robots", "robot", robot_id)
             row = self.accepted_result(robot_id)
-        result = row["result"]
+        result = CalibrationResult.from_json(row["result"])
+        after = (result.metrics or {}).get("after")
         return {
             "robot_id": robot_id,
             "robot": robot["name"],
-            "convention": str(result.get("convention") or robot["convention"]),
-            "dh": result.get("dh"),
-            "tool_mm": result.get("tool_mm"),
-            "method": result.get("method"),
+            "convention": str(result.convention or robot["convention"]),
+            "dh": None if result.dh is None else [r.to_json() for r in result.dh],
+            "tool_mm": None if result.tool_mm is None else list(result.tool_mm),
+            "method": result.method,
             "job_id": row["job_id"],
             "campaign_id": row["campaign_id"],
             "result_id": row["id"],
             "created_at": row["created_at"],
-            "metrics": (result.get("metrics") or {}).get("after"),
+            "metrics": None if after is None else dict(after),
         }
 
     def accepted_result(self, robot_id: int) -> ResultRow:

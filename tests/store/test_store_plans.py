@@ -69,7 +69,7 @@ def test_a_result_off_the_plan_says_so_and_what_it_cost(
     own = plan_q[:31] + 3.0  # the robot's own poses, 3 deg off the plan
     ids = store.import_samples(cid, make_samples(own, np.full(31, 900.0), ["A"] * 31))
     result: dict[str, Any] = {"tcp_uncertainty_mm": {"rms": 0.84, "max": 1.2}, "notes": []}
-    add_plan_check(store, cid, ids, result)
+    result = add_plan_check(store, cid, ids, result)
     check = result["plan_check"]
     assert (check["n_planned"], check["n_measured"], check["n_off_plan"]) == (40, 0, 31)
     assert not check["on_plan"] and check["sigma_ratio"] == pytest.approx(0.84 / 0.063)
@@ -79,6 +79,6 @@ def test_a_result_off_the_plan_says_so_and_what_it_cost(
     on = plan_q + 0.01
     ids = store.import_samples(cid, make_samples(on, np.full(40, 900.0), ["A"] * 40))
     result = {"tcp_uncertainty_mm": {"rms": 0.07, "max": 0.1}, "notes": []}
-    add_plan_check(store, cid, ids, result)
+    result = add_plan_check(store, cid, ids, result)
     assert result["plan_check"]["on_plan"] and result["plan_check"]["n_off_plan"] == 0
     assert result["notes"] == []

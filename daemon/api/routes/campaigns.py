@@ -31,7 +31,7 @@ from daemon.api.deps import (
     link_next,
     require_space,
 )
-from daemon.api.errors import Error, error_responses, unprocessable
+from daemon.api.errors import ApiError, Error, error_responses
 from daemon.api.http.downloads import download_headers
 from daemon.api.http.guard import MAX_IMPORT_BYTES
 from daemon.api.http.offload import offload
@@ -195,10 +195,8 @@ def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
         j = JOINT_COLUMNS.index(exc.column) if exc.column in JOINT_COLUMNS else None
         loc: tuple[str | int, ...] = ("body", "joints_deg") + (() if j is None else (j,))
         field = "joints_deg" if j is None else f"joints_deg[{j}]"
-        message = str(exc).split(": ", 1)[-1]
-        if "outside the limits" in message:  # the campaign's robot model refuses it: 409
-            raise HTTPException(409, f"{field}: {message}") from exc
-        raise unprocessable(loc, f"{field}: {message}") from exc
+        # outside the campaign's robot model's limits: CONFLICT, a 409
+        raise ApiError(exc.kind, f"{field}: {exc.message}", loc) from exc
 
 
 @router.put(

@@ -21,6 +21,7 @@ from calib.planning import CSV_COLUMNS, PlanOptions, plan
 from calib.planning.progress import MATCH_TOL_DEG, match_plan, not_capturable
 from calib.planning.start import plan_anchor_ids, start_anchor_fits
 from calib.programs.formats import DEFAULT_SPEED_PCT
+from calib.result import CalibrationResult
 from daemon.api.deps import CampaignId, ReadAuth, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.plan_noise import NoiseEstimate, cell_noise
@@ -107,13 +108,12 @@ def known_offsets(state: State, campaign_id: int, robot_id: int) -> dict[str, Of
     except StoreNotFound:  # none accepted yet
         accepted = None
     if accepted is not None:
-        res = accepted["result"]
+        res = CalibrationResult.from_json(accepted["result"])
         label = f"the accepted calibration (result #{accepted['id']})"
-        if "anchor_id" in res and "length_offset_mm" in res:
-            out[str(res["anchor_id"])] = (float(res["length_offset_mm"]), label)
-        for aid, a in (res.get("anchors") or {}).items():
-            if "length_offset_mm" in a:
-                out[str(aid)] = (float(a["length_offset_mm"]), label)
+        if res.anchor_id is not None and res.length_offset_mm is not None:
+            out[res.anchor_id] = (res.length_offset_mm, label)
+        for aid, a in res.anchors.items():
+            out[aid] = (a.length_offset_mm, label)
     if state.watch is not None:
         for aid, c in state.watch.offsets_mm(campaign_id).items():
             out[aid] = (c, "the campaign's running fit")

@@ -9,6 +9,7 @@ from fastapi import APIRouter, HTTPException
 from fastapi.responses import HTMLResponse
 from typing_extensions import TypedDict
 
+from calib.result import CalibrationResult
 from daemon.api.deps import JobId, ReadAuth, State
 from daemon.api.errors import error_responses
 from daemon.api.http.downloads import download_headers
@@ -59,8 +60,8 @@ def residuals(state: State, job_id: JobId) -> Residuals:
     """Before (nominal model, P0 and offset fitted) and after (calibrated model) residuals of
     every included sample of the job's campaign [mm]."""
     result, res, ids = _result_and_residuals(state, job_id)
-    split = result.get("split") or {}
-    n_train, n_test = split.get("n_train"), split.get("n_test")
+    split = CalibrationResult.from_json(result).split
+    n_train, n_test = (split.n_train, split.n_test) if split else (None, None)
     return {
         "sample_ids": ids,
         "after_mm": [float(v) for v in res.after_mm],
