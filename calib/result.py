@@ -116,9 +116,9 @@ class ResultShape:
 
 #: Every shape identify has written, oldest first (found in ``git log -p`` of
 #: ``calib/identify.py`` and ``calib/report.py``). A document of shape ``n`` holds the keys of
-#: every shape up to ``n``. Written only when the robot's controller does not count its
-#: joints as the table: ``controller`` (2026-11-28, caf347f), so it marks no shape. The daemon
-#: adds ``flagged_sample_ids``, ``split.test_sample_ids`` and ``plan_check`` to what it stores.
+#: every shape up to ``n``. ``controller`` (2026-11-28, caf347f) marks no shape: it is written
+#: only for a robot whose controller does not count its joints as the table. The daemon adds
+#: ``flagged_sample_ids``, ``split.test_sample_ids`` and ``plan_check`` to what it stores.
 RESULT_SHAPES = (
     ResultShape(1, "2026-11-21 (aabb0f2): the first contract", BASE_KEYS),
     ResultShape(2, "2026-11-23 (3858223): the tool point's 1σ", ("tcp_uncertainty_mm",)),
@@ -192,7 +192,8 @@ class CalibrationResult:
 
     @classmethod
     def from_json(cls, doc: Mapping[str, Any]) -> CalibrationResult:
-        """Load a parsed ``result.json`` of any shape.
+        """Load a parsed ``result.json`` of any shape. The document is kept as given (not
+        copied): the caller does not change it afterwards; :meth:`to_json` gives a copy.
 
         Raises
         ------
