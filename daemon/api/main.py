@@ -46,7 +46,8 @@ def create_app(
     sampler_factory: Callable[[AppState], Any] | None = None,
 ) -> FastAPI:
     """The service. ``sampler_factory(state)`` builds the sampler (default: the configured
-    drivers, :func:`daemon.api.lifespan.default_sampler`); the parts are started and stopped
+    drivers and the sink ``state.watch.wrap(state.store)``,
+    :func:`daemon.api.lifespan.default_sampler`); the parts are started and stopped
     in :func:`daemon.api.lifespan.make_lifespan`."""
     app = FastAPI(
         title="cablecal",

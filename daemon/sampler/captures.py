@@ -43,6 +43,7 @@ class CapturePath:
     _buffer: deque[PairedReading]
     _frozen: FrozenWatch
     _used_until: float
+    _joints: tuple[Joints, float, float] | None
     _auto: AutoState | None
     _task: asyncio.Task[None] | None
     _tick: asyncio.Event
@@ -181,8 +182,11 @@ class CapturePath:
             exc,
             extra={"campaign_id": campaign_id, "device": exc.device, "error": exc.reason},
         )
+        joints = None if self._joints is None else self._joints[0]  # the pose, when known
         try:
-            self.sink.record_rejection(campaign_id, exc.reason, exc.detail, exc.device)
+            self.sink.record_rejection(
+                campaign_id, exc.reason, exc.detail, exc.device, joints_deg=joints
+            )
         except Exception:
             log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
 
