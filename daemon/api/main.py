@@ -1,6 +1,6 @@
 """Assemble the FastAPI app: the lifespan (:mod:`daemon.api.lifespan`), routers,
-error handlers (:mod:`daemon.api.errors`), the request guard (:mod:`daemon.api.guard`: auth,
-then body limits), the latency middleware (:mod:`daemon.api.latency`), the operator page and
+error handlers (:mod:`daemon.api.errors`), the request guard (:mod:`daemon.api.http.guard`: auth,
+then body limits), the latency middleware (:mod:`daemon.api.http.latency`), the operator page and
 /docs (:mod:`daemon.api.web`)."""
 
 from __future__ import annotations

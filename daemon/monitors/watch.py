@@ -154,7 +154,7 @@ class SensorWatch:
                 robot_id = int(self.store.campaign(campaign_id)["robot_id"])
                 # A drift check's own campaign is never a sensor-move case of its own: its
                 # few poses are compared with the calibration by the check, which says
-                # whether the sensor or the robot moved (daemon.holdcheck).
+                # whether the sensor or the robot moved (daemon.monitors.holdcheck).
                 if self.store.check_of_campaign(campaign_id) is not None:
                     self._check_campaigns.add(campaign_id)
                     return

@@ -63,8 +63,8 @@ class CapturePath:
     # ------------------------------------------------------------------ settle detection
     def _evaluate(self, now: float, not_before: float) -> Verdict:
         """Settle check of the window ending at the newest reading polled at or after
-        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`. A frozen
-        controller (:class:`daemon.settle.FrozenWatch`) outranks a settled or over-range
+        ``not_before`` (monotonic [s]); see :func:`daemon.sampler.settle.evaluate`. A frozen
+        controller (:class:`daemon.sampler.settle.FrozenWatch`) outranks a settled or over-range
         window: its joints are not the robot's (a moving one stays ``moving``: it is not
         ready either, and a noisy cable at rest is not a frozen controller)."""
         verdict = evaluate(self._buffer, self.config, now, not_before, self._ind.name)

@@ -218,7 +218,7 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
     switches end with the database and the sampler naming the same campaign. The store's
     reads and writes run in a worker thread, the sampler's switch on the event loop that owns
     the sampler."""
-    # Auto capture's one owner: daemon.autocapture.AutoCapture.
+    # Auto capture's one owner: daemon.monitors.autocapture.AutoCapture.
     if state.auto is None:
         state.store.campaign(campaign_id)  # 404 first
         raise HTTPException(503, "sampler: not running")

@@ -1,4 +1,4 @@
-"""The live sensor watch (:mod:`daemon.watch`): undo an automatic anchor split."""
+"""The live sensor watch (:mod:`daemon.monitors.watch`): undo an automatic anchor split."""
 
 from __future__ import annotations
 
