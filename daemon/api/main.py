@@ -18,21 +18,10 @@ from daemon.api.http.guard import API_PREFIX, RequestGuard
 from daemon.api.http.latency import LatencyMiddleware
 from daemon.api.http.offload import CancelledIs503
 from daemon.api.lifespan import make_lifespan
-from daemon.api.routes import (
-    campaigns,
-    check_poses,
-    checks,
-    compensate,
-    identifications,
-    live,
-    plans,
-    program_filter,
-    reports,
-    robots,
-    system,
-    verify,
-    watch,
-)
+from daemon.api.routes import live, system
+from daemon.api.routes.campaigns import campaigns, plans, sensor_moved
+from daemon.api.routes.identifications import identifications, reports, verify
+from daemon.api.routes.robots import check_poses, checks, compensate, program_filter, robots
 from daemon.api.web import mount_web
 from daemon.config import Settings
 
@@ -79,7 +68,7 @@ def create_app(
         verify,
         check_poses,
         checks,
-        watch,
+        sensor_moved,
     ):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)

@@ -108,7 +108,7 @@ class JobManager:
                 "daemon.jobs.worker",
                 "daemon.process.forkserver_guard",
                 "calib.filter.run",
-                "daemon.api.routes.program_filter",
+                "daemon.api.routes.robots.program_filter",
             ]
         )
         child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)

@@ -35,7 +35,7 @@ from daemon.api.errors import Error, error_responses, unprocessable
 from daemon.api.http.downloads import download_headers
 from daemon.api.http.guard import MAX_IMPORT_BYTES
 from daemon.api.http.offload import offload
-from daemon.api.routes.robots import robot_for_campaign
+from daemon.api.routes.robots.robots import robot_for_campaign
 from daemon.api.schemas import (
     AutoCapture,
     CampaignCreate,
