@@ -19,7 +19,7 @@ from daemon.api.http.latency import LatencyMiddleware
 from daemon.api.http.offload import CancelledIs503
 from daemon.api.lifespan import make_lifespan
 from daemon.api.routes import live, system
-from daemon.api.routes.campaigns import campaigns, plans, sensor_moved
+from daemon.api.routes.campaigns import campaigns, captures, plans, samples, sensor_moved
 from daemon.api.routes.identifications import identifications, reports, verify
 from daemon.api.routes.robots import check_poses, checks, compensate, program_filter, robots
 from daemon.api.web import mount_web
@@ -59,6 +59,8 @@ def create_app(
         system,
         live,
         campaigns,
+        captures,
+        samples,
         identifications,
         reports,
         robots,

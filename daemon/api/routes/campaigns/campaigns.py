@@ -1,59 +1,30 @@
-"""Campaigns, captures and samples."""
+"""Campaigns: create, list and read them, and each one's auto-capture switch."""
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
 from typing import cast
 
-from fastapi import APIRouter, HTTPException, Query, Request, Response, status
-from fastapi.responses import StreamingResponse
-from starlette.concurrency import run_in_threadpool
+from fastapi import APIRouter, HTTPException, Request, Response, status
 
-from calib.dataset import (
-    JOINT_COLUMNS,
-    SampleError,
-    SampleSet,
-    known_pose_index,
-    make_samples,
-    parse_samples_csv,
-    validate_joint_limits,
-)
 from daemon.api.deps import (
     AppState,
     CampaignId,
-    Paged,
     PagedLarge,
     ReadAuth,
-    SampleId,
     State,
     WriteAuth,
     link_next,
     require_space,
 )
-from daemon.api.errors import Error, error_responses, unprocessable
-from daemon.api.http.downloads import download_headers
-from daemon.api.http.guard import MAX_IMPORT_BYTES
-from daemon.api.http.offload import offload
+from daemon.api.errors import error_responses
 from daemon.api.routes.robots.robots import robot_for_campaign
-from daemon.api.schemas import (
-    AutoCapture,
-    CampaignCreate,
-    CampaignOut,
-    CaptureRequest,
-    ImportResult,
-    SampleOut,
-    SamplePatch,
-)
-from daemon.api.text_rules import not_printable
+from daemon.api.schemas import AutoCapture, CampaignCreate, CampaignOut
 from daemon.monitors.autocapture import SamplerRefused, SamplerUnavailable
-from daemon.sampler.capture import CaptureRejected
 from daemon.store import CampaignRow
 
 log = logging.getLogger("cablecal.service")
 
-#: Content-Types a CSV import accepts (anything else, e.g. application/json, is a 415).
-IMPORT_MEDIA_TYPES = frozenset({"text/csv"})
 
 router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 422))
 
@@ -113,94 +84,6 @@ def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
     return _out(state, state.store.campaign(campaign_id))
 
 
-@router.post(
-    "/campaigns/{campaign_id}/captures",
-    status_code=status.HTTP_201_CREATED,
-    summary="Manual capture",
-    dependencies=[WriteAuth],
-    responses={
-        **error_responses(404),
-        409: {
-            "model": Error,
-            "description": "Robot moving / not settled, over-range, pose already captured, "
-            "joints_deg outside the joint limits of the campaign's robot model, joints_deg "
-            "for a robot driver that reports its own angles",
-        },
-        503: {
-            "model": Error,
-            "description": "A device is down or stale; names the device and its last error",
-        },
-    },
-)
-async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -> SampleOut:
-    """Waits up to ``sampler.capture_timeout_s`` for the robot and the cable to settle, then
-    stores the mean of the settled window and returns the stored sample. With the manual robot
-    driver, ``joints_deg`` carries the joint angles [deg]."""
-    campaign = state.store.campaign(campaign_id)
-    if state.sampler is None:
-        raise HTTPException(503, "sampler: not running")
-    if body.joints_deg is not None:
-        _check_limits(state, int(campaign["robot_id"]), body.joints_deg)
-    if not body.repeat:
-        _refuse_a_repeat(state, campaign_id, body.joints_deg)
-    try:
-        sample: SampleOut = await state.sampler.capture(
-            campaign_id, anchor=body.anchor, joints_deg=body.joints_deg
-        )
-    except CaptureRejected as exc:
-        raise HTTPException(
-            exc.http_status,
-            {"reason": exc.reason, "detail": exc.detail, "device": exc.device},
-        ) from exc
-    except ValueError as exc:  # joints_deg for a robot that reports its own: the cell's state
-        raise HTTPException(409, str(exc)) from exc
-    return sample
-
-
-def _refuse_a_repeat(state: State, campaign_id: int, joints_deg: list[float] | None) -> None:
-    """409 ``not_new_pose`` when the robot stands at a pose the campaign has captured
-    already: auto capture's rule (:func:`calib.dataset.known_pose_index` within the sampler's
-    ``auto_new_pose_deg``, every sample of the campaign, excluded ones too), checked on the
-    angles sent (manual robot) or the newest paired reading. The page asks the operator and
-    sends ``repeat`` to store it anyway."""
-    assert state.sampler is not None
-    q: list[float] | tuple[float, ...] | None = joints_deg
-    if q is None:
-        newest = state.sampler.recent_readings(0.0, 1)
-        if not newest:
-            return  # no reading yet: the capture itself says so
-        q = newest[-1].joints_deg
-    known = state.store.poses_deg(campaign_id)
-    index = known_pose_index(known, q, state.settings.sampler.auto_new_pose_deg)
-    if index is None:
-        return
-    rows = state.store.list_samples(campaign_id, limit=min(index + 1, 10_000))
-    which = f"sample {rows[index]['id']}" if index < len(rows) else "a sample"
-    detail = (
-        f"the robot stands at the pose of {which} (every joint within "
-        f"{state.settings.sampler.auto_new_pose_deg:g} deg); move it to a new pose, or "
-        "confirm the repeat (repeat: true)"
-    )
-    raise HTTPException(409, {"reason": "not_new_pose", "detail": detail, "device": None})
-
-
-def _check_limits(state: State, robot_id: int, joints_deg: list[float]) -> None:
-    """The CSV import's checks (finite, within the model's joint limits) on one pose; the
-    error names ``joints_deg[j]`` instead of the CSV column ``q{j+1}``. Outside the limits of
-    the campaign's robot model is a 409 (a rule of the robot, not of the request's shape)."""
-    try:
-        pose = make_samples([joints_deg], [0.0])
-        validate_joint_limits(pose, state.store.robot_model(robot_id))
-    except SampleError as exc:
-        j = JOINT_COLUMNS.index(exc.column) if exc.column in JOINT_COLUMNS else None
-        loc: tuple[str | int, ...] = ("body", "joints_deg") + (() if j is None else (j,))
-        field = "joints_deg" if j is None else f"joints_deg[{j}]"
-        message = str(exc).split(": ", 1)[-1]
-        if "outside the limits" in message:  # the campaign's robot model refuses it: 409
-            raise HTTPException(409, f"{field}: {message}") from exc
-        raise unprocessable(loc, f"{field}: {message}") from exc
-
-
 @router.put(
     "/campaigns/{campaign_id}/auto-capture",
     summary="Auto capture on or off",
@@ -229,133 +112,3 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
     except SamplerRefused as exc:
         raise HTTPException(503, f"sampler: could not switch auto capture ({exc})") from exc
     return _out(state, row)
-
-
-@router.get(
-    "/campaigns/{campaign_id}/samples",
-    summary="Samples as JSON (paginated), or CSV with ?format=csv",
-    dependencies=[ReadAuth],
-    responses={200: {"content": {"text/csv": {}}}, **error_responses(404, 429, 503)},
-    response_model=list[SampleOut],
-)
-async def list_samples(
-    state: State,
-    request: Request,
-    response: Response,
-    campaign_id: CampaignId,
-    page: Paged,
-    format: str = Query("json", pattern="^(json|csv)$", description="json or csv"),
-) -> list[SampleOut] | Response:
-    """JSON: the samples with their std, count, timestamps and excluded flag, by id,
-    ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
-    rel="next"`` header. CSV: every included sample (not paginated) in the format
-    ``cablecal identify`` reads, built in a worker thread behind the export gate (``[requests]
-    max_checks`` at once, 429 beyond the queue) and sent in pieces as the client reads."""
-    if format == "csv":
-        state.store.campaign(campaign_id)  # 404 before the gate
-
-        async def export() -> str:
-            return await run_in_threadpool(state.store.export_csv, campaign_id)
-
-        text = await offload(request, state.gates["check"], export, cancel_on_leave=False)
-        return StreamingResponse(
-            _pieces(text),
-            media_type="text/csv",
-            headers=download_headers(f"campaign-{campaign_id}.csv"),
-        )
-    rows = await run_in_threadpool(
-        state.store.list_samples, campaign_id, after_id=page.after_id, limit=page.limit
-    )
-    link_next(request, response, rows, page.limit)
-    return rows
-
-
-def _pieces(text: str, piece_chars: int = 1 << 16) -> Iterator[bytes]:
-    """``text`` as UTF-8 in pieces of ``piece_chars`` characters: a slow reader holds one
-    piece in the socket's buffer, not the whole export twice."""
-    for k in range(0, len(text), piece_chars):
-        yield text[k : k + piece_chars].encode()
-
-
-@router.post(
-    "/campaigns/{campaign_id}/samples/import",
-    status_code=status.HTTP_201_CREATED,
-    summary="Import samples from CSV",
-    dependencies=[WriteAuth],
-    responses=error_responses(400, 404, 415, 429, 503, 507),
-    response_model=ImportResult,
-    openapi_extra={
-        "requestBody": {"content": {"text/csv": {"schema": {"type": "string"}}}, "required": True}
-    },
-)
-async def import_samples(state: State, campaign_id: CampaignId, request: Request) -> Response:
-    """The request body is the CSV text (``Content-Type: text/csv``, else 415; at most
-    20 MiB): header q1..q6 [deg] and L [mm], optional ``anchor``. All or nothing: an error
-    gives 400 naming the row (file line, header = 1) and column, and nothing of the import is
-    stored. Parsed and stored in a worker thread, so the event loop (the sampler,
-    ``/health``) keeps running."""
-    state.store.campaign(campaign_id)  # 404 before the body is read
-    media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    if media_type not in IMPORT_MEDIA_TYPES:
-        raise HTTPException(
-            415,
-            f"Content-Type: expected text/csv (the CSV text as the body), got {media_type!r}"
-            if media_type
-            else "Content-Type: expected text/csv (the CSV text as the body)",
-        )
-    declared = request.headers.get("content-length")
-    require_space(state, int(declared) if declared else MAX_IMPORT_BYTES, "import")
-    chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
-    raw = b"".join(chunks)
-    require_space(state, len(raw), "import")
-
-    async def parse_and_store() -> bytes:
-        return await run_in_threadpool(_import_csv, state, campaign_id, raw)
-
-    # Behind the check gate (a 20 MiB import is seconds of work): 429 beyond its queue.
-    body = await offload(request, state.gates["check"], parse_and_store, cancel_on_leave=False)
-    return Response(body, status_code=201, media_type="application/json")
-
-
-def _import_csv(state: AppState, campaign_id: int, raw: bytes) -> bytes:
-    """Decode, parse, check and store a CSV import, and encode the :class:`ImportResult` (in a
-    worker thread: half a million ids take a second to encode)."""
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise HTTPException(
-            400, {"row": None, "column": None, "message": f"not UTF-8: {exc}"}
-        ) from exc
-    try:
-        samples = parse_samples_csv(text)  # header, numbers, NaN, sensor range: row and column
-        _check_printable(samples)
-        ids = state.store.import_samples(campaign_id, samples)  # and the joint limits
-    except SampleError as exc:
-        raise HTTPException(
-            400, {"row": exc.row, "column": exc.column, "message": str(exc)}
-        ) from exc
-    # The ImportResult, encoded in pieces: one json.dumps of a large import's ids would hold
-    # the GIL, and so the event loop, for the whole encoding.
-    pieces = [",".join(map(str, ids[k : k + 20_000])) for k in range(0, len(ids), 20_000)]
-    return f'{{"imported":{len(ids)},"sample_ids":[{",".join(pieces)}]}}'.encode()
-
-
-def _check_printable(samples: SampleSet) -> None:
-    """The text columns hold printable text, as a name or an anchor sent as JSON must
-    (:func:`daemon.api.text_rules.not_printable`); else a :class:`SampleError` naming the row."""
-    for column, cells in (("anchor", samples.anchor), ("group", samples.group or ())):
-        for text in set(cells):
-            if why := not_printable(text):
-                index = cells.index(text)
-                row = int(samples.line[index]) if samples.line is not None else index + 2
-                raise SampleError(f"{why}: only printable text is allowed", row=row, column=column)
-
-
-@router.patch(
-    "/samples/{sample_id}",
-    summary="Exclude or include",
-    dependencies=[WriteAuth],
-    responses=error_responses(404),
-)
-def patch_sample(state: State, sample_id: SampleId, body: SamplePatch) -> SampleOut:
-    return state.store.set_excluded(sample_id, body.excluded, body.reason)
