@@ -2,5 +2,5 @@
 
 from daemon.process.blas import single_threaded_blas, steady_heap
 
-single_threaded_blas()  # measure the product as the cablecal command runs it (daemon.blas)
+single_threaded_blas()  # measure the product as the cablecal command runs it (daemon.process.blas)
 steady_heap()

@@ -1,4 +1,4 @@
-"""False alarms and detection delay of the live sensor watch (:mod:`daemon.watch`).
+"""False alarms and detection delay of the live sensor watch (:mod:`daemon.monitors.watch`).
 
 Offline replay of synthetic sample streams through the daemon's own per-sample test
 (:class:`calib.monitor.running_fit.LiveTester`: the running fit and

@@ -34,7 +34,7 @@ Also the paper protocol (120 random rows, 100/20, ``--splits`` seeds): mean and 
 RMSE of the default identify, of geolm by maximum likelihood and of the paper's ukf-vslm.
 
 The process runs numpy with one BLAS thread, as the ``cablecal`` command does
-(:mod:`daemon.blas`, through ``bench/__init__.py``).
+(:mod:`daemon.process.blas`, through ``bench/__init__.py``).
 
 Writes ``bench/solver_real.json`` and ``bench/solver_real.md``. Run
 ``python -m bench.solver_real`` (``--quick``: 2 subsets, 4 splits, small reference budget).

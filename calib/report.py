@@ -338,7 +338,7 @@ def length_figures(
     rows_by_part: dict[str, np.ndarray],
     predicted: dict[str, Callable[[np.ndarray], FloatArray]],
 ) -> dict[str, dict[str, dict[str, float]]]:
-    """Length metrics (:func:`calib.metrics.length_metrics`) per model label (``before``,
+    """Length metrics (:func:`calib.accuracy.length_metrics`) per model label (``before``,
     ``after``) and per part (``train``, ``test``): ``measured_mm`` (n,) [mm] of every sample,
     ``rows_by_part`` the rows of each part, ``predicted[label](rows)`` the lengths (r,) [mm]
     that model predicts at ``rows`` (the after model's with the drift terms at their times)."""

@@ -2,7 +2,7 @@
 
 :func:`verify` predicts every sample's indicator reading with the calibrated model of a
 ``result.json`` mapping (:func:`calib.predict.predict_lengths_from_result`) and reports RMSE,
-MAE, STD and MAX (:func:`calib.metrics.length_metrics`) and the per-pose residuals
+MAE, STD and MAX (:func:`calib.accuracy.length_metrics`) and the per-pose residuals
 ``measured − predicted``. A drift check compares the RMSE with ``max_rmse_mm``.
 
 ``refit_anchor=True`` is for a campaign taken after the sensor was moved or re-zeroed: the

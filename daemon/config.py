@@ -94,8 +94,9 @@ class JobSettings(BaseModel):
 
 
 class RequestSettings(BaseModel):
-    """Bounds of the work requests cause, the ``[requests]`` section (:mod:`daemon.api.offload`,
-    :mod:`daemon.store.space`): the sampler's poll loop shares the machine with them."""
+    """Bounds of the work requests cause, the ``[requests]`` section
+    (:mod:`daemon.api.http.offload`, :mod:`daemon.store.space`): the sampler's poll loop shares
+    the machine with them."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -120,7 +121,8 @@ class RequestSettings(BaseModel):
 
 
 class HoldCheckSettings(BaseModel):
-    """Hold checks of a calibrated robot, the ``[drift]`` section (:mod:`daemon.holdcheck`)."""
+    """Hold checks of a calibrated robot, the ``[drift]`` section
+    (:mod:`daemon.monitors.holdcheck`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -145,7 +147,8 @@ class HoldCheckSettings(BaseModel):
 
 
 class WatchSettings(BaseModel):
-    """The live sensor watch (:mod:`daemon.watch`; the test: :mod:`calib.monitor.stepwatch`)."""
+    """The live sensor watch (:mod:`daemon.monitors.watch`; the test:
+    :mod:`calib.monitor.stepwatch`)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -202,7 +205,7 @@ class Settings(BaseSettings):
     open."""
     max_connections_per_client: Annotated[int, Field(ge=1, le=1024)] = 64
     """Connections one peer address may hold open at once; a further one is answered 503 and
-    closed (the other bounds on clients: :mod:`daemon.api.server`)."""
+    closed (the other bounds on clients: :mod:`daemon.api.http.server`)."""
     state_dir: Path = Field(default_factory=default_state_dir)
     """Directory of the SQLite database and the generated token."""
     db_path: Path | None = None

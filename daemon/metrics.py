@@ -75,7 +75,7 @@ HTTP_LATENCY = Histogram(
     buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1, 2.5),
     registry=REGISTRY,
 )
-HOLD_CHECK_RMS = Gauge(  # a hold check (daemon.holdcheck), shown as a drift check
+HOLD_CHECK_RMS = Gauge(  # a hold check (daemon.monitors.holdcheck), shown as a drift check
     "cablecal_drift_rms_mm",
     "RMS cable-length residual of the robot's last drift check against its calibration [mm].",
     ["robot"],  # robot id
@@ -89,7 +89,7 @@ HOLD_CHECK_THRESHOLD = Gauge(
 )
 SENSOR_MOVED = Counter(
     "cablecal_sensor_moved",
-    "Moves of the drawstring sensor found by the live watch (daemon.watch), per robot.",
+    "Moves of the drawstring sensor found by the live watch (daemon.monitors.watch), per robot.",
     ["robot"],  # robot id
     registry=REGISTRY,
 )

@@ -32,7 +32,7 @@ which opens, tells and closes that stream. Everything else is here, the same for
   (:func:`drivers.robot.make_joints`); nothing else is returned.
 - **Frozen joints** (:class:`drivers.robot.StaleGuard`): bit-identical joints for longer than
   ``max_unchanged_s`` raise :class:`RobotStale` (off by default: a robot at rest repeats).
-- **Frame log** (:class:`drivers.frames.FrameLog`): every error carries the last frames.
+- **Frame log** (:class:`drivers.wire_bytes.FrameLog`): every error carries the last frames.
 
 The counters tests and benchmarks read: :attr:`LinkedRobot.connects` (successful connects)
 and :attr:`LinkedRobot.attempts` (silent attempts, reads saved by a retry).

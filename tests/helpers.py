@@ -93,7 +93,7 @@ def closed_by_server(s: socket.socket, timeout_s: float) -> bytes | None:
 @contextmanager
 def served_app(app: Any, **options: Any) -> Iterator[tuple[str, int]]:
     """A real uvicorn server on loopback running ``app`` in a thread with ``options``
-    (:func:`daemon.api.server.uvicorn_options`); yields its (host, port) and stops it after."""
+    (:func:`daemon.api.http.server.uvicorn_options`); yields its (host, port) and stops it after."""
     import uvicorn
 
     config = uvicorn.Config(app, host="127.0.0.1", port=0, log_config=None, **options)

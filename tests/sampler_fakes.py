@@ -130,6 +130,8 @@ class FakeSink:
     def __init__(self) -> None:
         self.captures: list[tuple[int, Capture]] = []
         self.rejections: list[tuple[int | None, str, str, str | None]] = []
+        #: The pose each refusal was handed over with (6 floats [deg]), or None.
+        self.rejection_poses: list[tuple[float, ...] | None] = []
         self.events: list[tuple[str, str | None, str, dict[str, Any] | None]] = []
 
     def store_capture(self, campaign_id: int, capture: Capture) -> dict[str, Any]:
@@ -141,9 +143,15 @@ class FakeSink:
         }
 
     def record_rejection(
-        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+        self,
+        campaign_id: int | None,
+        reason: str,
+        detail: str,
+        device: str | None,
+        joints_deg: Sequence[float] | None = None,
     ) -> None:
         self.rejections.append((campaign_id, reason, detail, device))
+        self.rejection_poses.append(None if joints_deg is None else tuple(joints_deg))
 
     def record_event(
         self, kind: str, device: str | None, message: str, detail: dict[str, Any] | None = None

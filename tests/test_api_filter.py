@@ -20,7 +20,7 @@ from test_service import AUTH, TOKEN, FakeSampler
 
 from daemon.api.http.guard import MAX_FILTER_BYTES
 from daemon.api.main import create_app
-from daemon.api.routes.program_filter import MAX_FILES
+from daemon.api.routes.robots.program_filter import MAX_FILES
 from daemon.config import Settings
 
 API = "/api/v1"

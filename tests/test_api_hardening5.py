@@ -553,7 +553,7 @@ def test_a_large_campaign_is_checked_and_submitted_in_a_worker_process(
 ) -> None:
     """Above CHILD_CHECK_SAMPLES (set to 0 here) the check and the snapshot run in a worker
     process on the store opened read-only: readiness and the POST agree, the job runs."""
-    from daemon.api.routes import identifications
+    from daemon.api.routes.identifications import identifications
 
     monkeypatch.setattr(identifications, "CHILD_CHECK_SAMPLES", 0)
     cid = calibrated["campaign_id"]

@@ -245,3 +245,26 @@ def test_no_import_cycles() -> None:
 )
 def test_cycle_finder_finds_cycles(graph: dict[str, set[str]], expected: list[list[str]]) -> None:
     assert _cycles(graph) == expected
+
+
+def _router_prefixes(text: str) -> list[int]:
+    """Lines of ``APIRouter(..., prefix=...)`` calls in a module's source."""
+    return [
+        node.lineno
+        for node in ast.walk(ast.parse(text))
+        if isinstance(node, ast.Call)
+        and getattr(node.func, "id", getattr(node.func, "attr", None)) == "APIRouter"
+        and any(kw.arg == "prefix" for kw in node.keywords)
+    ]
+
+
+def test_routers_write_their_paths_whole() -> None:
+    """One prefix style (docs/architecture.md, api): no router of ``daemon/api/routes/`` has a
+    prefix, so a route's path is the one its decorator says under ``/api/v1``."""
+    found = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for path in sorted((ROOT / "daemon" / "api" / "routes").rglob("*.py"))
+        for line in _router_prefixes(path.read_text(encoding="utf-8"))
+    ]
+    assert found == [], f"routers with a prefix: {found}"
+    assert _router_prefixes('r = APIRouter(prefix="/robots", tags=["robots"])\n') == [1]

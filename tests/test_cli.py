@@ -180,7 +180,8 @@ def test_the_simulator_imports_no_daemon() -> None:
 def test_the_command_runs_numpy_with_one_blas_thread_unless_told(
     preset: str | None, expected: str
 ) -> None:
-    """daemon.blas: the cablecal command defaults BLAS to one thread before numpy loads, and an
+    """daemon.process.blas: the cablecal command defaults BLAS to one thread before numpy loads,
+    and an
     operator's own setting wins. Checked in the child's environment after importing the CLI."""
     import os
 

@@ -1,6 +1,6 @@
 """Issue 28, items 2 and 10: one client cannot take every connection, and the request-head
 limit holds however the head arrives. A real uvicorn server on loopback runs the app with the
-bounds of ``cablecal serve`` (daemon/api/server.py), some shortened so the test takes seconds.
+bounds of ``cablecal serve`` (daemon/api/http/server.py), some shortened so the test takes seconds.
 
 On loopback every client would be 127.0.0.1, so "another client" binds its socket to another
 loopback address (127.0.0.2, 127.0.0.3): a distinct peer address for the server.

@@ -227,7 +227,7 @@ def test_sigkill_leaves_no_child_and_the_restart_records_it(
 
 def test_children_exit_when_a_plain_parent_is_killed(tmp_path: Path) -> None:
     """The mechanism alone, without the daemon: a parent with a forkserver pool whose workers
-    run :func:`daemon.workers.init_child`; SIGKILL the parent mid-job."""
+    run :func:`daemon.process.workers.init_child`; SIGKILL the parent mid-job."""
     script = tmp_path / "parent.py"
     script.write_text(
         """

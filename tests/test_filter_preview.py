@@ -22,7 +22,7 @@ from test_api_apply import calibrated, cell  # noqa: F401
 from test_service import AUTH, TOKEN, FakeSampler
 
 from daemon.api.main import create_app
-from daemon.api.routes.program_filter import outputs_digest
+from daemon.api.routes.robots.program_filter import outputs_digest
 from daemon.config import Settings
 
 API = "/api/v1"

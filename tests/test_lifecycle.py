@@ -1,5 +1,5 @@
-"""The daemon's start and stop in the event log (daemon.lifecycle) and the child-process set-up
-(daemon.workers), without starting the daemon."""
+"""The daemon's start and stop in the event log (daemon.process.lifecycle) and the child-process
+set-up (daemon.process.workers), without starting the daemon."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The plan's noise from the cell (calib.planning.noise, daemon.plan_noise): each source and
+"""The plan's noise from the cell (calib.planning.noise, daemon.api.plan_noise): each source and
 their precedence."""
 
 from __future__ import annotations

@@ -161,8 +161,9 @@ def test_the_api_marks_a_refused_pose_and_plans_with_the_samples_offset(
 def test_a_refusal_through_the_watched_sink_is_stored_with_the_robots_pose(
     tmp_path: Any,
 ) -> None:
+    """The sampler hands a refusal over with its robot's newest joints
+    (tests/test_sampler.py); the watched sink, the sampler's sink in the daemon, stores them."""
     from calib.monitor.stepwatch import StepSettings
-    from daemon.api.lifespan import robot_joints_deg
     from daemon.monitors.watch import SensorWatch
     from daemon.store import Store
 
@@ -170,11 +171,9 @@ def test_a_refusal_through_the_watched_sink_is_stored_with_the_robots_pose(
     try:
         robot = store.ensure_builtin_robot("hsr-jr680")
         cid = int(store.create_campaign("c", robot["id"])["id"])
-        watch = SensorWatch(store, StepSettings())
-        status = {"devices": {"robot": {"last_reading": {"value": [1, 2, 3, 4, 5, 6]}}}}
-        watch.joints_now = lambda: robot_joints_deg(status)
-        sink = watch.wrap(store)
-        sink.record_rejection(cid, "over_range", "indicator over range", "indicator")
+        sink = SensorWatch(store, StepSettings()).wrap(store)
+        pose = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+        sink.record_rejection(cid, "over_range", "indicator over range", "indicator", pose)
         (event,) = store.list_events(kind="capture_rejected", campaign_id=cid)
         assert event["detail"] == {
             "reason": "over_range",
@@ -182,8 +181,7 @@ def test_a_refusal_through_the_watched_sink_is_stored_with_the_robots_pose(
             "joints_deg": [1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
         }
         assert event["message"] == "over_range: indicator over range"
-        status = {"devices": {"robot": {"last_reading": None}}}  # no reading: no pose
-        sink.record_rejection(cid, "stale", "old", "indicator")
+        sink.record_rejection(cid, "stale", "old", "indicator")  # no reading: no pose
         assert "joints_deg" not in store.list_events(kind="capture_rejected")[-1]["detail"]
     finally:
         store.close()

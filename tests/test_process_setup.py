@@ -1,4 +1,5 @@
-"""daemon.blas: the numeric process set-up every cablecal command gets before numpy loads."""
+"""daemon.process.blas: the numeric process set-up every cablecal command gets before numpy
+loads."""
 
 from __future__ import annotations
 

@@ -159,8 +159,13 @@ async def test_failing_device_rejects_with_503_naming_it_and_its_error(role: str
     assert status["last_error"]["frames_hex"] and status["errors"] >= 1
 
 
+#: The robot's pose in the over-range test [deg]: not the fakes' home, so the refusal's pose is
+#: the robot's.
+POSE_OR = (12.5, -30.0, 45.0, 0.0, 60.0, -90.0)
+
+
 async def test_over_range_is_rejected_whether_flagged_or_raised() -> None:
-    ind, rob, sink = FakeIndicator(name="ind-or"), FakeRobot(), FakeSink()
+    ind, rob, sink = FakeIndicator(name="ind-or"), FakeRobot(joints=POSE_OR), FakeSink()
     ind.over_range = True  # over_range_policy = "flag"
     async with running(ind, rob, sink) as s:
         t0 = time.monotonic()
@@ -176,6 +181,8 @@ async def test_over_range_is_rejected_whether_flagged_or_raised() -> None:
         ind.error = None
         await s.capture(1)  # in range again
     assert [r[1] for r in sink.rejections] == ["over_range", "over_range"]
+    # Each refusal is handed to the sink with the robot's pose (a plan's progress reads it).
+    assert sink.rejection_poses == [POSE_OR, POSE_OR]
     # Over-range is counted as a failed poll but is no link event.
     assert metric(
         "cablecal_device_errors_total",

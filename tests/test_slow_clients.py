@@ -1,5 +1,5 @@
 """Issue 21: clients that hold connections open with a partial request (300 such connections
-stayed open with no end before) are dropped within the bounds of daemon/api/server.py and the
+stayed open with no end before) are dropped within the bounds of daemon/api/http/server.py and the
 request guard, and /health answers all the while. A real uvicorn server on loopback runs the
 app with the bounds shortened to 1-2 s, as ``cablecal serve`` configures it."""
 

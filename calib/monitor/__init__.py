@@ -8,6 +8,6 @@
   hold check, the daemon's ``drift`` checks; not :mod:`calib.drift`, the measurement drifting
   within one campaign)?
 
-The daemon (:mod:`daemon.watch`, :mod:`daemon.holdcheck`, the sampler) owns the I/O, the
-time and the state around them.
+The daemon (:mod:`daemon.monitors.watch`, :mod:`daemon.monitors.holdcheck`, the sampler) owns the
+I/O, the time and the state around them.
 """

@@ -1,6 +1,6 @@
 """Hold checks, pure: does a calibrated robot still hold its accepted calibration?
 
-The daemon's hold check (:mod:`daemon.holdcheck`; its settings, route, events and metrics
+The daemon's hold check (:mod:`daemon.monitors.holdcheck`; its settings, route, events and metrics
 keep the user-facing name ``drift``) makes the robot revisit a few check poses and compares
 the captures with the calibration's predictions. This module decides, from numbers only:
 

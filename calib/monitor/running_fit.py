@@ -28,7 +28,7 @@ An anchor with fewer than :data:`calib.cable.MIN_ANCHOR_SAMPLES` samples cannot 
 its samples are not tested (the first samples of a campaign and of a new anchor session).
 
 :class:`LiveTester` ties the fit to :class:`calib.monitor.stepwatch.StepDetector`; the daemon
-(:mod:`daemon.watch`) and the benchmark (``bench/drift_watch.py``) drive it the same way.
+(:mod:`daemon.monitors.watch`) and the benchmark (``bench/drift_watch.py``) drive it the same way.
 ``calib.identify`` and scipy are imported inside the functions that use them.
 """
 
@@ -254,7 +254,7 @@ def scan_for_step(
 class LiveTester:
     """The per-sample test of one campaign, without I/O: the running fit and the detector.
 
-    The daemon (:class:`daemon.watch.SensorWatch`) and the benchmark
+    The daemon (:class:`daemon.monitors.watch.SensorWatch`) and the benchmark
     (``bench/drift_watch.py``) drive it the same way: :meth:`clean_rows` →
     (:meth:`needs_refit` → :meth:`refit`) → :meth:`test`; :meth:`refit_rows` does the
     middle step from the campaign's samples and their ids.

@@ -3,7 +3,7 @@
 Nothing here does I/O, reads a clock or touches asyncio: :func:`evaluate` takes a buffer of
 :class:`PairedReading` (oldest first), the settings and the current monotonic time, and returns
 a :class:`Verdict`; :func:`window_stats` gives a settled window's means and spreads, of which
-the daemon builds a capture (:func:`daemon.settle.make_capture`). The sampler
+the daemon builds a capture (:func:`daemon.sampler.settle.make_capture`). The sampler
 (:mod:`daemon.sampler`) owns the buffer and calls them each poll cycle, the way pymodbus'
 framer turns bytes into frames apart from its transport.
 
@@ -50,10 +50,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
-#: Six joint angles [deg] (the daemon's :data:`daemon.capture.Joints`).
+#: Six joint angles [deg] (the daemon's :data:`daemon.sampler.capture.Joints`).
 Joints = tuple[float, float, float, float, float, float]
 #: Why a window is not settled (a subset of the daemon's capture rejection reasons,
-#: :data:`daemon.capture.RejectionReason`).
+#: :data:`daemon.sampler.capture.RejectionReason`).
 SettleReason = Literal["moving", "over_range", "stale", "no_data", "frozen"]
 
 

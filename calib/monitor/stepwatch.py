@@ -1,4 +1,4 @@
-"""Pure decisions of the live sensor watch (:mod:`daemon.watch`): no I/O, no asyncio.
+"""Pure decisions of the live sensor watch (:mod:`daemon.monitors.watch`): no I/O, no asyncio.
 
 Two questions a plant engineer asks while a campaign runs or a check comes back:
 

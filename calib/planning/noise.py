@@ -3,7 +3,7 @@
 The plan's predicted σ (:mod:`calib.planning`) scales with the 1σ noise of ONE captured
 length. A capture is the mean of a settled window of readings, so that noise is the standard
 error of a window mean, usually far below the indicator's per-reading noise, and an operator
-cannot guess it. The daemon (:func:`daemon.plan_noise.cell_noise`) reads the cell's figures
+cannot guess it. The daemon (:func:`daemon.api.plan_noise.cell_noise`) reads the cell's figures
 (the accepted result, the campaign's captures, the live readings) and :func:`choose` takes
 the first usable one, in :data:`NOISE_SOURCES` order; the figures are computed here:
 :func:`repeat_estimate` (repeat poses), else :func:`capture_mean_estimate` (each capture

@@ -15,7 +15,7 @@ DEFAULT_JOINT_SPEED_DEG_S = (30.0, 30.0, 30.0, 45.0, 45.0, 60.0)
 #: figure is a chosen round value, not a measurement. It scales the predicted σ only: the
 #: information matrix is divided by its square, so which poses are chosen does not depend on
 #: it. The daemon replaces it by the cell's own figure when it has one
-#: (:mod:`daemon.plan_noise`); the hold check's step test also falls back to it
+#: (:mod:`daemon.api.plan_noise`); the hold check's step test also falls back to it
 #: (:func:`calib.monitor.holdcheck.evaluate`).
 PLAN_NOISE_MM = 0.05
 

@@ -2,7 +2,7 @@
 
 :func:`match_poses` marks a planned pose done from the samples; :func:`match_plan` applies it
 to a stored plan's pose rows; :func:`plan_check` compares an identification's samples and
-result with the plan (the daemon reads both from its store: :mod:`daemon.plan_check`).
+result with the plan (the daemon reads both from its store: :mod:`daemon.jobs.plan_check`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from calib.result import CalibrationResult, ResultLike
 MATCH_TOL_DEG = 0.5
 #: Achieved over planned TCP σ RMS above which a result on the plan is still worth a word.
 SIGMA_RATIO_NOTE = 1.5
-#: Refusal reasons (the sampler's, :data:`daemon.capture.REJECTION_STATUS`) that say a planned
+#: Refusal reasons (the sampler's, :data:`daemon.sampler.capture.REJECTION_STATUS`) that say a
+# planned
 #: pose cannot be captured as planned: the indicator over or under its range there, or a pose
 #: that never settled within the capture timeout. A device error or a stale reading may pass
 #: on a retry, so they do not.
@@ -151,7 +152,7 @@ def plan_check(
         for), ``tol_deg``, ``planned_tcp_sigma_mm`` and ``achieved_tcp_sigma_mm``
         (``{"rms", "max"}`` [mm]), ``sigma_ratio`` (achieved / planned RMS), ``plan_noise_mm``
         (the noise the plan assumed) and ``plan_noise_source`` (where it came from, see
-        :mod:`daemon.plan_noise`; None for plans made before), ``fit_noise_mm`` (the noise
+        :mod:`daemon.api.plan_noise`; None for plans made before), ``fit_noise_mm`` (the noise
         the fit ran with), ``planned_rms_at_fit_noise_mm`` (the plan's RMS scaled to that
         noise: σ is linear in the noise) and ``sigma_ratio_at_fit_noise`` (achieved over it),
         ``note``.

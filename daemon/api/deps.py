@@ -38,15 +38,15 @@ class AppState:
         The samples identify needs, per robot and anchor count.
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
-    drift : daemon.holdcheck.HoldCheckMonitor or None
+    drift : daemon.monitors.holdcheck.HoldCheckMonitor or None
         None until the lifespan has started it.
-    auto : daemon.autocapture.AutoCapture or None
+    auto : daemon.monitors.autocapture.AutoCapture or None
         Auto capture's one owner (the store and the sampler kept in step); None until the
         lifespan has started the sampler.
     started_monotonic_s : float
         :func:`time.monotonic` at start-up [s].
     gates : dict of str to WorkGate
-        The bounds of heavy request work by kind (:func:`daemon.api.offload.gates_of`).
+        The bounds of heavy request work by kind (:func:`daemon.api.http.offload.gates_of`).
     """
 
     settings: Settings
@@ -56,7 +56,7 @@ class AppState:
     min_samples: MinSamplesCache
     sampler: Any = None
     drift: Any = None
-    watch: Any = None  # daemon.watch.SensorWatch, None until the lifespan has started it
+    watch: Any = None  # daemon.monitors.watch.SensorWatch, None until the lifespan has started it
     auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
     gates: dict[str, WorkGate] = field(default_factory=dict)

@@ -1,7 +1,8 @@
 """The service's lifespan: its parts started in order and stopped in reverse.
 
-store → jobs → sampler → sensor watch (the sampler's sink wrapped) → auto capture
-(:class:`daemon.autocapture.AutoCapture`, resumed as the store says) → drift monitor. The
+store → jobs → sensor watch → sampler (its sink, given when it is built, is the store watched
+by the sensor watch) → auto capture (:class:`daemon.monitors.autocapture.AutoCapture`, which
+the watch then follows, resumed as the store says) → drift monitor. The
 app itself is assembled in :mod:`daemon.api.main`.
 """
 
@@ -50,30 +51,14 @@ def build_state(settings: Settings, token: str) -> AppState:
 
 
 def default_sampler(state: AppState) -> Any:
-    """The sampler of the configured drivers, given their typed settings."""
+    """The sampler of the configured drivers, given their typed settings; its sink is the
+    store watched by the sensor watch (:meth:`SensorWatch.wrap`), which is built first."""
     from daemon.sampler.core import Sampler
     from drivers import make_indicator, make_robot
 
     s = state.settings
-    return Sampler(make_indicator(s.indicator), make_robot(s.robot), s.sampler, state.store)
-
-
-def watch_captures(sampler: Any, watch: SensorWatch) -> None:
-    """The sampler's sink wrapped, so that the watch tests each stored capture (test
-    doubles without a sink store nothing) and a refused capture is stored with its pose."""
-    if hasattr(sampler, "sink"):
-        sampler.sink = watch.wrap(sampler.sink)
-    if hasattr(sampler, "status"):
-        watch.joints_now = lambda: robot_joints_deg(sampler.status())
-
-
-def robot_joints_deg(status: dict[str, Any]) -> list[float] | None:
-    """The robot's latest joints [deg] (6) from the sampler's ``status()``, or None."""
-    reading = ((status.get("devices") or {}).get("robot") or {}).get("last_reading") or {}
-    value = reading.get("value")
-    if not isinstance(value, list | tuple) or len(value) != 6:
-        return None
-    return [float(v) for v in value]
+    sink = state.watch.wrap(state.store)
+    return Sampler(make_indicator(s.indicator), make_robot(s.robot), s.sampler, sink)
 
 
 def make_lifespan(
@@ -88,16 +73,13 @@ def make_lifespan(
         record_start(state.store)  # and unclean_shutdown if the previous run did not stop
         await state.jobs.start()
         try:
+            state.watch = SensorWatch(
+                state.store, settings.watch.step_settings(), enabled=settings.watch.enabled
+            )
             state.sampler = (sampler_factory or default_sampler)(state)
             await state.sampler.start()
             state.auto = AutoCapture(state.store, state.sampler)
-            state.watch = SensorWatch(
-                state.store,
-                settings.watch.step_settings(),
-                state.auto,
-                enabled=settings.watch.enabled,
-            )
-            watch_captures(state.sampler, state.watch)
+            state.watch.start(state.auto)
             state.auto.resume()
             state.drift = HoldCheckMonitor(state.store, settings.drift, state.auto)
             await state.drift.start()

@@ -1,6 +1,6 @@
 """Assemble the FastAPI app: the lifespan (:mod:`daemon.api.lifespan`), routers,
-error handlers (:mod:`daemon.api.errors`), the request guard (:mod:`daemon.api.guard`: auth,
-then body limits), the latency middleware (:mod:`daemon.api.latency`), the operator page and
+error handlers (:mod:`daemon.api.errors`), the request guard (:mod:`daemon.api.http.guard`: auth,
+then body limits), the latency middleware (:mod:`daemon.api.http.latency`), the operator page and
 /docs (:mod:`daemon.api.web`)."""
 
 from __future__ import annotations
@@ -18,21 +18,10 @@ from daemon.api.http.guard import API_PREFIX, RequestGuard
 from daemon.api.http.latency import LatencyMiddleware
 from daemon.api.http.offload import CancelledIs503
 from daemon.api.lifespan import make_lifespan
-from daemon.api.routes import (
-    campaigns,
-    check_poses,
-    checks,
-    compensate,
-    identifications,
-    live,
-    plans,
-    program_filter,
-    reports,
-    robots,
-    system,
-    verify,
-    watch,
-)
+from daemon.api.routes import live, system
+from daemon.api.routes.campaigns import campaigns, captures, plans, samples, sensor_moved
+from daemon.api.routes.identifications import identifications, reports, verify
+from daemon.api.routes.robots import check_poses, checks, compensate, program_filter, robots
 from daemon.api.web import mount_web
 from daemon.config import Settings
 
@@ -46,7 +35,8 @@ def create_app(
     sampler_factory: Callable[[AppState], Any] | None = None,
 ) -> FastAPI:
     """The service. ``sampler_factory(state)`` builds the sampler (default: the configured
-    drivers, :func:`daemon.api.lifespan.default_sampler`); the parts are started and stopped
+    drivers and the sink ``state.watch.wrap(state.store)``,
+    :func:`daemon.api.lifespan.default_sampler`); the parts are started and stopped
     in :func:`daemon.api.lifespan.make_lifespan`."""
     app = FastAPI(
         title="cablecal",
@@ -69,6 +59,8 @@ def create_app(
         system,
         live,
         campaigns,
+        captures,
+        samples,
         identifications,
         reports,
         robots,
@@ -78,7 +70,7 @@ def create_app(
         verify,
         check_poses,
         checks,
-        watch,
+        sensor_moved,
     ):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(system.metrics_router)

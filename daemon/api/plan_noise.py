@@ -2,7 +2,7 @@
 
 The plan's predicted σ (:mod:`calib.planning`) scales with the 1σ noise of ONE captured
 length. A capture is the mean of a settled window of readings
-(:func:`daemon.settle.make_capture`), so that noise is the standard error of a window mean,
+(:func:`daemon.sampler.settle.make_capture`), so that noise is the standard error of a window mean,
 usually far below the indicator's per-reading noise, and an operator cannot guess it.
 :func:`cell_noise` takes the best figure the cell has, in this order (``noise_source``; a
 ``noise_mm`` the request gives, ``request``, wins over all):

@@ -210,7 +210,7 @@ class IdentificationRequest(_Body):
 
 # ------------------------------------------------------------------ compensation targets
 #: Most targets one compensation request may carry (the body is bounded by the request
-#: guard: :data:`daemon.api.guard.MAX_COMPENSATE_BYTES`).
+#: guard: :data:`daemon.api.http.guard.MAX_COMPENSATE_BYTES`).
 MAX_TARGETS = 10_000
 
 JointDeg = Annotated[float, Field(ge=-3600.0, le=3600.0, allow_inf_nan=False)]

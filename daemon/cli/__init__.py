@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from daemon.process.blas import single_threaded_blas, steady_heap
 
-single_threaded_blas()  # before anything imports numpy (daemon.blas says why)
+single_threaded_blas()  # before anything imports numpy (daemon.process.blas says why)
 steady_heap()
 
 import typer  # noqa: E402

@@ -116,7 +116,7 @@ async def serve(settings: "Settings", token: str, generated: bool) -> int:
         access_log=False,
         lifespan="on",
         timeout_graceful_shutdown=5,
-        **uvicorn_options(  # daemon/api/server.py
+        **uvicorn_options(  # daemon/api/http/server.py
             settings.max_connections_per_client, send_timeout_s=settings.requests.send_timeout_s
         ),
     )

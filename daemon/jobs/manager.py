@@ -5,7 +5,7 @@ Design
 * The pool is a :class:`~concurrent.futures.ProcessPoolExecutor` on the ``forkserver`` context
   (the daemon has threads, so plain ``fork`` is unsafe), with ``calib.identify`` preloaded so a
   job starts without re-importing numpy and scipy.
-* Every child (the workers and the manager) runs :func:`daemon.workers.init_child`: it exits
+* Every child (the workers and the manager) runs :func:`daemon.process.workers.init_child`: it exits
   within moments of the daemon's death, even a SIGKILL, and runs at a lower priority with
   ``worker_blas_threads`` BLAS threads, so the sampler keeps its poll rate during a job.
 * A job gets a snapshot of the campaign's included samples at submission time, as plain lists
@@ -99,8 +99,9 @@ class JobManager:
             log.warning("%d identification job(s) were interrupted by a restart", n)
         self._stopping.clear()
         ctx = multiprocessing.get_context("forkserver")
-        # daemon.forkserver_guard: the forkserver kills and reaps its children if we die.
-        # The program filter's worker processes (daemon.workers.run_in_child) fork from it too.
+        # daemon.process.forkserver_guard: the forkserver kills and reaps its children if we die.
+        # The program filter's worker processes (daemon.process.workers.run_in_child) fork from it
+        # too.
         ctx.set_forkserver_preload(
             [
                 "calib.identify",
@@ -108,7 +109,7 @@ class JobManager:
                 "daemon.jobs.worker",
                 "daemon.process.forkserver_guard",
                 "calib.filter.run",
-                "daemon.api.routes.program_filter",
+                "daemon.api.routes.robots.program_filter",
             ]
         )
         child_args = (self.settings.worker_nice, self.settings.worker_blas_threads)
@@ -159,10 +160,10 @@ class JobManager:
 
     # ------------------------------------------------------------------ submit / cancel
     def check(self, campaign_id: int, options: Mapping[str, Any]) -> Checked:
-        """:func:`daemon.job_worker.check_job` on this daemon's store and settings: what an
+        """:func:`daemon.jobs.worker.check_job` on this daemon's store and settings: what an
         identification of the campaign's included samples would run on, after the one rule
         of what can run. The POST and the readiness route both ask it (in a worker thread,
-        or a worker process for a large campaign: :func:`daemon.job_worker.prepare_in_child`),
+        or a worker process for a large campaign: :func:`daemon.jobs.worker.prepare_in_child`),
         so what is called ready is what is accepted.
 
         Raises
@@ -306,7 +307,7 @@ class JobManager:
         """Store a succeeded job's result; it becomes the robot's current calibration only
         when it is plausible and the robot has none yet (runs in a thread). With
         ``sample_ids`` (the samples identified), the result says whether they followed the
-        campaign's plan (:mod:`daemon.plan_check`)."""
+        campaign's plan (:mod:`daemon.jobs.plan_check`)."""
         iteration, cost = result.pop(FINAL_PROGRESS, None) or (None, None)
         if iteration is not None and cost is not None:
             with self._row_lock:

@@ -1,5 +1,5 @@
 """The worker side of an identification job (runs in a pool process of
-:class:`daemon.jobs.JobManager`)."""
+:class:`daemon.jobs.manager.JobManager`)."""
 
 from __future__ import annotations
 
@@ -110,7 +110,7 @@ def prepare_in_child(
     check_only: bool,
 ) -> Prepared | None:
     """:func:`prepare_job` (or, with ``check_only``, only :func:`check_job`: None) in a
-    worker process (:func:`daemon.workers.run_in_child`), on the store opened read-only.
+    worker process (:func:`daemon.process.workers.run_in_child`), on the store opened read-only.
 
     Raises
     ------

@@ -11,8 +11,8 @@ auto is on for campaign c with anchor a ⇔ the sampler captures for c with anch
 - :meth:`AutoCapture.move_anchor`: the sensor watch moves auto capture to a new anchor
   session (or back, on undo), in the store and the sampler;
 - :meth:`AutoCapture.start_check` and :meth:`AutoCapture.release`: a drift check
-  (:mod:`daemon.holdcheck`) captures its check campaign in auto mode. That one is kept out of the
-  store on purpose: a restart fails the running check rather than resuming its captures.
+  (:mod:`daemon.monitors.holdcheck`) captures its check campaign in auto mode. That one is kept out
+  of the store on purpose: a restart fails the running check rather than resuming its captures.
 
 The sampler lives on the event loop: :meth:`switch` runs the store's reads and writes in a
 worker thread and the sampler's switch on the loop, one switch at a time.

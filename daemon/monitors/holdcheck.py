@@ -103,7 +103,7 @@ class HoldCheckMonitor:
     ----------
     store : Store
     settings : HoldCheckSettings
-    auto : daemon.autocapture.AutoCapture or None
+    auto : daemon.monitors.autocapture.AutoCapture or None
         Auto capture's owner (a check captures its campaign in auto mode); None: captures
         come from ``POST /campaigns/{id}/captures`` only.
     """

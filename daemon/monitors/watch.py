@@ -26,7 +26,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -64,8 +64,10 @@ class CampaignWatch:
 
 
 class WatchedSink:
-    """A :class:`daemon.capture.CaptureSink` that tells the watch about each stored capture
-    (everything else goes to the wrapped sink)."""
+    """A :class:`daemon.sampler.capture.CaptureSink` that tells the watch about each stored
+    capture; refusals (with their pose) and device events go to the wrapped sink as they are.
+    The sampler takes it as its sink when it is built
+    (:func:`daemon.api.lifespan.default_sampler`)."""
 
     def __init__(self, inner: CaptureSink, watch: SensorWatch) -> None:
         self._inner = inner
@@ -77,23 +79,19 @@ class WatchedSink:
         return row
 
     def record_rejection(
-        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+        self,
+        campaign_id: int | None,
+        reason: str,
+        detail: str,
+        device: str | None,
+        joints_deg: Sequence[float] | None = None,
     ) -> None:
-        """The refusal with the pose it happened at (the robot's latest joints, from
-        :attr:`SensorWatch.joints_now`), so that a plan's progress can tell a pose that
-        cannot be captured (:mod:`calib.planning.progress`)."""
-        joints = None
-        if self._watch.joints_now is not None:
-            with contextlib.suppress(Exception):
-                joints = self._watch.joints_now()
-        if joints is None:
-            self._inner.record_rejection(campaign_id, reason, detail, device)
-        else:  # the store takes the pose (daemon.store.events)
-            inner: Any = self._inner
-            inner.record_rejection(campaign_id, reason, detail, device, joints_deg=joints)
+        self._inner.record_rejection(campaign_id, reason, detail, device, joints_deg)
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._inner, name)
+    def record_event(
+        self, kind: str, device: str | None, message: str, detail: dict[str, Any] | None = None
+    ) -> None:
+        self._inner.record_event(kind, device, message, detail)
 
 
 class SensorWatch:
@@ -103,29 +101,32 @@ class SensorWatch:
     ----------
     store : Store
     settings : StepSettings
-    auto : daemon.autocapture.AutoCapture or None
-        Auto capture's owner: a move takes auto capture to the new anchor.
     enabled : bool
+
+    It is built before the sampler, whose sink is :meth:`wrap`'s; :meth:`start` gives it auto
+    capture's owner (:class:`daemon.monitors.autocapture.AutoCapture`, built on the sampler):
+    a move takes auto capture to the new anchor.
     """
 
-    def __init__(
-        self, store: Store, settings: StepSettings, auto: Any = None, enabled: bool = True
-    ) -> None:
+    def __init__(self, store: Store, settings: StepSettings, enabled: bool = True) -> None:
         self.store = store
         self.settings = settings
-        self.auto = auto
+        self.auto: Any = None
         self.enabled = enabled
         self._campaigns: dict[int, CampaignWatch] = {}
         #: Campaigns of drift checks: not watched (see :meth:`saw_sample`).
         self._check_campaigns: set[int] = set()
         #: Newest unacknowledged move per campaign (the page's banner): the event detail.
         self._moves: dict[int, dict[str, Any]] = {}
-        #: The robot's latest joints [deg] (6) or None; set by the lifespan from the sampler.
-        self.joints_now: Callable[[], list[float] | None] | None = None
 
     def wrap(self, sink: CaptureSink) -> WatchedSink:
         """``sink`` with this watch listening to its stored captures."""
         return WatchedSink(sink, self)
+
+    def start(self, auto: Any) -> None:
+        """Follow ``auto`` (:class:`daemon.monitors.autocapture.AutoCapture` or None): a move
+        found from now on takes auto capture to the new anchor."""
+        self.auto = auto
 
     async def stop(self) -> None:
         """Cancel the campaigns' tasks."""
@@ -153,7 +154,7 @@ class SensorWatch:
                 robot_id = int(self.store.campaign(campaign_id)["robot_id"])
                 # A drift check's own campaign is never a sensor-move case of its own: its
                 # few poses are compared with the calibration by the check, which says
-                # whether the sensor or the robot moved (daemon.holdcheck).
+                # whether the sensor or the robot moved (daemon.monitors.holdcheck).
                 if self.store.check_of_campaign(campaign_id) is not None:
                     self._check_campaigns.add(campaign_id)
                     return

@@ -2,7 +2,8 @@
 use one BLAS thread each.
 
 :func:`init_child` is the initializer of the identification pool's workers and of the
-multiprocessing manager (:class:`daemon.jobs.JobManager`). It runs first thing in each child.
+multiprocessing manager (:class:`daemon.jobs.manager.JobManager`). It runs first thing in each
+child.
 
 Dying with the daemon
 ---------------------
@@ -22,7 +23,7 @@ crash); the read end then reports EOF and the thread ends the process with :func
 (whatever the main thread is computing: ``_exit`` stops every thread).
 
 The forkserver watches the daemon too (:func:`guard_forkserver`, started by the preloaded
-:mod:`daemon.forkserver_guard`): when the daemon dies it ignores ``SIGCHLD`` (so the kernel
+:mod:`daemon.process.forkserver_guard`): when the daemon dies it ignores ``SIGCHLD`` (so the kernel
 reaps each child as it exits, whatever the forkserver's threads are doing), SIGKILLs its
 children and exits. The children are reaped by their living parent and none is left a zombie
 for pid 1, which in a container may reap late; only the forkserver itself is left to pid 1, as
@@ -167,7 +168,7 @@ def reap_children(pids: list[int], timeout_s: float = REAP_TIMEOUT_S) -> list[in
 
 
 def guard_forkserver() -> threading.Thread | None:
-    """In the forkserver (run by the import of :mod:`daemon.forkserver_guard`, which the job
+    """In the forkserver (run by the import of :mod:`daemon.process.forkserver_guard`, which the job
     manager preloads there): when the daemon dies, SIGKILL every child (pool workers, the
     manager) and reap them, then exit. The children are reaped by their own, living parent,
     so none stays a zombie waiting for init (a container's pid 1 may reap late); only the

@@ -15,9 +15,9 @@ leaves without a capture is counted in ``cablecal_poses_lost_total`` (event ``po
 
 Settling
 --------
-Settle detection is :func:`daemon.settle.evaluate` (pure: buffer, settings and time in,
+Settle detection is :func:`daemon.sampler.settle.evaluate` (pure: buffer, settings and time in,
 verdict out); the window rules are documented there. Each device's state, metrics and events
-are kept by a :class:`daemon.devices.Device`.
+are kept by a :class:`daemon.sampler.devices.Device`.
 
 The indicator's own "moving" status bit is not used: the readings themselves decide. An
 over-range reply (flagged, or raised as :class:`~drivers.IndicatorOverRange`) is a reading

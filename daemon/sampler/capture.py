@@ -7,7 +7,7 @@ before the sampler acknowledges the capture.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final, Literal, Protocol, get_args
 
@@ -131,9 +131,16 @@ class CaptureSink(Protocol):
         ...
 
     def record_rejection(
-        self, campaign_id: int | None, reason: str, detail: str, device: str | None
+        self,
+        campaign_id: int | None,
+        reason: str,
+        detail: str,
+        device: str | None,
+        joints_deg: Sequence[float] | None = None,
     ) -> None:
-        """Record a refused capture (reason, detail) in the events table."""
+        """Record a refused capture (reason, detail) in the events table, with the pose it
+        was refused at when the robot's joints are known (6 floats [deg]: a plan's progress
+        reads them, :mod:`calib.planning.progress`)."""
         ...
 
     def record_event(

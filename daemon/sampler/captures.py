@@ -43,6 +43,7 @@ class CapturePath:
     _buffer: deque[PairedReading]
     _frozen: FrozenWatch
     _used_until: float
+    _joints: tuple[Joints, float, float] | None
     _auto: AutoState | None
     _task: asyncio.Task[None] | None
     _tick: asyncio.Event
@@ -62,8 +63,8 @@ class CapturePath:
     # ------------------------------------------------------------------ settle detection
     def _evaluate(self, now: float, not_before: float) -> Verdict:
         """Settle check of the window ending at the newest reading polled at or after
-        ``not_before`` (monotonic [s]); see :func:`daemon.settle.evaluate`. A frozen
-        controller (:class:`daemon.settle.FrozenWatch`) outranks a settled or over-range
+        ``not_before`` (monotonic [s]); see :func:`daemon.sampler.settle.evaluate`. A frozen
+        controller (:class:`daemon.sampler.settle.FrozenWatch`) outranks a settled or over-range
         window: its joints are not the robot's (a moving one stays ``moving``: it is not
         ready either, and a noisy cable at rest is not a frozen controller)."""
         verdict = evaluate(self._buffer, self.config, now, not_before, self._ind.name)
@@ -181,8 +182,11 @@ class CapturePath:
             exc,
             extra={"campaign_id": campaign_id, "device": exc.device, "error": exc.reason},
         )
+        joints = None if self._joints is None else self._joints[0]  # the pose, when known
         try:
-            self.sink.record_rejection(campaign_id, exc.reason, exc.detail, exc.device)
+            self.sink.record_rejection(
+                campaign_id, exc.reason, exc.detail, exc.device, joints_deg=joints
+            )
         except Exception:
             log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
 

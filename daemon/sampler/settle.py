@@ -4,7 +4,7 @@ The decision is calib's (:mod:`calib.monitor.settle`: :func:`evaluate` takes a b
 :class:`PairedReading`, the settings and the current monotonic time, and returns a
 :class:`Verdict`); it is re-exported here for the sampler, which owns the buffer and calls it
 each poll cycle. :func:`make_capture` turns a settled window into the daemon's
-:class:`daemon.capture.Capture`, with the window's readings kept as raw readings.
+:class:`daemon.sampler.capture.Capture`, with the window's readings kept as raw readings.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from calib.monitor.settle import (
 )
 from daemon.sampler.capture import Capture, CaptureMode, RawReading
 
-Mode = CaptureMode  # the one home: daemon.capture
+Mode = CaptureMode  # the one home: daemon.sampler.capture
 
 
 def make_capture(window: Sequence[PairedReading], anchor: str, mode: Mode) -> Capture:

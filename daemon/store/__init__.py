@@ -76,7 +76,7 @@ from daemon.store.schema import (
 
 
 class Store(ExportStore, JobStore, EventStore, PlanStore, CheckStore):
-    """The SQLite store. Implements :class:`daemon.capture.CaptureSink`.
+    """The SQLite store. Implements :class:`daemon.sampler.capture.CaptureSink`.
 
     ``Store(path)`` opens the file, creating or migrating it; ``Store(path, readonly=True)``
     opens an existing file at the current schema version without writing (``cablecal db

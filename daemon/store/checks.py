@@ -1,7 +1,7 @@
 """Drift checks: each robot's check poses and the history of its checks.
 
 A check captures the robot's check poses into a campaign of its own and compares the lengths
-with the accepted calibration's predictions (:mod:`daemon.holdcheck`). The store keeps:
+with the accepted calibration's predictions (:mod:`daemon.monitors.holdcheck`). The store keeps:
 
 - ``check_poses``: the poses chosen by the user (``PUT /robots/{id}/check-poses``), one row
   per robot; absent: the daemon picks well-spread poses of the calibration's samples.

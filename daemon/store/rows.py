@@ -50,7 +50,7 @@ JobStatus = JobState
 
 #: The one home of a drift check's states (``running`` until it ends ``ok``, ``drift`` or
 #: ``failed``): the store's CHECK constraint, :mod:`daemon.store.checks` and
-#: :mod:`daemon.holdcheck` read them here. The verdicts ``ok`` and ``drift`` are calib's
+#: :mod:`daemon.monitors.holdcheck` read them here. The verdicts ``ok`` and ``drift`` are calib's
 #: (:data:`calib.monitor.holdcheck.CheckVerdict`, the pure decision).
 CheckStatus = Literal["running", CheckVerdict, "failed"]
 CHECK_STATUSES: Final[tuple[str, ...]] = get_args(CheckStatus)

@@ -160,8 +160,8 @@ def _migration_3(conn: sqlite3.Connection) -> None:
 
 
 def _migration_4(conn: sqlite3.Connection) -> None:
-    # Drift checks (daemon.store.checks, daemon.holdcheck): the check poses of each robot and the
-    # history of checks.
+    # Drift checks (daemon.store.checks, daemon.monitors.holdcheck): the check poses of each robot
+    # and the history of checks.
     statements = [
         """CREATE TABLE check_poses (
             robot_id INTEGER PRIMARY KEY REFERENCES robots(id),

@@ -10,7 +10,7 @@ decided:
   they also document the security scheme in OpenAPI.)
 - **Body time.** A body that pauses for :data:`BODY_GAP_TIMEOUT_S` or is not complete
   within :data:`BODY_TIMEOUT_S` is a 408, and the connection closes (a client holding partial
-  bodies open cannot pile up connections; :mod:`daemon.api.server` bounds the request head).
+  bodies open cannot pile up connections; :mod:`daemon.api.http.server` bounds the request head).
 - **Unread bodies.** A response sent before the body was read to its end (a refusal after
   the body's first bytes) closes the connection: the rest is neither parsed nor waited for.
 - **Body limits while streaming.** A ``Content-Length`` over the limit is refused at once; a
@@ -56,7 +56,7 @@ BODY_TIMEOUT_S: Final = 60.0
 _IMPORT_PATH = re.compile(re.escape(API_PREFIX) + r"/campaigns/[^/]+/samples/import/?")
 _COMPENSATE_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/compensate/?")
 _FILTER_PATH = re.compile(re.escape(API_PREFIX) + r"/robots/[^/]+/filter/?")
-#: The liveness route: open without the token (and kept a connection by daemon.api.server).
+#: The liveness route: open without the token (and kept a connection by daemon.api.http.server).
 HEALTH_PATH: Final = API_PREFIX + "/health"
 _OPEN_PATHS = frozenset({HEALTH_PATH})
 _READ_METHODS = frozenset({"GET", "HEAD"})

@@ -7,7 +7,8 @@ CSV import or export, a compensation) runs elsewhere, through a :class:`WorkGate
 - **Bounded**: at most ``running`` at once and ``queued`` waiting; a further request is a
   429 with ``Retry-After`` (the ``[requests]`` settings, :class:`daemon.config.RequestSettings`).
   After shutdown began a request is a 503.
-- **Off the loop**: a filter runs in a process of its own (:func:`daemon.workers.run_in_child`,
+- **Off the loop**: a filter runs in a process of its own
+(:func:`daemon.process.workers.run_in_child`,
   lower priority, no shared GIL, its memory returned when it ends); the rest in a thread.
 - **Dropped when the client leaves**: :func:`offload` watches the connection while the work
   waits or runs; a client that disconnects stops a queued request, and kills a process.

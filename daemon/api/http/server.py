@@ -9,9 +9,9 @@ and a file descriptor each. The bounds, each at the layer that sees it:
   response (uvicorn itself has no such timeout; its keep-alive timer stops at the first byte).
   A head over :data:`MAX_HEAD_BYTES` is a 431, whether it arrives in many reads (h11's bound
   on an incomplete event) or in one (checked on the parsed head).
-- **Request body**: :class:`daemon.api.guard.RequestGuard` answers 408 when a started body
-  stalls for :data:`daemon.api.guard.BODY_GAP_TIMEOUT_S` or is not complete within
-  :data:`daemon.api.guard.BODY_TIMEOUT_S`.
+- **Request body**: :class:`daemon.api.http.guard.RequestGuard` answers 408 when a started body
+  stalls for :data:`daemon.api.http.guard.BODY_GAP_TIMEOUT_S` or is not complete within
+  :data:`daemon.api.http.guard.BODY_TIMEOUT_S`.
 - **Slow readers**: a client that reads none of a response for ``send_timeout_s`` (the
   ``[requests]`` setting) is disconnected, and the response's buffer freed.
 - **Connections per client**: one peer address holds at most ``max_connections_per_client``

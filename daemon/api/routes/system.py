@@ -36,7 +36,8 @@ async def get_status(state: State) -> ServiceStatus:
     frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs; the
     last drift check (``drift``: ``state`` ok/drift/failed/none, ``last_check_at``, ``rms_mm``,
     ``threshold_mm``, ``running``); the live sensor watch (``watch``: ``moves`` not undone,
-    per campaign the running fit and the last residual; :meth:`daemon.watch.SensorWatch.status`)."""
+    per campaign the running fit and the last residual;
+    :meth:`daemon.monitors.watch.SensorWatch.status`)."""
     st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
     return {
         "devices": st.get("devices", {}),

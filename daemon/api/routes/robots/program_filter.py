@@ -2,9 +2,9 @@
 
 ``POST /robots/{id}/filter`` takes ``multipart/form-data``: one or more ``files`` parts (each
 with its ``filename``) and an optional ``frames`` part (the ``--frames`` TOML). The multipart
-body is read as it streams under its limits (:mod:`daemon.api.multipart`: the bytes of each
+body is read as it streams under its limits (:mod:`daemon.api.http.multipart`: the bytes of each
 part exactly as sent); the filter (:func:`calib.filter.run.filter_files`) runs in a worker
-process of its own, at most ``[requests] max_filters`` at once (:mod:`daemon.api.offload`),
+process of its own, at most ``[requests] max_filters`` at once (:mod:`daemon.api.http.offload`),
 never on the event loop, and is killed when the client leaves. A preview (``dry_run``) names
 the robot, the calibration and a digest of the filtered files; a download given them returns
 exactly those files or a 409.
@@ -101,7 +101,7 @@ def _filter(
     only: list[str] | None,
     about: dict[str, Any],
 ) -> tuple[Any, dict[str, Any]]:
-    """Filter (in a worker process, :func:`daemon.workers.run_in_child`): the run (its
+    """Filter (in a worker process, :func:`daemon.process.workers.run_in_child`): the run (its
     outputs and errors only) and its summary, naming the robot and the calibration
     (``about``) and the outputs' digest. 422 when no file could be read (every problem
     named); a bad file among good ones is named in the summary's ``errors``."""

@@ -32,7 +32,6 @@ from daemon.api.text_rules import not_printable
 from daemon.store import RobotRow, StoreConflict
 
 router = APIRouter(
-    prefix="/robots",
     tags=["robots"],
     dependencies=[ReadAuth],
     responses=error_responses(401, 404, 413, 422),
@@ -144,14 +143,14 @@ def robot_for_campaign(state: AppState, body: CampaignCreate) -> RobotRow:
     return _ensure(state, body.robot, model, builtin, "robot_model")
 
 
-@router.get("", summary="Every robot (each a physical robot with its own name)")
+@router.get("/robots", summary="Every robot (each a physical robot with its own name)")
 def list_robots(state: State) -> list[RobotOut]:
     """By id: each robot's own ``name``, its ``model_name``, its nominal model and its current
     calibration's job id (None: not calibrated yet)."""
     return state.store.list_robots()
 
 
-@router.get("/models", summary="The built-in nominal models")
+@router.get("/robots/models", summary="The built-in nominal models")
 def builtin_models() -> list[BuiltinModelOut]:
     """The names of :data:`calib.models.BUILTIN_MODELS`, sorted; ``default`` marks the one a
     campaign without a model gets."""
@@ -159,7 +158,7 @@ def builtin_models() -> list[BuiltinModelOut]:
 
 
 @router.post(
-    "",
+    "/robots",
     status_code=status.HTTP_201_CREATED,
     summary="Add a robot, or find it again by its name",
     dependencies=[WriteAuth],
@@ -187,13 +186,13 @@ def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOu
     return row
 
 
-@router.get("/{robot_id}", summary="One robot and its nominal model")
+@router.get("/robots/{robot_id}", summary="One robot and its nominal model")
 def get_robot(state: State, robot_id: RobotId) -> RobotOut:
     return state.store.robot(robot_id)
 
 
 @router.get(
-    "/{robot_id}/calibrated-model",
+    "/robots/{robot_id}/calibrated-model",
     summary="The latest accepted calibrated DH table, or a model file",
     response_model=CalibratedModelOut | ModelFile,
     responses={

@@ -1,4 +1,4 @@
-"""Hold checks of a robot: start one, read the history (`daemon.holdcheck`)."""
+"""Hold checks of a robot: start one, read the history (`daemon.monitors.holdcheck`)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The live sensor watch (:mod:`daemon.watch`): undo an automatic anchor split."""
+"""The live sensor watch (:mod:`daemon.monitors.watch`): undo an automatic anchor split."""
 
 from __future__ import annotations
 
@@ -11,14 +11,15 @@ from daemon.api.errors import error_responses
 from daemon.monitors.watch import NothingToUndo
 
 router = APIRouter(
-    prefix="/campaigns",
     tags=["campaigns"],
     dependencies=[WriteAuth],
     responses=error_responses(401, 404, 409, 413, 422),
 )
 
 
-@router.post("/{campaign_id}/sensor-moved/undo", summary="Undo the last automatic anchor split")
+@router.post(
+    "/campaigns/{campaign_id}/sensor-moved/undo", summary="Undo the last automatic anchor split"
+)
 def undo_sensor_moved(state: State, campaign_id: CampaignId) -> dict[str, Any]:
     """The watch took a step in the residuals for a moved sensor and put the samples from
     there on in a new anchor session. This puts them (and auto capture, if it uses the new

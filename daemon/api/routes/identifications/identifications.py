@@ -41,7 +41,7 @@ router = APIRouter(tags=["identifications"], responses=error_responses(400, 401,
 
 
 def _job_view(state: State, job: Mapping[str, Any]) -> JobView:
-    """The job row (the store's, or :class:`~daemon.jobs.JobManager`'s copy of it) with its
+    """The job row (the store's, or :class:`~daemon.jobs.manager.JobManager`'s copy of it) with its
     result."""
     result = state.store.get_result_for_job(int(job["id"]))
     view = {

@@ -1,0 +1,2 @@
+"""The campaign and its sub-resources, one router module per resource (this package module
+imports nothing)."""

@@ -1,0 +1,2 @@
+"""The identification (a job and its result) and its sub-resources, one router module per
+resource (this package module imports nothing)."""
