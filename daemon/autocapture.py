@@ -10,7 +10,7 @@ auto is on for campaign c with anchor a ⇔ the sampler captures for c with anch
   rolled back and the sampler put back as it was;
 - :meth:`AutoCapture.move_anchor`: the sensor watch moves auto capture to a new anchor
   session (or back, on undo), in the store and the sampler;
-- :meth:`AutoCapture.start_check` and :meth:`AutoCapture.release`: a drift check
+- :meth:`AutoCapture.start_check` and :meth:`AutoCapture.release`: a hold check
   (:mod:`daemon.holdcheck`) captures its check campaign in auto mode. That one is kept out of the
   store on purpose: a restart fails the running check rather than resuming its captures.
 
@@ -166,9 +166,9 @@ class AutoCapture:
         self.sampler.set_auto_anchor(anchor)
         return True
 
-    # ------------------------------------------------------------------ drift checks
+    # ------------------------------------------------------------------ hold checks
     def start_check(self, campaign_id: int, anchor: str) -> bool:
-        """Auto capture for a drift check's campaign, in the sampler only (not stored, on
+        """Auto capture for a hold check's campaign, in the sampler only (not stored, on
         purpose: see the module docstring). Nothing happens without a sampler or with the
         manual robot (no joint angles to settle on). Returns whether it started."""
         if self.sampler is None or getattr(self.sampler, "manual_robot", False):

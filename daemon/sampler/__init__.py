@@ -51,7 +51,6 @@ from daemon.sampler.config import MAX_BUFFER, SamplerConfig
 from daemon.sampler.core import Sampler, build_sampler
 from daemon.settle import (
     NOT_SETTLED,
-    Mode,
     PairedReading,
     Verdict,
     as_joints,
@@ -65,7 +64,6 @@ __all__ = [
     "NOT_SETTLED",
     "AutoAction",
     "AutoState",
-    "Mode",
     "PairedReading",
     "Sampler",
     "SamplerConfig",

@@ -13,14 +13,13 @@ from collections.abc import Sequence
 from typing import Any
 
 from daemon import metrics
-from daemon.capture import CaptureRejected, CaptureSink, Joints
+from daemon.capture import CaptureMode, CaptureRejected, CaptureSink, Joints
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState
 from daemon.sampler.cancel import raise_if_cancelled
 from daemon.sampler.config import SamplerConfig
 from daemon.settle import (
     FrozenWatch,
-    Mode,
     PairedReading,
     Verdict,
     as_joints,
@@ -93,7 +92,7 @@ class CapturePath:
         campaign_id: int,
         anchor: str = "A",
         joints_deg: Sequence[float] | None = None,
-        mode: Mode = "manual",
+        mode: CaptureMode = "manual",
     ) -> dict[str, Any]:
         """Capture the next settled window after this call; returns the stored sample row.
 
@@ -174,7 +173,7 @@ class CapturePath:
                 async with asyncio.timeout(min(deadline - now, cfg.stale_s) + 1e-3):
                     await tick.wait()
 
-    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: Mode) -> None:
+    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: CaptureMode) -> None:
         metrics.CAPTURES.labels("rejected", exc.reason, mode).inc()
         log.info(
             "capture rejected: %s",
@@ -187,7 +186,7 @@ class CapturePath:
             log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
 
     def _store(
-        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: Mode
+        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: CaptureMode
     ) -> dict[str, Any]:
         capture = make_capture(window, anchor, mode)
         row = dict(self.sink.store_capture(campaign_id, capture))  # commits before returning

@@ -15,7 +15,7 @@ from collections.abc import Awaitable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
 from daemon import metrics
-from daemon.capture import CaptureSink, Joints
+from daemon.capture import CaptureMode, CaptureSink, Joints
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState, start_auto
 from daemon.sampler.cancel import raise_if_cancelled
@@ -25,7 +25,6 @@ from daemon.sampler.late import LateWatch
 from daemon.settle import (
     NOT_SETTLED,
     FrozenWatch,
-    Mode,
     PairedReading,
     Verdict,
     staleness_s,
@@ -114,7 +113,7 @@ class Sampler(CapturePath):
 
     # ------------------------------------------------------------------ lifecycle
     @property
-    def mode(self) -> Mode:
+    def mode(self) -> CaptureMode:
         """``auto`` while auto capture is enabled, else ``manual``."""
         return "manual" if self._auto is None else "auto"
 

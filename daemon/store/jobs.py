@@ -322,7 +322,7 @@ class JobStore(StoreDB):
 
     def accepted_result(self, robot_id: int) -> ResultRow:
         """The robot's current calibration's result (``result`` decoded: the ``result.json``
-        mapping the calibrated model, compensation and drift checks use).
+        mapping the calibrated model, compensation and hold checks use).
 
         Raises
         ------

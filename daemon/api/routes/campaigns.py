@@ -42,13 +42,12 @@ from daemon.api.schemas import (
     CampaignOut,
     CaptureRequest,
     ImportResult,
-    SampleOut,
     SamplePatch,
 )
 from daemon.api.text_rules import not_printable
 from daemon.autocapture import SamplerRefused, SamplerUnavailable
 from daemon.capture import CaptureRejected
-from daemon.store import CampaignRow
+from daemon.store import CampaignRow, SampleRow
 
 log = logging.getLogger("cablecal.service")
 
@@ -132,7 +131,7 @@ def get_campaign(state: State, campaign_id: CampaignId) -> CampaignOut:
         },
     },
 )
-async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -> SampleOut:
+async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -> SampleRow:
     """Waits up to ``sampler.capture_timeout_s`` for the robot and the cable to settle, then
     stores the mean of the settled window and returns the stored sample. With the manual robot
     driver, ``joints_deg`` carries the joint angles [deg]."""
@@ -144,7 +143,7 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
     if not body.repeat:
         _refuse_a_repeat(state, campaign_id, body.joints_deg)
     try:
-        sample: SampleOut = await state.sampler.capture(
+        sample: SampleRow = await state.sampler.capture(
             campaign_id, anchor=body.anchor, joints_deg=body.joints_deg
         )
     except CaptureRejected as exc:
@@ -236,7 +235,7 @@ async def auto_capture(state: State, campaign_id: CampaignId, body: AutoCapture)
     summary="Samples as JSON (paginated), or CSV with ?format=csv",
     dependencies=[ReadAuth],
     responses={200: {"content": {"text/csv": {}}}, **error_responses(404, 429, 503)},
-    response_model=list[SampleOut],
+    response_model=list[SampleRow],
 )
 async def list_samples(
     state: State,
@@ -245,7 +244,7 @@ async def list_samples(
     campaign_id: CampaignId,
     page: Paged,
     format: str = Query("json", pattern="^(json|csv)$", description="json or csv"),
-) -> list[SampleOut] | Response:
+) -> list[SampleRow] | Response:
     """JSON: the samples with their std, count, timestamps and excluded flag, by id,
     ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
     rel="next"`` header. CSV: every included sample (not paginated) in the format
@@ -357,5 +356,5 @@ def _check_printable(samples: SampleSet) -> None:
     dependencies=[WriteAuth],
     responses=error_responses(404),
 )
-def patch_sample(state: State, sample_id: SampleId, body: SamplePatch) -> SampleOut:
+def patch_sample(state: State, sample_id: SampleId, body: SamplePatch) -> SampleRow:
     return state.store.set_excluded(sample_id, body.excluded, body.reason)

@@ -25,9 +25,9 @@ from daemon.api.deps import (
 from daemon.api.errors import error_responses
 from daemon.api.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
-from daemon.api.schemas import IdentificationRequest, JobOut, JobView
+from daemon.api.schemas import IdentificationRequest, JobView
 from daemon.job_worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
-from daemon.store import JobState
+from daemon.store import JobRow, JobState
 from daemon.workers import run_in_child
 
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
@@ -201,7 +201,7 @@ async def start(
 )
 def list_for_campaign(
     state: State, request: Request, response: Response, campaign_id: CampaignId, page: PagedLarge
-) -> list[JobOut]:
+) -> list[JobRow]:
     """By id, ``limit`` per page (default and most 500) after ``after_id``; a full page has a
     ``Link: <…>; rel="next"`` header."""
     state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list
