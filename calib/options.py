@@ -268,10 +268,11 @@ def validate(
         Too few training samples (the message names how many are needed and why).
     """
     from calib.cable import ParamLayout
+    from calib.sample_fields import DEFAULT_ANCHOR
 
     for f in fields(options):
         spec(f.name).check(f.name, getattr(options, f.name))
-    anchors = samples.anchor_ids or ("A",)
+    anchors = samples.anchor_ids or (DEFAULT_ANCHOR,)
     known = ParamLayout(anchors).names
     for key in ("fix", "free"):
         bad = [n for n in getattr(options, key) if n not in known]

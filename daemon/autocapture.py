@@ -24,6 +24,8 @@ import asyncio
 import logging
 from typing import TYPE_CHECKING, Any
 
+from calib.sample_fields import DEFAULT_ANCHOR
+
 if TYPE_CHECKING:
     from calib.kinematics import FloatArray
     from daemon.store import CampaignRow, Store
@@ -83,7 +85,7 @@ class AutoCapture:
             cid = int(campaign["id"])
             self.sampler.set_auto(
                 cid,
-                anchor=str(campaign.get("auto_anchor") or "A"),
+                anchor=str(campaign.get("auto_anchor") or DEFAULT_ANCHOR),
                 known_poses_deg=self.store.poses_deg(cid),
             )
             resumed.append(cid)

@@ -42,9 +42,8 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from calib.kinematics import FloatArray
 
 #: MAD → sigma for Gaussian residuals.
 MAD_TO_SIGMA = 1.4826

@@ -23,6 +23,7 @@ from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
 from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
 from calib.planning import PlanOptions
+from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.api.deps import MAX_ID
 from daemon.api.text_rules import (
     MAX_NAME_CHARS,
@@ -130,7 +131,7 @@ class CaptureRequest(StrictBody):
     joints_deg: Annotated[list[float], Field(min_length=6, max_length=6)] | None = Field(
         None, description="Joint angles [deg], only with the manual robot driver."
     )
-    anchor: Anchor = Field("A", description="Sensor position id (not blank).")
+    anchor: Anchor = Field(DEFAULT_ANCHOR, description="Sensor position id (not blank).")
     repeat: bool = Field(
         False,
         description="Store it even at a pose the campaign has captured already (the operator "
@@ -143,7 +144,7 @@ class AutoCapture(StrictBody):
     """Switch auto capture on or off."""
 
     enabled: bool = Field(description="JSON true or false (no strings, no numbers)")
-    anchor: Anchor = Field("A", description="Sensor position id (not blank).")
+    anchor: Anchor = Field(DEFAULT_ANCHOR, description="Sensor position id (not blank).")
 
 
 class SamplePatch(StrictBody):

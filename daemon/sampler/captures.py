@@ -12,8 +12,9 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from calib.sample_fields import DEFAULT_ANCHOR, Joints
 from daemon import metrics
-from daemon.capture import CaptureMode, CaptureRejected, CaptureSink, Joints
+from daemon.capture import CaptureMode, CaptureRejected, CaptureSink
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState
 from daemon.sampler.cancel import raise_if_cancelled
@@ -90,7 +91,7 @@ class CapturePath:
     async def capture(
         self,
         campaign_id: int,
-        anchor: str = "A",
+        anchor: str = DEFAULT_ANCHOR,
         joints_deg: Sequence[float] | None = None,
         mode: CaptureMode = "manual",
     ) -> dict[str, Any]:

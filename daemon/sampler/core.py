@@ -14,8 +14,9 @@ from collections import deque
 from collections.abc import Awaitable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
+from calib.sample_fields import DEFAULT_ANCHOR, Joints
 from daemon import metrics
-from daemon.capture import CaptureMode, CaptureSink, Joints
+from daemon.capture import CaptureMode, CaptureSink
 from daemon.devices import Device
 from daemon.sampler.auto import AutoState, start_auto
 from daemon.sampler.cancel import raise_if_cancelled
@@ -317,7 +318,7 @@ class Sampler(CapturePath):
     def set_auto(
         self,
         campaign_id: int | None,
-        anchor: str = "A",
+        anchor: str = DEFAULT_ANCHOR,
         known_poses_deg: Iterable[Sequence[float]] | None = None,
     ) -> None:
         """Enable auto capture into ``campaign_id`` (None disables).

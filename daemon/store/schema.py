@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from calib.dataset import JOINT_COLUMNS
+from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.capture import CAPTURE_MODES
 from daemon.store.errors import StoreError, StoreInvalid
 from daemon.store.rows import CHECK_STATUSES, CHECK_TRIGGERS, JobState
@@ -49,13 +50,13 @@ def _migration_1(conn: sqlite3.Connection) -> None:
             created_at REAL NOT NULL
         )""",
         "CREATE UNIQUE INDEX robots_builtin_name ON robots(name) WHERE source = 'builtin'",
-        """CREATE TABLE campaigns (
+        f"""CREATE TABLE campaigns (
             id INTEGER PRIMARY KEY,
             name TEXT NOT NULL CHECK (name <> ''),
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             notes TEXT NOT NULL DEFAULT '',
             auto_capture INTEGER NOT NULL DEFAULT 0 CHECK (auto_capture IN (0, 1)),
-            auto_anchor TEXT NOT NULL DEFAULT 'A' CHECK (auto_anchor <> ''),
+            auto_anchor TEXT NOT NULL DEFAULT '{DEFAULT_ANCHOR}' CHECK (auto_anchor <> ''),
             created_at REAL NOT NULL
         )""",
         "CREATE INDEX campaigns_robot_id ON campaigns(robot_id)",
@@ -100,7 +101,7 @@ def _migration_2(conn: sqlite3.Connection) -> None:
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             method TEXT NOT NULL CHECK (method <> ''),
             options_json TEXT NOT NULL DEFAULT '{{}}',
-            status TEXT NOT NULL DEFAULT 'queued'
+            status TEXT NOT NULL DEFAULT '{JobState.QUEUED.value}'
                 CHECK (status IN ({_one_of([s.value for s in JobState])})),
             progress REAL NOT NULL DEFAULT 0 CHECK (progress >= 0 AND progress <= 1),
             message TEXT NOT NULL DEFAULT '',

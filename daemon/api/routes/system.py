@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from pydantic import BaseModel, Field
 
-from daemon import metrics
+from daemon import __version__, metrics
 from daemon.api.deps import MAX_ID, PAGE_DEFAULT, ReadAuth, State, WriteAuth, link_next
 from daemon.api.errors import error_responses
 from daemon.api.schemas import Health, ServiceStatus
@@ -18,15 +18,13 @@ from daemon.store import EventRow
 router = APIRouter(tags=["system"], responses=error_responses(400, 401, 413, 422))
 metrics_router = APIRouter(tags=["system"])
 
-VERSION = "0.1.0"
-
 
 @router.get("/health", summary="Liveness")
 async def health(state: State) -> Health:
     """Always open. ``status`` is ``ok`` while the service answers."""
     return {
         "status": "ok",
-        "version": VERSION,
+        "version": __version__,
         "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
     }
 
