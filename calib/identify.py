@@ -34,7 +34,7 @@ every reported figure in degrees and millimetres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -53,7 +53,19 @@ from calib.identifiability import (
 )
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
-from calib.options import METHODS, IdentifyOptions, check_training_rows, validate
+from calib.options import (
+    METHODS,
+    DriftOptions,
+    IdentifyOptions,
+    PriorOptions,
+    RobustOptions,
+    SolverSettings,
+    SplitOptions,
+    check_training_rows,
+    part,
+    validate,
+    with_part,
+)
 from calib.prior import prior_block
 from calib.problem import Problem
 from calib.report import (
@@ -144,8 +156,9 @@ def _prepare(
     """Step 1: check the samples and options, split the rows, apply the tool override."""
     validate_joint_limits(samples, model)
     if train_rows is None or test_rows is None:
+        split = part(opts, SplitOptions)
         train_rows, test_rows = split_rows(
-            samples, opts.test_fraction, opts.seed, opts.holdout, opts.n_groups
+            samples, split.test_fraction, split.seed, split.holdout, split.n_groups
         )
     validate(samples, opts, train_rows, model=model)
     layout = ParamLayout(samples.anchor_ids)
@@ -203,7 +216,7 @@ def _free_set(
     return ident, free
 
 
-def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions) -> Problem:
+def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: PriorOptions) -> Problem:
     """The problem the method solves: ML, or MAP with a Gaussian prior toward the nominal."""
     # noise_mm also sizes the filters' measurement noise, with or without the prior.
     ml = Problem(
@@ -228,12 +241,23 @@ def _weighed_solve(
     opts: IdentifyOptions,
     progress: ProgressFn | None,
     clock: Clock | None,
-) -> tuple[IdentifyOptions, dict[str, Any], robust.Solved]:
+) -> tuple[PriorOptions, dict[str, Any], robust.Solved]:
     """Step 5: the fit, its prior weighed as ``prior_weight`` says
     (:func:`calib.prior.weighed_solve`; ``cv`` scores each fold by an identification)."""
+    settings, robust_opts = part(opts, SolverSettings), part(opts, RobustOptions)
 
-    def held_out_rmse(o: IdentifyOptions, tr: np.ndarray, te: np.ndarray) -> float:
-        res = identify(d.model, samples, o, train_rows=tr, test_rows=te)
+    def fit(problem: Problem) -> robust.Solved:
+        def once(p: Problem, x0: FloatArray, cb: ProgressFn | None) -> Any:
+            return methods.run(p, x0, settings, cb, clock)
+
+        return robust.solve(problem, robust_opts, once, progress)
+
+    # A fold of the prior's cross-validation: plain LM without the robust step (the folds
+    # rank prior scales; the final fit deals with outliers), on the given rows only.
+    fold_base = replace(opts, method="lm", test_fraction=0.0, robust="none")
+
+    def held_out_rmse(p: PriorOptions, tr: np.ndarray, te: np.ndarray) -> float:
+        res = identify(d.model, samples, with_part(fold_base, p), train_rows=tr, test_rows=te)
         return float(res.metrics["after"]["test"]["rmse_mm"])
 
     # Randomly held-out rows are rows like the training rows: their prediction errors tell
@@ -250,12 +274,12 @@ def _weighed_solve(
     return prior.weighed_solve(
         lambda o: _problem(d, theta_start, free, o),
         theta_start,
-        opts,
+        part(opts, PriorOptions),
+        fit,
         held_out_rmse,
-        samples,
+        lambda: pose_groups(samples, opts.n_groups)[d.train_rows],
         d.train_rows,
         progress,
-        clock,
         held_out,
     )
 
@@ -278,7 +302,7 @@ def _counting(progress: ProgressFn | None) -> ProgressFn | None:
 
 
 def _select_drift(
-    d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions
+    d: _Data, theta_start: FloatArray, free: np.ndarray, opts: DriftOptions, p: PriorOptions
 ) -> drift.Selection | None:
     """Step 4b: the drift model (:func:`calib.drift.select_at_plain_fit`) at a plain MAP (or
     ML) fit with the options' noise; sets ``d.drift_model`` and ``d.drift_basis`` unless it
@@ -289,7 +313,7 @@ def _select_drift(
     t = t_all[d.train_rows]
     sel, units = drift.select_at_plain_fit(
         opts.drift,
-        _problem(d, theta_start, free, opts),
+        _problem(d, theta_start, free, p),
         t,
         d.train_rows,
         lambda th: d.units(th, d.train_rows),
@@ -370,7 +394,9 @@ def identify(
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
     report(progress, 0.06, "testing for drift and steps of the measurement")
-    selection = _select_drift(d, theta_start, free, opts)
+    selection = _select_drift(
+        d, theta_start, free, part(opts, DriftOptions), part(opts, PriorOptions)
+    )
     used, prior_detail, solved = _weighed_solve(
         d, samples, theta_start, free, opts, progress, clock
     )
@@ -434,7 +460,7 @@ def identify(
         elapsed_s=timer.elapsed(),
         theta_start=theta_start,
         tcp_uncertainty_mm=tcp,
-        prior=prior_block(opts, used, prior_detail),
+        prior=prior_block(part(opts, PriorOptions), used, prior_detail),
         robust_detail=robust_detail(opts, solved),
         drift=drift_block,
     )

@@ -12,8 +12,8 @@ it); :func:`validate` imports numpy-based modules when called.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
-from dataclasses import MISSING, dataclass, field, fields
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from dataclasses import MISSING, dataclass, field, fields, replace
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, get_args
 
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
@@ -30,6 +30,10 @@ ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
 PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
 DRIFT_MODES: tuple[str, ...] = get_args(DriftMode)
+
+_G = TypeVar(
+    "_G", "SplitOptions", "RobustOptions", "PriorOptions", "DriftOptions", "SolverSettings"
+)
 
 #: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
 PAPER_N_TRAIN = 100
@@ -213,6 +217,89 @@ class IdentifyOptions:
 
 
 _FIELDS = {f.name: f for f in fields(IdentifyOptions)}
+
+
+# ------------------------------------------------------------------ the options by concern
+# Each step of identify reads only its group: the split (calib.split), the robust fit
+# (calib.robust), the prior (calib.prior), the drift model (calib.drift) and the method's
+# solver (calib.methods). A group's fields are the flat options of the same name (the JSON,
+# REST and CLI names, with their help and bounds above): IdentifyOptions.part builds one.
+
+
+@dataclass(frozen=True)
+class SplitOptions:
+    """How identify holds rows out to test (:func:`calib.split.split_rows`)."""
+
+    test_fraction: float
+    seed: int
+    holdout: Holdout
+    n_groups: int
+
+
+@dataclass(frozen=True)
+class RobustOptions:
+    """The robust fit (:func:`calib.robust.solve`)."""
+
+    robust: Robust
+    robust_k: float
+    flag_threshold: float
+
+
+@dataclass(frozen=True)
+class PriorOptions:
+    """The MAP prior toward the nominal model and its weight (:mod:`calib.prior`)."""
+
+    prior: bool
+    prior_mm: float
+    prior_deg: float
+    prior_tool_mm: float | None
+    prior_weight: PriorWeight
+    noise_mm: float
+
+
+@dataclass(frozen=True)
+class DriftOptions:
+    """The model of the measurement's drift over the campaign (:mod:`calib.drift`)."""
+
+    drift: DriftMode
+    method: Method
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """The method and its solver's settings (:func:`calib.methods.run`)."""
+
+    method: Method
+    seed: int
+    filter_sigma_mm: float
+    filter_sigma_deg: float
+    ukf_epochs: int
+    ukf_batch_size: int | None
+    vslm_delta0: float
+    vslm_mu: float
+    de_max_generations: int
+
+
+OptionGroup = SplitOptions | RobustOptions | PriorOptions | DriftOptions | SolverSettings
+GROUPS: tuple[type[OptionGroup], ...] = (
+    SplitOptions,
+    RobustOptions,
+    PriorOptions,
+    DriftOptions,
+    SolverSettings,
+)
+for _group in GROUPS:
+    assert {f.name for f in fields(_group)} <= set(_FIELDS), _group
+
+
+def part(options: IdentifyOptions, group: type[_G]) -> _G:
+    """The ``group`` (one of :data:`GROUPS`) of ``options``: its fields' values."""
+    return group(**{f.name: getattr(options, f.name) for f in fields(group)})
+
+
+def with_part(options: IdentifyOptions, values: OptionGroup) -> IdentifyOptions:
+    """``options`` with the fields of the group ``values`` replaced by its values."""
+    return replace(options, **{f.name: getattr(values, f.name) for f in fields(values)})
 
 
 def spec(name: str) -> OptionSpec:
