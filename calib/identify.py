@@ -87,12 +87,53 @@ from calib.timing import Clock, Timer
 
 __all__ = [
     "METHODS",
+    "Checked",
     "IdentifyOptions",
     "IdentifyResult",
+    "check",
     "identify",
+    "identify_checked",
     "pose_groups",
     "split_rows",
 ]
+
+
+@dataclass(frozen=True)
+class Checked:
+    """Options checked once against a sample set and a robot (:func:`check`), with the split
+    identify trains and tests on: :func:`identify_checked` runs on it without checking the
+    options again (the daemon checks a job when it is submitted and hands this to the worker).
+    """
+
+    options: IdentifyOptions
+    train_rows: np.ndarray  # (n_train,) row indices
+    test_rows: np.ndarray  # (n_test,) row indices
+
+
+def check(
+    model: RobotModel,
+    samples: SampleSet,
+    options: IdentifyOptions | None = None,
+    train_rows: np.ndarray | None = None,
+    test_rows: np.ndarray | None = None,
+) -> Checked:
+    """Step 1's one check of the options: split the rows (random, grouped, or the given
+    ``train_rows``/``test_rows``; :mod:`calib.split`) and check the options against the
+    samples and the robot on that split (:func:`calib.options.validate`).
+
+    Raises
+    ------
+    SampleError, calib.options.OptionError
+        As :func:`calib.options.validate`.
+    """
+    opts = options or IdentifyOptions()
+    if train_rows is None or test_rows is None:
+        split = part(opts, SplitOptions)
+        train_rows, test_rows = split_rows(
+            samples, split.test_fraction, split.seed, split.holdout, split.n_groups
+        )
+    validate(samples, opts, train_rows, model=model)
+    return Checked(opts, train_rows, test_rows)
 
 
 @dataclass
@@ -146,21 +187,9 @@ class _Data:
         return predict_lengths(self.model, theta, self.q_all[rows], self.aidx_all[rows])
 
 
-def _prepare(
-    model: RobotModel,
-    samples: SampleSet,
-    opts: IdentifyOptions,
-    train_rows: np.ndarray | None,
-    test_rows: np.ndarray | None,
-) -> _Data:
-    """Step 1: check the samples and options, split the rows, apply the tool override."""
-    validate_joint_limits(samples, model)
-    if train_rows is None or test_rows is None:
-        split = part(opts, SplitOptions)
-        train_rows, test_rows = split_rows(
-            samples, split.test_fraction, split.seed, split.holdout, split.n_groups
-        )
-    validate(samples, opts, train_rows, model=model)
+def _prepare(model: RobotModel, samples: SampleSet, checked: Checked) -> _Data:
+    """Step 1: the checked split (:func:`check`), the tool override applied."""
+    opts, train_rows, test_rows = checked.options, checked.train_rows, checked.test_rows
     layout = ParamLayout(samples.anchor_ids)
     model = with_tool(model, opts.tool_mm)
     data = _Data(
@@ -252,12 +281,11 @@ def _weighed_solve(
 
         return robust.solve(problem, robust_opts, once, progress)
 
-    # A fold of the prior's cross-validation: plain LM without the robust step (the folds
-    # rank prior scales; the final fit deals with outliers), on the given rows only.
-    fold_base = replace(opts, method="lm", test_fraction=0.0, robust="none")
-
     def held_out_rmse(p: PriorOptions, tr: np.ndarray, te: np.ndarray) -> float:
-        res = identify(d.model, samples, with_part(fold_base, p), train_rows=tr, test_rows=te)
+        # A fold of the prior's cross-validation: plain LM without the robust step (the
+        # folds rank prior scales; the final fit deals with outliers), on the given rows.
+        fold = with_part(replace(opts, method="lm", test_fraction=0.0, robust="none"), p)
+        res = identify(d.model, samples, fold, train_rows=tr, test_rows=te)
         return float(res.metrics["after"]["test"]["rmse_mm"])
 
     # Randomly held-out rows are rows like the training rows: their prediction errors tell
@@ -383,10 +411,43 @@ def identify(
     calib.options.OptionError
         A bad option, or unknown parameter names in ``fix``/``free`` (a ``ValueError``).
     """
-    opts = options or IdentifyOptions()
+    validate_joint_limits(samples, model)
+    checked = check(model, samples, options, train_rows, test_rows)
+    return _run(model, samples, checked, progress, clock)
+
+
+def identify_checked(
+    model: RobotModel,
+    samples: SampleSet,
+    checked: Checked,
+    *,
+    progress: ProgressFn | None = None,
+    clock: Clock | None = None,
+) -> IdentifyResult:
+    """:func:`identify` on options :func:`check` has checked against these ``samples`` and
+    ``model`` (they are not checked again; the joint limits are).
+
+    Raises
+    ------
+    SampleError
+        Joint angles outside the model's limits, an anchor without training samples.
+    """
+    validate_joint_limits(samples, model)
+    return _run(model, samples, checked, progress, clock)
+
+
+def _run(
+    model: RobotModel,
+    samples: SampleSet,
+    checked: Checked,
+    progress: ProgressFn | None,
+    clock: Clock | None,
+) -> IdentifyResult:
+    """Steps 2 to 6 on checked options and samples."""
+    opts = checked.options
     progress = _counting(progress)
     timer = Timer(clock)
-    d = _prepare(model, samples, opts, train_rows, test_rows)
+    d = _prepare(model, samples, checked)
     layout = d.layout
     report(progress, 0.0, "fitting the anchor with the nominal model")
     theta_before = fit_anchors(d.model, layout, np.zeros(layout.size), d.q, d.aidx, d.length_mm)

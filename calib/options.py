@@ -327,6 +327,16 @@ def options_from_mapping(values: Mapping[str, Any]) -> IdentifyOptions:
     return IdentifyOptions(**kwargs)
 
 
+def options_mapping(options: IdentifyOptions) -> dict[str, Any]:
+    """Every option by its JSON, REST and CLI name (tuples as lists): the reverse of
+    :func:`options_from_mapping`, e.g. a job's stored options."""
+    out: dict[str, Any] = {}
+    for f in fields(options):
+        value = getattr(options, f.name)
+        out[f.name] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
 def validate(
     samples: SampleSet,
     options: IdentifyOptions,
@@ -336,10 +346,10 @@ def validate(
 ) -> None:
     """Check options against a sample set and the robot, before any computation.
 
-    Checks the choices and bounds of every field, the ``fix``/``free`` names against the
-    parameter layout of the samples' anchors, and that the training rows (``train_rows``, the
-    split identify makes: :func:`calib.split.split_rows` at the options' test fraction, seed
-    and hold-out; or only their count, what ``test_fraction`` leaves) are more than the
+    Checks the ``fix``/``free`` names against the parameter layout of the samples' anchors,
+    and that the training rows (``train_rows``, the split identify makes:
+    :func:`calib.split.split_rows` at the options' test fraction, seed and hold-out; or only
+    their count, what ``test_fraction`` leaves) are more than the
     parameters identify will solve (:func:`calib.identifiability.max_solved`: the base set of
     this robot and these anchors at well-spread poses, less ``fix``, plus ``free``), at least
     :data:`MIN_TRAINING_SAMPLES`, and, given ``train_rows``, at least
@@ -350,15 +360,15 @@ def validate(
     Raises
     ------
     OptionError
-        A field is out of range or names an unknown parameter (the message names the field).
+        ``fix`` or ``free`` names an unknown parameter (the message names the field).
     calib.dataset.SampleError
         Too few training samples (the message names how many are needed and why).
     """
     from calib.cable import ParamLayout
     from calib.sample_fields import DEFAULT_ANCHOR
 
-    for f in fields(options):
-        spec(f.name).check(f.name, getattr(options, f.name))
+    # Each field's choices and bounds were checked when the options were made
+    # (IdentifyOptions.__post_init__, also on dataclasses.replace): not again here.
     anchors = samples.anchor_ids or (DEFAULT_ANCHOR,)
     known = ParamLayout(anchors).names
     for key in ("fix", "free"):

@@ -21,7 +21,16 @@ from typing_extensions import TypedDict
 
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
-from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
+from calib.options import (
+    DriftMode,
+    Holdout,
+    IdentifyOptions,
+    Method,
+    PriorWeight,
+    Robust,
+    default,
+    spec,
+)
 from calib.planning import PlanOptions
 from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.api.deps import MAX_ID
@@ -195,14 +204,17 @@ class IdentificationRequest(StrictBody):
     )
     noise_rank: bool = _option("noise_rank")
 
-    def to_options(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`calib.options.IdentifyOptions`."""
+    def to_options(self, noise_mm: float | None = None) -> IdentifyOptions:
+        """The request's :class:`calib.options.IdentifyOptions`, made once here and passed on
+        (the job's check and its worker take this object); ``noise_mm``: the ``[jobs]``
+        default when the body has none (None: the option's own default)."""
         out = self.model_dump(exclude={"fix", "free", "noise_mm"})
         out["fix"] = tuple(self.fix)
         out["free"] = tuple(self.free)
-        if self.noise_mm is not None:
-            out["noise_mm"] = self.noise_mm
-        return out
+        noise = self.noise_mm if self.noise_mm is not None else noise_mm
+        if noise is not None:
+            out["noise_mm"] = noise
+        return IdentifyOptions(**out)
 
 
 # ------------------------------------------------------------------ compensation targets
