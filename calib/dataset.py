@@ -25,6 +25,7 @@ from calib.csvtext import neutralise_cell, restore_cell
 from calib.error_kinds import ErrorKind
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
+from calib.sample_fields import DEFAULT_ANCHOR
 
 #: The indicator's reading range [mm]: the HY9648 shows the HY150-2000 drawstring sensor's
 #: length from 0 to 2000 mm and flags anything outside as over or under range (its status
@@ -87,7 +88,7 @@ class SampleSet:
     joints_deg : ndarray, shape (n, 6)
     length_mm : ndarray, shape (n,)
     anchor : tuple of str, length n
-        Sensor position id per sample (default ``"A"``).
+        Sensor position id per sample (default :data:`calib.sample_fields.DEFAULT_ANCHOR`).
     group : tuple of str or None, length n
         Pose group per sample, from a ``group`` column; None when absent.
     line : ndarray of int, shape (n,)
@@ -146,7 +147,7 @@ def make_samples(
     if length.shape != (q.shape[0],):
         raise SampleError(f"length_mm must have shape ({q.shape[0]},), got {length.shape}")
     n = q.shape[0]
-    anchors = tuple(anchor) if anchor is not None else ("A",) * n
+    anchors = tuple(anchor) if anchor is not None else (DEFAULT_ANCHOR,) * n
     times = None if t_s is None else np.asarray(t_s, dtype=float)
     if times is not None and times.shape != (n,):
         raise SampleError(f"t_s must have shape ({n},), got {times.shape}")
@@ -296,7 +297,7 @@ def _parse_rows(reader: Iterator[list[str]]) -> SampleSet:
             blocks.append(np.array(values, dtype=float).reshape(-1, N_JOINTS + 1))
             values = []
         anchor = row[anchor_col].strip() if anchor_col is not None and anchor_col < len(row) else ""
-        anchors.append(restore_cell(anchor) or "A")
+        anchors.append(restore_cell(anchor) or DEFAULT_ANCHOR)
         if group_col is not None:
             groups.append(restore_cell(row[group_col].strip()) if group_col < len(row) else "")
         if time_col is not None:

@@ -34,7 +34,7 @@ every reported figure in degrees and millimetres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -53,7 +53,19 @@ from calib.identifiability import (
 )
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
-from calib.options import METHODS, IdentifyOptions, check_training_rows, validate
+from calib.options import (
+    METHODS,
+    DriftOptions,
+    IdentifyOptions,
+    PriorOptions,
+    RobustOptions,
+    SolverSettings,
+    SplitOptions,
+    check_training_rows,
+    part,
+    validate,
+    with_part,
+)
 from calib.prior import prior_block
 from calib.problem import Problem
 from calib.report import (
@@ -75,12 +87,53 @@ from calib.timing import Clock, Timer
 
 __all__ = [
     "METHODS",
+    "Checked",
     "IdentifyOptions",
     "IdentifyResult",
+    "check",
     "identify",
+    "identify_checked",
     "pose_groups",
     "split_rows",
 ]
+
+
+@dataclass(frozen=True)
+class Checked:
+    """Options checked once against a sample set and a robot (:func:`check`), with the split
+    identify trains and tests on: :func:`identify_checked` runs on it without checking the
+    options again (the daemon checks a job when it is submitted and hands this to the worker).
+    """
+
+    options: IdentifyOptions
+    train_rows: np.ndarray  # (n_train,) row indices
+    test_rows: np.ndarray  # (n_test,) row indices
+
+
+def check(
+    model: RobotModel,
+    samples: SampleSet,
+    options: IdentifyOptions | None = None,
+    train_rows: np.ndarray | None = None,
+    test_rows: np.ndarray | None = None,
+) -> Checked:
+    """Step 1's one check of the options: split the rows (random, grouped, or the given
+    ``train_rows``/``test_rows``; :mod:`calib.split`) and check the options against the
+    samples and the robot on that split (:func:`calib.options.validate`).
+
+    Raises
+    ------
+    SampleError, calib.options.OptionError
+        As :func:`calib.options.validate`.
+    """
+    opts = options or IdentifyOptions()
+    if train_rows is None or test_rows is None:
+        split = part(opts, SplitOptions)
+        train_rows, test_rows = split_rows(
+            samples, split.test_fraction, split.seed, split.holdout, split.n_groups
+        )
+    validate(samples, opts, train_rows, model=model)
+    return Checked(opts, train_rows, test_rows)
 
 
 @dataclass
@@ -134,20 +187,9 @@ class _Data:
         return predict_lengths(self.model, theta, self.q_all[rows], self.aidx_all[rows])
 
 
-def _prepare(
-    model: RobotModel,
-    samples: SampleSet,
-    opts: IdentifyOptions,
-    train_rows: np.ndarray | None,
-    test_rows: np.ndarray | None,
-) -> _Data:
-    """Step 1: check the samples and options, split the rows, apply the tool override."""
-    validate_joint_limits(samples, model)
-    if train_rows is None or test_rows is None:
-        train_rows, test_rows = split_rows(
-            samples, opts.test_fraction, opts.seed, opts.holdout, opts.n_groups
-        )
-    validate(samples, opts, train_rows, model=model)
+def _prepare(model: RobotModel, samples: SampleSet, checked: Checked) -> _Data:
+    """Step 1: the checked split (:func:`check`), the tool override applied."""
+    opts, train_rows, test_rows = checked.options, checked.train_rows, checked.test_rows
     layout = ParamLayout(samples.anchor_ids)
     model = with_tool(model, opts.tool_mm)
     data = _Data(
@@ -203,7 +245,7 @@ def _free_set(
     return ident, free
 
 
-def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions) -> Problem:
+def _problem(d: _Data, theta_start: FloatArray, free: np.ndarray, opts: PriorOptions) -> Problem:
     """The problem the method solves: ML, or MAP with a Gaussian prior toward the nominal."""
     # noise_mm also sizes the filters' measurement noise, with or without the prior.
     ml = Problem(
@@ -228,12 +270,22 @@ def _weighed_solve(
     opts: IdentifyOptions,
     progress: ProgressFn | None,
     clock: Clock | None,
-) -> tuple[IdentifyOptions, dict[str, Any], robust.Solved]:
+) -> tuple[PriorOptions, dict[str, Any], robust.Solved]:
     """Step 5: the fit, its prior weighed as ``prior_weight`` says
     (:func:`calib.prior.weighed_solve`; ``cv`` scores each fold by an identification)."""
+    settings, robust_opts = part(opts, SolverSettings), part(opts, RobustOptions)
 
-    def held_out_rmse(o: IdentifyOptions, tr: np.ndarray, te: np.ndarray) -> float:
-        res = identify(d.model, samples, o, train_rows=tr, test_rows=te)
+    def fit(problem: Problem) -> robust.Solved:
+        def once(p: Problem, x0: FloatArray, cb: ProgressFn | None) -> Any:
+            return methods.run(p, x0, settings, cb, clock)
+
+        return robust.solve(problem, robust_opts, once, progress)
+
+    def held_out_rmse(p: PriorOptions, tr: np.ndarray, te: np.ndarray) -> float:
+        # A fold of the prior's cross-validation: plain LM without the robust step (the
+        # folds rank prior scales; the final fit deals with outliers), on the given rows.
+        fold = with_part(replace(opts, method="lm", test_fraction=0.0, robust="none"), p)
+        res = identify(d.model, samples, fold, train_rows=tr, test_rows=te)
         return float(res.metrics["after"]["test"]["rmse_mm"])
 
     # Randomly held-out rows are rows like the training rows: their prediction errors tell
@@ -250,12 +302,12 @@ def _weighed_solve(
     return prior.weighed_solve(
         lambda o: _problem(d, theta_start, free, o),
         theta_start,
-        opts,
+        part(opts, PriorOptions),
+        fit,
         held_out_rmse,
-        samples,
+        lambda: pose_groups(samples, opts.n_groups)[d.train_rows],
         d.train_rows,
         progress,
-        clock,
         held_out,
     )
 
@@ -278,7 +330,7 @@ def _counting(progress: ProgressFn | None) -> ProgressFn | None:
 
 
 def _select_drift(
-    d: _Data, theta_start: FloatArray, free: np.ndarray, opts: IdentifyOptions
+    d: _Data, theta_start: FloatArray, free: np.ndarray, opts: DriftOptions, p: PriorOptions
 ) -> drift.Selection | None:
     """Step 4b: the drift model (:func:`calib.drift.select_at_plain_fit`) at a plain MAP (or
     ML) fit with the options' noise; sets ``d.drift_model`` and ``d.drift_basis`` unless it
@@ -289,7 +341,7 @@ def _select_drift(
     t = t_all[d.train_rows]
     sel, units = drift.select_at_plain_fit(
         opts.drift,
-        _problem(d, theta_start, free, opts),
+        _problem(d, theta_start, free, p),
         t,
         d.train_rows,
         lambda th: d.units(th, d.train_rows),
@@ -359,10 +411,43 @@ def identify(
     calib.options.OptionError
         A bad option, or unknown parameter names in ``fix``/``free`` (a ``ValueError``).
     """
-    opts = options or IdentifyOptions()
+    validate_joint_limits(samples, model)
+    checked = check(model, samples, options, train_rows, test_rows)
+    return _run(model, samples, checked, progress, clock)
+
+
+def identify_checked(
+    model: RobotModel,
+    samples: SampleSet,
+    checked: Checked,
+    *,
+    progress: ProgressFn | None = None,
+    clock: Clock | None = None,
+) -> IdentifyResult:
+    """:func:`identify` on options :func:`check` has checked against these ``samples`` and
+    ``model`` (they are not checked again; the joint limits are).
+
+    Raises
+    ------
+    SampleError
+        Joint angles outside the model's limits, an anchor without training samples.
+    """
+    validate_joint_limits(samples, model)
+    return _run(model, samples, checked, progress, clock)
+
+
+def _run(
+    model: RobotModel,
+    samples: SampleSet,
+    checked: Checked,
+    progress: ProgressFn | None,
+    clock: Clock | None,
+) -> IdentifyResult:
+    """Steps 2 to 6 on checked options and samples."""
+    opts = checked.options
     progress = _counting(progress)
     timer = Timer(clock)
-    d = _prepare(model, samples, opts, train_rows, test_rows)
+    d = _prepare(model, samples, checked)
     layout = d.layout
     report(progress, 0.0, "fitting the anchor with the nominal model")
     theta_before = fit_anchors(d.model, layout, np.zeros(layout.size), d.q, d.aidx, d.length_mm)
@@ -370,7 +455,9 @@ def identify(
     report(progress, 0.05, "identifiability analysis")
     ident, free = _free_set(d, theta_start, candidates, opts)
     report(progress, 0.06, "testing for drift and steps of the measurement")
-    selection = _select_drift(d, theta_start, free, opts)
+    selection = _select_drift(
+        d, theta_start, free, part(opts, DriftOptions), part(opts, PriorOptions)
+    )
     used, prior_detail, solved = _weighed_solve(
         d, samples, theta_start, free, opts, progress, clock
     )
@@ -434,7 +521,7 @@ def identify(
         elapsed_s=timer.elapsed(),
         theta_start=theta_start,
         tcp_uncertainty_mm=tcp,
-        prior=prior_block(opts, used, prior_detail),
+        prior=prior_block(part(opts, PriorOptions), used, prior_detail),
         robust_detail=robust_detail(opts, solved),
         drift=drift_block,
     )

@@ -12,8 +12,8 @@ it); :func:`validate` imports numpy-based modules when called.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
-from dataclasses import MISSING, dataclass, field, fields
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from dataclasses import MISSING, dataclass, field, fields, replace
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, get_args
 
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
@@ -30,6 +30,10 @@ ROBUST_MODES: tuple[str, ...] = get_args(Robust)
 HOLDOUTS: tuple[str, ...] = get_args(Holdout)
 PRIOR_WEIGHTS: tuple[str, ...] = get_args(PriorWeight)
 DRIFT_MODES: tuple[str, ...] = get_args(DriftMode)
+
+_G = TypeVar(
+    "_G", "SplitOptions", "RobustOptions", "PriorOptions", "DriftOptions", "SolverSettings"
+)
 
 #: Training and test rows per draw in the paper's protocol (:mod:`calib.protocol`).
 PAPER_N_TRAIN = 100
@@ -215,6 +219,89 @@ class IdentifyOptions:
 _FIELDS = {f.name: f for f in fields(IdentifyOptions)}
 
 
+# ------------------------------------------------------------------ the options by concern
+# Each step of identify reads only its group: the split (calib.split), the robust fit
+# (calib.robust), the prior (calib.prior), the drift model (calib.drift) and the method's
+# solver (calib.methods). A group's fields are the flat options of the same name (the JSON,
+# REST and CLI names, with their help and bounds above): IdentifyOptions.part builds one.
+
+
+@dataclass(frozen=True)
+class SplitOptions:
+    """How identify holds rows out to test (:func:`calib.split.split_rows`)."""
+
+    test_fraction: float
+    seed: int
+    holdout: Holdout
+    n_groups: int
+
+
+@dataclass(frozen=True)
+class RobustOptions:
+    """The robust fit (:func:`calib.robust.solve`)."""
+
+    robust: Robust
+    robust_k: float
+    flag_threshold: float
+
+
+@dataclass(frozen=True)
+class PriorOptions:
+    """The MAP prior toward the nominal model and its weight (:mod:`calib.prior`)."""
+
+    prior: bool
+    prior_mm: float
+    prior_deg: float
+    prior_tool_mm: float | None
+    prior_weight: PriorWeight
+    noise_mm: float
+
+
+@dataclass(frozen=True)
+class DriftOptions:
+    """The model of the measurement's drift over the campaign (:mod:`calib.drift`)."""
+
+    drift: DriftMode
+    method: Method
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """The method and its solver's settings (:func:`calib.methods.run`)."""
+
+    method: Method
+    seed: int
+    filter_sigma_mm: float
+    filter_sigma_deg: float
+    ukf_epochs: int
+    ukf_batch_size: int | None
+    vslm_delta0: float
+    vslm_mu: float
+    de_max_generations: int
+
+
+OptionGroup = SplitOptions | RobustOptions | PriorOptions | DriftOptions | SolverSettings
+GROUPS: tuple[type[OptionGroup], ...] = (
+    SplitOptions,
+    RobustOptions,
+    PriorOptions,
+    DriftOptions,
+    SolverSettings,
+)
+for _group in GROUPS:
+    assert {f.name for f in fields(_group)} <= set(_FIELDS), _group
+
+
+def part(options: IdentifyOptions, group: type[_G]) -> _G:
+    """The ``group`` (one of :data:`GROUPS`) of ``options``: its fields' values."""
+    return group(**{f.name: getattr(options, f.name) for f in fields(group)})
+
+
+def with_part(options: IdentifyOptions, values: OptionGroup) -> IdentifyOptions:
+    """``options`` with the fields of the group ``values`` replaced by its values."""
+    return replace(options, **{f.name: getattr(values, f.name) for f in fields(values)})
+
+
 def spec(name: str) -> OptionSpec:
     """The :class:`OptionSpec` of option ``name``."""
     out: OptionSpec = _FIELDS[name].metadata["spec"]
@@ -240,6 +327,16 @@ def options_from_mapping(values: Mapping[str, Any]) -> IdentifyOptions:
     return IdentifyOptions(**kwargs)
 
 
+def options_mapping(options: IdentifyOptions) -> dict[str, Any]:
+    """Every option by its JSON, REST and CLI name (tuples as lists): the reverse of
+    :func:`options_from_mapping`, e.g. a job's stored options."""
+    out: dict[str, Any] = {}
+    for f in fields(options):
+        value = getattr(options, f.name)
+        out[f.name] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
 def validate(
     samples: SampleSet,
     options: IdentifyOptions,
@@ -249,10 +346,10 @@ def validate(
 ) -> None:
     """Check options against a sample set and the robot, before any computation.
 
-    Checks the choices and bounds of every field, the ``fix``/``free`` names against the
-    parameter layout of the samples' anchors, and that the training rows (``train_rows``, the
-    split identify makes: :func:`calib.split.split_rows` at the options' test fraction, seed
-    and hold-out; or only their count, what ``test_fraction`` leaves) are more than the
+    Checks the ``fix``/``free`` names against the parameter layout of the samples' anchors,
+    and that the training rows (``train_rows``, the split identify makes:
+    :func:`calib.split.split_rows` at the options' test fraction, seed and hold-out; or only
+    their count, what ``test_fraction`` leaves) are more than the
     parameters identify will solve (:func:`calib.identifiability.max_solved`: the base set of
     this robot and these anchors at well-spread poses, less ``fix``, plus ``free``), at least
     :data:`MIN_TRAINING_SAMPLES`, and, given ``train_rows``, at least
@@ -263,15 +360,16 @@ def validate(
     Raises
     ------
     OptionError
-        A field is out of range or names an unknown parameter (the message names the field).
+        ``fix`` or ``free`` names an unknown parameter (the message names the field).
     calib.dataset.SampleError
         Too few training samples (the message names how many are needed and why).
     """
     from calib.cable import ParamLayout
+    from calib.sample_fields import DEFAULT_ANCHOR
 
-    for f in fields(options):
-        spec(f.name).check(f.name, getattr(options, f.name))
-    anchors = samples.anchor_ids or ("A",)
+    # Each field's choices and bounds were checked when the options were made
+    # (IdentifyOptions.__post_init__, also on dataclasses.replace): not again here.
+    anchors = samples.anchor_ids or (DEFAULT_ANCHOR,)
     known = ParamLayout(anchors).names
     for key in ("fix", "free"):
         bad = [n for n in getattr(options, key) if n not in known]

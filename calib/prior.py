@@ -38,23 +38,23 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from calib.cable import N_DH, N_KIN
-from calib.dataset import SampleSet
 from calib.kinematics import FloatArray
 from calib.methods import internal_sigma
 from calib.noise import median_dof, noise_floor_mm
 from calib.problem import Problem
-from calib.robust import Solved, auto_threshold, leverage, solve
+from calib.robust import Solved, auto_threshold, leverage
 from calib.solvers.common import ProgressFn, report
-from calib.split import pose_groups
-from calib.timing import Clock
 
 if TYPE_CHECKING:
-    from calib.options import IdentifyOptions
+    from calib.options import PriorOptions
 
-#: ``(options, train_rows, test_rows) -> held-out RMSE [mm]`` of one identification on the
-#: samples :func:`cv_scale` scores (:func:`calib.identify.identify`, passed in by it, so that
-#: this module does not import it back).
-HeldOutRmse = Callable[["IdentifyOptions", np.ndarray, np.ndarray], float]
+#: ``(prior, train_rows, test_rows) -> held-out RMSE [mm]`` of one identification with the
+#: prior options ``prior`` on the samples :func:`cv_scale` scores (identify passes a plain LM
+#: :func:`calib.identify.identify`, so that this module does not import it back).
+HeldOutRmse = Callable[["PriorOptions", np.ndarray, np.ndarray], float]
+#: ``problem -> the robust fit`` (:func:`calib.robust.solve` with identify's robust options
+#: and method).
+RobustFit = Callable[[Problem], Solved]
 
 #: Most MAP fits of the ``estimated`` fixed point.
 NOISE_ROUNDS = 4
@@ -70,7 +70,7 @@ CV_FOLDS = 3
 CV_MIN_TRAIN = 30
 
 
-def with_prior(problem: Problem, options: IdentifyOptions) -> Problem:
+def with_prior(problem: Problem, options: PriorOptions) -> Problem:
     """``problem`` with the MAP prior rows ``options`` ask for (itself without a prior).
 
     Prior 1σ: ``prior_mm`` per DH length, ``prior_deg`` per DH angle, ``prior_tool_mm`` per
@@ -208,7 +208,7 @@ def _held_out_terms(
     return out
 
 
-def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> IdentifyOptions:
+def scaled_options(options: PriorOptions, noise_mm: float, scale: float) -> PriorOptions:
     """The options the MAP fit runs with: ``noise_mm``, widths × ``scale`` (``inf``: no prior)."""
     if not np.isfinite(scale):
         return replace(options, prior=False, prior_weight="fixed", noise_mm=noise_mm)
@@ -224,26 +224,24 @@ def scaled_options(options: IdentifyOptions, noise_mm: float, scale: float) -> I
 
 def cv_scale(
     held_out_rmse: HeldOutRmse,
-    samples: SampleSet,
-    options: IdentifyOptions,
+    labels: np.ndarray,
+    options: PriorOptions,
     train_rows: np.ndarray,
     noise_mm: float,
 ) -> tuple[float, dict[str, float]]:
     """The prior-width scale with the lowest mean grouped-fold held-out RMSE on ``train_rows``.
 
     ``held_out_rmse`` fits one fold (:data:`HeldOutRmse`). Returns the scale (``inf`` = no
-    prior) and the mean held-out RMSE [mm] per scale, keyed by the scale as text. Pose groups
-    are those of the grouped hold-out (:func:`pose_groups`); each fold holds out every
+    prior) and the mean held-out RMSE [mm] per scale, keyed by the scale as text. ``labels``
+    (shape (len(train_rows),)) are the training rows' pose groups, those of the grouped
+    hold-out (:func:`calib.split.pose_groups`); each fold holds out every
     :data:`CV_FOLDS`-th group present in the training rows.
     """
-    labels = pose_groups(samples, options.n_groups)[train_rows]
     present = np.unique(labels)
     if present.size < 2:
         return 1.0, {}
     fold_of = {g: i % CV_FOLDS for i, g in enumerate(present)}
     folds = np.array([fold_of[g] for g in labels])
-    # LM without the robust step: the folds rank scales, the final fit deals with outliers.
-    base = replace(options, method="lm", test_fraction=0.0, robust="none")
     scores: dict[str, float] = {}
     for scale in (*CV_SCALES, float("inf")):
         errs = []
@@ -251,7 +249,7 @@ def cv_scale(
             tr, te = train_rows[folds != f], train_rows[folds == f]
             if tr.size < CV_MIN_TRAIN or te.size == 0:
                 continue
-            errs.append(held_out_rmse(scaled_options(base, noise_mm, scale), tr, te))
+            errs.append(held_out_rmse(scaled_options(options, noise_mm, scale), tr, te))
         if errs:
             scores[str(scale)] = float(np.mean(errs))
     if not scores:
@@ -261,7 +259,7 @@ def cv_scale(
 
 
 def prior_block(
-    options: IdentifyOptions, used: IdentifyOptions, detail: dict[str, Any]
+    options: PriorOptions, used: PriorOptions, detail: dict[str, Any]
 ) -> dict[str, Any]:
     """``result.json``'s ``prior``: asked (``used``), the widths and noise the fit ran with,
     and how the weight was chosen (``weight``, ``noise_estimated_mm``, ``cv_scale``, …)."""
@@ -278,17 +276,17 @@ def prior_block(
 
 
 def weighed_solve(
-    make_problem: Callable[[IdentifyOptions], Problem],
+    make_problem: Callable[[PriorOptions], Problem],
     theta_start: FloatArray,
-    opts: IdentifyOptions,
+    opts: PriorOptions,
+    fit: RobustFit,
     held_out_rmse: HeldOutRmse,
-    samples: SampleSet,
+    fold_labels: Callable[[], np.ndarray],
     train_rows: np.ndarray,
     progress: ProgressFn | None,
-    clock: Clock | None = None,
     held_out: HeldOutRows | None = None,
-) -> tuple[IdentifyOptions, dict[str, Any], Solved]:
-    """The fit (:func:`calib.robust.solve`), its prior weighed as ``prior_weight`` says.
+) -> tuple[PriorOptions, dict[str, Any], Solved]:
+    """The fit (``fit``: :data:`RobustFit`), its prior weighed as ``prior_weight`` says.
 
     ``make_problem(options)`` builds the problem (ML, or MAP with the options' widths and
     noise) from the common start ``theta_start`` (p,). ``fixed`` (or no prior): one solve.
@@ -297,17 +295,18 @@ def weighed_solve(
     :data:`NOISE_RTOL`; the last round is the fit. ``held_out``: the test rows, which the
     noise estimate reads too (:func:`noise_from_map`). ``cv``: that noise, then the prior-width
     scale chosen by grouped-fold cross-validation on ``train_rows`` (:func:`cv_scale`, with
-    ``held_out_rmse``), and a final solve. ``clock`` times the fits. Returns the options the
-    fit ran with, the detail for ``result.json`` and the solve.
+    ``held_out_rmse`` and the training rows' pose groups ``fold_labels()``), and a final
+    solve. Returns the prior options the fit ran with, the detail for ``result.json`` and the
+    solve.
     """
     if not opts.prior or opts.prior_weight == "fixed":
-        return opts, {}, solve(make_problem(opts), opts, progress, clock)
+        return opts, {}, fit(make_problem(opts))
     used = opts
     noise = opts.noise_mm
     warm = theta_start  # each round starts where the last ended (the prior mean stays)
     for rounds in range(1, NOISE_ROUNDS + 1):
         report(progress, 0.05, f"MAP fit {rounds} for the noise estimate (noise {noise:.3g} mm)")
-        solved = solve(make_problem(used).with_theta0(warm), used, progress, clock)
+        solved = fit(make_problem(used).with_theta0(warm))
         noise = noise_from_map(solved.problem, solved.result.x, held_out)
         if abs(noise / used.noise_mm - 1.0) < NOISE_RTOL:
             break
@@ -317,7 +316,7 @@ def weighed_solve(
     if opts.prior_weight == "estimated":
         return used, detail, solved
     report(progress, 0.1, "cross-validating the prior scale over pose groups")
-    scale, scores = cv_scale(held_out_rmse, samples, opts, train_rows, used.noise_mm)
+    scale, scores = cv_scale(held_out_rmse, fold_labels(), opts, train_rows, used.noise_mm)
     detail |= {"cv_scale": scale if np.isfinite(scale) else None, "cv_rmse_mm": scores}
     used = scaled_options(opts, used.noise_mm, scale)
-    return used, detail, solve(make_problem(used), used, progress, clock)
+    return used, detail, fit(make_problem(used))

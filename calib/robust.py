@@ -29,7 +29,7 @@ weight function ``(u, k) -> w`` of standardised residuals ``u``, shape (n,), as 
 
 The screening imports only numpy and the standard library (scipy.special only for a
 Student-t quantile below :data:`T_EXPANSION_MIN_DOF` degrees of freedom, which ``auto`` never
-asks for); :func:`solve` runs the methods (:mod:`calib.methods`).
+asks for); :func:`solve` runs the method it is given (identify's: :func:`calib.methods.run`).
 """
 
 from __future__ import annotations
@@ -41,12 +41,11 @@ from statistics import NormalDist
 
 import numpy as np
 
-from calib import methods, noise
+from calib import noise
 from calib.kinematics import FloatArray
-from calib.options import SCREEN_MIN_DOF, IdentifyOptions, training_rows_recommended
+from calib.options import SCREEN_MIN_DOF, RobustOptions, training_rows_recommended
 from calib.problem import Problem
 from calib.solvers.common import ProgressFn, SolverResult, sub_progress
-from calib.timing import Clock
 
 #: Family-wise false-flag probability of ``auto`` on clean Gaussian data (all ``n`` rows).
 AUTO_FALSE_FLAG_PROBABILITY = 0.01
@@ -54,6 +53,9 @@ AUTO_FALSE_FLAG_PROBABILITY = 0.01
 GROSS_ERROR_MM = 10.0
 
 WeightFn = Callable[[FloatArray, float], FloatArray]
+#: ``(problem, x0, progress) -> result``: one fit of the method (identify's:
+#: :func:`calib.methods.run` with the method's settings and the clock bound).
+Fit = Callable[[Problem, FloatArray, "ProgressFn | None"], SolverResult]
 
 
 def _none(u: FloatArray, k: float) -> FloatArray:
@@ -400,7 +402,7 @@ def _screen_fit(
     problem: Problem,
     x: FloatArray,
     w: FloatArray,
-    opts: IdentifyOptions,
+    opts: RobustOptions,
     floor_mm: float,
     first: Screening | None,
 ) -> Screening:
@@ -424,13 +426,11 @@ def _screen_fit(
     )
 
 
-def solve(
-    problem: Problem, opts: IdentifyOptions, progress: ProgressFn | None, clock: Clock | None = None
-) -> Solved:
+def solve(problem: Problem, opts: RobustOptions, fit: Fit, progress: ProgressFn | None) -> Solved:
     """Run the method; robustly, as IRLS rounds (huber, soft_l1) or as rejection rounds
     (reject, auto; each refit starts from the common start, not from the contaminated
-    solution, so an outlier's pull does not carry over). ``clock`` times each fit
-    (:func:`calib.methods.run`)."""
+    solution, so an outlier's pull does not carry over). ``fit`` runs the method once
+    (:data:`Fit`)."""
     n = problem.length_mm.size
     thr = opts.flag_threshold
     floor_mm = noise.noise_floor_mm(problem.length_mm)
@@ -450,9 +450,7 @@ def solve(
         prob_r = problem.with_weights(weights)
         lo = 0.05 + 0.9 * r / rounds
         start = problem.x0() if rejecting else x
-        result = methods.run(
-            prob_r, start, opts, sub_progress(progress, lo, lo + 0.9 / rounds), clock
-        )
+        result = fit(prob_r, start, sub_progress(progress, lo, lo + 0.9 / rounds))
         total_iter += result.iterations
         fits += 1
         starts.append(len(history))

@@ -13,6 +13,7 @@ import numpy as np
 from calib.cable import N_DH, N_KIN, ParamLayout, predict_lengths
 from calib.kinematics import N_JOINTS, FloatArray, IndexArray, forward_position
 from calib.models import POSE_CLIP_DEG, RobotModel
+from calib.sample_fields import DEFAULT_ANCHOR
 
 #: The paper's Table XII, dataset D1: deviations identified by UKF-VSLM on the HSR JR680.
 #: Shape (6, 4), per joint ``(dalpha_deg, da_mm, dd_mm, dtheta_deg)``.
@@ -77,7 +78,7 @@ def make_true_cell(
     tool_error_mm: FloatArray | None = None,
     anchors_mm: FloatArray | None = None,
     offsets_mm: FloatArray | None = None,
-    anchor_ids: tuple[str, ...] = ("A",),
+    anchor_ids: tuple[str, ...] = (DEFAULT_ANCHOR,),
 ) -> TrueCell:
     """Build a true cell.
 

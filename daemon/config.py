@@ -19,7 +19,16 @@ import secrets
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, SecretStr, Tag, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    SecretStr,
+    Tag,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -34,6 +43,10 @@ from drivers import ROBOT_KINDS, AsciiIndicatorConfig, IndicatorConfig, ManualRo
 
 #: Shortest accepted ``api_token`` [characters].
 MIN_TOKEN_CHARS = 16
+
+#: Sections read under their old name for one release, with a warning in the log: old name →
+#: (new name, the release that stops reading the old one). CHANGELOG says the same.
+DEPRECATED_SECTIONS: dict[str, tuple[str, str]] = {"drift": ("hold_check", "0.3.0")}
 
 
 class ConfigError(ValueError):
@@ -121,7 +134,7 @@ class RequestSettings(BaseModel):
 
 
 class HoldCheckSettings(BaseModel):
-    """Hold checks of a calibrated robot, the ``[drift]`` section
+    """Hold checks of a calibrated robot, the ``[hold_check]`` section
     (:mod:`daemon.monitors.holdcheck`)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -129,7 +142,7 @@ class HoldCheckSettings(BaseModel):
     check_interval_h: Annotated[float, Field(gt=0)] | None = None
     """Hours between scheduled checks of every calibrated robot; unset: manual checks only."""
     threshold_mm: Annotated[float, Field(gt=0)] | None = None
-    """Absolute RMS [mm] above which a check is drift; unset: ``threshold_factor`` times the
+    """Absolute RMS [mm] above which a check is ``not_held``; unset: ``threshold_factor`` times the
     calibration's own residual RMSE."""
     threshold_factor: Annotated[float, Field(gt=0)] = 3.0
     """Multiple of the calibration's residual RMSE used when ``threshold_mm`` is unset."""
@@ -137,7 +150,7 @@ class HoldCheckSettings(BaseModel):
     """Floor of the derived threshold [mm]."""
     refit_anchor: bool = False
     """Refit the anchor P0 and zero offset on the check poses (only after moving the sensor:
-    it absorbs part of a drift)."""
+    it absorbs part of a change of the robot)."""
     n_poses: Annotated[int, Field(ge=3, le=100)] = 8
     """Default check poses: this many well-spread poses of the calibration's samples."""
     pose_tol_deg: Annotated[float, Field(gt=0, le=10)] = 0.5
@@ -223,7 +236,11 @@ class Settings(BaseSettings):
     (huashu-socketcmd, modbus-tcp, abb-rws, ur-rtde, kuka-varproxy, fanuc-rmi)."""
     jobs: JobSettings = JobSettings()
     requests: RequestSettings = RequestSettings()
-    drift: HoldCheckSettings = HoldCheckSettings()
+    hold_check: HoldCheckSettings = HoldCheckSettings()
+    drift: HoldCheckSettings | None = Field(default=None, exclude=True)
+    """Deprecated name of ``[hold_check]`` (:data:`DEPRECATED_SECTIONS`): its keys are read
+    into ``hold_check``, and it stays set only so :meth:`deprecations` can warn; never read
+    it for a setting."""
     watch: WatchSettings = WatchSettings()
     debug_routes: bool = False
     """Enable ``/api/v1/debug/*`` (test-only fault hooks, e.g. blocking the event loop)."""
@@ -241,6 +258,42 @@ class Settings(BaseSettings):
                 "(generate one with: python -c 'import secrets; print(secrets.token_hex(32))')"
             )
         return value
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_section_names(cls, data: Any) -> Any:
+        """A section under its deprecated name (``[drift]``, ``CABLECAL_DRIFT__*``) is read
+        into its new one; a key set under both names takes the new name's value."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        for old, (new, _) in DEPRECATED_SECTIONS.items():
+            if data.get(old) is None:
+                continue
+            legacy = data[old]
+            legacy = (
+                legacy.model_dump(exclude_unset=True)
+                if isinstance(legacy, BaseModel)
+                else dict(legacy)
+            )
+            current = data.get(new) or {}
+            current = (
+                current.model_dump(exclude_unset=True)
+                if isinstance(current, BaseModel)
+                else dict(current)
+            )
+            data[new] = {**legacy, **current}
+        return data
+
+    def deprecations(self) -> list[str]:
+        """One warning per deprecated section name the configuration used, for the log."""
+        return [
+            f"config: [{old}] is deprecated, read as [{DEPRECATED_SECTIONS[old][0]}]; "
+            f"rename it (CABLECAL_{old.upper()}__* too): [{old}] is no longer read from "
+            f"{DEPRECATED_SECTIONS[old][1]}"
+            for old in DEPRECATED_SECTIONS
+            if getattr(self, old) is not None
+        ]
 
     @classmethod
     def settings_customise_sources(

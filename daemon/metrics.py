@@ -75,18 +75,44 @@ HTTP_LATENCY = Histogram(
     buckets=(0.001, 0.0025, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1, 2.5),
     registry=REGISTRY,
 )
-HOLD_CHECK_RMS = Gauge(  # a hold check (daemon.monitors.holdcheck), shown as a drift check
-    "cablecal_drift_rms_mm",
-    "RMS cable-length residual of the robot's last drift check against its calibration [mm].",
-    ["robot"],  # robot id
-    registry=REGISTRY,
-)
-HOLD_CHECK_THRESHOLD = Gauge(
-    "cablecal_drift_threshold_mm",
-    "Threshold of the robot's last drift check: above it the check is drift [mm].",
-    ["robot"],  # robot id
-    registry=REGISTRY,
-)
+#: The names the hold-check gauges had before 0.2.0, exported as well until 0.3.0 removes
+#: them (CHANGELOG): dashboards and alert rules move to the ``cablecal_hold_check_*`` names.
+DEPRECATED_HOLD_CHECK_NAMES = {
+    "cablecal_hold_check_rms_mm": "cablecal_drift_rms_mm",
+    "cablecal_hold_check_threshold_mm": "cablecal_drift_threshold_mm",
+}
+_HOLD_CHECK_HELP = {
+    "cablecal_hold_check_rms_mm": "RMS cable-length residual of the robot's last hold check "
+    "against its calibration [mm].",
+    "cablecal_hold_check_threshold_mm": "Threshold of the robot's last hold check: above it "
+    "the robot no longer holds its calibration [mm].",
+}
+HOLD_CHECK_GAUGES = {
+    name: (
+        Gauge(name, text, ["robot"], registry=REGISTRY),  # robot id
+        Gauge(
+            DEPRECATED_HOLD_CHECK_NAMES[name],
+            f"Deprecated (removed in 0.3.0): {name}. {text}",
+            ["robot"],
+            registry=REGISTRY,
+        ),
+    )
+    for name, text in _HOLD_CHECK_HELP.items()
+}
+
+
+def record_hold_check(robot_id: int, rms_mm: float, threshold_mm: float) -> None:
+    """A finished hold check's RMS and threshold [mm] on the robot's gauges, under their
+    names and their deprecated names."""
+    values = {
+        "cablecal_hold_check_rms_mm": rms_mm,
+        "cablecal_hold_check_threshold_mm": threshold_mm,
+    }
+    for name, value in values.items():
+        for gauge in HOLD_CHECK_GAUGES[name]:
+            gauge.labels(str(robot_id)).set(value)
+
+
 SENSOR_MOVED = Counter(
     "cablecal_sensor_moved",
     "Moves of the drawstring sensor found by the live watch (daemon.monitors.watch), per robot.",

@@ -407,9 +407,10 @@ class EmulatedCell:
         self._tick = -1  # resample
 
     def shift_joint_offset(self, joint: int, delta_deg: float) -> float:
-        """Drift emulation: add ``delta_deg`` to the TRUE joint offset (DH theta error) of
-        ``joint`` (1..6). The controller keeps reporting the same joint angles; the cable
-        length and the true TCP follow the new truth. Returns the joint's new offset [deg]."""
+        """Robot-change emulation (a hold check then fails): add ``delta_deg`` to the TRUE
+        joint offset (DH theta error) of ``joint`` (1..6). The controller keeps reporting the
+        same joint angles; the cable length and the true TCP follow the new truth. Returns the
+        joint's new offset [deg]."""
         if not 1 <= joint <= 6:
             raise ValueError(f"joint: expected 1..6, got {joint}")
         if not math.isfinite(delta_deg):

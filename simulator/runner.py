@@ -209,7 +209,7 @@ class CellRunner:
             ``..``, to a file inside the config's directory; an error names where in the file
             it is, never what the file holds.
         ``shift_joint_offset``
-            Drift emulation: ``joint`` (1..6), ``delta_deg``: the TRUE joint offset moves by
+            Robot-change emulation: ``joint`` (1..6), ``delta_deg``: the TRUE joint offset moves by
             ``delta_deg`` (the controller reports the same angles; the lengths change).
             Replies ``joint``, ``joint_offset_deg`` (the new true offset) and the ``truth``
             reply under ``truth``.

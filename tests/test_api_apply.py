@@ -1,5 +1,5 @@
 """The apply routes in-process: compensate, the calibrated model as a file, verify, check
-poses and drift checks (401, 404, 422 bounds, happy paths). Captures of a check are written
+poses and hold checks (401, 404, 422 bounds, happy paths). Captures of a check are written
 into the store as the sampler would, with lengths of a synthetic true cell (unchanged, then
 with one joint offset shifted)."""
 
@@ -38,7 +38,7 @@ def cell() -> TrueCell:
 @pytest.fixture(scope="module")
 def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
     tmp = tmp_path_factory.mktemp("apply")
-    settings = Settings(state_dir=tmp, api_token=TOKEN, drift={"timeout_s": 30})
+    settings = Settings(state_dir=tmp, api_token=TOKEN, hold_check={"timeout_s": 30})
     with TestClient(create_app(settings, TOKEN, sampler_factory=FakeSampler)) as c:
         yield c
 
@@ -351,16 +351,16 @@ def _wait_check(client: TestClient, rid: int, check_id: int) -> dict[str, Any]:
     raise AssertionError(f"check {check_id} still running")
 
 
-def _gauge(client: TestClient, rid: int) -> float:
+def _gauge(client: TestClient, rid: int, name: str = "cablecal_hold_check_rms_mm") -> float:
     text = client.get("/metrics").text
     for family in text_string_to_metric_families(text):
         for s in family.samples:
-            if s.name == "cablecal_drift_rms_mm" and s.labels == {"robot": str(rid)}:
+            if s.name == name and s.labels == {"robot": str(rid)}:
                 return float(s.value)
     return math.nan
 
 
-def test_drift_checks_ok_then_drift(
+def test_hold_checks_ok_then_not_held(
     client: TestClient, cell: TrueCell, calibrated: dict[str, int]
 ) -> None:
     rid = calibrated["robot_id"]
@@ -373,14 +373,14 @@ def test_drift_checks_ok_then_drift(
     shifted_theta = cell.theta.copy()
     shifted_theta[1 * 4 + 3] += math.radians(0.05)  # joint 2's offset drifts by 0.05 deg
     shifted = TrueCell(cell.model, shifted_theta, cell.layout)
-    for truth, expected in ((cell, "ok"), (shifted, "drift")):
+    for truth, expected in ((cell, "ok"), (shifted, "not_held")):
         r = client.post(f"{API}/robots/{rid}/checks", headers=AUTH)
         assert r.status_code == 202, r.text
         check = r.json()
         assert client.app.state.cablecal.sampler.auto == check["campaign_id"]  # type: ignore[attr-defined]
         again = client.post(f"{API}/robots/{rid}/checks", headers=AUTH)
         assert again.status_code == 409 and "running" in again.json()["detail"]
-        status = client.get(f"{API}/status", headers=AUTH).json()["drift"]
+        status = client.get(f"{API}/status", headers=AUTH).json()["hold_check"]
         assert status["running"] == check["id"]
         _store_captures(
             client, check["campaign_id"], poses, noisy_lengths(truth, poses, rng, noise_mm=NOISE_MM)
@@ -389,12 +389,18 @@ def test_drift_checks_ok_then_drift(
         assert done["status"] == expected, done
         assert done["n"] == 6 and done["rms_mm"] is not None
         assert client.app.state.cablecal.sampler.auto is None  # type: ignore[attr-defined]
-        status = client.get(f"{API}/status", headers=AUTH).json()["drift"]
+        status = client.get(f"{API}/status", headers=AUTH).json()["hold_check"]
         assert status["state"] == expected and status["check_id"] == check["id"]
         assert status["rms_mm"] == pytest.approx(done["rms_mm"])
         assert _gauge(client, rid) == pytest.approx(done["rms_mm"])
-    events = client.get(f"{API}/events", params={"kind": "drift"}, headers=AUTH).json()
+        # the deprecated name (until 0.3.0) carries the same figure
+        assert _gauge(client, rid, "cablecal_drift_rms_mm") == pytest.approx(done["rms_mm"])
+    params = {"kind": "hold_check_not_held"}
+    events = client.get(f"{API}/events", params=params, headers=AUTH).json()
     assert events and events[-1]["detail"]["check_id"] == done["id"]
+    assert events[-1]["detail"]["status"] == "not_held"
+    ok = client.get(f"{API}/events", params={"kind": "hold_check"}, headers=AUTH).json()
+    assert ok and ok[-1]["detail"]["status"] == "ok"
 
 
 def test_check_refused_while_auto_capture_runs(
@@ -416,8 +422,8 @@ def test_check_times_out_and_status_reads_it_from_memory(
 ) -> None:
     """A check whose poses are never visited fails at its timeout. ``GET /status`` must not
     query SQLite (the store lock can be held by a capture or an import): after start-up the
-    drift block comes from the monitor's memory, and a check it stores shows at once."""
-    settings = Settings(state_dir=tmp_path, api_token=TOKEN, drift={"timeout_s": 1.0})
+    hold-check block comes from the monitor's memory, and a check it stores shows at once."""
+    settings = Settings(state_dir=tmp_path, api_token=TOKEN, hold_check={"timeout_s": 1.0})
     with TestClient(create_app(settings, TOKEN, sampler_factory=FakeSampler)) as c:
         cid = _campaign(c, cell, 40, seed=3)
         store = c.app.state.cablecal.store  # type: ignore[attr-defined]
@@ -430,18 +436,20 @@ def test_check_times_out_and_status_reads_it_from_memory(
             store, "list_checks", lambda *a, **k: queries.append(a) or list_checks(*a, **k)
         )
         for _ in range(20):
-            assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["state"] == "none"
+            assert c.get(f"{API}/status", headers=AUTH).json()["hold_check"]["state"] == "none"
         assert queries == []
         r = c.post(f"{API}/robots/{rid}/checks", headers=AUTH)
         assert r.status_code == 202, r.text
-        assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["running"] == r.json()["id"]
+        assert (
+            c.get(f"{API}/status", headers=AUTH).json()["hold_check"]["running"] == r.json()["id"]
+        )
         done = _wait_check(c, rid, r.json()["id"])
         assert done["status"] == "failed" and "0 of 8 check poses" in done["error"]
         n_before = len(queries)  # start_check counts the robot's checks: not /status
         for _ in range(20):
-            drift = c.get(f"{API}/status", headers=AUTH).json()["drift"]
-            assert drift["state"] == "failed" and drift["check_id"] == done["id"]
-            assert drift["running"] is None and drift["last_check_at"] == done["finished_at"]
+            hold = c.get(f"{API}/status", headers=AUTH).json()["hold_check"]
+            assert hold["state"] == "failed" and hold["check_id"] == done["id"]
+            assert hold["running"] is None and hold["last_check_at"] == done["finished_at"]
         assert len(queries) == n_before
 
 
@@ -463,8 +471,8 @@ def _fake_result() -> dict[str, Any]:
 
 
 def test_scheduled_check_starts_by_itself(tmp_path: Path, cell: TrueCell) -> None:
-    drift = {"timeout_s": 1.0, "check_interval_h": 0.0003}  # about 1 s
-    settings = Settings(state_dir=tmp_path, api_token=TOKEN, drift=drift)
+    hold = {"timeout_s": 1.0, "check_interval_h": 0.0003}  # about 1 s
+    settings = Settings(state_dir=tmp_path, api_token=TOKEN, hold_check=hold)
     with TestClient(create_app(settings, TOKEN, sampler_factory=FakeSampler)) as c:
         cid = _campaign(c, cell, 20, seed=8)
         store = c.app.state.cablecal.store  # type: ignore[attr-defined]
@@ -476,7 +484,7 @@ def test_scheduled_check_starts_by_itself(tmp_path: Path, cell: TrueCell) -> Non
             assert time.monotonic() < deadline, "no scheduled check"
             time.sleep(0.2)
         assert checks[0]["trigger"] == "schedule"
-        assert c.get(f"{API}/status", headers=AUTH).json()["drift"]["check_interval_h"] > 0
+        assert c.get(f"{API}/status", headers=AUTH).json()["hold_check"]["check_interval_h"] > 0
 
 
 def test_compensated_targets_as_robot_programs(

@@ -19,6 +19,7 @@ import pytest
 from pydantic import BaseModel
 
 from daemon.config import (
+    DEPRECATED_SECTIONS,
     HoldCheckSettings,
     JobSettings,
     RequestSettings,
@@ -432,7 +433,7 @@ def block_models(block: Block, defaults: Settings) -> dict[str, BaseModel]:
     kind = block.kind
     if block.section == "":
         return {"": defaults}
-    if block.section in ("sampler", "jobs", "requests", "drift", "watch"):
+    if block.section in ("sampler", "jobs", "requests", "hold_check", "watch"):
         return {"": getattr(defaults, block.section)}
     if block.section == "indicator":
         main: BaseModel = {
@@ -490,13 +491,13 @@ def test_example_mentions_every_setting() -> None:
     def keys(model: type[BaseModel]) -> set[str]:
         return set(model.model_fields)
 
-    tables = {"sampler", "jobs", "requests", "drift", "watch", "indicator", "robot"}
+    tables = {"sampler", "jobs", "requests", "hold_check", "watch", "indicator", "robot"}
     expected = {
-        ("", ""): keys(Settings) - tables,
+        ("", ""): keys(Settings) - tables - set(DEPRECATED_SECTIONS),
         ("sampler", ""): keys(SamplerConfig),
         ("jobs", ""): keys(JobSettings),
         ("requests", ""): keys(RequestSettings),
-        ("drift", ""): keys(HoldCheckSettings),
+        ("hold_check", ""): keys(HoldCheckSettings),
         ("watch", ""): keys(WatchSettings),
         ("indicator", ""): (keys(IndicatorConfig) | keys(AsciiIndicatorConfig)) - {"registers"},
         ("indicator", "registers"): keys(RegisterMap),

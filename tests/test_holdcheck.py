@@ -1,4 +1,4 @@
-"""The hold check's decision (the daemon's drift check) as pure functions
+"""The hold check's decision (the daemon's hold check) as pure functions
 (:mod:`calib.monitor.holdcheck`): threshold, judgement, spread and coverage of poses."""
 
 from __future__ import annotations
@@ -25,15 +25,15 @@ def test_threshold_is_three_times_the_calibration_rmse_by_default() -> None:
     assert _threshold(None, HoldCheckSettings(threshold_mm=0.5)) == 0.5
     assert threshold_mm(0.04, None, 3.0, 0.5) == 0.5  # the floor, from plain numbers
     for ref in (None, math.nan):
-        with pytest.raises(ValueError, match=r"drift\.threshold_mm"):
+        with pytest.raises(ValueError, match=r"hold_check\.threshold_mm"):
             _threshold(ref, s)
 
 
 def test_judge_flags_only_above_the_threshold() -> None:
     assert judge(0.10, 0.12) == "ok"
     assert judge(0.12, 0.12) == "ok"
-    assert judge(0.1201, 0.12) == "drift"
-    assert judge(math.nan, 0.12) == "drift"
+    assert judge(0.1201, 0.12) == "not_held"
+    assert judge(math.nan, 0.12) == "not_held"
 
 
 def test_spread_indices_are_distinct_spread_and_deterministic() -> None:

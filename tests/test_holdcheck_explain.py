@@ -1,4 +1,4 @@
-"""A drift check names its likely cause: a moved sensor (a point shift of P0) changes the
+"""A hold check names its likely cause: a moved sensor (a point shift of P0) changes the
 check poses' lengths differently from a robot change (a joint's zero offset). Known truth:
 the EMULATED cell, calibrated on its own samples, then disturbed one way or the other."""
 
@@ -43,7 +43,7 @@ def calibrated() -> tuple[EmulatedCell, dict[str, object], np.ndarray]:
     ],
     ids=["anchor-shift", "re-zero", "joint2", "joint3"],
 )
-def test_a_drift_check_names_robot_or_sensor(
+def test_a_hold_check_names_robot_or_sensor(
     calibrated: tuple[EmulatedCell, dict[str, object], np.ndarray],
     disturb: object,
     kind: str,
@@ -55,7 +55,7 @@ def test_a_drift_check_names_robot_or_sensor(
     rng = np.random.default_rng(1)
     lengths = cell.truth.lengths_mm(check_q) + rng.normal(0.0, NOISE_MM, len(check_q))
     ev = evaluate(dict(result), _samples(check_q, lengths), limit_mm=0.1, refit_anchor=False)
-    assert ev.status == "drift"
+    assert ev.status == "not_held"
     explained = ev.detail["explanation"]
     assert explained["kind"] == kind, explained
     if joint is not None:

@@ -18,6 +18,7 @@ from calib.options import (
     OptionError,
     default,
     options_from_mapping,
+    options_mapping,
     validate,
 )
 from calib.protocol import paper_split
@@ -138,8 +139,10 @@ def test_identify_applies_the_bound_before_fitting() -> None:
 
 def test_rest_body_is_built_from_the_options() -> None:
     body = IdentificationRequest()
-    for name, value in body.to_options().items():
-        assert value == default(name), name
+    for name, value in options_mapping(body.to_options()).items():
+        assert value == (list(v) if isinstance(v := default(name), tuple) else v), name
+    assert body.to_options(0.05).noise_mm == 0.05  # the [jobs] default when the body has none
+    assert IdentificationRequest(noise_mm=0.2).to_options(0.05).noise_mm == 0.2
     schema = IdentificationRequest.model_json_schema()["properties"]
     assert schema["method"]["enum"] == list(METHODS)
     assert schema["test_fraction"]["exclusiveMaximum"] == 1.0

@@ -9,6 +9,7 @@ from calib.cable import N_KIN, ParamLayout
 from calib.dataset import make_samples
 from calib.identify import IdentifyOptions, identify
 from calib.models import builtin_model
+from calib.options import PriorOptions, part
 from calib.prior import NOISE_RTOL, effective_dof, noise_from_map, scaled_options
 from calib.problem import Problem
 from calib.synthetic import make_true_cell, random_poses_deg
@@ -47,7 +48,7 @@ def test_rejected_rows_do_not_count_in_the_noise() -> None:
 
 
 def test_scaled_options_scale_the_widths_or_drop_the_prior() -> None:
-    base = IdentifyOptions(prior=True, prior_mm=2.0, prior_deg=0.2)
+    base = part(IdentifyOptions(prior=True, prior_mm=2.0, prior_deg=0.2), PriorOptions)
     four = scaled_options(base, 0.3, 4.0)
     assert (four.prior, four.prior_mm, four.prior_deg, four.noise_mm) == (True, 8.0, 0.8, 0.3)
     assert four.prior_weight == "fixed"

@@ -100,14 +100,14 @@ def test_metric_names_are_parsed_from_promql() -> None:
 
 def test_rules_and_dashboard_use_only_exported_metrics() -> None:
     known = exported_names() | PROMETHEUS_OWN
-    assert "cablecal_sensor_moved_total" in known and "cablecal_drift_rms_mm" in known
+    assert "cablecal_sensor_moved_total" in known and "cablecal_hold_check_rms_mm" in known
     used_rules = set().union(*(metric_names(r["expr"]) for r in rules()))
     used_dash = set().union(*(metric_names(e) for e in dashboard_exprs()))
     assert used_rules - known == set()
     assert used_dash - known == set()
-    # The dashboard shows what the issue asks for: drift per robot, poll rates, device errors.
+    # The dashboard shows what the issue asks for: hold checks per robot, poll rates, device errors.
     for name in (
-        "cablecal_drift_rms_mm",
+        "cablecal_hold_check_rms_mm",
         "cablecal_device_polls_total",
         "cablecal_device_errors_total",
     ):
@@ -117,7 +117,7 @@ def test_rules_and_dashboard_use_only_exported_metrics() -> None:
 def test_the_alerts_cover_the_plant_s_failures() -> None:
     alerts = {r["alert"]: r for r in rules()}
     assert {
-        "CablecalDriftOverThreshold",
+        "CablecalHoldCheckOverThreshold",
         "CablecalSensorMoved",
         "CablecalDeviceStale",
         "CablecalDeviceDown",

@@ -13,6 +13,7 @@ from calib.cable import predict_lengths
 from calib.dataset import SampleSet, make_samples
 from calib.identify import IdentifyOptions, identify
 from calib.models import builtin_model
+from calib.options import PriorOptions, SolverSettings, part
 from calib.prior import with_prior
 from calib.problem import Problem
 from calib.solvers import geolm, ukf
@@ -103,7 +104,7 @@ def best_reference_cost(problem: Problem, max_nfev: int) -> float:
     """The lower cost of two tight scipy runs [mm²]: from identify's start and from the UKF
     estimate geolm also descends from (the real-data cost has several basins)."""
     opts = geolm.GeoLMOptions()
-    p0 = methods.initial_covariance(problem, IdentifyOptions())
+    p0 = methods.initial_covariance(problem, part(IdentifyOptions(), SolverSettings))
     seed = ukf.solve(problem, problem.x0(), p0, opts.ukf)
     from_seed = dataclasses.replace(problem, theta0=problem.full(seed.x))
     return min(reference_cost(problem, max_nfev), reference_cost(from_seed, max_nfev))
@@ -132,7 +133,8 @@ def test_first_100_bundled_rows_stop_by_a_test_near_a_long_reference(
     iteration limit, ends the run, at a cost within 1 % of the lower of two long scipy runs
     (REFERENCE_NFEV evaluations each, from identify's start and from the UKF estimate)."""
     problem = bundled_first_100
-    res = methods.run(problem, problem.x0(), IdentifyOptions(method=method), None)  # type: ignore[arg-type]
+    settings = part(IdentifyOptions(method=method), SolverSettings)  # type: ignore[arg-type]
+    res = methods.run(problem, problem.x0(), settings, None)
     assert res.status > 0, res.message
     assert problem.cost(res.x) <= 1.01 * best_reference_cost(problem, REFERENCE_NFEV)
 
@@ -184,6 +186,6 @@ def test_default_identify_on_bundled_rows_reaches_the_map_optimum_in_a_few_itera
     fitted = IdentifyOptions(
         prior_mm=block["dh_mm"], prior_deg=block["dh_deg"], noise_mm=block["noise_mm"]
     )
-    problem = with_prior(ml, fitted)
+    problem = with_prior(ml, part(fitted, PriorOptions))
     ours = problem.cost(res.theta[free])
     assert ours <= reference_cost(problem, 200) * (1 + 1e-6)

@@ -299,17 +299,18 @@ def test_operator_flow_in_the_browser(cell: Cell, tmp_path: Path) -> None:
             assert zf.read("cell_a.mod") != (programs / "cell_a.mod").read_bytes()
         _shot(page, tmp_path, "6b-filter")
 
-        # item 3: the drift check lists its poses and counts them while it runs; the page
+        # item 3: the hold check lists its poses and counts them while it runs; the page
         # stays on the operator's campaign, and a fresh tab opens it too
         n_poses = len(api.get(f"/robots/{robot['id']}/check-poses").json()["poses_deg"])
-        page.click("#drift-start")
+        page.click("#hold-check-start")
         page.wait_for_function(
-            "document.getElementById('drift-poses-note').textContent.includes('poses captured')",
+            "document.getElementById('hold-check-poses-note')"
+            ".textContent.includes('poses captured')",
             timeout=20000,
         )
-        assert page.locator("#drift-poses tbody tr").count() == n_poses
+        assert page.locator("#hold-check-poses tbody tr").count() == n_poses
         assert f"campaign #{cid} " in page.inner_text("#top-campaign")
-        _shot(page, tmp_path, "7-drift-check")
+        _shot(page, tmp_path, "7-hold-check")
         fresh = page.context.new_page()
         fresh.goto(f"{url}/#token={TOKEN}")
         fresh.wait_for_function(

@@ -463,13 +463,13 @@ def test_check_poses_reach_the_robot_and_a_check_asks_before_pausing_auto_captur
         _open(page, url, "campaign")
         page.click("#campaign-list tr:has-text('result walk')")
         page.click("#tab-apply")
-        page.wait_for_selector("#drift-downloads:not([hidden]) button[data-format=rapid]")
+        page.wait_for_selector("#hold-check-downloads:not([hidden]) button[data-format=rapid]")
         shown = page.eval_on_selector_all(
-            "#drift-downloads button", "bs => bs.map(b => b.dataset.format)"
+            "#hold-check-downloads button", "bs => bs.map(b => b.dataset.format)"
         )
         assert shown == list(DOWNLOAD_FORMATS)
         with page.expect_download() as info:
-            page.click("#drift-downloads button[data-format=rapid]")
+            page.click("#hold-check-downloads button[data-format=rapid]")
         assert "check" in info.value.suggested_filename.lower()
         back = parse_program("rapid", Path(info.value.path()).read_text(encoding="utf-8"))
         assert len(back.joints_deg) == len(poses)
@@ -479,7 +479,7 @@ def test_check_poses_reach_the_robot_and_a_check_asks_before_pausing_auto_captur
         page.wait_for_timeout(1500)  # the page's next /status (every second) shows it on
         n_checks = len(api.get(f"/robots/{rid}/checks").json())
         page.once("dialog", lambda d: d.dismiss())
-        page.click("#drift-start")
+        page.click("#hold-check-start")
         # the check's own warning (a sensor-moved banner, also a warn, may come and go meanwhile)
         warn = page.locator("#messages .message.warn:not(#watch-banner)")
         warn.wait_for(timeout=5000)
@@ -490,9 +490,10 @@ def test_check_poses_reach_the_robot_and_a_check_asks_before_pausing_auto_captur
         assert api.get("/status").json()["sampler"]["mode"] == "auto"
         # "yes": auto capture off, the check starts, the warning goes (its cause is gone)
         page.once("dialog", lambda d: d.accept())
-        page.click("#drift-start")
+        page.click("#hold-check-start")
         page.wait_for_function(
-            "document.getElementById('drift-poses-note').textContent.includes('poses captured')",
+            "document.getElementById('hold-check-poses-note')"
+            ".textContent.includes('poses captured')",
             timeout=20000,
         )
         checks = api.get(f"/robots/{rid}/checks").json()

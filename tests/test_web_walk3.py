@@ -261,7 +261,7 @@ def calibrated(cell: Cell) -> int:
 
 def test_a_check_says_the_sensor_stand_moved(cell: Cell, calibrated: int, tmp_path: Path) -> None:
     """Items 5 and 6: a bumped stand (30 mm) is reported as the sensor's, with its figure,
-    never as robot drift; the check's own campaign gets no sensor-moved case of its own."""
+    never as a robot change; the check's own campaign gets no sensor-moved case of its own."""
     assert cell.daemon is not None and cell.sim is not None
     url, api = cell.daemon.url, cell.daemon.client()
     robot_id = calibrated
@@ -279,8 +279,8 @@ def test_a_check_says_the_sensor_stand_moved(cell: Cell, calibrated: int, tmp_pa
         return None if row["status"] == "running" else dict(row)
 
     check = wait_for(finished, 120, 0.5, f"check {check_id}")
-    assert check["status"] == "drift" and check["error"] is None, check
-    cause = api.get("/status").json()["drift"]["cause"]
+    assert check["status"] == "not_held" and check["error"] is None, check
+    cause = api.get("/status").json()["hold_check"]["cause"]
     size = float(np.linalg.norm(shift))
     assert cause["kind"] == "sensor" and cause["shift_mm"] == pytest.approx(size, abs=3.0)
     assert cause["text"].startswith("the sensor stand moved by")
@@ -293,13 +293,13 @@ def test_a_check_says_the_sensor_stand_moved(cell: Cell, calibrated: int, tmp_pa
         page.click("#campaign-list tbody tr:has-text('walk3 calibration')")
         page.click("#tabs button[data-view=apply]")
         page.wait_for_function(
-            "document.getElementById('drift-state').textContent.startsWith('SENSOR MOVED')"
+            "document.getElementById('hold-check-state').textContent.startsWith('SENSOR MOVED')"
         )
-        words = page.inner_text("#drift-state")
+        words = page.inner_text("#hold-check-state")
         assert "The sensor stand moved by" in words and "check the stand" in words, words
         assert "Calibrate the robot again" not in words
-        assert "bad" in (page.get_attribute("#drift-state", "class") or "")
-        assert page.inner_text("#top-drift").startswith("sensor moved (check #")  # item 22
+        assert "bad" in (page.get_attribute("#hold-check-state", "class") or "")
+        assert page.inner_text("#top-hold-check").startswith("sensor moved (check #")  # item 22
         _shot(page, tmp_path, "walk3-check-sensor-1366")
         assert _axe_serious(page) == []
         assert not log.page_errors, log.page_errors

@@ -5,7 +5,7 @@
 - :mod:`calib.monitor.running_fit`: the live watch's running fit of a campaign, and its
   per-sample test (:class:`calib.monitor.running_fit.LiveTester`).
 - :mod:`calib.monitor.holdcheck`: does a calibrated robot still hold its calibration (a
-  hold check, the daemon's ``drift`` checks; not :mod:`calib.drift`, the measurement drifting
+  hold check, the daemon's ``hold_check``; not :mod:`calib.drift`, the measurement drifting
   within one campaign)?
 
 The daemon (:mod:`daemon.monitors.watch`, :mod:`daemon.monitors.holdcheck`, the sampler) owns the

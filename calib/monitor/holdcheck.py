@@ -1,12 +1,12 @@
 """Hold checks, pure: does a calibrated robot still hold its accepted calibration?
 
 The daemon's hold check (:mod:`daemon.monitors.holdcheck`; its settings, route, events and metrics
-keep the user-facing name ``drift``) makes the robot revisit a few check poses and compares
+are named ``hold_check`` too) makes the robot revisit a few check poses and compares
 the captures with the calibration's predictions. This module decides, from numbers only:
 
 - :func:`spread_indices`: the default check poses, well spread among the calibration's own;
 - :func:`covered`: which check poses a capture has reached;
-- :func:`threshold_mm` and :func:`judge`: the RMS above which a check is ``drift``;
+- :func:`threshold_mm` and :func:`judge`: the RMS above which a check is ``not_held``;
 - :func:`evaluate`: the comparison (:func:`calib.verify.verify`, without refitting the
   anchor by default) and, with :func:`change_jacobians`, whether a moved sensor or a robot
   change explains the residuals better (:func:`calib.monitor.stepwatch.explain_change`,
@@ -31,7 +31,7 @@ from calib.result import CalibrationResult, ResultLike
 
 #: What a finished check concludes; the store's check states
 #: (:data:`daemon.store.rows.CheckStatus`) add ``running`` and ``failed`` to these.
-CheckVerdict = Literal["ok", "drift"]
+CheckVerdict = Literal["ok", "not_held"]
 CHECK_VERDICTS: tuple[str, ...] = get_args(CheckVerdict)
 
 
@@ -41,11 +41,11 @@ def threshold_mm(
     factor: float,
     min_threshold_mm: float,
 ) -> float:
-    """The RMS [mm] above which a check is drift.
+    """The RMS [mm] above which a check is ``not_held``.
 
-    ``absolute_mm`` when set (the setting ``drift.threshold_mm``); else ``factor ×
-    reference_rmse_mm`` (the calibration's own residual RMSE; ``drift.threshold_factor``), at
-    least ``min_threshold_mm`` (``drift.min_threshold_mm``).
+    ``absolute_mm`` when set (the setting ``hold_check.threshold_mm``); else ``factor ×
+    reference_rmse_mm`` (the calibration's own residual RMSE; ``hold_check.threshold_factor``), at
+    least ``min_threshold_mm`` (``hold_check.min_threshold_mm``).
 
     Raises
     ------
@@ -55,13 +55,14 @@ def threshold_mm(
     if absolute_mm is not None:
         return float(absolute_mm)
     if reference_rmse_mm is None or not math.isfinite(reference_rmse_mm):
-        raise ValueError("drift.threshold_mm: the calibration has no residual RMSE; set one")
+        raise ValueError("hold_check.threshold_mm: the calibration has no residual RMSE; set one")
     return max(factor * float(reference_rmse_mm), min_threshold_mm)
 
 
 def judge(rms_mm: float, limit_mm: float) -> CheckVerdict:
-    """``drift`` when ``rms_mm`` exceeds ``limit_mm`` (equal is ok); a NaN RMS is drift."""
-    return "ok" if rms_mm <= limit_mm else "drift"
+    """``not_held`` when ``rms_mm`` exceeds ``limit_mm`` (equal is ok); a NaN RMS is
+    ``not_held``."""
+    return "ok" if rms_mm <= limit_mm else "not_held"
 
 
 def spread_indices(joints_deg: FloatArray, k: int) -> list[int]:
@@ -164,12 +165,12 @@ def explanation_text(explained: dict[str, Any]) -> str:
         )
     if explained["kind"] == "robot":
         return (
-            f"the robot drifted: joint {explained['joint']} zero offset "
+            f"the robot changed: joint {explained['joint']} zero offset "
             f"{explained['joint_offset_deg']:+.3f} deg; calibrate the robot again"
         )
     return (
         "robot or sensor: the check poses cannot tell which moved; check the sensor stand, "
-        "then calibrate the robot again if the next check drifts too"
+        "then calibrate the robot again if the next check fails to hold too"
     )
 
 

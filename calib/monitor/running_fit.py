@@ -173,11 +173,13 @@ def map_fit(model: RobotModel, samples: SampleSet) -> tuple[ParamLayout, FloatAr
 
     from calib.anchors import fit_anchors
     from calib.cable import ParamLayout
-    from calib.options import IdentifyOptions
+    from calib.options import IdentifyOptions, PriorOptions, part
     from calib.prior import with_prior
     from calib.problem import Problem
 
-    opts = dataclasses.replace(IdentifyOptions(), prior_tool_mm=MAP_TOOL_PRIOR_MM)
+    opts = dataclasses.replace(
+        part(IdentifyOptions(), PriorOptions), prior_tool_mm=MAP_TOOL_PRIOR_MM
+    )
     layout = ParamLayout(samples.anchor_ids)
     q, idx, length = model.table_rad(samples.joints_deg), samples.anchor_index(), samples.length_mm
     start = fit_anchors(model, layout, np.zeros(layout.size), q, idx, length)

@@ -47,11 +47,10 @@ from dataclasses import dataclass
 from typing import Literal, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-#: Six joint angles [deg] (the daemon's :data:`daemon.sampler.capture.Joints`).
-Joints = tuple[float, float, float, float, float, float]
+from calib.kinematics import FloatArray
+from calib.sample_fields import Joints
+
 #: Why a window is not settled (a subset of the daemon's capture rejection reasons,
 #: :data:`daemon.sampler.capture.RejectionReason`).
 SettleReason = Literal["moving", "over_range", "stale", "no_data", "frozen"]
@@ -399,7 +398,6 @@ def window_stats(window: Sequence[PairedReading]) -> WindowStats:
 __all__ = [
     "NOT_SETTLED",
     "FrozenWatch",
-    "Joints",
     "PairedReading",
     "SettleConfig",
     "SettleReason",

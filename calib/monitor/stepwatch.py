@@ -20,7 +20,7 @@ Two questions a plant engineer asks while a campaign runs or a check comes back:
    cable and shortens others', is seen as well as one along it. The run's first sample is
    where the sensor moved; the alarm names it and the median length change.
 
-2. **Robot or sensor?** :func:`explain_change` fits both explanations to a drift check's
+2. **Robot or sensor?** :func:`explain_change` fits both explanations to a hold check's
    residuals: a point shift of the anchor plus an offset change (4 parameters: every pose's
    length changes by ``−u·δ + Δc``, ``u`` the cable direction) or the offset alone (a
    re-zeroed indicator), against one joint's zero offset plus an offset change (2 parameters,
@@ -42,9 +42,8 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from calib.kinematics import FloatArray
 
 #: MAD → sigma for Gaussian residuals.
 MAD_TO_SIGMA = 1.4826
@@ -265,7 +264,7 @@ def explain_change(
     noise_mm: float,
     margin: float = 2.0,
 ) -> dict[str, Any]:
-    """Which explains a drift check's residuals better: a moved sensor or a robot change?
+    """Which explains a hold check's residuals better: a moved sensor or a robot change?
 
     Parameters
     ----------

@@ -7,11 +7,12 @@ from calib.cable import multilaterate
 from calib.dataset import SampleSet
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
+from calib.sample_fields import DEFAULT_ANCHOR
 
 
 def plan_anchor_ids(anchor_ids: tuple[str, ...] | None, n_anchors: int) -> tuple[str, ...]:
     """The ids of a plan's anchors: ``anchor_ids`` as given, else ``A, B, …``."""
-    return anchor_ids or tuple(chr(ord("A") + k) for k in range(n_anchors))
+    return anchor_ids or tuple(chr(ord(DEFAULT_ANCHOR) + k) for k in range(n_anchors))
 
 
 def start_offsets_mm(

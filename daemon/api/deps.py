@@ -38,7 +38,7 @@ class AppState:
         The samples identify needs, per robot and anchor count.
     sampler : daemon.sampler.Sampler or None
         None until the lifespan has started it.
-    drift : daemon.monitors.holdcheck.HoldCheckMonitor or None
+    hold_check : daemon.monitors.holdcheck.HoldCheckMonitor or None
         None until the lifespan has started it.
     auto : daemon.monitors.autocapture.AutoCapture or None
         Auto capture's one owner (the store and the sampler kept in step); None until the
@@ -55,7 +55,7 @@ class AppState:
     jobs: JobManager
     min_samples: MinSamplesCache
     sampler: Any = None
-    drift: Any = None
+    hold_check: Any = None
     watch: Any = None  # daemon.monitors.watch.SensorWatch, None until the lifespan has started it
     auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)

@@ -2,7 +2,7 @@
 
 store → jobs → sensor watch → sampler (its sink, given when it is built, is the store watched
 by the sensor watch) → auto capture (:class:`daemon.monitors.autocapture.AutoCapture`, which
-the watch then follows, resumed as the store says) → drift monitor. The
+the watch then follows, resumed as the store says) → hold-check monitor. The
 app itself is assembled in :mod:`daemon.api.main`.
 """
 
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import logging
 import sys
 from collections.abc import AsyncIterator, Callable
 from typing import Any
@@ -26,6 +27,8 @@ from daemon.monitors.holdcheck import HoldCheckMonitor
 from daemon.monitors.watch import SensorWatch
 from daemon.process.lifecycle import STOPPED, record_start
 from daemon.store import Store
+
+log = logging.getLogger("cablecal.serve")
 
 #: The interpreter's GIL switch interval while the service runs [s]: worker threads (CSV
 #: imports, plans, compensation) share the GIL with the event loop, and 1 ms (Python's
@@ -68,6 +71,8 @@ def make_lifespan(
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        for note in settings.deprecations():
+            log.warning(note)
         state = build_state(settings, token)
         app.state.cablecal = state
         record_start(state.store)  # and unclean_shutdown if the previous run did not stop
@@ -81,8 +86,8 @@ def make_lifespan(
             state.auto = AutoCapture(state.store, state.sampler)
             state.watch.start(state.auto)
             state.auto.resume()
-            state.drift = HoldCheckMonitor(state.store, settings.drift, state.auto)
-            await state.drift.start()
+            state.hold_check = HoldCheckMonitor(state.store, settings.hold_check, state.auto)
+            await state.hold_check.start()
             # Everything built so far (modules, schemas, models) lives as long as the process:
             # out of the collector's sight, a full collection during a large import has far
             # less to walk, and holds the event loop that much shorter.
@@ -92,8 +97,8 @@ def make_lifespan(
         finally:
             for gate in state.gates.values():
                 gate.close()  # from now on heavy work is a 503
-            if state.drift is not None:
-                await state.drift.stop()
+            if state.hold_check is not None:
+                await state.hold_check.stop()
             if state.watch is not None:
                 await state.watch.stop()
             if state.sampler is not None:

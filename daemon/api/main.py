@@ -10,6 +10,7 @@ from typing import Any
 
 from fastapi import Depends, FastAPI
 
+from daemon import __version__
 from daemon.api import errors
 from daemon.api.deps import AppState, bound_path_ids, finite_queries
 from daemon.api.errors import API_KINDS, not_found_detail
@@ -40,7 +41,7 @@ def create_app(
     in :func:`daemon.api.lifespan.make_lifespan`."""
     app = FastAPI(
         title="cablecal",
-        version=system.VERSION,
+        version=__version__,
         summary="Robot calibration with a drawstring sensor: campaigns, captures, identification.",
         lifespan=make_lifespan(settings, token, sampler_factory),
         docs_url=None,  # served by mount_web from local files

@@ -1,7 +1,7 @@
 """Request and response bodies of the REST API (pydantic; they document /docs).
 
-Every request body lives here and derives from the one strict body class, :class:`_Body`
-(also exported as :data:`StrictBody`); the routers import them."""
+Every request body lives here and derives from the one strict body class,
+:class:`StrictBody`; the routers import them."""
 
 from __future__ import annotations
 
@@ -21,8 +21,18 @@ from typing_extensions import TypedDict
 
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.models import BUILTIN_MODELS
-from calib.options import DriftMode, Holdout, Method, PriorWeight, Robust, default, spec
+from calib.options import (
+    DriftMode,
+    Holdout,
+    IdentifyOptions,
+    Method,
+    PriorWeight,
+    Robust,
+    default,
+    spec,
+)
 from calib.planning import PlanOptions
+from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.api.deps import MAX_ID
 from daemon.api.text_rules import (
     MAX_NAME_CHARS,
@@ -33,10 +43,10 @@ from daemon.api.text_rules import (
     Reason,
     no_surrogates,
 )
-from daemon.store.rows import CalibratedModel, CampaignRow, EventRow, JobRow, RobotRow, SampleRow
+from daemon.store.rows import CampaignRow, JobRow
 
 
-class _Body(BaseModel):
+class StrictBody(BaseModel):
     """Request bodies: no unknown keys, strict types (``"yes"`` is not a boolean, ``"1"`` not a
     number), finite numbers only (NaN and ±Infinity are a 422 in every float field, nested
     bodies and lists included), every string valid Unicode."""
@@ -60,11 +70,7 @@ class _Body(BaseModel):
         return value
 
 
-#: The strict request body (the public name of :class:`_Body`).
-StrictBody = _Body
-
-
-class ModelFileText(_Body):
+class ModelFileText(StrictBody):
     """A robot model file as the operator picked it: its file name (``.toml`` or ``.json``
     decides the format) and its text."""
 
@@ -72,7 +78,7 @@ class ModelFileText(_Body):
     text: Annotated[str, StringConstraints(max_length=100_000)]  # a model file: a few kB
 
 
-class RobotCreate(_Body):
+class RobotCreate(StrictBody):
     """A physical robot: its own name and its nominal model (exactly one of ``model`` and
     ``model_file``)."""
 
@@ -94,7 +100,7 @@ class RobotCreate(_Body):
     )
 
 
-class CampaignCreate(_Body):
+class CampaignCreate(StrictBody):
     """A new calibration campaign."""
 
     name: Name = Field(description=f"1..{MAX_NAME_CHARS} characters, not blank")
@@ -104,7 +110,7 @@ class CampaignCreate(_Body):
     robot: Name | None = Field(
         None,
         description="The robot's own name (cell, serial number): the same name is the same "
-        "robot (its calibration and drift history go on); a new name makes a robot of the "
+        "robot (its calibration and hold-check history go on); a new name makes a robot of the "
         "given model. Without it the robot is named after its model.",
     )
     robot_model_file: ModelFileText | None = Field(
@@ -128,13 +134,13 @@ class CampaignCreate(_Body):
     notes: Notes = Field("", description=f"At most {MAX_NOTES_CHARS} characters")
 
 
-class CaptureRequest(_Body):
+class CaptureRequest(StrictBody):
     """A manual capture."""
 
     joints_deg: Annotated[list[float], Field(min_length=6, max_length=6)] | None = Field(
         None, description="Joint angles [deg], only with the manual robot driver."
     )
-    anchor: Anchor = Field("A", description="Sensor position id (not blank).")
+    anchor: Anchor = Field(DEFAULT_ANCHOR, description="Sensor position id (not blank).")
     repeat: bool = Field(
         False,
         description="Store it even at a pose the campaign has captured already (the operator "
@@ -143,14 +149,14 @@ class CaptureRequest(_Body):
     )
 
 
-class AutoCapture(_Body):
+class AutoCapture(StrictBody):
     """Switch auto capture on or off."""
 
     enabled: bool = Field(description="JSON true or false (no strings, no numbers)")
-    anchor: Anchor = Field("A", description="Sensor position id (not blank).")
+    anchor: Anchor = Field(DEFAULT_ANCHOR, description="Sensor position id (not blank).")
 
 
-class SamplePatch(_Body):
+class SamplePatch(StrictBody):
     """Exclude a sample from identification, or include it again."""
 
     excluded: bool
@@ -170,7 +176,7 @@ _ParamName = Annotated[str, StringConstraints(max_length=64)]
 # The fields of IdentificationRequest are the one list of the identification options a user
 # sets: the API's body, the page's form (through GET /options/identify) and `cablecal
 # identify`'s options (tests/test_options.py holds the CLI to it).
-class IdentificationRequest(_Body):
+class IdentificationRequest(StrictBody):
     """Options of an identification job (see ``cablecal identify --help``); a subset of
     :class:`calib.options.IdentifyOptions` under the same names (``fixed`` is still read as
     the old spelling of ``fix``). ``GET /options/identify`` serves each field's spec."""
@@ -198,14 +204,17 @@ class IdentificationRequest(_Body):
     )
     noise_rank: bool = _option("noise_rank")
 
-    def to_options(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`calib.options.IdentifyOptions`."""
+    def to_options(self, noise_mm: float | None = None) -> IdentifyOptions:
+        """The request's :class:`calib.options.IdentifyOptions`, made once here and passed on
+        (the job's check and its worker take this object); ``noise_mm``: the ``[jobs]``
+        default when the body has none (None: the option's own default)."""
         out = self.model_dump(exclude={"fix", "free", "noise_mm"})
         out["fix"] = tuple(self.fix)
         out["free"] = tuple(self.free)
-        if self.noise_mm is not None:
-            out["noise_mm"] = self.noise_mm
-        return out
+        noise = self.noise_mm if self.noise_mm is not None else noise_mm
+        if noise is not None:
+            out["noise_mm"] = noise
+        return IdentifyOptions(**out)
 
 
 # ------------------------------------------------------------------ compensation targets
@@ -217,7 +226,7 @@ JointDeg = Annotated[float, Field(ge=-3600.0, le=3600.0, allow_inf_nan=False)]
 LengthMm = Annotated[float, Field(ge=-100_000.0, le=100_000.0, allow_inf_nan=False)]
 
 
-class JointTarget(_Body):
+class JointTarget(StrictBody):
     """A target as joint angles q1..q6 [deg]."""
 
     q1: JointDeg
@@ -228,7 +237,7 @@ class JointTarget(_Body):
     q6: JointDeg
 
 
-class PositionTarget(_Body):
+class PositionTarget(StrictBody):
     """A target as a TCP position x, y, z [mm] in the robot base frame."""
 
     x: LengthMm
@@ -244,11 +253,11 @@ class PoseTarget(PositionTarget):
     rz: JointDeg
 
 
-def target_list(model: type[_Body]) -> Any:
+def target_list(model: type[StrictBody]) -> Any:
     return Annotated[list[model], Field(min_length=1, max_length=MAX_TARGETS)]  # type: ignore[valid-type]
 
 
-TARGET_MODELS: tuple[type[_Body], ...] = (JointTarget, PoseTarget, PositionTarget)
+TARGET_MODELS: tuple[type[StrictBody], ...] = (JointTarget, PoseTarget, PositionTarget)
 TARGET_LISTS = {m: TypeAdapter(target_list(m)) for m in TARGET_MODELS}
 ANY_TARGETS: TypeAdapter[Any] = TypeAdapter(
     Annotated[list[dict[str, Any]], Field(min_length=1, max_length=MAX_TARGETS)]
@@ -282,15 +291,15 @@ TARGETS_SCHEMA = {
 
 
 # ------------------------------------------------------------------ verification
-class VerifyRequest(_Body):
+class VerifyRequest(StrictBody):
     """Verify an identification's result on another campaign."""
 
     campaign_id: int = Field(ge=1, le=MAX_ID, description="The campaign whose samples to predict")
     refit_anchor: bool = Field(False, description="Fit the anchor and zero offset first")
 
 
-# ------------------------------------------------------------------ drift-check poses
-class CheckPosesBody(_Body):
+# ------------------------------------------------------------------ hold-check poses
+class CheckPosesBody(StrictBody):
     """A robot's check poses [deg]."""
 
     poses_deg: Annotated[
@@ -312,7 +321,7 @@ Coordinate = Annotated[float, Field(ge=-10_000.0, le=10_000.0, allow_inf_nan=Fal
 Extension = Annotated[float, Field(ge=0, le=10_000, allow_inf_nan=False)]
 
 
-class PlanRequest(_Body):
+class PlanRequest(StrictBody):
     """Options of a plan (see ``cablecal plan --help``; units in the names). The robot is the
     campaign's. Strict: no unknown keys, ``"1"`` is not a number, ``"yes"`` not a boolean;
     pairs and triples are JSON lists of that length."""
@@ -415,12 +424,6 @@ class PlanRequest(_Body):
 # (daemon.store.rows: one definition for the store, the routes and /docs); pydantic validates
 # it on the way out. Keys may be added, never removed or renamed.
 
-SampleOut = SampleRow
-RobotOut = RobotRow
-CalibratedModelOut = CalibratedModel
-EventOut = EventRow
-JobOut = JobRow
-
 
 class CampaignOut(CampaignRow):
     """A campaign with what identify needs of it at the default options
@@ -469,6 +472,6 @@ class ServiceStatus(TypedDict):
     devices: dict[str, Any]
     sampler: dict[str, Any] | None
     jobs: dict[str, Any]
-    drift: dict[str, Any] | None
+    hold_check: dict[str, Any] | None
     watch: dict[str, Any] | None
     uptime_s: float

@@ -27,6 +27,7 @@ from calib.accuracy import length_metrics
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.planning.progress import match_poses
 from calib.predict import predict_lengths_from_result
+from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.cli.emulated import (
     FAST_CELL_NOISE_MM,
     FAST_DAEMON_ENV,
@@ -163,7 +164,11 @@ def campaign_cmd(
             all_poses = cell.sim.control("poses")["poses_deg"]
             # A pose is new when no sample lies within 0.05 deg of it on every joint.
             seen = match_poses(
-                all_poses, ["A"] * len(all_poses), q_seen, ["A"] * len(q_seen), tol_deg=0.05
+                all_poses,
+                [DEFAULT_ANCHOR] * len(all_poses),
+                q_seen,
+                [DEFAULT_ANCHOR] * len(q_seen),
+                tol_deg=0.05,
             )
             new = [p for p, k in zip(all_poses, seen, strict=True) if k < 0]
             if new:

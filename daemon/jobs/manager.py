@@ -33,13 +33,12 @@ import multiprocessing
 import queue
 import threading
 import time
-from collections.abc import Mapping
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.managers import SyncManager
 from typing import Any
 
-from calib.options import default as default_option
+from calib.options import IdentifyOptions, options_mapping
 from calib.result import CalibrationResult
 from daemon import metrics
 from daemon.config import JobSettings
@@ -159,7 +158,7 @@ class JobManager:
                 self._manager.shutdown()
 
     # ------------------------------------------------------------------ submit / cancel
-    def check(self, campaign_id: int, options: Mapping[str, Any]) -> Checked:
+    def check(self, campaign_id: int, options: IdentifyOptions) -> Checked:
         """:func:`daemon.jobs.worker.check_job` on this daemon's store and settings: what an
         identification of the campaign's included samples would run on, after the one rule
         of what can run. The POST and the readiness route both ask it (in a worker thread,
@@ -173,9 +172,9 @@ class JobManager:
         daemon.store.StoreNotFound
             No such campaign.
         """
-        return check_job(self.store, self.settings.noise_mm, campaign_id, options)
+        return check_job(self.store, campaign_id, options)
 
-    def prepare(self, campaign_id: int, options: Mapping[str, Any]) -> Prepared:
+    def prepare(self, campaign_id: int, options: IdentifyOptions) -> Prepared:
         """:meth:`check` and the job's inputs, ready for :meth:`enqueue` (in a worker thread).
 
         Raises
@@ -183,7 +182,7 @@ class JobManager:
         JobError, daemon.store.StoreNotFound
             As :meth:`check`.
         """
-        return prepare_job(self.store, self.settings.noise_mm, campaign_id, options)
+        return prepare_job(self.store, campaign_id, options)
 
     def full(self) -> str | None:
         """Why no further job may be queued (``max_pending`` jobs queued or running), or None."""
@@ -206,16 +205,13 @@ class JobManager:
             raise JobsFull(why)
         if self._pool is None:
             raise RuntimeError("job manager not started")
-        opts = prepared.options
+        opts = prepared.checked.options
         job = self.store.create_job(
-            prepared.campaign_id,
-            prepared.robot_id,
-            str(opts.get("method", default_option("method"))),
-            opts,
+            prepared.campaign_id, prepared.robot_id, opts.method, options_mapping(opts)
         )
         job_id = int(job["id"])
         self._renew_broken_pool()
-        model, joints, lengths, anchors, t_s = prepared.inputs
+        model, joints, lengths, anchors, t_s, group = prepared.inputs
         future = self._pool.submit(
             run_identification,
             job_id,
@@ -223,14 +219,15 @@ class JobManager:
             joints,
             lengths,
             anchors,
-            opts,
+            prepared.checked,
             self._progress,
             self._cancel,
             t_s,
+            group,
         )
         self._futures[job_id] = future
         self._tasks[job_id] = asyncio.create_task(
-            self._watch(job_id, future, prepared.sample_ids, opts)
+            self._watch(job_id, future, prepared.sample_ids, opts.method)
         )
         return dict(job)
 
@@ -256,9 +253,8 @@ class JobManager:
         job_id: int,
         future: Future[dict[str, Any]],
         sample_ids: list[int],
-        opts: dict[str, Any],
+        method: str,
     ) -> None:
-        method = str(opts.get("method", default_option("method")))
         t0 = time.monotonic()
         status = JobState.FAILED
         try:

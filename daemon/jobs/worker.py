@@ -4,12 +4,13 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
+    from calib.identify import Checked as CheckedOptions
     from calib.models import RobotModel
+    from calib.options import IdentifyOptions
 
 #: Seconds between progress messages a worker sends (the last one is always sent).
 PROGRESS_INTERVAL_S = 0.2
@@ -30,33 +31,35 @@ class JobsFull(RuntimeError):
 
 
 class Checked(NamedTuple):
-    """A checked job request: the samples and their ids, the robot and the options."""
+    """A checked job request: the samples and their ids, the robot, and the options checked
+    against them with the split identify will run on (:func:`calib.identify.check`)."""
 
     samples: SampleSet
     sample_ids: list[int]
     robot_id: int
     model: RobotModel
-    options: dict[str, Any]
+    checked: CheckedOptions
 
 
 class Prepared(NamedTuple):
-    """A checked job with its inputs: the campaign and robot, the options, the samples' ids,
-    and the model mapping, joints [deg] (n x 6 array), lengths [mm] (n array), anchors (n)
-    and capture times [s] (n array, or None) of :func:`run_identification`."""
+    """A checked job with its inputs: the campaign and robot, the checked options and split
+    (:class:`calib.identify.Checked`), the samples' ids, and the model mapping, joints [deg]
+    (n x 6 array), lengths [mm] (n array), anchors (n), capture times [s] (n array, or
+    None) and pose groups (n, or None) of :func:`run_identification`."""
 
     campaign_id: int
     robot_id: int
-    options: dict[str, Any]
+    checked: CheckedOptions
     sample_ids: list[int]
     inputs: tuple[Any, ...]
 
 
-def check_job(
-    store: Any, noise_mm: float | None, campaign_id: int, options: Mapping[str, Any]
-) -> Checked:
-    """What an identification of the campaign's included samples with ``options`` would run
-    on, after the one rule of what can run (:func:`calib.options.validate`: options, training
-    rows, each anchor's training rows); ``noise_mm`` the ``[jobs]`` default.
+def check_job(store: Any, campaign_id: int, options: IdentifyOptions) -> Checked:
+    """What an identification of the campaign's included samples with ``options`` (made once,
+    from the request) would run on, after the one rule of what can run
+    (:func:`calib.identify.check`: the split identify will use, then
+    :func:`calib.options.validate`: parameter names, training rows, each anchor's training
+    rows). The worker runs on this check's result without checking again.
 
     Raises
     ------
@@ -65,48 +68,37 @@ def check_job(
     daemon.store.StoreNotFound
         No such campaign.
     """
-    from calib.options import OptionError, options_from_mapping, validate
-    from calib.split import split_rows
+    from calib.identify import check
+    from calib.options import OptionError
     from daemon.store import StoreNotFound
 
     campaign = store.get_campaign(campaign_id)
     if campaign is None:
         raise StoreNotFound("campaign", campaign_id)
-    opts = dict(options)
-    if noise_mm is not None:
-        opts.setdefault("noise_mm", noise_mm)
     samples, sample_ids = store.sample_set(campaign_id)
     robot_id = int(campaign["robot_id"])
     model = store.robot_model(robot_id)
     try:
-        parsed = options_from_mapping(opts)
-        # The rows identify will train on (its own split), so each anchor's count is the one
-        # the job would see.
-        train_rows = split_rows(
-            samples, parsed.test_fraction, parsed.seed, parsed.holdout, parsed.n_groups
-        )[0]
-        validate(samples, parsed, train_rows, model=model)
+        checked = check(model, samples, options)
     except OptionError as exc:
         raise JobError(str(exc)) from exc
     except (TypeError, ValueError) as exc:
         raise JobError(f"campaign {campaign_id}: {exc}") from exc
-    return Checked(samples, sample_ids, robot_id, model, opts)
+    return Checked(samples, sample_ids, robot_id, model, checked)
 
 
-def prepare_job(
-    store: Any, noise_mm: float | None, campaign_id: int, options: Mapping[str, Any]
-) -> Prepared:
+def prepare_job(store: Any, campaign_id: int, options: IdentifyOptions) -> Prepared:
     """:func:`check_job` and the job's inputs (arrays: they pickle as their bytes)."""
-    samples, sample_ids, robot_id, model, opts = check_job(store, noise_mm, campaign_id, options)
+    samples, sample_ids, robot_id, model, checked = check_job(store, campaign_id, options)
     inputs = (model.to_dict(), samples.joints_deg, samples.length_mm, list(samples.anchor))
-    return Prepared(campaign_id, robot_id, opts, sample_ids, (*inputs, samples.t_s))
+    extra = (samples.t_s, None if samples.group is None else list(samples.group))
+    return Prepared(campaign_id, robot_id, checked, sample_ids, (*inputs, *extra))
 
 
 def prepare_in_child(
     db_path: str,
-    noise_mm: float | None,
     campaign_id: int,
-    options: dict[str, Any],
+    options: IdentifyOptions,
     check_only: bool,
 ) -> Prepared | None:
     """:func:`prepare_job` (or, with ``check_only``, only :func:`check_job`: None) in a
@@ -123,9 +115,9 @@ def prepare_in_child(
     store = Store(db_path, readonly=True)
     try:
         if check_only:
-            check_job(store, noise_mm, campaign_id, options)
+            check_job(store, campaign_id, options)
             return None
-        return prepare_job(store, noise_mm, campaign_id, options)
+        return prepare_job(store, campaign_id, options)
     except StoreNotFound as exc:
         raise JobError(f"{exc.kind} {exc.id}: {exc.reason}") from None
     finally:
@@ -142,10 +134,11 @@ def run_identification(
     joints_deg: Any,
     length_mm: Any,
     anchors: list[str],
-    options: dict[str, Any],
+    checked: CheckedOptions,
     progress_queue: Any,
     cancel_flags: Any,
     t_s: Any = None,
+    group: list[str] | None = None,
 ) -> dict[str, Any]:
     """Worker-side body of a job (runs in a pool process).
 
@@ -160,8 +153,9 @@ def run_identification(
         Cable lengths [mm].
     anchors : list of n str
         Anchor id per sample.
-    options : dict
-        Keyword arguments of :class:`calib.options.IdentifyOptions`.
+    checked : calib.identify.Checked
+        The options and split :func:`check_job` checked on these samples (not checked
+        again: :func:`calib.identify.identify_checked`).
     progress_queue, cancel_flags
         Manager proxies: ``(job_id, fraction, message, iteration, cost_rms_mm)`` tuples go
         out (the last two None until the solver finishes its first iteration);
@@ -169,6 +163,9 @@ def run_identification(
     t_s : array or list, shape (n,), optional
         Capture time of each sample [s] (:meth:`daemon.store.Store.sample_set`), for the
         drift model; None: the row order.
+    group : list of n str, optional
+        Pose group of each sample (the grouped hold-out's and the prior's cross-validation
+        folds, as the job's check saw them); None: Ward clusters of the joints.
 
     Returns
     -------
@@ -176,14 +173,13 @@ def run_identification(
         The ``result.json`` contract of :meth:`calib.identify.IdentifyResult.to_json`.
     """
     from calib.dataset import make_samples
-    from calib.identify import identify
+    from calib.identify import identify_checked
     from calib.models import model_from_mapping
-    from calib.options import options_from_mapping
     from calib.solvers.common import Cancelled
 
     model = model_from_mapping(model_mapping)
-    samples = make_samples(joints_deg, length_mm, anchors, t_s=t_s)  # t_s: for the drift model
-    opts = options_from_mapping(options)
+    # t_s: for the drift model; group: the same samples the job's check split
+    samples = make_samples(joints_deg, length_mm, anchors, group=group, t_s=t_s)
     progress_queue.put((job_id, 0.0, "started", None, None))
     last = [time.monotonic()]
     newest: list[Any] = [None, None]  # the newest (iteration, cost_rms_mm), kept between sends
@@ -205,7 +201,8 @@ def run_identification(
             last[0] = now
             progress_queue.put((job_id, float(fraction), message, *newest))
 
-    out = identify(model, samples, opts, progress=progress, clock=time.perf_counter).to_json()
+    result = identify_checked(model, samples, checked, progress=progress, clock=time.perf_counter)
+    out = result.to_json()
     # The newest iteration and cost, for the job row (the last queued message may arrive
     # after the job is marked finished and is then dropped).
     out[FINAL_PROGRESS] = list(newest)

@@ -10,9 +10,10 @@ auto is on for campaign c with anchor a ⇔ the sampler captures for c with anch
   rolled back and the sampler put back as it was;
 - :meth:`AutoCapture.move_anchor`: the sensor watch moves auto capture to a new anchor
   session (or back, on undo), in the store and the sampler;
-- :meth:`AutoCapture.start_check` and :meth:`AutoCapture.release`: a drift check
-  (:mod:`daemon.monitors.holdcheck`) captures its check campaign in auto mode. That one is kept out
-  of the store on purpose: a restart fails the running check rather than resuming its captures.
+- :meth:`AutoCapture.start_check` and :meth:`AutoCapture.release`: a hold check
+  (:mod:`daemon.monitors.holdcheck`) captures its check campaign in auto mode. That one is
+  kept out of the store on purpose: a restart fails the running check rather than resuming
+  its captures.
 
 The sampler lives on the event loop: :meth:`switch` runs the store's reads and writes in a
 worker thread and the sampler's switch on the loop, one switch at a time.
@@ -23,6 +24,8 @@ from __future__ import annotations
 import asyncio
 import logging
 from typing import TYPE_CHECKING, Any
+
+from calib.sample_fields import DEFAULT_ANCHOR
 
 if TYPE_CHECKING:
     from calib.kinematics import FloatArray
@@ -83,7 +86,7 @@ class AutoCapture:
             cid = int(campaign["id"])
             self.sampler.set_auto(
                 cid,
-                anchor=str(campaign.get("auto_anchor") or "A"),
+                anchor=str(campaign.get("auto_anchor") or DEFAULT_ANCHOR),
                 known_poses_deg=self.store.poses_deg(cid),
             )
             resumed.append(cid)
@@ -166,9 +169,9 @@ class AutoCapture:
         self.sampler.set_auto_anchor(anchor)
         return True
 
-    # ------------------------------------------------------------------ drift checks
+    # ------------------------------------------------------------------ hold checks
     def start_check(self, campaign_id: int, anchor: str) -> bool:
-        """Auto capture for a drift check's campaign, in the sampler only (not stored, on
+        """Auto capture for a hold check's campaign, in the sampler only (not stored, on
         purpose: see the module docstring). Nothing happens without a sampler or with the
         manual robot (no joint angles to settle on). Returns whether it started."""
         if self.sampler is None or getattr(self.sampler, "manual_robot", False):

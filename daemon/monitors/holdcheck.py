@@ -1,9 +1,10 @@
 """Hold checks: is the robot still the one its accepted calibration describes?
 
-What an operator sees calls them drift checks (the ``drift`` settings, ``POST
-/robots/{id}/checks``, the ``drift`` and ``drift_check`` events, the ``cablecal_drift_*``
-gauges, the ``drift`` block of ``GET /status``); the code calls them hold checks, apart from
-:mod:`calib.drift`, the measurement drifting within one campaign. The numeric decisions are
+Every surface calls them hold checks: the ``[hold_check]`` settings, ``POST
+/robots/{id}/checks``, the ``hold_check`` and ``hold_check_not_held`` events, the
+``cablecal_hold_check_*`` gauges, the ``hold_check`` block of ``GET /status``, the logger
+``cablecal.hold_check``; "drift" is only :mod:`calib.drift`, the measurement drifting within
+one campaign. The numeric decisions are
 pure, in :mod:`calib.monitor.holdcheck`; this module holds the store, the sampler, the
 schedule and the events.
 
@@ -11,31 +12,31 @@ The flow
     1. A robot with an accepted calibration has **check poses**: the user's
        (``PUT /robots/{id}/check-poses``), else :func:`calib.monitor.holdcheck.spread_indices`
        picks
-       ``drift.n_poses`` (8) well-spread poses of the accepted calibration's own samples.
-    2. A check starts on ``POST /robots/{id}/checks`` or every ``drift.check_interval_h``
+       ``hold_check.n_poses`` (8) well-spread poses of the accepted calibration's own samples.
+    2. A check starts on ``POST /robots/{id}/checks`` or every ``hold_check.check_interval_h``
        (default off). It creates a campaign ``check <n> of robot <id>`` and switches the
        sampler's auto capture to it (not persisted: a restart fails the running check instead
        of capturing on). The robot must now visit the check poses: a robot program on a real
        cell, ``load_poses`` on the EMULATED cell's control port (``cablecal simulate``), or
        manual captures into the check campaign. A capture counts for the check pose it is
-       within ``drift.pose_tol_deg`` of (every joint).
-    3. When every check pose has a capture (or ``drift.timeout_s`` passes: status ``failed``),
+       within ``hold_check.pose_tol_deg`` of (every joint).
+    3. When every check pose has a capture (or ``hold_check.timeout_s`` passes: status ``failed``),
        the captures are compared with the calibration's predictions by
        :func:`calib.verify.verify` — **without** refitting the anchor by default: the sensor
        stays mounted between checks, and refitting four parameters per anchor on 8 poses
-       would absorb part of a real drift. Set ``drift.refit_anchor = true`` after moving the
+       would absorb part of a real change. Set ``hold_check.refit_anchor = true`` after moving the
        sensor (it needs at least 5 poses per anchor).
-    4. :func:`calib.monitor.holdcheck.judge`: ``drift`` when the RMS exceeds the threshold
-       (:func:`calib.monitor.holdcheck.threshold_mm`: ``drift.threshold_mm``, else
-       ``drift.threshold_factor`` (3) × the calibration's own residual RMSE, never below
-       ``drift.min_threshold_mm``).
-       The check row, a ``drift`` (or ``drift_check``) event, the gauges
-       ``cablecal_drift_rms_mm`` and ``cablecal_drift_threshold_mm`` and the ``drift`` block
-       of ``GET /status`` show it. A drift event names its likely cause: a moved sensor (a
-       point shift of P0 changes lengths by ``−u·δ``, ``u`` the cable direction) or a robot
-       change (a joint's zero offset), whichever fits the residuals better
-       (:func:`calib.monitor.stepwatch.explain_change`; ``unclear`` when the poses cannot
-       tell).
+    4. :func:`calib.monitor.holdcheck.judge`: ``not_held`` when the RMS exceeds the threshold
+       (:func:`calib.monitor.holdcheck.threshold_mm`: ``hold_check.threshold_mm``, else
+       ``hold_check.threshold_factor`` (3) × the calibration's own residual RMSE, never below
+       ``hold_check.min_threshold_mm``).
+       The check row, a ``hold_check_not_held`` (or ``hold_check``) event, the gauges
+       ``cablecal_hold_check_rms_mm`` and ``cablecal_hold_check_threshold_mm`` and the
+       ``hold_check`` block of ``GET /status`` show it. A not-held event names its likely
+       cause: a moved sensor (a point shift of P0 changes lengths by ``−u·δ``, ``u`` the
+       cable direction) or a robot change (a joint's zero offset), whichever fits the
+       residuals better (:func:`calib.monitor.stepwatch.explain_change`; ``unclear`` when the
+       poses cannot tell).
 
 ``calib`` is imported inside the functions that use it.
 """
@@ -57,7 +58,13 @@ if TYPE_CHECKING:
     from daemon.store import CheckPoses, CheckRow, Store
     from daemon.store.rows import CheckStatus
 
-log = logging.getLogger("cablecal.drift")
+log = logging.getLogger("cablecal.hold_check")
+
+#: The event of a finished or skipped check, and of a check whose robot no longer holds its
+#: calibration (before 0.2.0: ``drift_check`` and ``drift``; schema migration 8 renamed the
+#: stored ones).
+EVENT_CHECK = "hold_check"
+EVENT_NOT_HELD = "hold_check_not_held"
 
 #: Seconds between looks at a running check's captures.
 POLL_S = 0.5
@@ -97,7 +104,7 @@ def check_poses(store: Store, robot_id: int, n_poses: int) -> CheckPoses:
 
 # ------------------------------------------------------------------ the monitor
 class HoldCheckMonitor:
-    """Runs hold checks (drift checks) in the daemon: one at a time, manual or scheduled.
+    """Runs hold checks in the daemon: one at a time, manual or scheduled.
 
     Parameters
     ----------
@@ -130,10 +137,7 @@ class HoldCheckMonitor:
         checks = self.store.list_checks(limit=1000)
         for check in checks:
             if check["status"] in CHECK_JUDGED and check["rms_mm"] is not None:
-                metrics.HOLD_CHECK_RMS.labels(str(check["robot_id"])).set(check["rms_mm"])
-                metrics.HOLD_CHECK_THRESHOLD.labels(str(check["robot_id"])).set(
-                    check["threshold_mm"]
-                )
+                metrics.record_hold_check(check["robot_id"], check["rms_mm"], check["threshold_mm"])
         self._remember_last(checks)
         if self.settings.check_interval_h:
             self._schedule = asyncio.create_task(self._scheduled(), name="hold-check-schedule")
@@ -182,7 +186,7 @@ class HoldCheckMonitor:
         campaign = self.store.create_campaign(
             f"check {n} of robot {self.store.robot(robot_id)['name']}",
             robot_id,
-            f"drift check ({trigger}) against result {result_row['id']}",
+            f"hold check ({trigger}) against result {result_row['id']}",
         )
         cid = int(campaign["id"])
         check = self.store.create_check(
@@ -198,7 +202,7 @@ class HoldCheckMonitor:
             self.auto.start_check(cid, anchor=CalibrationResult.from_json(result).first_anchor)
         self._running = check
         self._task = asyncio.create_task(self._follow(check, result), name="hold-check")
-        log.info("drift check started", extra={"campaign_id": cid, "check_id": check["id"]})
+        log.info("hold check started", extra={"campaign_id": cid, "check_id": check["id"]})
         return check
 
     async def _follow(self, check: CheckRow, result: dict[str, Any]) -> None:
@@ -231,7 +235,7 @@ class HoldCheckMonitor:
             self._finish(check, "failed", error="cancelled (daemon stopping)")
             raise
         except Exception as exc:
-            log.exception("drift check failed", extra={"check_id": check["id"]})
+            log.exception("hold check failed", extra={"check_id": check["id"]})
             self._finish(check, "failed", error=f"{type(exc).__name__}: {exc}")
 
     def _release(self, campaign_id: int) -> None:
@@ -257,18 +261,19 @@ class HoldCheckMonitor:
         if status == "failed":
             message = f"check {row['id']} of robot {robot} failed: {error}"
         else:
-            metrics.HOLD_CHECK_RMS.labels(str(robot)).set(float(row["rms_mm"] or 0.0))
-            metrics.HOLD_CHECK_THRESHOLD.labels(str(robot)).set(float(row["threshold_mm"]))
+            metrics.record_hold_check(
+                robot, float(row["rms_mm"] or 0.0), float(row["threshold_mm"])
+            )
             message = (
                 f"check {row['id']} of robot {robot}: RMS {row['rms_mm']:.4f} mm, "
                 f"threshold {row['threshold_mm']:.4f} mm: {status}"
             )
             explained = (detail or {}).get("explanation")
-            if status == "drift" and explained is not None:
+            if status == "not_held" and explained is not None:
                 from calib.monitor.holdcheck import explanation_text
 
                 message += f"; {explanation_text(explained)}"
-        kind = "drift" if status == "drift" else "drift_check"
+        kind = EVENT_NOT_HELD if status == "not_held" else EVENT_CHECK
         self.store.record_event(
             kind,
             None,
@@ -301,7 +306,7 @@ class HoldCheckMonitor:
                     continue
                 except (CheckConflict, ValueError) as exc:
                     message = f"scheduled check of robot {rid} skipped: {exc}"
-                    self.store.record_event("drift_check", None, message)
+                    self.store.record_event(EVENT_CHECK, None, message)
                     continue
                 if self._task is not None:
                     with contextlib.suppress(Exception):
@@ -313,11 +318,11 @@ class HoldCheckMonitor:
         self._last, self._last_loaded = (done[-1] if done else None), True
 
     def status(self) -> dict[str, Any]:
-        """The ``drift`` block of ``GET /status``: the last finished check (any robot)
-        ``last_check_at`` [s epoch], ``rms_mm``, ``threshold_mm``, ``state`` (ok, drift,
+        """The ``hold_check`` block of ``GET /status``: the last finished check (any robot)
+        ``last_check_at`` [s epoch], ``rms_mm``, ``threshold_mm``, ``state`` (ok, not_held,
         failed, or none before the first check), ``robot_id``, ``check_id``, and
         ``running`` (the running check's id or None), ``check_interval_h``, ``error`` (why
-        the last check failed) and ``cause`` (what moved at a drift: :func:`_cause`).
+        the last check failed) and ``cause`` (what moved when not held: :func:`_cause`).
 
         From memory: the last check is read from the store once (in :meth:`start`, or here on
         the first call without it) and replaced when :meth:`_finish` stores one, so a busy
@@ -340,11 +345,11 @@ class HoldCheckMonitor:
 
 
 def _cause(check: CheckRow | None) -> dict[str, Any] | None:
-    """What moved, for a check judged ``drift`` with an explanation: ``kind`` (sensor, robot,
+    """What moved, for a check judged ``not_held`` with an explanation: ``kind`` (sensor, robot,
     unclear), its figure (``shift_mm``: the stand's move [mm]; ``joint`` and
     ``joint_offset_deg``) and ``text`` (:func:`calib.monitor.holdcheck.explanation_text`,
     the one wording the event, the log and the page share); None otherwise."""
-    if check is None or check["status"] != "drift":
+    if check is None or check["status"] != "not_held":
         return None
     explained = (check["detail"] or {}).get("explanation")
     if not explained:

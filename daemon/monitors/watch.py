@@ -114,7 +114,7 @@ class SensorWatch:
         self.auto: Any = None
         self.enabled = enabled
         self._campaigns: dict[int, CampaignWatch] = {}
-        #: Campaigns of drift checks: not watched (see :meth:`saw_sample`).
+        #: Campaigns of hold checks: not watched (see :meth:`saw_sample`).
         self._check_campaigns: set[int] = set()
         #: Newest unacknowledged move per campaign (the page's banner): the event detail.
         self._moves: dict[int, dict[str, Any]] = {}
@@ -152,7 +152,7 @@ class SensorWatch:
         if cw is None:
             try:
                 robot_id = int(self.store.campaign(campaign_id)["robot_id"])
-                # A drift check's own campaign is never a sensor-move case of its own: its
+                # A hold check's own campaign is never a sensor-move case of its own: its
                 # few poses are compared with the calibration by the check, which says
                 # whether the sensor or the robot moved (daemon.monitors.holdcheck).
                 if self.store.check_of_campaign(campaign_id) is not None:

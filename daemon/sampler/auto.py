@@ -23,7 +23,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 from calib.dataset import known_pose_index
-from daemon.sampler.capture import CaptureRejected, Joints
+from calib.sample_fields import Joints
+from daemon.sampler.capture import CaptureRejected
 from daemon.sampler.config import SamplerConfig
 from daemon.sampler.devices import Device
 from daemon.sampler.settle import Verdict, as_joints

@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final, Literal, Protocol, get_args
 
-Joints = tuple[float, float, float, float, float, float]
+from calib.sample_fields import Joints
 
 #: How a capture was triggered: by the operator (``manual``) or by auto capture (``auto``).
 #: The one home of the capture modes: the store's CHECK constraint and rows read them here.

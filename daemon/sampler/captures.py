@@ -12,15 +12,15 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from calib.sample_fields import DEFAULT_ANCHOR, Joints
 from daemon import metrics
 from daemon.sampler.auto import AutoState
 from daemon.sampler.cancel import raise_if_cancelled
-from daemon.sampler.capture import CaptureRejected, CaptureSink, Joints
+from daemon.sampler.capture import CaptureMode, CaptureRejected, CaptureSink
 from daemon.sampler.config import SamplerConfig
 from daemon.sampler.devices import Device
 from daemon.sampler.settle import (
     FrozenWatch,
-    Mode,
     PairedReading,
     Verdict,
     as_joints,
@@ -92,9 +92,9 @@ class CapturePath:
     async def capture(
         self,
         campaign_id: int,
-        anchor: str = "A",
+        anchor: str = DEFAULT_ANCHOR,
         joints_deg: Sequence[float] | None = None,
-        mode: Mode = "manual",
+        mode: CaptureMode = "manual",
     ) -> dict[str, Any]:
         """Capture the next settled window after this call; returns the stored sample row.
 
@@ -175,7 +175,7 @@ class CapturePath:
                 async with asyncio.timeout(min(deadline - now, cfg.stale_s) + 1e-3):
                     await tick.wait()
 
-    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: Mode) -> None:
+    def _rejected(self, campaign_id: int | None, exc: CaptureRejected, mode: CaptureMode) -> None:
         metrics.CAPTURES.labels("rejected", exc.reason, mode).inc()
         log.info(
             "capture rejected: %s",
@@ -191,7 +191,7 @@ class CapturePath:
             log.exception("recording a rejection failed", extra={"campaign_id": campaign_id})
 
     def _store(
-        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: Mode
+        self, campaign_id: int, anchor: str, window: tuple[PairedReading, ...], mode: CaptureMode
     ) -> dict[str, Any]:
         capture = make_capture(window, anchor, mode)
         row = dict(self.sink.store_capture(campaign_id, capture))  # commits before returning

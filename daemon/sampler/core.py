@@ -14,10 +14,11 @@ from collections import deque
 from collections.abc import Awaitable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
+from calib.sample_fields import DEFAULT_ANCHOR, Joints
 from daemon import metrics
 from daemon.sampler.auto import AutoState, start_auto
 from daemon.sampler.cancel import raise_if_cancelled
-from daemon.sampler.capture import CaptureSink, Joints
+from daemon.sampler.capture import CaptureMode, CaptureSink
 from daemon.sampler.captures import CapturePath
 from daemon.sampler.config import MAX_BUFFER, SamplerConfig
 from daemon.sampler.devices import Device
@@ -25,7 +26,6 @@ from daemon.sampler.late import LateWatch
 from daemon.sampler.settle import (
     NOT_SETTLED,
     FrozenWatch,
-    Mode,
     PairedReading,
     Verdict,
     staleness_s,
@@ -114,7 +114,7 @@ class Sampler(CapturePath):
 
     # ------------------------------------------------------------------ lifecycle
     @property
-    def mode(self) -> Mode:
+    def mode(self) -> CaptureMode:
         """``auto`` while auto capture is enabled, else ``manual``."""
         return "manual" if self._auto is None else "auto"
 
@@ -318,7 +318,7 @@ class Sampler(CapturePath):
     def set_auto(
         self,
         campaign_id: int | None,
-        anchor: str = "A",
+        anchor: str = DEFAULT_ANCHOR,
         known_poses_deg: Iterable[Sequence[float]] | None = None,
     ) -> None:
         """Enable auto capture into ``campaign_id`` (None disables).

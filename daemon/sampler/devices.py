@@ -17,8 +17,9 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, Literal
 
+from calib.sample_fields import Joints
 from daemon import metrics
-from daemon.sampler.capture import CaptureRejected, Joints, RejectionReason
+from daemon.sampler.capture import CaptureRejected, RejectionReason
 from drivers import DeviceError, DeviceLinkDown, RobotNoData
 
 # The device book-keeping is part of the sampler: its records keep the sampler's logger name.

@@ -24,10 +24,8 @@ from calib.monitor.settle import (
 )
 from daemon.sampler.capture import Capture, CaptureMode, RawReading
 
-Mode = CaptureMode  # the one home: daemon.sampler.capture
 
-
-def make_capture(window: Sequence[PairedReading], anchor: str, mode: Mode) -> Capture:
+def make_capture(window: Sequence[PairedReading], anchor: str, mode: CaptureMode) -> Capture:
     """The :class:`Capture` of a settled window: means, sample standard deviations (ddof 1)
     and count of the readings (:func:`calib.monitor.settle.window_stats`), which are kept as
     raw readings."""
@@ -49,7 +47,6 @@ def make_capture(window: Sequence[PairedReading], anchor: str, mode: Mode) -> Ca
 __all__ = [
     "NOT_SETTLED",
     "FrozenWatch",
-    "Mode",
     "PairedReading",
     "SettleConfig",
     "Verdict",

@@ -13,7 +13,7 @@ manager, ``cablecal db``). It is assembled from one module per concern:
 - :mod:`.jobs`: jobs, results, the calibrated model.
 - :mod:`.events`: the event log.
 - :mod:`.plans`: pose plans of campaigns.
-- :mod:`.checks`: drift checks and check poses.
+- :mod:`.checks`: hold checks and check poses.
 - :mod:`.rows`: the typed rows every method returns; :mod:`.errors`: the exceptions.
 
 Values returned
@@ -60,7 +60,6 @@ from daemon.store.rows import (
     JobProgress,
     JobRow,
     JobState,
-    JobStatus,
     RawReading,
     ResultRow,
     RobotRow,
@@ -113,7 +112,6 @@ __all__ = [
     "JobProgress",
     "JobRow",
     "JobState",
-    "JobStatus",
     "Migration",
     "PlanRow",
     "PlanStore",

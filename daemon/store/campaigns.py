@@ -9,6 +9,7 @@ import json
 from collections.abc import Sequence
 from typing import cast
 
+from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.store.db import Row, decode_row, last_id, now, or_none
 from daemon.store.errors import StoreInvalid, StoreNotFound
 from daemon.store.robots import RobotStore
@@ -72,7 +73,7 @@ class CampaignStore(RobotStore):
                     "robot_id": robot_id,
                     "notes": notes or "",
                     "auto_capture": False,
-                    "auto_anchor": "A",
+                    "auto_anchor": DEFAULT_ANCHOR,
                     "created_at": now(),
                 }
             )
@@ -129,7 +130,9 @@ class CampaignStore(RobotStore):
             raise StoreInvalid(f"campaign: {len(rows)} campaigns are named {ref!r} (ids {ids})")
         return _campaign_out(rows[0])
 
-    def set_auto_capture(self, campaign_id: int, enabled: bool, anchor: str = "A") -> CampaignRow:
+    def set_auto_capture(
+        self, campaign_id: int, enabled: bool, anchor: str = DEFAULT_ANCHOR
+    ) -> CampaignRow:
         """Switch auto capture on or off; ``anchor`` is the sensor position id to capture with.
         Switching on switches every other campaign off, in the same transaction (auto capture
         goes to one campaign at a time).

@@ -1,4 +1,4 @@
-"""Drift checks: each robot's check poses and the history of its checks.
+"""Hold checks: each robot's check poses and the history of its checks.
 
 A check captures the robot's check poses into a campaign of its own and compares the lengths
 with the accepted calibration's predictions (:mod:`daemon.monitors.holdcheck`). The store keeps:
@@ -6,7 +6,7 @@ with the accepted calibration's predictions (:mod:`daemon.monitors.holdcheck`). 
 - ``check_poses``: the poses chosen by the user (``PUT /robots/{id}/check-poses``), one row
   per robot; absent: the daemon picks well-spread poses of the calibration's samples.
 - ``checks``: one row per check: the robot, its campaign, the result it was compared with,
-  ``trigger`` (manual | schedule), ``status`` (running | ok | drift | failed), the figures
+  ``trigger`` (manual | schedule), ``status`` (running | ok | not_held | failed), the figures
   (``rms_mm``, ``mae_mm``, ``max_mm``, ``n``) and the ``threshold_mm`` it was judged by.
 
 Timestamps are seconds since the Unix epoch (UTC); joint angles are degrees.
@@ -30,7 +30,7 @@ MAX_CHECK_POSES: Final = 100
 
 
 class CheckRow(TypedDict):
-    """One drift check (see the module docstring)."""
+    """One hold check (see the module docstring)."""
 
     id: int
     robot_id: int
@@ -90,7 +90,7 @@ def _check_row(row: Row) -> CheckRow:
 
 
 class CheckStore(StoreDB):
-    """Check poses and drift checks (part of :class:`daemon.store.Store`)."""
+    """Check poses and hold checks (part of :class:`daemon.store.Store`)."""
 
     # ------------------------------------------------------------------ check poses
     def set_check_poses(self, robot_id: int, poses_deg: Sequence[Sequence[float]]) -> CheckPoses:
@@ -193,7 +193,7 @@ class CheckStore(StoreDB):
         error: str | None = None,
         detail: dict[str, Any] | None = None,
     ) -> CheckRow:
-        """Close a check: ``ok`` or ``drift`` with ``metrics`` (``n, rmse_mm, mae_mm,
+        """Close a check: ``ok`` or ``not_held`` with ``metrics`` (``n, rmse_mm, mae_mm,
         max_mm``), or ``failed`` with an ``error``.
 
         Raises
@@ -203,7 +203,7 @@ class CheckStore(StoreDB):
             Unknown or non-terminal status.
         """
         if status not in CHECK_STATUSES or status == "running":
-            raise StoreInvalid(f"status: must be ok, drift or failed, got {status!r}")
+            raise StoreInvalid(f"status: must be ok, not_held or failed, got {status!r}")
         m = metrics or {}
         updates: Row = {
             "status": status,

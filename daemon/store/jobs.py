@@ -114,7 +114,7 @@ class JobStore(StoreDB):
                     "robot_id": robot_id,
                     "method": method,
                     "options_json": options_json,
-                    "status": "queued",
+                    "status": JobState.QUEUED.value,
                     "progress": 0.0,
                     "message": "",
                     "error": None,
@@ -159,7 +159,11 @@ class JobStore(StoreDB):
         with self._write():
             job = self._require("jobs", "job", job_id)
             status = updates.get("status")
-            if status == "running" and "started_at" not in updates and job["started_at"] is None:
+            if (
+                status == JobState.RUNNING
+                and "started_at" not in updates
+                and job["started_at"] is None
+            ):
                 updates["started_at"] = now()
             if status in JOB_TERMINAL and "finished_at" not in updates:
                 updates["finished_at"] = now()
@@ -195,9 +199,15 @@ class JobStore(StoreDB):
         ``"interrupted by daemon restart"``). Call at start-up; returns how many."""
         with self._write():
             cur = self.conn.execute(
-                "UPDATE jobs SET status = 'failed', interrupted = 1, error = ?, "
-                "finished_at = ? WHERE status IN ('queued', 'running')",
-                (INTERRUPTED_ERROR, now()),
+                "UPDATE jobs SET status = ?, interrupted = 1, error = ?, "
+                "finished_at = ? WHERE status IN (?, ?)",
+                (
+                    JobState.FAILED.value,
+                    INTERRUPTED_ERROR,
+                    now(),
+                    JobState.QUEUED.value,
+                    JobState.RUNNING.value,
+                ),
             )
             return int(cur.rowcount)
 
@@ -324,7 +334,7 @@ class JobStore(StoreDB):
 
     def accepted_result(self, robot_id: int) -> ResultRow:
         """The robot's current calibration's result (``result`` decoded: the ``result.json``
-        mapping the calibrated model, compensation and drift checks use).
+        mapping the calibrated model, compensation and hold checks use).
 
         Raises
         ------

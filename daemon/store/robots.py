@@ -32,7 +32,7 @@ def _same_model(row: Row, model: RobotModel, source: str) -> bool:
 
 class RobotStore(StoreDB):
     """Robots: each a physical robot with its own name and its nominal model (part of
-    :class:`daemon.store.Store`). Calibrations, checks and drift history hang on the robot's
+    :class:`daemon.store.Store`). Calibrations, checks and hold-check history hang on the robot's
     id, so two robots of one model are two robots, and the same name is the same robot."""
 
     def _robot_row(self, model: RobotModel, source: str, name: str) -> Row:
@@ -58,7 +58,7 @@ class RobotStore(StoreDB):
     ) -> tuple[RobotRow, bool]:
         """The robot called ``name`` (None: the model's name), created with ``model`` on first
         use; returns it and whether it was created now. The same name with the same model is
-        the same robot again (its calibration and drift history go on).
+        the same robot again (its calibration and hold-check history go on).
 
         Raises
         ------

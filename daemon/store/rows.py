@@ -48,15 +48,15 @@ JOB_FINISHED: frozenset[JobState] = frozenset(
 )
 JobStatus = JobState
 
-#: The one home of a drift check's states (``running`` until it ends ``ok``, ``drift`` or
+#: The one home of a hold check's states (``running`` until it ends ``ok``, ``not_held`` or
 #: ``failed``): the store's CHECK constraint, :mod:`daemon.store.checks` and
-#: :mod:`daemon.monitors.holdcheck` read them here. The verdicts ``ok`` and ``drift`` are calib's
+#: :mod:`daemon.monitors.holdcheck` read them here. The verdicts ``ok`` and ``not_held`` are calib's
 #: (:data:`calib.monitor.holdcheck.CheckVerdict`, the pure decision).
 CheckStatus = Literal["running", CheckVerdict, "failed"]
 CHECK_STATUSES: Final[tuple[str, ...]] = get_args(CheckStatus)
 #: The states of a check that reached a verdict (it has an RMS and a threshold).
 CHECK_JUDGED: Final[tuple[str, ...]] = CHECK_VERDICTS
-#: What started a drift check: the operator or the schedule.
+#: What started a hold check: the operator or the schedule.
 CheckTrigger = Literal["manual", "schedule"]
 CHECK_TRIGGERS: Final[tuple[str, ...]] = get_args(CheckTrigger)
 
@@ -211,7 +211,7 @@ class JobRow(TypedDict):
     robot_id: int
     method: str
     options: dict[str, Any]
-    status: JobStatus
+    status: JobState
     progress: JobProgress
     message: str
     error: str | None

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from calib.dataset import JOINT_COLUMNS
+from calib.sample_fields import DEFAULT_ANCHOR
 from daemon.sampler.capture import CAPTURE_MODES
 from daemon.store.errors import StoreError, StoreInvalid
 from daemon.store.rows import CHECK_STATUSES, CHECK_TRIGGERS, JobState
@@ -49,13 +50,13 @@ def _migration_1(conn: sqlite3.Connection) -> None:
             created_at REAL NOT NULL
         )""",
         "CREATE UNIQUE INDEX robots_builtin_name ON robots(name) WHERE source = 'builtin'",
-        """CREATE TABLE campaigns (
+        f"""CREATE TABLE campaigns (
             id INTEGER PRIMARY KEY,
             name TEXT NOT NULL CHECK (name <> ''),
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             notes TEXT NOT NULL DEFAULT '',
             auto_capture INTEGER NOT NULL DEFAULT 0 CHECK (auto_capture IN (0, 1)),
-            auto_anchor TEXT NOT NULL DEFAULT 'A' CHECK (auto_anchor <> ''),
+            auto_anchor TEXT NOT NULL DEFAULT '{DEFAULT_ANCHOR}' CHECK (auto_anchor <> ''),
             created_at REAL NOT NULL
         )""",
         "CREATE INDEX campaigns_robot_id ON campaigns(robot_id)",
@@ -100,7 +101,7 @@ def _migration_2(conn: sqlite3.Connection) -> None:
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             method TEXT NOT NULL CHECK (method <> ''),
             options_json TEXT NOT NULL DEFAULT '{{}}',
-            status TEXT NOT NULL DEFAULT 'queued'
+            status TEXT NOT NULL DEFAULT '{JobState.QUEUED.value}'
                 CHECK (status IN ({_one_of([s.value for s in JobState])})),
             progress REAL NOT NULL DEFAULT 0 CHECK (progress >= 0 AND progress <= 1),
             message TEXT NOT NULL DEFAULT '',
@@ -159,22 +160,20 @@ def _migration_3(conn: sqlite3.Connection) -> None:
     conn.execute("CREATE INDEX plans_campaign_id ON plans(campaign_id)")
 
 
-def _migration_4(conn: sqlite3.Connection) -> None:
-    # Drift checks (daemon.store.checks, daemon.monitors.holdcheck): the check poses of each robot
-    # and the history of checks.
-    statements = [
-        """CREATE TABLE check_poses (
-            robot_id INTEGER PRIMARY KEY REFERENCES robots(id),
-            poses_json TEXT NOT NULL,
-            updated_at REAL NOT NULL
-        )""",
-        f"""CREATE TABLE checks (
+#: A check's states as migration 4 wrote them (the verdict ``not_held`` was ``drift`` until
+#: migration 8); the current ones are :data:`daemon.store.rows.CHECK_STATUSES`.
+_CHECK_STATUSES_V4: Final = ("running", "ok", "drift", "failed")
+
+
+def _checks_table(name: str, statuses: tuple[str, ...]) -> str:
+    """The ``checks`` table's definition under ``name`` with the CHECK of ``statuses``."""
+    return f"""CREATE TABLE {name} (
             id INTEGER PRIMARY KEY,
             robot_id INTEGER NOT NULL REFERENCES robots(id),
             campaign_id INTEGER NOT NULL REFERENCES campaigns(id),
             result_id INTEGER NOT NULL REFERENCES results(id),
             trigger TEXT NOT NULL CHECK (trigger IN ({_one_of(CHECK_TRIGGERS)})),
-            status TEXT NOT NULL CHECK (status IN ({_one_of(CHECK_STATUSES)})),
+            status TEXT NOT NULL CHECK (status IN ({_one_of(statuses)})),
             refit_anchor INTEGER NOT NULL CHECK (refit_anchor IN (0, 1)),
             threshold_mm REAL NOT NULL CHECK (threshold_mm > 0),
             rms_mm REAL,
@@ -186,7 +185,19 @@ def _migration_4(conn: sqlite3.Connection) -> None:
             finished_at REAL,
             poses_json TEXT NOT NULL,
             detail_json TEXT
+        )"""
+
+
+def _migration_4(conn: sqlite3.Connection) -> None:
+    # Hold checks (daemon.store.checks, daemon.monitors.holdcheck): the check poses of each
+    # robot and the history of checks.
+    statements = [
+        """CREATE TABLE check_poses (
+            robot_id INTEGER PRIMARY KEY REFERENCES robots(id),
+            poses_json TEXT NOT NULL,
+            updated_at REAL NOT NULL
         )""",
+        _checks_table("checks", _CHECK_STATUSES_V4),
         "CREATE INDEX checks_robot_id ON checks(robot_id)",
         "CREATE INDEX checks_status ON checks(status)",
     ]
@@ -236,17 +247,53 @@ def _migration_7(conn: sqlite3.Connection) -> None:
         conn.execute(sql)
 
 
+def _migration_8(conn: sqlite3.Connection) -> None:
+    # One name per meaning (issue 33 item 2): the check that a robot holds its calibration is
+    # the hold check; "drift" is only the measurement's drift (calib.drift). A check's verdict
+    # ``drift`` becomes ``not_held`` (the table is rebuilt: SQLite cannot change a CHECK),
+    # and the stored events ``drift`` and ``drift_check`` become ``hold_check_not_held`` and
+    # ``hold_check`` (their detail's ``status`` too), and a check campaign's notes say
+    # "hold check", so old rows read as new ones.
+    columns = (
+        "id, robot_id, campaign_id, result_id, trigger, status, refit_anchor, threshold_mm, "
+        "rms_mm, mae_mm, max_mm, n, error, started_at, finished_at, poses_json, detail_json"
+    )
+    renamed = columns.replace(
+        "status,", "CASE status WHEN 'drift' THEN 'not_held' ELSE status END,"
+    )
+    statements = [
+        _checks_table("checks_v8", CHECK_STATUSES),
+        f"INSERT INTO checks_v8 ({columns}) SELECT {renamed} FROM checks",
+        "DROP TABLE checks",
+        "ALTER TABLE checks_v8 RENAME TO checks",
+        "CREATE INDEX checks_robot_id ON checks(robot_id)",
+        "CREATE INDEX checks_status ON checks(status)",
+        """UPDATE events SET detail_json = json_set(detail_json, '$.status', 'not_held')
+            WHERE kind IN ('drift', 'drift_check') AND json_valid(detail_json)
+            AND json_extract(detail_json, '$.status') = 'drift'""",
+        "UPDATE events SET kind = 'hold_check_not_held' WHERE kind = 'drift'",
+        "UPDATE events SET kind = 'hold_check' WHERE kind = 'drift_check'",
+        # A check's own campaign is noted "hold check (<trigger>) against result <id>"; the
+        # page tells those from the operator's campaigns by that start.
+        """UPDATE campaigns SET notes = 'hold check' || substr(notes, 12)
+            WHERE notes LIKE 'drift check (%'""",
+    ]
+    for sql in statements:
+        conn.execute(sql)
+
+
 #: The schema history, oldest first; ``version`` is the position (1-based).
 MIGRATIONS: Final[tuple[Migration, ...]] = (
     Migration(1, "robots, campaigns, samples, raw_readings", _migration_1),
     Migration(2, "jobs, results, events; samples.pose_group", _migration_2),
     Migration(3, "plans", _migration_3),
-    Migration(4, "drift checks: check_poses, checks", _migration_4),
+    Migration(4, "hold checks: check_poses, checks", _migration_4),
     Migration(5, "samples index (campaign_id, excluded, anchor)", _migration_5),
     Migration(6, "robots.current_identification_id; jobs progress numbers", _migration_6),
     Migration(
         7, "a robot is a physical robot: robots.name unique, robots.model_name", _migration_7
     ),
+    Migration(8, "hold checks: verdict not_held, events hold_check*", _migration_8),
 )
 SCHEMA_VERSION: Final = MIGRATIONS[-1].version
 

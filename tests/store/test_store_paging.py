@@ -96,7 +96,7 @@ def test_checks_newest_first_page_filtered_by_robot_and_status(
         for _ in range(4)
     ]
     store.finish_check(ids[0], "ok", metrics={"n": 1, "rmse_mm": 0.1})
-    store.finish_check(ids[2], "drift", metrics={"n": 1, "rmse_mm": 0.9})
+    store.finish_check(ids[2], "not_held", metrics={"n": 1, "rmse_mm": 0.9})
     assert [c["id"] for c in store.list_checks()] == ids
     assert [c["id"] for c in store.list_checks(limit=2)] == ids[2:]  # newest, oldest first
     assert [c["id"] for c in store.list_checks(status="running")] == [ids[1], ids[3]]

@@ -9,15 +9,14 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from pydantic import BaseModel, Field
 
-from daemon import metrics
+from daemon import __version__, metrics
 from daemon.api.deps import MAX_ID, PAGE_DEFAULT, ReadAuth, State, WriteAuth, link_next
 from daemon.api.errors import error_responses
-from daemon.api.schemas import EventOut, Health, ServiceStatus
+from daemon.api.schemas import Health, ServiceStatus
+from daemon.store import EventRow
 
 router = APIRouter(tags=["system"], responses=error_responses(400, 401, 413, 422))
 metrics_router = APIRouter(tags=["system"])
-
-VERSION = "0.1.0"
 
 
 @router.get("/health", summary="Liveness")
@@ -25,7 +24,7 @@ async def health(state: State) -> Health:
     """Always open. ``status`` is ``ok`` while the service answers."""
     return {
         "status": "ok",
-        "version": VERSION,
+        "version": __version__,
         "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
     }
 
@@ -34,16 +33,16 @@ async def health(state: State) -> Health:
 async def get_status(state: State) -> ServiceStatus:
     """Each device's connection state, last reading and its age, last error (with the last
     frames in hex), poll rate [Hz]; the sampler's mode and auto-capture campaign; jobs; the
-    last drift check (``drift``: ``state`` ok/drift/failed/none, ``last_check_at``, ``rms_mm``,
-    ``threshold_mm``, ``running``); the live sensor watch (``watch``: ``moves`` not undone,
-    per campaign the running fit and the last residual;
+    last hold check (``hold_check``: ``state`` ok/not_held/failed/none, ``last_check_at``,
+    ``rms_mm``, ``threshold_mm``, ``running``); the live sensor watch (``watch``: ``moves``
+    not undone, per campaign the running fit and the last residual;
     :meth:`daemon.monitors.watch.SensorWatch.status`)."""
     st: dict[str, Any] = state.sampler.status() if state.sampler is not None else {}
     return {
         "devices": st.get("devices", {}),
         "sampler": st.get("sampler"),
         "jobs": {"active": state.jobs.active},
-        "drift": state.drift.status() if state.drift is not None else None,
+        "hold_check": state.hold_check.status() if state.hold_check is not None else None,
         "watch": state.watch.status() if state.watch is not None else None,
         "uptime_s": round(time.monotonic() - state.started_monotonic_s, 3),
     }
@@ -61,7 +60,7 @@ def list_events(
         None, ge=0, le=MAX_ID, description="Only events with a larger id (the cursor)."
     ),
     limit: int = Query(100, ge=1, le=PAGE_DEFAULT),
-) -> list[EventOut]:
+) -> list[EventRow]:
     """Device errors, link drops and recoveries, rejected captures, daemon starts and stops,
     newest last. Without ``since_id``: the newest ``limit`` events; with it: the first
     ``limit`` after it. A full page has a ``Link: <…?since_id=<last id>…>; rel="next"``

@@ -95,7 +95,7 @@ const ACTIONS = {
   "GET /identifications/{id}/report.html": "The report could not be downloaded",
   "GET /robots/{id}/calibrated-model": "The calibrated model could not be downloaded",
   "POST /robots/{id}/compensate": "The program was not compensated",
-  "POST /robots/{id}/checks": "The drift check did not start",
+  "POST /robots/{id}/checks": "The hold check did not start",
   "POST /campaigns/{id}/sensor-moved/undo": "The sensor move was not undone",
   "POST /robots/{id}/filter": "The programs were not filtered",
 };

@@ -1,5 +1,5 @@
 // View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
-// the drift-check state and history (the ``drift`` block of /status).
+// the hold-check state and history (the ``hold_check`` block of /status).
 import { api, download, saveBlob } from "./api.js";
 import { $, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
@@ -223,44 +223,44 @@ function flagWords(flags) {
   }).join("; ");
 }
 
-const DRIFT_WORDS = {
-  ok: "Last drift check OK: the robot still matches its calibration.",
-  drift: "DRIFT: the last check is above the threshold.",
-  failed: "The last drift check failed.",
-  none: "No drift check yet.",
+const HOLD_WORDS = {
+  ok: "Last hold check OK: the robot still holds its calibration.",
+  not_held: "NOT HELD: the last check is above the threshold.",
+  failed: "The last hold check failed.",
+  none: "No hold check yet.",
 };
 
-/** The drift block's headline: what moved (the API's own explanation, ``cause.text``, with
- * its figure) at a drift, the reason at a failure. */
-function driftHeadline(drift) {
-  const words = DRIFT_WORDS[drift.state] || drift.state;
-  if (drift.state === "drift" && drift.cause) {
-    const who = { sensor: "SENSOR MOVED", robot: "ROBOT DRIFT", unclear: "DRIFT" }[drift.cause.kind] || "DRIFT";
-    return `${who}: ${drift.cause.text.replace(/^./, (c) => c.toUpperCase())}.`;
+/** The hold-check block's headline: what moved (the API's own explanation, ``cause.text``,
+ * with its figure) when not held, the reason at a failure. */
+function holdHeadline(hold) {
+  const words = HOLD_WORDS[hold.state] || hold.state;
+  if (hold.state === "not_held" && hold.cause) {
+    const who = { sensor: "SENSOR MOVED", robot: "ROBOT CHANGED", unclear: "NOT HELD" }[hold.cause.kind] || "NOT HELD";
+    return `${who}: ${hold.cause.text.replace(/^./, (c) => c.toUpperCase())}.`;
   }
-  if (drift.state === "drift") return `${words} Calibrate the robot again.`;
-  if (drift.state === "failed" && drift.error) return `${words} Why: ${drift.error}.`;
+  if (hold.state === "not_held") return `${words} Calibrate the robot again.`;
+  if (hold.state === "failed" && hold.error) return `${words} Why: ${hold.error}.`;
   return words;
 }
 
-async function renderDrift() {
-  const drift = state.status?.drift;
-  const node = $("drift-state");
-  if (!drift) {
-    setText(node, "Drift checks are not available on this daemon.");
-    $("drift-start").disabled = true;
+async function renderHoldCheck() {
+  const hold = state.status?.hold_check;
+  const node = $("hold-check-state");
+  if (!hold) {
+    setText(node, "Hold checks are not available on this daemon.");
+    $("hold-check-start").disabled = true;
     return;
   }
-  node.className = `sentence ${drift.state === "drift" || drift.state === "failed" ? "bad" : drift.state === "ok" ? "ok" : ""}`;
-  const last = drift.last_check_at ? ` Check #${drift.check_id} at ${clock(drift.last_check_at)}: ${fix(drift.rms_mm, 3)} mm RMS against a threshold of ${fix(drift.threshold_mm, 3)} mm.` : "";
-  const running = drift.running ? ` Check #${drift.running} is running: move the robot through the check poses.` : "";
-  const every = drift.check_interval_h ? ` Scheduled every ${drift.check_interval_h} h.` : " No scheduled checks.";
-  setText(node, `${driftHeadline(drift)}${last}${running}${every}`);
+  node.className = `sentence ${hold.state === "not_held" || hold.state === "failed" ? "bad" : hold.state === "ok" ? "ok" : ""}`;
+  const last = hold.last_check_at ? ` Check #${hold.check_id} at ${clock(hold.last_check_at)}: ${fix(hold.rms_mm, 3)} mm RMS against a threshold of ${fix(hold.threshold_mm, 3)} mm.` : "";
+  const running = hold.running ? ` Check #${hold.running} is running: move the robot through the check poses.` : "";
+  const every = hold.check_interval_h ? ` Scheduled every ${hold.check_interval_h} h.` : " No scheduled checks.";
+  setText(node, `${holdHeadline(hold)}${last}${running}${every}`);
   const c = state.campaign;
   if (!c || !hasRoute("GET", "/robots/{}/checks")) return;
   const list = await api("GET", `/robots/${c.robot_id}/checks`);
   const items = (Array.isArray(list) ? list : list.items || []).slice().reverse();
-  fillTable($("drift-history"), [{ label: "#", num: true }, { label: "started" }, { label: "trigger" }, { label: "status" },
+  fillTable($("hold-check-history"), [{ label: "#", num: true }, { label: "started" }, { label: "trigger" }, { label: "status" },
     { label: "RMS [mm]", num: true }, { label: "max [mm]", num: true }, { label: "threshold [mm]", num: true },
     { label: "poses", num: true }, { label: "samples used", num: true }, { label: "why", class: "keep" }],
   items.map((k) => [String(k.id), clock(k.started_at), k.trigger,
@@ -280,26 +280,26 @@ async function renderCheckPoses(c, running) {
   } catch (exc) {
     if (exc.status !== 404) throw exc;
     // No accepted calibration yet: there is nothing to check against, so no check poses.
-    fillTable($("drift-poses"), [], [], "none");
-    $("drift-downloads").hidden = true;
-    setText("drift-poses-note", `Robot ${c.robot_name} has no accepted calibration yet: a drift check compares against one (accept a result in tab 3).`);
+    fillTable($("hold-check-poses"), [], [], "none");
+    $("hold-check-downloads").hidden = true;
+    setText("hold-check-poses-note", `Robot ${c.robot_name} has no accepted calibration yet: a hold check compares against one (accept a result in tab 3).`);
     return;
   }
   let done = null;
   if (running) done = (await api("GET", `/campaigns/${running.campaign_id}`)).n_included;
   renderCheckDownloads(c);
-  fillTable($("drift-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "state" }],
+  fillTable($("hold-check-poses"), [{ label: "pose", num: true }, ...[1, 2, 3, 4, 5, 6].map((j) => ({ label: `J${j} [deg]`, num: true })), { label: "state" }],
     poses.map((q, i) => [String(i + 1), ...q.map((v) => fix(v, 1)), done == null ? "" : i < done ? "captured" : i === done ? "next" : ""]),
     JSON.stringify([poses, done]));
-  setText("drift-poses-note", running
+  setText("hold-check-poses-note", running
     ? `Check #${running.id}: ${Math.min(done, poses.length)} of ${poses.length} poses captured. Move the robot through the poses below; auto capture records each one.`
-    : `${poses.length} check poses: a drift check moves through these.`);
+    : `${poses.length} check poses: a hold check moves through these.`);
 }
 
 /** Download buttons of the check poses, one per format of the REST enum (the plan's: CSV
  * and the robot programs), from the check poses' own route; the file name is the daemon's. */
 function renderCheckDownloads(c) {
-  const box = $("drift-downloads");
+  const box = $("hold-check-downloads");
   box.hidden = !state.downloadFormats.length;
   const key = box.hidden ? "" : String(c.robot_id);
   if (box.dataset.key === key) return;
@@ -317,39 +317,39 @@ function renderCheckDownloads(c) {
   }));
 }
 
-/** Start a drift check. A check records its poses with auto capture, so while auto capture
+/** Start a hold check. A check records its poses with auto capture, so while auto capture
  * runs for a campaign the operator is asked first: switch it off and start, or keep it and
  * be told in words why no check started. */
-async function startDrift() {
+async function startHoldCheck() {
   const c = state.campaign;
-  if (!c) { showMessage("error", "The drift check did not start: select the campaign of the robot first (tab 2).", "drift"); return; }
+  if (!c) { showMessage("error", "The hold check did not start: select the campaign of the robot first (tab 2).", "hold-check"); return; }
   const s = state.status?.sampler;
   if (s?.mode === "auto" && s.auto_campaign_id != null) {
     const busy = s.auto_campaign_id;
-    const ok = confirm(`Auto capture is on for campaign #${busy}. A drift check needs auto capture for its own poses.\n\n`
+    const ok = confirm(`Auto capture is on for campaign #${busy}. A hold check needs auto capture for its own poses.\n\n`
       + `Switch auto capture off for campaign #${busy} and start the check? (Switch it on again in tab 2 afterwards.)`);
     if (!ok) {
-      showMessage("warn", `No drift check started: auto capture is still on for campaign #${busy}. A check needs it for its own poses; switch it off in tab 2 (or answer OK here) to start one.`, "drift-auto");
+      showMessage("warn", `No hold check started: auto capture is still on for campaign #${busy}. A check needs it for its own poses; switch it off in tab 2 (or answer OK here) to start one.`, "hold-check-auto");
       return;
     }
     await api("PUT", `/campaigns/${busy}/auto-capture`, { json: { enabled: false } });
   }
   const k = await api("POST", `/robots/${c.robot_id}/checks`);
-  dismiss("drift-auto");
-  showMessage("info", `Drift check #${k.id} started: auto capture now records the check poses. Run the check poses on the robot (download them below).`, "drift");
+  dismiss("hold-check-auto");
+  showMessage("info", `Hold check #${k.id} started: auto capture now records the check poses. Run the check poses on the robot (download them below).`, "hold-check");
 }
 
 export function initApply() {
   initFilter();
   $("compensate-form").addEventListener("submit", (ev) => compensate(ev).catch(() => {}));
-  $("drift-start").addEventListener("click", () => startDrift().catch(() => {}));
-  every(3000, renderDrift, () => state.view === "apply");
+  $("hold-check-start").addEventListener("click", () => startHoldCheck().catch(() => {}));
+  every(3000, renderHoldCheck, () => state.view === "apply");
   onChange((kind) => {
     // the "auto capture is still on" warning goes once auto capture is off (its cause)
-    if (kind === "status" && state.status?.sampler?.mode !== "auto") dismiss("drift-auto");
+    if (kind === "status" && state.status?.sampler?.mode !== "auto") dismiss("hold-check-auto");
     if (kind === "campaign" && state.view === "apply") renderFilterTarget().catch(() => {});
     if (kind === "view" && state.view === "apply") {
-      renderDrift().catch(() => {});
+      renderHoldCheck().catch(() => {});
       loadExample().catch(() => {});
       renderFilterTarget().catch(() => {});
     }

@@ -92,9 +92,9 @@ function renderCounts() {
   const bar = $("campaign-need-bar");
   bar.style.width = `${Math.min(100, (100 * included) / need)}%`;
   bar.className = included >= need ? "done" : "";
-  if (String(c.notes || "").startsWith("drift check")) {
-    // a drift check's own campaign: compared with the calibration, never identified (item 15)
-    setText("campaign-need", `A drift check's own campaign (${c.notes}): its ${included} samples are compared with the robot's calibration in tab 4, not identified.`);
+  if (String(c.notes || "").startsWith("hold check")) {
+    // a hold check's own campaign: compared with the calibration, never identified (item 15)
+    setText("campaign-need", `A hold check's own campaign (${c.notes}): its ${included} samples are compared with the robot's calibration in tab 4, not identified.`);
     return;
   }
   const anchors = c.anchors.length > 1 ? `, ${c.anchors.length} anchors` : "";
@@ -481,9 +481,9 @@ export async function restoreCampaign() {
   await loadRobots();
   const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
   const items = await loadCampaigns();
-  // A fresh tab opens the newest operator campaign, not a drift check's own campaign
-  // (daemon.drift notes those "drift check (…)").
-  const own = items.filter((x) => !String(x.notes || "").startsWith("drift check"));
+  // A fresh tab opens the newest operator campaign, not a hold check's own campaign
+  // (daemon.holdcheck notes those "hold check (…)").
+  const own = items.filter((x) => !String(x.notes || "").startsWith("hold check"));
   const c = items.find((x) => x.id === id) || own[own.length - 1] || items[items.length - 1] || null;
   if (c) await select(c);
 }

@@ -183,7 +183,7 @@ async function pollStatus() {
   pill.className = `pill ${down.length || frozen ? "bad" : "ok"}`;
   setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}`
     : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture` : "devices connected");
-  renderDriftPill(s.drift);
+  renderHoldCheckPill(s.hold_check);
   changed("status");
   collectErrors(devices);
   if (state.view !== "cell") return;
@@ -195,14 +195,14 @@ async function pollStatus() {
   setText("cell-sampler-detail", detail);
 }
 
-/** The header's drift state (item 22): hidden while the last check is OK or absent. */
-function renderDriftPill(drift) {
-  const pill = $("top-drift");
-  const bad = drift && (drift.state === "drift" || drift.state === "failed");
+/** The header's hold-check state (item 22): hidden while the last check is OK or absent. */
+function renderHoldCheckPill(hold) {
+  const pill = $("top-hold-check");
+  const bad = hold && (hold.state === "not_held" || hold.state === "failed");
   pill.hidden = !bad;
   if (!bad) return;
-  const kind = drift.state === "failed" ? "drift check failed" : { sensor: "sensor moved", robot: "robot drift" }[drift.cause?.kind] || "drift";
-  setText(pill, `${kind} (check #${drift.check_id}, tab 4)`);
+  const kind = hold.state === "failed" ? "hold check failed" : { sensor: "sensor moved", robot: "robot changed" }[hold.cause?.kind] || "calibration not held";
+  setText(pill, `${kind} (check #${hold.check_id}, tab 4)`);
 }
 
 export function initCell() {

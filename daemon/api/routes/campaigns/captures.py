@@ -13,8 +13,9 @@ from calib.dataset import (
 )
 from daemon.api.deps import CampaignId, State, WriteAuth
 from daemon.api.errors import ApiError, Error, error_responses
-from daemon.api.schemas import CaptureRequest, SampleOut
+from daemon.api.schemas import CaptureRequest
 from daemon.sampler.capture import CaptureRejected
+from daemon.store import SampleRow
 
 router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 422))
 
@@ -38,7 +39,7 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
         },
     },
 )
-async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -> SampleOut:
+async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -> SampleRow:
     """Waits up to ``sampler.capture_timeout_s`` for the robot and the cable to settle, then
     stores the mean of the settled window and returns the stored sample. With the manual robot
     driver, ``joints_deg`` carries the joint angles [deg]."""
@@ -50,7 +51,7 @@ async def capture(state: State, campaign_id: CampaignId, body: CaptureRequest) -
     if not body.repeat:
         _refuse_a_repeat(state, campaign_id, body.joints_deg)
     try:
-        sample: SampleOut = await state.sampler.capture(
+        sample: SampleRow = await state.sampler.capture(
             campaign_id, anchor=body.anchor, joints_deg=body.joints_deg
         )
     except CaptureRejected as exc:

@@ -25,8 +25,9 @@ from daemon.api.errors import error_responses
 from daemon.api.http.downloads import download_headers
 from daemon.api.http.guard import MAX_IMPORT_BYTES
 from daemon.api.http.offload import offload
-from daemon.api.schemas import ImportResult, SampleOut, SamplePatch
+from daemon.api.schemas import ImportResult, SamplePatch
 from daemon.api.text_rules import not_printable
+from daemon.store import SampleRow
 
 #: Content-Types a CSV import accepts (anything else, e.g. application/json, is a 415).
 IMPORT_MEDIA_TYPES = frozenset({"text/csv"})
@@ -39,7 +40,7 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
     summary="Samples as JSON (paginated), or CSV with ?format=csv",
     dependencies=[ReadAuth],
     responses={200: {"content": {"text/csv": {}}}, **error_responses(404, 429, 503)},
-    response_model=list[SampleOut],
+    response_model=list[SampleRow],
 )
 async def list_samples(
     state: State,
@@ -48,7 +49,7 @@ async def list_samples(
     campaign_id: CampaignId,
     page: Paged,
     format: str = Query("json", pattern="^(json|csv)$", description="json or csv"),
-) -> list[SampleOut] | Response:
+) -> list[SampleRow] | Response:
     """JSON: the samples with their std, count, timestamps and excluded flag, by id,
     ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
     rel="next"`` header. CSV: every included sample (not paginated) in the format
@@ -160,5 +161,5 @@ def _check_printable(samples: SampleSet) -> None:
     dependencies=[WriteAuth],
     responses=error_responses(404),
 )
-def patch_sample(state: State, sample_id: SampleId, body: SamplePatch) -> SampleOut:
+def patch_sample(state: State, sample_id: SampleId, body: SamplePatch) -> SampleRow:
     return state.store.set_excluded(sample_id, body.excluded, body.reason)

@@ -5,13 +5,21 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Annotated, Any, cast
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from typing_extensions import TypedDict
 
 from calib.compare import Comparison, compare_results
-from calib.options import Holdout, default, held_out, samples_for_training_rows, spec
+from calib.options import (
+    Holdout,
+    IdentifyOptions,
+    default,
+    held_out,
+    samples_for_training_rows,
+    spec,
+)
 from daemon.api.deps import (
     CampaignId,
     JobId,
@@ -25,10 +33,10 @@ from daemon.api.deps import (
 from daemon.api.errors import error_responses
 from daemon.api.http.offload import offload
 from daemon.api.option_spec import IdentifyOptionsSpec, identify_options_spec
-from daemon.api.schemas import IdentificationRequest, JobOut, JobView
+from daemon.api.schemas import IdentificationRequest, JobView
 from daemon.jobs.worker import CHILD_CHECK_SAMPLES, JobError, JobsFull, prepare_in_child
 from daemon.process.workers import run_in_child
-from daemon.store import JobState
+from daemon.store import JobRow, JobState
 
 #: Largest sample count the readiness route reports (a test fraction near 1 needs absurdly
 #: many samples: the answer is then null, not a long search).
@@ -107,7 +115,9 @@ async def readiness(
     need = state.min_samples.get(int(row["robot_id"]), len(row["anchors"])).training_samples
     n = int(row["n_included"])
     n_test = held_out(n, test_fraction)
-    options = {"test_fraction": test_fraction, "holdout": holdout, "seed": seed}
+    options = IdentifyOptions(test_fraction=test_fraction, holdout=holdout, seed=seed)
+    if state.settings.jobs.noise_mm is not None:  # as the POST's options: the [jobs] default
+        options = replace(options, noise_mm=state.settings.jobs.noise_mm)
     try:  # the rule POST applies (the job manager's check), per anchor included
         await _checked(state, request, campaign_id, options, n, check_only=True)
         reason = None
@@ -131,7 +141,7 @@ async def _checked(
     state: State,
     request: Request,
     campaign_id: int,
-    options: dict[str, Any],
+    options: IdentifyOptions,
     n_samples: int,
     check_only: bool,
 ) -> Any:
@@ -146,7 +156,7 @@ async def _checked(
 
         return await offload(request, state.gates["check"], in_thread, cancel_on_leave=False)
     s, path = state.settings.jobs, str(state.settings.database_path)
-    args = (path, s.noise_mm, campaign_id, options, check_only)
+    args = (path, campaign_id, options, check_only)
 
     async def in_child() -> Any:
         # At the daemon's own priority: a request waits on it (at worker_nice 10 on a machine
@@ -182,7 +192,7 @@ async def start(
     retry = {"Retry-After": str(state.settings.requests.retry_after_s)}
     if why := state.jobs.full():
         raise HTTPException(429, why, headers=retry)
-    options = body.to_options()
+    options = body.to_options(state.settings.jobs.noise_mm)  # made once, passed on
     n = int(state.store.campaign(campaign_id)["n_included"])  # 404 first
     try:
         prepared = await _checked(state, request, campaign_id, options, n, check_only=False)
@@ -201,7 +211,7 @@ async def start(
 )
 def list_for_campaign(
     state: State, request: Request, response: Response, campaign_id: CampaignId, page: PagedLarge
-) -> list[JobOut]:
+) -> list[JobRow]:
     """By id, ``limit`` per page (default and most 500) after ``after_id``; a full page has a
     ``Link: <…>; rel="next"`` header."""
     state.store.campaign(campaign_id)  # an unknown campaign is 404, not an empty list

@@ -1,4 +1,4 @@
-"""A robot's drift-check poses: the user's, or the default spread of its calibration's samples;
+"""A robot's hold-check poses: the user's, or the default spread of its calibration's samples;
 as JSON, or as a download for the robot (CSV or a robot program, the plan's formats)."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 413, 422)
 
 @router.put(
     "/robots/{robot_id}/check-poses",
-    summary="Set the drift-check poses",
+    summary="Set the hold-check poses",
     dependencies=[WriteAuth],
     responses=error_responses(400),
 )
@@ -51,7 +51,7 @@ def _poses_csv(poses_deg: list[list[float]]) -> str:
 
 @router.get(
     "/robots/{robot_id}/check-poses",
-    summary="The drift-check poses",
+    summary="The hold-check poses",
     dependencies=[ReadAuth],
     response_model=CheckPoses,
     responses={
@@ -72,9 +72,9 @@ def get_check_poses(
     With ``format``, the poses as a download for the robot, as the plan's (``GET
     /campaigns/{id}/plan?format=``, the same program building): ``csv`` or a robot program
     (each pose a joint move to a fine stop, then a dwell of ``dwell_s``, default from the
-    sampler's ``settle_s``); a drift check's auto capture records each pose the robot
+    sampler's ``settle_s``); a hold check's auto capture records each pose the robot
     stops at."""
-    poses = check_poses(state.store, robot_id, state.settings.drift.n_poses)
+    poses = check_poses(state.store, robot_id, state.settings.hold_check.n_poses)
     if format is None:
         return poses
     model = state.store.robot_model(robot_id)
@@ -91,7 +91,7 @@ def get_check_poses(
         str(format.value),
         stem=f"robot-{robot_id}-check-poses",
         model=model,
-        what=f"drift-check poses of robot {state.store.robot(robot_id)['name']} "
+        what=f"hold-check poses of robot {state.store.robot(robot_id)['name']} "
         f"(robot {robot_id}, {poses['source']} poses)",
         speed_pct=speed_pct,
         dwell_s=dwell_s,

@@ -22,14 +22,12 @@ from daemon.api.deps import AppState, ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.http.downloads import download_headers
 from daemon.api.schemas import (
-    CalibratedModelOut,
     CampaignCreate,
     ModelFileText,
     RobotCreate,
-    RobotOut,
 )
 from daemon.api.text_rules import not_printable
-from daemon.store import RobotRow, StoreConflict
+from daemon.store import CalibratedModel, RobotRow, StoreConflict
 
 router = APIRouter(
     tags=["robots"],
@@ -144,7 +142,7 @@ def robot_for_campaign(state: AppState, body: CampaignCreate) -> RobotRow:
 
 
 @router.get("/robots", summary="Every robot (each a physical robot with its own name)")
-def list_robots(state: State) -> list[RobotOut]:
+def list_robots(state: State) -> list[RobotRow]:
     """By id: each robot's own ``name``, its ``model_name``, its nominal model and its current
     calibration's job id (None: not calibrated yet)."""
     return state.store.list_robots()
@@ -163,14 +161,14 @@ def builtin_models() -> list[BuiltinModelOut]:
     summary="Add a robot, or find it again by its name",
     dependencies=[WriteAuth],
     responses={
-        200: {"model": RobotOut, "description": "The robot of that name and model, found again"},
+        200: {"model": RobotRow, "description": "The robot of that name and model, found again"},
         **error_responses(400, 409),
     },
 )
-def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOut:
+def create_robot(state: State, body: RobotCreate, response: Response) -> RobotRow:
     """A new robot called ``name`` with a built-in ``model``, a model mapping, or a
     ``model_file`` (TOML or JSON): 201. The same name with the same model is the same robot:
-    200 with its record (calibration and drift history kept). The name of another model's
+    200 with its record (calibration and hold-check history kept). The name of another model's
     robot: 409."""
     if (body.model is None) == (body.model_file is None):
         raise unprocessable(("body", "model"), "model: give a model or a model_file (one of them)")
@@ -187,14 +185,14 @@ def create_robot(state: State, body: RobotCreate, response: Response) -> RobotOu
 
 
 @router.get("/robots/{robot_id}", summary="One robot and its nominal model")
-def get_robot(state: State, robot_id: RobotId) -> RobotOut:
+def get_robot(state: State, robot_id: RobotId) -> RobotRow:
     return state.store.robot(robot_id)
 
 
 @router.get(
     "/robots/{robot_id}/calibrated-model",
     summary="The latest accepted calibrated DH table, or a model file",
-    response_model=CalibratedModelOut | ModelFile,
+    response_model=CalibratedModel | ModelFile,
     responses={
         200: {
             "description": "Without ``format``: the calibrated DH table (CalibratedModel). "

@@ -1,11 +1,11 @@
-"""Drift checks end to end with real processes: ``cablecal simulate`` + ``cablecal serve``.
+"""Hold checks end to end with real processes: ``cablecal simulate`` + ``cablecal serve``.
 
 The calibration campaign is imported (the EMULATED cell's true lengths at its 60 poses plus
 seeded noise, so the test does not wait for 60 captures); the checks are real: the daemon's
 auto capture takes the cell's indicator and controller readings over the pty and TCP while
 the cell follows the check poses (control command ``load_poses``). Five checks of the
 unchanged cell raise no alarm; after ``shift_joint_offset`` (joint 2 by 0.05 deg in the cell's
-TRUE model) the next check is drift.
+TRUE model) the next check is ``not_held``.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from daemon.cli.emulated import FAST_CELL_NOISE_MM, FAST_DAEMON_ENV, Cell, fast_
 # About 75 s alone on 2 shared cores; the timeout bounds it under contention.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
-DAEMON_ENV = {**FAST_DAEMON_ENV, "CABLECAL_DRIFT__TIMEOUT_S": "60"}
+DAEMON_ENV = {**FAST_DAEMON_ENV, "CABLECAL_HOLD_CHECK__TIMEOUT_S": "60"}
 
 
 def _csv(q: np.ndarray, lengths: np.ndarray) -> str:
@@ -84,7 +84,7 @@ def _check(api: httpx.Client, sim: Any, robot_id: int, poses: list[list[float]])
     return dict(wait_for(done, 70, 0.5, f"check {check_id}"))
 
 
-def test_drift_is_flagged_and_an_unchanged_cell_is_not(
+def test_a_changed_robot_is_flagged_and_an_unchanged_cell_is_not(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     t0 = time.monotonic()
@@ -97,21 +97,21 @@ def test_drift_is_flagged_and_an_unchanged_cell_is_not(
         assert poses["source"] == "default" and len(poses["poses_deg"]) == 8
         quiet = [_check(api, cell.sim, robot_id, poses["poses_deg"]) for _ in range(5)]
         assert [c["status"] for c in quiet] == ["ok"] * 5, quiet
-        assert api.get("/events", params={"kind": "drift"}).json() == []
+        assert api.get("/events", params={"kind": "hold_check_not_held"}).json() == []
         reply = cell.sim.control("shift_joint_offset", joint=2, delta_deg=0.05)
         assert reply["joint"] == 2
-        drifted = _check(api, cell.sim, robot_id, poses["poses_deg"])
-        assert drifted["status"] == "drift", drifted
-        status = api.get("/status").json()["drift"]
-        assert status["state"] == "drift" and status["check_id"] == drifted["id"]
-        assert status["rms_mm"] == pytest.approx(drifted["rms_mm"])
+        changed = _check(api, cell.sim, robot_id, poses["poses_deg"])
+        assert changed["status"] == "not_held", changed
+        status = api.get("/status").json()["hold_check"]
+        assert status["state"] == "not_held" and status["check_id"] == changed["id"]
+        assert status["rms_mm"] == pytest.approx(changed["rms_mm"])
         metrics = httpx.get(cell.daemon.url + "/metrics").text
-        assert f'cablecal_drift_rms_mm{{robot="{robot_id}"}} {drifted["rms_mm"]}' in metrics
-        assert api.get("/events", params={"kind": "drift"}).json()
+        assert f'cablecal_hold_check_rms_mm{{robot="{robot_id}"}} {changed["rms_mm"]}' in metrics
+        assert api.get("/events", params={"kind": "hold_check_not_held"}).json()
         with capsys.disabled():
             print(
-                f"\ndrift e2e: calibration test RMSE {calib_rmse:.4f} mm, threshold "
+                f"\nhold check e2e: calibration test RMSE {calib_rmse:.4f} mm, threshold "
                 f"{quiet[0]['threshold_mm']:.4f} mm; unchanged cell RMS "
                 f"{[round(c['rms_mm'], 4) for c in quiet]} mm; joint 2 +0.05 deg: RMS "
-                f"{drifted['rms_mm']:.4f} mm; {time.monotonic() - t0:.0f} s"
+                f"{changed['rms_mm']:.4f} mm; {time.monotonic() - t0:.0f} s"
             )
