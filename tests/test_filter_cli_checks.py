@@ -149,6 +149,15 @@ def test_a_result_of_another_robot_warns_and_another_arm_exit_2(
     assert r2.exit_code == EXIT_BAD_INPUT, r2.output
     assert "is not of the nominal model" in r2.output and "joint 2 a_mm" in _flat(r2.output)
     assert not (tmp_path / "o2").exists()
+    # A table of another size (five joints): exit 2 naming the field, nothing written.
+    short = json.loads(json.dumps(cell.result))
+    short["dh"] = short["dh"][:5]
+    p3 = tmp_path / "short.json"
+    p3.write_text(json.dumps(short))
+    r3 = _run(setup, FIXTURES / "cell_a.mod", "--out", tmp_path / "o3", result=p3)
+    assert r3.exit_code == EXIT_BAD_INPUT, r3.output
+    assert "dh: expected a list of six joint rows" in _flat(r3.output)
+    assert not (tmp_path / "o3").exists()
 
 
 def test_help_renders_every_bracket_at_80_columns() -> None:
