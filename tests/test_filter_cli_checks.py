@@ -166,6 +166,7 @@ def test_help_renders_every_bracket_at_80_columns() -> None:
     assert max(len(line) for line in r.output.splitlines()) <= 80
     text = _flat(r.output.replace("│", " "))
     assert "TOML of [uframe.N] / [utool.N] (xyz_mm, wpr_deg)." in text
+    assert "external_axes = 0 in its [controller] table" in text
     assert "--verbose" in text
 
 
