@@ -21,7 +21,7 @@ from drivers.ur_primary import PRIMARY_PORT
 
 robots_app = typer.Typer(
     name="robots",
-    help="The built-in robot arms: list them, or print one as a model file.",
+    help="The built-in robot arms: list them, print one as a model file, or read a UR arm's own.",
     add_completion=False,
     invoke_without_command=True,
 )
