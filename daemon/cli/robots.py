@@ -17,7 +17,6 @@ from rich.console import Console
 from rich.table import Table
 
 from daemon.cli.errors import fail
-from drivers.ur_primary import PRIMARY_PORT
 
 robots_app = typer.Typer(
     name="robots",
@@ -73,9 +72,10 @@ def show_robot(
 @robots_app.command("from-ur")
 def from_ur(
     host: Annotated[str, typer.Argument(help="The UR controller's address", metavar="HOST")],
-    port: Annotated[int, typer.Option(help="Its primary interface port.", min=1, max=65535)] = (
-        PRIMARY_PORT
-    ),
+    port: Annotated[
+        int | None,
+        typer.Option(help="Its primary interface port; default: UR's own.", min=1, max=65535),
+    ] = None,
     base: Annotated[
         str | None,
         typer.Option(help="The library arm it is (ur10e …); default: the one its table fits."),
@@ -93,8 +93,9 @@ def from_ur(
     from calib.export import model_to_toml
     from calib.models import ModelError, builtin_model
     from calib.robots.ur_factory import from_kinematics_info, library_ur_arm
-    from drivers.ur_primary import PrimaryInterfaceError, read_kinematics_info
+    from drivers.ur_primary import PRIMARY_PORT, PrimaryInterfaceError, read_kinematics_info
 
+    port = PRIMARY_PORT if port is None else port
     try:
         info = asyncio.run(read_kinematics_info(host, port, timeout_s))
     except PrimaryInterfaceError as exc:
