@@ -36,8 +36,10 @@ Instructions, Functions and Data types", confdata)
     either side of axis 1 (:func:`cfx_of`; docs/compensation.md names the sources). Where
     the confdata is honoured (``ConfL\On``/``ConfJ\On``) the quadrants are written from the
     corrected joints; under ``\Off`` the controller ignores confdata: the filter seeds each
-    target from the previous one along the routine (the first from its confdata) and
-    leaves the confdata text as it is.
+    target from the previous one along the routine and leaves the confdata text as it is.
+    The first target (where the robot comes from is not in the program) takes its confdata
+    where that fits a solution, else the only solution within the joint limits, else is
+    left saying so (:attr:`calib.programs.sites.Configuration.honoured`).
 
 Precision: positions to at least 3 decimals (rounding ≤ 0.0005 mm per axis), quaternion
 components to at least 6 (≤ 1e-4°), joint angles to at least 4 (≤ 0.00005°).
