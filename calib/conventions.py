@@ -19,6 +19,14 @@ File format (in a model file)::
     maker = "fanuc"                         # abb, kuka, fanuc, ur or other (optional)
     direction = [1, 1, -1, 1, -1, 1]        # per joint, +1 or -1
     couplings = [{joint = 3, from = 2, factor = 1.0}]   # joints numbered 1..6 as the pendant
+    external_axes = 0                       # optional: the controller has no external axes
+
+``external_axes = 0`` says the controller drives no axis besides the arm's six (no track, no
+positioner). ABB's controller then ignores a value written for an external axis ("If the
+position is defined in the position data, although the axis is not connected, the value will
+be ignored", RAPID reference, extjoint), so the filter corrects such targets and carries the
+values unchanged; without it they are left with that reason (docs/robots.md). A count above 0
+says the axes exist: they are not modelled, and targets using them are left.
 
 Shapes: joint arrays are (6,) or (n, 6), angles in degrees.
 """
@@ -33,6 +41,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 N_JOINTS = 6
+#: External axes a controller's target can carry (ABB's eax_a … eax_f).
+MAX_EXTERNAL_AXES = 6
 Maker = Literal["abb", "kuka", "fanuc", "ur", "other"]
 MAKERS: tuple[str, ...] = get_args(Maker)
 
@@ -58,11 +68,14 @@ class JointConvention:
         +1 or -1 per joint.
     couplings : tuple of (joint, from_joint, factor)
         0-based joint indices; ``q_table[joint] += factor * q_ctrl[from_joint]``.
+    external_axes : int or None
+        How many external axes the controller drives (0: none); None when not said.
     """
 
     maker: str | None = None
     direction: tuple[int, ...] = (1, 1, 1, 1, 1, 1)
     couplings: tuple[tuple[int, int, float], ...] = ()
+    external_axes: int | None = None
 
     @property
     def is_identity(self) -> bool:
@@ -101,6 +114,8 @@ class JointConvention:
             out["couplings"] = [
                 {"joint": j + 1, "from": k + 1, "factor": float(f)} for j, k, f in self.couplings
             ]
+        if self.external_axes is not None:
+            out["external_axes"] = self.external_axes
         return out
 
 
@@ -125,7 +140,7 @@ def convention_from_mapping(data: Any) -> JointConvention:
         return IDENTITY
     if not isinstance(data, Mapping):
         raise ConventionError("controller", "must be a table/object")
-    known = {"maker", "direction", "couplings"}
+    known = {"maker", "direction", "couplings", "external_axes"}
     for key in data:
         if key not in known:
             raise ConventionError(f"controller.{key}", f"unknown field (expected {sorted(known)})")
@@ -157,7 +172,17 @@ def convention_from_mapping(data: Any) -> JointConvention:
         if j == k:
             raise ConventionError(f"{where}.from", "must be another joint")
         couplings.append((int(j) - 1, int(k) - 1, _number(c.get("factor", 1.0), f"{where}.factor")))  # type: ignore[arg-type]
-    conv = JointConvention(maker, tuple(direction), tuple(couplings))
+    external = data.get("external_axes")
+    if external is not None and (
+        isinstance(external, bool)
+        or not isinstance(external, int)
+        or not 0 <= external <= MAX_EXTERNAL_AXES
+    ):
+        raise ConventionError(
+            "controller.external_axes",
+            f"must be a count 0..{MAX_EXTERNAL_AXES} (0: none), got {external!r}",
+        )
+    conv = JointConvention(maker, tuple(direction), tuple(couplings), external)
     if abs(np.linalg.det(conv.matrix())) < 1e-9:
         raise ConventionError("controller.couplings", "the joints' mapping is not invertible")
     return conv

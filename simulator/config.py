@@ -94,6 +94,10 @@ class ServerSection(_Strict):
     port: Annotated[int, Field(ge=0, le=65535)] = 0
 
 
+#: UR's fixed RTDE port: UR's clients always connect to it.
+UR_RTDE_PORT: Final = 30004
+
+
 class UrRtdeSection(ServerSection):
     """The emulated UR RTDE face. UR clients always connect to port 30004, so the face keeps
     30004 and takes its own loopback address. ``host = "auto"`` (the default): the first of
@@ -101,7 +105,7 @@ class UrRtdeSection(ServerSection):
     hold 127.0.0.2:30004); the READY mapping gives the address taken."""
 
     host: str = "auto"
-    port: Annotated[int, Field(ge=0, le=65535)] = 30004
+    port: Annotated[int, Field(ge=0, le=65535)] = UR_RTDE_PORT
 
 
 class AbbRwsSection(ServerSection):

@@ -68,6 +68,7 @@ def _imported_modules(argv: list[str], exit_code: int = 0) -> set[str]:
         ["plan", "--help"],
         ["program", "--help"],
         ["filter", "--help"],
+        ["robots", "from-ur", "--help"],
     ],
 )
 def test_help_imports_no_heavy_library(argv: list[str]) -> None:

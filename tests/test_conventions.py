@@ -69,6 +69,10 @@ def test_directions_and_a_coupling_round_trip_and_invert() -> None:
             None,
         ),
         ({"speed": 1}, "controller.speed"),
+        ({"external_axes": -1}, "controller.external_axes"),
+        ({"external_axes": 7}, "controller.external_axes"),
+        ({"external_axes": True}, "controller.external_axes"),
+        ({"external_axes": 0}, None),
     ],
 )
 def test_a_bad_controller_table_names_its_field(
@@ -81,6 +85,15 @@ def test_a_bad_controller_table_names_its_field(
     with pytest.raises(ModelError) as err:
         model_from_mapping(data)
     assert err.value.field == field, str(err.value)
+
+
+def test_external_axes_round_trip_and_leave_the_kinematics_alone() -> None:
+    model = model_from_mapping({**HSR_JR680, "controller": {"external_axes": 0}})
+    assert model.controller.external_axes == 0 and model.controller.is_identity
+    assert model.to_dict()["controller"]["external_axes"] == 0
+    assert model_from_mapping(model.to_dict()).controller == model.controller
+    q = np.array([10.0, -20.0, 30.0, 40.0, 50.0, 60.0])
+    assert np.array_equal(model.table_rad(q), model_from_mapping(HSR_JR680).table_rad(q))
 
 
 # --- the convention applied by the kinematics (one door: RobotModel.table_rad) -------------

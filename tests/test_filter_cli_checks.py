@@ -149,6 +149,15 @@ def test_a_result_of_another_robot_warns_and_another_arm_exit_2(
     assert r2.exit_code == EXIT_BAD_INPUT, r2.output
     assert "is not of the nominal model" in r2.output and "joint 2 a_mm" in _flat(r2.output)
     assert not (tmp_path / "o2").exists()
+    # A table of another size (five joints): exit 2 naming the field, nothing written.
+    short = json.loads(json.dumps(cell.result))
+    short["dh"] = short["dh"][:5]
+    p3 = tmp_path / "short.json"
+    p3.write_text(json.dumps(short))
+    r3 = _run(setup, FIXTURES / "cell_a.mod", "--out", tmp_path / "o3", result=p3)
+    assert r3.exit_code == EXIT_BAD_INPUT, r3.output
+    assert "dh: expected a list of six joint rows" in _flat(r3.output)
+    assert not (tmp_path / "o3").exists()
 
 
 def test_help_renders_every_bracket_at_80_columns() -> None:
@@ -157,6 +166,7 @@ def test_help_renders_every_bracket_at_80_columns() -> None:
     assert max(len(line) for line in r.output.splitlines()) <= 80
     text = _flat(r.output.replace("│", " "))
     assert "TOML of [uframe.N] / [utool.N] (xyz_mm, wpr_deg)." in text
+    assert "external_axes = 0 in its [controller] table" in text
     assert "--verbose" in text
 
 
@@ -323,3 +333,48 @@ def test_batches_keep_targets_that_refer_to_each_other_together(
     assert [(c.status, c.reason) for c in batched.corrections] == [
         (c.status, c.reason) for c in whole.corrections
     ]
+
+
+def test_a_corrected_rows_joints_are_the_controllers_own_at_the_new_values(
+    setup: dict[str, Path], cell: Cell
+) -> None:
+    """Per corrected target the summary gives the old and new text, the joints the controller
+    reaches the new pose at (on the branch its configuration says: the confdata written in
+    the output is theirs), the shift and the σ at its tool."""
+    import math
+
+    import numpy as np
+
+    from calib.filter.branches import branch_signs
+    from calib.filter.kin import flange_frames
+    from calib.programs.rapid.filter import RobSite
+
+    files = [("cell_a.mod", (FIXTURES / "cell_a.mod").read_bytes())]
+    run = filter_files(calibration_from_result(cell.result, cell.nominal), files)
+    rows = {r["name"]: r for r in run.rows()}
+    out_src = Source.from_bytes("cell_a.mod", run.outputs["cell_a.mod"])
+    again = {t.name: t for t in dialect_for(out_src).parse([out_src], FrameTables())}
+    checked = 0
+    for t, c in zip(run.targets, run.corrections, strict=True):
+        if c.status != "corrected" or t.kind != "cartesian" or not c.shift_mm > 0.05:
+            continue
+        row = rows[t.name]
+        q = np.array(row["joints_deg"])
+        use = t.uses[0]
+        assert use.tool is not None and use.work is not None and c.pose is not None
+        # FK of the row's joints (4 decimals) is the new pose, in its work object and tool.
+        at = flange_frames(cell.nominal, q[None])[0] @ use.tool
+        np.testing.assert_allclose(at[:3, 3], (use.work @ c.pose)[:3, 3], atol=0.01)
+        # The same branch as the original target's nominal solution.
+        s_new = np.stack(branch_signs(cell.nominal, q[None]), axis=1)
+        s_old = np.stack(branch_signs(cell.nominal, np.array([row["nominal_joints_deg"]])), axis=1)
+        assert np.array_equal(s_new, s_old)
+        # The quadrants the output file holds are those of the row's joints.
+        site = again[t.name].site
+        assert isinstance(site, RobSite)
+        written = [int(n.value) for n in site.conf[:3]]
+        assert written == [math.floor(q[j] / 90.0) for j in (0, 3, 5)]
+        assert row["values"] and all(v["old"] != v["new"] for v in row["values"])
+        assert row["shift_mm"] > 0 and row["sigma_at_tool_mm"] is not None
+        checked += 1
+    assert checked >= 5

@@ -15,7 +15,7 @@ from calib.filter.correct import Calibration, calibration_from_result
 from calib.filter.run import EXIT_BAD_INPUT, EXIT_LEFT, filter_files
 from calib.programs.fanuc.config import TURN_EDGE_DEG, TURN_JOINTS, configuration, turn_number
 from calib.programs.fanuc.filter import DIALECT as LS
-from calib.programs.fanuc.filter import REGISTER_REASON
+from calib.programs.fanuc.filter import INDIRECT_REGISTER_REASON, REGISTER_REASON
 from calib.programs.sites import FrameTables, Source, parse_frames_toml
 
 FIXTURES = Path(__file__).parent / "fixtures" / "programs" / "fanuc"
@@ -144,6 +144,26 @@ def test_an_incremental_or_offset_position_is_named(cell: Cell) -> None:
             "line 6: moved to with Offset: the robot does not go to the position itself",
         ),
     ]
+
+
+def test_an_indirect_position_register_is_named_never_a_traceback(cell: Cell) -> None:
+    """``J PR[R[n]] …``: the register a data register names at run time (real ROBOGUIDE
+    exports loop over ``PR[R[86]]`` with register speeds and ``CNT R[83]``, or name the data
+    register ``PR[R[71:curr_pr]]``): left with its reason, the file unchanged."""
+    mn = (
+        b"   1:J P[1] 100% FINE ;\n   2:  R[86]=R[84]    ;\n"
+        b"   3:J PR[R[86]] R[81]% CNT R[83] ACC R[82]    ;\n"
+        b"   4:L PR[R[71:curr_pr]] 500mm/sec FINE    ;\n"
+        b"   5:J PR[R[86]] R[81]% FINE ACC R[82]    ;\n"
+    )
+    data = _prog(_GOOD).replace(b"   1:J P[1] 100% FINE ;\n", mn)
+    run = filter_files(_identity(cell), [("LOOP.LS", data)])
+    assert run.outputs == {"LOOP.LS": data} and not run.errors
+    rows = {r["name"]: (r["line"], r["status"], r["reason"]) for r in run.rows()}
+    assert rows["PR[R[86]]"] == (6, "skipped", INDIRECT_REGISTER_REASON)
+    assert rows["PR[R[71]]"] == (7, "skipped", INDIRECT_REGISTER_REASON)
+    assert rows["P[1]"][1] == "corrected" and len(rows) == 3
+    assert run.exit_code == EXIT_LEFT
 
 
 def test_accuracy_on_the_emulated_truth(cell: Cell) -> None:

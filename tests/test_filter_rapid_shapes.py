@@ -26,7 +26,7 @@ from calib.programs.rapid.filter import DIALECT as RAPID
 from calib.programs.rapid.filter import cfx_of, configuration
 from calib.programs.rapid.program import parse as parse_program
 from calib.programs.rotations import matrix_to_quat_wxyz
-from calib.programs.sites import FrameTables, Source, Target
+from calib.programs.sites import EXTERNAL_AXIS_REASON, FrameTables, Source, Target
 
 NOMINAL = builtin_model("hsr-jr680")
 NO_AXES = "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]"
@@ -240,13 +240,30 @@ def test_under_confl_off_the_first_target_needs_its_confdata_or_a_moveabsj_befor
     dummy_first = re.sub(r"\[-?\d+,-?\d+,-?\d+,\d\],\[9E", "[3,3,3,7],[9E", text, count=1)
     got = _by_name(_run(CAL, olp_mod=dummy_first))
     assert got["Target_0"][2].startswith(
-        "no nominal solution in configuration [3,3,3,7] (the first"
+        "no nominal solution in configuration [3,3,3,7], the first move under ConfL/ConfJ\\Off"
     )
-    assert "start with a MoveAbsJ" in got["Target_0"][2]
+    assert "where the robot is, which the program does not say" in got["Target_0"][2]
+    assert "start the routine with a MoveAbsJ" in got["Target_0"][2]
     assert (
         got["Target_10"][2]
         == "the previous move's target Target_0 has no nominal joints to start from"
     )
+    # The followers share one group in the summary, whatever their previous target's name.
+    groups = {r["group"] for r in _run(CAL, olp_mod=dummy_first).rows() if "group" in r}
+    assert len(groups) == 2, groups
+    # Where only one solution lies within the joint limits, the robot has no other way to
+    # reach the first target: it is taken whatever the ignored confdata says.
+    limits = NOMINAL.limits_deg().copy()
+    limits[:, 0] = np.maximum(limits[:, 0], q.min(axis=0) - 20.0)
+    limits[:, 1] = np.minimum(limits[:, 1], q.max(axis=0) + 20.0)
+    tight = replace(NOMINAL, joint_limits_deg=limits)
+    cal = Calibration(tight, replace(CAL.calibrated, joint_limits_deg=limits), None, CAL.columns)
+    run = _run(cal, olp_mod=dummy_first)
+    assert run.exit_code == EXIT_OK, [c.reason for c in run.corrections if c.reason]
+    np.testing.assert_allclose(run.corrections[0].nominal_joints_deg, q[0], atol=0.01)
+    # Under ConfJ\On the same confdata is demanded: refused, not taken.
+    honoured = dummy_first.replace("        ConfJ\\Off;\n", "")
+    assert _by_name(_run(cal, olp_mod=honoured))["Target_0"][1] == "skipped"
     # A MoveAbsJ to where the path starts roots the chain: every target is corrected.
     joints = ",".join(f"{v:.4f}" for v in q[0])
     rooted = dummy_first.replace(
@@ -294,10 +311,41 @@ def test_a_target_on_an_external_axis_is_left_with_that_reason() -> None:
     got = _by_name(_run(CAL, track_mod=text))
     _, status, reason = got["inline@5"]
     assert status == "skipped"
-    assert reason == "on an external axis (track/positioner) not in the model (eax_a = 1250.5)"
+    assert reason.startswith(f"{EXTERNAL_AXIS_REASON} (eax_a = 1250.5): ")
+    assert "external_axes = 0" in reason and "[controller]" in reason  # what to do
     assert got["inline@4"][1] == "corrected"  # a jointtarget's robot axes are the robot's
     assert got["inline@6"][1] == "corrected"
     assert "inline@7" not in got  # MoveExtJ moves the track only
+
+
+def _no_external_axes(model: RobotModel) -> RobotModel:
+    return replace(model, controller=replace(model.controller, external_axes=0))
+
+
+def test_a_controller_without_external_axes_ignores_their_values() -> None:
+    """An OLP module writes eax_a = 0 for an arm with no track (TACO's shape); the model says
+    the controller has none (ABB ignores a value for an axis not connected): corrected, the
+    eax text carried unchanged. Without that line in the model: left, as above."""
+    q = regular_poses(NOMINAL, 3, seed=9)
+    poses = planned_targets(NOMINAL, q, _tool(), np.eye(4))
+    confs = rapid_confdata(NOMINAL, q)
+    eax = "[0,9E9,9E9,9E9,9E9,9E9]"
+    moves = "".join(
+        f"MoveL {_robtarget(p, c, eax)},v150,z20,tGrip\\WObj:=wobj0;\n"
+        for p, c in zip(poses, confs, strict=True)
+    )
+    head = f"MODULE MainModule\nPERS tooldata tGrip := {TOOL_TEXT};\nPROC Main()\n"
+    text = f"{head}{moves}ENDPROC\nENDMODULE\n"
+    left = _run(CAL, main_mod=text)
+    assert [c.status for c in left.corrections] == ["skipped"] * 3
+    nominal = _no_external_axes(NOMINAL)
+    cal = Calibration(nominal, _no_external_axes(CAL.calibrated), None, np.zeros(0, dtype=int))
+    run = _run(cal, main_mod=text)
+    assert [c.status for c in run.corrections] == ["corrected"] * 3
+    out = run.outputs["main.mod"].decode()
+    assert out != text and out.count(eax) == 3
+    same = Calibration(nominal, nominal, None, np.zeros(0, dtype=int))
+    assert _run(same, main_mod=text).outputs["main.mod"].decode() == text
 
 
 # -- refused ------------------------------------------------------------------------------

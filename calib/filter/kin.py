@@ -46,6 +46,11 @@ def counted_as(model: RobotModel, like: RobotModel) -> RobotModel:
     return replace(model, controller=like.controller)
 
 
+def drives_no_external_axes(model: RobotModel) -> bool:
+    """The model's controller says it drives no external axis (``external_axes = 0``)."""
+    return model.controller.external_axes == 0
+
+
 def whole_turns(model: RobotModel) -> np.ndarray:
     """Per joint (6,) bool: a whole turn of the controller's angle is whole turns of the table
     angles (every coupling factor from it an integer), so ``q ± 360°`` is the same pose."""

@@ -28,8 +28,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from calib.filter.correct import Calibration, correct_targets
+from calib.filter.kin import drives_no_external_axes
 from calib.programs.dialects import dialect_for
 from calib.programs.sites import (
+    EXTERNAL_AXIS_REASON,
     READ_ONLY_REASON,
     Correction,
     Dialect,
@@ -66,6 +68,7 @@ _GROUP_RULES = (
     (re.compile(r" ?\([^()]*\d[^()]*\)"), ""),
     (re.compile(r"[-+]?\d+\.\d+"), "…"),
     (re.compile(r"^follows \S+, which"), "follows a target which"),
+    (re.compile(r"^the previous move's target \S+ has"), "the previous move's target has"),
 )
 
 
@@ -313,6 +316,14 @@ def batches(targets: Sequence[Target], size: int | None = None) -> list[list[int
     return out
 
 
+def _without_external_axes(targets: Iterable[Target]) -> None:
+    """A controller that drives no external axis ignores the values a target carries for
+    them (``[controller] external_axes = 0``): such targets are corrected, their values kept."""
+    for t in targets:
+        if t.problem.startswith(EXTERNAL_AXIS_REASON):
+            t.problem = ""
+
+
 def _with_reasons(
     corrections: list[Correction], parsed: list[tuple[Dialect, Target]]
 ) -> list[Correction]:
@@ -368,6 +379,8 @@ def filter_files(
         readable.extend(ok)
         parsed.extend((d, t) for t in targets)
     run.targets = [t for _, t in parsed]
+    if drives_no_external_axes(cal.nominal):
+        _without_external_axes(run.targets)
     if only is not None:
         have = {t.name.lower() for t in run.targets}
         run.unknown_only = [s for s in only if s.lower() not in have]

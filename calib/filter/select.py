@@ -19,10 +19,10 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
 
     Rules, in order: no candidate within the joint limits → unreachable; exactly one → that
     one if the configuration allows it (a controller honouring a configuration stops rather
-    than take another: Fanuc, KUKA, ABB with ConfL On), else refused; else the candidates
-    within the configuration's joint ranges; of those the one nearest ``nearest_deg`` when
-    given; else one left → it; else the branch signs break the tie; still several →
-    ambiguous (refused).
+    than take another: Fanuc, KUKA, ABB with ConfL On) or is not honoured, else refused;
+    else the candidates within the configuration's joint ranges; of those the one nearest
+    ``nearest_deg`` when given; else one left → it; else the branch signs break the tie;
+    still several → ambiguous (refused).
     """
     n = sol.valid.shape[0]
     blank = Configuration()
@@ -48,7 +48,8 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
     pick_near = several & (n_in > 0) & has_near
     pick_in = several & (n_in == 1) & ~has_near
     pick_m2 = several & (n_in > 1) & ~has_near & (n_m2 == 1)
-    only = (n_valid == 1) & (n_m2 == 1)
+    ignored = np.array([not c.honoured for c in cfgs], dtype=bool)
+    only = (n_valid == 1) & ((n_m2 == 1) | ignored)
     idx[only] = np.argmax(m2[only], axis=1)
     idx[pick_near] = np.argmin(dist[pick_near], axis=1)
     idx[pick_in] = np.argmax(inr[pick_in], axis=1)

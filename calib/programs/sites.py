@@ -60,6 +60,17 @@ UNUSED_REASON = "not used by any move in the given files"
 #: ``$config.dat``): left on purpose, never counted as left.
 READ_ONLY_REASON = "in a file that is read and never written"
 
+#: The reason (or its start) of a target that carries a value for an external axis (a track,
+#: a positioner), which the model does not have. A model whose ``[controller]`` table says
+#: ``external_axes = 0`` (the controller drives none, so it ignores such values) has these
+#: targets corrected with the values carried unchanged (:mod:`calib.filter.run`).
+EXTERNAL_AXIS_REASON = "carries external axis values"
+#: What the reason adds: how to say the robot has none.
+EXTERNAL_AXIS_ADVICE = (
+    "the model has no external axes: if this controller drives none (no track, no "
+    "positioner), say so with external_axes = 0 in the model file's [controller] table"
+)
+
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
 ORIENTATION_ROUNDING_DEG = 0.0005
@@ -209,6 +220,11 @@ class Configuration:
         joint across a 90° line keeps the branch and gets the new quadrant). Else a
         correction that leaves ``joint_ranges_deg`` (a KUKA ``T`` sign, a Fanuc turn number)
         is refused with the reason: those fields are never rewritten.
+    honoured : bool
+        False where the controller ignores the written configuration and takes the solution
+        nearest where the robot is, which the program does not say (ABB's first move under
+        ``ConfL\\Off``/``ConfJ\\Off``): the written ranges and signs are taken when they fit a
+        solution, and the only solution within the joint limits whatever they say.
     """
 
     joint_ranges_deg: FloatArray = field(
@@ -221,6 +237,7 @@ class Configuration:
     after: str | None = None
     text: str = ""
     ranges_rewritten: bool = False
+    honoured: bool = True
 
 
 @dataclass

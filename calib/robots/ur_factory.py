@@ -155,6 +155,45 @@ def from_kinematics_info(
     return _model(model, rows, name or f"{model.name}-factory")
 
 
+#: How far [mm] an arm's base height (``d1``) and forearm length (``a3``) may be from a
+#: library UR arm's to be taken for it. Factory calibrations move them by at most 2.3 mm in
+#: the three of UniversalRobots/Universal_Robots_ROS2_Driver
+#: ``ur_calibration/test/calibration_test.cpp`` (while ``a2`` moves by up to 632 mm and
+#: ``d2 … d4`` by hundreds of metres: near-parallel axes); the library arms differ by 32 mm
+#: or more in ``a3``.
+SAME_ARM_MM = 10.0
+
+
+def library_ur_arm(a_m: Sequence[float], d_m: Sequence[float]) -> str:
+    """The library's UR arm (``ur3e`` …) whose published ``d1`` and ``a3`` are both within
+    :data:`SAME_ARM_MM` of a KinematicsInfo's ``dh_d``, ``dh_a`` [m] (the arm's own joint
+    ranges and convention come from it).
+
+    Raises
+    ------
+    ModelError
+        No library UR arm is that near (field ``robot``: give the base arm by name).
+    """
+    from calib.models import BUILTIN_MODELS, builtin_model
+
+    d1, a3 = 1000.0 * float(d_m[0]), 1000.0 * float(a_m[2])
+    best, gap = "", math.inf
+    for name in sorted(BUILTIN_MODELS):
+        model = builtin_model(name)
+        if model.controller.maker != "ur":
+            continue
+        off = max(abs(float(model.dh_table[0][2]) - d1), abs(float(model.dh_table[2][1]) - a3))
+        if off < gap:
+            best, gap = name, off
+    if gap > SAME_ARM_MM:
+        raise ModelError(
+            "robot",
+            f"the arm's d1 = {d1:.1f} mm, a3 = {a3:.1f} mm are no library UR arm's "
+            f"(nearest {best}, {gap:.1f} mm off): give its base arm by name",
+        )
+    return best
+
+
 def main(argv: Sequence[str]) -> int:
     """``BASE.toml calibration.conf [NAME]``: print the arm's model file (TOML)."""
     from calib.export import model_to_toml

@@ -34,6 +34,11 @@ _SHOWN = (
     "sigma_at_tool_mm",
 )
 FRAMES_HELP = escape("TOML of [uframe.N] / [utool.N] (xyz_mm, wpr_deg).")
+ROBOT_HELP = escape(
+    "Nominal model (built-in name or model file); default: the result's. For a robot without "
+    "track or positioner, external_axes = 0 in its [controller] table lets targets that carry "
+    "external axis values be corrected."
+)
 
 
 def register(app: typer.Typer) -> None:
@@ -134,7 +139,7 @@ def filter_cmd(
     ],
     robot: Annotated[
         str | None,
-        typer.Option(help="Nominal model (built-in name or model file); default: the result's."),
+        typer.Option(help=ROBOT_HELP),
     ] = None,
     frames: Annotated[Path | None, typer.Option("--frames", help=FRAMES_HELP)] = None,
     keep_joint_targets: Annotated[

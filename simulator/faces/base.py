@@ -16,21 +16,29 @@ from simulator.servers import TcpServer
 AUTO_HOSTS = tuple(f"127.0.0.{i}" for i in range(2, 255))
 
 
-def free_loopback_host(port: int, hosts: tuple[str, ...] = AUTO_HOSTS) -> str:
-    """The first of ``hosts`` on which TCP ``port`` can be bound now.
+def _free(host: str, port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            if exc.errno != errno.EADDRINUSE:
+                raise
+            return False
+    return True
+
+
+def free_loopback_host(
+    port: int, hosts: tuple[str, ...] = AUTO_HOSTS, also: tuple[int, ...] = ()
+) -> str:
+    """The first of ``hosts`` on which TCP ``port`` (and every port of ``also``) can be bound
+    now.
 
     Raises ``OSError`` (EADDRINUSE) when it is taken on every one."""
     for host in hosts:
         if not ipaddress.ip_address(host).is_loopback:
             raise ValueError(f"host: {host} is not a loopback address")
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                probe.bind((host, port))
-            except OSError as exc:
-                if exc.errno != errno.EADDRINUSE:
-                    raise
-                continue
+        if all(_free(host, p) for p in (port, *also)):
             return host
     raise OSError(errno.EADDRINUSE, f"port {port} is taken on every address 127.0.0.2..254")
 
@@ -44,6 +52,10 @@ class FaceServer(TcpServer):
     from :class:`TcpServer`.
     """
 
+    #: Ports a face also listens on, on its own address (``host = "auto"`` picks an address
+    #: where all are free): a UR's primary interface beside its RTDE port.
+    also_ports: tuple[int, ...] = ()
+
     def __init__(self, cell: EmulatedCell, section: ServerSection) -> None:
         super().__init__(cell, section.host, section.port)
         self.section = section
@@ -52,7 +64,7 @@ class FaceServer(TcpServer):
         if self.host == "auto":
             # Between the probe and the bind another cell may take the address: try again.
             for _ in range(5):
-                self.host = free_loopback_host(self.port)
+                self.host = free_loopback_host(self.port, also=self.also_ports)
                 try:
                     await super().start()
                     return

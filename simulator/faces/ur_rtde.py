@@ -43,8 +43,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from simulator.cell import EmulatedCell
-from simulator.config import ServerSection
+from simulator.config import UR_RTDE_PORT, ServerSection
 from simulator.faces.base import FaceServer
+from simulator.faces.ur_primary import PORT as PRIMARY_PORT
+from simulator.faces.ur_primary import UrPrimaryServer
 
 log = logging.getLogger("cablecal.simulator")
 
@@ -234,14 +236,32 @@ class OutputRecipe:
 
 
 class UrRtdeServer(FaceServer):
-    """The EMULATED RTDE port (see the module docstring)."""
+    """The EMULATED RTDE port (see the module docstring), and beside it, on the same address,
+    the primary interface (:mod:`simulator.faces.ur_primary`, UR's port 30001) when the RTDE
+    port is UR's own 30004 (a test's port 0 is any port: no primary interface then)."""
 
     label = "ur-rtde"
+    also_ports = (PRIMARY_PORT,)
 
     def __init__(self, cell: EmulatedCell, section: ServerSection) -> None:
         super().__init__(cell, section)
         #: Monotonic time [s] of the controller clock's zero (``timestamp`` counts from it).
         self.t0 = time.monotonic()
+        self.primary: UrPrimaryServer | None = None
+
+    async def start(self) -> None:
+        await super().start()
+        if self.port == UR_RTDE_PORT:
+            self.primary = UrPrimaryServer(
+                self.cell, ServerSection(host=self.host, port=PRIMARY_PORT)
+            )
+            await self.primary.start()
+
+    async def stop(self) -> None:
+        if self.primary is not None:
+            await self.primary.stop()
+            self.primary = None
+        await super().stop()
 
     # ------------------------------------------------------------------ values
     def values(self, recipe: OutputRecipe, now: float) -> list[object]:

@@ -10,7 +10,8 @@ Targets
     representation (``RX … RR``) and a position that a ``/MN`` move reaches with ``INC`` (an
     increment) or an offset (``Offset``, ``Tool_Offset``, ``VOFFSET``) are left unchanged and
     named: the robot does not go to the position itself. A position register ``PR[n]`` that a
-    move goes to lives on the controller, not in the program: named, never touched.
+    move goes to lives on the controller, not in the program: named, never touched; so is an
+    indirect one, ``PR[R[n]]`` (the register a data register names at run time).
 
 Frames
     A position carries its own user frame and tool numbers (``UF : n, UT : m``; the
@@ -65,6 +66,11 @@ _LOCK_DEG = 0.01
 REGISTER_REASON = (
     "a position register: its value is on the controller (POSREG.VA), not in this program"
 )
+#: A move to the position register whose number a data register holds (``PR[R[86]]``).
+INDIRECT_REGISTER_REASON = (
+    "an indirect position register: the register is chosen at run time by a data register, "
+    "and its value is on the controller (POSREG.VA), not in this program"
+)
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _PROG = re.compile(r"^\ufeff?\s*/PROG\b")
@@ -79,7 +85,12 @@ _FIELD = re.compile(r"\b([A-Z]\w*)\s*=\s*(" + _NUM + r")\s*(mm|deg)?", re.IGNORE
 _FRAME_NO = re.compile(r"\b(UF|UT)\s*:\s*([^,\s]+)\s*,?")
 _CONFIG = re.compile(r"\b(?:" + "|".join(KEYWORDS) + r")\s*:\s*'([^'\r\n]*)'")
 _UNRECORDED = re.compile(r"=\s*\*{3,}")
-_REGISTER_MOVE = re.compile(r"^\s*\d*\s*:\s*[JLCA]\s+PR\[\s*(\d+)", re.MULTILINE)
+#: A move to a position register: ``J PR[2] …``, ``L PR[3:Ablage] …``, or indirect,
+#: ``J PR[R[86]] …``, ``L PR[R[71:curr_pr]] …`` (group 1 the number, group 2 the data register).
+_REGISTER_MOVE = re.compile(
+    r"^\s*\d*\s*:\s*[JLCA]\s+PR\[\s*(?:(\d+)|R\[\s*(\d+)\s*(?::[^\]\r\n]*)?\])",
+    re.MULTILINE,
+)
 _CARTESIAN = ("X", "Y", "Z", "W", "P", "R")
 _JOINTS = tuple(f"J{j}" for j in range(1, N_JOINTS + 1))
 
@@ -357,10 +368,12 @@ def _registers(src: Source, start: int, end: int) -> list[Target]:
     first use: named, never corrected (:data:`REGISTER_REASON`)."""
     out: dict[str, Target] = {}
     for m in _REGISTER_MOVE.finditer(src.text, start, end):
-        name = f"PR[{m.group(1)}]"
+        direct = m.group(1) is not None
+        name = f"PR[{m.group(1)}]" if direct else f"PR[R[{m.group(2)}]]"
         if name not in out:
-            line = src.line_of(m.start(1))
-            out[name] = Target(src.name, line, name, "cartesian", problem=REGISTER_REASON)
+            line = src.line_of(m.start(1 if direct else 2))
+            why = REGISTER_REASON if direct else INDIRECT_REGISTER_REASON
+            out[name] = Target(src.name, line, name, "cartesian", problem=why)
     return list(out.values())
 
 

@@ -13,7 +13,10 @@ Targets
     external axes (never written). A declaration whose value is not a literal
     (``:= Offs(p1, …)``, a PERS without value) is no target site: it has no numbers.
     A robtarget with an external axis value (any ``eax`` other than ``9E9``: a track, a
-    positioner) is left with that reason: the model has no external axes.
+    positioner) is left with that reason (:data:`calib.programs.sites.EXTERNAL_AXIS_REASON`):
+    the model has no external axes. A model whose ``[controller]`` says
+    ``external_axes = 0`` has them corrected: the controller ignores a value for an axis
+    that is not connected (RAPID reference, extjoint), and the values stay as written.
 
 Frames
     tooldata ``[robhold, [[x,y,z],[q1..q4]], load]``: the TCP in the flange frame.
@@ -33,8 +36,10 @@ Instructions, Functions and Data types", confdata)
     either side of axis 1 (:func:`cfx_of`; docs/compensation.md names the sources). Where
     the confdata is honoured (``ConfL\On``/``ConfJ\On``) the quadrants are written from the
     corrected joints; under ``\Off`` the controller ignores confdata: the filter seeds each
-    target from the previous one along the routine (the first from its confdata) and
-    leaves the confdata text as it is.
+    target from the previous one along the routine and leaves the confdata text as it is.
+    The first target (where the robot comes from is not in the program) takes its confdata
+    where that fits a solution, else the only solution within the joint limits, else is
+    left saying so (:attr:`calib.programs.sites.Configuration.honoured`).
 
 Precision: positions to at least 3 decimals (rounding ≤ 0.0005 mm per axis), quaternion
 components to at least 6 (≤ 1e-4°), joint angles to at least 4 (≤ 0.00005°).
@@ -76,6 +81,8 @@ from calib.programs.rotations import (
     quat_wxyz_to_matrix,
 )
 from calib.programs.sites import (
+    EXTERNAL_AXIS_ADVICE,
+    EXTERNAL_AXIS_REASON,
     Configuration,
     Correction,
     Edit,
@@ -169,7 +176,7 @@ def _robtarget(
     on_axis = [f"eax_{_EAX[k]} = {n.text}" for k, n in enumerate(eax) if n.value != NO_AXIS]
     problem = ""
     if on_axis:
-        problem = f"on an external axis (track/positioner) not in the model ({', '.join(on_axis)})"
+        problem = f"{EXTERNAL_AXIS_REASON} ({', '.join(on_axis)}): {EXTERNAL_AXIS_ADVICE}"
     return Target(
         src.name,
         line,
@@ -383,7 +390,11 @@ def _follow(t: Target, flow: list[tuple[str, Target | None, int]]) -> None:
     """Set a Cartesian target's configuration rule from the monitoring at its uses: any use
     with confdata honoured → its confdata; all ignoring it → nearest the previous target
     along the routine (the first target of a routine: its confdata)."""
-    if t.kind != "cartesian" or t.problem or not flow:
+    # A target on external axes is followed too: the model may say there are none
+    # (calib.filter.run clears that reason then).
+    if t.kind != "cartesian" or not flow:
+        return
+    if t.problem and not t.problem.startswith(EXTERNAL_AXIS_REASON):
         return
     states = {s for s, _, _ in flow}
     if ON in states:
@@ -400,11 +411,15 @@ def _follow(t: Target, flow: list[tuple[str, Target | None, int]]) -> None:
     assert t.configuration is not None
     if before is None or before is t or before.file != t.file:
         # The first move under \Off (or one after a target of another file, which the core
-        # cannot follow): its confdata as written.
+        # cannot follow): the controller takes the solution nearest where the robot is,
+        # which the program does not say. Its confdata where it fits a solution, else the
+        # only solution within the joint limits, else left with this text.
         t.configuration = replace(
             t.configuration,
-            text=f"{t.configuration.text} (the first move under ConfL/ConfJ\\Off, where the "
-            "robot comes from is unknown: write its confdata or start with a MoveAbsJ)",
+            honoured=False,
+            text=f"{t.configuration.text}, the first move under ConfL/ConfJ\\Off: the "
+            "controller takes the solution nearest where the robot is, which the program does "
+            "not say; start the routine with a MoveAbsJ or write this target's confdata",
         )
         return
     t.configuration = Configuration(
