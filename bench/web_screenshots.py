@@ -1,7 +1,7 @@
 """The README's screenshots of the operator page (``make screenshots``): docs/img/web-*.png.
 
 Runs a campaign on a fresh EMULATED cell through the REST API (plan, auto capture, identify,
-accept, compensate, a drift check), then opens the page in headless chromium at 1366 px width
+accept, compensate, a hold check), then opens the page in headless chromium at 1366 px width
 and saves one full-page screenshot per view.
 """
 

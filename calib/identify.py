@@ -60,10 +60,8 @@ from calib.options import (
     PriorOptions,
     RobustOptions,
     SolverSettings,
-    SplitOptions,
     check_training_rows,
     part,
-    validate,
     with_part,
 )
 from calib.prior import prior_block
@@ -81,59 +79,19 @@ from calib.report import (
     uncertainty,
 )
 from calib.solvers.common import ProgressFn, report
-from calib.split import pose_groups, split_rows
+from calib.split import Checked, check, pose_groups, split_rows
 from calib.tcp import tcp_uncertainty_for_problem
 from calib.timing import Clock, Timer
 
 __all__ = [
     "METHODS",
-    "Checked",
     "IdentifyOptions",
     "IdentifyResult",
-    "check",
     "identify",
     "identify_checked",
     "pose_groups",
     "split_rows",
 ]
-
-
-@dataclass(frozen=True)
-class Checked:
-    """Options checked once against a sample set and a robot (:func:`check`), with the split
-    identify trains and tests on: :func:`identify_checked` runs on it without checking the
-    options again (the daemon checks a job when it is submitted and hands this to the worker).
-    """
-
-    options: IdentifyOptions
-    train_rows: np.ndarray  # (n_train,) row indices
-    test_rows: np.ndarray  # (n_test,) row indices
-
-
-def check(
-    model: RobotModel,
-    samples: SampleSet,
-    options: IdentifyOptions | None = None,
-    train_rows: np.ndarray | None = None,
-    test_rows: np.ndarray | None = None,
-) -> Checked:
-    """Step 1's one check of the options: split the rows (random, grouped, or the given
-    ``train_rows``/``test_rows``; :mod:`calib.split`) and check the options against the
-    samples and the robot on that split (:func:`calib.options.validate`).
-
-    Raises
-    ------
-    SampleError, calib.options.OptionError
-        As :func:`calib.options.validate`.
-    """
-    opts = options or IdentifyOptions()
-    if train_rows is None or test_rows is None:
-        split = part(opts, SplitOptions)
-        train_rows, test_rows = split_rows(
-            samples, split.test_fraction, split.seed, split.holdout, split.n_groups
-        )
-    validate(samples, opts, train_rows, model=model)
-    return Checked(opts, train_rows, test_rows)
 
 
 @dataclass

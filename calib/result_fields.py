@@ -202,7 +202,7 @@ class Drift:
 
 
 #: Length figures per model (``before``, ``after``) and part (``train``, ``test``):
-#: ``n``, ``rmse_mm``, ``mae_mm``, ``std_mm``, ``max_mm`` (:func:`calib.metrics.length_metrics`).
+#: ``n``, ``rmse_mm``, ``mae_mm``, ``std_mm``, ``max_mm`` (:func:`calib.accuracy.length_metrics`).
 Metrics = Mapping[str, Mapping[str, Mapping[str, float | int | None]]]
 
 

@@ -1,11 +1,18 @@
-"""Training and test rows: random rows, or whole pose groups (the ``holdout`` option)."""
+"""Training and test rows: random rows, or whole pose groups (the ``holdout`` option); and
+:func:`check`, the options checked once on the split identify runs on (:class:`Checked`)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calib.dataset import SampleSet
-from calib.options import Holdout, held_out
+from calib.options import Holdout, IdentifyOptions, SplitOptions, held_out, part, validate
+
+if TYPE_CHECKING:
+    from calib.models import RobotModel
 
 
 def pose_groups(samples: SampleSet, n_groups: int) -> np.ndarray:
@@ -44,3 +51,41 @@ def split_rows(
     test_rows = np.sort(np.array(test, dtype=int))
     train_rows = np.setdiff1d(np.arange(n), test_rows)
     return train_rows, test_rows
+
+
+@dataclass(frozen=True)
+class Checked:
+    """Options checked once against a sample set and a robot (:func:`check`), with the split
+    identify trains and tests on: :func:`calib.identify.identify_checked` runs on it without
+    checking the options again (the daemon checks a job when it is submitted and hands this
+    to the worker)."""
+
+    options: IdentifyOptions
+    train_rows: np.ndarray  # (n_train,) row indices
+    test_rows: np.ndarray  # (n_test,) row indices
+
+
+def check(
+    model: RobotModel,
+    samples: SampleSet,
+    options: IdentifyOptions | None = None,
+    train_rows: np.ndarray | None = None,
+    test_rows: np.ndarray | None = None,
+) -> Checked:
+    """Step 1's one check of the options: split the rows (random, grouped, or the given
+    ``train_rows``/``test_rows``; :func:`split_rows`) and check the options against the
+    samples and the robot on that split (:func:`calib.options.validate`).
+
+    Raises
+    ------
+    SampleError, calib.options.OptionError
+        As :func:`calib.options.validate`.
+    """
+    opts = options or IdentifyOptions()
+    if train_rows is None or test_rows is None:
+        split = part(opts, SplitOptions)
+        train_rows, test_rows = split_rows(
+            samples, split.test_fraction, split.seed, split.holdout, split.n_groups
+        )
+    validate(samples, opts, train_rows, model=model)
+    return Checked(opts, train_rows, test_rows)

@@ -3,7 +3,7 @@
 :func:`verify` predicts every sample's indicator reading with the calibrated model of a
 ``result.json`` mapping (:func:`calib.predict.predict_lengths_from_result`) and reports RMSE,
 MAE, STD and MAX (:func:`calib.accuracy.length_metrics`) and the per-pose residuals
-``measured − predicted``. A drift check compares the RMSE with ``max_rmse_mm``.
+``measured − predicted``. A hold check compares the RMSE with ``max_rmse_mm``.
 
 ``refit_anchor=True`` is for a campaign taken after the sensor was moved or re-zeroed: the
 robot's calibrated kinematics stay fixed and only each anchor's ``P0`` and zero offset ``c``
@@ -45,7 +45,7 @@ class VerifyOptions:
         Fit each anchor's P0 and zero offset to the new data (sensor moved); the kinematics
         stay as calibrated.
     max_rmse_mm : float or None
-        Tolerance of a drift check: ``passed`` is ``rmse_mm <= max_rmse_mm`` (None: no check).
+        Tolerance of a hold check: ``passed`` is ``rmse_mm <= max_rmse_mm`` (None: no check).
     """
 
     refit_anchor: bool = False

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-import calib.identify
 import calib.options
+import calib.split
 from calib.dataset import make_samples
-from calib.identify import check, identify, identify_checked
+from calib.identify import identify, identify_checked
 from calib.models import builtin_model
 from calib.options import (
     GROUPS,
@@ -27,6 +27,7 @@ from calib.options import (
     part,
     with_part,
 )
+from calib.split import check
 from calib.synthetic import make_true_cell, noisy_lengths, random_poses_deg
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,10 +46,8 @@ def test_checked_options_run_without_a_second_check(monkeypatch: pytest.MonkeyPa
     opts = IdentifyOptions(method="lm", seed=2)
     whole = identify(MODEL, samples, opts)
     calls: list[object] = []
-    real = calib.identify.validate
-    monkeypatch.setattr(
-        calib.identify, "validate", lambda *a, **k: calls.append(a) or real(*a, **k)
-    )
+    real = calib.split.validate
+    monkeypatch.setattr(calib.split, "validate", lambda *a, **k: calls.append(a) or real(*a, **k))
     checked = check(MODEL, samples, opts)
     assert len(calls) == 1
     made: list[object] = []

@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     from calib.dataset import SampleSet
-    from calib.identify import Checked as CheckedOptions
     from calib.models import RobotModel
     from calib.options import IdentifyOptions
+    from calib.split import Checked as CheckedOptions
 
 #: Seconds between progress messages a worker sends (the last one is always sent).
 PROGRESS_INTERVAL_S = 0.2
@@ -68,8 +68,8 @@ def check_job(store: Any, campaign_id: int, options: IdentifyOptions) -> Checked
     daemon.store.StoreNotFound
         No such campaign.
     """
-    from calib.identify import check
     from calib.options import OptionError
+    from calib.split import check
     from daemon.store import StoreNotFound
 
     campaign = store.get_campaign(campaign_id)
