@@ -50,6 +50,7 @@ from calib.result_fields import (
     point,
     prior_block,
 )
+from calib.sample_fields import DEFAULT_ANCHOR
 
 __all__ = [
     "DH_KEYS",
@@ -70,9 +71,6 @@ __all__ = [
 ]
 
 Convention = Literal["dh", "mdh"]
-
-#: The anchor id a result without ``anchor_id`` measured from.
-DEFAULT_ANCHOR_ID = "A"
 
 #: The keys of the first contract (2026-11-21, commit aabb0f2, ``calib/identify.py``).
 BASE_KEYS = (
@@ -283,7 +281,7 @@ class CalibrationResult:
     @property
     def first_anchor(self) -> str:
         """The id of the anchor ``anchor_mm`` belongs to."""
-        return self.anchor_id if self.anchor_id is not None else DEFAULT_ANCHOR_ID
+        return self.anchor_id if self.anchor_id is not None else DEFAULT_ANCHOR
 
     def anchor_ids(self) -> list[str]:
         """Every anchor's id, the first one first."""

@@ -26,15 +26,7 @@ FACTS: dict[object, tuple[str, str, dict[str, str]]] = {
         "calib/sample_fields.py",
         "the default anchor id",
         {
-            "calib/filter/krl_data.py": "KRL's A angle of a Cartesian point, not an anchor",
-            # Readers of result.json's anchor_id: issue 33 item 1 moves every read of the
-            # result into the typed CalibrationResult, which takes the default from
-            # calib.sample_fields; these go with it.
-            "calib/html_report/tables.py": "result reader (issue 33 item 1)",
-            "calib/verify.py": "result reader (issue 33 item 1)",
-            "calib/predict.py": "result reader (issue 33 item 1)",
-            "calib/monitor/holdcheck.py": "result reader (issue 33 item 1)",
-            "daemon/monitors/holdcheck.py": "result reader (issue 33 item 1)",
+            "calib/programs/krl/data.py": "KRL's A angle of a Cartesian point, not an anchor",
         },
     ),
     # The job states only one meaning writes ("running" and "failed" are check states and
