@@ -158,8 +158,8 @@ class Case:
             self.robot = p.arm
         self.frame_args: list[str] = []
         self.frames = FrameTables()
-        if p.frames:
-            text = frames_toml(self.where)
+        if p.frames or p.frames_toml:
+            text = p.frames_toml or frames_toml(self.where)
             (tmp / "frames.toml").write_text(text, encoding="utf-8")
             self.frame_args = ["--frames", str(tmp / "frames.toml")]
             self.frames = parse_frames_toml(text)
@@ -314,6 +314,7 @@ def check_c(case: Case, a_rows: list[dict[str, Any]]) -> dict[str, Any]:
     rows = r["summary"]["targets"]
     reach = {_key(x) for x in a_rows if x["status"] == "corrected"}
     used = [x for x in rows if x["status"] == "corrected" or not _program_reason(x["reason"])]
+    n_used = sum(1 for x in used if x["status"] == "corrected")
     done = [x for x in rows if x["status"] == "corrected"]
     in_reach = [x for x in rows if _key(x) in reach]
     left = Counter(x["group"] for x in in_reach if x["status"] != "corrected")
@@ -342,6 +343,8 @@ def check_c(case: Case, a_rows: list[dict[str, Any]]) -> dict[str, Any]:
         share=(sum(1 for x in in_reach if x["status"] == "corrected") / len(in_reach))
         if in_reach
         else None,
+        corrected_of_used=n_used,
+        share_used=n_used / len(used) if used else None,
         skeleton_changed=skel,
         numbers_changed=inside,
         numbers_changed_elsewhere=outside,
@@ -358,8 +361,15 @@ def _utf8(b: bytes) -> bool:
     return True
 
 
-#: Reasons of the program itself (not reached by a move, not the robot's target).
-_PROGRAM_REASONS = ("not used by any move", "in a file that is read and never written")
+#: Reasons of the program itself (no move reaches it, or not the arm's own target: a track
+#: or positioner moves with it, or its value is on the controller): outside ``share_used``.
+_PROGRAM_REASONS = (
+    "not used by any move",
+    "in a file that is read and never written",
+    "on an external axis",
+    "a position register",
+    "GP1 has extended axes",
+)
 
 
 def _program_reason(reason: str) -> bool:
@@ -402,6 +412,7 @@ def run_program(p: Program, corpus: Path) -> dict[str, Any]:
             "arm_source": p.arm_source,
             "what": p.what,
             "targets": counts.get("targets", 0),
+            "valid": p.valid,
             "a": {
                 "exit": a["exit"],
                 "traceback": a["traceback"],

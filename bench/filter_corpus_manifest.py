@@ -15,7 +15,7 @@ repository names it; "assumed": a lab cell whose arm the files do not name).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,10 @@ class Program:
     arm_source: str
     what: str
     frames: str = ""
+    #: ``--frames`` text when the repository has no SYSFRAME.VA (an assumption, said so).
+    frames_toml: str = ""
+    #: False for a file the controller would not load either (then (a) expects exit 2).
+    valid: bool = True
 
 
 _TP = ("TPHugo/TimovyProjekt", "e6e904851a265e9226b45991e0407a59c52a3666")
@@ -44,6 +48,32 @@ _KRC4 = ("khrzysio/KRC4_test", "e8042ab5a504678183de1a983b8cf0e6c7b576c6")
 _TFG = ("luciagumbau228/TFG", "b840b128b3555da435b4f065513155c678fb7a91")
 _VASC = ("JuniorNatalin/VASC", "02f99794238f333324a4c319c7bfa7bde4e3fd9b")
 _PH = "pharmbio/robotlab"
+_WELD = ("Creearc/welding_project", "a1517840dc5596775124078c32cdcd4ef56ebe06")
+#: The welding job's UF 6 and UT 5 are not in its repository: a work frame 800 mm in front
+#: of axis 1 and a torch 300 mm out along the flange, pointing back at it (the job's W P R
+#: of 0 then has the flange facing down). Assumed, not the cell's.
+WELD_FRAMES = """[uframe.6]
+xyz_mm = [800.0, 0.0, 0.0]
+wpr_deg = [0.0, 0.0, 0.0]
+
+[utool.5]
+xyz_mm = [0.0, 0.0, 300.0]
+wpr_deg = [0.0, 180.0, 0.0]
+"""
+
+
+def _weld(pid: str, path: str) -> Program:
+    return Program(
+        pid,
+        "fanuc",
+        _WELD[0],
+        _WELD[1],
+        (path,),
+        "fanuc-m10ia",
+        "stated (the repo's saved controller page: M-10iA); frames assumed",
+        "OLP welding job (GP2 positioner)",
+        frames_toml=WELD_FRAMES,
+    )
 
 
 def _rapid(
@@ -123,13 +153,16 @@ PROGRAMS: tuple[Program, ...] = (
         "stated (backup name)",
         "controller backup (track)",
     ),
-    _rapid(
-        "rapid-ecl-sheetforming",
-        _ECL,
-        (f"{_ECLB}/SheetformingTODAY/SheetformingTODAY_T_ROB1.mod",),
-        "abb-irb4600-60-205",
-        "stated (backup name)",
-        "controller backup (track)",
+    replace(
+        _rapid(
+            "rapid-ecl-sheetforming",
+            _ECL,
+            (f"{_ECLB}/SheetformingTODAY/SheetformingTODAY_T_ROB1.mod",),
+            "abb-irb4600-60-205",
+            "stated (backup name)",
+            "controller backup (track); moves after ENDMODULE: not loadable",
+        ),
+        valid=False,
     ),
     _rapid(
         "rapid-tmc-modfiles",
@@ -367,6 +400,9 @@ PROGRAMS: tuple[Program, ...] = (
     _ls("ls-ltvr630-folge125", f"{_L1}/kjltvr411630r01", ("FOLGE125.LS",)),
     _ls("ls-bvtu-german-folge011", f"{_BV}/GERMAN", ("FOLGE011.LS",)),
     _ls("ls-bvtu-english-folge125", f"{_BV}/ENGLISH", ("FOLGE125.LS",)),
+    _weld("ls-weld-cub", "layers_splitter/data/cub.ls"),
+    _weld("ls-weld-cub2", "layers_splitter/data/cub_2.ls"),
+    _weld("ls-weld-layer1", "layers_splitter/data_result/layer_1.ls"),
     # URScript: PolyScope exports of a real UR10e, and UR's own example
     *(
         Program(

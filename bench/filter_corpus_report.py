@@ -5,10 +5,28 @@ from __future__ import annotations
 from typing import Any
 
 LANGS = ("rapid", "krl", "fanuc", "urscript")
+#: How to read the columns (definitions, not figures).
+NOTES = """## How to read it
+
+- Programs (b) and (c) count **per program**: a program passes when every corrected target
+  passes. "(b) shift/turn": the largest error of a corrected target against the exact
+  expected value, as read back from the output text by the dialect's own parser.
+- "(c) corrected / reachable": of the targets (a) corrected (the nominal controller reaches
+  them on their written configuration, as the filter reads it), those (c) corrects: the
+  acceptance's bar is 95 %. "(c) corrected / used": of every target a move uses that is the
+  arm's own (not on a track or positioner, not a position register, not in `$config.dat`,
+  not unused): this also counts targets whose tool or base the filter cannot resolve and
+  targets it finds no nominal solution for (the last column; on lab cells whose arm is
+  assumed these are not proven unreachable).
+- "(a) left: no nominal solution": targets the nominal model finds no solution for on the
+  written configuration (an assumed arm, a target out of reach, or a misread rule).
+"""
 
 
 def _ok_a(r: dict[str, Any]) -> bool:
     a = r["a"]
+    if not r.get("valid", True):
+        return a["exit"] == 2 and not a["traceback"]
     return a["exit"] in (0, 3) and not a["traceback"] and a["identical"]
 
 
@@ -98,28 +116,37 @@ def markdown(doc: dict[str, Any]) -> str:
         a_cell = f"{a['exit']}{' traceback' if a['traceback'] else ''}, " + (
             "yes" if a["identical"] else f"**no: {', '.join(a['not_identical'])}**"
         )
+        if r.get("valid", True):
+            bc = f"{_b_cell(r['b_shift'])} | {_b_cell(r['b_turn'])} | {_c_cell(r['c'])}"
+        else:
+            a_cell += " (not loadable: 2 expected)"
+            bc = "– | – | –"
         lines.append(
             f"| {r['id']} | {r['language']} | {r['arm']} | {r['targets']} | {a_cell} "
-            f"| {_b_cell(r['b_shift'])} | {_b_cell(r['b_turn'])} | {_c_cell(r['c'])} "
-            f"| {_d_cell(r['d'])} |"
+            f"| {bc} | {_d_cell(r['d'])} |"
         )
     lines += ["", "## Per language", ""]
     lines += [
         "| language | programs | targets | (a) pass | (b) shift pass | (b) turn pass "
-        "| (c) pass | (c) corrected / reachable | (d) pass | (a) left: no nominal solution |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| (c) pass | (c) corrected / reachable | (c) corrected / used | (d) pass "
+        "| (a) left: no nominal solution |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for lang in LANGS:
         rs = [r for r in progs if r["language"] == lang and "bench_error" not in r]
         if not rs:
             continue
+        vs = [r for r in rs if r.get("valid", True)]
         cc = sum(r["c"].get("corrected_of_reachable", 0) for r in rs)
+        uc = sum(r["c"].get("corrected_of_used", 0) for r in rs)
+        un = sum(r["c"].get("used", 0) for r in rs)
         cr = sum(r["c"].get("reachable_a", 0) for r in rs)
         lines.append(
             f"| {lang} | {len(rs)} | {sum(r['targets'] for r in rs)} "
-            f"| {sum(_ok_a(r) for r in rs)} | {sum(_ok_b(r['b_shift']) for r in rs)} "
-            f"| {sum(_ok_b(r['b_turn']) for r in rs)} | {sum(_ok_c(r['c']) for r in rs)} "
+            f"| {sum(_ok_a(r) for r in rs)} | {sum(_ok_b(r['b_shift']) for r in vs)} "
+            f"| {sum(_ok_b(r['b_turn']) for r in vs)} | {sum(_ok_c(r['c']) for r in vs)} "
             f"| {cc} / {cr}{f' = {100 * cc / cr:.1f} %' if cr else ''} "
+            f"| {uc} / {un}{f' = {100 * uc / un:.1f} %' if un else ''} "
             f"| {sum(_ok_d(r['d']) for r in rs)} | {sum(_no_solution(r) for r in rs)} |"
         )
     lines += ["", "## Why targets are left at (a) (nominal calibration)", ""]
@@ -138,6 +165,7 @@ def markdown(doc: dict[str, Any]) -> str:
             continue
         out = failures(r)
         lines += [f"- **{r['id']}** {x}" for x in out]
+    lines += ["", NOTES]
     return "\n".join(lines) + "\n"
 
 
@@ -146,6 +174,10 @@ def failures(r: dict[str, Any]) -> list[str]:
     a = r["a"]
     if a["traceback"]:
         out.append(f"(a): traceback: `{a['traceback'][-200:]}`")
+    elif not r.get("valid", True):
+        if a["exit"] != 2:
+            out.append(f"(a): exit {a['exit']} for a file the controller cannot load (expected 2)")
+        return out
     elif a["exit"] not in (0, 3):
         out.append(f"(a): exit {a['exit']} (expected 0 or 3): {a['tail'][-200:]!r}")
     if not a["identical"]:
