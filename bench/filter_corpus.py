@@ -32,7 +32,8 @@ backup's ``SYSFRAME.VA``) and a result.json holding the calibrated table:
 (d) ``--only`` an unknown name, the program's text under another dialect's extension, an
     empty file: each exit 2, no traceback.
 
-Writes bench/filter_corpus.json and bench/filter_corpus.md.
+Writes bench/filter_corpus.json and bench/filter_corpus.md (the tables; the findings the
+.md ends with, after :data:`FINDINGS`, are written by hand and kept).
 """
 
 from __future__ import annotations
@@ -71,6 +72,8 @@ from calib.synthetic import TABLE_XII_D1
 from daemon.cli import app
 
 OUT = Path(__file__).parent
+#: The .md's hand-written reading of a run starts at this line; ``run`` keeps it.
+FINDINGS = "<!-- findings: hand-written, kept by `run` -->"
 SHIFT_MM = 0.3
 TURN_DEG = 0.05
 TOL_MM = 0.002
@@ -455,7 +458,10 @@ def main(argv: list[str]) -> None:
     (OUT / f"{name}.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     from bench.filter_corpus_report import markdown
 
-    (OUT / f"{name}.md").write_text(markdown(doc), encoding="utf-8")
+    md = OUT / f"{name}.md"
+    kept = md.read_text(encoding="utf-8").partition(FINDINGS)[2] if md.exists() else ""
+    text = markdown(doc) + (f"\n{FINDINGS}{kept}" if kept else "")
+    md.write_text(text, encoding="utf-8")
 
 
 if __name__ == "__main__":
