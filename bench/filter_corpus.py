@@ -55,6 +55,7 @@ from typer.testing import CliRunner
 from bench.filter_corpus_manifest import PROGRAMS, Program
 from bench.robots_fanuc_check import _FRAME
 from bench.robots_kuka import machine, model_of
+from calib.conventions import IDENTITY
 from calib.export import model_to_toml
 from calib.filter.kin import flange_frames
 from calib.models import RobotModel, builtin_model
@@ -398,6 +399,20 @@ def check_d(case: Case) -> dict[str, Any]:
     return out
 
 
+def check_old_file(case: Case) -> dict[str, Any]:
+    """(a) with the arm as an old model file: the same table without a ``[controller]``
+    table (the format before issue 34), given as a file to ``--robot``."""
+    old = replace(case.nominal, controller=IDENTITY, name=case.nominal.name + "-old")
+    path = case.tmp / "old-robot.toml"
+    path.write_text(model_to_toml(old), encoding="utf-8")
+    res = case.tmp / "old.json"
+    res.write_text(json.dumps(result_json(old, old.dh_table)), encoding="utf-8")
+    out = case.tmp / "out-old"
+    r = cli(["filter", res, *case.files, "--out", out, "--robot", path, *case.frame_args])
+    same = all((out / n).exists() and (out / n).read_bytes() == b for n, b in case.inputs.items())
+    return {"exit": r["exit"], "traceback": r["traceback"], "identical": same}
+
+
 def run_program(p: Program, corpus: Path) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="cablecal-corpus-") as tmp:
         case = Case(p, corpus, Path(tmp))
@@ -426,6 +441,7 @@ def run_program(p: Program, corpus: Path) -> dict[str, Any]:
                 "errors": errors,
                 "tail": a["tail"] if a["exit"] not in (0, 3) else "",
             },
+            "a_old_file": check_old_file(case),
             "b_shift": check_b(case, "shift"),
             "b_turn": check_b(case, "turn"),
             "c": check_c(case, rows),

@@ -50,6 +50,14 @@ def _ok_d(d: dict[str, Any]) -> bool:
     return all(v["exit"] == 2 and not v["traceback"] for v in d.values())
 
 
+def _old_cell(r: dict[str, Any]) -> str:
+    o = r.get("a_old_file")
+    if o is None:
+        return "–"
+    same = "yes" if o["identical"] else "**no**"
+    return f"{o['exit']}{' traceback' if o['traceback'] else ''}, {same}"
+
+
 def _b_cell(b: dict[str, Any]) -> str:
     if "error" in b:
         return f"exit {b['exit']} {'traceback' if b['traceback'] else ''}"
@@ -96,15 +104,17 @@ def markdown(doc: dict[str, Any]) -> str:
         "bench/filter_corpus_manifest.py names every program: repository, commit, paths, arm).",
         "",
         "Columns: **targets** found; **(a)** calibration = nominal: exit, files "
-        "byte-identical; **(b)** d1 + 0.3 mm and θ1 + 0.05°: corrected targets read back from "
+        "byte-identical; **(a) old file**: the same with the arm as a model file without its "
+        "`[controller]` table (the format before issue 34); **(b)** d1 + 0.3 mm and "
+        "θ1 + 0.05°: corrected targets read back from "
         "the output and compared with the exact expected target (largest error in mm and "
         "deg); **(c)** realistic calibration: corrected of the targets (a) found reachable "
         "(bar 95 %), token streams and `$config.dat`; **(d)** exit of unknown `--only`, "
         "another dialect's text, an empty file (bar: 2 2 2; `!` = a traceback).",
         "",
-        "| program | lang | arm | targets | (a) exit, identical | (b) shift | (b) turn "
-        "| (c) realistic | (d) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| program | lang | arm | targets | (a) exit, identical | (a) old file | (b) shift "
+        "| (b) turn | (c) realistic | (d) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in progs:
         if "bench_error" in r:
@@ -123,7 +133,7 @@ def markdown(doc: dict[str, Any]) -> str:
             bc = "– | – | –"
         lines.append(
             f"| {r['id']} | {r['language']} | {r['arm']} | {r['targets']} | {a_cell} "
-            f"| {bc} | {_d_cell(r['d'])} |"
+            f"| {_old_cell(r)} | {bc} | {_d_cell(r['d'])} |"
         )
     lines += ["", "## Per language", ""]
     lines += [
