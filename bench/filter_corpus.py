@@ -45,14 +45,14 @@ import sys
 import tempfile
 import traceback
 from collections import Counter
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from typer.testing import CliRunner
 
-from bench.filter_corpus_manifest import PROGRAMS, Program
+from bench.filter_corpus_manifest import PROGRAMS, WHAT_IFS, Program
 from bench.robots_fanuc_check import _FRAME
 from bench.robots_kuka import machine, model_of
 from calib.conventions import IDENTITY
@@ -151,10 +151,16 @@ class Case:
     """One program, its files and its models, run through the CLI."""
 
     def __init__(self, p: Program, corpus: Path, tmp: Path) -> None:
-        self.p, self.where, self.tmp = p, corpus / p.id, tmp
+        self.p, self.where, self.tmp = p, corpus / (p.files_of or p.id), tmp
         self.files = [self.where / Path(f).name for f in p.paths]
         self.nominal = nominal_of(p, self.where)
-        if p.arm.startswith("mada:"):
+        if p.no_external_axes:
+            ctrl = self.nominal.controller
+            if "external_axes" not in {f.name for f in fields(ctrl)}:
+                raise ValueError("this code's model has no [controller] external_axes")
+            ctrl = replace(ctrl, external_axes=0)  # type: ignore[call-arg]
+            self.nominal = replace(self.nominal, controller=ctrl)
+        if p.arm.startswith("mada:") or p.no_external_axes:
             robot = tmp / "robot.toml"
             robot.write_text(model_to_toml(self.nominal), encoding="utf-8")
             self.robot = str(robot)
@@ -457,7 +463,7 @@ def main(argv: list[str]) -> None:
         return
     only = argv[argv.index("--only") + 1].split(",") if "--only" in argv else None
     results = []
-    for p in PROGRAMS:
+    for p in (*PROGRAMS, *WHAT_IFS):
         if only and p.id not in only:
             continue
         try:

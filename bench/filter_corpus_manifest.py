@@ -33,6 +33,11 @@ class Program:
     frames_toml: str = ""
     #: False for a file the controller would not load either (then (a) expects exit 2).
     valid: bool = True
+    #: A what-if: the model file says the controller drives no external axis
+    #: (``[controller] external_axes = 0``, where the code knows it).
+    no_external_axes: bool = False
+    #: The program whose fetched files a what-if reuses (its directory under CORPUS).
+    files_of: str = ""
 
 
 _TP = ("TPHugo/TimovyProjekt", "e6e904851a265e9226b45991e0407a59c52a3666")
@@ -453,4 +458,18 @@ PROGRAMS: tuple[Program, ...] = (
         "best fit (bench/ur_factory.md)",
         "UR's example (PolyScope export)",
     ),
+)
+
+#: What-ifs (labelled "-no-eax"): the TACO modules write eax_a = 0 for an absent axis; run
+#: again with a model file that says the controller drives no external axis.
+WHAT_IFS: tuple[Program, ...] = tuple(
+    replace(
+        p,
+        id=p.id + "-no-eax",
+        no_external_axes=True,
+        arm_source=p.arm_source + "; what-if",
+        files_of=p.id,
+    )
+    for p in PROGRAMS
+    if p.id.startswith("rapid-tp-")
 )
