@@ -32,6 +32,8 @@ backup's ``SYSFRAME.VA``) and a result.json holding the calibrated table:
 (d) ``--only`` an unknown name, the program's text under another dialect's extension, an
     empty file: each exit 2, no traceback.
 
+``python -m bench.filter_corpus report`` writes the .md again from the .json.
+
 Writes bench/filter_corpus.json and bench/filter_corpus.md (the tables; the findings the
 .md ends with, after :data:`FINDINGS`, are written by hand and kept).
 """
@@ -456,7 +458,11 @@ def run_program(p: Program, corpus: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> None:
-    cmd, corpus = argv[0], Path(argv[1])
+    cmd, corpus = argv[0], Path(argv[1] if len(argv) > 1 else ".")
+    if cmd == "report":  # the .md again from the .json (e.g. after a change of the layout)
+        doc = json.loads((OUT / "filter_corpus.json").read_text(encoding="utf-8"))
+        write_markdown("filter_corpus", doc)
+        return
     if cmd == "fetch":
         mirrors = Path(argv[argv.index("--mirrors") + 1]) if "--mirrors" in argv else None
         fetch(corpus, mirrors or Path("/work/.mirror"))
@@ -472,12 +478,18 @@ def main(argv: list[str]) -> None:
             res = {"id": p.id, "language": p.language, "bench_error": repr(exc)}
         results.append(res)
         print(json.dumps({k: res.get(k) for k in ("id", "targets")}), flush=True)
+    # the code under test: the branch's base on main (bench files are all a branch adds)
     commit = subprocess.run(
-        ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=OUT
+        ["git", "merge-base", "HEAD", "main"], capture_output=True, text=True, cwd=OUT
     ).stdout.strip()
     doc = {"commit": commit, "programs": results}
     name = "filter_corpus" if not only else "filter_corpus_partial"
     (OUT / f"{name}.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    write_markdown(name, doc)
+
+
+def write_markdown(name: str, doc: dict[str, Any]) -> None:
+    """``bench/NAME.md`` from a run's document, keeping the hand-written findings."""
     from bench.filter_corpus_report import markdown
 
     md = OUT / f"{name}.md"

@@ -96,7 +96,8 @@ def markdown(doc: dict[str, Any]) -> str:
     lines = [
         "# `cablecal filter` on real programs: issue 34's acceptance, measured",
         "",
-        f"Code: commit `{doc['commit']}` (main's snapshot in the h-corpus worktree). "
+        f"Code under test: main at `{doc['commit'] or 'an archive (see the findings)'}` "
+        "(the bench's branch adds only bench files). "
         "Fetch (outside the repository): `PYTHONPATH=. python -m bench.filter_corpus fetch "
         "/work/corpus --mirrors DIR` (DIR holds a git clone per repository, `OWNER+NAME/repo`). "
         "Run: `PYTHONPATH=. python -m bench.filter_corpus run /work/corpus` "
