@@ -24,7 +24,8 @@ backup's ``SYSFRAME.VA``) and a result.json holding the calibrated table:
     ``W⁻¹ G⁻¹ W T`` (``G`` the base shift or turn, ``W`` its work object) to 0.002 mm and
     0.001°, with its configuration text unchanged; a joint target ``q′`` must put the
     calibrated flange where the nominal one was at ``q`` (0.002 mm), and under the turn change
-    only joint 1, by 0.05° (in the controller's sign);
+    only joint 1, by 0.05° (in the controller's sign); a seed (a PolyScope ``Waypoint_n_q``
+    that only seeds its ``_p``, no move of its own) must change as its target's joints did;
 (c) a realistic calibration (each DH entry + N(0, |Table XII D1 entry|), seed 34): the share
     of the targets that a move uses and that (a) found reachable (corrected) which are
     corrected; every non-number token unchanged and every changed number on a line of a
@@ -32,7 +33,8 @@ backup's ``SYSFRAME.VA``) and a result.json holding the calibrated table:
 (d) ``--only`` an unknown name, the program's text under another dialect's extension, an
     empty file: each exit 2, no traceback.
 
-``python -m bench.filter_corpus report`` writes the .md again from the .json.
+``python -m bench.filter_corpus report`` writes the .md again from the .json. The what-ifs
+of the manifest (``WHAT_IFS``) run with ``--what-if`` or when ``--only`` names them.
 
 Writes bench/filter_corpus.json and bench/filter_corpus.md (the tables; the findings the
 .md ends with, after :data:`FINDINGS`, are written by hand and kept).
@@ -81,6 +83,8 @@ SHIFT_MM = 0.3
 TURN_DEG = 0.05
 TOL_MM = 0.002
 TOL_DEG = 0.001
+#: A seed's joint change against its target's, as the summary rounds joints [deg].
+SEED_TOL_DEG = 2e-4
 SEED = 34
 OTHER_EXT = {"rapid": ".ls", "krl": ".mod", "fanuc": ".script", "urscript": ".src"}
 _NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
@@ -243,7 +247,8 @@ def check_b(case: Case, kind: str) -> dict[str, Any]:
     done = [row for row in r["summary"]["targets"] if row["status"] == "corrected"]
     fails: list[str] = []
     pos_err, rot_err, jnt = [], [], []
-    n_cart = n_joint = 0
+    n_cart = n_joint = n_seed = 0
+    rows_by_name = {(x["file"], x["name"]): x for x in done}
     for row in done:
         t0, t1 = before.get(_key(row)), after.get(_key(row))
         if t0 is None or t1 is None:
@@ -270,6 +275,19 @@ def check_b(case: Case, kind: str) -> dict[str, Any]:
                     f"{where}: configuration {_conf(t0)} -> {_conf(t1)}; joints "
                     f"{row.get('nominal_joints_deg')} -> {row.get('joints_deg')}"
                 )
+        elif t0.follows and not t0.uses:
+            # a seed (PolyScope's Waypoint_n_q: qnear of its _p, no move of its own): it
+            # takes the joint change of the target it follows
+            assert t0.joints_deg is not None and t1.joints_deg is not None
+            n_seed += 1
+            led = rows_by_name.get((t0.file, t0.follows))
+            if led is None or led.get("joints_deg") is None:
+                fails.append(f"{where}: follows {t0.follows}, which was not corrected")
+                continue
+            want_dq = np.subtract(led["joints_deg"], led["nominal_joints_deg"])
+            off = float(np.max(np.abs(t1.joints_deg - t0.joints_deg - want_dq)))
+            if off > SEED_TOL_DEG:
+                fails.append(f"{where}: seed moved {off:.5f} deg off {t0.follows}'s change")
         else:
             assert t0.joints_deg is not None and t1.joints_deg is not None
             n_joint += 1
@@ -289,6 +307,7 @@ def check_b(case: Case, kind: str) -> dict[str, Any]:
         corrected=len(done),
         cartesian=n_cart,
         joint=n_joint,
+        seeds=n_seed,
         max_mm=max(pos_err, default=0.0),
         max_deg=max(rot_err, default=0.0),
         joint_dq=jnt[:2],
@@ -469,7 +488,8 @@ def main(argv: list[str]) -> None:
         return
     only = argv[argv.index("--only") + 1].split(",") if "--only" in argv else None
     results = []
-    for p in (*PROGRAMS, *WHAT_IFS):
+    programs = (*PROGRAMS, *WHAT_IFS) if only or "--what-if" in argv else PROGRAMS
+    for p in programs:
         if only and p.id not in only:
             continue
         try:
