@@ -47,8 +47,9 @@ demo: $(STAMP) bytecode
 # while the sampler runs (bench/api_results.*), and the poll rate while identification jobs run
 # against idle (bench/sampler_priority.*), and the built-in arms against their makers' data
 # (bench/robots.*). Benches that need another checkout or files fetched from public
-# repositories (filter speed, hardening5, the KUKA/Fanuc/UR/RAPID real-program checks) say
-# how to run them at the top of their bench/*.md.
+# repositories (filter speed, hardening5, the KUKA/Fanuc/UR/RAPID real-program checks, issue
+# 34's acceptance on real programs: bench/filter_corpus.*) say how to run them at the top of
+# their bench/*.md.
 bench: $(STAMP) bytecode
 	$(BIN)/python -m bench.solver_real
 	$(BIN)/python -m bench.min_n
