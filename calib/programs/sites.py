@@ -45,6 +45,7 @@ from calib.kinematics import N_JOINTS, FloatArray
 from calib.programs.inputs import FilterInputError as FilterInputError
 from calib.programs.inputs import FrameTables as FrameTables
 from calib.programs.inputs import parse_frames_toml as parse_frames_toml
+from calib.programs.lexer import split_top
 
 Kind = Literal["cartesian", "joint"]
 #: What became of a target: corrected (possibly by less than the written precision, then no
@@ -420,30 +421,6 @@ def apply_edits(text: str, edits: Sequence[Edit]) -> str:
     return "".join(out)
 
 
-#: Any bracket: where an argument list nests.
-BRACKETS = re.compile(r"[\[({\])}]")
-
-
-def split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
-    """Comma-separated arguments of ``code[start:end]`` at bracket depth 0 (``[]``, ``()``,
-    ``{}``), as spans: a RAPID argument list, a URScript list or call."""
-    if not BRACKETS.search(code, start, end):  # the common case: no nesting
-        out: list[tuple[int, int]] = []
-        last = start
-        while (i := code.find(",", last, end)) >= 0:
-            out.append((last, i))
-            last = i + 1
-        out.append((last, end))
-        return out
-    out, depth, last = [], 0, start
-    for i in range(start, end):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == "," and depth == 0:
-            out.append((last, i))
-            last = i + 1
-    out.append((last, end))
-    return out
+#: Comma-separated arguments at bracket depth 0, as spans: the shared lexer's
+#: :func:`~calib.programs.lexer.split_top` (a RAPID argument list, a URScript list or call).
+split_args = split_top
