@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import ast
 import random
 from pathlib import Path
 
@@ -94,9 +93,12 @@ def test_clean_comment_keeps_no_opener_of_any_language() -> None:
         assert not any(q in out for q in lex.quotes)
 
 
-def _names(path: Path) -> set[str]:
-    return {
-        n.id if isinstance(n, ast.Name) else n.attr
-        for n in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
-        if isinstance(n, ast.Name | ast.Attribute)
-    }
+def test_no_reader_keeps_its_own_number_pattern() -> None:
+    """The number pattern's text lives in the lexer alone."""
+    pattern = lexer.NUMBER_PATTERN
+    owners = [
+        str(p.relative_to(ROOT))
+        for p in PROGRAMS.rglob("*.py")
+        if p.name != "lexer.py" and pattern in p.read_text(encoding="utf-8")
+    ]
+    assert owners == []
