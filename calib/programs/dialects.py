@@ -1,10 +1,10 @@
 """The registry of filter dialects: which module reads which file.
 
-A dialect module exposes ``DIALECT`` (an object implementing
-:class:`calib.programs.sites.Dialect`) and is listed in :data:`DIALECT_MODULES`; nothing else
-(CLI, service) names dialects. :data:`SIGNATURES` is a cheap sniff of each dialect's text,
-so that a file whose content is another dialect's than its extension says (a Fanuc ``.ls``
-saved as ``.script``) is refused, saying what it looks like, instead of being read as a
+A dialect module exposes ``DIALECT`` (an object implementing :class:`calib.programs.sites.Dialect`);
+the languages' registry (:data:`calib.programs.formats.LANGUAGES`) names it, with the extensions it
+takes; nothing else (CLI, service, page) names dialects. :data:`SIGNATURES` is a cheap sniff of each
+dialect's text, so that a file whose content is another dialect's than its extension says (a Fanuc
+``.ls`` saved as ``.script``) is refused, saying what it looks like, instead of being read as a
 program without targets.
 """
 
@@ -16,15 +16,11 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import PurePath
 
+from calib.programs.formats import LANGUAGES
 from calib.programs.sites import Dialect, FilterInputError, Source
 
-#: Dialect modules, imported on first use.
-DIALECT_MODULES = (
-    "calib.programs.rapid.filter",
-    "calib.programs.urscript.filter",
-    "calib.programs.krl.filter",
-    "calib.programs.fanuc.filter",
-)
+#: Dialect modules, imported on first use (the languages' registry's).
+DIALECT_MODULES = tuple(lang.filter_module for lang in LANGUAGES.values())
 
 #: Characters of a file's start a signature looks at (headers and comments come first).
 SNIFF_CHARS = 65536

@@ -37,6 +37,7 @@ import numpy as np
 
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.programs.fanuc.config import KEYWORDS, TURN_JOINTS, configuration, refusal
+from calib.programs.formats import LANGUAGES
 from calib.programs.lexer import FANUC, NUMBER_PATTERN
 from calib.programs.rotations import frames as make_frames
 from calib.programs.rotations import matrix_to_zyx_deg, rotation_angle_deg, zyx_deg_to_matrix
@@ -53,7 +54,7 @@ from calib.programs.sites import (
 )
 
 NAME = "fanuc-ls"
-EXTENSIONS = (".ls",)
+EXTENSIONS = LANGUAGES[NAME].extensions
 DECIMALS = 3
 #: Joint angles to at least 4 decimals: a third decimal alone costs up to 0.0005 deg a joint,
 #: about 0.02 mm at 2 m reach.

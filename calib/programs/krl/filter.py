@@ -66,6 +66,7 @@ from pathlib import PurePath
 import numpy as np
 
 from calib.kinematics import N_JOINTS, FloatArray
+from calib.programs.formats import LANGUAGES
 from calib.programs.krl.data import (
     AXIS_TYPES,
     CARTESIAN_KEYS,
@@ -93,7 +94,7 @@ from calib.programs.sites import (
 )
 
 NAME = "krl"
-EXTENSIONS = (".src", ".dat")
+EXTENSIONS = LANGUAGES[NAME].extensions
 POSITION_DECIMALS = 3
 ANGLE_DECIMALS = 4
 JOINT_DECIMALS = 4

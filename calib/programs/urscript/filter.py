@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.kinematics import FloatArray
+from calib.programs.formats import LANGUAGES
 from calib.programs.lexer import NUMBER, URSCRIPT, close_bracket
 from calib.programs.rotations import frame, matrix_to_rotvec, rotvec_to_matrix
 from calib.programs.sites import (
@@ -61,7 +62,7 @@ from calib.programs.sites import (
 )
 
 NAME = "urscript"
-EXTENSIONS = (".script", ".urscript")
+EXTENSIONS = LANGUAGES[NAME].extensions
 POSITION_DECIMALS = 6  # metres
 #: The branch of a pose moved to first (no qnear, no move before it in the text).
 NO_REFERENCE = "(none: no joint reference; the controller starts from the current joints)"
