@@ -61,6 +61,11 @@ UNUSED_REASON = "not used by any move in the given files"
 #: ``$config.dat``): left on purpose, never counted as left.
 READ_ONLY_REASON = "in a file that is read and never written"
 
+#: Within this of joint 5 = 0 (the controller's angle) the wrist is at its singularity [deg]
+#: (the wrist sign of :class:`Configuration` is noise there): KUKA's joint targets closer are
+#: left as singular, and compensate counts a wrist flip only when both sides are further.
+WRIST_SINGULARITY_DEG = 1.0
+
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
 ORIENTATION_ROUNDING_DEG = 0.0005
