@@ -11,6 +11,7 @@ list of its own.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 
@@ -36,6 +37,13 @@ class Language:
         alike (Fanuc's ``.LS`` is CRLF, as its controllers write it).
     program_module, filter_module : str
         The writer and the filter dialect (imported on first use).
+    label, looks : str
+        What its text is (``an ABB RAPID module``) and the feature that shows it (``a MODULE
+        statement``), for messages.
+    signature : re.Pattern
+        What its text starts with, searched in a file's first :data:`SNIFF_CHARS` characters:
+        the filter refuses a file whose content is another language's than its extension
+        says, and the simulator tells a program from a CSV by it.
     """
 
     name: str
@@ -46,11 +54,17 @@ class Language:
     newline: str
     program_module: str
     filter_module: str
+    label: str
+    looks: str
+    signature: re.Pattern[str]
 
     def with_newline(self, text: str) -> str:
         """A writer's ``\\n``-ended ``text`` with this language's line ending."""
         return text if self.newline == "\n" else text.replace("\n", self.newline)
 
+
+#: Characters of a file's start a signature looks at (headers and comments come first).
+SNIFF_CHARS = 65536
 
 #: The languages, in the order the CLI, the REST enum and the page list them.
 LANGUAGES: dict[str, Language] = {
@@ -65,6 +79,11 @@ LANGUAGES: dict[str, Language] = {
             "\n",
             "calib.programs.rapid.program",
             "calib.programs.rapid.filter",
+            "an ABB RAPID module",
+            "a MODULE statement",
+            re.compile(
+                r"\A\ufeff?(?:\s*(?:%%%[\s\S]*?%%%|![^\n]*))*\s*MODULE\s+\w+", re.IGNORECASE
+            ),
         ),
         Language(
             "urscript",
@@ -75,6 +94,13 @@ LANGUAGES: dict[str, Language] = {
             "\n",
             "calib.programs.urscript.program",
             "calib.programs.urscript.filter",
+            "a URScript program",
+            "a def NAME(): or a move to a pose",
+            re.compile(
+                r"^[ \t]*def[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*:"
+                r"|\b(?:movej|movel|movep|movec)\s*\(\s*p?\[",
+                re.MULTILINE,
+            ),
         ),
         Language(
             "krl",
@@ -85,6 +111,14 @@ LANGUAGES: dict[str, Language] = {
             "\n",
             "calib.programs.krl.program",
             "calib.programs.krl.filter",
+            "a KUKA KRL program",
+            "a &ACCESS header, DEF or DEFDAT",
+            re.compile(
+                r"\A\ufeff?(?:\s*(?:&[^\n]*|;[^\n]*))*\s*"
+                r"(?:&\w+|DEFDAT\s+\w+|(?:GLOBAL\s+)?DEF(?:FCT\s+\w+)?\s+\w+\s*"
+                r"\([^)\n]*\)(?![ \t]*:))",
+                re.IGNORECASE,
+            ),
         ),
         Language(
             "fanuc-ls",
@@ -95,6 +129,9 @@ LANGUAGES: dict[str, Language] = {
             "\r\n",
             "calib.programs.fanuc.program",
             "calib.programs.fanuc.filter",
+            "a Fanuc LS program",
+            "a /PROG line and /ATTR, /MN or /POS sections",
+            re.compile(r"\A\ufeff?\s*/PROG\b[\s\S]*?^[ \t]*/(?:ATTR|MN|POS)\b", re.MULTILINE),
         ),
     )
 }
@@ -113,6 +150,18 @@ TITLE: dict[str, str] = {
     "csv": "joint-target CSV",
     **{n: lang.title for n, lang in LANGUAGES.items()},
 }
+
+
+def looks_like(text: str) -> list[tuple[str, int]]:
+    """The languages whose signature the text's start matches: (name, line of the match's
+    end), in registry order."""
+    head = text[:SNIFF_CHARS]
+    out = []
+    for name, lang in LANGUAGES.items():
+        m = lang.signature.search(head)
+        if m:
+            out.append((name, head.count("\n", 0, m.end()) + 1))  # the head's lines only
+    return out
 
 
 def filter_files_help() -> str:
