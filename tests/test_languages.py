@@ -110,3 +110,16 @@ def test_fanuc_programs_are_crlf_from_the_cli_and_the_api_alike(tmp_path: Path) 
             assert crlf == 0 and b"\r" not in data, fmt
         back = parse_program(fmt, data.decode("utf-8"))
         assert len(back.joints_deg) == 2
+
+
+def test_a_program_is_told_from_a_csv_by_the_registrys_signatures() -> None:
+    from calib.programs.common import JointProgram
+    from calib.programs.registry import detect_format, write_program
+
+    program = JointProgram("P1", ((0.0, 10.0, 100.0, 0.0, 30.0, 0.0),), 25.0, 1.0, ("made",))
+    for fmt, lang in LANGUAGES.items():
+        text = lang.with_newline(write_program(fmt, program))
+        assert detect_format(text) == fmt
+    assert detect_format("%%%\n  VERSION:1\n%%%\nMODULE M1\nENDMODULE\n") == "rapid"
+    assert detect_format("pose,q1,q2,q3,q4,q5,q6\n1,0,0,0,0,0,0\n") == "csv"
+    assert detect_format("0,10,100,0,30,0\n") == "csv"

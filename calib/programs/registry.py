@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import datetime as dt
 import importlib
-import re
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
@@ -16,8 +15,7 @@ from calib.programs.common import (
     read_targets_csv,
     round_joints,
 )
-from calib.programs.formats import LANGUAGES, PROGRAM_FORMATS
-from calib.programs.lexer import LEXICONS
+from calib.programs.formats import LANGUAGES, PROGRAM_FORMATS, looks_like
 
 
 def _module(fmt: str) -> ModuleType:
@@ -47,23 +45,12 @@ def parse_program(fmt: str, text: str) -> JointProgram:
 
 
 def detect_format(text: str) -> str:
-    """The format of a program text, or ``"csv"``, by its first statement: ``MODULE``
-    (RAPID), ``def name():`` (URScript), ``&``/``DEF`` (KRL), ``/PROG`` (Fanuc)."""
-    comments = tuple(c for lex in LEXICONS.values() for c in lex.line_comments)
-    for raw in text.splitlines():
-        line = raw.strip()
-        if not line or line.startswith(comments):
-            continue
-        if re.match(r"MODULE\s", line, re.IGNORECASE):
-            return "rapid"
-        if re.match(r"def\s+\w+\s*\(", line):
-            return "urscript"
-        if line.startswith("&") or re.match(r"(GLOBAL\s+)?DEF\s", line, re.IGNORECASE):
-            return "krl"
-        if line.startswith("/PROG"):
-            return "fanuc-ls"
-        return "csv"
-    return "csv"
+    """The format of a program text, or ``"csv"``: the first language whose signature its
+    start matches (:func:`calib.programs.formats.looks_like`, the registry's one rule of what
+    each language's text looks like: ``MODULE`` for RAPID, ``def name():`` for URScript,
+    ``&``/``DEF`` for KRL, ``/PROG`` with its sections for Fanuc)."""
+    found = looks_like(text)
+    return found[0][0] if found else "csv"
 
 
 def program_from_csv(
