@@ -68,12 +68,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.filter.select import (
-    BRANCH_JUMP_DEG,
-    WRIST_SINGULARITY_DEG,
-    left_branch,
-    wrist_flipped,
-)
+from calib.filter import select as engine
 from calib.ik import IKOptions, solve_ik, tool_pose
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
@@ -125,8 +120,8 @@ class CompensateOptions:
     mode: Mode = "position"
     tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ik: IKOptions = field(default_factory=IKOptions)
-    branch_threshold_deg: float = BRANCH_JUMP_DEG
-    wrist_flip_min_deg: float = WRIST_SINGULARITY_DEG
+    branch_threshold_deg: float = engine.BRANCH_JUMP_DEG
+    wrist_flip_min_deg: float = engine.WRIST_SINGULARITY_DEG
 
     def __post_init__(self) -> None:
         if self.mode not in ("position", "pose"):
@@ -386,18 +381,14 @@ def compensate(
         q_nom, nominal_iterations = stage.joints_deg, stage.iterations
         for i in np.flatnonzero(~stage.converged):
             flags[i].append("nominal_ik_failed")
-        for i in np.flatnonzero(wrist_flipped(seed, q_nom, opts.wrist_flip_min_deg)):
+        for i in np.flatnonzero(engine.wrist_flipped(seed, q_nom, opts.wrist_flip_min_deg)):
             flags[i].append("nominal_wrist_flip")
     pose_rot = target_rot if opts.mode == "pose" else None
     sol = solve_ik(calibrated, q_nom, target_pos, pose_rot, tool, opts.ik)
     q_cal = sol.joints_deg
-    jump = left_branch(
-        nominal,
-        q_nom,
-        q_cal,
-        jump_deg=opts.branch_threshold_deg,
-        wrist_floor_deg=opts.wrist_flip_min_deg,
-        arm_signs=False,
+    floor_deg, jump_deg = opts.wrist_flip_min_deg, opts.branch_threshold_deg
+    jump = engine.left_branch(
+        nominal, q_nom, q_cal, jump_deg=jump_deg, wrist_floor_deg=floor_deg, arm_signs=False
     )
     limit_flags = _limit_flags(nominal, q_cal)
     for i in np.flatnonzero(~sol.converged):
