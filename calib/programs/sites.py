@@ -1,6 +1,6 @@
 """The dialect interface of ``cablecal filter``: sources, target sites, uses, edits.
 
-A **dialect** (one module per controller language under :mod:`calib.filter`) turns the text
+A **dialect** (the ``filter`` module of each language, ``calib.programs.<language>.filter``) turns
 of the files given to the filter into :class:`Target` sites and writes corrected numbers
 back. It never rewrites a file: it returns :class:`Edit` s, each replacing exactly the
 characters of one number, and :func:`apply_edits` splices them in. Every other character
