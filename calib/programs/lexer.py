@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -23,6 +24,7 @@ NUMBER_PATTERN = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 NUMBER = re.compile(NUMBER_PATTERN)
 #: Longest number text read [characters]: longer is no number a controller writes.
 MAX_NUMBER_CHARS = 40
+_LARGEST = sys.float_info.max
 #: Any bracket: where an argument list nests.
 BRACKETS = re.compile(r"[\[({\])}]")
 _OPENING = "[({"
@@ -118,14 +120,24 @@ FANUC = Lexicon("fanuc-ls", ("!", "//"), "\"'", case_insensitive=True)
 LEXICONS: dict[str, Lexicon] = {lex.language: lex for lex in (RAPID, URSCRIPT, KRL, FANUC)}
 
 
-def number_value(text: str, fail: Callable[[str], Exception], max_abs: float = math.inf) -> float:
-    """The value of a number's text: finite, at most :data:`MAX_NUMBER_CHARS` long and at
-    most ``max_abs`` in magnitude; otherwise ``fail(shown)`` is raised, ``shown`` the text
-    (cut when long), so the caller's error names its file and line."""
+def bounded(text: str, max_abs: float = _LARGEST) -> float | None:
+    """The value of a number's text when it is at most :data:`MAX_NUMBER_CHARS` long and at
+    most ``max_abs`` in magnitude (so finite); None otherwise (the caller names its file
+    and line: :func:`shown`). Called for every number a program holds: kept minimal."""
     value = float(text) if len(text) <= MAX_NUMBER_CHARS else math.inf
-    if not (math.isfinite(value) and abs(value) <= max_abs):
-        shown = text if len(text) <= 24 else f"{text[:12]}…({len(text)} characters)"
-        raise fail(shown)
+    return value if abs(value) <= max_abs else None
+
+
+def shown(text: str) -> str:
+    """A number's text for a message, cut when long."""
+    return text if len(text) <= 24 else f"{text[:12]}…({len(text)} characters)"
+
+
+def number_value(text: str, fail: Callable[[str], Exception], max_abs: float = _LARGEST) -> float:
+    """:func:`bounded`, raising ``fail(shown)`` (:func:`shown`) where it gives None."""
+    value = bounded(text, max_abs)
+    if value is None:
+        raise fail(shown(text))
     return value
 
 

@@ -28,6 +28,7 @@ _WORD = re.compile(r"[A-Za-z_]\w*")
 #: same length, so offsets into it are offsets into ``text``.
 blank = RAPID.blank
 skip_space = lexer.skip_space
+_bounded = lexer.bounded
 
 
 @dataclass(slots=True)
@@ -64,16 +65,15 @@ def number(text: str, source: Source, offset: int) -> float:
     FilterInputError
         Naming the file and line of a number too long, too large or not finite.
     """
-
-    def fail(shown: str) -> FilterInputError:
-        return FilterInputError(
+    value = _bounded(text, MAX_NUMBER_ABS)
+    if value is None:
+        raise FilterInputError(
             source.name,
-            f"number {shown} is out of range (at most {lexer.MAX_NUMBER_CHARS} characters "
-            f"and {MAX_NUMBER_ABS:g} in magnitude)",
+            f"number {lexer.shown(text)} is out of range (at most {lexer.MAX_NUMBER_CHARS} "
+            f"characters and {MAX_NUMBER_ABS:g} in magnitude)",
             source.line_of(offset),
         )
-
-    return lexer.number_value(text, fail, MAX_NUMBER_ABS)
+    return value
 
 
 def _fast_robtarget(code: str, i: int, source: Source) -> Node | None:
