@@ -35,11 +35,12 @@ IK (:mod:`calib.ik`)
 
 Flags per row: ``ik_failed`` (residual above tolerance after ``max_iterations``),
 ``outside_limits:J<j>=<value><<limit>`` (a corrected joint outside the model's limits, one
-flag per joint), ``branch_jump`` (a joint
-moved by more than ``branch_threshold_deg`` from the seed, or the wrist flipped: the sign of
-``(z4 × z6) · z5`` changed, ``z_k`` the axis of joint ``k``); for Cartesian targets also
-``nominal_ik_failed`` and ``nominal_wrist_flip`` (the nominal solution's wrist differs from
-the seed's).
+flag per joint), ``branch_jump`` (the corrected joints left the nominal joints' branch, by
+the correction engine's one definition, :func:`calib.filter.select.left_branch`, for joint
+moves: a joint moved by more than ``branch_threshold_deg``, or the wrist flipped, joint 5
+changing sign with both sides at least ``wrist_flip_min_deg`` from 0); for Cartesian targets
+also ``nominal_ik_failed`` and ``nominal_wrist_flip`` (the nominal solution's wrist differs
+from the seed's, by the same rule).
 
 What compensation cannot remove
     Cable lengths cannot observe a rotation of the robot about its base z axis, a shift along
@@ -67,7 +68,8 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.ik import IKOptions, solve_ik, tool_pose, wrist_flipped
+from calib.filter import select as engine
+from calib.ik import IKOptions, solve_ik, tool_pose
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 
@@ -108,16 +110,18 @@ class CompensateOptions:
         Iterations, tolerances, damping, step cap and joint weights of the DLS
         (:mod:`calib.ik`).
     branch_threshold_deg : float
-        A joint moved further than this from the seed flags ``branch_jump`` [deg].
+        A joint moved further than this from the nominal joints flags ``branch_jump`` [deg]
+        (default: the engine's :data:`calib.filter.select.BRANCH_JUMP_DEG`).
     wrist_flip_min_deg : float
-        The wrist bend must exceed this on both sides for a sign change to count as a flip.
+        Joint 5 must be this far from 0 on both sides for a sign change to count as a wrist
+        flip [deg] (default: :data:`calib.filter.select.WRIST_SINGULARITY_DEG`).
     """
 
     mode: Mode = "position"
     tool_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ik: IKOptions = field(default_factory=IKOptions)
-    branch_threshold_deg: float = 5.0
-    wrist_flip_min_deg: float = 1.0
+    branch_threshold_deg: float = engine.BRANCH_JUMP_DEG
+    wrist_flip_min_deg: float = engine.WRIST_SINGULARITY_DEG
 
     def __post_init__(self) -> None:
         if self.mode not in ("position", "pose"):
@@ -377,13 +381,15 @@ def compensate(
         q_nom, nominal_iterations = stage.joints_deg, stage.iterations
         for i in np.flatnonzero(~stage.converged):
             flags[i].append("nominal_ik_failed")
-        for i in np.flatnonzero(wrist_flipped(nominal, seed, q_nom, opts.wrist_flip_min_deg)):
+        for i in np.flatnonzero(engine.wrist_flipped(seed, q_nom, opts.wrist_flip_min_deg)):
             flags[i].append("nominal_wrist_flip")
     pose_rot = target_rot if opts.mode == "pose" else None
     sol = solve_ik(calibrated, q_nom, target_pos, pose_rot, tool, opts.ik)
     q_cal = sol.joints_deg
-    jump = np.max(np.abs(q_cal - q_nom), axis=1) > opts.branch_threshold_deg
-    jump |= wrist_flipped(calibrated, q_nom, q_cal, opts.wrist_flip_min_deg)
+    floor_deg, jump_deg = opts.wrist_flip_min_deg, opts.branch_threshold_deg
+    jump = engine.left_branch(
+        nominal, q_nom, q_cal, jump_deg=jump_deg, wrist_floor_deg=floor_deg, arm_signs=False
+    )
     limit_flags = _limit_flags(nominal, q_cal)
     for i in np.flatnonzero(~sol.converged):
         flags[i].append("ik_failed")

@@ -259,14 +259,3 @@ def solve_ik(
     )
     converged = (pos_err <= options.tol_mm) & (np.nan_to_num(rot_err) <= options.tol_deg)
     return IKSolution(model.controller_deg(q), iterations, pos_err, rot_err, converged)
-
-
-def wrist_flipped(
-    model: RobotModel, a_deg: FloatArray, b_deg: FloatArray, min_deg: float
-) -> np.ndarray:
-    """Per pose (n,): the wrist bend changed sign between ``a`` and ``b`` (both poses (n, 6)
-    [deg]), each bend at least ``min_deg`` away from the singularity."""
-    sa, sb = wrist_bend(model, a_deg), wrist_bend(model, b_deg)
-    floor = math.sin(math.radians(min_deg))
-    out: np.ndarray = (np.sign(sa) != np.sign(sb)) & (np.abs(sa) >= floor) & (np.abs(sb) >= floor)
-    return out

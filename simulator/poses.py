@@ -2,7 +2,7 @@
 spread of poses.
 
 A robot program (RAPID, URScript, KRL or Fanuc LS, as ``cablecal program`` writes them; the
-format is recognised by its first statement, :func:`calib.programs.registry.detect_format`) is
+format is recognised by its start, :func:`calib.programs.registry.detect_format`) is
 read with :mod:`calib.programs`: its joint moves, in order, are the poses. The emulated robot
 keeps its own timing (``move_time_s``, ``dwell_s``), not the program's speed and waits.
 

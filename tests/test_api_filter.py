@@ -100,6 +100,24 @@ def test_one_file_comes_back_changed_only_in_numbers(
     assert _NUMBER.sub(b"#", r.content) == _NUMBER.sub(b"#", original)
 
 
+def test_a_fanuc_program_comes_back_crlf_as_it_went(
+    client: TestClient,
+    calibrated: dict[str, int],
+) -> None:
+    """Fanuc's .LS is CRLF (calib.programs.formats.LANGUAGES): the filter's download keeps
+    every line end as the upload has it, none turned into LF."""
+    original = (FIXTURES / "fanuc" / "GRIP_OPEN.LS").read_bytes()
+    assert original.count(b"\r\n") == original.count(b"\n") > 5
+    r = client.post(
+        f"{API}/robots/{calibrated['robot_id']}/filter",
+        files=[("files", ("GRIP_OPEN.LS", original, "application/octet-stream"))],
+        headers=AUTH,
+    )
+    assert r.status_code == 200, r.text
+    assert r.content.count(b"\r\n") == r.content.count(b"\n") == original.count(b"\n")
+    assert _NUMBER.sub(b"#", r.content) == _NUMBER.sub(b"#", original)
+
+
 def test_several_files_come_back_as_a_zip_with_the_summary(
     client: TestClient,
     calibrated: dict[str, int],

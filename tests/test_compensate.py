@@ -20,10 +20,11 @@ from calib.compensate import (
 )
 from calib.dataset import make_samples
 from calib.export import model_from_result
+from calib.filter.select import branch_of, left_branch, wrist_flipped
 from calib.identify import IdentifyOptions, identify
-from calib.ik import IKOptions, _errors_and_jacobian, tool_pose, wrist_bend, wrist_flipped
+from calib.ik import IKOptions, _errors_and_jacobian, tool_pose, wrist_bend
 from calib.kinematics import FloatArray, forward_position
-from calib.models import RobotModel, builtin_model
+from calib.models import BUILTIN_MODELS, RobotModel, builtin_model
 from calib.synthetic import TABLE_XII_D1, TrueCell, make_true_cell, noisy_lengths, random_poses_deg
 from calib.verify import aligned_rms_mm
 
@@ -208,8 +209,23 @@ def test_wrist_flip_changes_the_bend_sign(nominal: RobotModel) -> None:
     np.testing.assert_allclose(p2, p1, atol=1e-8)
     np.testing.assert_allclose(r2, r1, atol=1e-12)
     assert np.all(np.sign(wrist_bend(nominal, q)) != np.sign(wrist_bend(nominal, flipped)))
-    assert wrist_flipped(nominal, q, flipped, 1.0).all()
-    assert not wrist_flipped(nominal, q, q + 0.5, 1.0).any()
+    far = np.abs(q[:, 4]) >= 1.0
+    np.testing.assert_array_equal(wrist_flipped(q, flipped, 1.0), far)
+    assert not wrist_flipped(q, q + 0.5, 1.0).any()
+    assert np.all(left_branch(nominal, q[far], flipped[far], wrist_floor_deg=1.0))
+
+
+def test_the_engines_wrist_sign_is_the_geometric_bend_on_every_builtin_arm() -> None:
+    """The correction engine's wrist (the sign of the controller's joint 5, as the programs'
+    configurations count it) is the sign of ``(z4 × z6) · z5`` on every built-in arm, so
+    compensate's wrist flip is the geometric one it always was."""
+    rng = np.random.default_rng(3)
+    for name in sorted(BUILTIN_MODELS):
+        model = builtin_model(name)
+        q = rng.uniform(-170, 170, size=(200, 6))
+        q = q[np.abs(q[:, 4]) > 0.5]
+        bend = np.sign(wrist_bend(model, q)).astype(int)
+        np.testing.assert_array_equal(branch_of(model, q)[:, 2], bend, err_msg=name)
 
 
 def test_outputs_csv_and_json(nominal: RobotModel) -> None:

@@ -267,6 +267,7 @@ def test_openapi_declares_the_plan_routes_statuses(client: TestClient) -> None:
 
 def test_plan_downloads_as_csv_and_robot_programs(client: TestClient) -> None:
     from calib.programs import DOWNLOAD_FORMATS, dwell_s_for_settle
+    from calib.programs.formats import LANGUAGES
     from calib.programs.registry import parse_program
 
     cid = _campaign(client)
@@ -283,6 +284,9 @@ def test_plan_downloads_as_csv_and_robot_programs(client: TestClient) -> None:
             assert lines[0].startswith("pose,q1,q2") and len(lines) == 1 + len(planned)
             continue
         back = parse_program(fmt, r.text)
+        # The language's own line ends, as the CLI writes them (Fanuc's .LS: CRLF only).
+        crlf = LANGUAGES[fmt].newline == "\r\n"
+        assert r.content.count(b"\r\n") == (r.content.count(b"\n") if crlf else 0), fmt
         assert len(back.joints_deg) == len(planned)
         for got, want in zip(back.joints_deg, planned, strict=True):
             assert max(abs(a - b) for a, b in zip(got, want, strict=True)) <= 0.0005 + 1e-9

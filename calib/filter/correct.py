@@ -17,9 +17,10 @@ the tool does not matter: position and orientation of the flange are matched exa
 Left unchanged and reported: no nominal solution within the joint limits or on the program's
 configuration (``unreachable`` / ``skipped``), no calibrated solution near the nominal one
 (the IK did not converge: ``unreachable``), ``q*`` outside the joint limits
-(``unreachable``), ``q*`` on another branch than ``q_nom`` (shoulder, elbow or wrist sign
-changed, or a joint moved by more than :data:`BRANCH_JUMP_DEG`: ``skipped``, it would need
-another configuration), and every target whose tool or work object is unknown or differs
+(``unreachable``), ``q*`` on another branch than ``q_nom`` (the engine's one definition,
+:func:`calib.filter.select.left_branch`: shoulder, elbow or wrist sign changed, or a joint
+moved by more than :data:`~calib.filter.select.BRANCH_JUMP_DEG`: ``skipped``, it would need another
+configuration), and every target whose tool or work object is unknown or differs
 between its uses (``skipped``, with the reason).
 
 **σ at the tool.** The result's covariance of the free parameters (``uncertainty`` and
@@ -42,10 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.export import model_from_result
-from calib.filter.branches import branch_signs, nominal_solutions
+from calib.filter.branches import nominal_solutions
 from calib.filter.kin import counted_as, flange_frames, solve_flange_ik, to_table_deg
 from calib.filter.nearest import IK_OPTIONS, keeps_nearest, nearest_solutions
-from calib.filter.select import choose
+from calib.filter.select import choose, left_branch
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.programs.rotations import invert, rotation_angle_deg
@@ -53,8 +54,6 @@ from calib.programs.sites import Configuration, Correction, Target
 from calib.result import CalibrationResult, ResultLike
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
 
-#: A corrected joint further than this from the nominal solution is another branch [deg].
-BRANCH_JUMP_DEG = 5.0
 #: A correction smaller than this (TCP position [mm] and orientation [deg]; joints [deg]) is
 #: below anything a controller resolves: the target keeps its numbers exactly (so a
 #: calibration equal to the nominal model changes no byte, whatever the IK's last digits).
@@ -322,11 +321,6 @@ def correct_targets(
         sol_c = solve_flange_ik(calibrated, q_nom, target_fl, IK_OPTIONS)
         q_star = sol_c.joints_deg
         limits = joint_limits_deg(nominal)
-        try:
-            s_nom = np.stack(branch_signs(nominal, q_nom), axis=1)
-            s_cal = np.stack(branch_signs(nominal, q_star), axis=1)
-        except ValueError:  # no closed form: the joint jump alone tells the branch
-            s_nom = s_cal = np.zeros((len(rows), 3))
         fk_star = flange_frames(nominal, q_star)
         kept = keeps_nearest(nominal, rows, ref_of, fk_star, q_star)
         tool_pts = np.array([tools[i][:3, 3] if i in tools else np.zeros(3) for i in rows])
@@ -346,9 +340,9 @@ def correct_targets(
         shift_deg_all = rotation_angle_deg(old_all[:, :3, :3], new_all[:, :3, :3])
         jump_all = np.max(np.abs(q_star - q_nom), axis=1)
         outside = np.any((q_star < limits[:, 0]) | (q_star > limits[:, 1]), axis=1)
-        left_branch = (jump_all > BRANCH_JUMP_DEG) | np.any(s_nom != s_cal, axis=1) | ~kept
+        left = left_branch(nominal, q_nom, q_star) | ~kept
         converged = sol_c.converged.tolist()
-        outside_l, left_l = outside.tolist(), left_branch.tolist()
+        outside_l, left_l = outside.tolist(), left.tolist()
         shifts_mm, shifts_deg = shift_mm_all.tolist(), shift_deg_all.tolist()
         jumps, sigmas = jump_all.tolist(), sigma.tolist()
         for r, i in enumerate(rows):

@@ -1,16 +1,30 @@
-"""The branch a controller takes among the nominal IK solutions of a target.
+"""The branch a controller takes among the nominal IK solutions of a target, and the one
+definition of leaving it.
 
 :func:`choose` applies, in order: the only solution within the joint limits; the
 configuration's joint ranges (quadrants, signs, turns); the joint reference (UR's nearest
 ``q``); the branch signs as tie-breakers. See :class:`calib.programs.sites.Configuration`.
+
+:func:`left_branch` says when a corrected solution is on another branch than the one it
+started from: a joint moved by more than :data:`BRANCH_JUMP_DEG`, or a branch sign
+(:func:`branch_of`: shoulder, elbow, wrist) changed. The filter (:mod:`calib.filter.correct`)
+and the compensation of CSV targets (:mod:`calib.compensate`) both judge with it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from calib.filter.branches import Solutions
+from calib.filter.branches import Solutions, branch_signs
+from calib.kinematics import FloatArray
+from calib.models import RobotModel
+from calib.programs.sites import WRIST_SINGULARITY_DEG as WRIST_SINGULARITY_DEG
 from calib.programs.sites import Configuration
+
+#: A corrected joint further than this from the solution it started from is another branch
+#: [deg] (a joint turning further takes another way round an obstacle or through a
+#: singularity): the filter's and compensate's one threshold.
+BRANCH_JUMP_DEG = 5.0
 
 
 def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndarray, list[str]]:
@@ -64,3 +78,55 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
         else:
             reasons[i] = f"ambiguous: {int(n_m2[i])} nominal solutions fit configuration {text}"
     return idx, reasons
+
+
+def branch_of(model: RobotModel, joints_deg: FloatArray) -> np.ndarray:
+    """``shoulder, elbow, wrist`` signs of the controller's joints (n, 6) [deg]: shape
+    (n, 3), int, +1/-1 (:class:`~calib.programs.sites.Configuration`'s definitions). The
+    wrist is the sign of joint 5 (+1 when ≥ 0) on every arm; shoulder and elbow are 0
+    (unknown) on a model without a closed-form solver."""
+    q = np.asarray(joints_deg, dtype=float)
+    try:
+        return np.stack(branch_signs(model, q), axis=1)
+    except ValueError:  # no closed form: the wrist alone
+        out = np.zeros((q.shape[0], 3), dtype=int)
+        out[:, 2] = np.where(q[:, 4] >= 0, 1, -1)
+        return out
+
+
+def wrist_flipped(a_deg: FloatArray, b_deg: FloatArray, floor_deg: float = 0.0) -> np.ndarray:
+    """Per pose (n,): joint 5 changed sign between ``a`` and ``b`` (both (n, 6) [deg]), each
+    at least ``floor_deg`` from 0 (the wrist sign of :func:`branch_of`)."""
+    a5, b5 = np.asarray(a_deg, dtype=float)[:, 4], np.asarray(b_deg, dtype=float)[:, 4]
+    out: np.ndarray = (
+        ((a5 >= 0) != (b5 >= 0)) & (np.abs(a5) >= floor_deg) & (np.abs(b5) >= floor_deg)
+    )
+    return out
+
+
+def left_branch(
+    model: RobotModel,
+    from_deg: FloatArray,
+    to_deg: FloatArray,
+    *,
+    jump_deg: float = BRANCH_JUMP_DEG,
+    wrist_floor_deg: float = 0.0,
+    arm_signs: bool = True,
+) -> np.ndarray:
+    """Per pose (n,): ``to`` is on another branch than ``from`` (both the controller's joints,
+    (n, 6) [deg], on ``model``): a joint moved by more than ``jump_deg``, the wrist flipped
+    (:func:`wrist_flipped`, with ``wrist_floor_deg``: 0 for a program whose configuration
+    names the wrist, which the controller reads exactly), or, with ``arm_signs``, the
+    shoulder or the elbow sign changed (:func:`branch_of`).
+
+    ``arm_signs`` is the filter's rule: a program's Cartesian targets name their configuration,
+    and the filter keeps its joint targets on the same branch too. Compensate's CSV rows are
+    driven by joint moves, which pass a shoulder or elbow singularity continuously, so there
+    a sign that changes with a small correction is no other branch (``arm_signs=False``)."""
+    a = np.asarray(from_deg, dtype=float)
+    b = np.asarray(to_deg, dtype=float)
+    out: np.ndarray = np.max(np.abs(b - a), axis=1) > jump_deg
+    out |= wrist_flipped(a, b, wrist_floor_deg)
+    if arm_signs:
+        out |= np.any(branch_of(model, a)[:, :2] != branch_of(model, b)[:, :2], axis=1)
+    return out

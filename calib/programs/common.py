@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from calib.csvtext import restore_cell
+from calib.programs.lexer import clean_comment as clean_comment
 
 #: Joints of the arm; programs carry exactly six.
 N_JOINTS = 6
@@ -263,10 +264,3 @@ class NameRule:
             name = "P" + name
         name = name.upper() if self.upper else name
         return name[: self.max_len]
-
-
-def clean_comment(text: str, max_len: int = 200) -> str:
-    """A comment line safe in every format: printable ASCII without quotes, semicolons or
-    comment markers' openers that would end the comment early, cut to ``max_len``."""
-    out = "".join(c if 32 <= ord(c) < 127 and c not in "\"';{}" else "_" for c in text)
-    return out[:max_len].rstrip()

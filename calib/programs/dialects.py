@@ -1,77 +1,26 @@
 """The registry of filter dialects: which module reads which file.
 
 A dialect module exposes ``DIALECT`` (an object implementing
-:class:`calib.programs.sites.Dialect`) and is listed in :data:`DIALECT_MODULES`; nothing else
-(CLI, service) names dialects. :data:`SIGNATURES` is a cheap sniff of each dialect's text,
-so that a file whose content is another dialect's than its extension says (a Fanuc ``.ls``
-saved as ``.script``) is refused, saying what it looks like, instead of being read as a
-program without targets.
+:class:`calib.programs.sites.Dialect`); the languages' registry
+(:data:`calib.programs.formats.LANGUAGES`) names it, with the extensions it takes; nothing
+else (CLI, service, page) names dialects. :func:`looks_like` (each language's signature in
+the registry) is a cheap sniff of a file's text, so that a file whose content is another
+dialect's than its extension says (a Fanuc ``.ls`` saved as ``.script``) is refused, saying
+what it looks like, instead of being read as a program without targets.
 """
 
 from __future__ import annotations
 
 import importlib
-import re
-from dataclasses import dataclass
 from functools import cache
 from pathlib import PurePath
 
+from calib.programs import formats
+from calib.programs.formats import LANGUAGES
 from calib.programs.sites import Dialect, FilterInputError, Source
 
-#: Dialect modules, imported on first use.
-DIALECT_MODULES = (
-    "calib.programs.rapid.filter",
-    "calib.programs.urscript.filter",
-    "calib.programs.krl.filter",
-    "calib.programs.fanuc.filter",
-)
-
-#: Characters of a file's start a signature looks at (headers and comments come first).
-SNIFF_CHARS = 65536
-
-
-@dataclass(frozen=True)
-class Signature:
-    """What a dialect's text starts with: ``label`` (for messages), ``what`` (the feature
-    found), and ``pattern`` (searched in the first :data:`SNIFF_CHARS` characters)."""
-
-    label: str
-    what: str
-    pattern: re.Pattern[str]
-
-
-_LEAD_KRL = r"\A\ufeff?(?:\s*(?:&[^\n]*|;[^\n]*))*\s*"
-#: Per dialect name, the signature of its text.
-SIGNATURES = {
-    "fanuc-ls": Signature(
-        "a Fanuc LS program",
-        "a /PROG line and /ATTR, /MN or /POS sections",
-        re.compile(r"\A\ufeff?\s*/PROG\b[\s\S]*?^[ \t]*/(?:ATTR|MN|POS)\b", re.MULTILINE),
-    ),
-    "rapid": Signature(
-        "an ABB RAPID module",
-        "a MODULE statement",
-        re.compile(r"\A\ufeff?(?:\s*(?:%%%[\s\S]*?%%%|![^\n]*))*\s*MODULE\s+\w+", re.IGNORECASE),
-    ),
-    "krl": Signature(
-        "a KUKA KRL program",
-        "a &ACCESS header, DEF or DEFDAT",
-        re.compile(
-            _LEAD_KRL + r"(?:&\w+|DEFDAT\s+\w+|(?:GLOBAL\s+)?DEF(?:FCT\s+\w+)?\s+\w+\s*"
-            r"\([^)\n]*\)(?![ \t]*:))",
-            re.IGNORECASE,
-        ),
-    ),
-    "urscript": Signature(
-        "a URScript program",
-        "a def NAME(): or a move to a pose",
-        re.compile(
-            r"^[ \t]*def[ \t]+\w+[ \t]*\([^)\n]*\)[ \t]*:"
-            r"|\b(?:movej|movel|movep|movec)\s*\(\s*p?\[",
-            re.MULTILINE,
-        ),
-    ),
-}
+#: Dialect modules, imported on first use (the languages' registry's).
+DIALECT_MODULES = tuple(lang.filter_module for lang in LANGUAGES.values())
 
 
 @cache
@@ -87,13 +36,7 @@ def extension(name: str) -> str:
 
 def looks_like(source: Source) -> list[tuple[str, int]]:
     """The dialects whose signature the file's start matches: (dialect name, line)."""
-    head = source.text[:SNIFF_CHARS]
-    out = []
-    for name, sig in SIGNATURES.items():
-        m = sig.pattern.search(head)
-        if m:
-            out.append((name, head.count("\n", 0, m.end()) + 1))  # the head's lines only
-    return out
+    return formats.looks_like(source.text)
 
 
 def is_empty(source: Source) -> bool:
@@ -125,12 +68,11 @@ def dialect_for(source: Source) -> Dialect:
     looks = looks_like(source)
     if looks and not any(name == d.name for name, _ in looks for d in by_ext):
         other, line = looks[0]
-        sig = SIGNATURES[other]
-        exts = next(d.extensions for d in dialects() if d.name == other)
+        lang = LANGUAGES[other]
         raise FilterInputError(
             source.name,
-            f"the content is not {names} (extension {ext}): it looks like {sig.label} "
-            f"({sig.what}); give it its own extension ({', '.join(exts)})",
+            f"the content is not {names} (extension {ext}): it looks like {lang.label} "
+            f"({lang.looks}); give it its own extension ({', '.join(lang.extensions)})",
             line,
         )
     for d in by_ext:

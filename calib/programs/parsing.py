@@ -21,6 +21,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from calib.programs.common import JointProgram, Joints, ProgramError
+from calib.programs.lexer import Lexicon
 
 #: A state's handler: (statement, line number) → the next state.
 Handler = Callable[[str, int], str]
@@ -64,7 +65,7 @@ def parse_lines(
     text: str,
     got: Collected,
     *,
-    comment: str,
+    lexicon: Lexicon,
     inline_comments: bool,
     header_state: str,
     handlers: Mapping[str, Handler],
@@ -73,19 +74,19 @@ def parse_lines(
 ) -> None:
     """Run the handlers over ``text``'s lines (see the module docstring).
 
-    ``comment`` is the comment marker; with ``inline_comments`` it also ends a statement
-    (``PTP {…} ; note``), else only a whole line is a comment. ``missing`` names, for each
-    state the text may stop in, what is missing; ``end`` is the closing word after which
-    nothing may follow.
+    ``lexicon`` is the language's (:mod:`calib.programs.lexer`); with ``inline_comments`` a
+    comment also ends a statement (``PTP {…} ; note``), else only a whole line is a comment.
+    ``missing`` names, for each state the text may stop in, what is missing; ``end`` is the
+    closing word after which nothing may follow.
     """
     state = "outside"
     for line_no, raw in enumerate(text.splitlines(), start=1):
-        stripped = raw.strip()
-        if stripped.startswith(comment):
+        note = lexicon.comment_of(raw)
+        if note is not None:
             if state == header_state and not got.moves:
-                got.comments.append(stripped[len(comment) :].strip())
+                got.comments.append(note)
             continue
-        stmt = raw.split(comment, 1)[0].strip() if inline_comments else stripped
+        stmt = lexicon.code_of(raw).strip() if inline_comments else raw.strip()
         if not stmt:
             continue
         if state == "done":

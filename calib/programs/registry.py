@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
-import re
+import importlib
 from collections.abc import Callable, Sequence
 from types import ModuleType
 
@@ -15,25 +15,14 @@ from calib.programs.common import (
     read_targets_csv,
     round_joints,
 )
-from calib.programs.fanuc import program as fanuc_ls
-from calib.programs.formats import PROGRAM_FORMATS
-from calib.programs.krl import program as krl
-from calib.programs.rapid import program as rapid
-from calib.programs.urscript import program as urscript
-
-_MODULES: dict[str, ModuleType] = {
-    "rapid": rapid,
-    "urscript": urscript,
-    "krl": krl,
-    "fanuc-ls": fanuc_ls,
-}
-assert tuple(_MODULES) == PROGRAM_FORMATS
+from calib.programs.formats import LANGUAGES, PROGRAM_FORMATS, looks_like
 
 
 def _module(fmt: str) -> ModuleType:
-    if fmt not in _MODULES:
+    """The writer of ``fmt`` (the languages' registry names it; imported on first use)."""
+    if fmt not in LANGUAGES:
         raise ProgramError(f"format: {fmt!r} is not one of {', '.join(PROGRAM_FORMATS)}")
-    return _MODULES[fmt]
+    return importlib.import_module(LANGUAGES[fmt].program_module)
 
 
 def name_rule(fmt: str) -> NameRule:
@@ -43,7 +32,8 @@ def name_rule(fmt: str) -> NameRule:
 
 
 def write_program(fmt: str, program: JointProgram) -> str:
-    """The text of ``program`` in format ``fmt`` (one of :data:`PROGRAM_FORMATS`)."""
+    """The text of ``program`` in format ``fmt`` (one of :data:`PROGRAM_FORMATS`), ``\\n``
+    line ends (:func:`program_from_csv` gives the language's own)."""
     writer: Callable[[JointProgram], str] = _module(fmt).write
     return writer(program)
 
@@ -55,22 +45,12 @@ def parse_program(fmt: str, text: str) -> JointProgram:
 
 
 def detect_format(text: str) -> str:
-    """The format of a program text, or ``"csv"``, by its first statement: ``MODULE``
-    (RAPID), ``def name():`` (URScript), ``&``/``DEF`` (KRL), ``/PROG`` (Fanuc)."""
-    for raw in text.splitlines():
-        line = raw.strip()
-        if not line or line.startswith(("!", ";", "#")):
-            continue
-        if re.match(r"MODULE\s", line, re.IGNORECASE):
-            return "rapid"
-        if re.match(r"def\s+\w+\s*\(", line):
-            return "urscript"
-        if line.startswith("&") or re.match(r"(GLOBAL\s+)?DEF\s", line, re.IGNORECASE):
-            return "krl"
-        if line.startswith("/PROG"):
-            return "fanuc-ls"
-        return "csv"
-    return "csv"
+    """The format of a program text, or ``"csv"``: the first language whose signature its
+    start matches (:func:`calib.programs.formats.looks_like`, the registry's one rule of what
+    each language's text looks like: ``MODULE`` for RAPID, ``def name():`` for URScript,
+    ``&``/``DEF`` for KRL, ``/PROG`` with its sections for Fanuc)."""
+    found = looks_like(text)
+    return found[0][0] if found else "csv"
 
 
 def program_from_csv(
@@ -86,10 +66,11 @@ def program_from_csv(
     created_utc: str = "",
     anchor: str | None = None,
 ) -> tuple[JointProgram, str]:
-    """A program of the joint targets in CSV ``text`` (a plan or compensated targets) and its
-    text in ``fmt``. Everything is checked before anything is returned: the CSV (row and
-    column; ``anchor`` picks one anchor's poses of a plan), the joints against
-    ``limits_deg`` (shape (6, 2) [deg]; row and joint), the name against the controller's
+    """A program of the joint targets in CSV ``text`` (a plan or compensated targets) and its text
+    in ``fmt``, with the language's line ending (:data:`~calib.programs.formats.LANGUAGES`: Fanuc's
+    CRLF), for the command line and the API alike. Everything is checked before anything is
+    returned: the CSV (row and column; ``anchor`` picks one anchor's poses of a plan), the joints
+    against ``limits_deg`` (shape (6, 2) [deg]; row and joint), the name against the controller's
     rule, the speed and the dwell.
 
     Raises
@@ -107,7 +88,7 @@ def program_from_csv(
         comments=tuple(comments),
         created_utc=created_utc,
     )
-    return program, write_program(fmt, program)
+    return program, LANGUAGES[fmt].with_newline(write_program(fmt, program))
 
 
 def build_program(

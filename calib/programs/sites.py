@@ -1,6 +1,6 @@
 """The dialect interface of ``cablecal filter``: sources, target sites, uses, edits.
 
-A **dialect** (one module per controller language under :mod:`calib.filter`) turns the text
+A **dialect** (the ``filter`` module of each language, ``calib.programs.<language>.filter``) turns
 of the files given to the filter into :class:`Target` sites and writes corrected numbers
 back. It never rewrites a file: it returns :class:`Edit` s, each replacing exactly the
 characters of one number, and :func:`apply_edits` splices them in. Every other character
@@ -45,6 +45,7 @@ from calib.kinematics import N_JOINTS, FloatArray
 from calib.programs.inputs import FilterInputError as FilterInputError
 from calib.programs.inputs import FrameTables as FrameTables
 from calib.programs.inputs import parse_frames_toml as parse_frames_toml
+from calib.programs.lexer import split_top
 
 Kind = Literal["cartesian", "joint"]
 #: What became of a target: corrected (possibly by less than the written precision, then no
@@ -70,6 +71,11 @@ EXTERNAL_AXIS_ADVICE = (
     "the model has no external axes: if this controller drives none (no track, no "
     "positioner), say so with external_axes = 0 in the model file's [controller] table"
 )
+
+#: Within this of joint 5 = 0 (the controller's angle) the wrist is at its singularity [deg]
+#: (the wrist sign of :class:`Configuration` is noise there): KUKA's joint targets closer are
+#: left as singular, and compensate counts a wrist flip only when both sides are further.
+WRIST_SINGULARITY_DEG = 1.0
 
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
@@ -437,30 +443,6 @@ def apply_edits(text: str, edits: Sequence[Edit]) -> str:
     return "".join(out)
 
 
-#: Any bracket: where an argument list nests.
-BRACKETS = re.compile(r"[\[({\])}]")
-
-
-def split_args(code: str, start: int, end: int) -> list[tuple[int, int]]:
-    """Comma-separated arguments of ``code[start:end]`` at bracket depth 0 (``[]``, ``()``,
-    ``{}``), as spans: a RAPID argument list, a URScript list or call."""
-    if not BRACKETS.search(code, start, end):  # the common case: no nesting
-        out: list[tuple[int, int]] = []
-        last = start
-        while (i := code.find(",", last, end)) >= 0:
-            out.append((last, i))
-            last = i + 1
-        out.append((last, end))
-        return out
-    out, depth, last = [], 0, start
-    for i in range(start, end):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == "," and depth == 0:
-            out.append((last, i))
-            last = i + 1
-    out.append((last, end))
-    return out
+#: Comma-separated arguments at bracket depth 0, as spans: the shared lexer's
+#: :func:`~calib.programs.lexer.split_top` (a RAPID argument list, a URScript list or call).
+split_args = split_top

@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from calib.programs.formats import filter_files_help
 from daemon.cli.errors import fail as _fail
 
 SUMMARY_NAME = "filter-summary.json"
@@ -129,7 +130,7 @@ def filter_cmd(
     result: Annotated[Path, typer.Argument(help="result.json of cablecal identify.")],
     files: Annotated[
         list[Path],
-        typer.Argument(help="Program files (RAPID, KRL .src/.dat, URScript, Fanuc .ls)."),
+        typer.Argument(help=f"Program files ({filter_files_help()})."),
     ],
     out: Annotated[
         Path,

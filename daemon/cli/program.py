@@ -103,7 +103,7 @@ def program_cmd(
     except ProgramError as exc:
         message = str(exc)
         raise _fail("--" + message if message.startswith("anchor:") else message) from None
-    out.write_text(body, encoding="utf-8", newline="\n" if fmt_name != "fanuc-ls" else "\r\n")
+    out.write_text(body, encoding="utf-8", newline="")  # the language's own line ends
     console = Console()
     console.print(
         f"wrote {out}: {program.name}, {len(program.joints_deg)} targets, "

@@ -38,6 +38,8 @@ import numpy as np
 
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.programs.fanuc.config import KEYWORDS, TURN_JOINTS, configuration, refusal
+from calib.programs.formats import LANGUAGES
+from calib.programs.lexer import FANUC, NUMBER_PATTERN
 from calib.programs.rotations import frames as make_frames
 from calib.programs.rotations import matrix_to_zyx_deg, rotation_angle_deg, zyx_deg_to_matrix
 from calib.programs.sites import (
@@ -53,7 +55,7 @@ from calib.programs.sites import (
 )
 
 NAME = "fanuc-ls"
-EXTENSIONS = (".ls",)
+EXTENSIONS = LANGUAGES[NAME].extensions
 DECIMALS = 3
 #: Joint angles to at least 4 decimals: a third decimal alone costs up to 0.0005 deg a joint,
 #: about 0.02 mm at 2 m reach.
@@ -72,13 +74,14 @@ INDIRECT_REGISTER_REASON = (
     "and its value is on the controller (POSREG.VA), not in this program"
 )
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_NUM = NUMBER_PATTERN
 _PROG = re.compile(r"^\ufeff?\s*/PROG\b")
 _SECTION = re.compile(r"^[ \t]*/(PROG|ATTR|APPL|APPL_DATA|MN|POS|END)\b", re.MULTILINE)
 _ENTRY = re.compile(r"P\[\s*(\d+)\s*(?::\s*\"[^\"\r\n]*\"\s*)?\]\s*\{")
 _MN_LINE = re.compile(r"^[^\r\n]*", re.MULTILINE)
 _MODIFIER = re.compile(r"\b(INC|Offset|Tool_Offset|VOFFSET)\b", re.IGNORECASE)
-_REMARK = re.compile(r"\s*\d*\s*:\s*(?:!|//)")
+#: A /MN line that is a remark (``!``) or commented out (``//``): the lexicon's markers.
+_REMARK = re.compile(r"\s*\d*\s*:\s*(?:" + "|".join(map(re.escape, FANUC.line_comments)) + ")")
 _REF = re.compile(r"(?<![A-Za-z_])P\[\s*(\d+)")
 _GROUP = re.compile(r"GP(\d+)\s*:")
 _FIELD = re.compile(r"\b([A-Z]\w*)\s*=\s*(" + _NUM + r")\s*(mm|deg)?", re.IGNORECASE)

@@ -49,14 +49,14 @@ from calib.programs.common import (
     Joints,
     NameRule,
     ProgramError,
-    clean_comment,
 )
+from calib.programs.lexer import NUMBER_PATTERN, clean_comment
 
 NAME_RULE = NameRule("Fanuc TP", 36, upper=True)
 #: Characters of a ``!`` remark on the pendant.
 REMARK_LEN = 32
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_NUM = NUMBER_PATTERN
 
 
 def _stamp(created_utc: str) -> str:

@@ -5,7 +5,8 @@ file's
 own text (so the dialect can replace exactly one number):
 
 * :func:`blank`: the text with ``;`` comments and ``"…"`` strings replaced by spaces (line
-  ends kept), so nothing inside a comment or a string is ever taken for code;
+  ends kept; the shared lexer's, :mod:`calib.programs.lexer`), so nothing inside a comment
+  or a string is ever taken for code;
 * :func:`parse_aggregate`: a structure value ``{[TYPE:] KEY value, …}`` (nested
   aggregates allowed; values are numbers, ``'B101'``/``'H1F'`` bit literals, ``#ENUM``,
   ``TRUE``/``FALSE``, names or blanked strings);
@@ -26,10 +27,10 @@ from pathlib import PurePath
 import numpy as np
 
 from calib.kinematics import FloatArray
+from calib.programs.lexer import KRL, NUMBER
 from calib.programs.rotations import frame, zyx_deg_to_matrix
 from calib.programs.sites import FilterInputError, Num, Source
 
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _BITS = re.compile(r"'([BH])([0-9A-Fa-f]*)'")
 _KEY = re.compile(r"[A-Za-z_$][\w$]*(?:\[\s*\])?")
 #: The key of a flat aggregate's item and the blanks around it (a key with ``[`` is not flat).
@@ -57,22 +58,10 @@ _TYPE_OF = re.compile(
 )
 
 
-_COMMENT_OR_STRING = re.compile(r';[^\n]*|"[^"\n]*"?')
-
-
-def blank(text: str) -> str:
-    """``text`` with ``;`` comments and ``"…"`` strings replaced by spaces, same length
-    (whichever starts first wins: a ``;`` inside a string is no comment)."""
-    return _COMMENT_OR_STRING.sub(_spaces, text)
-
-
-def _spaces(m: re.Match[str]) -> str:
-    g = m.group()
-    if "\r" not in g:
-        return " " * len(g)
-    if g[-1] == "\r" and g.count("\r") == 1:  # a comment up to a CRLF line end
-        return " " * (len(g) - 1) + "\r"
-    return re.sub(r"[^\r]", " ", g)
+#: ``text`` with ``;`` comments and ``"…"`` strings replaced by spaces, same length, line
+#: ends kept (the shared lexer's; whichever starts first wins: a ``;`` inside a string is no
+#: comment).
+blank = KRL.blank
 
 
 @dataclass(slots=True)
@@ -112,7 +101,7 @@ class Aggregate:
 
 def literal_value(text: str) -> float | None:
     """A KRL number or bit literal (``'B110'``, ``'H1F'``) as a float; None otherwise."""
-    m = _NUMBER.fullmatch(text)
+    m = NUMBER.fullmatch(text)
     if m:
         return float(text)
     b = _BITS.fullmatch(text)

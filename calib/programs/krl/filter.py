@@ -66,6 +66,7 @@ from pathlib import PurePath
 import numpy as np
 
 from calib.kinematics import N_JOINTS, FloatArray
+from calib.programs.formats import LANGUAGES
 from calib.programs.krl.data import (
     AXIS_TYPES,
     CARTESIAN_KEYS,
@@ -80,6 +81,7 @@ from calib.programs.rotations import frames, matrix_to_zyx_deg, zyx_deg_to_matri
 from calib.programs.sites import (
     READ_ONLY_REASON,
     UNUSED_REASON,
+    WRIST_SINGULARITY_DEG,
     Configuration,
     Correction,
     Edit,
@@ -93,7 +95,7 @@ from calib.programs.sites import (
 )
 
 NAME = "krl"
-EXTENSIONS = (".src", ".dat")
+EXTENSIONS = LANGUAGES[NAME].extensions
 POSITION_DECIMALS = 3
 ANGLE_DECIMALS = 4
 JOINT_DECIMALS = 4
@@ -112,7 +114,6 @@ S_A5_NEGATIVE = 4
 #: A joint target with ``|A5|`` below this [deg] is at the wrist singularity: A4 and A6 turn
 #: about one line there, and a correction of a few hundredths of a millimetre would turn them
 #: by degrees; it is left, named.
-WRIST_SINGULARITY_DEG = 1.0
 WRIST_SINGULARITY = "wrist singularity (A5 = 0)"
 #: The controller's own data file: read (TOOL_DATA, BASE_DATA, XHOME …), never written.
 CONFIG_DAT = "$config.dat"

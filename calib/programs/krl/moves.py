@@ -24,6 +24,7 @@ from calib.programs.krl.data import (
     parse_aggregate,
     unknown_frame,
 )
+from calib.programs.lexer import split_top
 from calib.programs.sites import Configuration, Source, Target, Use
 
 #: ``(source, name, aggregate, declared type)`` → the target (None: not a position).
@@ -43,8 +44,6 @@ _WITH_SET = re.compile(r"\s*\$(TOOL|BASE)\s*=\s*(.*)", re.I | re.S)
 _FDAT_FN = re.compile(r"(STOOL2|SBASE)\s*\(\s*([A-Za-z_$][\w$]*)\s*(?:\.\s*BASE_NO\s*)?\)", re.I)
 _SPLINE = re.compile(r"^\s*(?:PTP_)?SPLINE\b", re.I)
 _HEAD = re.compile(r"\s*([A-Za-z_$][\w$]*)")
-#: What :func:`_top_level_spans` looks at: brackets and commas.
-_PUNCT = re.compile(r"[{}\[\](),]")
 #: First words of the statements :meth:`Moves._statement` reads (the others are skipped), and
 #: which of its patterns each can start.
 _FAMILY = {
@@ -358,15 +357,4 @@ class Moves:
 
 def _top_level_spans(text: str) -> list[tuple[int, int]]:
     """Spans of ``text`` split at commas outside braces, brackets and parentheses."""
-    out, depth, last = [], 0, 0
-    for m in _PUNCT.finditer(text):
-        c = m.group()
-        if c in "{[(":
-            depth += 1
-        elif c in "}])":
-            depth -= 1
-        elif depth == 0:
-            out.append((last, m.start()))
-            last = m.start() + 1
-    out.append((last, len(text)))
-    return out
+    return split_top(text, 0, len(text))

@@ -38,15 +38,15 @@ from calib.programs.common import (
     Joints,
     NameRule,
     ProgramError,
-    clean_comment,
     fmt_deg,
     fmt_num,
 )
+from calib.programs.lexer import KRL, NUMBER_PATTERN, clean_comment
 from calib.programs.parsing import Collected, parse_lines
 
 NAME_RULE = NameRule("KRL", 24)
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_NUM = NUMBER_PATTERN
 
 
 def write(program: JointProgram) -> str:
@@ -134,7 +134,7 @@ def parse(text: str) -> JointProgram:
     parse_lines(
         text,
         got,
-        comment=";",
+        lexicon=KRL,
         inline_comments=True,
         header_state="body",
         handlers={"outside": outside, "body": body},

@@ -56,6 +56,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from calib.kinematics import FloatArray
+from calib.programs.formats import LANGUAGES
 from calib.programs.rapid.decls import HEADER, Module, index_text, lookup, read_module
 from calib.programs.rapid.moves import (
     ON,
@@ -96,7 +97,7 @@ from calib.programs.sites import (
 )
 
 NAME = "rapid"
-EXTENSIONS = (".mod", ".modx", ".prg", ".sys")
+EXTENSIONS = LANGUAGES[NAME].extensions
 POSITION_DECIMALS = 3
 QUATERNION_DECIMALS = 6
 JOINT_DECIMALS = 4

@@ -28,7 +28,6 @@ the module, ``CONST``/``PERS``/``VAR`` ``jointtarget`` and ``speeddata`` declara
 
 from __future__ import annotations
 
-import math
 import re
 
 from calib.programs.common import (
@@ -36,10 +35,10 @@ from calib.programs.common import (
     Joints,
     NameRule,
     ProgramError,
-    clean_comment,
     fmt_deg,
     fmt_num,
 )
+from calib.programs.lexer import NUMBER_PATTERN, RAPID, clean_comment, number_value
 from calib.programs.parsing import Collected, parse_lines
 
 NAME_RULE = NameRule("RAPID", 32)
@@ -49,19 +48,15 @@ SPEED_NAME = "vCablecal"
 #: External-axis value of a jointtarget for an axis that is not there.
 NO_AXIS = "9E+09"
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-#: Longest number text read [characters]: longer is no number a controller writes.
-MAX_NUMBER_CHARS = 40
+_NUM = NUMBER_PATTERN
 
 
 def _number(text: str, line: int) -> float:
     """A number's value; ``ProgramError`` naming the line when it is absurdly long or not
     finite (``9E+999``)."""
-    value = float(text) if len(text) <= MAX_NUMBER_CHARS else math.inf
-    if not math.isfinite(value):
-        shown = text if len(text) <= 24 else f"{text[:12]}…({len(text)} characters)"
-        raise ProgramError(f"line {line}: number {shown} is out of range")
-    return value
+    return number_value(
+        text, lambda shown: ProgramError(f"line {line}: number {shown} is out of range")
+    )
 
 
 def write(program: JointProgram) -> str:
@@ -190,7 +185,7 @@ def parse(text: str) -> JointProgram:
     parse_lines(
         text,
         got,
-        comment="!",
+        lexicon=RAPID,
         inline_comments=True,
         header_state="module",
         handlers={"outside": outside, "module": module, "main": main},

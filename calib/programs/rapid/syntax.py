@@ -1,5 +1,6 @@
-"""RAPID's syntax for the filter: comments and strings blanked, bracketed literals parsed
-with the character span of every number, argument lists split at depth 0.
+"""RAPID's syntax for the filter: bracketed literals parsed with the character span of every
+number, on the shared lexer (:mod:`calib.programs.lexer`: comments and strings blanked,
+numbers, brackets, argument lists split at depth 0).
 
 The text is never changed: :func:`blank` replaces comments (``!`` to the end of the line) and
 strings by spaces of the same length, so an offset into the blanked code is an offset into
@@ -8,34 +9,26 @@ the file's text.
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from calib.kinematics import FloatArray
+from calib.programs import lexer
+from calib.programs.lexer import RAPID
 from calib.programs.rotations import frame, quat_wxyz_to_matrix
-from calib.programs.sites import BRACKETS, FilterInputError, Num, Source
+from calib.programs.sites import FilterInputError, Num, Source
 
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-#: Bounds of every number the filter reads: its length in characters and its magnitude (a
-#: RAPID ``num`` is a 32-bit float; ``9E+09`` marks an external axis that is not there).
-MAX_NUMBER_CHARS = 40
+#: Bound of every number's magnitude the filter reads (a RAPID ``num`` is a 32-bit float;
+#: ``9E+09`` marks an external axis that is not there); its length is the lexer's bound.
 MAX_NUMBER_ABS = 1e15
 _WORD = re.compile(r"[A-Za-z_]\w*")
-
-_HIDDEN = re.compile(r'"[^"\n]*"?|![^\n]*')
-
-
-def _spaces(m: re.Match[str]) -> str:
-    return re.sub(r"[^\r\n]", " ", m.group())
-
-
-def blank(text: str) -> str:
-    """``text`` with comments (``!`` to the end of the line) and strings replaced by spaces,
-    same length, so offsets into it are offsets into ``text``."""
-    return _HIDDEN.sub(_spaces, text)
+#: ``text`` with comments (``!`` to the end of the line) and strings replaced by spaces,
+#: same length, so offsets into it are offsets into ``text``.
+blank = RAPID.blank
+skip_space = lexer.skip_space
+_bounded = lexer.bounded
 
 
 @dataclass(slots=True)
@@ -55,13 +48,7 @@ class Node:
         return self.items is not None and all(i.num is not None for i in self.items)
 
 
-def skip_space(text: str, i: int) -> int:
-    while i < len(text) and text[i] in " \t\r\n":
-        i += 1
-    return i
-
-
-_N = r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*"
+_N = r"\s*(" + lexer.NUMBER_PATTERN + r")\s*"
 _SHAPE = (3, 4, 4, 6)
 #: A robtarget literal of plain numbers, the common case, read by one regular expression.
 ROBTARGET = re.compile(
@@ -70,7 +57,7 @@ ROBTARGET = re.compile(
 
 
 def number(text: str, source: Source, offset: int) -> float:
-    """The value of a number's text at ``offset``, bounded (:data:`MAX_NUMBER_CHARS`,
+    """The value of a number's text at ``offset``, bounded (the lexer's length,
     :data:`MAX_NUMBER_ABS`).
 
     Raises
@@ -78,13 +65,12 @@ def number(text: str, source: Source, offset: int) -> float:
     FilterInputError
         Naming the file and line of a number too long, too large or not finite.
     """
-    value = float(text) if len(text) <= MAX_NUMBER_CHARS else math.inf
-    if not abs(value) <= MAX_NUMBER_ABS:
-        shown = text if len(text) <= 24 else f"{text[:12]}…({len(text)} characters)"
+    value = _bounded(text, MAX_NUMBER_ABS)
+    if value is None:
         raise FilterInputError(
             source.name,
-            f"number {shown} is out of range (at most {MAX_NUMBER_CHARS} characters and "
-            f"{MAX_NUMBER_ABS:g} in magnitude)",
+            f"number {lexer.shown(text)} is out of range (at most {lexer.MAX_NUMBER_CHARS} "
+            f"characters and {MAX_NUMBER_ABS:g} in magnitude)",
             source.line_of(offset),
         )
     return value
@@ -129,7 +115,7 @@ def parse_literal(code: str, i: int, source: Source) -> Node:
         if i < len(code) and code[i] == "[":
             node = parse_literal(code, i, source)
         else:
-            m = _NUMBER.match(code, i)
+            m = lexer.NUMBER.match(code, i)
             if m:
                 node = Node(i, m.end(), num=number(m.group(), source, i))
             else:
@@ -202,15 +188,7 @@ def split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], lis
     """An argument's positional part (span) and its ``\\Option[:=value]`` texts."""
     if code.find("\\", start, end) < 0:
         return (start, end), []
-    depth, cuts = 0, []
-    for i in range(start, end):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == "\\" and depth == 0:
-            cuts.append(i)
+    cuts = lexer.cuts_top(code, "\\", start, end)
     if not cuts:
         return (start, end), []
     opts = [code[a + 1 : b].strip() for a, b in zip(cuts, [*cuts[1:], end], strict=True)]
@@ -220,17 +198,4 @@ def split_options(code: str, start: int, end: int) -> tuple[tuple[int, int], lis
 def statement_end(code: str, i: int) -> int:
     """The ``;`` ending the statement that starts at ``i`` (RAPID has no ``;`` inside a
     bracket outside strings, which are blanked), or the end of the code."""
-    j = code.find(";", i)
-    if j >= 0 and not BRACKETS.search(code, i, j):
-        return j
-    depth = 0
-    while i < len(code):
-        c = code[i]
-        if c in "[({":
-            depth += 1
-        elif c in "])}":
-            depth -= 1
-        elif c == ";" and depth <= 0:
-            return i
-        i += 1
-    return i
+    return lexer.find_top(code, ";", i)

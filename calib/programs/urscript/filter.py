@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.kinematics import FloatArray
+from calib.programs.formats import LANGUAGES
+from calib.programs.lexer import NUMBER, URSCRIPT, close_bracket
 from calib.programs.rotations import frame, matrix_to_rotvec, rotvec_to_matrix
 from calib.programs.sites import (
     Configuration,
@@ -60,13 +62,12 @@ from calib.programs.sites import (
 )
 
 NAME = "urscript"
-EXTENSIONS = (".script", ".urscript")
+EXTENSIONS = LANGUAGES[NAME].extensions
 POSITION_DECIMALS = 6  # metres
 #: The branch of a pose moved to first (no qnear, no move before it in the text).
 NO_REFERENCE = "(none: no joint reference; the controller starts from the current joints)"
 ANGLE_DECIMALS = 6  # radians
 
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 _ASSIGN = re.compile(
     r"^[ \t]*(?:global[ \t]+|local[ \t]+)?([A-Za-z_]\w*)[ \t]*=[ \t]*(p[ \t]*)?\[", re.MULTILINE
 )
@@ -88,43 +89,9 @@ _FOREIGN = re.compile(
 )
 
 
-def blank(text: str) -> str:
-    """``text`` with ``#`` comments and string literals replaced by spaces (same length)."""
-    out = list(text)
-    i, n = 0, len(text)
-    while i < n:
-        c = text[i]
-        if c in "\"'":
-            j = i + 1
-            while j < n and text[j] != c and text[j] != "\n":
-                j += 2 if text[j] == "\\" else 1
-            for k in range(i, min(j + 1, n)):
-                if out[k] not in "\r\n":
-                    out[k] = " "
-            i = j + 1
-        elif c == "#":
-            j = text.find("\n", i)
-            j = n if j < 0 else j
-            for k in range(i, j):
-                if out[k] != "\r":
-                    out[k] = " "
-            i = j
-        else:
-            i += 1
-    return "".join(out)
-
-
-def _close(code: str, i: int, opening: str, closing: str) -> int:
-    """Index just after the bracket closing the one at ``code[i]``, or -1."""
-    depth = 0
-    for k in range(i, len(code)):
-        if code[k] == opening:
-            depth += 1
-        elif code[k] == closing:
-            depth -= 1
-            if depth == 0:
-                return k + 1
-    return -1
+#: ``text`` with ``#`` comments and string literals replaced by spaces (same length; the
+#: shared lexer's, :mod:`calib.programs.lexer`).
+blank = URSCRIPT.blank
 
 
 def _numbers(code: str, src: Source, start: int, end: int) -> list[Num] | None:
@@ -134,7 +101,7 @@ def _numbers(code: str, src: Source, start: int, end: int) -> list[Num] | None:
     for a, b in split_args(code, start + 1, end - 1):
         item = code[a:b]
         s = item.strip()
-        m = _NUMBER.fullmatch(s)
+        m = NUMBER.fullmatch(s)
         if not m:
             return None
         off = a + item.index(s)
@@ -202,7 +169,7 @@ class URScriptDialect:
         if not m:
             return None
         start = m.end() - 1
-        end = _close(code, start, "[", "]")
+        end = close_bracket(code, start)
         if end < 0:
             raise FilterInputError(f.src.name, "unclosed '['", f.src.line_of(start))
         nums = _numbers(code, f.src, start, end)
@@ -220,7 +187,7 @@ class URScriptDialect:
         # Tools: set_tcp in text order.
         tcp_at: list[tuple[int, FloatArray | None, str]] = []
         for m in _SET_TCP.finditer(code):
-            end = _close(code, m.end() - 1, "(", ")")
+            end = close_bracket(code, m.end() - 1)
             if end < 0:
                 raise FilterInputError(src.name, "unclosed '(' of set_tcp", src.line_of(m.start()))
             arg = code[m.end() : end - 1].strip()
@@ -265,7 +232,7 @@ class URScriptDialect:
             return t
 
         for m in _MOVE.finditer(code):
-            end = _close(code, m.end() - 1, "(", ")")
+            end = close_bracket(code, m.end() - 1)
             if end < 0:
                 raise FilterInputError(
                     src.name, f"unclosed '(' of {m.group(1)}", src.line_of(m.start())

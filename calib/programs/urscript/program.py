@@ -32,10 +32,10 @@ from calib.programs.common import (
     JointProgram,
     NameRule,
     ProgramError,
-    clean_comment,
     fmt_num,
     round_joints,
 )
+from calib.programs.lexer import NUMBER_PATTERN, URSCRIPT, clean_comment
 from calib.programs.parsing import Collected, parse_lines
 
 NAME_RULE = NameRule("URScript", 32)
@@ -46,7 +46,7 @@ JOINT_ACC_RAD_S2 = 1.4
 #: Decimals of a joint angle in radians.
 RAD_DECIMALS = 8
 
-_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_NUM = NUMBER_PATTERN
 
 
 def write(program: JointProgram) -> str:
@@ -111,7 +111,7 @@ def parse(text: str) -> JointProgram:
     parse_lines(
         text,
         got,
-        comment="#",
+        lexicon=URSCRIPT,
         inline_comments=False,
         header_state="body",
         handlers={"outside": outside, "body": body},

@@ -204,6 +204,8 @@ async function downloadFiltered() {
 }
 
 function initFilter() {
+  // The languages and their files: the program registry's one list (GET /programs/languages).
+  api("GET", "/programs/languages").then((l) => setText("filter-languages", l.filter_files)).catch(() => {});
   const drop = $("filter-drop");
   const run = (files) => filterPrograms(files).catch((e) => showMessage("error", `filter: ${e.message}`));
   $("filter-files").addEventListener("change", (ev) => run(ev.target.files));

@@ -22,8 +22,10 @@ from typing import Any, NamedTuple
 from urllib.parse import quote
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
+from typing_extensions import TypedDict
 
-from daemon.api.deps import RobotId, State, WriteAuth
+from calib.programs.formats import LANGUAGES, filter_files_help
+from daemon.api.deps import ReadAuth, RobotId, State, WriteAuth
 from daemon.api.errors import error_responses, unprocessable
 from daemon.api.http.downloads import download_headers
 from daemon.api.http.guard import MAX_FILTER_BYTES
@@ -40,6 +42,51 @@ MAX_FILES = 50
 #: Longest ``only`` query value [characters].
 MAX_ONLY_CHARS = 2000
 SUMMARY_NAME = "filter-summary.json"
+
+
+class LanguageOut(TypedDict):
+    """One controller language of the languages' registry
+    (:data:`calib.programs.formats.LANGUAGES`)."""
+
+    name: str
+    title: str
+    suffix: str
+    extensions: list[str]
+    files: str
+    line_ending: str
+
+
+class LanguagesOut(TypedDict):
+    """Every controller language, and the files the filter takes in the operator's words."""
+
+    languages: list[LanguageOut]
+    filter_files: str
+
+
+@router.get(
+    "/programs/languages",
+    summary="The controller languages: names, file suffixes and line endings",
+    dependencies=[ReadAuth],
+)
+def program_languages() -> LanguagesOut:
+    """Per language (the order of ``--format``): its name, title, the suffix of a program
+    cablecal writes, the extensions the filter reads, the files in the operator's words and
+    the line ending of a written program (``CRLF`` for Fanuc's ``.LS``); the page lists the
+    filter's files from here."""
+    return {
+        "languages": [
+            {
+                "name": lang.name,
+                "title": lang.title,
+                "suffix": lang.suffix,
+                "extensions": list(lang.extensions),
+                "files": lang.files,
+                "line_ending": "CRLF" if lang.newline == "\r\n" else "LF",
+            }
+            for lang in LANGUAGES.values()
+        ],
+        "filter_files": filter_files_help(),
+    }
 
 
 def _files_and_frames(parts: list[FormPart]) -> tuple[list[tuple[str, bytes]], str | None]:
@@ -184,8 +231,8 @@ async def filter_programs(
         description="The preview's digest of the filtered files: 409 if the files differ",
     ),
 ) -> Any:
-    """Every target of the uploaded programs (RAPID, URScript, and the other dialects of
-    ``cablecal filter``) corrected for the robot's current calibration, each file changed
+    """Every target of the uploaded programs (every language of ``GET /programs/languages``)
+    corrected for the robot's current calibration, each file changed
     only in its targets' numbers. Returns the filtered file (one file; the counts in the
     ``X-Filter-Counts`` header) or a zip of the files and ``filter-summary.json`` (several),
     or with ``dry_run`` the summary only (with ``calibration_id``, ``calibration_date``, the
