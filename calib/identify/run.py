@@ -25,7 +25,7 @@ The public entry point is :func:`identify`. It
    soft-L1 weights, or rejection at 3.5σ, on request (:func:`calib.robust.solve`);
 6. computes the covariance ``(JᵀJ/σ̂² + Σ_prior⁻¹)⁻¹`` with ``σ̂² = Σ w r² / (n − k)``, the
    metrics before and after on train and test, the plausibility of every parameter
-   (:mod:`calib.identify.result_json`) and the predicted tool-point σ after best rigid alignment
+   (:mod:`calib.identify.plausibility`) and the predicted tool-point σ after best rigid alignment
    (:mod:`calib.tcp`).
 
 Units: inputs in degrees and millimetres; internal computation in radians and millimetres;
@@ -51,17 +51,15 @@ from calib.identifiability import (
     solved_mask,
     with_tool,
 )
+from calib.identify.covariance import covariance, uncertainty
+from calib.identify.plausibility import implausibility_advice, plausibility
 from calib.identify.result_json import (
     IdentifyResult,
-    covariance,
     drift_report,
     drift_summary,
-    implausibility_advice,
     length_figures,
-    plausibility,
     robust_detail,
     robust_note,
-    uncertainty,
 )
 from calib.kinematics import FloatArray, forward_position
 from calib.models import RobotModel
