@@ -11,10 +11,10 @@ order). It
    (:func:`calib.anchors.fit_anchors`);
 3. starts the full identification from the nominal DH table with the tool point, ``P0`` and
    ``c`` fitted (so that every method starts from the same, data-driven point, and no manual
-   guess is needed; :func:`calib.identify.start.start_point`);
+   guess is needed; :func:`calib.identify.start_point.start_point`);
 4. analyses identifiability at that point (:mod:`calib.identifiability`) and solves for the
    base parameter set, plus parameters freed by name, minus parameters fixed by name
-   (:func:`calib.identify.start.free_set`);
+   (:func:`calib.identify.start_point.free_set`);
    then (``drift``, :func:`calib.identify.fit.select_drift`) tests the plain fit for steps
    and a smooth drift of the measurement over the campaign (:mod:`calib.drift`); a chosen
    model's terms are profiled out of the problem (:class:`calib.problem.Problem`'s drift

@@ -16,7 +16,7 @@ from calib.identify.assemble import assemble
 from calib.identify.fit import select_drift, weighed_solve
 from calib.identify.prepared import prepare
 from calib.identify.result_json import IdentifyResult
-from calib.identify.start import free_set, start_point
+from calib.identify.start_point import free_set, start_point
 from calib.models import RobotModel
 from calib.options import (
     METHODS,
