@@ -39,9 +39,9 @@ from calib.cable import N_DH, N_KIN
 from calib.dataset import make_samples
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from calib.identify import IdentifyOptions, identify
+from calib.identify.result_json import IdentifyResult
 from calib.kinematics import N_JOINTS, FloatArray, forward_position
 from calib.models import RobotModel, builtin_model
-from calib.report import IdentifyResult
 from calib.result import CalibrationResult
 from calib.synthetic import TrueCell, make_true_cell, noisy_lengths, random_poses_deg
 from calib.tcp import aligned_position_error_mm, workspace_sample_deg

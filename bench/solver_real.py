@@ -64,13 +64,13 @@ from calib.cable import N_DH, ParamLayout, length_jacobian, predict_lengths
 from calib.dataset import SampleSet
 from calib.identifiability import analyse, generic_jacobian
 from calib.identify import IdentifyOptions, identify
+from calib.identify.result_json import IdentifyResult
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
 from calib.options import default as default_option
 from calib.prior import with_prior
 from calib.problem import Problem
 from calib.protocol import paper_split
-from calib.report import IdentifyResult
 from calib.result import CalibrationResult
 from calib.solvers.common import SolverResult
 from daemon.datafiles import load_robot, read_samples

@@ -38,8 +38,9 @@ UNBOUNDED_SPREAD_DEG = 1.0
 #: DH table (its step 3), so their error also holds what the DH errors project onto them.
 START_FITTED_SPREAD = 4
 #: Half-widths of DE's search box around the start, per DH length [mm] and DH angle [deg]:
-#: half the largest plausible DH error (:data:`calib.report.PLAUSIBLE_DH_MM` 10 mm,
-#: :data:`calib.report.PLAUSIBLE_DH_DEG` 1 deg), around a start that is the nominal table.
+#: half the largest plausible DH error (:data:`calib.identify.plausibility.PLAUSIBLE_DH_MM`
+#: 10 mm, :data:`calib.identify.plausibility.PLAUSIBLE_DH_DEG` 1 deg), around a start that is
+#: the nominal table.
 DE_BOX_DH_MM = 5.0
 DE_BOX_DH_DEG = 0.5
 #: Half-width of DE's box for the tool point and the anchors [mm]: ten times the DH box, as

@@ -1,11 +1,12 @@
 """The calibration result: the one typed reader of ``result.json``.
 
-:meth:`calib.report.IdentifyResult.to_json` writes the document; :class:`CalibrationResult`
-is the only code that reads it. It loads a parsed document (:meth:`CalibrationResult.from_json`),
-checks the type of every field it knows (a :class:`ResultError` names the field), says which
-shape of the contract wrote it (:data:`RESULT_SHAPES`, :attr:`CalibrationResult.shape`) and
-keeps the document as written, so :meth:`CalibrationResult.to_json` gives back the same JSON,
-byte for byte, with the keys it does not know.
+:meth:`calib.identify.result_json.IdentifyResult.to_json` writes the document;
+:class:`CalibrationResult` is the only code that reads it. It loads a parsed document
+(:meth:`CalibrationResult.from_json`), checks the type of every field it knows (a
+:class:`ResultError` names the field), says which shape of the contract wrote it
+(:data:`RESULT_SHAPES`, :attr:`CalibrationResult.shape`) and keeps the document as
+written, so :meth:`CalibrationResult.to_json` gives back the same JSON, byte for byte, with
+the keys it does not know.
 
 Every field a release added after the first contract is optional here, and so is every other
 field: the HTML report renders a partial result and says what is missing, and a daemon keeps

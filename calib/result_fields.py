@@ -183,8 +183,8 @@ class Prior:
 
 @dataclass(frozen=True)
 class Drift:
-    """The measurement's drift block (:func:`calib.report.drift_report`): ``per_sample_mm``
-    (n,) [mm] when identify put it there; ``block`` is the whole block."""
+    """The measurement's drift block (:func:`calib.identify.result_json.drift_report`):
+    ``per_sample_mm`` (n,) [mm] when identify put it there; ``block`` is the whole block."""
 
     block: Mapping[str, Any]
     per_sample_mm: tuple[float, ...] | None
@@ -196,7 +196,7 @@ class Drift:
         text = self.block.get("summary")
         if isinstance(text, str):
             return text
-        from calib.report import drift_summary
+        from calib.identify.result_json import drift_summary
 
         return drift_summary(self.block)
 

@@ -16,9 +16,9 @@ if str(REPO) not in sys.path:  # bench/ is a top-level package of the repo, not 
 from bench.drift_bench import campaign, tcp_error_mm  # noqa: E402
 from calib.dataset import make_samples, parse_samples_csv, samples_to_csv  # noqa: E402
 from calib.identify import IdentifyOptions, identify  # noqa: E402
+from calib.identify.result_json import drift_summary as summary  # noqa: E402
 from calib.models import builtin_model  # noqa: E402
 from calib.options import OptionError, options_from_mapping  # noqa: E402
-from calib.report import drift_summary as summary  # noqa: E402
 from calib.synthetic import make_true_cell, noisy_lengths, random_poses_deg  # noqa: E402
 
 N = 300

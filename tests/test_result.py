@@ -17,9 +17,9 @@ import pytest
 from calib.export import export_result
 from calib.filter.correct import calibration_from_result
 from calib.html_report import render_report_html
+from calib.identify.result_json import drift_summary
 from calib.models import builtin_model
 from calib.predict import predict_lengths_from_result
-from calib.report import drift_summary
 from calib.result import RESULT_KEYS, RESULT_SHAPES, CalibrationResult, ResultError, shape_of
 
 DATA = Path(__file__).resolve().parent / "data"

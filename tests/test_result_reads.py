@@ -20,7 +20,7 @@ from calib.result import RESULT_KEYS
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("calib", "daemon", "bench")
 #: The typed result itself, and the producer (it writes the dict; reads of its own locals).
-HOMES = {"calib/result.py", "calib/result_fields.py", "calib/report.py"}
+HOMES = {"calib/result.py", "calib/result_fields.py", "calib/identify/result_json.py"}
 #: Names the code gives an object holding a parsed result.json.
 RESULT_NAMES = {"result", "res", "calibration", "current", "new", "stored"}
 #: Modules allowed to read the dict, with the reason.

@@ -435,10 +435,11 @@ def robot_check(result: ResultLike, nominal: RobotModel) -> tuple[str, str]:
 
     The warning: the result names another robot than the nominal model. The error: its DH
     table differs from the nominal one by more than a calibration moves a parameter
-    (:data:`calib.report.PLAUSIBLE_DH_MM`, :data:`calib.report.PLAUSIBLE_DH_DEG`), the first
-    such entry named: another arm's table, whose correction would be nonsense.
+    (:data:`calib.identify.plausibility.PLAUSIBLE_DH_MM`,
+    :data:`calib.identify.plausibility.PLAUSIBLE_DH_DEG`), the first such entry named: another
+    arm's table, whose correction would be nonsense.
     """
-    from calib.report import PLAUSIBLE_DH_DEG, PLAUSIBLE_DH_MM
+    from calib.identify.plausibility import PLAUSIBLE_DH_DEG, PLAUSIBLE_DH_MM
 
     res = CalibrationResult.of(result)
     named = res.robot

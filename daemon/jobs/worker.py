@@ -32,7 +32,7 @@ class JobsFull(RuntimeError):
 
 class Checked(NamedTuple):
     """A checked job request: the samples and their ids, the robot, and the options checked
-    against them with the split identify will run on (:func:`calib.identify.check`)."""
+    against them with the split identify will run on (:func:`calib.split.check`)."""
 
     samples: SampleSet
     sample_ids: list[int]
@@ -43,7 +43,7 @@ class Checked(NamedTuple):
 
 class Prepared(NamedTuple):
     """A checked job with its inputs: the campaign and robot, the checked options and split
-    (:class:`calib.identify.Checked`), the samples' ids, and the model mapping, joints [deg]
+    (:class:`calib.split.Checked`), the samples' ids, and the model mapping, joints [deg]
     (n x 6 array), lengths [mm] (n array), anchors (n), capture times [s] (n array, or
     None) and pose groups (n, or None) of :func:`run_identification`."""
 
@@ -57,7 +57,7 @@ class Prepared(NamedTuple):
 def check_job(store: Any, campaign_id: int, options: IdentifyOptions) -> Checked:
     """What an identification of the campaign's included samples with ``options`` (made once,
     from the request) would run on, after the one rule of what can run
-    (:func:`calib.identify.check`: the split identify will use, then
+    (:func:`calib.split.check`: the split identify will use, then
     :func:`calib.options.validate`: parameter names, training rows, each anchor's training
     rows). The worker runs on this check's result without checking again.
 
@@ -153,7 +153,7 @@ def run_identification(
         Cable lengths [mm].
     anchors : list of n str
         Anchor id per sample.
-    checked : calib.identify.Checked
+    checked : calib.split.Checked
         The options and split :func:`check_job` checked on these samples (not checked
         again: :func:`calib.identify.identify_checked`).
     progress_queue, cancel_flags

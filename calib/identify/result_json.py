@@ -1,5 +1,7 @@
-"""What an identification reports: the result type and its ``result.json``, the covariance of the
-estimate, and the plausibility of every identified parameter against physical bounds.
+"""What an identification found, and the ``result.json`` it writes: :class:`IdentifyResult`
+(:meth:`IdentifyResult.to_json` is the contract :class:`calib.result.CalibrationResult` reads),
+and the blocks and notes it carries: the length figures, the robust step's note and block, the
+measurement's drift block and its one wording (:func:`drift_summary`).
 
 Units: internal values in millimetres and radians; every reported figure in degrees and
 millimetres.
@@ -14,23 +16,14 @@ from typing import Any
 import numpy as np
 
 from calib.accuracy import length_metrics
-from calib.cable import N_DH, N_KIN, ParamLayout, length_jacobian
+from calib.cable import N_DH, N_KIN, ParamLayout
 from calib.drift import DriftModel, Selection
 from calib.identifiability import Identifiability
 from calib.kinematics import N_JOINTS, FloatArray
 from calib.models import RobotModel
 from calib.options import SCREEN_MIN_DOF, IdentifyOptions, samples_for_training_rows
-from calib.problem import Problem
 from calib.robust import GROSS_ERROR_MM, Solved
 from calib.solvers.common import SolverResult
-
-#: Plausible magnitudes, in display units, used by the plausibility report.
-PLAUSIBLE_DH_MM = 10.0
-PLAUSIBLE_DH_DEG = 1.0
-PLAUSIBLE_TOOL_MM = 500.0
-PLAUSIBLE_ANCHOR_MM = 5000.0
-PLAUSIBLE_OFFSET_MM = 2000.0
-CABLE_EXTENSION_MAX_MM = 2050.0
 
 
 @dataclass
@@ -171,166 +164,6 @@ class IdentifyResult:
             "notes": list(self.notes),
             **self.model.controller_fields(),
         }
-
-
-def covariance(problem: Problem, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Free-parameter covariance (k, k) in internal units and σ̂ [mm]."""
-    pred, jac_full = length_jacobian(
-        problem.model, problem.full(x), problem.q_rad, problem.anchor_index
-    )
-    sw = np.sqrt(problem.weights)
-    res = problem.project(sw * (pred - problem.length_mm))  # drift terms profiled out
-    jac = problem.project(sw[:, None] * jac_full[:, problem.free])
-    k = jac.shape[1]
-    dof = max(int(np.count_nonzero(problem.weights > 0)) - k - problem.n_drift, 1)
-    sigma2 = max(float(res @ res) / dof, 1e-18)
-    d = np.linalg.norm(jac, axis=0)
-    d = np.where(d > 0, d, 1.0)
-    info = (jac / d).T @ (jac / d) / sigma2
-    if problem.has_prior:
-        assert problem.prior_sigma is not None
-        ps = problem.prior_sigma[problem.free]
-        info = info + np.diag(np.where(np.isfinite(ps), 1.0 / (ps * ps), 0.0) / (d * d))
-    evals, evecs = np.linalg.eigh(info)
-    cutoff = evals.max() * 1e-15
-    inv = np.where(evals > cutoff, 1.0 / np.where(evals > cutoff, evals, 1.0), 0.0)
-    cov_scaled = (evecs * inv) @ evecs.T
-    return cov_scaled / np.outer(d, d), np.array(np.sqrt(sigma2))
-
-
-def uncertainty(
-    problem: Problem, x: FloatArray, cov: FloatArray | None = None
-) -> tuple[FloatArray, FloatArray]:
-    """1σ per parameter, shape (p,) in internal units (0 for fixed ones), and the correlation
-    matrix of the free parameters, shape (k, k), at ``x`` (shape (k,)); ``cov`` is
-    :func:`covariance` at ``x`` when the caller has it already."""
-    if cov is None:
-        cov, _ = covariance(problem, x)
-    sig_free = np.sqrt(np.clip(np.diag(cov), 0, None))
-    sigma = np.zeros(problem.layout.size)
-    sigma[problem.free] = sig_free
-    denom = np.outer(sig_free, sig_free)
-    corr = np.divide(cov, denom, out=np.zeros_like(cov), where=denom > 0)
-    return sigma, corr
-
-
-def plausible_bounds(layout: ParamLayout) -> FloatArray:
-    """Plausible magnitude of every parameter, shape (p,), in display units (deg, mm): of the
-    error for DH parameters, of the absolute value for the others."""
-    out = np.full(layout.size, PLAUSIBLE_ANCHOR_MM)
-    for i, name in enumerate(layout.names):
-        if i < N_DH:
-            out[i] = PLAUSIBLE_DH_DEG if layout.is_angle[i] else PLAUSIBLE_DH_MM
-        elif i < N_KIN:
-            out[i] = PLAUSIBLE_TOOL_MM
-        elif name.startswith("offset"):
-            out[i] = PLAUSIBLE_OFFSET_MM
-    return out
-
-
-def plausibility(
-    layout: ParamLayout, theta: FloatArray, nominal_tool: FloatArray, extension_mm: FloatArray
-) -> dict[str, Any]:
-    """Every parameter against its plausible bound, and the cable extension (mm) against the
-    sensor's range: ``plausible``, ``outside_bounds``, ``cable_extension_mm``, ``parameters``.
-
-    ``theta`` shape (p,) internal units; ``nominal_tool`` (3,) [mm]; ``extension_mm`` (n,).
-    """
-    scale = layout.display_scale
-    names = layout.names
-    bounds = plausible_bounds(layout)
-    items = []
-    for i, name in enumerate(names):
-        value = float(theta[i] * scale[i])
-        bound, kind = float(bounds[i]), "error" if i < N_DH else "absolute"
-        if N_DH <= i < N_KIN:
-            value = float(nominal_tool[i - N_DH] + theta[i])
-        items.append(
-            {
-                "name": name,
-                "value": value,
-                "unit": layout.units[i],
-                "kind": kind,
-                "bound": bound,
-                "ok": bool(abs(value) <= bound),
-            }
-        )
-    ext_ok = bool(
-        extension_mm.size == 0
-        or (extension_mm.min() > 0 and extension_mm.max() <= CABLE_EXTENSION_MAX_MM)
-    )
-    outside = [it["name"] for it in items if not it["ok"]]
-    return {
-        "plausible": not outside and ext_ok,
-        "outside_bounds": outside,
-        "cable_extension_mm": {
-            "min": float(extension_mm.min()) if extension_mm.size else None,
-            "max": float(extension_mm.max()) if extension_mm.size else None,
-            "ok": ext_ok,
-        },
-        "parameters": items,
-    }
-
-
-#: How many parameters the advice names, and how many terms of the weakest direction.
-ADVICE_NAMES = 4
-
-
-def weakest_direction(
-    layout: ParamLayout, free_names: list[str], cov: FloatArray
-) -> list[tuple[str, float]]:
-    """The least constrained combination of the solved parameters, relative to their plausible
-    sizes: the top eigenvector of ``D⁻¹ C D⁻¹`` (``C`` the (k, k) covariance in internal units,
-    ``D`` the plausible bounds in internal units), as ``(name, coefficient)`` pairs, largest
-    first (at most :data:`ADVICE_NAMES`), the sign fixed so the first is positive."""
-    idx = [layout.index(n) for n in free_names]
-    if not idx:
-        return []
-    bound = plausible_bounds(layout)[idx] / layout.display_scale[idx]
-    scaled = cov / np.outer(bound, bound)
-    _, vecs = np.linalg.eigh(scaled)
-    v = vecs[:, -1]
-    order = np.argsort(-np.abs(v))[:ADVICE_NAMES]
-    sign = 1.0 if v[order[0]] >= 0 else -1.0
-    return [(free_names[i], round(float(sign * v[i]), 2)) for i in order if abs(v[i]) >= 0.1]
-
-
-def implausibility_advice(
-    layout: ParamLayout,
-    free_names: list[str],
-    sigma: FloatArray,
-    cov: FloatArray,
-    plaus: dict[str, Any],
-    options: IdentifyOptions,
-) -> str:
-    """The note of an implausible result: what is out of bounds, which parameters the data
-    leave least constrained (largest 1σ against the plausible bound, and the weakest
-    direction), and what to do: plan poses that excite them (``cablecal plan --start``), and
-    ``--prior`` only when it is off. ``sigma`` (p,) 1σ in internal units; ``cov`` (k, k)."""
-    scale, bounds = layout.display_scale, plausible_bounds(layout)
-    idx = [layout.index(n) for n in free_names]
-    ratio = sigma[idx] * scale[idx] / bounds[idx]
-    loose = [idx[i] for i in np.argsort(-ratio)[:ADVICE_NAMES]]
-    loose_text = ", ".join(
-        f"{layout.names[i]} ±{sigma[i] * scale[i]:.3g} {layout.units[i]}" for i in loose
-    )
-    direction = " ".join(f"{c:+.2f}·{n}" for n, c in weakest_direction(layout, free_names, cov))
-    outside = ", ".join(plaus["outside_bounds"][:6]) or "no parameter"
-    if not plaus["cable_extension_mm"]["ok"]:
-        outside += ", cable extension"
-    text = (
-        f"identified parameters are physically implausible ({outside}): the data do not "
-        f"hold them within bounds. Least constrained (1σ): {loose_text}; "
-        f"weakest direction: {direction}. "
-        "Measure poses that excite these: `cablecal plan --start DATA.csv` plans the next "
-        "poses given those already measured"
-    )
-    if options.prior:
-        return text + (
-            f" (the prior, {options.prior_mm} mm / {options.prior_deg} deg, is on and does not "
-            "hold them at this weight)"
-        )
-    return text + "; or constrain them toward the nominal model with --prior"
 
 
 def length_figures(
