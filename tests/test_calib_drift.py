@@ -19,6 +19,7 @@ from calib.identify import IdentifyOptions, identify  # noqa: E402
 from calib.identify.result_json import drift_summary as summary  # noqa: E402
 from calib.models import builtin_model  # noqa: E402
 from calib.options import OptionError, options_from_mapping  # noqa: E402
+from calib.result import CalibrationResult  # noqa: E402
 from calib.synthetic import make_true_cell, noisy_lengths, random_poses_deg  # noqa: E402
 
 N = 300
@@ -27,7 +28,7 @@ N = 300
 def _run(case: str, drift: str = "auto", seed: int = 1) -> tuple[float, dict]:  # type: ignore[type-arg]
     cell, samples = campaign(case, N, seed)
     js = identify(cell.model, samples, IdentifyOptions(drift=drift, seed=seed)).to_json()  # type: ignore[arg-type]
-    return tcp_error_mm(cell, js), js
+    return tcp_error_mm(cell, CalibrationResult.from_json(js)), js
 
 
 def test_truth_bump_and_rate_within_1_2x_of_clean_and_clean_unchanged() -> None:
