@@ -123,11 +123,15 @@ async def test_manual_capture_times_out_as_moving(cause: str) -> None:
     else:
         ind.noise_mm = 1.0
     before = metric("cablecal_captures_total", outcome="rejected", reason="moving", mode="manual")
-    async with running(ind, rob, sink, capture_timeout_s=0.6) as s:
+    # A window of 0.3 s needing 3 readings, stale only after a 1 s gap: a loaded machine's
+    # slow polls (a 0.1 s window fell short of 5 readings here at load 12) still fill every
+    # window, so the last verdict before the timeout is the motion's, not "stale".
+    settings = {"capture_timeout_s": 1.0, "settle_s": 0.3, "min_readings": 3, "stale_s": 1.0}
+    async with running(ind, rob, sink, **settings) as s:
         t0 = time.monotonic()
         with pytest.raises(CaptureRejected) as info:
             await s.capture(1)
-        assert time.monotonic() - t0 >= 0.6
+        assert time.monotonic() - t0 >= 1.0
     assert info.value.reason == "moving" and info.value.http_status == 409
     assert "capture_timeout_s" in info.value.detail
     assert sink.rejections == [(1, "moving", info.value.detail, None)] and not sink.captures
@@ -242,11 +246,15 @@ async def test_link_down_and_up_events_metrics_and_logs(caplog: pytest.LogCaptur
     ind, rob, sink = FakeIndicator(name="ind-ev"), FakeRobot(name="rob-ev"), FakeSink()
     labels = {"device": "ind-ev", "role": "indicator"}
     caplog.set_level(logging.INFO, logger="cablecal.sampler")
+    # the registry is the process's: counted from here (the test may run again in it)
+    reconnects_before = metric("cablecal_device_reconnects_total", **labels)
+    polls_before = metric("cablecal_device_polls_total", **labels)
     async with running(ind, rob, sink) as s:
         await wait_until(lambda: s.status()["devices"]["indicator"]["polls"] > 3)
         ind.error = IndicatorLinkDown("ind-ev", "cannot open /dev/ttyUSB0", ["connect failed"])
         await wait_until(lambda: s.status()["devices"]["indicator"]["errors"] >= 3)
         down = s.status()["devices"]["indicator"]
+        robot_polls_down = s.status()["devices"]["robot"]["polls"]
         ind.error = None
         await wait_until(lambda: s.status()["devices"]["indicator"]["state"] == "ok")
         ind.error = IndicatorCRCError("ind-ev", "CRC mismatch; reply discarded", ["rx 01 03 ff"])
@@ -254,8 +262,10 @@ async def test_link_down_and_up_events_metrics_and_logs(caplog: pytest.LogCaptur
         ind.error = None
         await wait_until(lambda: sink.kinds("ind-ev")[-1:] == ["link_up"])
         up = s.status()["devices"]["indicator"]
-        # the robot kept delivering while the indicator was down
-        assert s.status()["devices"]["robot"]["state"] == "ok"
+        # The robot kept delivering while the indicator was down: counted, not timed (its
+        # newest reading may be older than settle_s, "late", on a loaded machine).
+        robot = s.status()["devices"]["robot"]
+        assert robot["connected"] and robot["errors"] == 0 and robot["polls"] > robot_polls_down
     assert sink.kinds("ind-ev") == ["link_down", "link_up", "device_error", "link_up"]
     assert sink.kinds("rob-ev") == []
     link_down = next(e for e in sink.events if e[0] == "link_down")
@@ -263,9 +273,9 @@ async def test_link_down_and_up_events_metrics_and_logs(caplog: pytest.LogCaptur
     assert down["state"] == "error" and down["last_error"]["class"] == "IndicatorLinkDown"
     assert down["last_error"]["message"] == "cannot open /dev/ttyUSB0"
     assert up["state"] == "ok" and up["errors_by_class"]["IndicatorLinkDown"] >= 3
-    assert metric("cablecal_device_reconnects_total", **labels) == 2
+    assert metric("cablecal_device_reconnects_total", **labels) == reconnects_before + 2
     assert metric("cablecal_device_errors_total", error="IndicatorCRCError", **labels) >= 1
-    assert metric("cablecal_device_polls_total", **labels) == up["polls"]
+    assert metric("cablecal_device_polls_total", **labels) == polls_before + up["polls"]
     warned = [r for r in caplog.records if r.levelno == logging.WARNING]
     assert warned and all(getattr(r, "device", None) == "ind-ev" for r in warned)
     assert getattr(warned[0], "frames_hex", None) == ["connect failed"]

@@ -65,7 +65,9 @@ async def test_a_slow_robot_is_late_and_its_lost_pose_is_counted() -> None:
         rob.move_to(POSE_A, move_s=0.05)  # leaves B: the pose is lost to the late robot
         await wait_until(lambda: any(e[0] == "pose_lost" for e in sink.events), 5.0)
         await wait_until(lambda: s.status()["devices"]["robot"]["state"] == "ok", 5.0)
-    assert slow_hz > 0.7 * fast_hz and slow_hz > 50, (fast_hz, slow_hz)
+    # An indicator loop that waited for the robot would poll at most 1 / delay_s (2.9 Hz);
+    # the rates themselves swing by a third on a loaded machine (147 then 103 Hz at load 12).
+    assert slow_hz > max(0.3 * fast_hz, 10 / rob.delay_s), (fast_hz, slow_hz)
     late = [e for e in sink.events if e[0] == "robot_late"]
     assert late and "settle window" in late[0][2] and late[0][1] == "rob"
     lost = [e for e in sink.events if e[0] == "pose_lost"]
