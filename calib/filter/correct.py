@@ -187,7 +187,9 @@ def _leaves_ranges(c: Configuration | None, q_deg: FloatArray) -> str | None:
     left: its corrected joints ``q_deg`` (6,) [deg] leave a joint range that configuration
     fixes (an ABB quadrant, a KUKA T sign, a Fanuc turn number), so writing it would change
     that field (or make the controller refuse it); None when they stay inside."""
-    if c is None or c.ranges_rewritten or c.after is not None or c.nearest_deg is not None:
+    if c is None or c.ranges_rewritten or not c.honoured:
+        return None
+    if c.after is not None or c.nearest_deg is not None:
         return None
     lo, hi = c.joint_ranges_deg[:, 0], c.joint_ranges_deg[:, 1]
     out = (q_deg < lo) | (q_deg >= hi)
