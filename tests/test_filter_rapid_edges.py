@@ -11,6 +11,7 @@ axis 5 at 90° (rapid-wsierrad-t1 ``Target_270``).
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -19,12 +20,14 @@ from filter_cells import planned_targets, rapid_confdata
 
 from calib.filter.correct import Calibration
 from calib.filter.run import filter_files
+from calib.filter.select import BRANCH_JUMP_DEG
 from calib.kinematics import FloatArray
 from calib.models import RobotModel, builtin_model
 from calib.programs.rapid.filter import DIALECT as RAPID
 from calib.programs.rapid.filter import QUADRANT_EDGE_DEG
 from calib.programs.rotations import matrix_to_quat_wxyz
-from calib.programs.sites import FrameTables, Source
+from calib.programs.sites import WRIST_SINGULARITY_REASON, FrameTables, Source
+from calib.synthetic import TABLE_XII_D1
 
 NOMINAL = builtin_model("abb-irb120")
 #: Joints [deg] on quadrant lines: axis 4 at 0 (mora's), every joint but 5 at 0 (wsierrad's),
@@ -49,7 +52,8 @@ def _model(d1_mm: float = 0.0, theta1_deg: float = 0.0) -> RobotModel:
 def _module(q: FloatArray) -> str:
     poses = planned_targets(NOMINAL, q, np.eye(4), np.eye(4))
     confs = rapid_confdata(NOMINAL, q)
-    confs[3] = (0, *confs[3][1:])  # axis 1 at -0.98 deg, written in quadrant 0 (inside it)
+    if q is ON_LINES:  # axis 1 at -0.98 deg, written in quadrant 0 (inside its edge)
+        confs[3] = (0, *confs[3][1:])
     lines = ["MODULE Module1"]
     for i, (p, c) in enumerate(zip(poses, confs, strict=True)):
         xyz = ",".join(f"{v:.3f}" for v in p[:3, 3])
@@ -114,3 +118,33 @@ def test_a_joint_further_across_the_line_than_the_tolerance_is_left_named() -> N
     assert "J1 would be -1.030 deg" in got["Target_40"].reason
     same = Calibration(NOMINAL, NOMINAL, None, np.zeros(0, dtype=int))
     assert filter_files(same, [("Module1.mod", text)]).outputs["Module1.mod"] == text
+
+
+def test_a_target_at_the_wrist_singularity_is_left_named() -> None:
+    """A jointtarget at the IRB 120's home (every joint 0, so J5 = 0: axes 4 and 6 in line)
+    and a robtarget there with J5 = 0.2 deg (a pose written at J5 = 0 rounds to either wrist
+    sign), as RobotStudio stations write them, under a realistic calibration (each
+    DH entry + N(0, |Table XII D1|), the corpus's seed): the calibrated solution turns J4 and
+    J6 by tens of degrees, so both are left as the wrist singularity, with J5 and the turn;
+    a target with J5 = 40 deg beside them is corrected."""
+    rng = np.random.default_rng(34)
+    table = NOMINAL.dh_table + rng.normal(0.0, 1.0, (6, 4)) * np.abs(TABLE_XII_D1)
+    cal = Calibration(NOMINAL, replace(NOMINAL, dh_table=table), None, np.zeros(0, dtype=int))
+    q = np.array([[0.0, 0.0, 0.0, 0.0, 0.2, 0.0], [10.0, 20.0, 10.0, 30.0, 40.0, 50.0]])
+    text = _module(q).replace(
+        "    PROC main()",
+        "    CONST jointtarget jHome:=[[0,0,0,0,0,0],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]];\r\n"
+        "    PROC main()\r\n        MoveAbsJ jHome,v1000,fine,tool0;",
+    )
+    run = filter_files(cal, [("Module1.mod", text.encode())])
+    got = {t.name: c for t, c in zip(run.targets, run.corrections, strict=True)}
+    assert got["Target_20"].status == "corrected", got["Target_20"].reason
+    for name in ("Target_10", "jHome"):
+        assert got[name].status == "skipped"
+        reason = got[name].reason
+        assert reason.startswith(f"{WRIST_SINGULARITY_REASON} (J5 = "), reason
+        turned = [
+            float(v)
+            for v in re.findall(r"turns J4 by (-?[\d.]+) deg and J6 by (-?[\d.]+)", reason)[0]
+        ]
+        assert abs(turned[0]) > BRANCH_JUMP_DEG and turned[0] * turned[1] < 0

@@ -76,6 +76,9 @@ EXTERNAL_AXIS_ADVICE = (
 #: (the wrist sign of :class:`Configuration` is noise there): KUKA's joint targets closer are
 #: left as singular, and compensate counts a wrist flip only when both sides are further.
 WRIST_SINGULARITY_DEG = 1.0
+#: How every dialect names a target left at the wrist singularity (the start of its reason;
+#: the engine adds joint 5 and what the correction would turn, KUKA's joint targets "(A5 = 0)").
+WRIST_SINGULARITY_REASON = "wrist singularity"
 
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
