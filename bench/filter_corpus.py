@@ -66,6 +66,7 @@ from calib.models import RobotModel, builtin_model
 from calib.programs.dialects import dialect_for
 from calib.programs.rotations import invert, rotation_angle_deg
 from calib.programs.sites import (
+    EXTERNAL_AXIS_REASON,
     Dialect,
     FilterInputError,
     FrameTables,
@@ -398,6 +399,7 @@ _PROGRAM_REASONS = (
     "not used by any move",
     "in a file that is read and never written",
     "on an external axis",
+    EXTERNAL_AXIS_REASON,  # main's wording since 57f670d
     "a position register",
     "GP1 has extended axes",
 )

@@ -13,6 +13,7 @@ and the RMS ≤ 0.1× the unfiltered program's.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -35,6 +36,7 @@ from calib.filter.select import choose
 from calib.ik import solve_ik
 from calib.kinematics import FloatArray
 from calib.programs.rapid.filter import DIALECT as RAPID
+from calib.programs.rapid.filter import QUADRANT_EDGE_DEG
 from calib.programs.rotations import invert, rotation_angle_deg
 from calib.programs.sites import FrameTables, Source, Target
 from calib.programs.urscript.filter import DIALECT as URSCRIPT
@@ -180,7 +182,10 @@ def test_plain_urscript_path_reaches_the_floor(cell: Cell) -> None:
     _check(cell, q_plan, np.array(q_exec), q_star, tool, np.eye(4))
 
 
-def test_a_quadrant_crossed_by_the_correction_is_rewritten(cell: Cell) -> None:
+def test_a_quadrant_line_crossed_within_the_edge_keeps_the_confdata(cell: Cell) -> None:
+    """A correction that moves axis 6 across a 90° line by less than QUADRANT_EDGE_DEG keeps
+    the written cf6 (and the target corrected); one that puts it further across than that
+    from its written quadrant is left: the confdata would change."""
     nominal = cell.nominal
     q = regular_poses(nominal, 1, seed=21)
     q[0, 5] = 30.0
@@ -188,12 +193,25 @@ def test_a_quadrant_crossed_by_the_correction_is_rewritten(cell: Cell) -> None:
     cal = calibration_from_result(cell.result, nominal)
     first = filter_files(cal, [("a.mod", rapid_module(nominal, q, tool, work).encode())])
     delta6 = float(first.corrections[0].joints_deg[5] - q[0, 5])  # type: ignore[index]
-    assert abs(delta6) > 0.001
-    q[0, 5] = (90.0 if delta6 > 0 else 0.0) - delta6 / 2  # so that q* crosses the boundary
+    assert 0.001 < abs(delta6) < QUADRANT_EDGE_DEG
+    line = 90.0 if delta6 > 0 else 0.0
+    q[0, 5] = line - delta6 / 2  # so that q* crosses the line by half the correction
     text = rapid_module(nominal, q, tool, work)
     run = filter_files(cal, [("a.mod", text.encode())])
+    assert run.corrections[0].status == "corrected", run.corrections[0].reason
+    q6 = float(run.corrections[0].joints_deg[5])  # type: ignore[index]
+    assert (q6 - line) * delta6 > 0  # across the line
     (t,) = RAPID.parse([Source.from_bytes("a.mod", run.outputs["a.mod"])], FrameTables())
     (t0,) = RAPID.parse([Source.from_bytes("a.mod", text.encode())], FrameTables())
-    old_cf6, new_cf6 = int(t0.site.conf[2].value), int(t.site.conf[2].value)
-    assert new_cf6 == old_cf6 + (1 if delta6 > 0 else -1)
-    assert t.site.conf[3].text == t0.site.conf[3].text  # cfx as it was
+    assert [n.text for n in t.site.conf] == [n.text for n in t0.site.conf]
+    # Written in the quadrant on the far side, axis 6 just inside its edge: q* leaves it.
+    q[0, 5] = line + math.copysign(QUADRANT_EDGE_DEG, delta6) - delta6 / 2
+    far = rapid_module(nominal, q, tool, work)
+    cf6 = math.floor(q[0, 5] / 90.0)
+    written = cf6 - 1 if delta6 > 0 else cf6 + 1
+    confdata = re.compile(r"\[(-?\d+),(-?\d+),(-?\d+),(\d)\],\[9E")  # the robtarget's
+    assert int(confdata.findall(far)[0][2]) == cf6
+    far = confdata.sub(lambda m: f"[{m[1]},{m[2]},{written},{m[4]}],[9E", far, count=1)
+    left = filter_files(cal, [("a.mod", far.encode())]).corrections[0]
+    assert left.status == "skipped"
+    assert "would change the configuration" in left.reason and "J6 would be" in left.reason

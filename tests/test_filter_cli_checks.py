@@ -341,13 +341,12 @@ def test_a_corrected_rows_joints_are_the_controllers_own_at_the_new_values(
     """Per corrected target the summary gives the old and new text, the joints the controller
     reaches the new pose at (on the branch its configuration says: the confdata written in
     the output is theirs), the shift and the σ at its tool."""
-    import math
 
     import numpy as np
 
     from calib.filter.branches import branch_signs
     from calib.filter.kin import flange_frames
-    from calib.programs.rapid.filter import RobSite
+    from calib.programs.rapid.filter import QUADRANT_EDGE_DEG, RobSite
 
     files = [("cell_a.mod", (FIXTURES / "cell_a.mod").read_bytes())]
     run = filter_files(calibration_from_result(cell.result, cell.nominal), files)
@@ -369,11 +368,14 @@ def test_a_corrected_rows_joints_are_the_controllers_own_at_the_new_values(
         s_new = np.stack(branch_signs(cell.nominal, q[None]), axis=1)
         s_old = np.stack(branch_signs(cell.nominal, np.array([row["nominal_joints_deg"]])), axis=1)
         assert np.array_equal(s_new, s_old)
-        # The quadrants the output file holds are those of the row's joints.
+        # The quadrants the output file holds are the input's, and the row's joints lie in
+        # them (within the edge tolerance of a quadrant line).
         site = again[t.name].site
         assert isinstance(site, RobSite)
         written = [int(n.value) for n in site.conf[:3]]
-        assert written == [math.floor(q[j] / 90.0) for j in (0, 3, 5)]
+        assert written == [int(n.value) for n in t.site.conf[:3]]
+        for cf, j in zip(written, (0, 3, 5), strict=True):
+            assert 90.0 * cf - QUADRANT_EDGE_DEG <= q[j] < 90.0 * cf + 90.0 + QUADRANT_EDGE_DEG
         assert row["values"] and all(v["old"] != v["new"] for v in row["values"])
         assert row["shift_mm"] > 0 and row["sigma_at_tool_mm"] is not None
         checked += 1

@@ -151,7 +151,9 @@ def test_a_correction_that_flips_the_wrist_is_left_with_the_reason(ur10e: RobotM
     run, data = _run(_cal(ur10e, (4, 3, 0.01)), _script(ur10e))  # theta5 + 0.01 deg
     by = {t.name: (t, c) for t, c in zip(run.targets, run.corrections, strict=True)}
     _, flat = by["Flat_p"]
-    assert flat.status == "skipped" and "another configuration" in flat.reason
+    # J5 = 0.002 deg: the wrist singularity, named with the flip the correction would make.
+    assert flat.status == "skipped" and flat.reason.startswith("wrist singularity (J5 = 0.002")
+    assert "puts J5 at -" in flat.reason and "the other wrist" in flat.reason
     _, flat_q = by["Flat_q"]
     assert flat_q.status == "skipped" and "not corrected" in flat_q.reason
     out = run.outputs["pick.script"].decode().splitlines()

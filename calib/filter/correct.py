@@ -46,11 +46,17 @@ from calib.export import model_from_result
 from calib.filter.branches import nominal_solutions
 from calib.filter.kin import counted_as, flange_frames, solve_flange_ik, to_table_deg
 from calib.filter.nearest import IK_OPTIONS, keeps_nearest, nearest_solutions
-from calib.filter.select import choose, left_branch
+from calib.filter.select import BRANCH_JUMP_DEG, choose, left_branch
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.programs.rotations import invert, rotation_angle_deg
-from calib.programs.sites import Configuration, Correction, Target
+from calib.programs.sites import (
+    WRIST_SINGULARITY_DEG,
+    WRIST_SINGULARITY_REASON,
+    Configuration,
+    Correction,
+    Target,
+)
 from calib.result import CalibrationResult, ResultLike
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
 
@@ -187,7 +193,9 @@ def _leaves_ranges(c: Configuration | None, q_deg: FloatArray) -> str | None:
     left: its corrected joints ``q_deg`` (6,) [deg] leave a joint range that configuration
     fixes (an ABB quadrant, a KUKA T sign, a Fanuc turn number), so writing it would change
     that field (or make the controller refuse it); None when they stay inside."""
-    if c is None or c.ranges_rewritten or c.after is not None or c.nearest_deg is not None:
+    if c is None or c.ranges_rewritten or not c.honoured:
+        return None
+    if c.after is not None or c.nearest_deg is not None:
         return None
     lo, hi = c.joint_ranges_deg[:, 0], c.joint_ranges_deg[:, 1]
     out = (q_deg < lo) | (q_deg >= hi)
@@ -198,6 +206,32 @@ def _leaves_ranges(c: Configuration | None, q_deg: FloatArray) -> str | None:
         f"the correction would change the configuration {c.text or ''}: J{j + 1} would be "
         f"{q_deg[j]:.3f} deg, outside [{lo[j]:g}, {hi[j]:g}) that it fixes"
     ).replace("configuration :", "configuration:")
+
+
+def _at_wrist_singularity(q_nom_deg: FloatArray, q_deg: FloatArray) -> str | None:
+    """Why a target whose corrected joints ``q_deg`` (6,) [deg] left the branch of its nominal
+    joints ``q_nom_deg`` (6,) is left, when that branch has joint 5 within
+    :data:`~calib.programs.sites.WRIST_SINGULARITY_DEG` of 0; None elsewhere.
+
+    There axes 4 and 6 line up, so the nominal pose fixes only J4 + J6; the calibrated arm's
+    wrist is not singular at the same place, so its solution tilts J5 off 0 in one direction,
+    which turns J4 and J6 by tens of degrees in opposite senses. Keeping the nominal J4 and J6
+    and correcting the other joints does not reach the pose (bench/filter_corpus.md gives the
+    measured residuals), so the target is left, named."""
+    if abs(float(q_nom_deg[4])) >= WRIST_SINGULARITY_DEG:
+        return None
+    d4, d6 = float(q_deg[3] - q_nom_deg[3]), float(q_deg[5] - q_nom_deg[5])
+    if max(abs(d4), abs(d6)) > BRANCH_JUMP_DEG:
+        what = f"turns J4 by {d4:.2f} deg and J6 by {d6:.2f} deg"
+    elif (q_deg[4] >= 0) != (q_nom_deg[4] >= 0):
+        what = f"puts J5 at {float(q_deg[4]):.3f} deg, the other wrist"
+    else:
+        what = "leaves the branch"
+    return (
+        f"{WRIST_SINGULARITY_REASON} (J5 = {float(q_nom_deg[4]):.3f} deg, within "
+        f"{WRIST_SINGULARITY_DEG:g} deg of 0): only J4 + J6 is fixed there, and the calibrated "
+        f"solution {what}; teach it with J5 off 0"
+    )
 
 
 def correct_targets(
@@ -374,6 +408,8 @@ def correct_targets(
                         "the controller would solve the corrected pose from its joint "
                         "reference to another solution (nearest q)"
                     )
+                elif (singular := _at_wrist_singularity(q_nom[r], qs)) is not None:
+                    why = singular
                 out[i] = Correction("skipped", why)
                 continue
             if (changed := _leaves_ranges(t.configuration, qs)) is not None:

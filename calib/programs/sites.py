@@ -76,6 +76,9 @@ EXTERNAL_AXIS_ADVICE = (
 #: (the wrist sign of :class:`Configuration` is noise there): KUKA's joint targets closer are
 #: left as singular, and compensate counts a wrist flip only when both sides are further.
 WRIST_SINGULARITY_DEG = 1.0
+#: How every dialect names a target left at the wrist singularity (the start of its reason;
+#: the engine adds joint 5 and what the correction would turn, KUKA's joint targets "(A5 = 0)").
+WRIST_SINGULARITY_REASON = "wrist singularity"
 
 #: Largest rounding a written number may cost: position [mm] and orientation [deg].
 POSITION_ROUNDING_MM = 0.001
@@ -221,11 +224,10 @@ class Configuration:
     text : str
         The configuration as the program writes it, for messages.
     ranges_rewritten : bool
-        True where the dialect writes the corrected joints' ranges back (RAPID's quadrants
-        ``cf1/cf4/cf6`` say where a joint is, not which branch: a correction that moves a
-        joint across a 90° line keeps the branch and gets the new quadrant). Else a
-        correction that leaves ``joint_ranges_deg`` (a KUKA ``T`` sign, a Fanuc turn number)
-        is refused with the reason: those fields are never rewritten.
+        True where the dialect writes the corrected joints' ranges back (no dialect does
+        now). Else a correction that leaves ``joint_ranges_deg`` (an ABB quadrant, read with
+        its edge tolerance; a KUKA ``T`` sign; a Fanuc turn number) is refused with the
+        reason: those fields are never rewritten.
     honoured : bool
         False where the controller ignores the written configuration and takes the solution
         nearest where the robot is, which the program does not say (ABB's first move under

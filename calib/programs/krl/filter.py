@@ -82,6 +82,7 @@ from calib.programs.sites import (
     READ_ONLY_REASON,
     UNUSED_REASON,
     WRIST_SINGULARITY_DEG,
+    WRIST_SINGULARITY_REASON,
     Configuration,
     Correction,
     Edit,
@@ -114,7 +115,7 @@ S_A5_NEGATIVE = 4
 #: A joint target with ``|A5|`` below this [deg] is at the wrist singularity: A4 and A6 turn
 #: about one line there, and a correction of a few hundredths of a millimetre would turn them
 #: by degrees; it is left, named.
-WRIST_SINGULARITY = "wrist singularity (A5 = 0)"
+WRIST_SINGULARITY = f"{WRIST_SINGULARITY_REASON} (A5 = 0)"
 #: The controller's own data file: read (TOOL_DATA, BASE_DATA, XHOME …), never written.
 CONFIG_DAT = "$config.dat"
 #: Reasons of targets left on purpose (the summary need not count them as left).

@@ -34,9 +34,12 @@ Instructions, Functions and Data types", confdata)
     (2, 3, 6, 7) the lower arm; axis 5 positive (even) or negative (odd). "The lower arm"
     is the arm's own side, fixed to it: the same elbow bend is "in front" with the wrist on
     either side of axis 1 (:func:`cfx_of`; docs/compensation.md names the sources). Where
-    the confdata is honoured (``ConfL\On``/``ConfJ\On``) the quadrants are written from the
-    corrected joints; under ``\Off`` the controller ignores confdata: the filter seeds each
-    target from the previous one along the routine and leaves the confdata text as it is.
+    the confdata is honoured (``ConfL\On``/``ConfJ\On``) a target is corrected only when
+    its corrected axes 1, 4, 6 stay within :data:`QUADRANT_EDGE_DEG` of their written
+    quadrants (else it is left: the correction would change the configuration), and the
+    confdata text is never rewritten; under ``\Off`` the controller ignores confdata: the
+    filter seeds each target from the previous one along the routine and leaves the
+    confdata text as it is.
     The first target (where the robot comes from is not in the program) takes its confdata
     where that fits a solution, else the only solution within the joint limits, else is
     left saying so (:attr:`calib.programs.sites.Configuration.honoured`).
@@ -47,7 +50,6 @@ components to at least 6 (≤ 1e-4°), joint angles to at least 4 (≤ 0.00005°
 
 from __future__ import annotations
 
-import math
 import re
 from collections import defaultdict
 from collections.abc import Sequence
@@ -126,6 +128,19 @@ class JointSite:
 
 _OPEN = np.tile([-np.inf, np.inf], (6, 1))
 
+#: A joint within this of the 90° line bounding its written quadrant still keeps that
+#: quadrant [deg]; further across, the correction changes the configuration and the target is
+#: left with that reason (its confdata is never rewritten). A quadrant names which solution
+#: the controller takes, not a hard window: ABB's RobotStudio API accepts a solution "within
+#: +-1 for Cf1, Cf4 and Cf6" of the stored one as compliant (``ConfigurationMode.Compliant``),
+#: and ``ConfL\On`` stops only when axis 4 or 6 would turn by more than 90°. A nominal
+#: solution exactly on a line (axis 4 of a downward tool, an all-zero hand-taught wrist) comes
+#: back a rounding below it after any correction, and a pure turn of the base moves axis 1 by
+#: the turn (a calibration's is a few tenths of a degree): 1° keeps both, and stays far from
+#: a real change of quadrant (90°). The one home of this tolerance: :func:`configuration`
+#: reads confdata with it, the engine refuses outside it.
+QUADRANT_EDGE_DEG = 1.0
+
 
 def cfx_of(shoulder: int, elbow: int, wrist: int) -> int:
     """ABB's ``cfx`` (0..7) of branch signs (:class:`calib.programs.sites.Configuration`):
@@ -137,14 +152,15 @@ def cfx_of(shoulder: int, elbow: int, wrist: int) -> int:
 
 def configuration(conf: Sequence[float]) -> Configuration:
     """The branch an ABB controller takes for confdata ``[cf1, cf4, cf6, cfx]`` (integers);
-    the inverse of :func:`cfx_of` and ``floor(q / 90°)``."""
+    the inverse of :func:`cfx_of` and ``floor(q / 90°)``: each quadrant widened by
+    :data:`QUADRANT_EDGE_DEG` on both sides."""
     ranges = _OPEN.copy()
     for j, cf in zip((0, 3, 5), conf[:3], strict=True):
-        ranges[j] = (90.0 * cf, 90.0 * cf + 90.0)
+        ranges[j] = (90.0 * cf - QUADRANT_EDGE_DEG, 90.0 * cf + 90.0 + QUADRANT_EDGE_DEG)
     cfx = int(conf[3])
     text = "[" + ",".join(f"{int(c)}" for c in conf) + "]"
     if not 0 <= cfx <= 7:
-        return Configuration(ranges, text=text, ranges_rewritten=True)
+        return Configuration(ranges, text=text)
     shoulder = 1 if cfx < 4 else -1
     return Configuration(
         ranges,
@@ -152,7 +168,6 @@ def configuration(conf: Sequence[float]) -> Configuration:
         elbow=(1 if cfx % 4 < 2 else -1) * shoulder,
         wrist=1 if cfx % 2 == 0 else -1,
         text=text,
-        ranges_rewritten=True,
     )
 
 
@@ -378,12 +393,9 @@ class RapidDialect:
             *edits_for(site.position, correction.pose[:3, 3], POSITION_DECIMALS),
             *edits_for(site.quaternion, quat, QUATERNION_DECIMALS),
         ]
-        if not site.honoured:
-            return edits  # the controller ignores this confdata: its text stays
-        for num, j in zip(site.conf[:3], (0, 3, 5), strict=True):
-            cf = math.floor(float(correction.joints_deg[j]) / 90.0)
-            if cf != num.value:  # a quadrant that did not change keeps its text
-                edits.extend(edits_for([num], [cf], 0))
+        # The confdata text stays: under ConfL/ConfJ\Off the controller ignores it, and where
+        # it is honoured the engine corrected the target only with every joint within
+        # QUADRANT_EDGE_DEG of its written quadrant (:func:`configuration`).
         return edits
 
 
