@@ -110,6 +110,10 @@ def _program(
 #: Planned joints per target of each dialect's program (a PolyScope waypoint is two targets).
 _PER_TARGET = {"RAPID": 1.0, "URScript": 0.5, "KRL": 1.0, "Fanuc LS": 1.0}
 SHAPES = "RAPID, shapes"
+#: The upload of issue 31 item 4: a RAPID module of targets in real shapes, just under
+#: 16 MiB (the service's upload limit), run once per checkout.
+UPLOAD = "RAPID, 16 MiB upload"
+UPLOAD_TARGETS = 85_500
 
 
 def programs(cell: Cell) -> dict[str, tuple[list[tuple[str, bytes]], str | None]]:
@@ -124,6 +128,11 @@ def programs(cell: Cell) -> dict[str, tuple[list[tuple[str, bytes]], str | None]
     tools = [tool_frame(185.0), tool_frame(220.0, 10.0), tool_frame(240.0, 30.0)]
     text = rapid_shapes(cell.nominal, q, tools, work_frame(), rapid_confdata(cell.nominal, q))
     out[SHAPES] = ([("SHAPES.mod", text.encode())], None)
+    q = regular_poses(cell.nominal, UPLOAD_TARGETS, seed=3)
+    text = rapid_shapes(cell.nominal, q, tools, work_frame(), rapid_confdata(cell.nominal, q))
+    if len(text.encode()) > 16 * 2**20:
+        raise AssertionError(f"the upload is {len(text.encode())} bytes, over 16 MiB")
+    out[UPLOAD] = ([("UPLOAD.mod", text.encode())], None)
     return out
 
 
@@ -141,6 +150,11 @@ def speeds(
             codes["before"] = (checkout(against, d), False)
             labels["before"] = f"before ({against})"
         sp = measure(d / "data", codes, [*_PER_TARGET, SHAPES], rounds)
+        up = measure(
+            d / "data", {k: v for k, v in codes.items() if k != "this-gc-off"}, [UPLOAD], 1
+        )
+    for label, by in up.items():
+        sp[label][UPLOAD] = by[UPLOAD]
     return sp, labels
 
 

@@ -50,7 +50,7 @@ from calib.filter.select import choose
 from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.programs.rotations import invert, rotation_angle_deg
-from calib.programs.sites import Configuration, Correction, Target
+from calib.programs.sites import OPEN_RANGES_DEG, Configuration, Correction, Target
 from calib.tcp import joint_limits_deg, remove_rigid, workspace_sample_deg
 
 #: A corrected joint further than this from the nominal solution is another branch [deg].
@@ -137,6 +137,8 @@ def _uses_frames(t: Target) -> tuple[FloatArray | None, FloatArray | None, str]:
     assert first.tool is not None and first.work is not None
     for u in t.uses[1:]:
         assert u.tool is not None and u.work is not None
+        if u.tool is first.tool and u.work is first.work:  # the same resolved frames
+            continue
         if not (
             np.allclose(u.tool, first.tool, atol=1e-9)
             and np.allclose(u.work, first.work, atol=1e-9)
@@ -201,6 +203,18 @@ def _leaves_ranges(c: Configuration | None, q_deg: FloatArray) -> str | None:
         f"the correction would change the configuration {c.text or ''}: J{j + 1} would be "
         f"{q_deg[j]:.3f} deg, outside [{lo[j]:g}, {hi[j]:g}) that it fixes"
     ).replace("configuration :", "configuration:")
+
+
+def _may_leave_ranges(configs: Sequence[Configuration | None], q_deg: FloatArray) -> list[bool]:
+    """Per row, whether :func:`_leaves_ranges` may refuse it: its corrected joints ``q_deg``
+    (n, 6) [deg] leave the joint ranges of a configuration it honours (all rows at once; the
+    reason is then written for those rows alone)."""
+    ranges = np.array([c.joint_ranges_deg if c is not None else OPEN_RANGES_DEG for c in configs])
+    if not ranges.size:
+        return []
+    with np.errstate(invalid="ignore"):
+        out = np.any((q_deg < ranges[..., 0]) | (q_deg >= ranges[..., 1]), axis=1)
+    return out.tolist()  # type: ignore[no-any-return]
 
 
 def correct_targets(
@@ -353,6 +367,7 @@ def correct_targets(
         outside_l, left_l = outside.tolist(), left_branch.tolist()
         shifts_mm, shifts_deg = shift_mm_all.tolist(), shift_deg_all.tolist()
         jumps, sigmas = jump_all.tolist(), sigma.tolist()
+        leaves = _may_leave_ranges([targets[i].configuration for i in rows], q_star)
         for r, i in enumerate(rows):
             t = targets[i]
             qs = q_star[r]
@@ -384,7 +399,7 @@ def correct_targets(
                     )
                 out[i] = Correction("skipped", why)
                 continue
-            if (changed := _leaves_ranges(t.configuration, qs)) is not None:
+            if leaves[r] and (changed := _leaves_ranges(t.configuration, qs)) is not None:
                 out[i] = Correction("skipped", changed)
                 continue
             shift_mm, shift_deg = shifts_mm[r], shifts_deg[r]

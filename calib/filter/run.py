@@ -329,6 +329,22 @@ def _with_reasons(
     return out
 
 
+def _render(
+    dialect: Dialect, t: Target, c: Correction, edits: dict[str, list[Edit]]
+) -> tuple[tuple[str, int, int], ...]:
+    """Append a corrected target's edits to ``edits`` (per file); where they are (the
+    :attr:`FilterRun.written` entry)."""
+    by_file: dict[str, list[Edit]] = {}
+    for e in dialect.render(t, c):
+        by_file.setdefault(e.file, []).append(e)
+    spans = []
+    for file, new in by_file.items():
+        mine = edits[file]
+        spans.append((file, len(mine), len(mine) + len(new)))
+        mine.extend(new)
+    return tuple(spans)
+
+
 def filter_files(
     cal: Calibration,
     files: Sequence[tuple[str, bytes]],
@@ -378,7 +394,12 @@ def filter_files(
                     "(names match without regard to case)",
                 )
             )
+    # Batch by batch: correct, write the edits, and let go of each written target's site
+    # (its numbers: the edits hold what the summary shows), so a long program does not
+    # keep every number of every target to the end.
     corrections: list[Correction | None] = [None] * len(run.targets)
+    edits: dict[str, list[Edit]] = defaultdict(list)
+    written: list[tuple[tuple[str, int, int], ...]] = [()] * len(run.targets)
     for batch in batches(run.targets):
         done = correct_targets(
             cal,
@@ -386,25 +407,16 @@ def filter_files(
             keep_joint_targets=keep_joint_targets,
             only=only,
         )
+        done = _with_reasons(done, [parsed[i] for i in batch])
         for i, c in zip(batch, done, strict=True):
             corrections[i] = c
-    run.corrections = _with_reasons([c for c in corrections if c is not None], parsed)
+            if c.status == "corrected":
+                written[i] = _render(parsed[i][0], run.targets[i], c, edits)
+        for i in batch:
+            run.targets[i].site = None
+    run.corrections = [c for c in corrections if c is not None]
+    run.written = written
     run.sources = {src.name: src for src in readable}
-    edits: dict[str, list[Edit]] = defaultdict(list)
-    written = run.written
-    for (d, t), c in zip(parsed, run.corrections, strict=True):
-        if c.status != "corrected":
-            written.append(())
-            continue
-        spans = []
-        by_file: dict[str, list[Edit]] = {}
-        for e in d.render(t, c):
-            by_file.setdefault(e.file, []).append(e)
-        for file, new in by_file.items():
-            mine = edits[file]
-            spans.append((file, len(mine), len(mine) + len(new)))
-            mine.extend(new)
-        written.append(tuple(spans))
     run.edits = dict(edits)
     for src in readable:
         text = apply_edits(src.text, edits.get(src.name, []))

@@ -140,7 +140,7 @@ class Edit(NamedTuple):
     new: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Use:
     """One move that uses a target, with its tool and work object.
 
@@ -172,7 +172,13 @@ class Use:
         return (self.tool_name, self.work_name)
 
 
-@dataclass(frozen=True)
+#: A :class:`Configuration`'s joint ranges where the program says nothing: every joint open
+#: (one read-only array that every such configuration shares).
+OPEN_RANGES_DEG: FloatArray = np.tile([-np.inf, np.inf], (N_JOINTS, 1))
+OPEN_RANGES_DEG.flags.writeable = False
+
+
+@dataclass(frozen=True, slots=True)
 class Configuration:
     """How the controller picks the IK branch of a Cartesian target, in dialect-neutral form.
 
@@ -211,9 +217,7 @@ class Configuration:
         is refused with the reason: those fields are never rewritten.
     """
 
-    joint_ranges_deg: FloatArray = field(
-        default_factory=lambda: np.tile([-np.inf, np.inf], (N_JOINTS, 1))
-    )
+    joint_ranges_deg: FloatArray = field(default_factory=lambda: OPEN_RANGES_DEG)
     shoulder: int | None = None
     elbow: int | None = None
     wrist: int | None = None
@@ -223,7 +227,7 @@ class Configuration:
     ranges_rewritten: bool = False
 
 
-@dataclass
+@dataclass(slots=True)
 class Target:
     """One target site of a program.
 
@@ -251,7 +255,8 @@ class Target:
         of the same file (a PolyScope ``Waypoint_n_q`` follows ``Waypoint_n_p``): its name.
     site : Any
         The dialect's own data about where the numbers are (only :meth:`Dialect.render`
-        reads it).
+        reads it). :func:`calib.filter.run.filter_files` lets go of it (None) once the
+        target's batch is written: the edits hold the numbers the summary shows.
     """
 
     file: str
@@ -267,7 +272,7 @@ class Target:
     site: Any = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Correction:
     """What the core found for one target.
 

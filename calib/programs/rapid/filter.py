@@ -98,7 +98,7 @@ NO_AXIS = 9e9
 _EAX = "abcdef"
 
 
-@dataclass
+@dataclass(slots=True)
 class RobSite:
     """Where a robtarget's numbers are: position (3), quaternion (4), confdata (4); whether
     the controller honours the confdata (False under ``ConfL\\Off``/``ConfJ\\Off``)."""
@@ -109,7 +109,7 @@ class RobSite:
     honoured: bool = True
 
 
-@dataclass
+@dataclass(slots=True)
 class JointSite:
     """Where a jointtarget's six robot axes are."""
 
