@@ -34,6 +34,7 @@ from __future__ import annotations
 import bisect
 import math
 import re
+from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -106,8 +107,9 @@ class Source:
             raise FilterInputError(self.name, f"cannot encode as {self.encoding}: {exc}") from None
 
     @cached_property
-    def _line_starts(self) -> list[int]:
-        return [m.end() for m in re.finditer("\n", self.text)]
+    def _line_starts(self) -> array[int]:
+        """Offsets where lines start (a compact array: a long program has many lines)."""
+        return array("q", (m.end() for m in re.finditer("\n", self.text)))
 
     def line_of(self, offset: int) -> int:
         """1-based line number of a character offset."""
@@ -118,9 +120,10 @@ class Num(NamedTuple):
     """One number of a target as it stands in its file.
 
     ``start, end`` are character offsets into :attr:`Source.text`; ``text`` the original
-    characters; ``value`` what they mean (as the controller reads them). A tuple of atoms:
-    the cyclic garbage collector stops tracking it after its first pass, so the hundreds
-    of thousands of numbers of a long program cost no collection time after that.
+    characters; ``value`` what they mean (as the controller reads them). A named tuple: the
+    cyclic garbage collector keeps tracking it (it stops tracking exact tuples of atoms
+    only), so a long program's numbers cost collection time while they live;
+    :func:`calib.filter.run.filter_files` lets go of them batch by batch.
     """
 
     file: str

@@ -208,6 +208,8 @@ class RapidDialect:
                     decl.targets[index] = self._target(
                         mod.source, f"{name}{index_text(index)}", decl.kind, node
                     )
+                # The targets hold the numbers now: let go of the literal's node tree.
+                decl.value, decl.elements, decl.fast = None, {}, None
                 order.extend(decl.targets.values())
         moves = [mv for mod in modules for mv in read_moves(mod, modules)]
         entries = monitoring(modules, moves)
