@@ -34,6 +34,7 @@ from calib.programs.sites import (
     Correction,
     Dialect,
     Edit,
+    EditTuple,
     FilterInputError,
     FrameTables,
     Source,
@@ -99,8 +100,9 @@ class FilterRun:
     targets : list of Target
     corrections : list of Correction
         One per target.
-    edits : dict of str to list of Edit
-        Per file, the edits written into it, target by target.
+    edits : dict of str to list of EditTuple
+        Per file, the edits written into it, batch by batch and target by target, as exact
+        tuples ``(file, start, end, new)`` (:data:`calib.programs.sites.EditTuple`).
     written : list of tuple of (str, int, int)
         Per target, where its edits are: ``edits[file][first:last]`` for each ``(file,
         first, last)`` (exact tuples of atoms, which the garbage collector stops tracking).
@@ -116,7 +118,7 @@ class FilterRun:
     errors: list[FilterInputError] = field(default_factory=list)
     targets: list[Target] = field(default_factory=list)
     corrections: list[Correction] = field(default_factory=list)
-    edits: dict[str, list[Edit]] = field(default_factory=dict)
+    edits: dict[str, list[EditTuple]] = field(default_factory=dict)
     written: list[tuple[tuple[str, int, int], ...]] = field(default_factory=list)
     sources: dict[str, Source] = field(default_factory=dict)
     dialects: dict[str, str] = field(default_factory=dict)
@@ -183,8 +185,8 @@ class FilterRun:
             return []
         src = self.sources[file]
         return [
-            {"line": src.line_of(e.start), "old": src.text[e.start : e.end], "new": e.new}
-            for e in self.edits[file][first:last]
+            {"line": src.line_of(start), "old": src.text[start:end], "new": new}
+            for _file, start, end, new in self.edits[file][first:last]
         ]
 
     @property
@@ -330,7 +332,7 @@ def _with_reasons(
 
 
 def _render(
-    dialect: Dialect, t: Target, c: Correction, edits: dict[str, list[Edit]]
+    dialect: Dialect, t: Target, c: Correction, edits: dict[str, list[EditTuple]]
 ) -> tuple[tuple[str, int, int], ...]:
     """Append a corrected target's edits to ``edits`` (per file); where they are (the
     :attr:`FilterRun.written` entry)."""
@@ -341,7 +343,8 @@ def _render(
     for file, new in by_file.items():
         mine = edits[file]
         spans.append((file, len(mine), len(mine) + len(new)))
-        mine.extend(new)
+        # Exact tuples: the collector stops tracking them (never a named tuple).
+        mine.extend((e.file, e.start, e.end, e.new) for e in new)
     return tuple(spans)
 
 
@@ -398,7 +401,7 @@ def filter_files(
     # (its numbers: the edits hold what the summary shows), so a long program does not
     # keep every number of every target to the end.
     corrections: list[Correction | None] = [None] * len(run.targets)
-    edits: dict[str, list[Edit]] = defaultdict(list)
+    edits: dict[str, list[EditTuple]] = defaultdict(list)
     written: list[tuple[tuple[str, int, int], ...]] = [()] * len(run.targets)
     for batch in batches(run.targets):
         done = correct_targets(

@@ -143,6 +143,12 @@ class Edit(NamedTuple):
     new: str
 
 
+#: An :class:`Edit` kept as an exact tuple ``(file, start, end, new)`` (``tuple(edit)``): the
+#: cyclic garbage collector stops tracking an exact tuple of atoms, never a named tuple, so a
+#: filter run keeps its hundreds of thousands of edits in this form.
+EditTuple = tuple[str, int, int, str]
+
+
 @dataclass(frozen=True, slots=True)
 class Use:
     """One move that uses a target, with its tool and work object.
@@ -408,8 +414,9 @@ def edits_for(nums: Sequence[Num], values: Iterable[float], min_decimals: int) -
     return out
 
 
-def apply_edits(text: str, edits: Sequence[Edit]) -> str:
-    """``text`` with the edits spliced in (edits of one file, non-overlapping).
+def apply_edits(text: str, edits: Sequence[EditTuple]) -> str:
+    """``text`` with the edits (:class:`Edit` or :data:`EditTuple`) spliced in (edits of one
+    file, non-overlapping).
 
     Raises
     ------
@@ -418,12 +425,12 @@ def apply_edits(text: str, edits: Sequence[Edit]) -> str:
     """
     out: list[str] = []
     pos = 0
-    for e in sorted(edits, key=lambda e: e.start):
-        if e.start < pos:
-            raise ValueError(f"overlapping edits at offset {e.start}")
-        out.append(text[pos : e.start])
-        out.append(e.new)
-        pos = e.end
+    for _file, start, end, new in sorted(edits, key=lambda e: e[1]):
+        if start < pos:
+            raise ValueError(f"overlapping edits at offset {start}")
+        out.append(text[pos:start])
+        out.append(new)
+        pos = end
     out.append(text[pos:])
     return "".join(out)
 
