@@ -15,6 +15,7 @@ real modules hold (:mod:`bench.filter_shapes`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import resource
@@ -69,6 +70,10 @@ def _child(directory: Path, dialect: str, gc_off: bool = False) -> None:
     run = filter_files(cal, files, frames=frames)
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     gc.enable()
+    digest = hashlib.sha256()
+    for name in sorted(run.outputs):
+        digest.update(f"{len(name)}:{name}:{len(run.outputs[name])}:".encode())
+        digest.update(run.outputs[name])
     print(
         json.dumps(
             {
@@ -79,6 +84,7 @@ def _child(directory: Path, dialect: str, gc_off: bool = False) -> None:
                 "targets": len(run.targets),
                 "corrected": sum(c.status == "corrected" for c in run.corrections),
                 "errors": [str(e) for e in run.errors],
+                "outputs_sha256": digest.hexdigest(),
             }
         )
     )
@@ -140,18 +146,25 @@ def _one(code: Path, directory: Path, dialect: str, gc_off: bool) -> dict[str, A
 
 
 def measure(
-    directory: Path, codes: dict[str, tuple[Path, bool]], dialects: list[str], rounds: int
+    directory: Path,
+    codes: dict[str, tuple[Path, bool]],
+    dialects: list[str],
+    rounds: int | dict[str, int],
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Per label (a checkout, and whether the GC is off in the run) and dialect: the runs
-    and their medians (time) and maxima (RSS)."""
+    and their medians (time) and maxima (RSS); ``rounds`` per dialect or for all. Each
+    dialect's output bytes are compared across the labels (``same_output``: the SHA-256 of
+    every output file, names and lengths included, equal to the first label's, run by run).
+    """
     runs: dict[str, dict[str, list[dict[str, Any]]]] = {k: {d: [] for d in dialects} for k in codes}
     loads: dict[str, list[float]] = {}
     for dialect in dialects:
         loads[dialect] = [round(v, 2) for v in os.getloadavg()]
-        for _ in range(rounds):
+        for _ in range(rounds if isinstance(rounds, int) else rounds[dialect]):
             for label, (code, gc_off) in codes.items():
                 runs[label][dialect].append(_one(code, directory, dialect, gc_off))
     out: dict[str, dict[str, dict[str, Any]]] = {}
+    first = next(iter(codes))
     for label in codes:
         out[label] = {}
         for dialect in dialects:
@@ -168,6 +181,10 @@ def measure(
                 "peak_rss_mb": max(r["peak_rss_mb"] for r in rs),
                 "rss_before_run_mb": max(r["rss_before_run_mb"] for r in rs),
                 "load_average_1_5_15": loads[dialect],
+                "outputs_sha256": rs[0]["outputs_sha256"],
+                "same_output": all(
+                    r["outputs_sha256"] == runs[first][dialect][0]["outputs_sha256"] for r in rs
+                ),
             }
     return out
 
@@ -176,18 +193,22 @@ def markdown(sp: dict[str, dict[str, dict[str, Any]]], labels: dict[str, str]) -
     """The speed section's table: one row per dialect and checkout."""
     lines = [
         "| dialect | checkout | targets | corrected | MB | wall [s] (median) | runs [s] | "
-        "CPU [s] (median) | peak RSS [MB] | RSS before the run [MB] | load average 1/5/15 |",
-        "|---|---|---:|---:|---:|---:|---|---:|---:|---:|---|",
+        "CPU [s] (median) | peak RSS [MB] | RSS before the run [MB] | output bytes as "
+        "`this` | load average 1/5/15 |",
+        "|---|---|---:|---:|---:|---:|---|---:|---:|---:|---|---|",
     ]
     dialects = list(next(iter(sp.values())))
     for dialect in dialects:
         for label, by in sp.items():
+            if dialect not in by:
+                continue
             r = by[dialect]
             runs = ", ".join(f"{t:.2f}" for t in r["runs_s"])
             lines.append(
                 f"| {dialect} | {labels[label]} | {r['targets']:,} | {r['corrected']:,} | "
                 f"{r['bytes'] / 1e6:.1f} | {r['wall_s']:.2f} | {runs} | {r['cpu_s']:.2f} | "
                 f"{r['peak_rss_mb']:.0f} | {r['rss_before_run_mb']:.0f} | "
+                f"{'identical' if r['same_output'] else 'DIFFERENT'} | "
                 f"{r['load_average_1_5_15']} |"
             )
     return lines

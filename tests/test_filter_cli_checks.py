@@ -353,6 +353,9 @@ def test_a_corrected_rows_joints_are_the_controllers_own_at_the_new_values(
     rows = {r["name"]: r for r in run.rows()}
     out_src = Source.from_bytes("cell_a.mod", run.outputs["cell_a.mod"])
     again = {t.name: t for t in dialect_for(out_src).parse([out_src], FrameTables())}
+    # The run lets go of a written target's numbers (its site): the input's, read again.
+    in_src = Source.from_bytes("cell_a.mod", files[0][1])
+    before = {t.name: t for t in dialect_for(in_src).parse([in_src], FrameTables())}
     checked = 0
     for t, c in zip(run.targets, run.corrections, strict=True):
         if c.status != "corrected" or t.kind != "cartesian" or not c.shift_mm > 0.05:
@@ -373,7 +376,9 @@ def test_a_corrected_rows_joints_are_the_controllers_own_at_the_new_values(
         site = again[t.name].site
         assert isinstance(site, RobSite)
         written = [int(n.value) for n in site.conf[:3]]
-        assert written == [int(n.value) for n in t.site.conf[:3]]
+        old_site = before[t.name].site
+        assert isinstance(old_site, RobSite)
+        assert written == [int(n.value) for n in old_site.conf[:3]]
         for cf, j in zip(written, (0, 3, 5), strict=True):
             assert 90.0 * cf - QUADRANT_EDGE_DEG <= q[j] < 90.0 * cf + 90.0 + QUADRANT_EDGE_DEG
         assert row["values"] and all(v["old"] != v["new"] for v in row["values"])

@@ -51,6 +51,7 @@ from calib.kinematics import DH_FIELDS, N_JOINTS, FloatArray, position_jacobian
 from calib.models import RobotModel
 from calib.programs.rotations import invert, rotation_angle_deg
 from calib.programs.sites import (
+    OPEN_RANGES_DEG,
     WRIST_SINGULARITY_DEG,
     WRIST_SINGULARITY_REASON,
     Configuration,
@@ -140,6 +141,8 @@ def _uses_frames(t: Target) -> tuple[FloatArray | None, FloatArray | None, str]:
     assert first.tool is not None and first.work is not None
     for u in t.uses[1:]:
         assert u.tool is not None and u.work is not None
+        if u.tool is first.tool and u.work is first.work:  # the same resolved frames
+            continue
         if not (
             np.allclose(u.tool, first.tool, atol=1e-9)
             and np.allclose(u.work, first.work, atol=1e-9)
@@ -232,6 +235,18 @@ def _at_wrist_singularity(q_nom_deg: FloatArray, q_deg: FloatArray) -> str | Non
         f"{WRIST_SINGULARITY_DEG:g} deg of 0): only J4 + J6 is fixed there, and the calibrated "
         f"solution {what}; teach it with J5 off 0"
     )
+
+
+def _may_leave_ranges(configs: Sequence[Configuration | None], q_deg: FloatArray) -> list[bool]:
+    """Per row, whether :func:`_leaves_ranges` may refuse it: its corrected joints ``q_deg``
+    (n, 6) [deg] leave the joint ranges of a configuration it honours (all rows at once; the
+    reason is then written for those rows alone)."""
+    ranges = np.array([c.joint_ranges_deg if c is not None else OPEN_RANGES_DEG for c in configs])
+    if not ranges.size:
+        return []
+    with np.errstate(invalid="ignore"):
+        out = np.any((q_deg < ranges[..., 0]) | (q_deg >= ranges[..., 1]), axis=1)
+    return out.tolist()  # type: ignore[no-any-return]
 
 
 def correct_targets(
@@ -379,6 +394,7 @@ def correct_targets(
         outside_l, left_l = outside.tolist(), left.tolist()
         shifts_mm, shifts_deg = shift_mm_all.tolist(), shift_deg_all.tolist()
         jumps, sigmas = jump_all.tolist(), sigma.tolist()
+        leaves = _may_leave_ranges([targets[i].configuration for i in rows], q_star)
         for r, i in enumerate(rows):
             t = targets[i]
             qs = q_star[r]
@@ -412,7 +428,7 @@ def correct_targets(
                     why = singular
                 out[i] = Correction("skipped", why)
                 continue
-            if (changed := _leaves_ranges(t.configuration, qs)) is not None:
+            if leaves[r] and (changed := _leaves_ranges(t.configuration, qs)) is not None:
                 out[i] = Correction("skipped", changed)
                 continue
             shift_mm, shift_deg = shifts_mm[r], shifts_deg[r]

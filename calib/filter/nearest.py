@@ -10,11 +10,10 @@ import numpy as np
 
 from calib.filter.branches import closed_form_is_complete, nominal_solutions
 from calib.filter.kin import solve_flange_ik
-from calib.filter.select import choose
+from calib.filter.select import choose_nearest
 from calib.ik import IKOptions
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
-from calib.programs.sites import Configuration
 from calib.tcp import joint_limits_deg
 
 #: IK of the calibrated model: tight tolerances (the rounding of the written numbers, not the
@@ -38,7 +37,7 @@ def nearest_solutions(
         complete = False
     else:
         complete = closed_form_is_complete(nominal)
-        idx, _ = choose(sol, [Configuration(nearest_deg=r) for r in refs])
+        idx = choose_nearest(sol, refs)
         closed = np.where((idx >= 0)[:, None], sol.joints_deg[np.arange(len(idx)), idx], np.nan)
     todo = np.flatnonzero(~np.all(np.isfinite(closed), axis=1) | (not complete))
     if todo.size:
@@ -49,11 +48,9 @@ def nearest_solutions(
         d_old = np.nan_to_num(np.linalg.norm(closed[todo] - refs[todo], axis=1), nan=np.inf)
         better = d_new < d_old - 1e-9
         closed[todo[better]] = q[better]
-    qs = list(closed)
-    why = [
-        "" if np.all(np.isfinite(q)) else "no nominal solution within the joint limits" for q in qs
-    ]
-    return qs, why
+    found = np.all(np.isfinite(closed), axis=1).tolist()
+    why = ["" if f else "no nominal solution within the joint limits" for f in found]
+    return list(closed), why
 
 
 def keeps_nearest(
@@ -72,6 +69,8 @@ def keeps_nearest(
         return out
     refs = np.array([ref_of[rows[r]] for r in sel])
     qs, why = nearest_solutions(nominal, fk_star[sel], refs)
-    for r, q, w in zip(sel, qs, why, strict=True):
-        out[r] = not w and float(np.max(np.abs(q - q_star[r]))) < 1e-3
+    found = np.array([not w for w in why], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        same = np.max(np.abs(np.array(qs) - q_star[sel]), axis=1) < 1e-3
+    out[sel] = found & same
     return out

@@ -36,6 +36,7 @@ from calib.programs.sites import (
     Correction,
     Dialect,
     Edit,
+    EditTuple,
     FilterInputError,
     FrameTables,
     Source,
@@ -103,8 +104,9 @@ class FilterRun:
     targets : list of Target
     corrections : list of Correction
         One per target.
-    edits : dict of str to list of Edit
-        Per file, the edits written into it, target by target.
+    edits : dict of str to list of EditTuple
+        Per file, the edits written into it, batch by batch and target by target, as exact
+        tuples ``(file, start, end, new)`` (:data:`calib.programs.sites.EditTuple`).
     written : list of tuple of (str, int, int)
         Per target, where its edits are: ``edits[file][first:last]`` for each ``(file,
         first, last)`` (exact tuples of atoms, which the garbage collector stops tracking).
@@ -120,7 +122,7 @@ class FilterRun:
     errors: list[FilterInputError] = field(default_factory=list)
     targets: list[Target] = field(default_factory=list)
     corrections: list[Correction] = field(default_factory=list)
-    edits: dict[str, list[Edit]] = field(default_factory=dict)
+    edits: dict[str, list[EditTuple]] = field(default_factory=dict)
     written: list[tuple[tuple[str, int, int], ...]] = field(default_factory=list)
     sources: dict[str, Source] = field(default_factory=dict)
     dialects: dict[str, str] = field(default_factory=dict)
@@ -187,8 +189,8 @@ class FilterRun:
             return []
         src = self.sources[file]
         return [
-            {"line": src.line_of(e.start), "old": src.text[e.start : e.end], "new": e.new}
-            for e in self.edits[file][first:last]
+            {"line": src.line_of(start), "old": src.text[start:end], "new": new}
+            for _file, start, end, new in self.edits[file][first:last]
         ]
 
     @property
@@ -341,6 +343,23 @@ def _with_reasons(
     return out
 
 
+def _render(
+    dialect: Dialect, t: Target, c: Correction, edits: dict[str, list[EditTuple]]
+) -> tuple[tuple[str, int, int], ...]:
+    """Append a corrected target's edits to ``edits`` (per file); where they are (the
+    :attr:`FilterRun.written` entry)."""
+    by_file: dict[str, list[Edit]] = {}
+    for e in dialect.render(t, c):
+        by_file.setdefault(e.file, []).append(e)
+    spans = []
+    for file, new in by_file.items():
+        mine = edits[file]
+        spans.append((file, len(mine), len(mine) + len(new)))
+        # Exact tuples: the collector stops tracking them (never a named tuple).
+        mine.extend((e.file, e.start, e.end, e.new) for e in new)
+    return tuple(spans)
+
+
 def filter_files(
     cal: Calibration,
     files: Sequence[tuple[str, bytes]],
@@ -392,7 +411,12 @@ def filter_files(
                     "(names match without regard to case)",
                 )
             )
+    # Batch by batch: correct, write the edits, and let go of each written target's site
+    # (its numbers: the edits hold what the summary shows), so a long program does not
+    # keep every number of every target to the end.
     corrections: list[Correction | None] = [None] * len(run.targets)
+    edits: dict[str, list[EditTuple]] = defaultdict(list)
+    written: list[tuple[tuple[str, int, int], ...]] = [()] * len(run.targets)
     for batch in batches(run.targets):
         done = correct_targets(
             cal,
@@ -400,25 +424,16 @@ def filter_files(
             keep_joint_targets=keep_joint_targets,
             only=only,
         )
+        done = _with_reasons(done, [parsed[i] for i in batch])
         for i, c in zip(batch, done, strict=True):
             corrections[i] = c
-    run.corrections = _with_reasons([c for c in corrections if c is not None], parsed)
+            if c.status == "corrected":
+                written[i] = _render(parsed[i][0], run.targets[i], c, edits)
+        for i in batch:
+            run.targets[i].site = None
+    run.corrections = [c for c in corrections if c is not None]
+    run.written = written
     run.sources = {src.name: src for src in readable}
-    edits: dict[str, list[Edit]] = defaultdict(list)
-    written = run.written
-    for (d, t), c in zip(parsed, run.corrections, strict=True):
-        if c.status != "corrected":
-            written.append(())
-            continue
-        spans = []
-        by_file: dict[str, list[Edit]] = {}
-        for e in d.render(t, c):
-            by_file.setdefault(e.file, []).append(e)
-        for file, new in by_file.items():
-            mine = edits[file]
-            spans.append((file, len(mine), len(mine) + len(new)))
-            mine.extend(new)
-        written.append(tuple(spans))
     run.edits = dict(edits)
     for src in readable:
         text = apply_edits(src.text, edits.get(src.name, []))

@@ -18,8 +18,8 @@ import numpy as np
 from calib.filter.branches import Solutions, branch_signs
 from calib.kinematics import FloatArray
 from calib.models import RobotModel
+from calib.programs.sites import OPEN_RANGES_DEG, Configuration
 from calib.programs.sites import WRIST_SINGULARITY_DEG as WRIST_SINGULARITY_DEG
-from calib.programs.sites import Configuration
 
 #: A corrected joint further than this from the solution it started from is another branch
 #: [deg] (a joint turning further takes another way round an obstacle or through a
@@ -41,17 +41,50 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
     n = sol.valid.shape[0]
     blank = Configuration()
     cfgs = [c or blank for c in configs]
-    q = sol.joints_deg
-    valid = sol.valid
     ranges = np.array([c.joint_ranges_deg for c in cfgs]).reshape(n, 1, 6, 2)
-    with np.errstate(invalid="ignore"):
-        inr = valid & np.all((q >= ranges[..., 0]) & (q < ranges[..., 1]), axis=2)
     nan6 = np.full(6, np.nan)
     near = np.array([nan6 if c.nearest_deg is None else c.nearest_deg for c in cfgs])
+    signs = [
+        np.array([getattr(c, attr) or 0 for c in cfgs])[:, None]
+        for attr in ("shoulder", "elbow", "wrist")
+    ]
+    ignored = np.array([not c.honoured for c in cfgs], dtype=bool)
+    return _choose(sol, ranges, near.reshape(n, 6), signs, [c.text for c in cfgs], ignored)
+
+
+def choose_nearest(sol: Solutions, near_deg: FloatArray) -> np.ndarray:
+    """:func:`choose` for targets whose configuration is only "nearest these joints"
+    ``near_deg`` (n, 6) [deg] (UR's rule), without building a configuration per target: the
+    index per target (-1 = none)."""
+    n = sol.valid.shape[0]
+    ranges = np.broadcast_to(OPEN_RANGES_DEG, (n, 1, 6, 2))
+    zero = np.zeros((n, 1), dtype=int)
+    not_ignored = np.zeros(n, dtype=bool)
+    idx, _ = _choose(sol, ranges, np.asarray(near_deg, dtype=float), [zero] * 3, None, not_ignored)
+    return idx
+
+
+def _choose(
+    sol: Solutions,
+    ranges: FloatArray,
+    near: FloatArray,
+    signs: list[np.ndarray],
+    texts: list[str] | None,
+    ignored: np.ndarray,
+) -> tuple[np.ndarray, list[str]]:
+    """:func:`choose` on arrays: joint ranges (n, 1, 6, 2) [deg], joint references (n, 6)
+    [deg] (NaN rows for none), wanted shoulder, elbow and wrist signs (each (n, 1), 0 for
+    any), the configurations' texts for the reasons (None: no reasons wanted), and per
+    target (n,) bool whether its configuration is one the controller does not honour (the
+    only solution within the limits is then taken whatever the configuration says)."""
+    n = sol.valid.shape[0]
+    q = sol.joints_deg
+    valid = sol.valid
+    with np.errstate(invalid="ignore"):
+        inr = valid & np.all((q >= ranges[..., 0]) & (q < ranges[..., 1]), axis=2)
     has_near = np.isfinite(near[:, 0])
     m2 = inr.copy()
-    for attr, have in (("shoulder", sol.shoulder), ("elbow", sol.elbow), ("wrist", sol.wrist)):
-        want = np.array([getattr(c, attr) or 0 for c in cfgs])[:, None]
+    for want, have in zip(signs, (sol.shoulder, sol.elbow, sol.wrist), strict=True):
         m2 &= (want == 0) | (have == want)
     n_valid, n_in, n_m2 = valid.sum(axis=1), inr.sum(axis=1), m2.sum(axis=1)
     dist = np.where(
@@ -62,15 +95,18 @@ def choose(sol: Solutions, configs: list[Configuration | None]) -> tuple[np.ndar
     pick_near = several & (n_in > 0) & has_near
     pick_in = several & (n_in == 1) & ~has_near
     pick_m2 = several & (n_in > 1) & ~has_near & (n_m2 == 1)
-    ignored = np.array([not c.honoured for c in cfgs], dtype=bool)
-    only = (n_valid == 1) & ((n_m2 == 1) | ignored)
+    only = (n_valid == 1) & (n_m2 == 1)
     idx[only] = np.argmax(m2[only], axis=1)
+    free = (n_valid == 1) & ignored & ~only
+    idx[free] = np.argmax(valid[free], axis=1)
     idx[pick_near] = np.argmin(dist[pick_near], axis=1)
     idx[pick_in] = np.argmax(inr[pick_in], axis=1)
     idx[pick_m2] = np.argmax(m2[pick_m2], axis=1)
     reasons = [""] * n
+    if texts is None:
+        return idx, reasons
     for i in np.flatnonzero(idx < 0):
-        text = cfgs[i].text or "(none)"
+        text = texts[i] or "(none)"
         if n_valid[i] == 0:
             reasons[i] = "unreachable: no nominal solution within the joint limits"
         elif n_in[i] == 0 or n_m2[i] == 0:

@@ -34,6 +34,7 @@ from __future__ import annotations
 import bisect
 import math
 import re
+from array import array
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -126,8 +127,9 @@ class Source:
             raise FilterInputError(self.name, f"cannot encode as {self.encoding}: {exc}") from None
 
     @cached_property
-    def _line_starts(self) -> list[int]:
-        return [m.end() for m in re.finditer("\n", self.text)]
+    def _line_starts(self) -> array[int]:
+        """Offsets where lines start (a compact array: a long program has many lines)."""
+        return array("q", (m.end() for m in re.finditer("\n", self.text)))
 
     def line_of(self, offset: int) -> int:
         """1-based line number of a character offset."""
@@ -138,9 +140,10 @@ class Num(NamedTuple):
     """One number of a target as it stands in its file.
 
     ``start, end`` are character offsets into :attr:`Source.text`; ``text`` the original
-    characters; ``value`` what they mean (as the controller reads them). A tuple of atoms:
-    the cyclic garbage collector stops tracking it after its first pass, so the hundreds
-    of thousands of numbers of a long program cost no collection time after that.
+    characters; ``value`` what they mean (as the controller reads them). A named tuple: the
+    cyclic garbage collector keeps tracking it (it stops tracking exact tuples of atoms
+    only), so a long program's numbers cost collection time while they live;
+    :func:`calib.filter.run.filter_files` lets go of them batch by batch.
     """
 
     file: str
@@ -160,7 +163,13 @@ class Edit(NamedTuple):
     new: str
 
 
-@dataclass(frozen=True)
+#: An :class:`Edit` kept as an exact tuple ``(file, start, end, new)`` (``tuple(edit)``): the
+#: cyclic garbage collector stops tracking an exact tuple of atoms, never a named tuple, so a
+#: filter run keeps its hundreds of thousands of edits in this form.
+EditTuple = tuple[str, int, int, str]
+
+
+@dataclass(frozen=True, slots=True)
 class Use:
     """One move that uses a target, with its tool and work object.
 
@@ -192,7 +201,13 @@ class Use:
         return (self.tool_name, self.work_name)
 
 
-@dataclass(frozen=True)
+#: A :class:`Configuration`'s joint ranges where the program says nothing: every joint open
+#: (one read-only array that every such configuration shares).
+OPEN_RANGES_DEG: FloatArray = np.tile([-np.inf, np.inf], (N_JOINTS, 1))
+OPEN_RANGES_DEG.flags.writeable = False
+
+
+@dataclass(frozen=True, slots=True)
 class Configuration:
     """How the controller picks the IK branch of a Cartesian target, in dialect-neutral form.
 
@@ -235,9 +250,7 @@ class Configuration:
         solution, and the only solution within the joint limits whatever they say.
     """
 
-    joint_ranges_deg: FloatArray = field(
-        default_factory=lambda: np.tile([-np.inf, np.inf], (N_JOINTS, 1))
-    )
+    joint_ranges_deg: FloatArray = field(default_factory=lambda: OPEN_RANGES_DEG)
     shoulder: int | None = None
     elbow: int | None = None
     wrist: int | None = None
@@ -248,7 +261,7 @@ class Configuration:
     honoured: bool = True
 
 
-@dataclass
+@dataclass(slots=True)
 class Target:
     """One target site of a program.
 
@@ -276,7 +289,8 @@ class Target:
         of the same file (a PolyScope ``Waypoint_n_q`` follows ``Waypoint_n_p``): its name.
     site : Any
         The dialect's own data about where the numbers are (only :meth:`Dialect.render`
-        reads it).
+        reads it). :func:`calib.filter.run.filter_files` lets go of it (None) once the
+        target's batch is written: the edits hold the numbers the summary shows.
     """
 
     file: str
@@ -292,7 +306,7 @@ class Target:
     site: Any = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Correction:
     """What the core found for one target.
 
@@ -425,8 +439,9 @@ def edits_for(nums: Sequence[Num], values: Iterable[float], min_decimals: int) -
     return out
 
 
-def apply_edits(text: str, edits: Sequence[Edit]) -> str:
-    """``text`` with the edits spliced in (edits of one file, non-overlapping).
+def apply_edits(text: str, edits: Sequence[EditTuple]) -> str:
+    """``text`` with the edits (:class:`Edit` or :data:`EditTuple`) spliced in (edits of one
+    file, non-overlapping).
 
     Raises
     ------
@@ -435,12 +450,12 @@ def apply_edits(text: str, edits: Sequence[Edit]) -> str:
     """
     out: list[str] = []
     pos = 0
-    for e in sorted(edits, key=lambda e: e.start):
-        if e.start < pos:
-            raise ValueError(f"overlapping edits at offset {e.start}")
-        out.append(text[pos : e.start])
-        out.append(e.new)
-        pos = e.end
+    for _file, start, end, new in sorted(edits, key=lambda e: e[1]):
+        if start < pos:
+            raise ValueError(f"overlapping edits at offset {start}")
+        out.append(text[pos:start])
+        out.append(new)
+        pos = end
     out.append(text[pos:])
     return "".join(out)
 

@@ -98,7 +98,7 @@ _CARTESIAN = ("X", "Y", "Z", "W", "P", "R")
 _JOINTS = tuple(f"J{j}" for j in range(1, N_JOINTS + 1))
 
 
-@dataclass
+@dataclass(slots=True)
 class CartSite:
     """Where a Cartesian position's numbers are: ``X, Y, Z``, ``W, P, R`` and the turns."""
 
@@ -107,7 +107,7 @@ class CartSite:
     turns: list[Num]
 
 
-@dataclass
+@dataclass(slots=True)
 class JointSite:
     joints: list[Num]
 

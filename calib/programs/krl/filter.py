@@ -130,7 +130,7 @@ EXTERNAL_AXES = tuple(f"E{j}" for j in range(1, 7))
 _HEADER = re.compile(r"^(?:\s*&[^\n]*\n|\s*\n)*\s*(GLOBAL\s+)?(DEF|DEFFCT|DEFDAT)\b", re.I)
 
 
-@dataclass
+@dataclass(slots=True)
 class CartSite:
     """Where a Cartesian target's numbers are: ``X, Y, Z``, ``A, B, C``, and ``T``."""
 
@@ -139,7 +139,7 @@ class CartSite:
     turn: Num | None
 
 
-@dataclass
+@dataclass(slots=True)
 class JointSite:
     joints: list[Num]
 
@@ -317,8 +317,10 @@ class KrlDialect:
         ]
 
 
+@lru_cache(maxsize=256)
 def is_config_dat(name: str) -> bool:
-    """True for the controller's ``$config.dat`` (any folder, any case)."""
+    """True for the controller's ``$config.dat`` (any folder, any case); cached: the filter
+    asks once per target."""
     return PurePath(name.replace("\\", "/")).name.lower() == CONFIG_DAT.lower()
 
 

@@ -108,7 +108,7 @@ NO_AXIS = 9e9
 _EAX = "abcdef"
 
 
-@dataclass
+@dataclass(slots=True)
 class RobSite:
     """Where a robtarget's numbers are: position (3), quaternion (4), confdata (4); whether
     the controller honours the confdata (False under ``ConfL\\Off``/``ConfJ\\Off``)."""
@@ -119,7 +119,7 @@ class RobSite:
     honoured: bool = True
 
 
-@dataclass
+@dataclass(slots=True)
 class JointSite:
     """Where a jointtarget's six robot axes are."""
 
@@ -231,6 +231,8 @@ class RapidDialect:
                     decl.targets[index] = self._target(
                         mod.source, f"{name}{index_text(index)}", decl.kind, node
                     )
+                # The targets hold the numbers now: let go of the literal's node tree.
+                decl.value, decl.elements, decl.fast = None, {}, None
                 order.extend(decl.targets.values())
         moves = [mv for mod in modules for mv in read_moves(mod, modules)]
         entries = monitoring(modules, moves)

@@ -109,14 +109,14 @@ def _numbers(code: str, src: Source, start: int, end: int) -> list[Num] | None:
     return out
 
 
-@dataclass
+@dataclass(slots=True)
 class PoseSite:
     """A ``p[…]``'s six numbers: x, y, z [m], rx, ry, rz [rad]."""
 
     numbers: list[Num]
 
 
-@dataclass
+@dataclass(slots=True)
 class JointSite:
     """A joint list's six numbers [rad]."""
 
