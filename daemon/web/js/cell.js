@@ -194,7 +194,8 @@ function renderErrors(devices) {
         : `earlier: last at ${clock(e.t_wall)}, ${age(Math.max(0, now - e.t_wall))} ago${e.count > 1 ? `, ${e.count} times` : ""}; the ${e.device} works again`),
       el("button", { class: "secondary small", "aria-label": `Dismiss the ${e.device} error`, onclick: () => { dismissedAt.set(key, e.t_wall); deviceErrors.delete(key); renderErrors(state.status?.devices); } }, "Dismiss")),
     el("div", {}, errorText(e.message)),
-    e.frames?.length ? el("pre", {}, `last frames (hex):\n${e.frames.join("\n")}`) : null)));
+    e.frames?.length ? el("details", {}, el("summary", {}, "last frames (hex), for a technician"),
+      el("pre", {}, e.frames.map(errorText).join("\n"))) : null)));
 }
 
 async function pollStatus() {

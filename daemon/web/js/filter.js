@@ -173,8 +173,11 @@ async function filterPrograms(items) {
   await runFilter();
 }
 
+let runs = 0; // the latest run renders; an older one still answering is dropped
+
 async function runFilter() {
   const c = state.campaign;
+  const run = ++runs;
   clearResult();
   const failed = [...refused];
   const shown = [];
@@ -187,6 +190,7 @@ async function runFilter() {
       if (exc.status === 401) throw exc;
       failed.push(...failureRows(set, exc));
     }
+    if (run !== runs) return;
   }
   previews = shown;
   dismiss("filter");
