@@ -254,7 +254,7 @@ function renderResult(failed) {
   const first = previews[0]?.summary;
   const left = targets - corrected - kept;
   const head = previews.length
-    ? `${targets} targets in ${perFile.length} file(s): ${corrected} corrected, ${kept} joint target(s) kept, ${left} left unchanged (why: below)` +
+    ? `${targets} targets in ${perFile.length - failed.length} file(s): ${corrected} corrected, ${kept} joint target(s) kept, ${left} left unchanged (why: below)` +
       `${failed.length ? `; ${failed.length} file(s) not read (named below)` : ""}; robot ${first.robot}, calibration #${first.calibration_id} of ${first.calibration_date}.`
     : `Nothing was filtered: ${failed.length} file(s) not read (named below). Robot ${c.robot_name}.`;
   setText("filter-state", corrected ? head : `${head} Nothing was corrected, so there is nothing to download.`);
