@@ -116,7 +116,7 @@ def test_a_robot_is_a_physical_robot_on_the_page(cell: Cell, tmp_path: Path) -> 
         # before: the model picker offers the built-in models and a TOML or JSON file
         page.wait_for_function("document.getElementById('robot-model').options.length > 1")
         options = page.locator("#robot-model option").all_inner_texts()
-        assert f"{DEFAULT_ROBOT_MODEL} (built-in)" in options
+        assert f"{DEFAULT_ROBOT_MODEL} (HSR JR680)" in options  # the built-in's maker, title
         assert "From a model file (.toml or .json) …" in options
         # action: two arms of one model, then the first one again for its next campaign
         _create(page, "walk3 first", robot="cell 4 / SN 61-0042", model=DEFAULT_ROBOT_MODEL)

@@ -33,15 +33,22 @@ async function loadCampaigns() {
   const list = await api("GET", "/campaigns");
   const items = Array.isArray(list) ? list : list.items || [];
   const selected = state.campaign?.id;
+  // a drift check's own campaigns are listed only on request (item 22): they are compared
+  // in tab 4, never identified, and crowd the list
+  const checks = items.filter((c) => String(c.notes || "").startsWith("drift check"));
+  const showChecks = $("campaign-show-checks").checked;
+  $("campaign-show-checks-label").hidden = !checks.length;
+  setText("campaign-show-checks-count", `Show the ${checks.length} drift-check campaign${checks.length === 1 ? "" : "s"}`);
+  const listed = items.filter((c) => showChecks || c.id === selected || !checks.includes(c));
   fillTable($("campaign-list"), [
     { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "model" }, { label: "samples", num: true },
     { label: "excluded", num: true }, { label: "auto" }, { label: "created" },
-  ], items.slice().reverse().map((c) => ({
+  ], listed.slice().reverse().map((c) => ({
     class: c.id === selected ? "selected" : "",
     onclick: () => select(c),
     cells: [String(c.id), c.name, c.robot_name, c.robot_model_name, String(c.n_samples), String(c.n_excluded),
       c.auto_capture ? "on" : "", clock(c.created_at)],
-  })), JSON.stringify([selected, items]));
+  })), JSON.stringify([selected, listed]));
   if (selected) {
     const fresh = items.find((c) => c.id === selected);
     if (fresh && JSON.stringify(fresh) !== JSON.stringify(state.campaign)) {
@@ -533,6 +540,7 @@ export async function restoreCampaign() {
 export function initCampaign() {
   $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
   $("robot-pick").addEventListener("change", showRobotFields);
+  $("campaign-show-checks").addEventListener("change", () => loadCampaigns().catch(() => {}));
   $("robot-model").addEventListener("change", (ev) => { ev.target.dataset.chosen = "1"; showRobotFields(); });
   $("campaign-form").addEventListener("reset", () => setTimeout(() => { delete $("robot-model").dataset.chosen; loadRobots().catch(() => {}); }));
   $("plan-form").addEventListener("submit", (ev) => startPlan(ev).catch(() => {}));

@@ -206,9 +206,12 @@ async function pollStatus() {
   const pill = $("top-devices");
   // a frozen controller answers, yet is not ready: the header says so on every view (item 2)
   const frozen = s.sampler?.settle_state === "frozen";
-  pill.className = `pill ${down.length || frozen ? "bad" : "ok"}`;
+  // an indicator over range answers, yet reads nothing usable: not green (item 19)
+  const over = Object.values(devices).find((d) => d.last_reading?.over_range);
+  pill.className = `pill ${down.length || frozen ? "bad" : over ? "warn" : "ok"}`;
   setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}`
-    : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture` : "devices connected");
+    : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture`
+      : over ? `${over.name}: over range, no capture` : "devices connected");
   renderDriftPill(s.drift);
   changed("status");
   collectErrors(devices);

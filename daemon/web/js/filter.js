@@ -219,7 +219,8 @@ function renderResult(failed) {
       const words = reasonWords(reason);
       groups.set(words, (groups.get(words) || 0) + n);
     }
-    for (const f of summary.files || []) {
+    const unread = new Set((summary.errors || []).map((e) => e.file));
+    for (const f of (summary.files || []).filter((x) => !unread.has(x.file))) {
       const t = mine.filter((r) => r.file === f.file);
       const done = t.filter((r) => r.status === "corrected").length;
       let result;

@@ -162,6 +162,13 @@ async function start(ev) {
   try { body = readForm(); } catch (exc) { formError(exc.message); return; }
   formError("");
   try {
+    // one already running for this campaign (another tab may have started it): ask first
+    const list = await api("GET", `/campaigns/${state.campaign.id}/identifications`);
+    const running = (Array.isArray(list) ? list : list.items || []).filter((x) => !finished(x.status));
+    if (running.length && !confirm(`Identification #${running[0].id} (${running[0].method}, started ${clock(running[0].created_at)}) is still ${running[0].status} for this campaign, perhaps from another tab.\n\nStart another identification anyway?`)) {
+      setText("identify-need", `Not started: identification #${running[0].id} is still ${running[0].status}; its result comes first.`);
+      return;
+    }
     const j = await api("POST", `/campaigns/${state.campaign.id}/identifications`, { json: body });
     live = { x: [], y: [], plot: live.plot };
     await follow(j.id);
