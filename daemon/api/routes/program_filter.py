@@ -266,9 +266,14 @@ async def filter_programs(
     and ``digest`` returns exactly what the preview showed, or 409 when the calibration or
     the files changed. Every output names the robot, the calibration and its date (the
     summary, the zip's name and comment, the ``X-Filter-*`` headers). A file that cannot be
-    read is named in the summary's ``errors`` while the others are filtered; a 422 when no
-    file can be read; 409 when the robot has no current calibration; at most
-    :data:`MAX_FILES` files and the guard's body limit."""
+    read (a binary file, an empty one, another dialect's content) is named in the summary's
+    ``errors`` (``reason``: the words without the file name) while the others are filtered;
+    a 422 with one entry per file when no file can be read; 409 when the robot has no
+    current calibration; at most :data:`MAX_FILES` files and the guard's body limit. KUKA's
+    ``$config.dat`` is read, never written (not among the outputs; its ``files`` row says
+    ``read_only``); a second one is refused naming both (two controller backups). Each
+    ``files`` row names its format's ``maker`` and a ``warning`` when that is not the robot's
+    maker (``robot_maker``: the model's ``[controller] maker`` or the library's ``# maker:``)."""
     state.store.robot_model(robot_id)  # 404 for an unknown robot before the body is read
     try:
         state.store.accepted_result(robot_id)
