@@ -291,6 +291,7 @@ def test_device_errors_say_when_and_no_paths(cell: Cell, tmp_path: Path) -> None
         page.wait_for_function(
             "document.getElementById('top-devices').textContent === 'devices connected'"
         )
+        assert page.inner_text("#cell-length-stale") == ""
         # action: both links go down for 3 s
         cell.sim.control("link_down", target="all", duration_s=3.0)
         page.wait_for_function(
@@ -298,6 +299,11 @@ def test_device_errors_say_when_and_no_paths(cell: Cell, tmp_path: Path) -> None
             ".some(e => e.textContent.includes('robot: link down')"
             " && e.textContent.includes('now:'))",
             timeout=10000,
+        )
+        # the big length figure is marked old while no reading comes (item 27)
+        page.wait_for_function(
+            "document.getElementById('cell-length-stale').textContent.startsWith('old:')",
+            timeout=5000,
         )
         _shot(page, tmp_path, "walk4-device-errors-now-1366")
         # after: both marked earlier, with their age; no temp folder, no reconnect countdown
@@ -309,6 +315,7 @@ def test_device_errors_say_when_and_no_paths(cell: Cell, tmp_path: Path) -> None
             "![...document.querySelectorAll('#device-errors .device-error')]"
             ".some(e => e.textContent.includes('now:'))"
         )
+        page.wait_for_function("document.getElementById('cell-length-stale').textContent === ''")
         text = page.inner_text("#device-errors")
         assert "earlier: last at" in text and "ago" in text and "works again" in text, text
         assert "/tmp/" not in text and "next reconnect" not in text, text
@@ -381,3 +388,54 @@ def test_a_result_is_reviewed_and_compared_in_words(
             assert _axe_serious(page) == [], size
             _shot(page, tmp_path, f"walk4-compare-{size}")
             assert not log.page_errors, log.page_errors
+
+
+def test_two_backup_folders_are_filtered_each_with_its_own_config_dat(
+    cell: Cell, calibrated: int, tmp_path: Path
+) -> None:
+    """Item 4: two controller backups dropped as folders: each folder is its own request with
+    its own $config.dat, and each gets its own Download. (A test cannot drop a folder into
+    chromium: the files go in as the drop handler gives them, each with its folder.)"""
+    import base64
+
+    assert cell.daemon is not None
+    url = cell.daemon.url
+    krl = {p.name: base64.b64encode(p.read_bytes()).decode() for p in (PROGRAMS / "krl").iterdir()}
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        _open(page, url, "apply")
+        page.wait_for_function(
+            "document.getElementById('filter-target').textContent.includes('identification #')"
+        )
+        # action: the same backup twice, as folders "KRC cell 1" and "KRC cell 2"
+        page.evaluate(
+            """async (files) => {
+              const m = await import('/static/js/filter.js');
+              const items = [];
+              for (const top of ['KRC cell 1', 'KRC cell 2']) {
+                for (const [name, b64] of Object.entries(files)) {
+                  const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+                  items.push({ file: new File([bytes], name), top });
+                }
+              }
+              await m.filterPrograms(items);
+            }""",
+            krl,
+        )
+        state = page.inner_text("#filter-state")
+        total, corrected, kept, left = _counts(state)
+        assert corrected + kept + left == total
+        # after: both $config.dat read (read only), none refused, one Download per backup
+        rows = page.locator("#filter-files-result tbody tr")
+        config = rows.filter(has_text="$config.dat").all_inner_texts()
+        assert len(config) == 2 and all("read only" in r for r in config), config
+        assert "KRC cell 1/weld_seam.dat" in page.inner_text("#filter-files-result")
+        assert "two controller backups" not in page.inner_text("#filter-card")
+        buttons = page.locator("#filter-downloads button.per-set").all_inner_texts()
+        assert buttons == ["Download KRC cell 1: filtered", "Download KRC cell 2: filtered"]
+        with page.expect_download() as info:
+            page.click("#filter-downloads button.per-set >> nth=1")
+        names = zipfile.ZipFile(io.BytesIO(Path(info.value.path()).read_bytes())).namelist()
+        assert "$config.dat" not in names and "weld_seam.dat" in names, names
+        _shot(page, tmp_path, "walk4-filter-backup-folders-1366")
+        assert _axe_serious(page) == []
+        assert not log.page_errors, log.page_errors

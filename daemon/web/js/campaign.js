@@ -390,7 +390,7 @@ function renderPlan() {
   fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
     { label: "anchor" }, { label: "status" }],
   plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
-    p.status === "not_capturable" ? el("span", { class: "pill warn", title: p.why || "" }, `not capturable: ${p.why}`)
+    p.status === "not_capturable" ? el("span", { class: "pill warn", title: p.why || "" }, `not capturable: ${String(p.why || "").replace(/^over_range: /, "over range: ")}`)
       : el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
   JSON.stringify([plan.id, plan.poses.map((p) => p.status)]));
 }

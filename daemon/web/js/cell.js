@@ -7,6 +7,7 @@ import { $, age, changed, clock, el, every, fillTable, fix, onChange, setText, s
 const WINDOW_S = 60;
 const TRACE_MS = 150; // about 6.7 Hz nominal: at least 5 Hz on a busy cell PC
 const STATUS_MS = 1000;
+const STALE_FIGURE_S = 1.0; // a length reading older than this [s] is shown as old
 
 const trace = { t: [], length: [], last: 0, offset: 0, plot: null, updates: 0, readings: 0 };
 /** Counters the bench reads (bench/web_bench.py): chart updates and readings received. */
@@ -213,6 +214,7 @@ async function pollStatus() {
     : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture`
       : over ? `${over.name}: over range, no capture` : "devices connected");
   renderDriftPill(s.drift);
+  renderLengthAge(devices);
   changed("status");
   collectErrors(devices);
   if (state.view !== "cell") return;
@@ -222,6 +224,16 @@ async function pollStatus() {
   setText("cell-sampler", words);
   $("cell-sampler").classList.toggle("bad", s.sampler?.settle_state === "frozen");
   setText("cell-sampler-detail", detail);
+}
+
+/** The big length figure is marked as old while the indicator gives no new reading (a
+ * link-down): the last value stays, greyed, with its age (item 27). */
+function renderLengthAge(devices) {
+  const ind = Object.values(devices).find((d) => d.role === "indicator");
+  const ageS = ind?.last_reading?.age_s;
+  const stale = !!ind && (ind.state !== "ok" || !(ageS <= STALE_FIGURE_S));
+  $("cell-length").classList.toggle("stale", stale);
+  setText("cell-length-stale", stale ? `old: no new reading for ${age(ageS)} (indicator ${ind.state})` : "");
 }
 
 /** The header's drift state (item 22): hidden while the last check is OK or absent. */

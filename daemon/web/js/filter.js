@@ -157,8 +157,10 @@ function failureRows(set, exc) {
 const isKept = (r) => /keep-joint-targets|keep_joint_targets/.test(r.reason || "");
 
 /** Filter the chosen files with a dry run per set: per file what happened, the reasons
- * grouped with counts, every target below; a download per set fetches exactly that. */
-async function filterPrograms(items) {
+ * grouped with counts, every target below; a download per set fetches exactly that.
+ * ``items``: [{file, top}] (``top``: the dropped folder, "" for a loose file); exported for
+ * the folder-drop walk (a browser test cannot drop a folder). */
+export async function filterPrograms(items) {
   const c = state.campaign;
   if (!hasRoute("POST", "/robots/{}/filter")) {
     showMessage("error", "Filter: this daemon has no filter route (POST /robots/{id}/filter).");
