@@ -439,3 +439,143 @@ def test_two_backup_folders_are_filtered_each_with_its_own_config_dat(
         _shot(page, tmp_path, "walk4-filter-backup-folders-1366")
         assert _axe_serious(page) == []
         assert not log.page_errors, log.page_errors
+
+
+def test_rechecks_over_range_two_tabs_and_check_campaigns(
+    cell: Cell, calibrated: int, tmp_path: Path
+) -> None:
+    """Items 19 (an indicator over range is not green), 20 (a second identification from
+    another tab asks first) and 22 (a drift check's own campaign is folded in the list)."""
+    assert cell.daemon is not None and cell.sim is not None
+    url, api = cell.daemon.url, cell.daemon.client()
+    with offline_page(SIZES["1366"], allowed_origin=url) as (page, log):
+        _open(page, url, "identify")
+        # item 19 before/action/after: the pill warns while the indicator is over range
+        page.wait_for_function(
+            "document.getElementById('top-devices').textContent === 'devices connected'"
+        )
+        cell.sim.control("fault", over_range=True)
+        page.wait_for_function(
+            "document.getElementById('top-devices').textContent.includes('over range')",
+            timeout=10000,
+        )
+        assert "warn" in (page.get_attribute("#top-devices", "class") or "")
+        cell.sim.control("fault", over_range=False)
+        page.wait_for_function(
+            "document.getElementById('top-devices').textContent === 'devices connected'",
+            timeout=10000,
+        )
+        # item 20: tab B starts an identification while tab A's runs: asked, not started
+        page.wait_for_selector("#identify-start:not([disabled])", timeout=20000)
+        other = page.context.new_page()
+        other.on("dialog", lambda d: d.dismiss())
+        _open(other, url, "identify")
+        other.wait_for_selector("#identify-start:not([disabled])", timeout=20000)
+        campaign = _campaign_named(api, "walk3 calibration")
+        before = len(api.get(f"/campaigns/{campaign}/identifications").json())
+        page.select_option("#identify-form select[name=method]", "de")  # a slow one
+        page.click("#identify-start")
+        jobs = f"/campaigns/{campaign}/identifications"
+        running = wait_for(
+            lambda: [
+                j for j in api.get(jobs).json()[before:] if j["status"] in ("queued", "running")
+            ],
+            30,
+            0.2,
+            "tab A's identification",
+        )
+        asked: list[str] = []
+        other.once("dialog", lambda d: asked.append(d.message))
+        other.click("#identify-start")
+        other.wait_for_function(
+            "document.getElementById('identify-need').textContent.startsWith('Not started')",
+            timeout=10000,
+        )
+        assert asked and "still" in asked[0] and "another tab" in asked[0], asked
+        assert len(api.get(jobs).json()) == before + 1  # no second one
+        other.close()
+        api.delete(f"/identifications/{running[0]['id']}")  # tab A's job is not needed
+        page.wait_for_selector("#identify-start:not([disabled])", timeout=60000)
+        # item 22: a drift check's own campaign is folded in the campaign list
+        poses = api.get(f"/robots/{calibrated}/check-poses").json()["poses_deg"]
+        cell.sim.control("load_poses", poses_deg=poses, loop=True)
+        r = api.post(f"/robots/{calibrated}/checks")
+        assert r.status_code == 202, r.text
+        check_id, check_cid = r.json()["id"], r.json()["campaign_id"]
+        wait_for(
+            lambda: (
+                next(
+                    c for c in api.get(f"/robots/{calibrated}/checks").json() if c["id"] == check_id
+                )["status"]
+                != "running"
+            ),
+            120,
+            0.5,
+            f"check {check_id}",
+        )
+        page.click("#tabs button[data-view=campaign]")
+        page.wait_for_selector("#campaign-show-checks-label:not([hidden])", timeout=10000)
+        listed = page.locator("#campaign-list tbody tr td:first-child").all_inner_texts()
+        assert str(check_cid) not in listed, listed
+        page.check("#campaign-show-checks")
+        page.wait_for_function(
+            "(id) => [...document.querySelectorAll('#campaign-list tbody tr td:first-child')]"
+            ".some(td => td.textContent === String(id))",
+            arg=check_cid,
+        )
+        _shot(page, tmp_path, "walk4-rechecks-1366")
+        assert _axe_serious(page) == []
+        assert not log.page_errors, log.page_errors
+
+
+def _campaign_named(api: Any, name: str) -> int:
+    return int(next(c for c in api.get("/campaigns").json() if c["name"] == name)["id"])
+
+
+def test_a_sensor_move_can_be_kept_and_banners_leave_room(cell: Cell, tmp_path: Path) -> None:
+    """Item 15: the sensor-moved banner clears by Keep (the stand did move), not only by Undo;
+    at 390 px the banners take at most about half the first screen."""
+    from daemon.cli.emulated import FAST_CELL_NOISE_MM
+
+    assert cell.daemon is not None and cell.sim is not None
+    url, api, sim = cell.daemon.url, cell.daemon.client(), cell.sim
+    n_imported = 30  # the watch's first fit
+    q = np.array(sim.control("poses")["poses_deg"])
+    truth = np.array(sim.control("true_lengths", joints_deg=q.tolist())["lengths_mm"])
+    noisy = truth + np.random.default_rng(4).normal(0.0, FAST_CELL_NOISE_MM, truth.shape)
+    body = {"name": "walk4 bump", "robot": "walk4 bump arm", "robot_model": "hsr-jr680"}
+    cid = api.post("/campaigns", json=body).json()["id"]
+    csv = samples_to_csv(make_samples(q[:n_imported], noisy[:n_imported]))
+    r = api.post(
+        f"/campaigns/{cid}/samples/import", content=csv, headers={"Content-Type": "text/csv"}
+    )
+    assert r.is_success, r.text
+    sim.control("load_poses", poses_deg=q[n_imported:].tolist(), loop=False)
+    with offline_page(SIZES["390"], allowed_origin=url) as (page, log):
+        _open(page, url, "campaign", "walk4 bump")
+        page.check("#auto-capture")
+        wait_for(
+            lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= n_imported + 4,
+            60,
+            0.2,
+            "4 auto captures",
+        )
+        # before: the stand is bumped; the banner says so
+        sim.control("move_anchor", delta_mm=[4, 0, 0])
+        banner = page.locator("#watch-banner")
+        banner.wait_for(timeout=60000)
+        height = page.evaluate("document.getElementById('messages').getBoundingClientRect().height")
+        assert height <= 0.5 * SIZES["390"][1], height
+        _shot(page, tmp_path, "walk4-sensor-moved-390")
+        assert _axe_serious(page) == []
+        # action: Keep
+        banner.get_by_role("button", name="Keep: the stand moved (session A2)").click()
+        # after: the banner is gone and stays gone; captures go on in session A2
+        banner.wait_for(state="detached", timeout=10000)
+        assert "session A2 is kept" in page.inner_text("#messages")
+        page.wait_for_timeout(2500)  # a few status polls: it does not come back
+        assert page.locator("#watch-banner").count() == 0
+        assert any(m["campaign_id"] == cid for m in api.get("/status").json()["watch"]["moves"])
+        page.uncheck("#auto-capture")
+        assert not log.page_errors, log.page_errors
+    sim.control("move_anchor", delta_mm=[-4, 0, 0])
