@@ -475,6 +475,9 @@ def test_rechecks_over_range_two_tabs_and_check_campaigns(
         before = len(api.get(f"/campaigns/{campaign}/identifications").json())
         page.select_option("#identify-form select[name=method]", "de")  # a slow one
         page.click("#identify-start")
+        page.wait_for_function(
+            "document.getElementById('job-state').textContent.includes('(de)')", timeout=30000
+        )
         jobs = f"/campaigns/{campaign}/identifications"
         running = wait_for(
             lambda: [
