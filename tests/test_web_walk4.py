@@ -501,6 +501,7 @@ def test_rechecks_over_range_two_tabs_and_check_campaigns(
         page.wait_for_selector("#identify-start:not([disabled])", timeout=60000)
         # item 22: a drift check's own campaign is folded in the campaign list
         poses = api.get(f"/robots/{calibrated}/check-poses").json()["poses_deg"]
+        cell_poses = cell.sim.control("poses")["poses_deg"]  # given back after the check
         cell.sim.control("load_poses", poses_deg=poses, loop=True)
         r = api.post(f"/robots/{calibrated}/checks")
         assert r.status_code == 202, r.text
@@ -526,6 +527,7 @@ def test_rechecks_over_range_two_tabs_and_check_campaigns(
             ".some(td => td.textContent === String(id))",
             arg=check_cid,
         )
+        cell.sim.control("load_poses", poses_deg=cell_poses, loop=False)
         _shot(page, tmp_path, "walk4-rechecks-1366")
         assert _axe_serious(page) == []
         assert not log.page_errors, log.page_errors
