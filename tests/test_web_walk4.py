@@ -548,7 +548,8 @@ def test_a_sensor_move_can_be_kept_and_banners_leave_room(cell: Cell, tmp_path: 
     q = np.array(sim.control("poses")["poses_deg"])
     truth = np.array(sim.control("true_lengths", joints_deg=q.tolist())["lengths_mm"])
     noisy = truth + np.random.default_rng(4).normal(0.0, FAST_CELL_NOISE_MM, truth.shape)
-    body = {"name": "walk4 bump", "robot": "walk4 bump arm", "robot_model": "hsr-jr680"}
+    name = f"walk4 bump {len(api.get('/campaigns').json()) + 1}"  # a name of its own per run
+    body = {"name": name, "robot": "walk4 bump arm", "robot_model": "hsr-jr680"}
     cid = api.post("/campaigns", json=body).json()["id"]
     csv = samples_to_csv(make_samples(q[:n_imported], noisy[:n_imported]))
     r = api.post(
@@ -557,7 +558,7 @@ def test_a_sensor_move_can_be_kept_and_banners_leave_room(cell: Cell, tmp_path: 
     assert r.is_success, r.text
     sim.control("load_poses", poses_deg=q[n_imported:].tolist(), loop=False)
     with offline_page(SIZES["390"], allowed_origin=url) as (page, log):
-        _open(page, url, "campaign", "walk4 bump")
+        _open(page, url, "campaign", name)
         page.check("#auto-capture")
         wait_for(
             lambda: len(api.get(f"/campaigns/{cid}/samples").json()) >= n_imported + 4,
@@ -568,19 +569,21 @@ def test_a_sensor_move_can_be_kept_and_banners_leave_room(cell: Cell, tmp_path: 
         # before: the stand is bumped; the banner says so
         sim.control("move_anchor", delta_mm=[4, 0, 0])
         banner = page.locator("#watch-banner")
-        banner.wait_for(timeout=60000)
+        mine = banner.locator(f"div[data-campaign='{cid}']")
+        mine.wait_for(timeout=60000)
         height = page.evaluate("document.getElementById('messages').getBoundingClientRect().height")
         assert height <= 0.5 * SIZES["390"][1], height
         _shot(page, tmp_path, "walk4-sensor-moved-390")
         assert _axe_serious(page) == []
         # action: Keep
-        banner.get_by_role("button", name="Keep: the stand moved (session A2)").click()
-        # after: the banner is gone and stays gone; captures go on in session A2
-        banner.wait_for(state="detached", timeout=10000)
+        mine.get_by_role("button", name="Keep: the stand moved (session A2)").click()
+        # after: its banner is gone and stays gone; captures go on in session A2
+        mine.wait_for(state="detached", timeout=10000)
         assert "session A2 is kept" in page.inner_text("#messages")
         page.wait_for_timeout(2500)  # a few status polls: it does not come back
-        assert page.locator("#watch-banner").count() == 0
+        assert mine.count() == 0
         assert any(m["campaign_id"] == cid for m in api.get("/status").json()["watch"]["moves"])
         page.uncheck("#auto-capture")
         assert not log.page_errors, log.page_errors
     sim.control("move_anchor", delta_mm=[-4, 0, 0])
+    sim.control("load_poses", poses_deg=q.tolist(), loop=False)  # the cell's poses back
