@@ -89,6 +89,9 @@ class AbbRwsConfig(LinkConfig):
 class AbbRwsRobot(LinkedRobot):
     """Asyncio RWS reader of a mechanical unit's jointtarget (see the module docstring)."""
 
+    #: The robot maker whose controller this driver reads (the robot library's words).
+    MAKER = "abb"
+
     def __init__(self, config: AbbRwsConfig) -> None:
         super().__init__(config)
         self.config = config

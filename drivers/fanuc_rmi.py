@@ -201,6 +201,9 @@ class FanucRmiRobot(LinkedRobot):
     """Asyncio driver of a FANUC controller through RMI (reads ``FRC_ReadJointAngles``); the
     link policy (retries, back-off, stale joints) is :class:`drivers.robot_link.LinkedRobot`."""
 
+    #: The robot maker whose controller this driver reads (the robot library's words).
+    MAKER = "fanuc"
+
     def __init__(self, config: FanucRmiConfig) -> None:
         super().__init__(config)
         self.config = config

@@ -96,6 +96,9 @@ class HuashuConfig(LinkConfig):
 class HuashuSocketCmdRobot(StreamLinkedRobot):
     """Asyncio driver of a Huashu controller over SocketCmd."""
 
+    #: The robot maker whose controller this driver reads (the robot library's words).
+    MAKER = "hsr"
+
     def __init__(self, config: HuashuConfig) -> None:
         super().__init__(config)
         self.config = config

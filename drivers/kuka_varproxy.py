@@ -260,6 +260,9 @@ class KukaVarProxyRobot(StreamLinkedRobot):
     """Asyncio driver of a KUKA controller through KukaVarProxy (reads ``$AXIS_ACT``); the
     link policy (retries, back-off, stale joints) is :class:`drivers.robot_link.LinkedRobot`."""
 
+    #: The robot maker whose controller this driver reads (the robot library's words).
+    MAKER = "kuka"
+
     def __init__(self, config: KukaVarProxyConfig) -> None:
         super().__init__(config)
         self.config = config

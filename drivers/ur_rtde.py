@@ -77,6 +77,9 @@ class UrRtdeConfig(LinkConfig):
 class UrRtdeRobot(LinkedRobot):
     """Asyncio RTDE reader of ``actual_q`` (see the module docstring)."""
 
+    #: The robot maker whose controller this driver reads (the robot library's words).
+    MAKER = "ur"
+
     def __init__(self, config: UrRtdeConfig) -> None:
         super().__init__(config)
         self.config = config

@@ -116,7 +116,7 @@ def test_a_robot_is_a_physical_robot_on_the_page(cell: Cell, tmp_path: Path) -> 
         # before: the model picker offers the built-in models and a TOML or JSON file
         page.wait_for_function("document.getElementById('robot-model').options.length > 1")
         options = page.locator("#robot-model option").all_inner_texts()
-        assert f"{DEFAULT_ROBOT_MODEL} (built-in)" in options
+        assert f"{DEFAULT_ROBOT_MODEL} (HSR JR680)" in options  # the built-in's maker, title
         assert "From a model file (.toml or .json) …" in options
         # action: two arms of one model, then the first one again for its next campaign
         _create(page, "walk3 first", robot="cell 4 / SN 61-0042", model=DEFAULT_ROBOT_MODEL)
@@ -337,9 +337,9 @@ def test_the_filter_download_is_what_was_shown(cell: Cell, calibrated: int, tmp_
         state = page.inner_text("#filter-state")
         assert f"calibration #{first}" in state and "1 file(s) not read" in state, state
         files = page.inner_text("#filter-files-result")
-        assert "cell_a.mod" in files and "not read: bad.mod:2" in files
-        assert files.count("bad.mod") == 2  # one row: its name and its reason
-        assert "joint target kept" in page.inner_text("#filter-reasons")
+        assert "cell_a.mod" in files and "not read: line 2:" in files
+        assert files.count("bad.mod") == 1  # one row: its name, then its reason with the line
+        assert "joint targets kept" in page.inner_text("#filter-reasons")
         assert page.is_visible("#filter-download")
         _shot(page, tmp_path, "walk3-filter-preview-1366")
         assert _axe_serious(page) == []

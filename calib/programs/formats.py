@@ -169,6 +169,16 @@ def filter_files_help() -> str:
     return ", ".join(lang.files for lang in LANGUAGES.values())
 
 
+#: The robot maker whose controllers run each format (the robot library's ``# maker:`` words,
+#: lower case: :func:`calib.robots.files.library_info`): the filter warns when a program's
+#: format is not the robot's maker's.
+MAKER: dict[str, str] = {
+    "rapid": "abb",
+    "urscript": "ur",
+    "krl": "kuka",
+    "fanuc-ls": "fanuc",
+}
+
 #: Default joint speed of a program [% of the robot's maximum]: calm moves, short campaign.
 DEFAULT_SPEED_PCT = 25.0
 

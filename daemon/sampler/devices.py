@@ -51,6 +51,8 @@ class Device:
         self.name = name
         self.role: Role = role
         self.kind = type(driver).__name__
+        #: The maker whose controller the driver reads (its ``MAKER``), None when it does not say.
+        self.maker: str | None = getattr(driver, "MAKER", None)
         self.on_event = on_event
         self.state: Literal["unknown", "ok", "error"] = "unknown"
         self.no_data: str | None = None  # RobotNoData message (manual robot waiting)
@@ -196,6 +198,7 @@ class Device:
             "name": self.name,
             "role": self.role,
             "driver": self.kind,
+            "maker": self.maker,
             "state": self.state,
             "connected": self.state == "ok",
             "waiting_for": self.no_data,

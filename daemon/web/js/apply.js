@@ -1,6 +1,7 @@
 // View 4, Apply: compensate pasted or uploaded targets with the robot's calibrated model, and
 // the hold-check state and history (the ``hold_check`` block of /status).
 import { api, download, saveBlob } from "./api.js";
+import { initFilter, renderFilterTarget } from "./filter.js";
 import { $, clock, dismiss, el, every, fillTable, fix, hasRoute, onChange, setText, showMessage, sig, state } from "./ui.js";
 
 let lastCsv = null;
@@ -76,145 +77,7 @@ async function compensate(ev) {
   $("compensate-download").onclick = () => saveBlob(new Blob([lastCsv], { type: "text/csv" }), `robot-${c.robot_id}-compensated.csv`);
 }
 
-// ------------------------------------------------------------------ filter programs
-let filterFiles = [];
-let preview = null; // the shown dry run: its calibration_id and digest go with the download
-
-function filterForm() {
-  const form = new FormData();
-  for (const f of filterFiles) form.append("files", f, f.name);
-  return form;
-}
-
-function filterQuery(dryRun) {
-  const q = [];
-  if (dryRun) q.push("dry_run=true");
-  if ($("filter-keep-joints").checked) q.push("keep_joint_targets=true");
-  // the download must be what the preview showed: the API refuses (409) otherwise
-  if (!dryRun && preview) q.push(`calibration_id=${preview.calibration_id}`, `digest=${preview.digest}`);
-  return q.length ? `?${q.join("&")}` : "";
-}
-
-/** Whose programs these are, said before the drop: the robot (its own name and model) and
- * its current calibration (identification id and date), from GET /robots/{id}/calibrated-model. */
-let filterFor = null;
-async function renderFilterTarget() {
-  const c = state.campaign;
-  if (!c) { setText("filter-target", "Select the campaign of the robot first (tab 2)."); return; }
-  const key = `${c.robot_id}`;
-  try {
-    const m = await api("GET", `/robots/${c.robot_id}/calibrated-model`, { quiet: true });
-    filterFor = key;
-    setText("filter-target", `Programs of robot ${c.robot_name} (model ${c.robot_model_name}), corrected with its current calibration: identification #${m.job_id} of ${new Date(m.created_at * 1000).toLocaleString()}.`);
-  } catch (exc) {
-    if (exc.status !== 404) throw exc;
-    filterFor = key;
-    setText("filter-target", `Robot ${c.robot_name} (model ${c.robot_model_name}) has no accepted calibration yet: accept one in tab 3 before filtering its programs.`);
-  }
-}
-
-/** A filter reason in the operator's words, with the next step (the API's words kept). */
-function reasonWords(reason) {
-  const r = String(reason || "");
-  if (/keep-joint-targets|keep_joint_targets/.test(r)) return "joint target kept (taught on the robot; untick \"Keep joint targets\" to correct it)";
-  if (/^ambiguous/.test(r)) return "left: several arm configurations reach it; give the target its configuration (cf data)";
-  return r.replaceAll("_", " ");
-}
-
-/** Filter the chosen files with a dry run: per file what happened, the reasons grouped with
- * counts, every target below; the download then fetches exactly that (or the API refuses). */
-async function filterPrograms(files) {
-  const c = state.campaign;
-  if (!hasRoute("POST", "/robots/{}/filter")) {
-    showMessage("error", "Filter: this daemon has no filter route (POST /robots/{id}/filter).");
-    return;
-  }
-  if (!c) { showMessage("error", "Filter: select the campaign of the robot first (tab 2)."); return; }
-  filterFiles = Array.from(files);
-  if (!filterFiles.length) return;
-  $("filter-download").hidden = true;
-  preview = null;
-  fillTable($("filter-files-result"), [], []);
-  fillTable($("filter-result"), [], []);
-  setText("filter-reasons", "");
-  setText("filter-state", `Filtering ${filterFiles.length} file(s) for robot ${c.robot_name} …`);
-  let summary;
-  try {
-    summary = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(true)}`, { form: filterForm(), quiet: true });
-  } catch (exc) {
-    const why = exc.status === 409 ? `robot ${c.robot_name} has no accepted calibration yet (accept one in tab 3)` : exc.message;
-    setText("filter-state", `Filtering failed: ${why}`);
-    showMessage("error", `Filter: ${why}`, "filter");
-    return;
-  }
-  dismiss("filter");
-  preview = summary;
-  const rows = summary.targets || [];
-  const errors = summary.errors || [];
-  const notRead = new Map(errors.map((e) => [e.file, e.message]));
-  const perFile = (summary.files || []).map((f) => {
-    const mine = rows.filter((r) => r.file === f.file);
-    const done = mine.filter((r) => r.status === "corrected").length;
-    const why = notRead.get(f.file);
-    notRead.delete(f.file);
-    return [f.file, f.dialect || "–", why ? "–" : String(f.targets), why ? "–" : String(done), why ? "–" : String(mine.length - done),
-      why ? el("span", { class: "bad" }, `not read: ${why}`) : f.written ? "filtered" : "not written"];
-  });
-  for (const [file, why] of notRead) perFile.push([file, "–", "–", "–", "–", el("span", { class: "bad" }, `not read: ${why}`)]);
-  fillTable($("filter-files-result"), [{ label: "file" }, { label: "language" }, { label: "targets", num: true },
-    { label: "corrected", num: true }, { label: "left", num: true }, { label: "result", class: "keep" }], perFile);
-  const groups = new Map();
-  for (const r of rows.filter((x) => x.status !== "corrected")) {
-    const words = reasonWords(r.reason || r.status);
-    groups.set(words, (groups.get(words) || 0) + 1);
-  }
-  setText("filter-reasons", groups.size ? `Left unchanged: ${[...groups].map(([w, n]) => `${n} × ${w}`).join("; ")}.` : "");
-  fillTable($("filter-result"), [{ label: "file" }, { label: "line", num: true }, { label: "target" }, { label: "status" },
-    { label: "shift [mm]", num: true }, { label: "shift [deg]", num: true }, { label: "configuration" },
-    { label: "σ at the tool [mm]", num: true }, { label: "reason" }],
-  rows.map((r) => [r.file, String(r.line), r.name,
-    el("span", { class: r.status === "corrected" ? "ok" : r.status === "skipped" ? "" : "bad" }, r.status),
-    fix(r.shift_mm, 3), fix(r.shift_deg, 4), r.configuration_kept == null ? "–" : r.configuration_kept ? "kept" : "changed",
-    fix(r.sigma_at_tool_mm, 3), r.status === "corrected" ? "" : reasonWords(r.reason)]));
-  const n = summary.counts || {};
-  setText("filter-state", `${n.targets ?? rows.length} targets in ${filterFiles.length} file(s): ${n.corrected ?? 0} corrected, ` +
-    `${(n.targets ?? rows.length) - (n.corrected ?? 0)} left unchanged${errors.length ? `, ${errors.length} file(s) not read (named below)` : ""}; ` +
-    `robot ${summary.robot}, calibration #${summary.calibration_id} of ${summary.calibration_date}.`);
-  $("filter-download").hidden = !(n.corrected > 0);
-}
-
-async function downloadFiltered() {
-  const c = state.campaign;
-  let response;
-  try {
-    response = await api("POST", `/robots/${c.robot_id}/filter${filterQuery(false)}`, { form: filterForm(), raw: true, quiet: true });
-  } catch (exc) {
-    if (exc.status === 409) {
-      $("filter-download").hidden = true;
-      setText("filter-state", `Not downloaded: ${exc.body?.detail || exc.message}`);
-      showMessage("error", `Filter: not downloaded: ${exc.body?.detail || exc.message}`, "filter");
-      await renderFilterTarget(); // the calibration the next preview uses
-      return;
-    }
-    throw exc;
-  }
-  const disposition = response.headers.get("Content-Disposition") || "";
-  const m = /filename="?([^";]+)"?/.exec(disposition);
-  saveBlob(await response.blob(), m ? m[1] : `robot-${c.robot_id}-filtered.zip`);
-}
-
-function initFilter() {
-  // The languages and their files: the program registry's one list (GET /programs/languages).
-  api("GET", "/programs/languages").then((l) => setText("filter-languages", l.filter_files)).catch(() => {});
-  const drop = $("filter-drop");
-  const run = (files) => filterPrograms(files).catch((e) => showMessage("error", `filter: ${e.message}`));
-  $("filter-files").addEventListener("change", (ev) => run(ev.target.files));
-  drop.addEventListener("dragover", (ev) => { ev.preventDefault(); drop.classList.add("over"); });
-  drop.addEventListener("dragleave", () => drop.classList.remove("over"));
-  drop.addEventListener("drop", (ev) => { ev.preventDefault(); drop.classList.remove("over"); run(ev.dataTransfer.files); });
-  $("filter-keep-joints").addEventListener("change", () => { if (filterFiles.length) run(filterFiles); });
-  $("filter-download").addEventListener("click", () => downloadFiltered().catch((e) => showMessage("error", `filter: ${e.message}`)));
-}
+// The filter card is filter.js's (initFilter, renderFilterTarget).
 
 /** ``outside_limits:J3=-80.000<-75.000`` → "J3 -80.000 deg below its limit -75.000 deg". */
 function flagWords(flags) {

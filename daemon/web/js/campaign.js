@@ -33,15 +33,22 @@ async function loadCampaigns() {
   const list = await api("GET", "/campaigns");
   const items = Array.isArray(list) ? list : list.items || [];
   const selected = state.campaign?.id;
+  // a hold check's own campaigns are listed only on request (item 22): they are compared
+  // in tab 4, never identified, and crowd the list
+  const checks = items.filter((c) => String(c.notes || "").startsWith("hold check"));
+  const showChecks = $("campaign-show-checks").checked;
+  $("campaign-show-checks-label").hidden = !checks.length;
+  setText("campaign-show-checks-count", `Show the ${checks.length} hold-check campaign${checks.length === 1 ? "" : "s"}`);
+  const listed = items.filter((c) => showChecks || c.id === selected || !checks.includes(c));
   fillTable($("campaign-list"), [
     { label: "#", num: true }, { label: "name" }, { label: "robot" }, { label: "model" }, { label: "samples", num: true },
     { label: "excluded", num: true }, { label: "auto" }, { label: "created" },
-  ], items.slice().reverse().map((c) => ({
+  ], listed.slice().reverse().map((c) => ({
     class: c.id === selected ? "selected" : "",
     onclick: () => select(c),
     cells: [String(c.id), c.name, c.robot_name, c.robot_model_name, String(c.n_samples), String(c.n_excluded),
       c.auto_capture ? "on" : "", clock(c.created_at)],
-  })), JSON.stringify([selected, items]));
+  })), JSON.stringify([selected, listed]));
   if (selected) {
     const fresh = items.find((c) => c.id === selected);
     if (fresh && JSON.stringify(fresh) !== JSON.stringify(state.campaign)) {
@@ -383,7 +390,7 @@ function renderPlan() {
   fillTable($("plan-poses"), [{ label: "pose", num: true }, ...JOINTS.map((q) => ({ label: `${q.replace("q", "J")} [deg]`, num: true })),
     { label: "anchor" }, { label: "status" }],
   plan.poses.map((p) => [String(p.pose), ...JOINTS.map((q) => fix(p[q], 2)), p.anchor,
-    p.status === "not_capturable" ? el("span", { class: "pill warn", title: p.why || "" }, `not capturable: ${p.why}`)
+    p.status === "not_capturable" ? el("span", { class: "pill warn", title: p.why || "" }, `not capturable: ${String(p.why || "").replace(/^over_range: /, "over range: ")}`)
       : el("span", { class: p.status === "done" ? "ok" : "muted" }, p.status === "done" ? `done (#${p.sample_id})` : "pending")]),
   JSON.stringify([plan.id, plan.poses.map((p) => p.status)]));
 }
@@ -420,12 +427,16 @@ async function startPlan(ev) {
 
 // ------------------------------------------------------------------ create
 const MODEL_FILE = "__file__";
+const UPLOADED = "robot:"; // value prefix of a model uploaded before: the robot that has it
+let uploaded = new Map(); // option value -> the uploaded model mapping
 
 /** The robot picker: every robot (GET /robots: its own name and model) and "a new robot";
- * the model picker: the built-in models (GET /robots/models, the default first) and a file.
- * Kept as the operator left them while the lists are the same. */
+ * the model picker: the built-in models (GET /robots/models), the models uploaded before
+ * (each once, from the robots that have them) and a file. Kept as the operator left them
+ * while the lists are the same. */
 async function loadRobots() {
   const [robots, models] = await Promise.all([api("GET", "/robots"), api("GET", "/robots/models")]);
+  builtins = models;
   const pick = $("robot-pick");
   const key = JSON.stringify(robots.map((r) => [r.id, r.name, r.model_name]));
   if (pick.dataset.key !== key) {
@@ -436,12 +447,48 @@ async function loadRobots() {
     pick.dataset.key = key;
   }
   const model = $("robot-model");
-  if (!model.options.length) {
-    const sorted = models.slice().sort((a, b) => Number(b.default) - Number(a.default));
-    model.replaceChildren(...sorted.map((m) => el("option", { value: m.name }, `${m.name} (built-in)`)),
-      el("option", { value: MODEL_FILE }, "From a model file (.toml or .json) …"));
+  const seen = new Set();
+  uploaded = new Map();
+  for (const r of robots.filter((x) => x.source === "uploaded")) {
+    const same = JSON.stringify(r.model);
+    if (seen.has(same)) continue;
+    seen.add(same);
+    uploaded.set(`${UPLOADED}${r.id}`, { model: r.model, label: `${r.model_name} (uploaded with robot ${r.name})` });
   }
+  const modelKey = JSON.stringify([models.map((m) => m.name), [...uploaded.keys()]]);
+  if (model.dataset.key !== modelKey) {
+    const kept = model.value;
+    const sorted = models.slice().sort((a, b) => Number(b.default) - Number(a.default));
+    model.replaceChildren(
+      el("optgroup", { label: "Built-in models" }, ...sorted.map((m) => el("option", { value: m.name },
+        `${m.name} (${[m.maker?.toUpperCase(), m.title].filter(Boolean).join(" ") || "built-in"})`))),
+      ...(uploaded.size ? [el("optgroup", { label: "Models uploaded before" },
+        ...[...uploaded].map(([value, u]) => el("option", { value }, u.label)))] : []),
+      el("option", { value: MODEL_FILE }, "From a model file (.toml or .json) …"));
+    if ([...model.options].some((o) => o.value === kept)) model.value = kept;
+    model.dataset.key = modelKey;
+  }
+  preselectModel();
   showRobotFields();
+}
+
+let builtins = []; // GET /robots/models: name, default, maker, title
+
+/** Until the operator picks a model, the picker shows the model of the connected controller's
+ * maker (the robot driver's, GET /status devices.robot.maker): the default model when it is
+ * that maker's, else that maker's first; the note says which controller it is. */
+function preselectModel() {
+  const model = $("robot-model");
+  const robotDevice = Object.values(state.status?.devices || {}).find((d) => d.role === "robot");
+  const maker = robotDevice?.maker || null;
+  const note = $("robot-model-note");
+  const mine = builtins.filter((m) => maker && m.maker === maker);
+  const pickFor = mine.find((m) => m.default) || mine[0] || builtins.find((m) => m.default);
+  if (!model.dataset.chosen && pickFor && model.value !== pickFor.name) model.value = pickFor.name;
+  setText(note, (maker
+    ? `The connected controller is ${maker.toUpperCase()}'s (driver ${robotDevice.driver})${mine.length ? `: its ${mine.length === 1 ? "model is" : `${mine.length} models are`} ${mine.map((m) => m.name).join(", ")}` : ": no built-in model of that maker; give a model file"}. `
+    : robotDevice ? `The connected controller (driver ${robotDevice.driver}) does not say its maker. ` : "")
+    + "Pick the arm's model, or give a model file: TOML or JSON (name, convention, tool_mm, one [[joints]] table per joint; see examples/hsr-jr680.toml).");
 }
 
 function showRobotFields() {
@@ -464,6 +511,8 @@ async function createCampaign(ev) {
       const file = f.robot_file.files[0];
       if (!file) { showMessage("error", "The campaign was not created: choose the robot's model file (.toml or .json).", "campaign-form"); return; }
       body.robot_model_file = { filename: file.name, text: await file.text() };
+    } else if (uploaded.has(f.robot_model.value)) {
+      body.robot_model = uploaded.get(f.robot_model.value).model; // a model uploaded before
     } else if (f.robot_model.value) {
       body.robot_model = f.robot_model.value; // else (list not loaded yet) the API's default
     }
@@ -482,7 +531,7 @@ export async function restoreCampaign() {
   const id = Number(sessionStorage.getItem(CAMPAIGN_KEY));
   const items = await loadCampaigns();
   // A fresh tab opens the newest operator campaign, not a hold check's own campaign
-  // (daemon.holdcheck notes those "hold check (…)").
+  // (daemon.monitors.holdcheck notes those "hold check (…)").
   const own = items.filter((x) => !String(x.notes || "").startsWith("hold check"));
   const c = items.find((x) => x.id === id) || own[own.length - 1] || items[items.length - 1] || null;
   if (c) await select(c);
@@ -491,8 +540,9 @@ export async function restoreCampaign() {
 export function initCampaign() {
   $("campaign-form").addEventListener("submit", (ev) => createCampaign(ev).catch(() => {}));
   $("robot-pick").addEventListener("change", showRobotFields);
-  $("robot-model").addEventListener("change", showRobotFields);
-  $("campaign-form").addEventListener("reset", () => setTimeout(() => { loadRobots().catch(() => {}); }));
+  $("campaign-show-checks").addEventListener("change", () => loadCampaigns().catch(() => {}));
+  $("robot-model").addEventListener("change", (ev) => { ev.target.dataset.chosen = "1"; showRobotFields(); });
+  $("campaign-form").addEventListener("reset", () => setTimeout(() => { delete $("robot-model").dataset.chosen; loadRobots().catch(() => {}); }));
   $("plan-form").addEventListener("submit", (ev) => startPlan(ev).catch(() => {}));
   $("plan-form").addEventListener("input", (ev) => {
     if (ev.target.name === "n") ev.target.dataset.typed = "1";
@@ -504,6 +554,9 @@ export function initCampaign() {
   $("capture-now").addEventListener("click", () => captureNow());
   $("auto-capture").addEventListener("change", (ev) => setAuto(ev.target.checked));
   $("download-samples").addEventListener("click", () => download(`/campaigns/${state.campaign.id}/samples?format=csv`, `campaign-${state.campaign.id}-samples.csv`).catch(() => {}));
-  onChange((kind) => { if (kind === "status" && state.view === "campaign" && state.campaign) renderCaptureState(); });
+  onChange((kind) => {
+    if (kind === "status" && state.view === "campaign" && state.campaign) renderCaptureState();
+    if (kind === "status" && state.view === "campaign") preselectModel();
+  });
   every(2000, async () => { await loadCampaigns(); await refreshDetail(); }, () => state.view === "campaign");
 }

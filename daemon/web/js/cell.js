@@ -7,6 +7,7 @@ import { $, age, changed, clock, el, every, fillTable, fix, onChange, setText, s
 const WINDOW_S = 60;
 const TRACE_MS = 150; // about 6.7 Hz nominal: at least 5 Hz on a busy cell PC
 const STATUS_MS = 1000;
+const STALE_FIGURE_S = 1.0; // a length reading older than this [s] is shown as old
 
 const trace = { t: [], length: [], last: 0, offset: 0, plot: null, updates: 0, readings: 0 };
 /** Counters the bench reads (bench/web_bench.py): chart updates and readings received. */
@@ -66,6 +67,14 @@ function rateText() {
   }, 2000);
 }
 
+/** The sampler's settle detail without its configuration keys (item 21): "gap of 0.62 s
+ * between readings (stale_s)" → "... (longer than the sampler allows)". */
+export function detailWords(detail) {
+  return String(detail || "")
+    .replace(/ \(stale_s\)/g, " (longer than the sampler allows: a device answers late)")
+    .replace(/fewer than min_readings (\d+)/g, "fewer than the $1 a still pose needs");
+}
+
 function samplerWords(s) {
   if (!s) return ["The sampler is not running.", ""];
   let mode;
@@ -75,7 +84,7 @@ function samplerWords(s) {
     mode = "Manual mode: a sample is taken when you press Capture (tab 2).";
   }
   const settle = readinessWords(s);
-  return [`${mode} ${settle}`, s.settled ? "" : s.settle_detail || ""];
+  return [`${mode} ${settle}`, s.settled ? "" : detailWords(s.settle_detail)];
 }
 
 // What each counted error class means on the floor, and what to do about it.
@@ -138,38 +147,56 @@ function renderJoints(robot) {
     : robot?.last_reading ? `Read ${age(robot.last_reading.age_s)} ago.` : "No joint reading yet.");
 }
 
-// Device errors: one entry per device, class and message, kept until dismissed.
+// Device errors: one entry per device and kind (the newest message), kept until dismissed.
+// An error of a device that works again is marked as earlier, with its age (item 21).
 const deviceErrors = new Map();
+
+/** A device error's message for the operator: no temporary folder (an emulated cell's
+ * socket path), no reconnect countdown. */
+export function errorText(message) {
+  return String(message || "")
+    .replace(/(?:\/var)?\/tmp\/[^\s'",:;)]*\/([^\s'",:;)/]+)/g, "…/$1")
+    .replace(/;? ?next reconnect in [0-9.]+ s/, "");
+}
 
 function collectErrors(devices) {
   for (const d of Object.values(devices)) {
     const e = d.last_error;
     if (!e || e.t_wall == null) continue;
-    const key = `${d.name}|${e.class}|${e.message}`;
+    const key = `${d.name}|${e.class}`;
+    if (dismissedBefore(key, e.t_wall)) continue;
     const known = deviceErrors.get(key);
     if (known) {
-      if (known.t_wall !== e.t_wall) { known.t_wall = e.t_wall; known.count += 1; known.frames = e.frames_hex; renderErrors(); }
+      if (known.t_wall !== e.t_wall) Object.assign(known, { t_wall: e.t_wall, message: e.message, frames: e.frames_hex, count: known.count + 1 });
       continue;
     }
-    if (dismissedBefore(key, e.t_wall)) continue;
     deviceErrors.set(key, { device: d.name, ...e, frames: e.frames_hex, count: 1 });
-    renderErrors();
   }
+  renderErrors(devices);
 }
 
 const dismissedAt = new Map();
 const dismissedBefore = (key, t) => dismissedAt.has(key) && t <= dismissedAt.get(key);
 
-function renderErrors() {
+function renderErrors(devices) {
   const box = $("device-errors");
-  box.replaceChildren(...[...deviceErrors.entries()].map(([key, e]) => el("div", { class: "device-error" },
-    el("div", { class: "row" },
-      el("b", {}, `${e.device}: ${e.class}`),
-      el("span", { class: "muted" }, `last at ${clock(e.t_wall)}${e.count > 1 ? `, ${e.count} times` : ""}`),
-      el("button", { class: "secondary small", onclick: () => { dismissedAt.set(key, e.t_wall); deviceErrors.delete(key); renderErrors(); } }, "Dismiss")),
-    el("div", {}, e.message),
-    e.frames?.length ? el("pre", {}, `last frames (hex):\n${e.frames.join("\n")}`) : null)));
+  const now = Date.now() / 1000 + trace.offset;
+  const list = [...deviceErrors.entries()].map(([key, e]) => ({ key, e, current: devices?.[e.device]?.state !== "ok" }))
+    .sort((a, b) => Number(b.current) - Number(a.current) || b.e.t_wall - a.e.t_wall);
+  const shown = JSON.stringify(list.map(({ key, e, current }) => [key, current, e.count, e.message, current ? 0 : Math.round((now - e.t_wall) / 30)]));
   $("device-errors-card").hidden = deviceErrors.size === 0;
+  if (box.dataset.key === shown) return;
+  box.dataset.key = shown;
+  box.replaceChildren(...list.map(({ key, e, current }) => el("div", { class: `device-error${current ? "" : " past"}` },
+    el("div", { class: "row" },
+      el("b", {}, `${e.device}: ${(ERROR_WORDS[e.class] || e.class).split(":")[0]}`),
+      el("span", { class: current ? "bad" : "muted" }, current
+        ? `now: the ${e.device} is not working${e.count > 1 ? ` (${e.count} errors)` : ""}`
+        : `earlier: last at ${clock(e.t_wall)}, ${age(Math.max(0, now - e.t_wall))} ago${e.count > 1 ? `, ${e.count} times` : ""}; the ${e.device} works again`),
+      el("button", { class: "secondary small", "aria-label": `Dismiss the ${e.device} error`, onclick: () => { dismissedAt.set(key, e.t_wall); deviceErrors.delete(key); renderErrors(state.status?.devices); } }, "Dismiss")),
+    el("div", {}, errorText(e.message)),
+    e.frames?.length ? el("details", {}, el("summary", {}, "last frames (hex), for a technician"),
+      el("pre", {}, e.frames.map(errorText).join("\n"))) : null)));
 }
 
 async function pollStatus() {
@@ -180,10 +207,14 @@ async function pollStatus() {
   const pill = $("top-devices");
   // a frozen controller answers, yet is not ready: the header says so on every view (item 2)
   const frozen = s.sampler?.settle_state === "frozen";
-  pill.className = `pill ${down.length || frozen ? "bad" : "ok"}`;
+  // an indicator over range answers, yet reads nothing usable: not green (item 19)
+  const over = Object.values(devices).find((d) => d.last_reading?.over_range);
+  pill.className = `pill ${down.length || frozen ? "bad" : over ? "warn" : "ok"}`;
   setText(pill, down.length ? `${down.map((d) => d.name).join(", ")}: ${down[0].state}`
-    : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture` : "devices connected");
+    : frozen ? `${devices.robot?.name ?? "robot"}: joints frozen, no capture`
+      : over ? `${over.name}: over range, no capture` : "devices connected");
   renderHoldCheckPill(s.hold_check);
+  renderLengthAge(devices);
   changed("status");
   collectErrors(devices);
   if (state.view !== "cell") return;
@@ -193,6 +224,16 @@ async function pollStatus() {
   setText("cell-sampler", words);
   $("cell-sampler").classList.toggle("bad", s.sampler?.settle_state === "frozen");
   setText("cell-sampler-detail", detail);
+}
+
+/** The big length figure is marked as old while the indicator gives no new reading (a
+ * link-down): the last value stays, greyed, with its age (item 27). */
+function renderLengthAge(devices) {
+  const ind = Object.values(devices).find((d) => d.role === "indicator");
+  const ageS = ind?.last_reading?.age_s;
+  const stale = !!ind && (ind.state !== "ok" || !(ageS <= STALE_FIGURE_S));
+  $("cell-length").classList.toggle("stale", stale);
+  setText("cell-length-stale", stale ? `old: no new reading for ${age(ageS)} (indicator ${ind.state})` : "");
 }
 
 /** The header's hold-check state (item 22): hidden while the last check is OK or absent. */
@@ -220,7 +261,7 @@ export function initCell() {
   $("device-errors-clear").addEventListener("click", () => {
     for (const [key, e] of deviceErrors) dismissedAt.set(key, e.t_wall);
     deviceErrors.clear();
-    renderErrors();
+    renderErrors(state.status?.devices);
   });
   every(STATUS_MS, pollStatus);
   every(TRACE_MS, pollTrace, () => state.view === "cell");

@@ -21,19 +21,34 @@ const finished = (status) => !!spec && spec.finished_states.includes(status);
 const label = (name) => name.replaceAll("_", " ").replace(/^./, (c) => c.toUpperCase());
 
 // ------------------------------------------------------------------ the form, from the API
+/** An option's field with its help in view (not in a hover tooltip, item 23): the label,
+ * then the help as a hint the field is described by. */
 function fieldNode(f) {
-  const title = f.help;
-  if (f.type === "choice") {
-    return el("label", { title }, `${label(f.name)} `, el("select", { name: f.name },
-      f.choices.map((c) => el("option", { value: c, selected: c === f.default }, c === f.default ? `${c} (default)` : c))));
-  }
   if (f.type === "bool") {
-    return el("label", { class: "check", title }, el("input", { name: f.name, type: "checkbox", checked: !!f.default }), ` ${label(f.name)}: ${f.help}`);
+    return el("label", { class: "check" }, el("input", { name: f.name, type: "checkbox", checked: !!f.default }), ` ${label(f.name)}: ${f.help}`);
+  }
+  const help = `help-${f.name}`;
+  const hint = f.help ? el("p", { class: "hint option-help", id: help }, f.help) : null;
+  const describedby = f.help ? help : null;
+  if (f.type === "choice") {
+    return el("div", { class: "option" }, el("label", {}, `${label(f.name)} `, el("select", { name: f.name, "aria-describedby": describedby },
+      f.choices.map((c) => el("option", { value: c, selected: c === f.default }, c === f.default ? `${c} (default)` : c)))), hint);
   }
   const value = f.type === "names" ? (f.default || []).join(", ") : String(f.default ?? "");
-  return el("label", { title }, `${label(f.name)} `,
-    el("input", { name: f.name, type: "text", inputmode: f.type === "names" ? "text" : "decimal", value, autocomplete: "off" }),
-    el("small", { class: "hint" }, ` ${rangeWords(f)}`));
+  return el("div", { class: "option" }, el("label", {}, `${label(f.name)} `,
+    el("input", { name: f.name, type: "text", inputmode: f.type === "names" ? "text" : "decimal", value, autocomplete: "off", "aria-describedby": describedby }),
+    el("small", { class: "hint" }, ` ${rangeWords(f)}`)), hint);
+}
+
+/** A result note's numbers as the figure means them (item 23): a length to the µm
+ * (0.004872320524477666 mm → 0.005 mm), an angle to 0.0001 deg, any other long decimal
+ * to 4 significant digits. */
+export function noteText(note) {
+  return String(note).replace(/(-?\d+\.\d{5,})(\s*)(mm|deg|°)?/g, (_, x, sp, unit) => {
+    const v = Number(x);
+    const text = unit === "mm" ? (Math.abs(v) >= 0.001 ? v.toFixed(3) : sig(v, 2)) : unit ? v.toFixed(4) : sig(v, 4);
+    return `${text}${sp}${unit || ""}`;
+  });
 }
 
 /** The field's range in words, from the API's bounds. */
@@ -147,6 +162,13 @@ async function start(ev) {
   try { body = readForm(); } catch (exc) { formError(exc.message); return; }
   formError("");
   try {
+    // one already running for this campaign (another tab may have started it): ask first
+    const list = await api("GET", `/campaigns/${state.campaign.id}/identifications`);
+    const running = (Array.isArray(list) ? list : list.items || []).filter((x) => !finished(x.status));
+    if (running.length && !confirm(`Identification #${running[0].id} (${running[0].method}, started ${clock(running[0].created_at)}) is still ${running[0].status} for this campaign, perhaps from another tab.\n\nStart another identification anyway?`)) {
+      setText("identify-need", `Not started: identification #${running[0].id} is still ${running[0].status}; its result comes first.`);
+      return;
+    }
     const j = await api("POST", `/campaigns/${state.campaign.id}/identifications`, { json: body });
     live = { x: [], y: [], plot: live.plot };
     await follow(j.id);
@@ -239,7 +261,14 @@ async function renderResult(j) {
   setText("result-title", `Result of identification #${j.id} — ${r.method} on ${robotName}`);
   const verdict = $("result-verdict");
   verdict.className = `pill ${j.current ? "ok" : plaus.plausible ? "warn" : "bad"}`;
-  setText(verdict, j.current ? "current: this is the robot's calibration"
+  // the first plausible result is made current by the daemon (jobs.auto_accept): said, and
+  // the operator asked to review it (item 23)
+  const auto = j.current && /first calibration/.test(j.message || "");
+  $("result-auto-note").hidden = !auto;
+  if (auto) {
+    setText("result-auto-note", `Accepted automatically as the robot's first calibration (its parameters are plausible): review the figures below before filtering programs with it. Identify again, and accept the better result, if they do not convince you.`);
+  }
+  setText(verdict, j.current ? (auto ? "current (accepted automatically): review it" : "current: this is the robot's calibration")
     : j.accepted ? "accepted earlier, replaced by a newer calibration"
       : plaus.plausible ? "plausible, waiting for Accept" : "implausible parameters — review before accepting");
   $("accept").hidden = !!j.current;
@@ -258,7 +287,7 @@ async function renderResult(j) {
   );
   renderDh(r);
   renderIdent(r);
-  $("result-notes").replaceChildren(...(r.notes || []).map((n) => el("li", {}, n)));
+  $("result-notes").replaceChildren(...(r.notes || []).map((n) => el("li", {}, noteText(n))));
   $("result-notes-card").hidden = !(r.notes || []).length;
   for (const p of plots.splice(0)) p.cleanup();
   renderCost(r);
@@ -341,9 +370,10 @@ async function renderCompare(j) {
   const own = j.result.metrics?.after?.test?.rmse_mm;
   const tcpOwn = j.result.tcp_uncertainty_mm?.rms;
   fillTable($("compare-table"), [{ label: "figure" }, { label: `current #${c.current.job_id} (${c.current.method})`, num: true }, { label: `new #${j.id} (${c.new.method})`, num: true }], [
-    [`test RMSE on the same ${c.n_rows} held-out rows [mm]`, fix(c.current.test_rmse_mm, 3), fix(own, 3)],
+    [`test RMSE on the same ${c.n_rows} held-out rows [mm]`, c.current.test_rmse_mm == null ? "– (see below)" : fix(c.current.test_rmse_mm, 3), fix(own, 3)],
     ["TCP uncertainty 1σ RMS [mm]", fix(c.current.tcp_sigma_mm, 3), fix(tcpOwn, 3)],
   ]);
+  await renderCompareWhy(j, c);
   const today = c.new.test_rmse_mm;
   const stale = typeof own === "number" && typeof today === "number" && fix(own, 3) !== fix(today, 3);
   $("compare-stale").hidden = !stale;
@@ -355,6 +385,25 @@ async function renderCompare(j) {
     c.changed.length ? c.changed.map((p) => [p.name, `${fix(p.current, 3)} ${p.unit}`, `${fix(p.new, 3)} ${p.unit}`, `${p.change > 0 ? "+" : ""}${fix(p.change, 3)} ${p.unit}`])
       : [["no parameter changed by more than 0.001", "", "", ""]]);
   $("accept").textContent = `Accept: replace calibration #${c.current.job_id} by #${j.id}`;
+}
+
+/** Why the current calibration has no test RMSE (item 18): no held-out rows, or rows at an
+ * anchor session (a sensor position) the current calibration never saw. */
+async function renderCompareWhy(j, c) {
+  const node = $("compare-why");
+  node.hidden = c.current.test_rmse_mm != null;
+  if (node.hidden) return;
+  if (!c.n_rows) {
+    setText(node, `– : #${j.id} held out no rows (test fraction 0), so neither model is scored on held-out rows; compare the TCP uncertainty.`);
+    return;
+  }
+  const anchorsOf = (r) => [r?.anchor_id, ...Object.keys(r?.anchors || {})].filter(Boolean);
+  const current = await api("GET", `/identifications/${c.current.job_id}`, { quiet: true });
+  const known = anchorsOf(current.result);
+  const missing = anchorsOf(j.result).filter((a) => !known.includes(a));
+  setText(node, `– : the current calibration #${c.current.job_id} knows the sensor position of anchor session ${known.join(", ") || "–"} only; `
+    + `#${j.id}'s held-out rows include anchor session ${missing.join(", ") || "(another)"} (the sensor stand was moved after #${c.current.job_id}), `
+    + "where its sensor position is unknown, so it cannot be scored on them. Compare the TCP uncertainty, or run a hold check (tab 4) to score the current calibration now.");
 }
 
 function renderDh(r) {

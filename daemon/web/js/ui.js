@@ -71,7 +71,7 @@ export function clock(t) {
 export function fillTable(table, columns, rows, key) {
   if (key !== undefined && table.dataset.key === key) return;
   if (key !== undefined) table.dataset.key = key;
-  const head = el("thead", {}, el("tr", {}, columns.map((c) => el("th", { class: c.num ? "num" : "" }, c.label))));
+  const head = el("thead", {}, el("tr", {}, columns.map((c) => el("th", { class: [c.num ? "num" : "", c.class || ""].join(" ").trim() }, c.label))));
   // A row that can be selected (it has an onclick) is a row of a grid: focusable, Enter or
   // Space selects it, and the selected one says so (aria-selected), for the keyboard and a
   // screen reader as for the mouse.
@@ -84,7 +84,7 @@ export function fillTable(table, columns, rows, key) {
         onkeydown: (ev) => { if (ev.target === ev.currentTarget && (ev.key === "Enter" || ev.key === " ")) { ev.preventDefault(); spec.onclick(ev); } } });
     }
     return el("tr", attrs,
-      spec.cells.map((cell, i) => el("td", { class: columns[i]?.num ? "num" : columns[i]?.class }, cell)));
+      spec.cells.map((cell, i) => el("td", { class: [columns[i]?.num ? "num" : "", columns[i]?.class || ""].join(" ").trim(), "data-label": columns[i]?.label }, cell)));
   }));
   if (selectable) table.setAttribute("role", "grid"); else table.removeAttribute("role");
   // A redraw keeps the keyboard where it was: the row with the same first cell gets the focus.

@@ -32,8 +32,20 @@ function needWords(m) {
     + `(${c.min_training_samples} to train on; the campaign has ${c.n_included}): each session adds its own sensor position to fit.`;
 }
 
+// Moves the operator kept (the stand did move: the new session stays), per browser tab.
+const KEPT_KEY = "cablecal-moves-kept";
+const kept = new Set(JSON.parse(sessionStorage.getItem(KEPT_KEY) || "[]"));
+const moveKey = (m) => `${m.campaign_id}:${m.sample_id}`;
+
+function keep(m) {
+  kept.add(moveKey(m));
+  sessionStorage.setItem(KEPT_KEY, JSON.stringify([...kept]));
+  showMessage("info", `Campaign #${m.campaign_id}: the new anchor session ${m.new_anchor} is kept (the sensor stand moved); captures go on there.`, "watch-kept");
+  render();
+}
+
 function render() {
-  const moves = state.status?.watch?.moves || [];
+  const moves = (state.status?.watch?.moves || []).filter((m) => !kept.has(moveKey(m)));
   const key = JSON.stringify(moves.map((m) => [m.campaign_id, m.sample_id, needWords(m)]));
   if (moves.length) readCampaigns(moves).catch(() => {});
   if (key === shown) return;
@@ -51,7 +63,9 @@ function render() {
         + needWords(m) + ` If it did not move, undo: the samples go back to anchor ${m.previous_anchor}.`),
       el("div", { class: "actions" },
         el("button", { type: "button", class: "undo", onclick: () => undo(m) },
-          `Undo: back to anchor ${m.previous_anchor}`))))));
+          `Undo: back to anchor ${m.previous_anchor}`), " ",
+        el("button", { type: "button", class: "secondary keep-move", onclick: () => keep(m) },
+          `Keep: the stand moved (session ${m.new_anchor})`))))));
   $("messages").prepend(banner);
 }
 

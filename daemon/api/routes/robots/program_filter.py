@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 from urllib.parse import quote
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
+from fastapi.exceptions import RequestValidationError
 from typing_extensions import TypedDict
 
 from calib.programs.formats import LANGUAGES, filter_files_help
@@ -31,6 +32,7 @@ from daemon.api.http.downloads import download_headers
 from daemon.api.http.guard import MAX_FILTER_BYTES
 from daemon.api.http.multipart import FormPart, read_form
 from daemon.api.http.offload import offload
+from daemon.api.routes.robots.robots import model_maker
 from daemon.api.text_rules import not_portable_file_name
 from daemon.process.workers import run_in_child
 from daemon.store import NO_CALIBRATION, StoreNotFound
@@ -102,7 +104,7 @@ def _files_and_frames(parts: list[FormPart]) -> tuple[list[tuple[str, bytes]], s
     for part in parts:
         if part.name == "files":
             k = len(files)
-            why = not_portable_file_name(part.filename or "", [f for f, _ in files])
+            why = _not_a_program_name(part.filename or "", [f for f, _ in files])
             if why:
                 raise unprocessable(("body", "files", k), f"files[{k}]: {why}")
             files.append((part.filename or "", bytes(part.data)))
@@ -114,6 +116,42 @@ def _files_and_frames(parts: list[FormPart]) -> tuple[list[tuple[str, bytes]], s
     if not files:
         raise unprocessable(("body", "files"), "files: at least one program file is required")
     return files, frames
+
+
+def _not_a_program_name(name: str, taken: list[str]) -> str | None:
+    """Why ``name`` cannot be a filter input's name (:func:`not_portable_file_name`), or None.
+    KUKA's controller file ``$config.dat`` keeps its ``$`` (it is read, never written); two
+    files of that name are two controller backups, said so."""
+    from calib.programs.krl.filter import CONFIG_DAT
+
+    if name.casefold() != CONFIG_DAT:
+        return not_portable_file_name(name, taken)
+    if other := next((n for n in taken if n.casefold() == CONFIG_DAT), None):
+        return (
+            f"{name!r} given twice (also {other!r}): two controller backups? Each backup's "
+            "$config.dat belongs to its own programs: filter one backup at a time"
+        )
+    return None
+
+
+#: Bytes of a file's start searched for a zero byte (no text program has one).
+BINARY_SNIFF_BYTES = 65536
+
+
+def binary_file_error(name: str, data: bytes) -> Any:
+    """A :class:`calib.programs.inputs.FilterInputError` for a file that is not text (a zero byte
+    in its first :data:`BINARY_SNIFF_BYTES`), else None."""
+    from calib.programs.inputs import FilterInputError
+
+    at = data.find(b"\x00", 0, BINARY_SNIFF_BYTES)
+    if at < 0:
+        return None
+    return FilterInputError(
+        name,
+        f"not a text file: it holds binary data (a zero byte at byte {at + 1}); a robot "
+        "program is text: give the controller's text file (a .ls, not a compiled .tp; the "
+        "program files, not a zip or a backup archive)",
+    )
 
 
 class Preview(NamedTuple):
@@ -152,6 +190,8 @@ def _filter(
     outputs and errors only) and its summary, naming the robot and the calibration
     (``about``) and the outputs' digest. 422 when no file could be read (every problem
     named); a bad file among good ones is named in the summary's ``errors``."""
+    from calib.programs.krl.filter import is_config_dat
+
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import FilterRun, filter_files
     from calib.programs.sites import FilterInputError, parse_frames_toml
@@ -166,11 +206,46 @@ def _filter(
         raise HTTPException(
             409, f"robot {about['robot_id']}: calibration unusable: {exc}"
         ) from None
-    run = filter_files(cal, files, frames=frames, keep_joint_targets=keep, only=only)
-    if run.errors and not run.outputs:
-        raise unprocessable(("body", "files"), "; ".join(str(e) for e in run.errors))
+    binary = [e for name, data in files if (e := binary_file_error(name, data)) is not None]
+    text_files = [(n, d) for n, d in files if n not in {e.file for e in binary}]
+    run = filter_files(cal, text_files, frames=frames, keep_joint_targets=keep, only=only)
+    run.errors[:0] = binary
+    # $config.dat is the controller's own file: read (tools, bases, XHOME), never written
+    run.outputs = {n: b for n, b in run.outputs.items() if not is_config_dat(n)}
+    if run.errors and not run.sources:
+        raise RequestValidationError(
+            [
+                {"loc": ("body", "files", e.file), "msg": str(e), "type": "value_error"}
+                for e in run.errors
+            ]
+        )
     summary = run.summary({**about, "digest": outputs_digest(run.outputs)})
+    for row, e in zip(summary["errors"], run.errors, strict=True):
+        row["reason"] = e.message
+    for row in summary["files"]:
+        row.update(_file_notes(row, about))
     return FilterRun(outputs=run.outputs, errors=run.errors), summary
+
+
+def _file_notes(row: Mapping[str, Any], about: Mapping[str, Any]) -> dict[str, Any]:
+    """Per file of the summary: its format's ``maker``, a ``warning`` when that is not the
+    robot's maker (``about["robot_maker"]``; also when the robot's maker is not known), and
+    ``read_only`` for ``$config.dat``."""
+    from calib.programs.krl.filter import is_config_dat
+
+    from calib.programs.formats import MAKER, TITLE
+
+    maker = MAKER.get(row["dialect"])
+    robot_maker = about.get("robot_maker")
+    warning = None
+    if maker is not None and maker != robot_maker:
+        whose = f"made by {robot_maker.upper()}" if robot_maker else "of a maker not known"
+        warning = (
+            f"{TITLE.get(row['dialect'], row['dialect'])} programs run on {maker.upper()} "
+            f"controllers, but robot {about['robot']} is {whose} (model "
+            f"{about['robot_model']}): check that they are this robot's before loading them"
+        )
+    return {"maker": maker, "warning": warning, "read_only": is_config_dat(row["file"])}
 
 
 @router.post(
@@ -240,9 +315,14 @@ async def filter_programs(
     and ``digest`` returns exactly what the preview showed, or 409 when the calibration or
     the files changed. Every output names the robot, the calibration and its date (the
     summary, the zip's name and comment, the ``X-Filter-*`` headers). A file that cannot be
-    read is named in the summary's ``errors`` while the others are filtered; a 422 when no
-    file can be read; 409 when the robot has no current calibration; at most
-    :data:`MAX_FILES` files and the guard's body limit."""
+    read (a binary file, an empty one, another dialect's content) is named in the summary's
+    ``errors`` (``reason``: the words without the file name) while the others are filtered;
+    a 422 with one entry per file when no file can be read; 409 when the robot has no
+    current calibration; at most :data:`MAX_FILES` files and the guard's body limit. KUKA's
+    ``$config.dat`` is read, never written (not among the outputs; its ``files`` row says
+    ``read_only``); a second one is refused naming both (two controller backups). Each
+    ``files`` row names its format's ``maker`` and a ``warning`` when that is not the robot's
+    maker (``robot_maker``: the model's ``[controller] maker`` or the library's ``# maker:``)."""
     state.store.robot_model(robot_id)  # 404 for an unknown robot before the body is read
     try:
         state.store.accepted_result(robot_id)
@@ -286,6 +366,7 @@ async def filter_programs(
         "calibration_id": made.calibration_id,
         "calibration_result_id": made.result_id,
         "calibration_date": made.calibration_date,
+        "robot_maker": model_maker(nominal),
     }
     args = (result, nominal, files, frames_text, keep_joint_targets, wanted, about)
     nice, blas = state.settings.jobs.worker_nice, state.settings.jobs.worker_blas_threads

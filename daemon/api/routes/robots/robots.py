@@ -70,6 +70,26 @@ class BuiltinModelOut(TypedDict):
     name: str
     #: Whether a campaign without a model gets it (:data:`calib.default_robot.DEFAULT_ROBOT_MODEL`).
     default: bool
+    #: The arm's maker in lower case (the library file's ``# maker:``: abb, fanuc, hsr, kuka,
+    #: ur), None when the file does not say.
+    maker: str | None
+    #: The maker's designation of the arm (``# title:``), None when the file does not say.
+    title: str | None
+
+
+def model_maker(model: RobotModel) -> str | None:
+    """The maker of a robot's model, lower case: its ``[controller] maker`` (not ``other``),
+    else the robot library's ``# maker:`` line of the arm of that name; None when neither
+    says."""
+    from calib.robots.files import library_info, library_names
+
+    said = model.controller.maker
+    if said and said != "other":
+        return said
+    if model.name in library_names():
+        maker = library_info(model.name).maker
+        return maker.lower() if maker else None
+    return None
 
 
 def model_of_file(file: ModelFileText, loc: tuple[str, ...]) -> RobotModel:
@@ -151,8 +171,17 @@ def list_robots(state: State) -> list[RobotRow]:
 @router.get("/robots/models", summary="The built-in nominal models")
 def builtin_models() -> list[BuiltinModelOut]:
     """The names of :data:`calib.models.BUILTIN_MODELS`, sorted; ``default`` marks the one a
-    campaign without a model gets."""
-    return [{"name": n, "default": n == DEFAULT_ROBOT_MODEL} for n in sorted(BUILTIN_MODELS)]
+    campaign without a model gets; ``maker`` and ``title`` from the library file."""
+    from calib.robots.files import library_info
+
+    out: list[BuiltinModelOut] = []
+    for n in sorted(BUILTIN_MODELS):  # the robot library's arms
+        info = library_info(n)
+        maker = info.maker.lower() if info.maker else None
+        out.append(
+            {"name": n, "default": n == DEFAULT_ROBOT_MODEL, "maker": maker, "title": info.title}
+        )
+    return out
 
 
 @router.post(
