@@ -117,6 +117,23 @@ class RequestSettings(BaseModel):
     send_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 30.0
     """A client that reads none of a response for this long [s] is disconnected (its
     buffered response freed)."""
+    rate_per_s: Annotated[float, Field(ge=0, le=10_000)] = 20.0
+    """Requests one peer address may send per second, sustained (a token bucket per address,
+    :class:`daemon.api.guard.PeerRate`; ``GET /health`` is not counted); beyond it a 429 with
+    Retry-After (0: no limit)."""
+    rate_burst: Annotated[int, Field(ge=1, le=100_000)] = 100
+    """Requests one peer address may send at once above ``rate_per_s`` (the bucket's size)."""
+    rate_refusal_delay_s: Annotated[float, Field(ge=0, le=10)] = 1.0
+    """A request over the rate is answered (429) after this long [s], its body unread: a
+    client that ignores Retry-After and sends again at once gets at most one refusal per
+    connection and delay, each costing the event loop nothing while it waits."""
+    campaigns_per_min: Annotated[int, Field(ge=0, le=100_000)] = 60
+    """Campaigns the daemon creates per minute, from all network clients (``POST /campaigns``);
+    beyond it a 429 with Retry-After (0: no limit)."""
+    imports_per_min: Annotated[int, Field(ge=0, le=100_000)] = 20
+    """CSV imports the daemon stores per minute, from all network clients
+    (``POST /campaigns/{id}/samples/import``); beyond it a 429 with Retry-After (0: no
+    limit)."""
 
 
 class HoldCheckSettings(BaseModel):

@@ -15,7 +15,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
 from daemon.api.min_samples import MinSamplesCache
-from daemon.api.offload import WorkGate
+from daemon.api.offload import PerMinute, WorkGate
 from daemon.config import Settings
 from daemon.jobs import JobManager
 from daemon.store import Store
@@ -47,6 +47,8 @@ class AppState:
         :func:`time.monotonic` at start-up [s].
     gates : dict of str to WorkGate
         The bounds of heavy request work by kind (:func:`daemon.api.offload.gates_of`).
+    per_minute : dict of str to PerMinute
+        Writes a minute by kind (:func:`daemon.api.offload.per_minute_of`).
     """
 
     settings: Settings
@@ -60,6 +62,7 @@ class AppState:
     auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
     gates: dict[str, WorkGate] = field(default_factory=dict)
+    per_minute: dict[str, PerMinute] = field(default_factory=dict)
 
 
 def require_space(state: AppState, payload_bytes: int, what: str) -> None:

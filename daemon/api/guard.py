@@ -1,7 +1,16 @@
-"""The request guard: the bearer token first, then the body-size bound while the body streams.
+"""The request guard: the peer's request rate, the bearer token, then the body-size bound
+while the body streams.
 
-A pure ASGI middleware in front of the routes, so that neither costs memory before it is
+A pure ASGI middleware in front of the routes, so that none costs memory before it is
 decided:
+
+- **Rate per peer.** Each peer address has a token bucket (:class:`TokenBuckets`: the
+  ``[requests]`` settings ``rate_per_s`` and ``rate_burst``); a request that finds it empty
+  is a 429 with ``Retry-After``, its body unread and its connection closed, answered after
+  ``rate_refusal_delay_s`` so that a client that ignores Retry-After cannot make the event
+  loop answer refusals as fast as it sends. ``GET /health`` is not counted, and neither is a
+  request without a network peer (an in-process ASGI client, a Unix socket): the key is the
+  peer's IP address.
 
 - **Auth before the body.** Under ``/api/v1``, every request but ``GET /health`` needs the
   token (reads too, unless ``public_reads``). Without it the answer is 401 before a byte of the
@@ -22,9 +31,12 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+import ipaddress
 import json
+import math
 import re
-from collections.abc import Awaitable, Callable, MutableMapping
+import time
+from collections.abc import Awaitable, Callable, Hashable, MutableMapping
 from typing import Any, Final
 
 from starlette.exceptions import HTTPException
@@ -79,6 +91,72 @@ def token_matches(authorization: str | None, token: str) -> bool:
     return hmac.compare_digest(credentials.strip().encode(), token.encode())
 
 
+class TokenBuckets:
+    """A token bucket per key: ``burst`` tokens at most, refilled at ``rate_per_s``; each
+    request takes one.
+
+    Memory is bounded: beyond :attr:`max_keys` keys, the buckets that are full again (their
+    key idle long enough) are forgotten, and if none is, the oldest half.
+
+    Parameters
+    ----------
+    rate_per_s : float
+        Tokens added per second (0: no limit, :meth:`take` always grants).
+    burst : int
+        The bucket's size [tokens].
+    clock : callable returning float
+        Seconds, monotonic (tests pass their own).
+    """
+
+    max_keys: int = 4096
+
+    def __init__(
+        self, rate_per_s: float, burst: int, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.rate_per_s = rate_per_s
+        self.burst = burst
+        self.clock = clock
+        self._buckets: dict[Hashable, tuple[float, float]] = {}  # key -> (tokens, at [s])
+
+    def take(self, key: Hashable) -> float:
+        """Take a token of ``key``'s bucket: 0.0 when granted, else the seconds until one is
+        there (nothing taken)."""
+        if self.rate_per_s <= 0:
+            return 0.0
+        now = self.clock()
+        tokens, at = self._buckets.get(key, (float(self.burst), now))
+        tokens = min(float(self.burst), tokens + (now - at) * self.rate_per_s)
+        if tokens >= 1.0:
+            if key not in self._buckets and len(self._buckets) >= self.max_keys:
+                self._forget(now)
+            self._buckets[key] = (tokens - 1.0, now)
+            return 0.0
+        self._buckets[key] = (tokens, now)
+        return (1.0 - tokens) / self.rate_per_s
+
+    def _forget(self, now: float) -> None:
+        full_s = self.burst / self.rate_per_s
+        idle = [k for k, (_, at) in self._buckets.items() if now - at >= full_s]
+        for k in idle or list(self._buckets)[: len(self._buckets) // 2]:
+            del self._buckets[k]
+
+
+def peer_key(scope: Scope) -> str | None:
+    """The peer's IP address, the key of its rate; None without a network peer."""
+    client = scope.get("client")
+    if not client:
+        return None
+    try:
+        return str(ipaddress.ip_address(str(client[0])))
+    except ValueError:
+        return None
+
+
+def retry_after(wait_s: float) -> str:
+    """A ``Retry-After`` value [whole s, at least 1] for a wait of ``wait_s``."""
+    return str(max(1, math.ceil(wait_s)))
+
+
 def body_limit(path: str) -> int:
     """The largest body [bytes] a request to ``path`` may carry."""
     if _IMPORT_PATH.fullmatch(path):
@@ -107,6 +185,9 @@ class RequestGuard:
         The REST prefix the token guards.
     body_gap_timeout_s, body_timeout_s : float
         Longest pause within a body and longest whole body [s]; then 408.
+    rate_per_s, rate_burst, rate_refusal_delay_s
+        The ``[requests]`` rate settings (:class:`daemon.config.RequestSettings`); the
+        defaults: no limit.
     """
 
     def __init__(
@@ -118,8 +199,13 @@ class RequestGuard:
         prefix: str,
         body_gap_timeout_s: float | None = None,
         body_timeout_s: float | None = None,
+        rate_per_s: float = 0.0,
+        rate_burst: int = 1,
+        rate_refusal_delay_s: float = 0.0,
     ) -> None:
         self.app = app
+        self.rates = TokenBuckets(rate_per_s, rate_burst)
+        self.rate_refusal_delay_s = rate_refusal_delay_s
         self.token = token
         self.public_reads = public_reads
         self.prefix = prefix
@@ -139,6 +225,8 @@ class RequestGuard:
             await self.app(scope, receive, send)
             return
         path, method = str(scope["path"]), str(scope["method"])
+        if await self._over_rate(scope, method, path, send):
+            return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
         if self._needs_token(method, path) and not token_matches(
             headers.get("authorization"), self.token
@@ -198,6 +286,26 @@ class RequestGuard:
             await send(message)
 
         await self.app(scope, counted, closing)
+
+    async def _over_rate(self, scope: Scope, method: str, path: str, send: Send) -> bool:
+        """Whether the request was over its peer's rate (then it has been answered 429)."""
+        peer = peer_key(scope)
+        if peer is None or (path.rstrip("/") in _OPEN_PATHS and method in _READ_METHODS):
+            return False
+        wait_s = self.rates.take(peer)
+        if wait_s <= 0.0:
+            return False
+        if self.rate_refusal_delay_s > 0:
+            await asyncio.sleep(self.rate_refusal_delay_s)
+            wait_s = max(0.0, wait_s - self.rate_refusal_delay_s)
+        detail = (
+            f"too many requests from {peer}: at most {self.rates.rate_per_s:g} a second "
+            f"after a burst of {self.rates.burst} ([requests] rate_per_s, rate_burst); "
+            f"retry in {retry_after(wait_s)} s"
+        )
+        extra = {"retry-after": retry_after(wait_s), "connection": "close"}
+        await _reply(send, 429, detail, extra)
+        return True
 
 
 async def _reply(send: Send, status: int, detail: str, extra: dict[str, str] | None = None) -> None:

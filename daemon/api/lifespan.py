@@ -17,7 +17,7 @@ from fastapi import FastAPI
 
 from daemon.api.deps import AppState
 from daemon.api.min_samples import MinSamplesCache
-from daemon.api.offload import gates_of
+from daemon.api.offload import gates_of, per_minute_of
 from daemon.autocapture import AutoCapture
 from daemon.config import Settings
 from daemon.holdcheck import HoldCheckMonitor
@@ -46,6 +46,7 @@ def build_state(settings: Settings, token: str) -> AppState:
         jobs=JobManager(store, settings.jobs),
         min_samples=MinSamplesCache(store),
         gates=gates_of(settings),
+        per_minute=per_minute_of(settings),
     )
 
 

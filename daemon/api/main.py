@@ -59,8 +59,15 @@ def create_app(
         dependencies=[Depends(bound_path_ids), Depends(finite_queries)],
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
+    limits = settings.requests
     app.add_middleware(
-        RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
+        RequestGuard,
+        token=token,
+        public_reads=settings.public_reads,
+        prefix=API_PREFIX,
+        rate_per_s=limits.rate_per_s,
+        rate_burst=limits.rate_burst,
+        rate_refusal_delay_s=limits.rate_refusal_delay_s,
     )
     app.add_middleware(LatencyMiddleware, prefix=API_PREFIX)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token

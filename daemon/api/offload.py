@@ -26,7 +26,16 @@ from typing import Any, Final, TypeVar
 
 from fastapi import HTTPException, Request
 
-from daemon.api.guard import ASGIApp, Message, Receive, Scope, Send
+from daemon.api.guard import (
+    ASGIApp,
+    Message,
+    Receive,
+    Scope,
+    Send,
+    TokenBuckets,
+    peer_key,
+    retry_after,
+)
 
 T = TypeVar("T")
 
@@ -63,12 +72,14 @@ class WorkGate:
         self.closed = True
 
     @contextlib.asynccontextmanager
-    async def slot(self) -> AsyncIterator[None]:
+    async def slot(self, refuse: bool = True) -> AsyncIterator[None]:
         """Hold one of the ``running`` places (after waiting in the queue, if there is room);
-        a 429 when the queue is full, a 503 when closed."""
+        a 429 when the queue is full, a 503 when closed. ``refuse=False``: wait however full
+        the queue is (a later step of work already admitted, e.g. the next page of a
+        streamed export, whose response has started)."""
         if self.closed:
             raise HTTPException(503, SHUTTING_DOWN, headers={"Retry-After": str(SHUTDOWN_RETRY_S)})
-        if self.active >= self.running and self._waiting >= self.queued:
+        if refuse and self.active >= self.running and self._waiting >= self.queued:
             raise HTTPException(
                 429,
                 f"busy: {self.active} {self.what} running and {self._waiting} waiting, the most "
@@ -176,6 +187,51 @@ class CancelledIs503:
                     await send({"type": "http.response.start", "status": 503, "headers": headers})
                     await send({"type": "http.response.body", "body": body})
             raise
+
+
+class PerMinute:
+    """At most ``per_min`` writes of one kind a minute from all network clients together (a
+    token bucket of
+    ``per_min`` tokens refilled over a minute), so a loop of them cannot fill the disk at the
+    rate the daemon can write; a further one is a 429 with ``Retry-After``.
+
+    Parameters
+    ----------
+    what : str
+        What is counted, for the message (``campaigns``).
+    setting : str
+        The ``[requests]`` setting that says how many, for the message.
+    per_min : int
+        0: no limit.
+    """
+
+    def __init__(self, what: str, setting: str, per_min: int) -> None:
+        self.what, self.setting, self.per_min = what, setting, per_min
+        self.bucket = TokenBuckets(per_min / 60.0, max(per_min, 1))
+
+    def take(self, request: Request) -> None:
+        """Count one, or raise the 429 naming the limit. A request without a network peer
+        (an in-process client: :func:`daemon.api.guard.peer_key`) is not counted, as the
+        per-peer rate does not count it."""
+        if peer_key(request.scope) is None:
+            return
+        wait_s = self.bucket.take("all")
+        if wait_s > 0.0:
+            raise HTTPException(
+                429,
+                f"{self.what}: at most {self.per_min} a minute ([requests] {self.setting}); "
+                f"retry in {retry_after(wait_s)} s",
+                headers={"Retry-After": retry_after(wait_s)},
+            )
+
+
+def per_minute_of(settings: Any) -> dict[str, PerMinute]:
+    """The per-minute limits of the ``[requests]`` settings: ``campaign`` and ``import``."""
+    r = settings.requests
+    return {
+        "campaign": PerMinute("campaigns", "campaigns_per_min", r.campaigns_per_min),
+        "import": PerMinute("CSV imports", "imports_per_min", r.imports_per_min),
+    }
 
 
 def gates_of(settings: Any) -> dict[str, WorkGate]:
