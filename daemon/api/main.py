@@ -12,7 +12,7 @@ from fastapi import Depends, FastAPI
 
 from daemon.api import errors
 from daemon.api.deps import AppState, bound_path_ids, finite_queries
-from daemon.api.errors import API_KINDS, not_found_detail
+from daemon.api.errors import API_KINDS, error_responses, not_found_detail
 from daemon.api.guard import API_PREFIX, RequestGuard
 from daemon.api.latency import LatencyMiddleware
 from daemon.api.lifespan import make_lifespan
@@ -57,6 +57,8 @@ def create_app(
         redoc_url=None,
         # Every {..._id} bounded and every number query finite, whatever the route.
         dependencies=[Depends(bound_path_ids), Depends(finite_queries)],
+        # Any request may be over its peer's rate (daemon.api.guard): 429 with Retry-After.
+        responses=error_responses(429),
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
     limits = settings.requests
