@@ -111,6 +111,9 @@ class RequestSettings(BaseModel):
     """Such work waiting for its turn; a further request is a 429 with Retry-After."""
     retry_after_s: Annotated[int, Field(ge=1, le=3600)] = 5
     """The ``Retry-After`` of a 429 for work that is full [s]."""
+    queue_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
+    """Longest wait for a free place of such work [s]; then a 503 with Retry-After (a client
+    never waits behind long work without an answer)."""
     disk_reserve_mb: Annotated[float, Field(ge=0, le=1_000_000)] = 512.0
     """Free space [MiB] kept on the state directory's file system: a write that would leave
     less is refused with 507 before anything is written (0: no reserve)."""

@@ -4,6 +4,7 @@ reserve with nothing lost, and the CSV export streamed page by page from the sto
 
 from __future__ import annotations
 
+import asyncio
 import sqlite3
 import time
 from collections.abc import Iterator
@@ -12,12 +13,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+from fastapi import HTTPException
 from fastapi.testclient import TestClient
 from test_service import AUTH, TOKEN, FakeSampler
 
 from calib.dataset import make_samples, samples_to_csv
 from daemon.api.guard import TokenBuckets, peer_key
 from daemon.api.main import create_app
+from daemon.api.offload import WorkGate
 from daemon.capture import Capture
 from daemon.config import Settings
 from daemon.store import Store, space
@@ -260,3 +263,38 @@ def test_the_csv_route_streams_the_same_text(tmp_path: Path) -> None:
         gate = c.app.state.cablecal.gates["check"]  # type: ignore[attr-defined]
         assert gate.active == 0  # every page's place given back
         assert c.get(f"{API}/campaigns/999/samples?format=csv", headers=AUTH).status_code == 404
+
+
+# --- the gate's queue wait --------------------------------------------------------------------
+
+
+def test_work_waiting_longer_than_the_queue_timeout_is_a_503_with_retry_after() -> None:
+    async def scenario() -> tuple[int, str, str | None]:
+        gate = WorkGate("program filters", 1, 1, retry_after_s=7, queue_timeout_s=0.05)
+        held = asyncio.Event()
+        release = asyncio.Event()
+
+        async def hold() -> None:
+            async with gate.slot():
+                held.set()
+                await release.wait()
+
+        holder = asyncio.create_task(hold())
+        await held.wait()
+        try:
+            async with gate.slot():
+                raise AssertionError("the place was held")
+        except HTTPException as exc:
+            caught = exc
+        finally:
+            release.set()
+            await holder
+        assert gate._waiting == 0 and gate.active == 0
+        async with gate.slot():  # free again
+            pass
+        headers = caught.headers or {}
+        return caught.status_code, str(caught.detail), headers.get("Retry-After")
+
+    status, detail, retry = asyncio.run(scenario())
+    assert status == 503 and retry == "7"
+    assert "queue_timeout_s" in detail and "program filters" in detail

@@ -5,8 +5,9 @@ CPU-heavy work of a request (a program filter; an identification's check and sub
 CSV import or export, a compensation) runs elsewhere, through a :class:`WorkGate` of its kind:
 
 - **Bounded**: at most ``running`` at once and ``queued`` waiting; a further request is a
-  429 with ``Retry-After`` (the ``[requests]`` settings, :class:`daemon.config.RequestSettings`).
-  After shutdown began a request is a 503.
+  429 with ``Retry-After`` (the ``[requests]`` settings, :class:`daemon.config.RequestSettings`),
+  and one that waited ``queue_timeout_s`` in the queue a 503 with ``Retry-After``. After
+  shutdown began a request is a 503.
 - **Off the loop**: a filter runs in a process of its own (:func:`daemon.workers.run_in_child`,
   lower priority, no shared GIL, its memory returned when it ends); the rest in a thread.
 - **Dropped when the client leaves**: :func:`offload` watches the connection while the work
@@ -55,13 +56,23 @@ class WorkGate:
         Most running at once, most waiting beyond them.
     retry_after_s : int
         ``Retry-After`` of the 429 [s].
+    queue_timeout_s : float or None
+        Longest wait in the queue [s]; then a 503 with ``Retry-After`` (None: no bound).
     """
 
-    def __init__(self, what: str, running: int, queued: int, retry_after_s: int) -> None:
+    def __init__(
+        self,
+        what: str,
+        running: int,
+        queued: int,
+        retry_after_s: int,
+        queue_timeout_s: float | None = None,
+    ) -> None:
         self.what = what
         self.running = running
         self.queued = queued
         self.retry_after_s = retry_after_s
+        self.queue_timeout_s = queue_timeout_s
         self.closed = False
         self._slots = asyncio.Semaphore(running)
         self._waiting = 0
@@ -88,7 +99,15 @@ class WorkGate:
             )
         self._waiting += 1
         try:
-            await self._slots.acquire()
+            async with asyncio.timeout(self.queue_timeout_s if refuse else None):
+                await self._slots.acquire()
+        except TimeoutError:
+            raise HTTPException(
+                503,
+                f"busy: waited {self.queue_timeout_s:g} s for one of the {self.running} places "
+                f"of {self.what} ([requests] queue_timeout_s); retry in {self.retry_after_s} s",
+                headers={"Retry-After": str(self.retry_after_s)},
+            ) from None
         finally:
             self._waiting -= 1
         self.active += 1
@@ -238,11 +257,18 @@ def gates_of(settings: Any) -> dict[str, WorkGate]:
     """The gates of the ``[requests]`` settings: ``filter`` and ``check``."""
     r = settings.requests
     return {
-        "filter": WorkGate("program filters", r.max_filters, r.max_queued_filters, r.retry_after_s),
+        "filter": WorkGate(
+            "program filters",
+            r.max_filters,
+            r.max_queued_filters,
+            r.retry_after_s,
+            r.queue_timeout_s,
+        ),
         "check": WorkGate(
             "identification checks, imports, exports and compensations",
             r.max_checks,
             r.max_queued_checks,
             r.retry_after_s,
+            r.queue_timeout_s,
         ),
     }

@@ -30,7 +30,6 @@ from daemon.api.guard import MAX_FILTER_BYTES
 from daemon.api.multipart import FormPart, read_form
 from daemon.api.offload import offload
 from daemon.api.text_rules import not_portable_file_name
-from daemon.store import NO_CALIBRATION, StoreNotFound
 from daemon.workers import run_in_child
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 409, 413, 422, 429, 503))
@@ -196,15 +195,12 @@ async def filter_programs(
     read is named in the summary's ``errors`` while the others are filtered; a 422 when no
     file can be read; 409 when the robot has no current calibration; at most
     :data:`MAX_FILES` files and the guard's body limit."""
-    state.store.robot_model(robot_id)  # 404 for an unknown robot before the body is read
-    try:
-        state.store.accepted_result(robot_id)
-    except StoreNotFound as exc:
-        if exc.reason == NO_CALIBRATION:
-            raise HTTPException(
-                409, f"robot {robot_id}: no current calibration; accept an identification first"
-            ) from None
-        raise
+    # Before the body is read, and cheap (one row, nothing decoded: it runs on the event loop
+    # for every request, a flood's too): 404 for an unknown robot, 409 without a calibration.
+    if state.store.current_job_id(robot_id) is None:
+        raise HTTPException(
+            409, f"robot {robot_id}: no current calibration; accept an identification first"
+        )
     parts = await read_form(
         request.stream(),
         request.headers.get("content-type", ""),
