@@ -122,8 +122,9 @@ class RequestSettings(BaseModel):
     buffered response freed)."""
     rate_per_s: Annotated[float, Field(ge=0, le=10_000)] = 20.0
     """Requests one peer address may send per second, sustained (a token bucket per address,
-    :class:`daemon.api.guard.PeerRate`; ``GET /health`` is not counted); beyond it a 429 with
-    Retry-After (0: no limit)."""
+    :class:`daemon.api.guard.TokenBuckets`; a body counts one request more per
+    :data:`daemon.api.guard.BYTES_PER_TOKEN`; ``GET /health`` is not counted); beyond it a 429
+    with Retry-After (0: no limit)."""
     rate_burst: Annotated[int, Field(ge=1, le=100_000)] = 100
     """Requests one peer address may send at once above ``rate_per_s`` (the bucket's size)."""
     rate_refusal_delay_s: Annotated[float, Field(ge=0, le=10)] = 1.0

@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 from test_service import AUTH, TOKEN, FakeSampler
 
 from calib.dataset import make_samples, samples_to_csv
-from daemon.api.guard import TokenBuckets, peer_key
+from daemon.api.guard import BYTES_PER_TOKEN, TokenBuckets, peer_key, request_cost
 from daemon.api.main import create_app
 from daemon.api.offload import WorkGate
 from daemon.capture import Capture
@@ -55,6 +55,25 @@ def test_token_buckets_grant_a_burst_then_the_rate_and_say_how_long_to_wait() ->
     now[0] += 100.0  # full again, never more than the burst
     assert [buckets.take("a") for _ in range(4)][-1] > 0.0
     assert TokenBuckets(0.0, 1).take("a") == 0.0  # rate 0: no limit
+
+
+def test_a_request_with_a_body_costs_more_tokens_and_at_most_the_burst() -> None:
+    now = [0.0]
+    buckets = TokenBuckets(rate_per_s=4.0, burst=10, clock=lambda: now[0])
+    assert buckets.take("a", 6.0) == 0.0
+    assert buckets.take("a", 6.0) == pytest.approx(0.5)  # 4 left, 2 more in 1/2 s
+    now[0] += 10.0
+    assert buckets.take("a", 1000.0) == 0.0  # a cost over the burst takes the burst
+    assert buckets.take("a") == pytest.approx(0.25)
+
+    def scope(*headers: tuple[bytes, bytes]) -> dict[str, Any]:
+        return {"headers": list(headers)}
+
+    assert request_cost(scope(), "/api/v1/campaigns") == 1.0
+    cost = request_cost(scope((b"content-length", str(300 * 1024).encode())), "/x")
+    assert cost == pytest.approx(1.0 + 300 * 1024 / BYTES_PER_TOKEN)
+    chunked = scope((b"transfer-encoding", b"chunked"))
+    assert request_cost(chunked, "/api/v1/robots/1/filter") == 1.0 + 16 * 1024**2 / BYTES_PER_TOKEN
 
 
 def test_token_buckets_forget_idle_keys_beyond_their_bound() -> None:

@@ -5,8 +5,9 @@ A pure ASGI middleware in front of the routes, so that none costs memory before 
 decided:
 
 - **Rate per peer.** Each peer address has a token bucket (:class:`TokenBuckets`: the
-  ``[requests]`` settings ``rate_per_s`` and ``rate_burst``); a request that finds it empty
-  is a 429 with ``Retry-After``, its body unread and its connection closed, answered after
+  ``[requests]`` settings ``rate_per_s`` and ``rate_burst``; a request takes one token and
+  one more per :data:`BYTES_PER_TOKEN` of its body); a request that finds too few is a 429
+  with ``Retry-After``, its body unread and its connection closed, answered after
   ``rate_refusal_delay_s`` so that a client that ignores Retry-After cannot make the event
   loop answer refusals as fast as it sends. ``GET /health`` is not counted, and neither is a
   request without a network peer (an in-process ASGI client, a Unix socket): the key is the
@@ -59,6 +60,10 @@ MAX_COMPENSATE_BYTES: Final = 4 * 1024 * 1024
 
 #: Largest program-filter upload [bytes] (``POST /robots/{id}/filter``): all files together.
 MAX_FILTER_BYTES: Final = 16 * 1024 * 1024
+
+#: Bytes of a request body that count as one more request of the peer's rate [bytes]: a
+#: 300 KiB upload counts about 6 requests; a 16 MiB one the whole burst.
+BYTES_PER_TOKEN: Final = 64 * 1024
 
 #: Longest pause in a request body that has started [s]: a stalled body is a 408.
 BODY_GAP_TIMEOUT_S: Final = 10.0
@@ -118,21 +123,22 @@ class TokenBuckets:
         self.clock = clock
         self._buckets: dict[Hashable, tuple[float, float]] = {}  # key -> (tokens, at [s])
 
-    def take(self, key: Hashable) -> float:
-        """Take a token of ``key``'s bucket: 0.0 when granted, else the seconds until one is
-        there (nothing taken)."""
+    def take(self, key: Hashable, cost: float = 1.0) -> float:
+        """Take ``cost`` tokens (at most the burst) of ``key``'s bucket: 0.0 when granted,
+        else the seconds until they are there (nothing taken)."""
         if self.rate_per_s <= 0:
             return 0.0
+        cost = min(cost, float(self.burst))
         now = self.clock()
         tokens, at = self._buckets.get(key, (float(self.burst), now))
         tokens = min(float(self.burst), tokens + (now - at) * self.rate_per_s)
-        if tokens >= 1.0:
+        if tokens >= cost:
             if key not in self._buckets and len(self._buckets) >= self.max_keys:
                 self._forget(now)
-            self._buckets[key] = (tokens - 1.0, now)
+            self._buckets[key] = (tokens - cost, now)
             return 0.0
         self._buckets[key] = (tokens, now)
-        return (1.0 - tokens) / self.rate_per_s
+        return (cost - tokens) / self.rate_per_s
 
     def _forget(self, now: float) -> None:
         full_s = self.burst / self.rate_per_s
@@ -150,6 +156,21 @@ def peer_key(scope: Scope) -> str | None:
         return str(ipaddress.ip_address(str(client[0])))
     except ValueError:
         return None
+
+
+def request_cost(scope: Scope, path: str) -> float:
+    """What a request takes of its peer's bucket [tokens]: one, and one more for each
+    :data:`BYTES_PER_TOKEN` of its body (``Content-Length``; a body without one, chunked,
+    counts as the largest its route takes, :func:`body_limit`): a flood of uploads is held to
+    fewer requests than a page's polls, which have no body."""
+    size = 0
+    for name, value in scope.get("headers", ()):
+        if name == b"content-length":
+            size = int(value) if value.strip().isdigit() else 0
+            break
+        if name == b"transfer-encoding" and b"chunked" in value.lower():
+            size = body_limit(path)
+    return 1.0 + size / BYTES_PER_TOKEN
 
 
 def retry_after(wait_s: float) -> str:
@@ -292,7 +313,7 @@ class RequestGuard:
         peer = peer_key(scope)
         if peer is None or (path.rstrip("/") in _OPEN_PATHS and method in _READ_METHODS):
             return False
-        wait_s = self.rates.take(peer)
+        wait_s = self.rates.take(peer, request_cost(scope, path))
         if wait_s <= 0.0:
             return False
         if self.rate_refusal_delay_s > 0:
