@@ -121,8 +121,8 @@ class RequestSettings(BaseModel):
     """A client that reads none of a response for this long [s] is disconnected (its
     buffered response freed)."""
     rate_per_s: Annotated[float, Field(ge=0, le=10_000)] = 20.0
-    """Requests one peer address may send per second, sustained (a token bucket per address,
-    :class:`daemon.api.guard.TokenBuckets`; a body counts one request more per
+    """REST API requests one peer address may send per second, sustained (a token bucket per
+    address, :class:`daemon.api.guard.TokenBuckets`; a body counts one request more per
     :data:`daemon.api.guard.BYTES_PER_TOKEN`; ``GET /health`` is not counted); beyond it a 429
     with Retry-After (0: no limit)."""
     rate_burst: Annotated[int, Field(ge=1, le=100_000)] = 100

@@ -134,6 +134,7 @@ def test_a_peer_over_its_rate_gets_a_late_429_with_retry_after(limited: TestClie
     assert limited.post(f"{API}/campaigns", json={}).status_code == 429
     for _ in range(10):
         assert limited.get(f"{API}/health").status_code == 200
+        assert limited.get("/metrics").status_code == 200  # not the REST API: not counted
     # Another peer has its own bucket; an in-process client is not counted.
     app = limited.app
     assert TestClient(app, client=OTHER_PEER).get(f"{API}/campaigns", headers=AUTH).is_success

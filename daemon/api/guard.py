@@ -9,9 +9,9 @@ decided:
   one more per :data:`BYTES_PER_TOKEN` of its body); a request that finds too few is a 429
   with ``Retry-After``, its body unread and its connection closed, answered after
   ``rate_refusal_delay_s`` so that a client that ignores Retry-After cannot make the event
-  loop answer refusals as fast as it sends. ``GET /health`` is not counted, and neither is a
-  request without a network peer (an in-process ASGI client, a Unix socket): the key is the
-  peer's IP address.
+  loop answer refusals as fast as it sends. Only the REST API's requests are counted (not the
+  operator page's files, nor ``/metrics``), ``GET /health`` not, and no request without a
+  network peer (an in-process ASGI client, a Unix socket): the key is the peer's IP address.
 
 - **Auth before the body.** Under ``/api/v1``, every request but ``GET /health`` needs the
   token (reads too, unless ``public_reads``). Without it the answer is 401 before a byte of the
@@ -311,7 +311,9 @@ class RequestGuard:
     async def _over_rate(self, scope: Scope, method: str, path: str, send: Send) -> bool:
         """Whether the request was over its peer's rate (then it has been answered 429)."""
         peer = peer_key(scope)
-        if peer is None or (path.rstrip("/") in _OPEN_PATHS and method in _READ_METHODS):
+        if peer is None or not path.startswith(self.prefix + "/"):
+            return False  # in-process, or the page's own files and /metrics
+        if path.rstrip("/") in _OPEN_PATHS and method in _READ_METHODS:
             return False
         wait_s = self.rates.take(peer, request_cost(scope, path))
         if wait_s <= 0.0:
