@@ -104,6 +104,9 @@ class RequestSettings(BaseModel):
     of its own (a 16 MiB upload needs up to about 1 GiB while it runs)."""
     max_queued_filters: Annotated[int, Field(ge=0, le=64)] = 2
     """Filters waiting for a free worker; a further one is a 429 with Retry-After."""
+    filter_timeout_s: Annotated[float, Field(gt=0, le=86_400)] = 300.0
+    """Longest a program filter may run [s]: its worker process is then killed and the answer
+    is a 503 with Retry-After (a 16 MiB upload takes about 30 s on an idle 2-core PC)."""
     max_checks: Annotated[int, Field(ge=1, le=16)] = 1
     """Identification checks and submissions (``POST .../identifications``, the readiness
     route), CSV imports and exports and compensations running at once, each in a thread."""

@@ -5,6 +5,7 @@ reserve with nothing lost, and the CSV export streamed page by page from the sto
 from __future__ import annotations
 
 import asyncio
+import multiprocessing
 import sqlite3
 import time
 from collections.abc import Iterator
@@ -20,10 +21,11 @@ from test_service import AUTH, TOKEN, FakeSampler
 from calib.dataset import make_samples, samples_to_csv
 from daemon.api.guard import BYTES_PER_TOKEN, TokenBuckets, peer_key, request_cost
 from daemon.api.main import create_app
-from daemon.api.offload import WorkGate
+from daemon.api.offload import WorkGate, offload
 from daemon.capture import Capture
 from daemon.config import Settings
 from daemon.store import Store, space
+from daemon.workers import run_in_child
 
 API = "/api/v1"
 #: A network peer for the TestClient (TEST-NET-1): the limits count network peers only.
@@ -318,3 +320,44 @@ def test_work_waiting_longer_than_the_queue_timeout_is_a_503_with_retry_after() 
     status, detail, retry = asyncio.run(scenario())
     assert status == 503 and retry == "7"
     assert "queue_timeout_s" in detail and "program filters" in detail
+
+
+class _StayingClient:
+    """A request whose client stays connected."""
+
+    async def receive(self) -> dict[str, Any]:
+        await asyncio.Event().wait()
+        raise AssertionError("unreachable")
+
+
+def test_work_over_its_time_limit_is_a_503_and_its_process_is_killed() -> None:
+    async def scenario() -> tuple[HTTPException, int | None]:
+        gate = WorkGate("program filters", 1, 0, retry_after_s=4)
+        task = asyncio.create_task(
+            offload(
+                _StayingClient(),  # type: ignore[arg-type]
+                gate,
+                lambda: run_in_child(_sleep_then_answer, 60.0),
+                time_limit_s=1.0,
+            )
+        )
+        deadline = time.monotonic() + 60
+        while not multiprocessing.active_children():  # the child is up before the limit counts
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.02)
+        (child,) = multiprocessing.active_children()
+        with pytest.raises(HTTPException) as info:
+            await task
+        assert gate.active == 0  # its place given back
+        return info.value, child.exitcode
+
+    refused, exitcode = asyncio.run(scenario())
+    assert refused.status_code == 503 and (refused.headers or {})["Retry-After"] == "4"
+    assert "filter_timeout_s" in str(refused.detail)
+    assert exitcode == -9  # killed, not left to sleep its minute
+    assert not multiprocessing.active_children()
+
+
+def _sleep_then_answer(seconds: float) -> str:
+    time.sleep(seconds)
+    return "done"

@@ -132,22 +132,38 @@ async def offload(
     work: Callable[[], Awaitable[T]],
     *,
     cancel_on_leave: bool = True,
+    time_limit_s: float | None = None,
 ) -> T:
     """``await work()`` within one of ``gate``'s places, dropped when the client leaves:
     while queued always; while running when ``cancel_on_leave`` (a process is killed; a
-    thread cannot be stopped and runs to its end, holding its place).
+    thread cannot be stopped and runs to its end, holding its place). ``time_limit_s``
+    (only with ``cancel_on_leave``; the program filter's ``[requests] filter_timeout_s``, the
+    setting its message names): work running longer is stopped (a process killed) and the
+    answer is a 503 with ``Retry-After``.
 
     Raises
     ------
     HTTPException
-        429/503 from the gate; 503 when the client left (nobody reads it).
+        429/503 from the gate; 503 when the client left (nobody reads it) or the work ran
+        over ``time_limit_s``.
     """
 
     async def guarded() -> T:
         async with gate.slot():
             running = asyncio.ensure_future(work())
             try:
-                return await (running if cancel_on_leave else asyncio.shield(running))
+                if cancel_on_leave:
+                    async with asyncio.timeout(time_limit_s):
+                        return await running
+                return await asyncio.shield(running)
+            except TimeoutError:
+                raise HTTPException(
+                    503,
+                    f"{gate.what}: stopped after {time_limit_s:g} s, the longest one may run "
+                    f"([requests] filter_timeout_s); retry when the daemon is less busy, or "
+                    f"with fewer or smaller files",
+                    headers={"Retry-After": str(gate.retry_after_s)},
+                ) from None
             except asyncio.CancelledError:
                 if not cancel_on_leave:
                     with contextlib.suppress(BaseException):

@@ -242,6 +242,7 @@ async def filter_programs(
         request,
         state.gates["filter"],
         lambda: run_in_child(_filter, *args, nice=nice, blas_threads=blas),
+        time_limit_s=state.settings.requests.filter_timeout_s,
     )
     if dry_run:
         return summary
