@@ -29,8 +29,6 @@ import contextlib
 import json
 import os
 import socket
-import subprocess
-import tempfile
 import threading
 import time
 from collections import Counter
@@ -39,13 +37,12 @@ from typing import Any
 
 import httpx
 
-from bench.sampler_priority import indicator_polls
+from bench.cellrun import ROOT, daemon_of, phase, unpacked
 from calib.default_robot import DEFAULT_ROBOT_MODEL
-from daemon.cli.emulated import Cell, wait_for
+from daemon.cli.emulated import wait_for
 from daemon.datafiles import bundled_dataset_text
 
 OUT = Path(__file__).resolve().parent
-ROOT = OUT.parent
 #: The revision before issue 31's items 2-8 (the base of this work).
 BEFORE_REV = "fad0e1d"
 PHASE_S = 20.0
@@ -55,23 +52,7 @@ UPLOADERS = 6
 #: Seconds between the starts of one client's uploads (0: back to back); ``--flood`` sets 0.
 UPLOAD_PERIOD_S = 1.0
 SLOW_READERS = 5
-HEALTH_INTERVAL_S = 0.05
-HEALTH_TIMEOUT_S = 5.0
 BOUNDARY = "b0undary"
-
-SIM = """
-seed = 11
-[robot]
-n_poses = 400
-move_time_s = 0.5
-dwell_s = 1.0
-[indicator]
-baud = 9600
-[robot_socketcmd]
-port = 0
-[robot_modbus]
-port = 0
-"""
 
 
 def crafted_upload() -> bytes:
@@ -80,88 +61,6 @@ def crafted_upload() -> bytes:
     params = "".join(f"; filename*{k}=x" for k in range(16_000))
     head = f'--{BOUNDARY}\r\nContent-Disposition: form-data; name="files"{params}\r\n\r\n'
     return (head + "MODULE M\nENDMODULE\n\r\n" + f"--{BOUNDARY}--\r\n").encode()
-
-
-def rss_kib(pid: int) -> int:
-    """VmRSS of ``pid`` [KiB], 0 when gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
-
-
-def descendants(pid: int) -> list[int]:
-    """Pids of every process below ``pid`` (its children, theirs, ...)."""
-    parent: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            with contextlib.suppress(OSError, IndexError, ValueError):
-                stat = Path(f"/proc/{entry}/stat").read_text()
-                parent[int(entry)] = int(stat.rsplit(")", 1)[1].split()[1])
-    out, frontier = [], [pid]
-    while frontier:
-        p = frontier.pop()
-        kids = [c for c, pp in parent.items() if pp == p]
-        out += kids
-        frontier += kids
-    return out
-
-
-class Watch:
-    """/health latency at 20 Hz and RSS every 0.25 s, in threads, while a phase runs."""
-
-    def __init__(self, url: str, pid: int) -> None:
-        self.url, self.pid = url, pid
-        self.health_s: list[float] = []
-        self.rss_daemon_kib = 0
-        self.rss_all_kib = 0
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=f, daemon=True) for f in (self._h, self._m)]
-
-    def _h(self) -> None:
-        with httpx.Client(timeout=HEALTH_TIMEOUT_S) as c:
-            while not self._stop.wait(HEALTH_INTERVAL_S):
-                t0 = time.monotonic()
-                try:
-                    c.get(self.url + "/api/v1/health").raise_for_status()
-                    self.health_s.append(time.monotonic() - t0)
-                except httpx.HTTPError:
-                    self.health_s.append(HEALTH_TIMEOUT_S)
-
-    def _m(self) -> None:
-        while not self._stop.wait(0.25):
-            own = rss_kib(self.pid)
-            self.rss_daemon_kib = max(self.rss_daemon_kib, own)
-            total = own + sum(rss_kib(p) for p in descendants(self.pid))
-            self.rss_all_kib = max(self.rss_all_kib, total)
-
-    def __enter__(self) -> Watch:
-        for t in self._threads:
-            t.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        for t in self._threads:
-            t.join()
-
-    def summary(self) -> dict[str, Any]:
-        h = sorted(self.health_s) or [float("nan")]
-
-        def q(f: float) -> float:
-            return round(1000 * h[min(len(h) - 1, int(f * len(h)))], 1)
-
-        return {
-            "health_n": len(self.health_s),
-            "health_p50_ms": q(0.5),
-            "health_p99_ms": q(0.99),
-            "health_max_ms": round(1000 * h[-1], 1),
-            "rss_daemon_mib": round(self.rss_daemon_kib / 1024, 1),
-            "rss_with_children_mib": round(self.rss_all_kib / 1024, 1),
-        }
 
 
 def uploader(
@@ -217,22 +116,6 @@ def slow_reader(
             s.close()
 
 
-def phase(url: str, pid: int, seconds: float, attack: Any = None) -> dict[str, Any]:
-    with Watch(url, pid) as watch:
-        polls0, t0 = indicator_polls(url), time.monotonic()
-        counts: dict[str, Any] = attack(t0 + seconds) if attack is not None else {}
-        if attack is None:
-            time.sleep(seconds)
-        polls1, t1 = indicator_polls(url), time.monotonic()
-    return {
-        "duration_s": round(t1 - t0, 2),
-        "poll_rate_hz": round((polls1 - polls0) / (t1 - t0), 2),
-        "load_average_1min": round(os.getloadavg()[0], 2),
-        **watch.summary(),
-        **counts,
-    }
-
-
 def calibrate(api: httpx.Client) -> int:
     """Import the bundled dataset, identify (lm), accept; the robot id."""
     r = api.post("/campaigns", json={"name": "bench", "robot_model": DEFAULT_ROBOT_MODEL})
@@ -260,53 +143,43 @@ def calibrate(api: httpx.Client) -> int:
     return rid
 
 
-def run_tree(name: str, tree: Path, page: int, seconds: float) -> dict[str, Any]:
-    here = Path.cwd()
-    os.chdir(tree)  # `python -m daemon` imports from the working directory first
-    try:
-        with tempfile.TemporaryDirectory(prefix=f"cablecal-h5-{name}-") as tmp:
-            env = {"PYTHONPATH": str(tree), "CABLECAL_SAMPLER__SETTLE_S": "0.3"}
-            with Cell(Path(tmp), SIM, daemon_env=env) as cell:
-                assert cell.daemon is not None
-                url, token = cell.daemon.url, cell.daemon.token
-                pid = cell.daemon.popen.pid
-                api = cell.daemon.client(timeout_s=120)
-                rid = calibrate(api)
-                for k in range(CAMPAIGNS):
-                    api.post(
-                        "/campaigns",
-                        json={"name": f"c{k}", "robot_model": DEFAULT_ROBOT_MODEL, "notes": NOTES},
-                    ).raise_for_status()
-                time.sleep(3.0)
-                idle = phase(url, pid, seconds)
-                host, port = url.removeprefix("http://").rsplit(":", 1)
-                body = crafted_upload()
+def run_tree(
+    name: str, tree: Path, page: int, seconds: float, env: dict[str, str] | None = None
+) -> dict[str, Any]:
+    with daemon_of(tree, env) as daemon:
+        url, token, pid = daemon.url, daemon.token, daemon.popen.pid
+        api = daemon.client(timeout_s=120)
+        rid = calibrate(api)
+        for k in range(CAMPAIGNS):
+            api.post(
+                "/campaigns",
+                json={"name": f"c{k}", "robot_model": DEFAULT_ROBOT_MODEL, "notes": NOTES},
+            ).raise_for_status()
+        time.sleep(3.0)
+        idle = phase(url, pid, seconds)
+        host, port = url.removeprefix("http://").rsplit(":", 1)
+        body = crafted_upload()
 
-                def attack(deadline: float) -> dict[str, Any]:
-                    up: Counter[str] = Counter()
-                    slow: Counter[str] = Counter()
-                    threads = [
-                        threading.Thread(
-                            target=uploader, args=(url, token, rid, body, deadline, up)
-                        )
-                        for _ in range(UPLOADERS)
-                    ] + [
-                        threading.Thread(
-                            target=slow_reader,
-                            args=((host, int(port)), token, page, deadline, slow),
-                        )
-                        for _ in range(SLOW_READERS)
-                    ]
-                    for t in threads:
-                        t.start()
-                    for t in threads:
-                        t.join()
-                    return {"upload_statuses": dict(up), "slow_readers": dict(slow)}
+        def attack(deadline: float) -> dict[str, Any]:
+            up: Counter[str] = Counter()
+            slow: Counter[str] = Counter()
+            threads = [
+                threading.Thread(target=uploader, args=(url, token, rid, body, deadline, up))
+                for _ in range(UPLOADERS)
+            ] + [
+                threading.Thread(
+                    target=slow_reader, args=((host, int(port)), token, page, deadline, slow)
+                )
+                for _ in range(SLOW_READERS)
+            ]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            return {"upload_statuses": dict(up), "slow_readers": dict(slow)}
 
-                attacked = phase(url, pid, seconds, attack)
-                after = phase(url, pid, seconds / 2)
-    finally:
-        os.chdir(here)
+        attacked = phase(url, pid, seconds, attack)
+        after = phase(url, pid, seconds / 2)
     idle_hz = idle["poll_rate_hz"]
     return {
         "tree": name,
@@ -378,14 +251,12 @@ def main(argv: list[str] | None = None) -> None:
     global UPLOAD_PERIOD_S
     if args.flood:
         UPLOAD_PERIOD_S = 0.0
-    trees = []
-    with tempfile.TemporaryDirectory(prefix="cablecal-h5-tree-") as tmp:
-        archive = subprocess.run(
-            ["git", "-C", str(ROOT), "archive", args.before], check=True, capture_output=True
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        trees.append(run_tree("before", Path(tmp), 10_000, args.phase_s))
-        trees.append(run_tree("after", ROOT, 500, args.phase_s))
+    with unpacked(args.before) as before:
+        trees = [run_tree("before", before, 10_000, args.phase_s)]
+    # The setup's 600 campaigns are over [requests] campaigns_per_min (a tree before it has
+    # no such setting, and refuses an unknown one).
+    unlimited = {"CABLECAL_REQUESTS__CAMPAIGNS_PER_MIN": "0"}
+    trees.append(run_tree("after", ROOT, 500, args.phase_s, unlimited))
     results = {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "before_rev": args.before,

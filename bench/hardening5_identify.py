@@ -19,8 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
-import tempfile
 import time
 from collections import Counter
 from pathlib import Path
@@ -28,9 +26,9 @@ from typing import Any
 
 import httpx
 
-from bench.hardening5 import BEFORE_REV, OUT, ROOT, SIM, phase
+from bench.cellrun import ROOT, daemon_of, phase, unpacked
+from bench.hardening5 import BEFORE_REV, OUT
 from calib.default_robot import DEFAULT_ROBOT_MODEL
-from daemon.cli.emulated import Cell
 from daemon.datafiles import bundled_dataset_text
 
 ROWS = 350_000
@@ -73,30 +71,22 @@ def submitter(api: httpx.Client, cid: int) -> Any:
 
 
 def run_tree(name: str, tree: Path, seconds: float) -> dict[str, Any]:
-    here = Path.cwd()
-    os.chdir(tree)
-    try:
-        with tempfile.TemporaryDirectory(prefix=f"cablecal-h5i-{name}-") as tmp:
-            env = {"PYTHONPATH": str(tree), "CABLECAL_SAMPLER__SETTLE_S": "0.3"}
-            with Cell(Path(tmp), SIM, daemon_env=env) as cell:
-                assert cell.daemon is not None
-                url, pid = cell.daemon.url, cell.daemon.popen.pid
-                api = cell.daemon.client(timeout_s=300)
-                r = api.post("/campaigns", json={"name": "big", "robot_model": DEFAULT_ROBOT_MODEL})
-                r.raise_for_status()
-                cid = int(r.json()["id"])
-                for body in import_bodies():
-                    api.post(
-                        f"/campaigns/{cid}/samples/import",
-                        content=body,
-                        headers={"Content-Type": "text/csv"},
-                    ).raise_for_status()
-                n = api.get(f"/campaigns/{cid}").json()["n_included"]
-                time.sleep(3.0)
-                idle = phase(url, pid, seconds)
-                busy = phase(url, pid, seconds, submitter(api, cid))
-    finally:
-        os.chdir(here)
+    with daemon_of(tree) as daemon:
+        url, pid = daemon.url, daemon.popen.pid
+        api = daemon.client(timeout_s=300)
+        r = api.post("/campaigns", json={"name": "big", "robot_model": DEFAULT_ROBOT_MODEL})
+        r.raise_for_status()
+        cid = int(r.json()["id"])
+        for body in import_bodies():
+            api.post(
+                f"/campaigns/{cid}/samples/import",
+                content=body,
+                headers={"Content-Type": "text/csv"},
+            ).raise_for_status()
+        n = api.get(f"/campaigns/{cid}").json()["n_included"]
+        time.sleep(3.0)
+        idle = phase(url, pid, seconds)
+        busy = phase(url, pid, seconds, submitter(api, cid))
     return {"tree": name, "rows": n, "idle": idle, "submitting": busy}
 
 
@@ -136,12 +126,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--before", default=BEFORE_REV, help="git revision of the 'before'")
     parser.add_argument("--phase-s", type=float, default=PHASE_S, help="seconds per phase")
     args = parser.parse_args(argv)
-    with tempfile.TemporaryDirectory(prefix="cablecal-h5i-tree-") as tmp:
-        archive = subprocess.run(
-            ["git", "-C", str(ROOT), "archive", args.before], check=True, capture_output=True
-        ).stdout
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive, check=True)
-        trees = [run_tree("before", Path(tmp), args.phase_s), run_tree("after", ROOT, args.phase_s)]
+    with unpacked(args.before) as before:
+        trees = [run_tree("before", before, args.phase_s)]
+    trees.append(run_tree("after", ROOT, args.phase_s))
     results = {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "before_rev": args.before,

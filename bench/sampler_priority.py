@@ -30,8 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-from prometheus_client.parser import text_string_to_metric_families
 
+from bench.cellrun import SIM, poll_rate
 from calib.default_robot import DEFAULT_ROBOT_MODEL
 from daemon.cli.emulated import Cell, wait_for
 from daemon.datafiles import bundled_dataset_text
@@ -42,20 +42,6 @@ PHASE_S = 25.0
 METHOD = "ukf-vslm"
 STATUS_INTERVAL_S = 0.2
 
-SIM = """
-seed = 11
-[robot]
-n_poses = 400
-move_time_s = 0.5
-dwell_s = 1.0
-[indicator]
-baud = 9600
-[robot_socketcmd]
-port = 0
-[robot_modbus]
-port = 0
-"""
-
 #: Worker settings per configuration: the daemon's defaults, and none (before issue 11).
 CONFIGS: dict[str, dict[str, str]] = {
     "worker_nice=10, 1 BLAS thread (default)": {},
@@ -64,16 +50,6 @@ CONFIGS: dict[str, dict[str, str]] = {
         "CABLECAL_JOBS__WORKER_BLAS_THREADS": str(os.cpu_count() or 1),
     },
 }
-
-
-def indicator_polls(url: str) -> float:
-    """The daemon's ``cablecal_device_polls_total`` of the indicator."""
-    text = httpx.get(url + "/metrics", timeout=10).text
-    for family in text_string_to_metric_families(text):
-        for s in family.samples:
-            if s.name == "cablecal_device_polls_total" and s.labels.get("role") == "indicator":
-                return float(s.value)
-    raise RuntimeError("no cablecal_device_polls_total{role=indicator} in /metrics")
 
 
 class StatusSampler:
@@ -109,16 +85,11 @@ class StatusSampler:
 def measure(url: str, api: httpx.Client, seconds: float, busy: Any = None) -> dict[str, Any]:
     """Poll rate over ``seconds`` (plus the end of the last job when ``busy`` runs jobs)."""
     with StatusSampler(api) as status:
-        polls0, t0 = indicator_polls(url), time.monotonic()
-        jobs = busy(t0 + seconds) if busy is not None else time.sleep(seconds)
-        polls1, t1 = indicator_polls(url), time.monotonic()
-    out: dict[str, Any] = {
-        "duration_s": round(t1 - t0, 2),
-        "polls": int(polls1 - polls0),
-        "poll_rate_hz": round((polls1 - polls0) / (t1 - t0), 3),
-        "stale_fraction": round(status.stale_fraction(), 4),
-        "load_average_1min": round(os.getloadavg()[0], 2),
-    }
+        rate, jobs = poll_rate(
+            url,
+            lambda: busy(time.monotonic() + seconds) if busy is not None else time.sleep(seconds),
+        )
+    out: dict[str, Any] = {**rate, "stale_fraction": round(status.stale_fraction(), 4)}
     if jobs is not None:
         out["jobs"] = jobs
     return out

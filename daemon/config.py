@@ -118,6 +118,9 @@ class RequestSettings(BaseModel):
     of its own (a 16 MiB upload needs up to about 1 GiB while it runs)."""
     max_queued_filters: Annotated[int, Field(ge=0, le=64)] = 2
     """Filters waiting for a free worker; a further one is a 429 with Retry-After."""
+    filter_timeout_s: Annotated[float, Field(gt=0, le=86_400)] = 300.0
+    """Longest a program filter may run [s]: its worker process is then killed and the answer
+    is a 503 with Retry-After (a 16 MiB upload takes about 30 s on an idle 2-core PC)."""
     max_checks: Annotated[int, Field(ge=1, le=16)] = 1
     """Identification checks and submissions (``POST .../identifications``, the readiness
     route), CSV imports and exports and compensations running at once, each in a thread."""
@@ -125,12 +128,33 @@ class RequestSettings(BaseModel):
     """Such work waiting for its turn; a further request is a 429 with Retry-After."""
     retry_after_s: Annotated[int, Field(ge=1, le=3600)] = 5
     """The ``Retry-After`` of a 429 for work that is full [s]."""
+    queue_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 60.0
+    """Longest wait for a free place of such work [s]; then a 503 with Retry-After (a client
+    never waits behind long work without an answer)."""
     disk_reserve_mb: Annotated[float, Field(ge=0, le=1_000_000)] = 512.0
     """Free space [MiB] kept on the state directory's file system: a write that would leave
     less is refused with 507 before anything is written (0: no reserve)."""
     send_timeout_s: Annotated[float, Field(gt=0, le=3600)] = 30.0
     """A client that reads none of a response for this long [s] is disconnected (its
     buffered response freed)."""
+    rate_per_s: Annotated[float, Field(ge=0, le=10_000)] = 20.0
+    """REST API requests one peer address may send per second, sustained (a token bucket per
+    address, :class:`daemon.api.http.guard.TokenBuckets`; a body counts one request more per
+    :data:`daemon.api.http.guard.BYTES_PER_TOKEN`; ``GET /health`` is not counted); beyond it a 429
+    with Retry-After (0: no limit)."""
+    rate_burst: Annotated[int, Field(ge=1, le=100_000)] = 100
+    """Requests one peer address may send at once above ``rate_per_s`` (the bucket's size)."""
+    rate_refusal_delay_s: Annotated[float, Field(ge=0, le=10)] = 1.0
+    """A request over the rate is answered (429) after this long [s], its body unread: a
+    client that ignores Retry-After and sends again at once gets at most one refusal per
+    connection and delay, each costing the event loop nothing while it waits."""
+    campaigns_per_min: Annotated[int, Field(ge=0, le=100_000)] = 60
+    """Campaigns the daemon creates per minute, from all network clients (``POST /campaigns``);
+    beyond it a 429 with Retry-After (0: no limit)."""
+    imports_per_min: Annotated[int, Field(ge=0, le=100_000)] = 20
+    """CSV imports the daemon stores per minute, from all network clients
+    (``POST /campaigns/{id}/samples/import``); beyond it a 429 with Retry-After (0: no
+    limit)."""
 
 
 class HoldCheckSettings(BaseModel):

@@ -37,7 +37,10 @@ ACCEPT_WAIT_S = 10.0
 
 
 def _serve(tmp_path: Path, options: dict[str, Any]) -> Iterator[tuple[str, int]]:
-    app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
+    # Requests in a tight loop from one peer, over its request rate (the rate is
+    # test_api_hardening6's): no rate here, these tests are about connections.
+    settings = _settings(tmp_path, requests={"rate_per_s": 0})
+    app = create_app(settings, TOKEN, sampler_factory=FakeSampler)
     with served_app(app, **options) as addr:
         yield addr
 

@@ -26,7 +26,10 @@ HELD = 150  # connections of each kind held open
 def server(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
     monkeypatch.setattr(guard, "BODY_GAP_TIMEOUT_S", 1.0)
     monkeypatch.setattr(guard, "BODY_TIMEOUT_S", 2.0)
-    app = create_app(_settings(tmp_path), TOKEN, sampler_factory=FakeSampler)
+    # 2 x HELD requests from one peer at once, over its request rate's burst (the rate is
+    # test_api_hardening6's): no rate here.
+    settings = _settings(tmp_path, requests={"rate_per_s": 0})
+    app = create_app(settings, TOKEN, sampler_factory=FakeSampler)
     with served_app(app, **uvicorn_options(2 * HELD + 10, head_timeout_s=1.0)) as (host, port):
         yield f"{host}:{port}"
 

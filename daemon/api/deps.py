@@ -14,7 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from daemon.api.http.guard import API_PREFIX, UNAUTHORIZED_DETAIL, token_matches
-from daemon.api.http.offload import WorkGate
+from daemon.api.http.offload import PerMinute, WorkGate
 from daemon.api.min_samples import MinSamplesCache
 from daemon.config import Settings
 from daemon.jobs.manager import JobManager
@@ -47,6 +47,8 @@ class AppState:
         :func:`time.monotonic` at start-up [s].
     gates : dict of str to WorkGate
         The bounds of heavy request work by kind (:func:`daemon.api.http.offload.gates_of`).
+    per_minute : dict of str to PerMinute
+        Writes a minute by kind (:func:`daemon.api.http.offload.per_minute_of`).
     """
 
     settings: Settings
@@ -60,6 +62,7 @@ class AppState:
     auto: Any = None
     started_monotonic_s: float = field(default_factory=time.monotonic)
     gates: dict[str, WorkGate] = field(default_factory=dict)
+    per_minute: dict[str, PerMinute] = field(default_factory=dict)
 
 
 def require_space(state: AppState, payload_bytes: int, what: str) -> None:

@@ -103,7 +103,8 @@ _DESCRIPTIONS = {
     413: "Request body over the limit",
     415: "Request body of a Content-Type the route does not read (names the one expected)",
     422: "Validation error: the list of problems, each with its location",
-    429: "Too much of this work running or waiting; retry after Retry-After seconds",
+    429: "Too many requests from this peer, or too much of this work running or waiting; "
+    "retry after Retry-After seconds",
     503: "A device or the sampler is not available, or the daemon is shutting down",
     507: "Refused before anything was written: the disk's free space is at the reserve",
 }

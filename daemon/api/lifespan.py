@@ -18,7 +18,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from daemon.api.deps import AppState
-from daemon.api.http.offload import gates_of
+from daemon.api.http.offload import gates_of, per_minute_of
 from daemon.api.min_samples import MinSamplesCache
 from daemon.config import Settings
 from daemon.jobs.manager import JobManager
@@ -50,6 +50,7 @@ def build_state(settings: Settings, token: str) -> AppState:
         jobs=JobManager(store, settings.jobs),
         min_samples=MinSamplesCache(store),
         gates=gates_of(settings),
+        per_minute=per_minute_of(settings),
     )
 
 

@@ -13,7 +13,7 @@ from fastapi import Depends, FastAPI
 from daemon import __version__
 from daemon.api import errors
 from daemon.api.deps import AppState, bound_path_ids, finite_queries
-from daemon.api.errors import API_KINDS, not_found_detail
+from daemon.api.errors import API_KINDS, error_responses, not_found_detail
 from daemon.api.http.allow import OptionsMiddleware
 from daemon.api.http.guard import API_PREFIX, RequestGuard
 from daemon.api.http.latency import LatencyMiddleware
@@ -48,10 +48,19 @@ def create_app(
         redoc_url=None,
         # Every {..._id} bounded and every number query finite, whatever the route.
         dependencies=[Depends(bound_path_ids), Depends(finite_queries)],
+        # Any request may be over its peer's rate (daemon.api.http.guard): 429 with Retry-After.
+        responses=error_responses(429),
     )
     # The last added is the outermost: latency sees the guard's 401 and 413 too.
+    limits = settings.requests
     app.add_middleware(
-        RequestGuard, token=token, public_reads=settings.public_reads, prefix=API_PREFIX
+        RequestGuard,
+        token=token,
+        public_reads=settings.public_reads,
+        prefix=API_PREFIX,
+        rate_per_s=limits.rate_per_s,
+        rate_burst=limits.rate_burst,
+        rate_refusal_delay_s=limits.rate_refusal_delay_s,
     )
     app.add_middleware(LatencyMiddleware, prefix=API_PREFIX)
     app.add_middleware(OptionsMiddleware, routes_of=app)  # OPTIONS: 204 + Allow, no token

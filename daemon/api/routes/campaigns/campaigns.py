@@ -34,15 +34,16 @@ router = APIRouter(tags=["campaigns"], responses=error_responses(400, 401, 413, 
     status_code=status.HTTP_201_CREATED,
     summary="Create a campaign",
     dependencies=[WriteAuth],
-    responses=error_responses(507),
+    responses=error_responses(429, 507),
 )
 def create_campaign(state: State, request: Request, body: CampaignCreate) -> CampaignOut:
     """The robot: ``robot_id`` (an existing one), or ``robot`` (its own name; default: the
     model's name) with ``robot_model`` (a built-in name or a model mapping) or
     ``robot_model_file`` (TOML or JSON text). The same robot name and model is the same robot
     again; returns the campaign with its ``id`` and ``robot_id``. 507 when the disk is at its
-    free-space reserve."""
+    free-space reserve; 429 beyond ``[requests] campaigns_per_min``."""
     require_space(state, int(request.headers.get("content-length") or 0) + 4096, "campaign")
+    state.per_minute["campaign"].take(request)
     robot = robot_for_campaign(state, body)
     return _out(state, state.store.create_campaign(body.name, int(robot["id"]), body.notes))
 

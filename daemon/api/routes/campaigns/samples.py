@@ -3,7 +3,7 @@ exclusion (``/samples/{sample_id}``)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from fastapi.responses import StreamingResponse
@@ -53,17 +53,19 @@ async def list_samples(
     """JSON: the samples with their std, count, timestamps and excluded flag, by id,
     ``limit`` per page (default 1000) after ``after_id``; a full page has a ``Link: <…>;
     rel="next"`` header. CSV: every included sample (not paginated) in the format
-    ``cablecal identify`` reads, built in a worker thread behind the export gate (``[requests]
-    max_checks`` at once, 429 beyond the queue) and sent in pieces as the client reads."""
+    ``cablecal identify`` reads, streamed: read from the store a page of rows at a time in a
+    worker thread behind the check gate (``[requests] max_checks`` at once, 429 beyond the
+    queue before the response starts) as the client reads."""
     if format == "csv":
         state.store.campaign(campaign_id)  # 404 before the gate
+        pages = state.store.export_csv_pages(campaign_id)
 
-        async def export() -> str:
-            return await run_in_threadpool(state.store.export_csv, campaign_id)
+        async def first() -> str:
+            return await run_in_threadpool(next, pages)
 
-        text = await offload(request, state.gates["check"], export, cancel_on_leave=False)
+        head = await offload(request, state.gates["check"], first, cancel_on_leave=False)
         return StreamingResponse(
-            _pieces(text),
+            _rest(state, head, pages),
             media_type="text/csv",
             headers=download_headers(f"campaign-{campaign_id}.csv"),
         )
@@ -74,11 +76,18 @@ async def list_samples(
     return rows
 
 
-def _pieces(text: str, piece_chars: int = 1 << 16) -> Iterator[bytes]:
-    """``text`` as UTF-8 in pieces of ``piece_chars`` characters: a slow reader holds one
-    piece in the socket's buffer, not the whole export twice."""
-    for k in range(0, len(text), piece_chars):
-        yield text[k : k + piece_chars].encode()
+async def _rest(state: AppState, head: str, pages: Iterator[str]) -> AsyncIterator[bytes]:
+    """The streamed CSV export: the first page (read behind the gate before the response
+    started), then each further page read from the store in a worker thread within one of the
+    check gate's places (waiting, never refused: the response has started), one page held at
+    a time however slowly the client reads."""
+    yield head.encode()
+    while True:
+        async with state.gates["check"].slot(refuse=False):
+            piece = await run_in_threadpool(next, pages, None)
+        if piece is None:
+            return
+        yield piece.encode()
 
 
 @router.post(
@@ -109,6 +118,7 @@ async def import_samples(state: State, campaign_id: CampaignId, request: Request
         )
     declared = request.headers.get("content-length")
     require_space(state, int(declared) if declared else MAX_IMPORT_BYTES, "import")
+    state.per_minute["import"].take(request)  # 429 beyond [requests] imports_per_min
     chunks = [chunk async for chunk in request.stream()]  # the request guard bounds the size
     raw = b"".join(chunks)
     require_space(state, len(raw), "import")

@@ -35,7 +35,6 @@ from daemon.api.http.offload import offload
 from daemon.api.routes.robots.robots import model_maker
 from daemon.api.text_rules import not_portable_file_name
 from daemon.process.workers import run_in_child
-from daemon.store import NO_CALIBRATION, StoreNotFound
 
 router = APIRouter(tags=["apply"], responses=error_responses(401, 404, 409, 413, 422, 429, 503))
 
@@ -190,10 +189,9 @@ def _filter(
     outputs and errors only) and its summary, naming the robot and the calibration
     (``about``) and the outputs' digest. 422 when no file could be read (every problem
     named); a bad file among good ones is named in the summary's ``errors``."""
-    from calib.programs.krl.filter import is_config_dat
-
     from calib.filter.correct import calibration_from_result
     from calib.filter.run import FilterRun, filter_files
+    from calib.programs.krl.filter import is_config_dat
     from calib.programs.sites import FilterInputError, parse_frames_toml
 
     try:
@@ -231,9 +229,8 @@ def _file_notes(row: Mapping[str, Any], about: Mapping[str, Any]) -> dict[str, A
     """Per file of the summary: its format's ``maker``, a ``warning`` when that is not the
     robot's maker (``about["robot_maker"]``; also when the robot's maker is not known), and
     ``read_only`` for ``$config.dat``."""
-    from calib.programs.krl.filter import is_config_dat
-
     from calib.programs.formats import MAKER, TITLE
+    from calib.programs.krl.filter import is_config_dat
 
     maker = MAKER.get(row["dialect"])
     robot_maker = about.get("robot_maker")
@@ -323,15 +320,12 @@ async def filter_programs(
     ``read_only``); a second one is refused naming both (two controller backups). Each
     ``files`` row names its format's ``maker`` and a ``warning`` when that is not the robot's
     maker (``robot_maker``: the model's ``[controller] maker`` or the library's ``# maker:``)."""
-    state.store.robot_model(robot_id)  # 404 for an unknown robot before the body is read
-    try:
-        state.store.accepted_result(robot_id)
-    except StoreNotFound as exc:
-        if exc.reason == NO_CALIBRATION:
-            raise HTTPException(
-                409, f"robot {robot_id}: no current calibration; accept an identification first"
-            ) from None
-        raise
+    # Before the body is read, and cheap (one row, nothing decoded: it runs on the event loop
+    # for every request, a flood's too): 404 for an unknown robot, 409 without a calibration.
+    if state.store.current_job_id(robot_id) is None:
+        raise HTTPException(
+            409, f"robot {robot_id}: no current calibration; accept an identification first"
+        )
     parts = await read_form(
         request.stream(),
         request.headers.get("content-type", ""),
@@ -374,6 +368,7 @@ async def filter_programs(
         request,
         state.gates["filter"],
         lambda: run_in_child(_filter, *args, nice=nice, blas_threads=blas),
+        time_limit_s=state.settings.requests.filter_timeout_s,
     )
     if dry_run:
         return summary
