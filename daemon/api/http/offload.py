@@ -9,7 +9,8 @@ CSV import or export, a compensation) runs elsewhere, through a :class:`WorkGate
   and one that waited ``queue_timeout_s`` in the queue a 503 with ``Retry-After``. After
   shutdown began a request is a 503.
 - **Off the loop**: a filter runs in a process of its own
-  (:func:`daemon.process.workers.run_in_child`, lower priority, no shared GIL, its memory returned when it ends); the rest in a thread.
+  (:func:`daemon.process.workers.run_in_child`, lower priority, no shared GIL, its memory
+  returned when it ends); the rest in a thread.
 - **Dropped when the client leaves**: :func:`offload` watches the connection while the work
   waits or runs; a client that disconnects stops a queued request, and kills a process.
 
