@@ -84,7 +84,7 @@ def test_poses_over_the_range_are_not_capturable_and_the_next_plan_avoids_them(
                 assert f"{len(short)} not capturable" in summary, summary
                 rows = page.locator("#plan-poses tbody tr")
                 cells = rows.nth(short[0] - 1).inner_text()
-                assert "not capturable: over_range" in cells, cells
+                assert "not capturable: over range: the indicator" in cells, cells
                 assert log.page_errors == [] and log.console_errors == [], log
 
         # planned again on top of the samples: the offset is known, every reading in range
