@@ -149,7 +149,13 @@ def test_a_robot_is_a_physical_robot_on_the_page(cell: Cell, tmp_path: Path) -> 
         page.wait_for_function(
             "document.getElementById('campaign-title').textContent.endsWith(': walk3 second arm')"
         )
-        assert row.get_attribute("aria-selected") == "true"
+        # the list redraws after the title: wait for the selected row (fails if never selected)
+        page.wait_for_function(
+            "[...document.querySelectorAll('#campaign-list tbody tr')].some(r =>"
+            " r.textContent.includes('walk3 second arm')"
+            " && r.getAttribute('aria-selected') === 'true')",
+            timeout=10000,
+        )
         assert _axe_serious(page) == []
         assert not log.page_errors, log.page_errors
     # long names at 800 and 390 px: no sideways scroll, axe clean
