@@ -59,8 +59,8 @@ def choose_nearest(sol: Solutions, near_deg: FloatArray) -> np.ndarray:
     n = sol.valid.shape[0]
     ranges = np.broadcast_to(OPEN_RANGES_DEG, (n, 1, 6, 2))
     zero = np.zeros((n, 1), dtype=int)
-    not_ignored = np.zeros(n, dtype=bool)
-    idx, _ = _choose(sol, ranges, np.asarray(near_deg, dtype=float), [zero] * 3, None, not_ignored)
+    ignored = np.zeros(n, dtype=bool)  # UR: no configuration field, none ignored
+    idx, _ = _choose(sol, ranges, np.asarray(near_deg, dtype=float), [zero] * 3, None, ignored)
     return idx
 
 
